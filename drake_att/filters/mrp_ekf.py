@@ -1,0 +1,569 @@
+"""Additive extended Kalman filter on modified Rodrigues parameters (paper S0, gyro mode).
+
+State ``x = [rho; b]``: ``rho`` (3, dimensionless) is the MRP of ``q_IB`` (body to
+inertial, ``v_I = R(q_IB) v_B``) and ``b`` (3, rad/s) the gyro bias. Models (S0):
+
+* kinematics ``rho_dot = B(rho) w``, ``B(rho) = 1/4 [(1 - rho'rho) I + 2 [rho x] + 2 rho rho']``
+  with ``w = w_IB_B`` (rad/s);
+* gyro (Farrenkopf) ``w_meas = w + b + v_g``, ``b_dot = v_b``, ``v_g`` white with ARW
+  density ``sigma_v`` (rad/s^0.5), ``v_b`` white with RRW density ``sigma_u`` (rad/s^1.5);
+* vector measurements ``y = [R_BI u_1; ...; R_BI u_m] + v``, ``R_BI = R(q_IB)'``
+  (the paper's attitude matrix ``A``), ``v ~ N(0, sigma^2 I_3m)`` (sigma in rad).
+
+Discretization choices (documented here once, used by :class:`MrpEkf` and by the
+batched helpers that :mod:`drake_att.filters.particle` reuses for the EKPF):
+
+* **Mean**: exact for a constant rate over the step. ``rho`` is converted to its
+  quaternion (either MRP set gives ``+q`` or ``-q``), advanced with the closed form
+  ``q ⊗ exp(w dt / 2)`` (:func:`drake_att.rotations.quat_propagate`), and converted back
+  to the MRP *of the same sign of q*, i.e. the MRP the continuous ODE would reach (no
+  silent switch), so that the mean and the covariance stay in one chart. The bias is
+  constant.
+* **Transition matrix**: ``Phi = I + F dt + (F dt)^2 / 2 + (F dt)^3 / 6`` with the
+  analytic Jacobian ``F`` evaluated at the start of the step (truncated matrix
+  exponential; ``|F dt|`` is ~``|w| dt`` which is far below 1 for spacecraft rates).
+* **Process noise**: ``Q_c = diag(sigma_v^2 I, sigma_u^2 I)`` enters through
+  ``G = [-B(rho) 0; 0 I]``; with ``Qg = G Q_c G'`` the discrete covariance is the
+  second-order expansion of ``int_0^dt Phi(s) Qg Phi(s)' ds``:
+  ``Qd = Qg dt + (F Qg + Qg F') dt^2 / 2 + F Qg F' dt^3 / 3`` (this contains the classic
+  ``sigma_u^2 dt^3 / 3`` attitude term and ``-sigma_u^2 dt^2 / 2`` cross term).
+* **Update**: analytic Jacobian ``dh/drho = [(R_BI u) x] B(rho)^-1``,
+  ``B^-1 = 16 / (1 + rho'rho)^2 B'``; Joseph-form covariance.
+* **Shadow switch**: after each predict and each update, if ``|rho| > 1`` the state is
+  mapped to ``-rho / |rho|^2`` and the covariance with the Jacobian
+  ``d(-rho/|rho|^2)/drho = (2 rho rho' - |rho|^2 I) / |rho|^4``. Thus ``|rho| <= 1``
+  always holds between calls and a 170 deg error (``|rho| = tan(42.5 deg) = 0.92``) is
+  representable.
+
+Everything here is plain numpy (no Drake). All helpers accept a leading batch
+dimension so that particle filters can run one EKF per particle without a Python loop.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from drake_att.rotations import (
+    mrp_kinematics_matrix,
+    mrp_to_quat,
+    mrp_to_rotmat,
+    quat_error_rotvec,
+    quat_propagate,
+    quat_to_mrp,
+    skew,
+)
+
+__all__ = [
+    "MrpEkf",
+    "mrp_rate_jacobian",
+    "mrp_dynamics_jacobian",
+    "mrp_kinematics_inverse",
+    "mrp_shadow_jacobian",
+    "propagate_mrp",
+    "vector_measurement_model",
+    "vector_measurement_jacobian",
+    "discrete_transition_matrix",
+    "discrete_process_noise",
+    "ekf_predict",
+    "ekf_update",
+    "switch_to_short_mrp",
+    "attitude_to_mrp_covariance",
+    "mrp_to_attitude_covariance",
+]
+
+
+# ----------------------------------------------------------------------------------
+# Validation helpers (shared with particle.py)
+# ----------------------------------------------------------------------------------
+def _fmt(value) -> str:
+    return np.array2string(np.asarray(value), precision=10, threshold=12)
+
+
+def check_positive_scalar(value, name: str, allow_zero: bool = False) -> float:
+    """Return ``value`` as float if it is finite and > 0 (>= 0 if ``allow_zero``)."""
+    bound = ">= 0" if allow_zero else "> 0"
+    try:
+        val = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a finite real number {bound}; got {name}={value!r}") \
+            from exc
+    if not np.isfinite(val) or val < 0.0 or (val == 0.0 and not allow_zero):
+        raise ValueError(f"{name} must be a finite real number {bound}; got {name}={val!r}")
+    return val
+
+
+def check_int(value, name: str, minimum: int) -> int:
+    """Return ``value`` as int if it is an integer >= ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}; got {name}={value!r}")
+    return int(value)
+
+
+def check_array(value, name: str, shape: tuple, what: str = "") -> np.ndarray:
+    """Return ``value`` as a finite float array of exactly ``shape``."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a finite real array of shape {shape}{what}; "
+                         f"got {name}={value!r}") from exc
+    if arr.shape != tuple(shape):
+        raise ValueError(f"{name} must have shape {shape}{what}; got shape {arr.shape}: "
+                         f"{name}={_fmt(arr)}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (allowed range: finite reals){what}; "
+                         f"got {name}={_fmt(arr)}")
+    return arr
+
+
+def check_quaternion(value, name: str) -> np.ndarray:
+    """Return a unit quaternion ``[w, x, y, z]`` from ``value`` (finite, non-zero)."""
+    q = check_array(value, name, (4,), " ([w, x, y, z])")
+    n = np.linalg.norm(q)
+    if not n > 1e-12:
+        raise ValueError(f"{name} must be a non-zero quaternion (allowed: |q| > 0); "
+                         f"got {name}={_fmt(q)}")
+    return q / n
+
+
+def check_covariance(value, name: str, n: int) -> np.ndarray:
+    """Return a symmetric positive-definite ``(n, n)`` covariance."""
+    P = check_array(value, name, (n, n))
+    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-300 + 1e-12 * np.max(np.abs(P))):
+        raise ValueError(f"{name} must be symmetric; got {name}={_fmt(P)}")
+    P = 0.5 * (P + P.T)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError as exc:
+        eig = np.linalg.eigvalsh(P)
+        raise ValueError(f"{name} must be positive definite (allowed: all eigenvalues > 0); "
+                         f"got eigenvalues {_fmt(eig)}") from exc
+    return P
+
+
+def check_reference_vectors(value, name: str = "ref_vectors_I") -> np.ndarray:
+    """Return ``(m, 3)`` finite non-zero reference directions (inertial frame)."""
+    try:
+        U = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a finite real array of shape (m, 3), m >= 1; "
+                         f"got {name}={value!r}") from exc
+    if U.ndim != 2 or U.shape[1] != 3 or U.shape[0] < 1:
+        raise ValueError(f"{name} must have shape (m, 3) with m >= 1; got shape {U.shape}")
+    if not np.all(np.isfinite(U)):
+        raise ValueError(f"{name} must be finite; got {name}={_fmt(U)}")
+    if np.any(np.linalg.norm(U, axis=1) <= 0.0):
+        raise ValueError(f"{name} rows must be non-zero directions; got {name}={_fmt(U)}")
+    return U
+
+
+def measurement_is_valid(y, m: int) -> np.ndarray | None:
+    """Return ``y`` as a ``(3m,)`` float array, or None if missing / non-finite.
+
+    A wrong *shape* is a programming error and raises ValueError; a missing (None) or
+    non-finite measurement is a data problem and returns None (the caller skips it).
+    """
+    if y is None:
+        return None
+    try:
+        arr = np.array(y, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if arr.shape != (3 * m,):
+        raise ValueError(f"y must have shape ({3 * m},) (3 components per reference "
+                         f"vector, {m} vectors); got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        return None
+    return arr
+
+
+# ----------------------------------------------------------------------------------
+# Model functions and Jacobians (batched over leading dimensions)
+# ----------------------------------------------------------------------------------
+def mrp_rate_jacobian(rho, w) -> np.ndarray:
+    """Jacobian ``d(B(rho) w)/d rho`` of the MRP kinematics at fixed rate.
+
+    ``B(rho) w = 1/4 [(1 - rho'rho) w + 2 rho x w + 2 rho (rho'w)]``, hence
+    ``d/drho = 1/2 [rho w' - w rho' - [w x] + (rho'w) I]``.
+
+    Args:
+        rho: MRP(s), shape ``(..., 3)`` (dimensionless).
+        w: Body rate(s) ``w_IB_B``, shape ``(..., 3)`` (rad/s).
+
+    Returns:
+        ``(..., 3, 3)`` Jacobian (1/s).
+    """
+    rho = np.asarray(rho, dtype=float)
+    w = np.asarray(w, dtype=float)
+    rw = np.sum(rho * w, axis=-1)[..., None, None]
+    eye = np.eye(3)
+    return 0.5 * (rho[..., :, None] * w[..., None, :] - w[..., :, None] * rho[..., None, :]
+                  - skew(w) + rw * eye)
+
+
+def mrp_dynamics_jacobian(x, w_meas) -> np.ndarray:
+    """Jacobian ``F = d(x_dot)/dx`` of the gyro-mode model ``x = [rho; b]``.
+
+    ``x_dot = [B(rho) (w_meas - b); 0]`` so
+    ``F = [[d(B w)/drho, -B(rho)], [0, 0]]`` with ``w = w_meas - b``.
+
+    Args:
+        x: State(s) ``[rho; b]``, shape ``(..., 6)`` (-, rad/s).
+        w_meas: Measured rate(s), shape ``(..., 3)`` or ``(3,)`` (rad/s).
+
+    Returns:
+        ``(..., 6, 6)`` Jacobian (1/s in the rho rows).
+    """
+    x = np.asarray(x, dtype=float)
+    rho, b = x[..., :3], x[..., 3:]
+    w = np.asarray(w_meas, dtype=float) - b
+    F = np.zeros(x.shape[:-1] + (6, 6))
+    F[..., :3, :3] = mrp_rate_jacobian(rho, w)
+    F[..., :3, 3:] = -mrp_kinematics_matrix(rho)
+    return F
+
+
+def mrp_kinematics_inverse(rho) -> np.ndarray:
+    """``B(rho)^-1 = 16 / (1 + rho'rho)^2 B(rho)'`` (maps ``drho`` to body angle, rad).
+
+    ``B`` is ``(1 + rho'rho)/4`` times an orthogonal matrix, so the inverse is exact.
+    """
+    rho = np.asarray(rho, dtype=float)
+    n2 = np.sum(rho * rho, axis=-1)[..., None, None]
+    return 16.0 / (1.0 + n2) ** 2 * np.swapaxes(mrp_kinematics_matrix(rho), -1, -2)
+
+
+def mrp_shadow_jacobian(rho) -> np.ndarray:
+    """Jacobian of the shadow map ``s(rho) = -rho / |rho|^2``.
+
+    ``ds/drho = (2 rho rho' - |rho|^2 I) / |rho|^4`` (a scaled reflection; at
+    ``|rho| = 1`` it is the Householder-like ``2 rho rho' - I``).
+    """
+    rho = np.asarray(rho, dtype=float)
+    n2 = np.sum(rho * rho, axis=-1)[..., None, None]
+    return (2.0 * rho[..., :, None] * rho[..., None, :] - n2 * np.eye(3)) / n2 ** 2
+
+
+def propagate_mrp(rho, w, dt: float) -> np.ndarray:
+    """MRP after a step of constant body rate ``w`` (rad/s) over ``dt`` (s), same chart.
+
+    Closed form through the quaternion: ``q = q(rho)``, ``q+ = q ⊗ exp(w dt / 2)``,
+    ``rho+ = q+_vec / (1 + q+_w)`` *without* canonicalizing the sign of ``q+``, so the
+    result is the MRP reached by integrating ``rho_dot = B(rho) w`` (it may have
+    ``|rho+| > 1``; callers apply :func:`switch_to_short_mrp`).
+    """
+    q = quat_propagate(mrp_to_quat(rho), w, dt)
+    return q[..., 1:] / (1.0 + q[..., :1])
+
+
+def vector_measurement_model(rho, ref_vectors_I) -> np.ndarray:
+    """``h(rho) = [R_BI u_1; ...; R_BI u_m]`` with ``R_BI = R(q_IB(rho))'``.
+
+    Args:
+        rho: MRP(s) of ``q_IB``, shape ``(..., 3)``.
+        ref_vectors_I: Reference directions in the inertial frame, shape ``(m, 3)``.
+
+    Returns:
+        ``(..., 3m)`` predicted body-frame vectors.
+    """
+    R_IB = mrp_to_rotmat(rho)
+    U = np.asarray(ref_vectors_I, dtype=float)
+    # (R_IB' u)_k = sum_j R_IB[j, k] u_j
+    hb = np.einsum("...jk,mj->...mk", R_IB, U)
+    return hb.reshape(hb.shape[:-2] + (3 * U.shape[0],))
+
+
+def vector_measurement_jacobian(rho, ref_vectors_I) -> np.ndarray:
+    """Jacobian ``dh/dx`` of :func:`vector_measurement_model` w.r.t. ``x = [rho; b]``.
+
+    A body-frame rotation ``dtheta`` gives ``R_BI -> exp(-[dtheta x]) R_BI``, so
+    ``d(R_BI u) = [(R_BI u) x] dtheta`` and ``dtheta = B(rho)^-1 drho``:
+    ``dh/drho = [(R_BI u) x] B(rho)^-1``; the bias columns are zero.
+
+    Returns:
+        ``(..., 3m, 6)``.
+    """
+    rho = np.asarray(rho, dtype=float)
+    U = np.asarray(ref_vectors_I, dtype=float)
+    m = U.shape[0]
+    hb = vector_measurement_model(rho, U).reshape(rho.shape[:-1] + (m, 3))
+    Binv = mrp_kinematics_inverse(rho)  # (..., 3, 3)
+    Hrho = skew(hb) @ Binv[..., None, :, :]  # (..., m, 3, 3)
+    H = np.zeros(rho.shape[:-1] + (3 * m, 6))
+    H[..., :3] = Hrho.reshape(rho.shape[:-1] + (3 * m, 3))
+    return H
+
+
+def discrete_transition_matrix(F, dt: float) -> np.ndarray:
+    """``Phi = I + F dt + (F dt)^2 / 2 + (F dt)^3 / 6`` (batched)."""
+    A = np.asarray(F, dtype=float) * dt
+    A2 = A @ A
+    return np.eye(A.shape[-1]) + A + 0.5 * A2 + (A2 @ A) / 6.0
+
+
+def discrete_process_noise(x, F, dt: float, sigma_v: float, sigma_u: float) -> np.ndarray:
+    """Discrete process noise of the gyro-mode model (see the module docstring).
+
+    ``Qg = G Q_c G'`` with ``G = [-B(rho) 0; 0 I]``, ``Q_c = diag(sigma_v^2 I, sigma_u^2 I)``;
+    ``Qd = Qg dt + (F Qg + Qg F') dt^2 / 2 + F Qg F' dt^3 / 3``.
+
+    Args:
+        x: State(s) ``(..., 6)``; only ``rho`` is used.
+        F: Jacobian(s) ``(..., 6, 6)`` from :func:`mrp_dynamics_jacobian`.
+        dt: Step (s).
+        sigma_v: ARW (rad/s^0.5).
+        sigma_u: RRW (rad/s^1.5).
+    """
+    x = np.asarray(x, dtype=float)
+    B = mrp_kinematics_matrix(x[..., :3])
+    Qg = np.zeros(x.shape[:-1] + (6, 6))
+    Qg[..., :3, :3] = sigma_v ** 2 * (B @ np.swapaxes(B, -1, -2))
+    Qg[..., 3:, 3:] = sigma_u ** 2 * np.eye(3)
+    FQ = F @ Qg
+    return (Qg * dt + (FQ + np.swapaxes(FQ, -1, -2)) * (0.5 * dt ** 2)
+            + (FQ @ np.swapaxes(F, -1, -2)) * (dt ** 3 / 3.0))
+
+
+def _sym(P):
+    return 0.5 * (P + np.swapaxes(P, -1, -2))
+
+
+def switch_to_short_mrp(x, P=None):
+    """Map states with ``|rho| > 1`` to the shadow set (covariance with its Jacobian).
+
+    Args:
+        x: States ``(..., 6)`` (or ``(..., 3)`` MRPs if ``P`` is None).
+        P: Covariances ``(..., 6, 6)`` or None.
+
+    Returns:
+        ``(x, P, switched)`` with new arrays (inputs are not modified) and the boolean
+        mask ``switched`` of shape ``x.shape[:-1]``.
+    """
+    x = np.array(x, dtype=float)
+    rho = x[..., :3]
+    n2 = np.sum(rho * rho, axis=-1)
+    switched = n2 > 1.0
+    if not np.any(switched):
+        return x, (None if P is None else np.array(P, dtype=float)), switched
+    rho_s = rho[switched]
+    J = mrp_shadow_jacobian(rho_s)
+    x[switched, :3] = -rho_s / n2[switched][:, None]
+    if P is None:
+        return x, None, switched
+    P = np.array(P, dtype=float)
+    Ps = P[switched]
+    T = np.broadcast_to(np.eye(P.shape[-1]), Ps.shape).copy()
+    T[:, :3, :3] = J
+    P[switched] = _sym(T @ Ps @ np.swapaxes(T, -1, -2))
+    return x, P, switched
+
+
+def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
+    """Batched EKF time update of ``x = [rho; b]`` (see the module docstring).
+
+    Args:
+        x: ``(..., 6)`` states; P: ``(..., 6, 6)`` covariances.
+        w_meas: ``(3,)`` or ``(..., 3)`` measured rate (rad/s), held over the step.
+        dt: Step (s) > 0. sigma_v: ARW (rad/s^0.5). sigma_u: RRW (rad/s^1.5).
+
+    Returns:
+        ``(x_pred, P_pred)`` with ``|rho| <= 1`` (shadow switch applied).
+    """
+    x = np.asarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
+    w = np.asarray(w_meas, dtype=float) - x[..., 3:]
+    F = mrp_dynamics_jacobian(x, w_meas)
+    Phi = discrete_transition_matrix(F, dt)
+    Qd = discrete_process_noise(x, F, dt, sigma_v, sigma_u)
+    x_new = np.empty_like(x)
+    x_new[..., :3] = propagate_mrp(x[..., :3], w, dt)
+    x_new[..., 3:] = x[..., 3:]
+    P_new = _sym(Phi @ P @ np.swapaxes(Phi, -1, -2) + Qd)
+    x_new, P_new, _ = switch_to_short_mrp(x_new, P_new)
+    return x_new, P_new
+
+
+def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True):
+    """Batched EKF measurement update with Joseph-form covariance.
+
+    Args:
+        x: ``(..., 6)`` prior states; P: ``(..., 6, 6)`` prior covariances.
+        y: ``(3m,)`` measured body-frame vectors (or ``(..., 3m)``).
+        ref_vectors_I: ``(m, 3)`` inertial reference directions.
+        sigma: Measurement noise standard deviation per component (rad).
+        switch: Apply the shadow switch (with covariance mapping) to the result.
+
+    Returns:
+        ``(x_post, P_post, innovation, S)`` with innovation ``(..., 3m)`` and its
+        covariance ``S = H P H' + sigma^2 I`` ``(..., 3m, 3m)``.
+    """
+    x = np.asarray(x, dtype=float)
+    P = np.asarray(P, dtype=float)
+    U = np.asarray(ref_vectors_I, dtype=float)
+    n_meas = 3 * U.shape[0]
+    H = vector_measurement_jacobian(x[..., :3], U)
+    innovation = np.asarray(y, dtype=float) - vector_measurement_model(x[..., :3], U)
+    Ht = np.swapaxes(H, -1, -2)
+    PHt = P @ Ht
+    R = sigma ** 2 * np.eye(n_meas)
+    S = _sym(H @ PHt + R)
+    # K = P H' S^-1  ->  K' = S^-1 H P  (S symmetric)
+    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)
+    x_new = x + (K @ innovation[..., :, None])[..., 0]
+    IKH = np.eye(6) - K @ H
+    P_new = _sym(IKH @ P @ np.swapaxes(IKH, -1, -2) + (K * sigma ** 2) @ np.swapaxes(K, -1, -2))
+    if switch:
+        x_new, P_new, _ = switch_to_short_mrp(x_new, P_new)
+    return x_new, P_new, innovation, S
+
+
+def attitude_to_mrp_covariance(rho, P_att) -> np.ndarray:
+    """Map a covariance of ``[dtheta_B (rad); b (rad/s)]`` to ``[rho; b]`` at ``rho``.
+
+    ``drho = B(rho) dtheta`` (first order), ``dtheta`` the body-frame error
+    ``q_IB = q_IB_hat ⊗ exp(dtheta / 2)``.
+    """
+    T = np.zeros(np.shape(rho)[:-1] + (6, 6))
+    T[..., :3, :3] = mrp_kinematics_matrix(rho)
+    T[..., 3:, 3:] = np.eye(3)
+    return _sym(T @ P_att @ np.swapaxes(T, -1, -2))
+
+
+def mrp_to_attitude_covariance(rho, P) -> np.ndarray:
+    """Inverse of :func:`attitude_to_mrp_covariance`: ``[rho; b]`` -> ``[dtheta; b]``."""
+    T = np.zeros(np.shape(rho)[:-1] + (6, 6))
+    T[..., :3, :3] = mrp_kinematics_inverse(rho)
+    T[..., 3:, 3:] = np.eye(3)
+    return _sym(T @ P @ np.swapaxes(T, -1, -2))
+
+
+# ----------------------------------------------------------------------------------
+# Filter class
+# ----------------------------------------------------------------------------------
+class MrpEkf:
+    """Additive EKF on ``x = [rho; b]`` (paper S0 gyro mode), plain numpy.
+
+    Call :meth:`predict` once per gyro interval and :meth:`update` with each star-sensor
+    sample. Invalid (None / non-finite) gyro or star-sensor inputs are skipped and
+    counted in :attr:`n_skipped` (a missing gyro sample is replaced by the last valid one,
+    zero before the first).
+
+    Args:
+        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]`` (body to inertial).
+        bias_hat0: Initial gyro-bias estimate ``(3,)`` (rad/s).
+        covariance0: Initial covariance ``(6, 6)`` of ``[dtheta_B (rad); b (rad/s)]``
+            where ``q_IB = q_IB_hat ⊗ exp(dtheta_B / 2)``. It is mapped to MRP
+            coordinates with ``B(rho0)`` (see :func:`attitude_to_mrp_covariance`).
+        arw_sigma: Gyro angle random walk ``sigma_v`` (rad/s^0.5), > 0.
+            (A white-noise std ``s`` per sample of period ``T`` is ``s sqrt(T)``.)
+        rrw_sigma: Gyro rate random walk ``sigma_u`` (rad/s^1.5), >= 0.
+
+    Attributes:
+        x: Current state ``[rho; b]`` ``(6,)`` with ``|rho| <= 1``.
+        P: Current covariance ``(6, 6)`` in ``[rho; b]`` coordinates.
+        n_skipped: Number of skipped (missing / non-finite) inputs.
+        n_updates: Number of measurement updates applied.
+        last_innovation, last_innovation_covariance: From the last update (or None).
+    """
+
+    def __init__(self, q_IB_hat0, bias_hat0, covariance0, arw_sigma: float,
+                 rrw_sigma: float = 0.0):
+        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
+        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
+        P_att = check_covariance(covariance0, "covariance0", 6)
+        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
+        self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
+        rho0 = quat_to_mrp(q0)
+        self.x = np.concatenate([rho0, b0])
+        self.P = attitude_to_mrp_covariance(rho0, P_att)
+        self.n_skipped = 0
+        self.n_updates = 0
+        self.last_innovation = None
+        self.last_innovation_covariance = None
+        self._last_w_meas = np.zeros(3)
+
+    # -- time update -------------------------------------------------------------
+    def predict(self, dt: float, w_meas) -> None:
+        """Propagate over ``dt`` (s) with the measured rate ``w_meas`` (rad/s, (3,)).
+
+        ``w_meas`` is held constant over the step (use the interval-averaged gyro
+        output). None / non-finite ``w_meas`` is skipped (counted) and the last valid
+        rate is used.
+        """
+        dt = check_positive_scalar(dt, "dt")
+        w = _valid_rate(w_meas)
+        if w is None:
+            self.n_skipped += 1
+            w = self._last_w_meas
+        else:
+            self._last_w_meas = w
+        self.x, self.P = ekf_predict(self.x, self.P, w, dt, self.arw_sigma, self.rrw_sigma)
+
+    # -- measurement update ------------------------------------------------------
+    def update(self, y, ref_vectors_I, sigma: float) -> bool:
+        """Update with star-sensor vectors ``y`` ``(3m,)`` of ``ref_vectors_I`` ``(m, 3)``.
+
+        Args:
+            y: Measured body-frame unit vectors stacked, ``(3m,)``; None or non-finite
+                values skip the update (counted in :attr:`n_skipped`).
+            ref_vectors_I: Inertial reference directions ``(m, 3)``.
+            sigma: Noise standard deviation per component (rad), > 0.
+
+        Returns:
+            True if the update was applied, False if the measurement was skipped.
+        """
+        U = check_reference_vectors(ref_vectors_I)
+        sigma = check_positive_scalar(sigma, "sigma")
+        yv = measurement_is_valid(y, U.shape[0])
+        if yv is None:
+            self.n_skipped += 1
+            return False
+        self.x, self.P, innov, S = ekf_update(self.x, self.P, yv, U, sigma)
+        self.last_innovation = innov
+        self.last_innovation_covariance = S
+        self.n_updates += 1
+        return True
+
+    # -- outputs -----------------------------------------------------------------
+    @property
+    def rho(self) -> np.ndarray:
+        """MRP estimate ``(3,)`` of ``q_IB`` (``|rho| <= 1``)."""
+        return self.x[:3].copy()
+
+    @property
+    def q_IB_hat(self) -> np.ndarray:
+        """Attitude estimate ``[w, x, y, z]`` (scalar part >= 0)."""
+        return mrp_to_quat(self.x[:3])
+
+    @property
+    def bias_hat(self) -> np.ndarray:
+        """Gyro-bias estimate ``(3,)`` (rad/s)."""
+        return self.x[3:].copy()
+
+    def mean(self):
+        """Return ``(q_IB_hat (4,), bias_hat (3,) rad/s)`` (same shape as the PFs)."""
+        return self.q_IB_hat, self.bias_hat
+
+    def covariance(self) -> np.ndarray:
+        """Covariance ``(6, 6)`` of ``[dtheta_B (rad); b (rad/s)]`` (mapped from MRP)."""
+        return mrp_to_attitude_covariance(self.x[:3], self.P)
+
+    def attitude_error(self, q_IB_true) -> np.ndarray:
+        """Body-frame error ``dtheta_B = log(q_hat^-1 ⊗ q_true)`` (rad), for scoring."""
+        return quat_error_rotvec(self.q_IB_hat, q_IB_true)
+
+
+def _valid_rate(w_meas):
+    """Return a finite ``(3,)`` rate or None; wrong shapes raise ValueError."""
+    if w_meas is None:
+        return None
+    try:
+        w = np.array(w_meas, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if w.shape != (3,):
+        raise ValueError(f"w_meas must have shape (3,) (rad/s); got shape {w.shape}")
+    if not np.all(np.isfinite(w)):
+        return None
+    return w

@@ -1,0 +1,640 @@
+"""Particle filters for paper S0 (Zhang & Sun 2012), vectorized over particles, plain numpy.
+
+Three filters share one measurement model (star sensor, sensor frame = body frame)::
+
+    y = [R_BI u_1; ...; R_BI u_m] + v,   v ~ N(0, sigma^2 I_3m),   R_BI = R(q_IB)'
+
+and one output convention: :meth:`mean` returns ``(q_IB_hat, second_hat)`` with the
+attitude mean taken on the rotation group (Markley's weighted quaternion average,
+:func:`drake_att.filters.quaternion_average.average_quaternions`) and
+:meth:`covariance` returns the ``(6, 6)`` weighted second moment of
+``[dtheta_B; s - s_hat]`` about the reported estimate, where ``dtheta_B`` is the
+body-frame rotation vector of ``q_hat^-1 ⊗ q_i`` (the project's attitude-error
+definition) and ``s`` is the bias (gyro mode) or the body rate (gyroless mode).
+
+* :class:`BootstrapParticleFilter` — SIR in gyro mode, ``x = [rho; b]``; the proposal is
+  the transition prior, the bias is static (``b_{k+1} = b_k`` as in the paper) unless the
+  optional bias roughening is switched on.
+* :class:`ExtendedKalmanParticleFilter` — EKPF: every particle carries an MRP EKF
+  (:mod:`drake_att.filters.mrp_ekf`, batched); the EKF posterior is the proposal.
+* :class:`GyrolessParticleFilter` — SIR with ``x = [rho; w]`` propagated by Euler's
+  equations with known inertia and torque.
+
+Randomness: every draw comes from the ``rng`` (``numpy.random.Generator``) passed to the
+constructor (initial particle set) or to ``predict``/``update``; the same seed gives
+bit-identical results. Weights are kept in log space during an update, normalized with
+log-sum-exp, so they stay finite and sum to one even when every likelihood underflows.
+Missing or non-finite measurements (``y`` None / NaN, ``w_meas`` None / NaN) are skipped
+and counted in ``n_skipped``; for a missing gyro sample the last valid one is held.
+Resampling (systematic) happens when ``N_eff = 1 / sum(w^2) < resample_threshold * N``
+(paper: 2/3).
+
+Units: SI and radians (rad, rad/s, ARW rad/s^0.5, RRW / process noise rad/s^1.5).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drake_att.filters.mrp_ekf import (
+    _valid_rate,
+    attitude_to_mrp_covariance,
+    check_array,
+    check_covariance,
+    check_int,
+    check_positive_scalar,
+    check_quaternion,
+    check_reference_vectors,
+    ekf_predict,
+    ekf_update,
+    measurement_is_valid,
+    switch_to_short_mrp,
+    vector_measurement_model,
+)
+from drake_att.filters.quaternion_average import average_quaternions
+from drake_att.rotations import (
+    mrp_to_quat,
+    quat_error_rotvec,
+    quat_multiply,
+    quat_to_mrp,
+    rotvec_to_quat,
+)
+
+__all__ = [
+    "effective_sample_size",
+    "systematic_resample",
+    "normalize_log_weights",
+    "vector_log_likelihood",
+    "BootstrapParticleFilter",
+    "ExtendedKalmanParticleFilter",
+    "GyrolessParticleFilter",
+]
+
+
+# ----------------------------------------------------------------------------------
+# Weights and resampling
+# ----------------------------------------------------------------------------------
+def _check_rng(rng, name: str = "rng") -> np.random.Generator:
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"{name} must be a numpy.random.Generator "
+                         f"(e.g. numpy.random.default_rng(seed)); got {name}={rng!r}")
+    return rng
+
+
+def _check_weights(weights) -> np.ndarray:
+    try:
+        w = np.asarray(weights, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"weights must be a real array of shape (N,); got {weights!r}") from exc
+    if w.ndim != 1 or w.size < 1:
+        raise ValueError(f"weights must have shape (N,) with N >= 1; got shape {w.shape}")
+    bad = ~np.isfinite(w) | (w < 0.0)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"weights must be finite and >= 0; got weights[{i}]={w[i]!r}")
+    total = float(np.sum(w))
+    if not total > 0.0:
+        raise ValueError(f"weights must have a positive sum; got sum(weights)={total!r}")
+    return w / total
+
+
+def effective_sample_size(weights) -> float:
+    """``N_eff = 1 / sum(w_i^2)`` of the normalized weights (between 1 and N).
+
+    Args:
+        weights: ``(N,)`` non-negative weights (normalized internally).
+    """
+    w = _check_weights(weights)
+    return float(1.0 / np.sum(w * w))
+
+
+def systematic_resample(weights, rng: np.random.Generator) -> np.ndarray:
+    """Systematic resampling: indices of the ``N`` offspring (sorted, int64).
+
+    One uniform ``u ~ U[0, 1)`` gives the positions ``(u + j) / N``, ``j = 0..N-1``;
+    particle ``i`` gets ``floor`` or ``ceil`` of ``N w_i`` offspring and exactly
+    ``N w_i`` in expectation (unbiased), with the lowest variance of the standard schemes.
+
+    Args:
+        weights: ``(N,)`` non-negative weights (normalized internally).
+        rng: Random generator (one draw).
+
+    Returns:
+        ``(N,)`` integer indices into the particle set.
+    """
+    w = _check_weights(weights)
+    _check_rng(rng)
+    n = w.size
+    positions = (rng.random() + np.arange(n)) / n
+    cumulative = np.cumsum(w)
+    cumulative[-1] = 1.0  # guard against round-off: every position < 1 finds a bin
+    return np.searchsorted(cumulative, positions, side="right").astype(np.int64)
+
+
+def normalize_log_weights(log_weights) -> tuple[np.ndarray, np.ndarray]:
+    """Normalize log-weights with log-sum-exp.
+
+    Non-finite entries (NaN, +-inf) are treated as ``-inf`` (weight 0). If all entries
+    are ``-inf`` the weights are reset to uniform.
+
+    Returns:
+        ``(weights, log_weights)`` — normalized weights (finite, sum 1) and their logs.
+    """
+    lw = np.array(log_weights, dtype=float)
+    lw[~np.isfinite(lw)] = -np.inf
+    top = np.max(lw)
+    if not np.isfinite(top):
+        n = lw.size
+        return np.full(n, 1.0 / n), np.full(n, -np.log(n))
+    shifted = np.exp(lw - top)
+    total = np.sum(shifted)
+    w = shifted / total
+    return w, lw - (top + np.log(total))
+
+
+def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
+    """Gaussian log-likelihood (up to a common constant) of ``y`` per particle.
+
+    ``log p(y | rho_i) = -|y - h(rho_i)|^2 / (2 sigma^2)`` with
+    ``h(rho) = [R_BI u_1; ...]`` (see :func:`drake_att.filters.mrp_ekf.vector_measurement_model`).
+
+    Args:
+        rho: ``(N, 3)`` MRPs of ``q_IB``. y: ``(3m,)``. ref_vectors_I: ``(m, 3)``.
+        sigma: Noise std per component (rad).
+
+    Returns:
+        ``(N,)`` log-likelihoods (non-finite entries replaced by ``-inf``).
+    """
+    r = np.asarray(y, dtype=float) - vector_measurement_model(rho, ref_vectors_I)
+    ll = -0.5 * np.sum(r * r, axis=-1) / sigma ** 2
+    ll[~np.isfinite(ll)] = -np.inf
+    return ll
+
+
+# ----------------------------------------------------------------------------------
+# Shared machinery
+# ----------------------------------------------------------------------------------
+def _sample_initial_attitudes(num_particles, q0, s0, covariance0, rng):
+    """Draw ``q_i = q0 ⊗ exp(dtheta_i / 2)``, ``s_i = s0 + ds_i`` with ``[dtheta; ds] ~ N(0, P0)``.
+
+    Sampling on the rotation group (rather than additively in MRP space as the paper)
+    gives the same distribution to first order and stays exact for any attitude.
+    Returns ``(rho (N, 3), s (N, 3))`` with ``|rho| <= 1``.
+    """
+    L = np.linalg.cholesky(covariance0)
+    d = rng.standard_normal((num_particles, 6)) @ L.T
+    q = quat_multiply(q0, rotvec_to_quat(d[:, :3]))
+    return quat_to_mrp(q), s0 + d[:, 3:]
+
+
+def _robust_cholesky(P):
+    """Batched Cholesky; on failure repair by clipping eigenvalues (rarely needed)."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        vals, vecs = np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2)))
+        floor = 1e-12 * np.maximum(np.max(vals, axis=-1, keepdims=True), 1e-300)
+        vals = np.maximum(vals, floor)
+        return np.linalg.cholesky((vecs * vals[..., None, :]) @ np.swapaxes(vecs, -1, -2))
+
+
+class _ParticleFilterBase:
+    """Weights, resampling, skipped-measurement bookkeeping and outputs."""
+
+    #: Name of the second 3-vector of the state (for messages).
+    _second_name = "bias"
+
+    def __init__(self, num_particles, resample_threshold):
+        self.num_particles = check_int(num_particles, "num_particles", 1)
+        thr = check_positive_scalar(resample_threshold, "resample_threshold", allow_zero=True)
+        if thr > 1.0:
+            raise ValueError("resample_threshold must be in [0, 1] (fraction of N; paper 2/3); "
+                             f"got resample_threshold={thr!r}")
+        self.resample_threshold = thr
+        n = self.num_particles
+        self.weights = np.full(n, 1.0 / n)
+        self.log_weights = np.full(n, -np.log(n))
+        self.n_skipped = 0
+        self.n_updates = 0
+        self.n_resamples = 0
+        self.n_degenerate = 0
+        self.last_effective_sample_size = float(n)
+        self._last_w_meas = np.zeros(3)
+
+    # -- helpers -------------------------------------------------------------------
+    def _measurement(self, y, ref_vectors_I, sigma):
+        U = check_reference_vectors(ref_vectors_I)
+        sigma = check_positive_scalar(sigma, "sigma")
+        return measurement_is_valid(y, U.shape[0]), U, sigma
+
+    def _gyro(self, w_meas):
+        w = _valid_rate(w_meas)
+        if w is None:
+            self.n_skipped += 1
+            return self._last_w_meas
+        self._last_w_meas = w
+        return w
+
+    def _reweight(self, log_increment) -> None:
+        lw = self.log_weights + log_increment
+        if not np.any(np.isfinite(lw)):
+            self.n_degenerate += 1
+        self.weights, self.log_weights = normalize_log_weights(lw)
+        self.last_effective_sample_size = float(1.0 / np.sum(self.weights ** 2))
+
+    def _maybe_resample(self, rng) -> bool:
+        n = self.num_particles
+        if self.last_effective_sample_size >= self.resample_threshold * n:
+            return False
+        idx = systematic_resample(self.weights, rng)
+        self._take(idx)
+        self.weights = np.full(n, 1.0 / n)
+        self.log_weights = np.full(n, -np.log(n))
+        self.n_resamples += 1
+        return True
+
+    def _take(self, idx) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def effective_sample_size(self) -> float:
+        """Current ``N_eff = 1 / sum(w^2)``."""
+        return float(1.0 / np.sum(self.weights ** 2))
+
+    # -- outputs -------------------------------------------------------------------
+    def _rho_and_second(self):  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def particle_quaternions(self) -> np.ndarray:
+        """``(N, 4)`` particle attitudes ``q_IB`` (scalar part >= 0)."""
+        return mrp_to_quat(self._rho_and_second()[0])
+
+    def mean(self):
+        """Weighted posterior mean ``(q_IB_hat (4,), s_hat (3,))``.
+
+        The attitude is Markley's weighted quaternion average (largest eigenvector of
+        ``sum w_i q_i q_i'``, invariant to the sign of each ``q_i``); the second block
+        (bias or rate, rad/s) is the weighted arithmetic mean.
+        """
+        rho, s = self._rho_and_second()
+        q_hat = average_quaternions(mrp_to_quat(rho), self.weights)
+        return q_hat, self.weights @ s
+
+    def covariance(self) -> np.ndarray:
+        """``(6, 6)`` weighted covariance of ``[dtheta_B (rad); s - s_hat (rad/s)]``.
+
+        ``dtheta_B,i = log(q_hat^-1 ⊗ q_i)`` relative to the reported mean ``q_hat`` (so
+        this is the particle approximation of the estimate's error covariance).
+        """
+        rho, s = self._rho_and_second()
+        q = mrp_to_quat(rho)
+        q_hat = average_quaternions(q, self.weights)
+        e = np.empty((self.num_particles, 6))
+        e[:, :3] = quat_error_rotvec(q_hat, q)
+        e[:, 3:] = s - self.weights @ s
+        C = (e * self.weights[:, None]).T @ e
+        return 0.5 * (C + C.T)
+
+
+# ----------------------------------------------------------------------------------
+# Bootstrap (SIR) particle filter, gyro mode
+# ----------------------------------------------------------------------------------
+class BootstrapParticleFilter(_ParticleFilterBase):
+    """Bootstrap / SIR particle filter on ``x = [rho; b]`` (paper S0, gyro mode).
+
+    Prediction per particle ``i`` (batched)::
+
+        w_i   = w_meas - b_i - n_i,          n_i ~ N(0, arw_sigma^2 / dt I)
+        q_i  <- q_i ⊗ exp(w_i dt / 2)          (closed form, exact for constant rate)
+        rho_i = MRP(q_i) with |rho_i| <= 1     (shadow switch)
+        b_i  <- b_i [+ N(0, bias_roughening_sigma^2 dt I)]
+
+    With ``bias_roughening_sigma = 0`` (default) the bias is static, exactly as in the
+    paper; resampling then collapses the bias cloud and the bias estimate cannot
+    converge (the paper's Fig. 2 finding). A positive value is a random-walk roughening
+    of the bias (the "beyond the paper" remedy); setting it to the true RRW ``sigma_u``
+    is the model-consistent SIR, larger values trade bias noise for diversity.
+
+    Update: ``log w_i += -|y - h(rho_i)|^2 / (2 sigma^2)``, log-sum-exp normalization,
+    systematic resampling when ``N_eff < resample_threshold * N``.
+
+    Args:
+        num_particles: ``N >= 1``.
+        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]``.
+        bias_hat0: Initial bias estimate ``(3,)`` (rad/s).
+        covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); b (rad/s)]`` used to draw
+            the initial set: ``q_i = q0 ⊗ exp(dtheta_i / 2)``, ``b_i = b0 + db_i``.
+        arw_sigma: Gyro ARW ``sigma_v`` (rad/s^0.5) used for the attitude process noise,
+            >= 0 (0 means a deterministic attitude propagation).
+        rng: Generator for the initial draw.
+        bias_roughening_sigma: Bias random-walk density (rad/s per sqrt(s) = rad/s^1.5),
+            >= 0; default 0 (paper).
+        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3 (paper).
+
+    Attributes:
+        particles: ``(N, 6)`` ``[rho; b]``. weights: ``(N,)`` normalized weights.
+        n_skipped, n_updates, n_resamples, last_effective_sample_size.
+    """
+
+    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
+                 arw_sigma: float, rng: np.random.Generator, *,
+                 bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0):
+        super().__init__(num_particles, resample_threshold)
+        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
+        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
+        P0 = check_covariance(covariance0, "covariance0", 6)
+        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma", allow_zero=True)
+        self.bias_roughening_sigma = check_positive_scalar(
+            bias_roughening_sigma, "bias_roughening_sigma", allow_zero=True)
+        _check_rng(rng)
+        rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
+        self.particles = np.concatenate([rho, b], axis=1)
+
+    def _rho_and_second(self):
+        return self.particles[:, :3], self.particles[:, 3:]
+
+    def _take(self, idx):
+        self.particles = self.particles[idx]
+
+    def predict(self, dt: float, w_meas, rng: np.random.Generator) -> None:
+        """Propagate every particle over ``dt`` (s) with gyro rate ``w_meas`` (rad/s).
+
+        Args:
+            dt: Step (s), > 0.
+            w_meas: Measured body rate ``(3,)`` (rad/s), held over the step. None or
+                non-finite: skipped (counted) and the last valid rate is used.
+            rng: Generator for the ARW samples (and the bias roughening).
+        """
+        dt = check_positive_scalar(dt, "dt")
+        _check_rng(rng)
+        w_meas = self._gyro(w_meas)
+        n = self.num_particles
+        w = w_meas - self.particles[:, 3:]
+        if self.arw_sigma > 0.0:
+            w = w - rng.standard_normal((n, 3)) * (self.arw_sigma / np.sqrt(dt))
+        q = quat_multiply(mrp_to_quat(self.particles[:, :3]), rotvec_to_quat(w * dt))
+        self.particles[:, :3] = quat_to_mrp(q)
+        if self.bias_roughening_sigma > 0.0:
+            self.particles[:, 3:] += rng.standard_normal((n, 3)) * (
+                self.bias_roughening_sigma * np.sqrt(dt))
+
+    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
+        """Weight by the star-sensor likelihood and resample if ``N_eff`` is low.
+
+        Args:
+            y: ``(3m,)`` measured body-frame vectors; None / non-finite: skipped.
+            ref_vectors_I: ``(m, 3)`` inertial reference directions.
+            sigma: Noise std per component (rad), > 0.
+            rng: Generator for resampling.
+
+        Returns:
+            True if the measurement was used, False if skipped.
+        """
+        _check_rng(rng)
+        yv, U, sigma = self._measurement(y, ref_vectors_I, sigma)
+        if yv is None:
+            self.n_skipped += 1
+            return False
+        self._reweight(vector_log_likelihood(self.particles[:, :3], yv, U, sigma))
+        self.n_updates += 1
+        self._maybe_resample(rng)
+        return True
+
+
+# ----------------------------------------------------------------------------------
+# Extended Kalman particle filter, gyro mode
+# ----------------------------------------------------------------------------------
+class ExtendedKalmanParticleFilter(_ParticleFilterBase):
+    """Extended-Kalman particle filter (EKPF, van der Merwe et al. 2000) on ``[rho; b]``.
+
+    Each particle ``i`` is a point ``x_i`` with an EKF covariance ``P_i`` (MRP chart of
+    ``x_i``). One cycle, batched over particles with ``(N, 6, 6)`` arrays:
+
+    1. :meth:`predict`: the particle's EKF time update (:func:`~drake_att.filters.mrp_ekf.ekf_predict`)
+       gives ``(m_i^-, P_i^-)``; the particle is moved to ``m_i^-``.
+    2. :meth:`update`: the EKF update with the current measurement gives the proposal
+       ``q_i = N(m_i^+, P_i^+)``; draw ``x_i ~ q_i`` and set
+       ``log w_i += log p(y | x_i) + log pi(x_i) - log q_i(x_i)``; then ``P_i = P_i^+``,
+       shadow switch (with covariance mapping) and resampling (means and covariances
+       are copied).
+
+    **Prior approximation.** The exact transition density ``p(x_k | x_{k-1})`` has
+    covariance ``Qd``, whose bias block is ``sigma_u^2 dt`` (~1e-18 rad^2/s^2 for S0):
+    any proposal draw of the bias would get a vanishing prior and the weights would
+    degenerate at the first step. We use the particle's *predicted EKF Gaussian*
+    ``pi = N(m_i^-, P_i^-)`` instead (each particle is treated as a Gaussian component,
+    as in a Gaussian-sum filter). In the linear-Gaussian limit the weight increment is
+    then exactly the predictive likelihood ``N(y; h(m_i^-), H P_i^- H' + R)`` for every
+    draw; with the nonlinear measurement it also rewards draws that fit ``y``.
+    All three densities are evaluated in the same MRP chart (that of ``m_i^-``).
+
+    Without a measurement (skipped) the particles stay at their predicted means with
+    their predicted covariances (no draw).
+
+    Args:
+        num_particles: ``N >= 1``.
+        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]``.
+        bias_hat0: Initial bias estimate ``(3,)`` (rad/s).
+        covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); b (rad/s)]``: used to
+            draw the particles and, mapped into each particle's MRP chart, as every
+            particle's initial EKF covariance.
+        arw_sigma: Gyro ARW ``sigma_v`` (rad/s^0.5), > 0.
+        rrw_sigma: Gyro RRW ``sigma_u`` (rad/s^1.5), >= 0.
+        rng: Generator for the initial draw.
+        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
+
+    Attributes:
+        particles: ``(N, 6)`` ``[rho; b]``. covariances: ``(N, 6, 6)`` (MRP chart).
+        weights, n_skipped, n_updates, n_resamples, last_effective_sample_size.
+    """
+
+    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
+                 arw_sigma: float, rrw_sigma: float, rng: np.random.Generator, *,
+                 resample_threshold: float = 2.0 / 3.0):
+        super().__init__(num_particles, resample_threshold)
+        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
+        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
+        P0 = check_covariance(covariance0, "covariance0", 6)
+        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
+        self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
+        _check_rng(rng)
+        rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
+        self.particles = np.concatenate([rho, b], axis=1)
+        self.covariances = attitude_to_mrp_covariance(rho, P0)
+
+    def _rho_and_second(self):
+        return self.particles[:, :3], self.particles[:, 3:]
+
+    def _take(self, idx):
+        self.particles = self.particles[idx]
+        self.covariances = self.covariances[idx]
+
+    def predict(self, dt: float, w_meas, rng: np.random.Generator | None = None) -> None:
+        """EKF time update of every particle (deterministic; ``rng`` is not used).
+
+        Args:
+            dt: Step (s), > 0.
+            w_meas: Measured body rate ``(3,)`` (rad/s); None / non-finite: skipped
+                (counted) and the last valid rate is held.
+            rng: Accepted for a uniform interface with the other filters; unused.
+        """
+        dt = check_positive_scalar(dt, "dt")
+        if rng is not None:
+            _check_rng(rng)
+        w_meas = self._gyro(w_meas)
+        self.particles, self.covariances = ekf_predict(
+            self.particles, self.covariances, w_meas, dt, self.arw_sigma, self.rrw_sigma)
+
+    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
+        """Per-particle EKF update as proposal, draw, weight, resample.
+
+        Args:
+            y: ``(3m,)`` measured body-frame vectors; None / non-finite: skipped.
+            ref_vectors_I: ``(m, 3)`` inertial reference directions.
+            sigma: Noise std per component (rad), > 0.
+            rng: Generator for the proposal draws and resampling.
+
+        Returns:
+            True if the measurement was used, False if skipped.
+        """
+        _check_rng(rng)
+        yv, U, sigma = self._measurement(y, ref_vectors_I, sigma)
+        if yv is None:
+            self.n_skipped += 1
+            return False
+        n = self.num_particles
+        m_prior, P_prior = self.particles, self.covariances
+        m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False)
+        # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
+        L_post = _robust_cholesky(P_post)
+        eps = rng.standard_normal((n, 6))
+        x = m_post + (L_post @ eps[:, :, None])[:, :, 0]
+        log_q = -0.5 * np.sum(eps * eps, axis=1) - np.sum(
+            np.log(np.diagonal(L_post, axis1=1, axis2=2)), axis=1)
+        # Prior pi = N(m-, P-) (see the class docstring).
+        L_prior = _robust_cholesky(P_prior)
+        z = np.linalg.solve(L_prior, (x - m_prior)[:, :, None])[:, :, 0]
+        log_pi = -0.5 * np.sum(z * z, axis=1) - np.sum(
+            np.log(np.diagonal(L_prior, axis1=1, axis2=2)), axis=1)
+        log_lik = vector_log_likelihood(x[:, :3], yv, U, sigma)
+        self._reweight(log_lik + log_pi - log_q)
+        self.particles, self.covariances, _ = switch_to_short_mrp(x, P_post)
+        self.n_updates += 1
+        self._maybe_resample(rng)
+        return True
+
+
+# ----------------------------------------------------------------------------------
+# Gyroless bootstrap particle filter
+# ----------------------------------------------------------------------------------
+class GyrolessParticleFilter(_ParticleFilterBase):
+    """Bootstrap PF on ``x = [rho; w]`` with Euler's equations (paper S0, gyroless mode).
+
+    Prediction (batched over particles), ``num_substeps`` substeps of ``h = dt / n``:
+    RK4 on ``I w_dot = T - w x (I w)`` gives the stage rates ``w_0, w_a, w_b, w_1``; the
+    attitude advances by the closed form ``q <- q ⊗ exp(h w_avg / 2)`` with the Simpson
+    average ``w_avg = (w_0 + 2 w_a + 2 w_b + w_1) / 6`` (= the RK4 integral of ``w``; the
+    neglected non-commutativity term is ``O(|w x w_dot| h^3)``). Then process noise:
+    ``w += N(0, rate_process_sigma^2 dt I)`` and, optionally,
+    ``q <- q ⊗ exp(N(0, attitude_process_sigma^2 dt I) / 2)``.
+    Update and resampling as in :class:`BootstrapParticleFilter`.
+
+    Args:
+        num_particles: ``N >= 1``.
+        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]``.
+        w_hat0: Initial body-rate estimate ``w_IB_B`` ``(3,)`` (rad/s).
+        covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); w (rad/s)]``.
+        inertia: ``(3, 3)`` symmetric positive-definite inertia (kg m^2), body frame.
+        torque: ``(3,)`` known body torque ``T`` (N m), held constant (can be overridden
+            per :meth:`predict` call).
+        rate_process_sigma: Rate process-noise density (rad/s^1.5), >= 0.
+        rng: Generator for the initial draw.
+        attitude_process_sigma: Attitude process-noise density (rad/s^0.5), >= 0,
+            default 0.
+        num_substeps: RK4 substeps per :meth:`predict`, >= 1 (default 1).
+        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
+
+    Attributes:
+        particles: ``(N, 6)`` ``[rho; w]``. weights, n_skipped, n_updates, n_resamples.
+    """
+
+    _second_name = "rate"
+
+    def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
+                 rate_process_sigma: float, rng: np.random.Generator, *,
+                 attitude_process_sigma: float = 0.0, num_substeps: int = 1,
+                 resample_threshold: float = 2.0 / 3.0):
+        super().__init__(num_particles, resample_threshold)
+        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
+        w0 = check_array(w_hat0, "w_hat0", (3,), " (rad/s)")
+        P0 = check_covariance(covariance0, "covariance0", 6)
+        self.inertia = check_covariance(inertia, "inertia", 3)
+        self.inertia_inverse = np.linalg.inv(self.inertia)
+        self.torque = check_array(torque, "torque", (3,), " (N m)")
+        self.rate_process_sigma = check_positive_scalar(
+            rate_process_sigma, "rate_process_sigma", allow_zero=True)
+        self.attitude_process_sigma = check_positive_scalar(
+            attitude_process_sigma, "attitude_process_sigma", allow_zero=True)
+        self.num_substeps = check_int(num_substeps, "num_substeps", 1)
+        _check_rng(rng)
+        rho, w = _sample_initial_attitudes(self.num_particles, q0, w0, P0, rng)
+        self.particles = np.concatenate([rho, w], axis=1)
+
+    def _rho_and_second(self):
+        return self.particles[:, :3], self.particles[:, 3:]
+
+    def _take(self, idx):
+        self.particles = self.particles[idx]
+
+    def _w_dot(self, w, torque):
+        Iw = w @ self.inertia.T
+        return (torque - np.cross(w, Iw)) @ self.inertia_inverse.T
+
+    def predict(self, dt: float, rng: np.random.Generator, torque=None) -> None:
+        """Propagate all particles over ``dt`` (s) with Euler's equations + process noise.
+
+        Args:
+            dt: Step (s), > 0.
+            rng: Generator for the process noise.
+            torque: Optional ``(3,)`` torque (N m) for this step; default: the
+                constructor's ``torque``.
+        """
+        dt = check_positive_scalar(dt, "dt")
+        _check_rng(rng)
+        T = self.torque if torque is None else check_array(torque, "torque", (3,), " (N m)")
+        n = self.num_particles
+        q = mrp_to_quat(self.particles[:, :3])
+        w = self.particles[:, 3:].copy()
+        h = dt / self.num_substeps
+        for _ in range(self.num_substeps):
+            k1 = self._w_dot(w, T)
+            wa = w + 0.5 * h * k1
+            k2 = self._w_dot(wa, T)
+            wb = w + 0.5 * h * k2
+            k3 = self._w_dot(wb, T)
+            w1 = w + h * k3
+            k4 = self._w_dot(w1, T)
+            w_avg = (w + 2.0 * wa + 2.0 * wb + w1) / 6.0
+            q = quat_multiply(q, rotvec_to_quat(w_avg * h))
+            w = w + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        if self.attitude_process_sigma > 0.0:
+            dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
+            q = quat_multiply(q, rotvec_to_quat(dtheta))
+        if self.rate_process_sigma > 0.0:
+            w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
+        self.particles[:, :3] = quat_to_mrp(q)
+        self.particles[:, 3:] = w
+
+    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
+        """Weight by the star-sensor likelihood and resample if ``N_eff`` is low.
+
+        Same arguments and return value as :meth:`BootstrapParticleFilter.update`.
+        """
+        _check_rng(rng)
+        yv, U, sigma = self._measurement(y, ref_vectors_I, sigma)
+        if yv is None:
+            self.n_skipped += 1
+            return False
+        self._reweight(vector_log_likelihood(self.particles[:, :3], yv, U, sigma))
+        self.n_updates += 1
+        self._maybe_resample(rng)
+        return True

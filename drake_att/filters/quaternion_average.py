@@ -1,0 +1,228 @@
+"""Weighted quaternion averaging (Markley, Cheng, Crassidis, Oshman 2007).
+
+Reference: F. L. Markley, Y. Cheng, J. L. Crassidis, Y. Oshman, "Averaging
+Quaternions", Journal of Guidance, Control, and Dynamics 30(4), 2007.
+
+The weighted average of unit quaternions ``q_i`` with weights ``w_i >= 0`` is defined
+as the unit quaternion maximizing
+
+    ``sum_i w_i (q_i' q)^2 = q' M q``,  ``M = sum_i w_i q_i q_i'``,
+
+i.e. the eigenvector of ``M`` belonging to its largest eigenvalue. This equals the
+minimizer of the weighted sum of squared Frobenius distances between the attitude
+matrices, ``sum_i w_i |R(q) - R(q_i)|_F^2``. The objective depends only on
+``(q_i' q)^2``, so replacing any ``q_i`` by ``-q_i`` (the same rotation) does not change
+the result.
+
+Conventions: quaternions are ``[w, x, y, z]`` (scalar first, Hamilton, as in
+:mod:`drake_att.rotations` and Drake). The averages are invariant under left and right
+multiplication: ``avg(p ⊗ q_i ⊗ r) = p ⊗ avg(q_i) ⊗ r`` (up to sign), so the frame
+convention of the inputs (``q_IB`` vs ``q_BI``) does not matter as long as all inputs use
+the same one. Weights are dimensionless and only their ratios matter; for small,
+independent, isotropic attitude errors with standard deviations ``sigma_i`` (rad),
+``w_i = 1 / sigma_i^2`` gives the minimum-variance combination.
+
+Pure numpy; no Drake dependency.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["average_two_quaternions", "average_quaternions"]
+
+
+def _fmt(value) -> str:
+    return np.array2string(np.asarray(value), precision=17, threshold=20)
+
+
+def _check_quaternion(q, name: str) -> np.ndarray:
+    """Validate a single quaternion ``(4,)`` and return it normalized."""
+    try:
+        arr = np.asarray(q, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"{name} must be a real quaternion [w, x, y, z] of shape (4,); got {q!r}"
+        ) from exc
+    if arr.shape != (4,):
+        raise ValueError(
+            f"{name} must have shape (4,) ([w, x, y, z]); got shape {arr.shape}: {_fmt(arr)}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite; got {name}={_fmt(arr)}")
+    norm = np.linalg.norm(arr)
+    if not norm > 0.0:
+        raise ValueError(f"{name} must be non-zero (it is normalized); got {name}={_fmt(arr)}")
+    return arr / norm
+
+
+def _check_weight(w, name: str) -> float:
+    try:
+        val = float(w)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a finite real number >= 0; got {name}={w!r}") from exc
+    if not np.isfinite(val) or val < 0.0:
+        raise ValueError(f"{name} must be a finite real number >= 0; got {name}={val!r}")
+    return val
+
+
+def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndarray:
+    """Weighted average of two quaternions, closed form (Markley et al. 2007, eq. 18).
+
+    With ``d = q1' q2`` (after normalizing both inputs) and
+    ``z = sqrt((w1 - w2)^2 + 4 w1 w2 d^2)``::
+
+        q_avg = sqrt(w1 (w1 - w2 + z) / (z (w1 + w2 + z))) q1
+              + sign(d) sqrt(w2 (w2 - w1 + z) / (z (w1 + w2 + z))) q2
+
+    which is the dominant eigenvector of ``w1 q1 q1' + w2 q2 q2'`` (same result as
+    :func:`average_quaternions`). ``sign(0)`` is taken as ``+1``. The factors
+    ``w1 - w2 + z`` and ``w2 - w1 + z`` are evaluated without cancellation.
+
+    Edge cases (no NaN is ever produced for valid input):
+
+    * ``w2 == 0`` returns ``q1``; ``w1 == 0`` returns ``±q2`` (in q1's hemisphere).
+    * ``q2 == ±q1`` returns ``q1``.
+    * ``w1 == w2`` and ``q1' q2 == 0`` (the two rotations differ by 180 deg) is
+      degenerate: ``z == 0`` and every unit quaternion in ``span(q1, q2)`` is an
+      average. ``q1`` is returned. Near this case the average is ill-conditioned
+      (it moves by O(1) for O(z) changes in the inputs), as for any averaging method.
+
+    Args:
+        q1: First quaternion ``[w, x, y, z]``, shape ``(4,)``. Must be finite and non-zero;
+            it is normalized before use.
+        q2: Second quaternion ``[w, x, y, z]``, shape ``(4,)``, same frame convention as
+            ``q1``. Must be finite and non-zero; it is normalized before use.
+        w1: Weight of ``q1`` (dimensionless, finite, >= 0). Default 0.5.
+        w2: Weight of ``q2`` (dimensionless, finite, >= 0). ``w1 + w2`` must be > 0.
+            Default 0.5.
+
+    Returns:
+        Unit quaternion ``[w, x, y, z]``, shape ``(4,)``. Its sign is chosen so that
+        ``q_avg' q1 >= 0`` (it is in the hemisphere of ``q1``, which keeps it continuous
+        with ``q1`` when used inside a filter); it is *not* forced to have ``w >= 0``.
+        Use :func:`drake_att.rotations.quat_canonical` if that is wanted.
+
+    Raises:
+        ValueError: If a quaternion is not shape ``(4,)``, not finite or zero, or a weight
+            is negative / not finite, or ``w1 + w2 <= 0``. The message names the argument
+            and the offending value.
+    """
+    q1 = _check_quaternion(q1, "q1")
+    q2 = _check_quaternion(q2, "q2")
+    w1 = _check_weight(w1, "w1")
+    w2 = _check_weight(w2, "w2")
+    if not w1 + w2 > 0.0:
+        raise ValueError(f"w1 + w2 must be > 0 (weights are >= 0); got w1={w1!r}, w2={w2!r}")
+
+    d = float(q1 @ q2)
+    sign = -1.0 if d < 0.0 else 1.0
+    delta = w1 - w2
+    cross = 4.0 * w1 * w2 * d * d
+    z = np.sqrt(delta * delta + cross)
+    if z == 0.0:
+        # Degenerate: w1 == w2 and q1 _|_ q2; any unit vector in span(q1, q2) maximizes.
+        return q1.copy()
+    # a_plus = w1 - w2 + z, a_minus = w2 - w1 + z; compute the one that would suffer from
+    # cancellation via (z^2 - delta^2) / (z +- delta) = cross / (z +- delta).
+    if delta >= 0.0:
+        a_plus = z + delta
+        a_minus = cross / a_plus
+    else:
+        a_minus = z - delta
+        a_plus = cross / a_minus
+    denom = z * (w1 + w2 + z)
+    c1 = np.sqrt(w1 * a_plus / denom)
+    c2 = np.sqrt(w2 * a_minus / denom)
+    q = c1 * q1 + sign * c2 * q2
+    return q / np.linalg.norm(q)
+
+
+def average_quaternions(quaternions, weights=None) -> np.ndarray:
+    """Weighted average of N quaternions, eigenvector method (Markley et al. 2007).
+
+    Returns the unit eigenvector of ``M = sum_i w_i q_i q_i'`` (``q_i`` normalized) with
+    the largest eigenvalue. This maximizes ``sum_i w_i (q_i' q)^2`` and minimizes
+    ``sum_i w_i |R(q) - R(q_i)|_F^2``; it is invariant to the sign of each ``q_i``, to
+    permutations of the inputs and to a common positive scaling of the weights.
+
+    If the largest eigenvalue of ``M`` is repeated the average is not unique (e.g. two
+    equally weighted rotations 180 deg apart); one maximizer is returned. Inputs with zero
+    weight are ignored.
+
+    Args:
+        quaternions: Array of shape ``(N, 4)``, ``N >= 1``, rows ``[w, x, y, z]`` in one
+            common frame convention. Rows must be finite and non-zero; each is
+            normalized before use.
+        weights: Array of shape ``(N,)`` of dimensionless weights, finite, >= 0, with a
+            positive sum. ``None`` (default) means equal weights.
+
+    Returns:
+        Unit quaternion ``[w, x, y, z]``, shape ``(4,)``, with scalar part ``w >= 0``.
+
+    Raises:
+        ValueError: If ``quaternions`` is not ``(N, 4)`` with ``N >= 1``, contains
+            non-finite values or a zero row; or ``weights`` is not ``(N,)``, contains
+            negative or non-finite values, or sums to zero. The message names the argument
+            and the offending value.
+    """
+    try:
+        Q = np.asarray(quaternions, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"quaternions must be a real array of shape (N, 4); got {quaternions!r}"
+        ) from exc
+    if Q.ndim != 2 or Q.shape[1] != 4 or Q.shape[0] < 1:
+        raise ValueError(
+            f"quaternions must have shape (N, 4) with N >= 1 (rows [w, x, y, z]); "
+            f"got shape {Q.shape}"
+        )
+    bad = ~np.all(np.isfinite(Q), axis=1)
+    if np.any(bad):
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"quaternions must be finite; got quaternions[{i}]={_fmt(Q[i])}")
+    norms = np.linalg.norm(Q, axis=1)
+    zero = ~(norms > 0.0)
+    if np.any(zero):
+        i = int(np.flatnonzero(zero)[0])
+        raise ValueError(
+            f"quaternions rows must be non-zero (they are normalized); "
+            f"got quaternions[{i}]={_fmt(Q[i])}"
+        )
+    Q = Q / norms[:, None]
+    n = Q.shape[0]
+
+    if weights is None:
+        w = np.full(n, 1.0 / n)
+    else:
+        try:
+            w = np.asarray(weights, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(
+                f"weights must be a real array of shape ({n},); got {weights!r}"
+            ) from exc
+        if w.shape != (n,):
+            raise ValueError(
+                f"weights must have shape ({n},) to match quaternions (N={n}); "
+                f"got shape {w.shape}: {_fmt(w)}"
+            )
+        badw = ~np.isfinite(w) | (w < 0.0)
+        if np.any(badw):
+            i = int(np.flatnonzero(badw)[0])
+            raise ValueError(
+                f"weights must be finite and >= 0; got weights[{i}]={w[i]!r} "
+                f"(weights={_fmt(w)})"
+            )
+        total = float(np.sum(w))
+        if not total > 0.0:
+            raise ValueError(f"weights must have a positive sum; got weights={_fmt(w)}")
+        w = w / total  # scale-free; keeps M well scaled
+
+    M = (Q * w[:, None]).T @ Q
+    M = 0.5 * (M + M.T)
+    _, vecs = np.linalg.eigh(M)
+    q = vecs[:, -1]
+    q = q / np.linalg.norm(q)
+    if q[0] < 0.0:
+        q = -q
+    return q

@@ -1,0 +1,1 @@
+"""Typed scenario configs (YAML) and the builder that turns them into diagrams."""

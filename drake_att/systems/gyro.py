@@ -1,0 +1,137 @@
+"""Rate-integrating gyro (Farrenkopf model) delivering the mean rate over its interval.
+
+A real MEMS gyro samples at a high rate (300 Hz in paper S3) and the flight software
+averages the samples over the filter step.  This system reproduces that output with one
+discrete event per output sample: the joint statistics of the interval-mean noise and
+the bias random walk are closed-form (:class:`drake_att.noise.FarrenkopfGyroNoise`), and
+the true mean rate is exact, from the plant's ``w_IB_B_integral`` port.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+
+from drake_att.noise import FarrenkopfGyroNoise
+from drake_att.systems.randomness import (
+    SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
+
+GYRO_MEASUREMENT_SIZE = 5  # [t_meas, valid, w_meas_B (3)]
+
+
+def _check_vector(value, n, field, unit):
+    v = np.asarray(value, dtype=float)
+    if v.shape != (n,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{field}: got {value!r}; must be {n} finite numbers ({unit})")
+    return v
+
+
+class Gyro(LeafSystem):
+    """Three-axis gyro: ``w_meas = (I + S + M) mean(w_IB_B) + mean(b) + e``.
+
+    ``S = diag(scale_factor_error)``, ``M`` the misalignment (zero diagonal), the bias
+    ``b`` a random walk (RRW), ``e`` angle-random-walk noise, all per the Farrenkopf
+    model with the exact interval statistics.
+
+    Args:
+        name: system name (also the noise stream name).
+        period_s: output period T (s) > 0.
+        arw_rad_per_rt_s: angle random walk (rad/s^0.5) >= 0.
+        rrw_rad_per_s15: rate random walk (rad/s^1.5) >= 0.
+        initial_bias_rad_per_s: bias at t = 0 (3, rad/s).
+        initial_bias_sigma_rad_per_s: optional random part of the initial bias (1-sigma per
+            axis, rad/s) drawn per seed; 0 for a deterministic initial bias.
+        scale_factor_error: (3,) dimensionless (e.g. 100 ppm = 1e-4).
+        misalignment: (3, 3) small-angle misalignment matrix with zero diagonal (rad).
+
+    Input ports:
+        w_IB_B (3): true body rate (rad/s), used for the first sample (t = 0).
+        w_IB_B_integral (3): integral of the true body rate (rad); the interval mean is its
+            difference over the interval divided by the elapsed time.
+        seed_uniform (4, random uniform): seed, see ``drake_att.systems.randomness``.
+    Output ports:
+        gyro_measurement (5): ``[t_meas (s), valid (1/0), w_meas_B (3, rad/s)]``.
+        bias_B (3): true bias at the sample time (rad/s), for scoring only.
+    Discrete state (16): ``[seed words (4), sample index, t_sample, meas offset (3),
+        bias at sample (3), integral at previous sample (3), has_previous]``.
+    """
+
+    def __init__(self, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
+                 initial_bias_rad_per_s=(0.0, 0.0, 0.0), initial_bias_sigma_rad_per_s: float = 0.0,
+                 scale_factor_error=(0.0, 0.0, 0.0), misalignment=None):
+        LeafSystem.__init__(self)
+        self.set_name(name)
+        if not np.isfinite(period_s) or period_s <= 0:
+            raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
+        self.period_s = float(period_s)
+        self.noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
+        self.initial_bias = _check_vector(initial_bias_rad_per_s, 3, f"{name}.initial_bias", "rad/s")
+        if not np.isfinite(initial_bias_sigma_rad_per_s) or initial_bias_sigma_rad_per_s < 0:
+            raise ValueError(f"{name}.initial_bias_sigma: got {initial_bias_sigma_rad_per_s}; must be >= 0")
+        self.initial_bias_sigma = float(initial_bias_sigma_rad_per_s)
+        sf = _check_vector(scale_factor_error, 3, f"{name}.scale_factor_error", "dimensionless")
+        M = np.zeros((3, 3)) if misalignment is None else np.asarray(misalignment, dtype=float)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)) or np.any(np.diag(M) != 0):
+            raise ValueError(f"{name}.misalignment: got {misalignment!r}; must be 3x3 finite with zero diagonal (rad)")
+        self.sensor_matrix = np.eye(3) + np.diag(sf) + M
+
+        self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
+        self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
+        self._seed_port = declare_seed_port(self)
+        self._state_index = self.DeclareDiscreteState(16)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
+        self.DeclareVectorOutputPort(
+            "gyro_measurement", GYRO_MEASUREMENT_SIZE, self._calc_measurement,
+            {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket()})
+        self.DeclareVectorOutputPort("bias_B", 3, self._calc_bias, {self.xd_ticket()})
+
+    # -- events -------------------------------------------------------------------
+    def _integral(self, context):
+        if self._integral_port.HasValue(context):
+            return self._integral_port.Eval(context)
+        return None
+
+    def _initialize(self, context, discrete_state):
+        words = read_seed_words(self, context, self._seed_port)
+        rng = counter_random(words, self.get_name()).generator(0)
+        bias0 = self.initial_bias + self.initial_bias_sigma * rng.standard_normal(3)
+        e, _ = self.noise.draw(rng)
+        integral = self._integral(context)
+        x = np.concatenate([words, [0.0, context.get_time()], bias0 + e, bias0,
+                            np.zeros(3) if integral is None else integral, [0.0]])
+        discrete_state.set_value(x)
+        return EventStatus.Succeeded()
+
+    def _on_sample(self, context, discrete_state):
+        x = context.get_discrete_state_vector().value()
+        words, index, bias = x[:SEED_WORDS], int(x[4]), x[9:12]
+        rng = counter_random(words, self.get_name()).generator(index + 1)
+        e, db = self.noise.draw(rng)
+        integral = self._integral(context)
+        new = x.copy()
+        new[4] = index + 1
+        new[5] = context.get_time() + self.period_s
+        new[6:9] = bias + e  # mean bias over the coming interval + ARW
+        new[9:12] = bias + db  # bias at the end of the coming interval
+        if integral is not None:
+            new[12:15] = integral
+            new[15] = 1.0
+        discrete_state.set_value(new)
+        return EventStatus.Succeeded()
+
+    # -- outputs ------------------------------------------------------------------
+    def _calc_measurement(self, context, output: BasicVector):
+        x = context.get_discrete_state_vector().value()
+        t = context.get_time()
+        integral = self._integral(context)
+        elapsed = t - (x[5] - self.period_s)
+        if integral is not None and x[15] > 0 and elapsed > 1e-12:
+            w_true = (integral - x[12:15]) / elapsed
+        else:
+            w_true = self._w_port.Eval(context)
+        w_meas = self.sensor_matrix @ w_true + x[6:9]
+        output.SetFromVector(np.concatenate([[x[5], 1.0], w_meas]))
+
+    def _calc_bias(self, context, output: BasicVector):
+        output.SetFromVector(context.get_discrete_state_vector().value()[9:12])

@@ -1,0 +1,49 @@
+"""Seeding Python systems from the diagram's ``RandomGenerator``.
+
+Python ``LeafSystem`` s cannot override ``SetRandomState``.  The Drake idiom used here:
+each stochastic system declares a random input port ``seed_uniform`` (uniform [0, 1),
+size :data:`SEED_WORDS`); the scenario builder calls
+``pydrake.systems.primitives.AddRandomInputs`` so a C++ ``RandomSource`` (whose state
+``Diagram.SetRandomContext(context, RandomGenerator(seed))`` randomizes) feeds it.  At
+initialization the system copies the port value into its discrete state as integer seed
+words; its draws are then counter-based (:class:`drake_att.noise.CounterRandom`): a pure
+function of (seed words, system name, sample index).
+
+Consequences: the scenario seed fixes every draw; two systems never share a stream; a
+system's noise does not depend on how often its outputs are evaluated or on which other
+systems are in the diagram.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from pydrake.common import RandomDistribution
+
+from drake_att.noise import CounterRandom, seed_words_from_uniform, stream_key
+
+SEED_WORDS = 4
+RANDOM_SOURCE_SAMPLING_INTERVAL_S = 1e12  # the seed is drawn once per run
+
+
+def declare_seed_port(system):
+    """Declare the ``seed_uniform`` random input port on ``system`` and return it."""
+    return system.DeclareVectorInputPort("seed_uniform", SEED_WORDS, RandomDistribution.kUniform)
+
+
+def read_seed_words(system, context, port) -> np.ndarray:
+    """Seed words (as floats, exact integers < 2^32) from ``port`` (or zeros if unwired)."""
+    if port.HasValue(context):
+        return np.array(seed_words_from_uniform(port.Eval(context)), dtype=float)
+    return np.zeros(SEED_WORDS)
+
+
+@lru_cache(maxsize=4096)
+def _counter_random(words: tuple, stream: str) -> CounterRandom:
+    return CounterRandom(stream_key(list(words), stream))
+
+
+def counter_random(seed_words, stream: str) -> CounterRandom:
+    """Cached :class:`CounterRandom` for (seed words, stream name)."""
+    return _counter_random(tuple(int(w) for w in seed_words), stream)

@@ -1,0 +1,201 @@
+"""Star tracker: attitude-quaternion output or unit-vector observations.
+
+Sensor frame S is mounted on the body by ``R_BS`` (``q_BS``); the boresight is ``+z_S``.
+
+* Quaternion mode: ``q_IS_meas = q_IB ⊗ q_BS ⊗ exp(delta_S)`` with
+  ``delta_S ~ N(0, diag(s_c^2, s_c^2, s_b^2))`` - anisotropic noise, cross-boresight
+  sigma ``s_c`` about x_S and y_S, boresight (roll) sigma ``s_b`` about z_S.
+* Vector mode: observations of inertial reference directions ``r_i``:
+  ``b_i = R_SI r_i + v_i`` with ``v_i ~ N(0, s^2 I3)`` (the additive model of papers S0
+  and S4; not re-normalized, so the filter's measurement model is exact).
+
+Every output carries its sample time and a validity flag.  A sample is invalid during a
+configured outage window or, with the configured probability, at random (drop-outs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+
+from drake_att import rotations as rot
+from drake_att.systems.randomness import (
+    SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
+
+QUATERNION_MEASUREMENT_SIZE = 6  # [t_meas, valid, q_IS_meas (4)]
+
+
+@dataclass(frozen=True)
+class VectorObservations:
+    """Unit-vector observations of one star-tracker sample (abstract port value).
+
+    Attributes:
+        time_s: sample time (s).
+        valid: False if the sample must not be used.
+        directions_S: (m, 3) measured directions in the sensor frame.
+        references_I: (m, 3) the matching inertial reference directions.
+        sigma_rad: per-component noise 1-sigma (rad).
+        q_BS: (4,) sensor mounting.
+    """
+
+    time_s: float
+    valid: bool
+    directions_S: np.ndarray
+    references_I: np.ndarray
+    sigma_rad: float
+    q_BS: np.ndarray
+
+
+def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
+    """``q_BS`` from paper S3's three mounting angles (its eq. 7).
+
+    Eq. 7 gives a quaternion ``q7``; read as the attitude of the sensor relative to the
+    body in the attitude-matrix sense, ``R(q7)`` maps body-frame vectors into the sensor
+    frame: ``R_SB = R(q7)``, so ``q_BS = q7^-1``.  This is the reading under which the
+    paper's two trackers, ``(-90, 45, -90)`` and ``(90, 45, 90)`` deg, have perpendicular
+    boresights in the body x-y plane at +-45 deg from +y (tested).
+    """
+    c = lambda a: np.cos(0.5 * a)  # noqa: E731
+    s = lambda a: np.sin(0.5 * a)  # noqa: E731
+    th, ph, ps = theta_rad, phi_rad, psi_rad
+    q7 = np.array([
+        c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
+        c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
+        s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
+        s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps),
+    ])
+    return rot.quat_conjugate(q7)
+
+
+class StarTracker(LeafSystem):
+    """Star tracker with quaternion or vector output.
+
+    Args:
+        name: system name (noise stream name).
+        period_s: sample period (s) > 0.
+        q_BS: mounting quaternion (4), body <- sensor.
+        mode: "quaternion" or "vectors".
+        sigma_cross_boresight_rad, sigma_boresight_rad: quaternion-mode noise (rad) >= 0.
+        references_I: (m, 3) inertial unit reference directions (vector mode).
+        sigma_vector_rad: vector-mode per-component noise (rad) >= 0.
+        dropout_probability: probability in [0, 1) that a sample is invalid.
+        outage_windows_s: list of (start, end) times (s) with no valid sample.
+
+    Input ports:
+        q_IB (4): true attitude.
+        seed_uniform (4, random uniform): seed.
+    Output ports (quaternion mode):
+        star_tracker_measurement (6): ``[t_meas (s), valid (1/0), q_IS_meas (4, wxyz)]``.
+    Output ports (vector mode):
+        vector_observations (abstract :class:`VectorObservations`).
+    Discrete state: ``[seed words (4), sample index, t_sample, valid, noise (3 or 3m)]``.
+    """
+
+    def __init__(self, name: str, period_s: float, q_BS=(1.0, 0.0, 0.0, 0.0), mode: str = "quaternion",
+                 sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
+                 references_I=None, sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0,
+                 outage_windows_s=()):
+        LeafSystem.__init__(self)
+        self.set_name(name)
+        if not np.isfinite(period_s) or period_s <= 0:
+            raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
+        if mode not in ("quaternion", "vectors"):
+            raise ValueError(f"{name}.mode: got {mode!r}; allowed: 'quaternion', 'vectors'")
+        for field, v in (("sigma_cross_boresight", sigma_cross_boresight_rad),
+                         ("sigma_boresight", sigma_boresight_rad), ("sigma_vector", sigma_vector_rad)):
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{name}.{field}: got {v}; must be finite and >= 0")
+        if not (0.0 <= dropout_probability < 1.0):
+            raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
+        q_BS = np.asarray(q_BS, dtype=float)
+        if q_BS.shape != (4,) or not np.all(np.isfinite(q_BS)) or np.linalg.norm(q_BS) < 1e-9:
+            raise ValueError(f"{name}.q_BS: got {q_BS.tolist()}; must be 4 finite numbers, not all zero")
+        self.period_s = float(period_s)
+        self.q_BS = rot.quat_normalize(q_BS)
+        self.mode = mode
+        self.sigmas_S = np.array([sigma_cross_boresight_rad, sigma_cross_boresight_rad, sigma_boresight_rad])
+        self.dropout_probability = float(dropout_probability)
+        self.outage_windows_s = [(float(a), float(b)) for a, b in outage_windows_s]
+        for a, b in self.outage_windows_s:
+            if not b > a:
+                raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
+        if mode == "vectors":
+            refs = np.asarray(references_I, dtype=float) if references_I is not None else np.zeros((0, 3))
+            if refs.ndim != 2 or refs.shape[1] != 3 or refs.shape[0] < 1 or not np.all(np.isfinite(refs)):
+                raise ValueError(f"{name}.references_I: got {references_I!r}; need (m>=1, 3) finite directions")
+            norms = np.linalg.norm(refs, axis=1)
+            if np.any(norms < 1e-9):
+                raise ValueError(f"{name}.references_I: zero-length direction in {refs.tolist()}")
+            self.references_I = refs / norms[:, None]
+            self.sigma_vector = float(sigma_vector_rad)
+            n_noise = 3 * self.references_I.shape[0]
+        else:
+            self.references_I = None
+            n_noise = 3
+        self._n_noise = n_noise
+        self._q_port = self.DeclareVectorInputPort("q_IB", 4)
+        self._seed_port = declare_seed_port(self)
+        self.DeclareDiscreteState(SEED_WORDS + 3 + n_noise)
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
+        deps = {self.xd_ticket(), self.all_input_ports_ticket()}
+        if mode == "quaternion":
+            self.DeclareVectorOutputPort(
+                "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc_quaternion, deps)
+        else:
+            self.DeclareAbstractOutputPort(
+                "vector_observations", lambda: AbstractValue.Make(self._empty_observations()),
+                self._calc_vectors, deps)
+
+    def _empty_observations(self):
+        return VectorObservations(0.0, False, np.zeros((0, 3)), np.zeros((0, 3)), 0.0, self.q_BS)
+
+    # -- noise ----------------------------------------------------------------------
+    def _draw(self, words, index, t_sample):
+        rng = counter_random(words, self.get_name()).generator(index)
+        if self.mode == "quaternion":
+            noise = self.sigmas_S * rng.standard_normal(3)
+        else:
+            noise = self.sigma_vector * rng.standard_normal(self._n_noise)
+        valid = rng.uniform() >= self.dropout_probability
+        if any(a <= t_sample < b for a, b in self.outage_windows_s):
+            valid = False
+        return noise, valid
+
+    def _initialize(self, context, discrete_state):
+        words = read_seed_words(self, context, self._seed_port)
+        t = context.get_time()
+        noise, valid = self._draw(words, 0, t)
+        discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], noise]))
+        return EventStatus.Succeeded()
+
+    def _on_sample(self, context, discrete_state):
+        x = context.get_discrete_state_vector().value()
+        index = int(x[4]) + 1
+        t_next = context.get_time() + self.period_s
+        noise, valid = self._draw(x[:SEED_WORDS], index, t_next)
+        new = x.copy()
+        new[4:7] = [index, t_next, float(valid)]
+        new[7:] = noise
+        discrete_state.set_value(new)
+        return EventStatus.Succeeded()
+
+    # -- outputs ----------------------------------------------------------------------
+    def _calc_quaternion(self, context, output: BasicVector):
+        x = context.get_discrete_state_vector().value()
+        q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
+        q_meas = rot.quat_canonical(rot.quat_multiply(q_IS, rot.rotvec_to_quat(x[7:10])))
+        out = np.empty(QUATERNION_MEASUREMENT_SIZE)
+        out[0], out[1], out[2:] = x[5], x[6], q_meas
+        output.SetFromVector(out)
+
+    def _calc_vectors(self, context, output):
+        x = context.get_discrete_state_vector().value()
+        q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
+        R_SI = rot.quat_to_rotmat(q_IS).T
+        dirs = self.references_I @ R_SI.T + x[7:].reshape(-1, 3)
+        output.set_value(VectorObservations(
+            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, self.sigma_vector, self.q_BS))
