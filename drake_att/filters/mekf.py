@@ -143,14 +143,19 @@ class MultiplicativeEKF:
         new = MekfState(q, state.bias_B + dx[3:], 0.5 * (P_new + P_new.T))
         return new, UpdateInfo(z, S, nis, True)
 
-    def update_quaternion(self, state: MekfState, q_IS_meas, q_BS, sigmas_S) -> tuple[MekfState, UpdateInfo]:
-        """Update with a measured sensor attitude ``q_IS_meas``; ``sigmas_S`` (3, rad)."""
+    def update_quaternion(self, state: MekfState, q_IS_meas, q_BS, noise_S) -> tuple[MekfState, UpdateInfo]:
+        """Update with a measured sensor attitude ``q_IS_meas``.
+
+        ``noise_S``: per-axis sigmas (3,) in rad, or a full 3x3 covariance (rad^2), of the
+        measurement's rotation-vector error in the sensor frame.
+        """
         q_IS_hat = rot.quat_multiply(state.q_IB, q_BS)
         z = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(q_IS_hat), q_IS_meas))
         R_SB = rot.quat_to_rotmat(q_BS).T
         H = np.zeros((3, 6))
         H[:, :3] = R_SB
-        R = np.diag(np.asarray(sigmas_S, dtype=float) ** 2)
+        noise_S = np.asarray(noise_S, dtype=float)
+        R = noise_S if noise_S.shape == (3, 3) else np.diag(noise_S**2)
         return self._update(state, z, H, R)
 
     def update_vectors(self, state: MekfState, directions_S, references_I, sigma_rad: float,

@@ -19,9 +19,12 @@ batched helpers that :mod:`drake_att.filters.particle` reuses for the EKPF):
   to the MRP *of the same sign of q*, i.e. the MRP the continuous ODE would reach (no
   silent switch), so that the mean and the covariance stay in one chart. The bias is
   constant.
-* **Transition matrix**: ``Phi = I + F dt + (F dt)^2 / 2 + (F dt)^3 / 6`` with the
-  analytic Jacobian ``F`` evaluated at the start of the step (truncated matrix
-  exponential; ``|F dt|`` is ~``|w| dt`` which is far below 1 for spacecraft rates).
+* **Transition matrix**: ``Phi = I + F dt + (F dt)^2 / 2 + (F dt)^3 / 6`` (truncated
+  matrix exponential; ``|F dt|`` is ~``|w| dt``, far below 1 for spacecraft rates) with
+  the analytic Jacobian ``F`` evaluated at the *midpoint* of the step (the mean
+  propagated over ``dt / 2``). Against the exact Jacobian of the discrete mean map the
+  error is ``O(|w|^3 dt^3)`` (e.g. ~2e-5 for 0.05 rad/s and 1 s) instead of the
+  ``O(|w|^2 dt^2)`` (~5e-3) of the start-point linearization.
 * **Process noise**: ``Q_c = diag(sigma_v^2 I, sigma_u^2 I)`` enters through
   ``G = [-B(rho) 0; 0 I]``; with ``Qg = G Q_c G'`` the discrete covariance is the
   second-order expansion of ``int_0^dt Phi(s) Qg Phi(s)' ds``:
@@ -368,14 +371,17 @@ def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
         dt: Step (s) > 0. sigma_v: ARW (rad/s^0.5). sigma_u: RRW (rad/s^1.5).
 
     Returns:
-        ``(x_pred, P_pred)`` with ``|rho| <= 1`` (shadow switch applied).
+        ``(x_pred, P_pred)`` with ``|rho| <= 1`` (shadow switch applied). ``F`` (for
+        ``Phi`` and ``Qd``) is evaluated at the half-step mean.
     """
     x = np.asarray(x, dtype=float)
     P = np.asarray(P, dtype=float)
     w = np.asarray(w_meas, dtype=float) - x[..., 3:]
-    F = mrp_dynamics_jacobian(x, w_meas)
+    x_mid = x.copy()
+    x_mid[..., :3] = propagate_mrp(x[..., :3], w, 0.5 * dt)
+    F = mrp_dynamics_jacobian(x_mid, w_meas)
     Phi = discrete_transition_matrix(F, dt)
-    Qd = discrete_process_noise(x, F, dt, sigma_v, sigma_u)
+    Qd = discrete_process_noise(x_mid, F, dt, sigma_v, sigma_u)
     x_new = np.empty_like(x)
     x_new[..., :3] = propagate_mrp(x[..., :3], w, dt)
     x_new[..., 3:] = x[..., 3:]
@@ -384,8 +390,15 @@ def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
     return x_new, P_new
 
 
-def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True):
+def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True,
+               iterations: int = 1, iteration_tolerance: float = 1e-12):
     """Batched EKF measurement update with Joseph-form covariance.
+
+    With ``iterations > 1`` this is the iterated EKF (Gauss-Newton on the prior plus
+    likelihood cost, Bell & Cathey 1993), relinearizing ``h`` at the latest iterate
+    ``x_j``: ``x_{j+1} = x^- + K_j (y - h(x_j) - H_j (x^- - x_j))``; the covariance uses the
+    last gain and Jacobian (evaluated at the second-to-last iterate, the standard IEKF
+    choice). All iterates stay in the MRP chart of ``x^-``.
 
     Args:
         x: ``(..., 6)`` prior states; P: ``(..., 6, 6)`` prior covariances.
@@ -393,29 +406,43 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True):
         ref_vectors_I: ``(m, 3)`` inertial reference directions.
         sigma: Measurement noise standard deviation per component (rad).
         switch: Apply the shadow switch (with covariance mapping) to the result.
+        iterations: Maximum number of linearizations, >= 1 (1 = the classic EKF).
+        iteration_tolerance: Stop iterating when no state component (whole batch)
+            changed by more than this (state units) in the last iteration.
 
     Returns:
-        ``(x_post, P_post, innovation, S)`` with innovation ``(..., 3m)`` and its
-        covariance ``S = H P H' + sigma^2 I`` ``(..., 3m, 3m)``.
+        ``(x_post, P_post, innovation, S)``: the innovation ``y - h(x^-)`` ``(..., 3m)`` and
+        its covariance ``S = H P H' + sigma^2 I`` ``(..., 3m, 3m)`` at the prior.
     """
     x = np.asarray(x, dtype=float)
     P = np.asarray(P, dtype=float)
     U = np.asarray(ref_vectors_I, dtype=float)
+    y = np.asarray(y, dtype=float)
     n_meas = 3 * U.shape[0]
-    H = vector_measurement_jacobian(x[..., :3], U)
-    innovation = np.asarray(y, dtype=float) - vector_measurement_model(x[..., :3], U)
-    Ht = np.swapaxes(H, -1, -2)
-    PHt = P @ Ht
     R = sigma ** 2 * np.eye(n_meas)
-    S = _sym(H @ PHt + R)
-    # K = P H' S^-1  ->  K' = S^-1 H P  (S symmetric)
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)
-    x_new = x + (K @ innovation[..., :, None])[..., 0]
+    x_j = x
+    innovation0 = S0 = None
+    for _ in range(iterations):
+        H = vector_measurement_jacobian(x_j[..., :3], U)
+        residual = y - vector_measurement_model(x_j[..., :3], U)
+        PHt = P @ np.swapaxes(H, -1, -2)
+        S = _sym(H @ PHt + R)
+        # K = P H' S^-1  ->  K' = S^-1 H P  (S symmetric)
+        K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)
+        if innovation0 is None:
+            innovation0, S0 = residual, S
+        correction = residual - (H @ (x - x_j)[..., :, None])[..., 0]
+        x_next = x + (K @ correction[..., :, None])[..., 0]
+        converged = np.max(np.abs(x_next - x_j)) <= iteration_tolerance
+        x_j = x_next
+        if converged:
+            break
     IKH = np.eye(6) - K @ H
     P_new = _sym(IKH @ P @ np.swapaxes(IKH, -1, -2) + (K * sigma ** 2) @ np.swapaxes(K, -1, -2))
+    x_new = x_j
     if switch:
         x_new, P_new, _ = switch_to_short_mrp(x_new, P_new)
-    return x_new, P_new, innovation, S
+    return x_new, P_new, innovation0, S0
 
 
 def attitude_to_mrp_covariance(rho, P_att) -> np.ndarray:
@@ -458,6 +485,9 @@ class MrpEkf:
         arw_sigma: Gyro angle random walk ``sigma_v`` (rad/s^0.5), > 0.
             (A white-noise std ``s`` per sample of period ``T`` is ``s sqrt(T)``.)
         rrw_sigma: Gyro rate random walk ``sigma_u`` (rad/s^1.5), >= 0.
+        update_iterations: Linearizations per measurement update, >= 1. 1 (default) is
+            the classic EKF of the paper; > 1 gives the iterated EKF (see
+            :func:`ekf_update`), which converges from large initial errors.
 
     Attributes:
         x: Current state ``[rho; b]`` ``(6,)`` with ``|rho| <= 1``.
@@ -468,12 +498,13 @@ class MrpEkf:
     """
 
     def __init__(self, q_IB_hat0, bias_hat0, covariance0, arw_sigma: float,
-                 rrw_sigma: float = 0.0):
+                 rrw_sigma: float = 0.0, update_iterations: int = 1):
         q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
         b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
         P_att = check_covariance(covariance0, "covariance0", 6)
         self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
         self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
+        self.update_iterations = check_int(update_iterations, "update_iterations", 1)
         rho0 = quat_to_mrp(q0)
         self.x = np.concatenate([rho0, b0])
         self.P = attitude_to_mrp_covariance(rho0, P_att)
@@ -519,7 +550,8 @@ class MrpEkf:
         if yv is None:
             self.n_skipped += 1
             return False
-        self.x, self.P, innov, S = ekf_update(self.x, self.P, yv, U, sigma)
+        self.x, self.P, innov, S = ekf_update(self.x, self.P, yv, U, sigma,
+                                               iterations=self.update_iterations)
         self.last_innovation = innov
         self.last_innovation_covariance = S
         self.n_updates += 1

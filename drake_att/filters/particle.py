@@ -441,6 +441,10 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         rrw_sigma: Gyro RRW ``sigma_u`` (rad/s^1.5), >= 0.
         rng: Generator for the initial draw.
         resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
+        proposal_iterations: Linearizations of each particle's EKF update, >= 1.
+            1 (default) is the paper's EKF proposal; > 1 uses the iterated EKF update
+            (Gauss-Newton), a beyond-the-paper option that lets every particle reach the
+            measurement's basin from a large initial error (e.g. 170 deg) in one step.
 
     Attributes:
         particles: ``(N, 6)`` ``[rho; b]``. covariances: ``(N, 6, 6)`` (MRP chart).
@@ -449,8 +453,9 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                  arw_sigma: float, rrw_sigma: float, rng: np.random.Generator, *,
-                 resample_threshold: float = 2.0 / 3.0):
+                 resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1):
         super().__init__(num_particles, resample_threshold)
+        self.proposal_iterations = check_int(proposal_iterations, "proposal_iterations", 1)
         q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
         b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
         P0 = check_covariance(covariance0, "covariance0", 6)
@@ -503,7 +508,8 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
             return False
         n = self.num_particles
         m_prior, P_prior = self.particles, self.covariances
-        m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False)
+        m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False,
+                                        iterations=self.proposal_iterations)
         # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
         L_post = _robust_cholesky(P_post)
         eps = rng.standard_normal((n, 6))

@@ -57,10 +57,14 @@ def _check_quaternion(q, name: str) -> np.ndarray:
 
 
 def _check_weight(w, name: str) -> float:
+    """Validate a scalar weight: finite and >= 0."""
     try:
-        val = float(w)
+        arr = np.asarray(w, dtype=float)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be a finite real number >= 0; got {name}={w!r}") from exc
+    if arr.ndim != 0:
+        raise ValueError(f"{name} must be a scalar (finite, >= 0); got {name}={_fmt(arr)}")
+    val = float(arr)
     if not np.isfinite(val) or val < 0.0:
         raise ValueError(f"{name} must be a finite real number >= 0; got {name}={val!r}")
     return val
@@ -105,16 +109,22 @@ def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndar
 
     Raises:
         ValueError: If a quaternion is not shape ``(4,)``, not finite or zero, or a weight
-            is negative / not finite, or ``w1 + w2 <= 0``. The message names the argument
+            is negative / not finite, or ``w1 + w2 == 0``. The message names the argument
             and the offending value.
     """
     q1 = _check_quaternion(q1, "q1")
     q2 = _check_quaternion(q2, "q2")
     w1 = _check_weight(w1, "w1")
     w2 = _check_weight(w2, "w2")
-    if not w1 + w2 > 0.0:
+    wmax = max(w1, w2)
+    if not wmax > 0.0:
         raise ValueError(f"w1 + w2 must be > 0 (weights are >= 0); got w1={w1!r}, w2={w2!r}")
 
+    # Only the ratio matters; normalizing keeps every intermediate O(1) (no under/overflow
+    # for extreme weights such as 1e-320 or 1e308).
+    w1, w2 = w1 / wmax, w2 / wmax
+    total = w1 + w2
+    w1, w2 = w1 / total, w2 / total
     d = float(q1 @ q2)
     sign = -1.0 if d < 0.0 else 1.0
     delta = w1 - w2
@@ -213,10 +223,13 @@ def average_quaternions(quaternions, weights=None) -> np.ndarray:
                 f"weights must be finite and >= 0; got weights[{i}]={w[i]!r} "
                 f"(weights={_fmt(w)})"
             )
+        w = w / np.max(w) if np.max(w) > 0.0 else w  # scale-free; avoids sum overflow
         total = float(np.sum(w))
         if not total > 0.0:
-            raise ValueError(f"weights must have a positive sum; got weights={_fmt(w)}")
-        w = w / total  # scale-free; keeps M well scaled
+            raise ValueError(
+                f"weights must have a positive sum; got weights={_fmt(np.asarray(weights))}"
+            )
+        w = w / total  # keeps M well scaled
 
     M = (Q * w[:, None]).T @ Q
     M = 0.5 * (M + M.T)

@@ -48,7 +48,7 @@ class QuaternionSensorModel:
 
     name: str
     q_BS: np.ndarray
-    sigmas_S_rad: np.ndarray  # (3,) cross, cross, boresight
+    covariance_S: np.ndarray  # (3, 3) rotation-vector noise in the sensor frame (rad^2)
 
 
 def pack_estimate(q, second, P, t, n_used, n_skipped, nis) -> np.ndarray:
@@ -168,7 +168,7 @@ class MekfEstimator(AttitudeEstimatorSystem):
             if m[1] < 0.5 or not np.all(np.isfinite(m[2:])) or np.linalg.norm(m[2:]) < 0.5:
                 n_skipped += 1
                 continue
-            state, info = self.core.update_quaternion(state, m[2:], sensor.q_BS, sensor.sigmas_S_rad)
+            state, info = self.core.update_quaternion(state, m[2:], sensor.q_BS, sensor.covariance_S)
             n_used, n_skipped, nis = (n_used + 1, n_skipped, info.nis) if info.accepted else (n_used, n_skipped + 1, info.nis)
         offset = 4 + len(self._quat_ports)
         for j, port in enumerate(self._vector_ports):

@@ -1,0 +1,160 @@
+"""One metrics layer for every estimator.
+
+Attitude error (DESIGN.md): ``R_err = R_IB_hat^T R_IB`` (true body relative to the
+estimated body), ``dtheta_B = log(R_err)``; per-axis x/y/z = roll/pitch/yaw.
+
+Each estimate is scored against the truth **at the estimate's own time**
+(``status[0]``), not at the time the logger recorded it (Drake publishes before the
+discrete update of the same instant, so a log at ``t`` holds the estimate of the previous
+step).
+
+* RMSE / MAE per axis and total RMSE (``sqrt(mean |dtheta|^2)``) over
+  ``t >= scoring.score_from_s`` (the "stable stage").
+* Bias RMSE per axis (deg/h) against the gyro's true bias at the same time.
+* Convergence time: the first estimate time after which every axis of ``dtheta`` stays
+  within ``scoring.convergence_threshold_deg`` until the end (None if never).
+* NEES: ``e' P^-1 e`` with ``e = [dtheta; second-vector error]`` (6-dof) when the second
+  vector's truth is known, else the 3-dof attitude NEES; mean over the scored samples.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.noise import DEG, DEG_PER_H
+from drake_att.scenarios import config as cfg
+
+TIME_MATCH_TOLERANCE_S = 1e-6
+
+
+def _align(t_query, t_ref, what):
+    idx = np.searchsorted(t_ref, t_query - TIME_MATCH_TOLERANCE_S)
+    idx = np.clip(idx, 0, len(t_ref) - 1)
+    bad = np.abs(t_ref[idx] - t_query) > TIME_MATCH_TOLERANCE_S
+    if np.any(bad):
+        raise ValueError(f"{what}: no truth sample at estimate times {t_query[bad][:3]} s "
+                         "(truth must be logged at every estimate time)")
+    return idx
+
+
+def estimator_errors(run, name: str, second_output_name: str, gyro_name: str | None) -> dict:
+    """Aligned errors of one estimator: times, dtheta (rad), second error, covariance, NEES."""
+    status = run.values(f"{name}/status")
+    valid = np.isfinite(status[:, 0]) & (status[:, 0] >= 0)
+    # The first log (t = 0, before the first update) carries the initial estimate with
+    # t_estimate = 0 as well; keep only the last sample of each estimate time.
+    t_est = status[valid, 0]
+    keep = np.r_[np.diff(t_est) > TIME_MATCH_TOLERANCE_S, True]
+    sel = np.flatnonzero(valid)[keep]
+    t_est = status[sel, 0]
+    q_hat = run.values(f"{name}/q_IB_hat")[sel]
+    second_hat = run.values(f"{name}/{second_output_name}")[sel]
+    P = run.values(f"{name}/covariance")[sel].reshape(-1, 6, 6)
+    truth_key = next(k for k in run.signals if k.endswith("/q_IB") and "/" in k)
+    t_truth = run.times(truth_key)
+    idx = _align(t_est, t_truth, name)
+    q_true = run.values(truth_key)[idx]
+    dtheta = rot.quat_error_rotvec(q_hat, q_true)
+    second_err = None
+    if second_output_name == "bias_B_hat" and gyro_name is not None:
+        key = f"{gyro_name}/bias_B"
+        tb = run.times(key)
+        ib = _align(t_est, tb, f"{name} bias")
+        second_err = run.values(key)[ib] - second_hat
+    elif second_output_name == "w_IB_B_hat":
+        w_key = truth_key.replace("/q_IB", "/w_IB_B")
+        second_err = run.values(w_key)[idx] - second_hat
+    if second_err is not None:
+        e = np.concatenate([dtheta, second_err], axis=1)
+        Pe = P
+    else:
+        e = dtheta
+        Pe = P[:, :3, :3]
+    try:
+        nees = np.einsum("ni,ni->n", e, np.linalg.solve(Pe, e[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        nees = np.full(len(e), np.nan)
+    return {"t": t_est, "dtheta": dtheta, "second_err": second_err, "P": P, "nees": nees,
+            "nees_dof": e.shape[1], "status": status[sel], "q_hat": q_hat, "q_true": q_true}
+
+
+def convergence_time(t, dtheta, threshold_rad) -> float | None:
+    """First time after which all axes of ``dtheta`` stay within ``threshold_rad``."""
+    outside = np.any(np.abs(dtheta) > threshold_rad, axis=1)
+    if outside[-1]:
+        return None
+    if not np.any(outside):
+        return float(t[0])
+    last_out = np.flatnonzero(outside)[-1]
+    return float(t[last_out + 1])
+
+
+def score_estimator(errors: dict, scoring: cfg.ScoringConfig, second_output_name: str) -> dict:
+    t = errors["t"]
+    m = t >= scoring.score_from_s - TIME_MATCH_TOLERANCE_S
+    d = errors["dtheta"][m] / DEG
+    out = {
+        "attitude_rmse_deg": np.sqrt(np.mean(d**2, axis=0)).tolist(),
+        "attitude_mae_deg": np.mean(np.abs(d), axis=0).tolist(),
+        "attitude_rmse_total_deg": float(np.sqrt(np.mean(np.sum(d**2, axis=1)))),
+        "attitude_3sigma_final_deg": (3 * np.sqrt(np.diag(errors["P"][-1])[:3]) / DEG).tolist(),
+        "bias_rmse_deg_per_h": None,
+        "rate_rmse_deg_per_s": None,
+        "convergence_time_s": convergence_time(t, errors["dtheta"], scoring.convergence_threshold_deg * DEG),
+        "nees_mean": float(np.nanmean(errors["nees"][m])),
+        "nees_dof": int(errors["nees_dof"]),
+        "scored_from_s": float(scoring.score_from_s),
+        "samples_scored": int(np.sum(m)),
+        "measurements_used": int(errors["status"][-1, 1]),
+        "measurements_skipped": int(errors["status"][-1, 2]),
+    }
+    if errors["second_err"] is not None:
+        s = errors["second_err"][m]
+        if second_output_name == "bias_B_hat":
+            out["bias_rmse_deg_per_h"] = (np.sqrt(np.mean(s**2, axis=0)) / DEG_PER_H).tolist()
+        else:
+            out["rate_rmse_deg_per_s"] = (np.sqrt(np.mean(s**2, axis=0)) / DEG).tolist()
+    return out
+
+
+def estimator_gyro(scenario: cfg.Scenario, estimator_config) -> str | None:
+    """The gyro whose true bias scores an estimator (fusions: their first source's)."""
+    if isinstance(estimator_config, cfg.EstimateFusionConfig):
+        first = next(e for e in scenario.estimators if e.name == estimator_config.sources[0])
+        return estimator_gyro(scenario, first)
+    return getattr(estimator_config, "gyro", None)
+
+
+def compute_metrics(run, estimators: dict) -> dict:
+    """Metrics of every estimator of a run (``estimators``: name -> system)."""
+    scenario = run.scenario
+    result = {"scenario": scenario.name, "seed": run.seed, "duration_s": scenario.duration_s,
+              "wall_time_s": run.wall_time_s, "estimators": {}}
+    for e in scenario.estimators:
+        system = estimators[e.name]
+        errs = estimator_errors(run, e.name, system.second_output_name, estimator_gyro(scenario, e))
+        result["estimators"][e.name] = score_estimator(errs, scenario.scoring, system.second_output_name)
+    return result
+
+
+def format_table(metrics: dict) -> str:
+    """Human-readable table of :func:`compute_metrics` output."""
+    lines = [f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
+             f"  wall {metrics['wall_time_s']:.2f} s"]
+    hdr = (f"{'estimator':<16} {'RMSE x/y/z (deg)':>30} {'MAE x/y/z (deg)':>30} {'RMSE tot':>9} "
+           f"{'bias RMSE x/y/z (deg/h)':>26} {'conv (s)':>8} {'NEES':>7}")
+    lines += [hdr, "-" * len(hdr)]
+    for name, m in metrics["estimators"].items():
+        rm = " ".join(f"{v:9.5f}" for v in m["attitude_rmse_deg"])
+        ma = " ".join(f"{v:9.5f}" for v in m["attitude_mae_deg"])
+        if m.get("bias_rmse_deg_per_h") is not None:
+            br = " ".join(f"{v:8.3f}" for v in m["bias_rmse_deg_per_h"])
+        else:
+            br = "-"
+        conv = "never" if m["convergence_time_s"] is None else f"{m['convergence_time_s']:.1f}"
+        lines.append(f"{name:<16} {rm:>30} {ma:>30} {m['attitude_rmse_total_deg']:9.5f} {br:>26} {conv:>8} "
+                     f"{m['nees_mean']:7.2f}")
+    lines.append(f"(scored from t >= {next(iter(metrics['estimators'].values()))['scored_from_s'] if metrics['estimators'] else 0:.0f} s;"
+                 f" NEES dof = 6 with bias, 3 attitude-only)")
+    return "\n".join(lines)

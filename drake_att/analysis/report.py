@@ -1,0 +1,104 @@
+"""Write a run's results: metrics.json, log.npz, config.yaml, figures, diagram graph."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+
+import numpy as np
+
+from drake_att.analysis import metrics as met
+from drake_att.noise import DEG, DEG_PER_H
+from drake_att.scenarios.config import dump_scenario
+
+
+def plot_estimator(run, name, system, gyro_name, out_dir, score_from_s=0.0) -> list[str]:
+    """Per-axis attitude error with +-3 sigma bounds, and bias/rate error; returns files."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    e = met.estimator_errors(run, name, system.second_output_name, gyro_name)
+    t = e["t"]
+    sig = np.sqrt(np.maximum(np.einsum("nii->ni", e["P"]), 0.0))
+    files = []
+    axes_names = ["x (roll)", "y (pitch)", "z (yaw)"]
+    for stage, sel in (("full", np.ones_like(t, dtype=bool)), ("stable", t >= score_from_s)):
+        if stage == "stable" and (score_from_s <= 0 or not np.any(sel)):
+            continue
+        nrows = 2 if e["second_err"] is not None else 1
+        fig, ax = plt.subplots(nrows, 3, figsize=(14, 3.4 * nrows), squeeze=False, sharex=True)
+        for i in range(3):
+            a = ax[0, i]
+            a.plot(t[sel], e["dtheta"][sel, i] / DEG, lw=0.7, label="error")
+            a.plot(t[sel], 3 * sig[sel, i] / DEG, "r--", lw=0.7, label="±3σ")
+            a.plot(t[sel], -3 * sig[sel, i] / DEG, "r--", lw=0.7)
+            a.set_title(f"{name}: attitude error {axes_names[i]}")
+            a.set_ylabel("deg")
+            a.grid(True, alpha=0.3)
+            if stage == "full":
+                lim = max(6 * np.percentile(np.abs(e["dtheta"][:, i]), 90) / DEG, 1e-6)
+                a.set_ylim(-lim, lim)
+            if e["second_err"] is not None:
+                b = ax[1, i]
+                scale, unit = (DEG_PER_H, "deg/h") if system.second_output_name == "bias_B_hat" else (DEG, "deg/s")
+                label = "bias error" if system.second_output_name == "bias_B_hat" else "rate error"
+                b.plot(t[sel], e["second_err"][sel, i] / scale, lw=0.7)
+                b.plot(t[sel], 3 * sig[sel, 3 + i] / scale, "r--", lw=0.7)
+                b.plot(t[sel], -3 * sig[sel, 3 + i] / scale, "r--", lw=0.7)
+                b.set_title(f"{label} {axes_names[i]}")
+                b.set_ylabel(unit)
+                b.grid(True, alpha=0.3)
+                if stage == "full":
+                    lim = max(6 * np.percentile(np.abs(e["second_err"][:, i]), 90) / scale, 1e-9)
+                    b.set_ylim(-lim, lim)
+        for a in ax[-1]:
+            a.set_xlabel("time (s)")
+        ax[0, 0].legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        path = os.path.join(out_dir, f"{name}_errors_{stage}.png")
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(path)
+    return files
+
+
+def write_diagram_graph(diagram, out_dir) -> list[str]:
+    """``diagram.dot`` always; ``diagram.svg`` when Graphviz ``dot`` is installed."""
+    dot_path = os.path.join(out_dir, "diagram.dot")
+    with open(dot_path, "w") as f:
+        f.write(diagram.GetGraphvizString(max_depth=1))
+    files = [dot_path]
+    dot = shutil.which("dot")
+    if dot:
+        svg_path = os.path.join(out_dir, "diagram.svg")
+        subprocess.run([dot, "-Tsvg", dot_path, "-o", svg_path], check=True)
+        files.append(svg_path)
+    return files
+
+
+def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool = True) -> list[str]:
+    """Write every result file of one run into ``out_dir``; returns the paths."""
+    os.makedirs(out_dir, exist_ok=True)
+    files = []
+    path = os.path.join(out_dir, "metrics.json")
+    with open(path, "w") as f:
+        json.dump(metrics, f, indent=2)
+    files.append(path)
+    path = os.path.join(out_dir, "config.yaml")
+    with open(path, "w") as f:
+        f.write(f"# Resolved configuration of this run (seed {run.seed}).\n")
+        f.write(dump_scenario(run.scenario))
+    files.append(path)
+    path = os.path.join(out_dir, "log.npz")
+    np.savez_compressed(path, **run.to_npz_dict())
+    files.append(path)
+    if figures:
+        for e in run.scenario.estimators:
+            files += plot_estimator(run, e.name, scenario_diagram.estimators[e.name],
+                                    met.estimator_gyro(run.scenario, e), out_dir, run.scenario.scoring.score_from_s)
+    files += write_diagram_graph(scenario_diagram.diagram, out_dir)
+    return files

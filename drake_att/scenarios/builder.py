@@ -1,0 +1,313 @@
+"""Turn a :class:`~drake_att.scenarios.config.Scenario` into a Drake diagram and run it.
+
+``ScenarioDiagram(scenario)`` builds the diagram once (Python systems are not garbage
+collected in pydrake 1.51, so build once per process and reseed per run);
+``ScenarioDiagram.simulate(seed)`` runs it and returns a :class:`RunLog` with every
+logged signal as numpy arrays.
+
+Extending: register a builder for a new config type in :data:`SENSOR_BUILDERS` or
+:data:`ESTIMATOR_BUILDERS` (``fn(ctx: BuildContext, config) -> system``).  The estimator
+system must follow the estimator contract (``drake_att.systems.estimators``); the builder
+logs its contract ports automatically.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common import RandomGenerator
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
+
+from drake_att import rotations as rot
+from drake_att.filters.mekf import MultiplicativeEKF
+from drake_att.noise import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
+from drake_att.orbit import CircularOrbit
+from drake_att.scenarios import config as cfg
+from drake_att.systems.estimators import MekfEstimator, QuaternionSensorModel
+from drake_att.systems.fusion import EstimateFusion, StarTrackerAverage
+from drake_att.systems.gyro import Gyro
+from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
+from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
+from drake_att.systems.star_tracker import StarTracker, mounting_from_paper_s3_angles
+
+
+def make_orbit(scenario: cfg.Scenario) -> CircularOrbit | None:
+    o = scenario.orbit
+    if o is None:
+        return None
+    return CircularOrbit(o.altitude_km * 1e3, o.inclination_deg * DEG, o.raan_deg * DEG, o.arg_latitude0_deg * DEG)
+
+
+def attitude_from_rpy_deg(scenario: cfg.Scenario, rpy_deg) -> np.ndarray:
+    """``q_IB`` at t = 0 for roll/pitch/yaw (deg) relative to the scenario's reference frame."""
+    q = rot.rpy_to_quat(np.asarray(rpy_deg, dtype=float) * DEG)
+    orbit = make_orbit(scenario)
+    if orbit is not None:
+        q = rot.quat_multiply(orbit.q_IO(0.0), q)
+    return rot.quat_canonical(q)
+
+
+def star_tracker_mounting(st: cfg.StarTrackerConfig) -> np.ndarray:
+    if len(st.mounting_paper_s3_angles_deg):
+        psi, phi, theta = np.asarray(st.mounting_paper_s3_angles_deg) * DEG
+        return mounting_from_paper_s3_angles(psi, phi, theta)
+    return rot.rpy_to_quat(np.asarray(st.mounting_rpy_deg) * DEG)
+
+
+def star_tracker_sigmas_S(st: cfg.StarTrackerConfig) -> np.ndarray:
+    return np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
+                     st.sigma_boresight_arcsec]) * ARCSEC
+
+
+@dataclass
+class BuildContext:
+    """What sensor/estimator builder functions get: the builder, truth ports and registries."""
+
+    builder: DiagramBuilder
+    scenario: cfg.Scenario
+    truth: object  # plant or prescribed motion (ports q_IB, w_IB_B, w_IB_B_integral)
+    sensors: dict = field(default_factory=dict)  # name -> system
+    sensor_configs: dict = field(default_factory=dict)
+    estimators: dict = field(default_factory=dict)
+
+    def scenario_estimator_config(self, name):
+        return next(e for e in self.scenario.estimators if e.name == name)
+
+
+# -- sensors ---------------------------------------------------------------------------
+def build_gyro(ctx: BuildContext, c: cfg.GyroConfig):
+    m = np.zeros((3, 3))
+    m[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = np.asarray(c.misalignment_urad) * 1e-6
+    gyro = ctx.builder.AddSystem(Gyro(
+        c.name, c.period_s, c.arw_deg_per_rt_h * ARW_DEG_PER_RT_H, c.rrw_deg_per_h15 * RRW_DEG_PER_H_15,
+        np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H, c.initial_bias_sigma_deg_per_h * DEG_PER_H,
+        np.asarray(c.scale_factor_error_ppm) * 1e-6, m))
+    ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B"), gyro.GetInputPort("w_IB_B"))
+    ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B_integral"), gyro.GetInputPort("w_IB_B_integral"))
+    return gyro
+
+
+def build_star_tracker(ctx: BuildContext, c: cfg.StarTrackerConfig):
+    st = ctx.builder.AddSystem(StarTracker(
+        c.name, c.period_s, star_tracker_mounting(c), c.mode,
+        c.sigma_cross_boresight_arcsec * ARCSEC, c.sigma_boresight_arcsec * ARCSEC,
+        c.references_I if c.mode == "vectors" else None, c.sigma_vector_urad * 1e-6,
+        c.dropout_probability, [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))]))
+    ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))
+    return st
+
+
+def build_star_tracker_average(ctx: BuildContext, c: cfg.StarTrackerAverageConfig):
+    trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
+    avg = ctx.builder.AddSystem(StarTrackerAverage(
+        c.name, c.star_trackers, [star_tracker_mounting(t) for t in trackers],
+        [star_tracker_sigmas_S(t) for t in trackers], c.weights))
+    for n in c.star_trackers:
+        ctx.builder.Connect(ctx.sensors[n].GetOutputPort("star_tracker_measurement"), avg.GetInputPort(f"q_meas_{n}"))
+    return avg
+
+
+SENSOR_BUILDERS = {cfg.GyroConfig: build_gyro, cfg.StarTrackerConfig: build_star_tracker,
+                   cfg.StarTrackerAverageConfig: build_star_tracker_average}
+
+
+def quaternion_sensor_model(ctx: BuildContext, name: str) -> QuaternionSensorModel | None:
+    """The filter's model of a quaternion sensor (a tracker or an averaged virtual one)."""
+    c = ctx.sensor_configs[name]
+    if isinstance(c, cfg.StarTrackerAverageConfig):
+        return QuaternionSensorModel(name, np.array([1.0, 0.0, 0.0, 0.0]), ctx.sensors[name].covariance_B)
+    if c.mode == "quaternion":
+        return QuaternionSensorModel(name, star_tracker_mounting(c), np.diag(star_tracker_sigmas_S(c) ** 2))
+    return None
+
+
+# -- estimators ------------------------------------------------------------------------
+def build_mekf(ctx: BuildContext, c: cfg.MekfConfig):
+    g = ctx.sensor_configs[c.gyro]
+    arw = g.arw_deg_per_rt_h if c.arw_deg_per_rt_h is None else c.arw_deg_per_rt_h
+    rrw = g.rrw_deg_per_h15 if c.rrw_deg_per_h15 is None else c.rrw_deg_per_h15
+    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, c.innovation_gate_chi2)
+    init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
+                              np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
+                              c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
+    quat_models, vector_names = [], []
+    for name in c.star_trackers:
+        model = quaternion_sensor_model(ctx, name)
+        if model is not None:
+            quat_models.append(model)
+        else:
+            vector_names.append(name)
+    est = ctx.builder.AddSystem(MekfEstimator(c.name, c.period_s, core, init, quat_models, vector_names))
+    b = ctx.builder
+    b.Connect(ctx.sensors[c.gyro].GetOutputPort("gyro_measurement"), est.GetInputPort("gyro_measurement"))
+    for m in quat_models:
+        b.Connect(ctx.sensors[m.name].GetOutputPort("star_tracker_measurement"), est.GetInputPort(f"q_meas_{m.name}"))
+    for n in vector_names:
+        b.Connect(ctx.sensors[n].GetOutputPort("vector_observations"), est.GetInputPort(f"vectors_{n}"))
+    return est
+
+
+def build_estimate_fusion(ctx: BuildContext, c: cfg.EstimateFusionConfig):
+    sources = [ctx.estimators[n] for n in c.sources]
+    second = {s.second_output_name for s in sources}
+    if len(second) != 1:
+        raise cfg.ConfigError(f"{c.name}.sources: {c.sources} estimate different quantities {sorted(second)}")
+    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second.pop(), c.covariance_model))
+    for n, src in zip(c.sources, sources):
+        for port, dst in (("q_IB_hat", "q_IB_hat"), (src.second_output_name, "second"),
+                          ("covariance", "covariance"), ("status", "status")):
+            ctx.builder.Connect(src.GetOutputPort(port), fusion.GetInputPort(f"{n}_{dst}"))
+    fusion.period_s = min(ctx.scenario_estimator_config(n).period_s for n in c.sources)
+    fusion.gyro_name = ctx.scenario_estimator_config(c.sources[0]).gyro
+    return fusion
+
+
+ESTIMATOR_BUILDERS = {cfg.MekfConfig: build_mekf, cfg.EstimateFusionConfig: build_estimate_fusion}
+
+
+@dataclass
+class RunLog:
+    """Everything logged in one run (numpy arrays; times in s, SI units).
+
+    ``signals`` maps ``"<system>/<port>"`` to ``(times (n,), values (n, k))``.
+    """
+
+    scenario: cfg.Scenario
+    seed: int
+    wall_time_s: float
+    signals: dict
+
+    def times(self, key):
+        return self.signals[key][0]
+
+    def values(self, key):
+        return self.signals[key][1]
+
+    def to_npz_dict(self) -> dict:
+        out = {}
+        for key, (t, v) in self.signals.items():
+            k = key.replace("/", "__")
+            out[f"{k}__t"] = t
+            out[f"{k}__x"] = v
+        return out
+
+
+class ScenarioDiagram:
+    """A scenario's diagram, built once; :meth:`simulate` runs it for any seed.
+
+    Attributes:
+        diagram: the Drake ``Diagram``.
+        truth: the plant or prescribed-motion system.
+        sensors, estimators: name -> system.
+        loggers: ``"<system>/<port>"`` -> ``VectorLogSink``.
+    """
+
+    def __init__(self, scenario: cfg.Scenario):
+        cfg.validate(scenario)
+        self.scenario = scenario
+        builder = DiagramBuilder()
+        p = scenario.plant
+        if isinstance(p, cfg.RigidBodyConfig):
+            I = np.asarray(p.inertia_kg_m2, dtype=float)
+            truth = builder.AddSystem(RigidBodyAttitudePlant(I if I.size == 3 else I.reshape(3, 3)))
+            torque = builder.AddNamedSystem("disturbance_torque", ConstantVectorSource(np.asarray(p.disturbance_torque_N_m, dtype=float)))
+            builder.Connect(torque.get_output_port(), truth.GetInputPort("torque_B"))
+        elif isinstance(p, cfg.PrescribedRateConfig):
+            truth = builder.AddSystem(PrescribedAttitudeMotion.from_rate_profile(
+                np.asarray(p.constant_deg_per_s) * DEG, np.asarray(p.amplitude_deg_per_s) * DEG,
+                p.frequency_rad_per_s, np.asarray(p.phase_deg) * DEG, attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg)))
+        else:
+            truth = builder.AddSystem(PrescribedAttitudeMotion.from_rpy_breakpoints(
+                p.times_s, np.asarray(p.rpy_deg) * DEG))
+        self.truth = truth
+        ctx = BuildContext(builder, scenario, truth)
+        for s in scenario.sensors:
+            ctx.sensor_configs[s.name] = s
+            ctx.sensors[s.name] = SENSOR_BUILDERS[type(s)](ctx, s)
+        for e in scenario.estimators:
+            ctx.estimators[e.name] = ESTIMATOR_BUILDERS[type(e)](ctx, e)
+        self.sensors, self.estimators = ctx.sensors, ctx.estimators
+        AddRandomInputs(RANDOM_SOURCE_SAMPLING_INTERVAL_S, builder)
+
+        periods = [self.estimator_period(e.name) for e in scenario.estimators] + [
+            s.period_s for s in scenario.sensors if hasattr(s, "period_s")]
+        self.truth_log_period_s = min(periods) if periods else 1.0
+        self.loggers = {}
+
+        def log(system, port_name, period):
+            key = f"{system.get_name()}/{port_name}"
+            self.loggers[key] = LogVectorOutput(system.GetOutputPort(port_name), builder, period)
+
+        log(truth, "q_IB", self.truth_log_period_s)
+        log(truth, "w_IB_B", self.truth_log_period_s)
+        for s in scenario.sensors:
+            system = self.sensors[s.name]
+            if isinstance(s, cfg.GyroConfig):
+                log(system, "gyro_measurement", s.period_s)
+                log(system, "bias_B", s.period_s)
+            elif isinstance(s, cfg.StarTrackerConfig) and s.mode == "quaternion":
+                log(system, "star_tracker_measurement", s.period_s)
+        for e in scenario.estimators:
+            system = self.estimators[e.name]
+            for port in ("q_IB_hat", system.second_output_name, "covariance", "status"):
+                log(system, port, self.estimator_period(e.name))
+        self.diagram = builder.Build()
+        self.diagram.set_name(scenario.name)
+
+    def estimator_period(self, name: str) -> float:
+        return self.estimators[name].period_s
+
+    def initial_q_IB(self) -> np.ndarray:
+        p = self.scenario.plant
+        if isinstance(p, cfg.PrescribedRpyConfig):
+            return rot.rpy_to_quat(np.asarray(p.rpy_deg[0]) * DEG)
+        return attitude_from_rpy_deg(self.scenario, p.initial_attitude_rpy_deg)
+
+    def create_context(self, seed: int):
+        """A context randomized by ``seed`` with the scenario's initial conditions."""
+        context = self.diagram.CreateDefaultContext()
+        # SetRandomContext resets every state and parameter to its default: set initial
+        # conditions after it.
+        self.diagram.SetRandomContext(context, RandomGenerator(int(seed)))
+        truth_ctx = self.truth.GetMyMutableContextFromRoot(context)
+        self.truth.SetDefaultParametersAndState(truth_ctx)
+        p = self.scenario.plant
+        if isinstance(p, cfg.RigidBodyConfig):
+            self.truth.SetInitialState(truth_ctx, self.initial_q_IB(), np.asarray(p.initial_rate_deg_per_s) * DEG)
+        else:
+            self.truth.SetInitialState(truth_ctx, self.initial_q_IB())
+        return context
+
+    def simulate(self, seed: int | None = None, progress: bool = False) -> RunLog:
+        """Run the scenario for ``seed`` (default: the scenario's) and return its logs."""
+        seed = self.scenario.seed if seed is None else int(seed)
+        context = self.create_context(seed)
+        simulator = Simulator(self.diagram, context)
+        sc = self.scenario.simulation
+        ApplySimulatorConfig(SimulatorConfig(
+            integration_scheme=sc.integration_scheme, max_step_size=sc.max_step_size_s,
+            accuracy=sc.accuracy, use_error_control=sc.use_error_control,
+            target_realtime_rate=0.0, publish_every_time_step=False), simulator)
+        start = time.perf_counter()
+        simulator.Initialize()
+        duration = self.scenario.duration_s
+        chunks = 20 if progress else 1
+        for k in range(1, chunks + 1):
+            simulator.AdvanceTo(duration * k / chunks)
+            if progress:
+                elapsed = time.perf_counter() - start
+                print(f"\r  [{self.scenario.name} seed {seed}] t = {duration * k / chunks:8.1f} / {duration:.1f} s"
+                      f"  ({elapsed:6.1f} s wall)", end="", file=sys.stderr, flush=True)
+        if progress:
+            print(file=sys.stderr)
+        wall = time.perf_counter() - start
+        signals = {}
+        for key, logger in self.loggers.items():
+            log = logger.FindLog(context)
+            signals[key] = (log.sample_times().copy(), log.data().T.copy())
+        return RunLog(self.scenario, seed, wall, signals)

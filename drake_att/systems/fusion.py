@@ -1,0 +1,144 @@
+"""Multi-sensor fusion systems (paper S3): star-tracker averaging and estimate fusion.
+
+Both are stateless ``LeafSystem`` s whose outputs are direct functions of their inputs,
+so they add no sample delay.
+
+* :class:`StarTrackerAverage` ("centralized"): converts each tracker's ``q_IS_meas`` into
+  a body-attitude measurement ``q_IB_meas,i = q_IS_meas,i ⊗ q_BS,i^-1`` and averages them
+  (Markley et al. 2007).  Its measurement covariance is derived, not guessed: with
+  ``q_IB_meas,i = q_IB ⊗ exp(R_BS,i delta_i)`` and weights ``w_i`` (sum 1), to first order
+  ``q_avg = q_IB ⊗ exp(sum_i w_i R_BS,i delta_i)``, hence
+  ``R_avg,B = sum_i w_i^2 R_BS,i diag(sigma_S,i^2) R_BS,i'`` (independent trackers).
+* :class:`EstimateFusion` ("decentralized"): averages the attitude estimates of several
+  estimators (quaternion average) and their second vectors (linear average).  Reported
+  covariance (``covariance_model``):
+    - "conservative" (default): ``sum_i w_i P_i``.  For weights summing to one,
+      ``(sum w_i e_i)(sum w_i e_i)' <= sum w_i e_i e_i'`` (convexity), so this bounds the
+      true covariance whatever the correlation between the estimators (they share one
+      gyro, so they *are* correlated); it is tight when they are fully correlated.
+    - "independent": ``sum_i w_i^2 P_i`` - optimistic; ignores the shared gyro.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from drake_att import rotations as rot
+from drake_att.filters.quaternion_average import average_quaternions
+from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE
+
+TIME_TOLERANCE_S = 1e-6
+
+
+def _normalized_weights(weights, n, field):
+    w = np.asarray(weights, dtype=float)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        raise ValueError(f"{field}: got {list(np.atleast_1d(weights))}; need {n} finite weights >= 0 with positive sum")
+    return w / w.sum()
+
+
+class StarTrackerAverage(LeafSystem):
+    """Averaged body-attitude measurement from several star trackers.
+
+    Args:
+        name: system name.
+        tracker_names: names of the quaternion-mode trackers (input port suffixes).
+        q_BS_list: mounting of each tracker (4,).
+        sigmas_S_list: (3,) noise sigmas of each tracker in its sensor frame (rad).
+        weights: averaging weights (normalized to sum 1).
+
+    Input ports:
+        q_meas_<tracker> (6): ``[t, valid, q_IS_meas (4)]`` per tracker.
+    Output ports:
+        star_tracker_measurement (6): ``[t, valid, q_IB_meas (4)]`` - a measurement of a
+            virtual sensor with ``q_BS = identity`` and covariance :attr:`covariance_B`.
+            Valid only when every input is valid at the same time (otherwise flagged
+            invalid, so the estimator skips and counts it).
+    """
+
+    def __init__(self, name, tracker_names, q_BS_list, sigmas_S_list, weights):
+        LeafSystem.__init__(self)
+        self.set_name(name)
+        n = len(tracker_names)
+        if n < 2:
+            raise ValueError(f"{name}.star_trackers: got {list(tracker_names)}; need at least 2 trackers")
+        self.weights = _normalized_weights(weights, n, f"{name}.weights")
+        self.q_BS = [rot.quat_normalize(q) for q in q_BS_list]
+        self.covariance_B = np.zeros((3, 3))
+        for w, q, s in zip(self.weights, self.q_BS, sigmas_S_list):
+            R_BS = rot.quat_to_rotmat(q)
+            self.covariance_B += w**2 * R_BS @ np.diag(np.asarray(s, dtype=float) ** 2) @ R_BS.T
+        self._ports = [self.DeclareVectorInputPort(f"q_meas_{t}", QUATERNION_MEASUREMENT_SIZE) for t in tracker_names]
+        self.DeclareVectorOutputPort("star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc)
+
+    def _calc(self, context, output: BasicVector):
+        meas = [p.Eval(context) for p in self._ports]
+        times = np.array([m[0] for m in meas])
+        valid = all(m[1] > 0.5 and np.all(np.isfinite(m[2:])) for m in meas) and np.ptp(times) < TIME_TOLERANCE_S
+        if valid:
+            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS)])
+            q_avg = average_quaternions(q_B, self.weights)
+        else:
+            q_avg = np.array([1.0, 0.0, 0.0, 0.0])
+        out = np.empty(QUATERNION_MEASUREMENT_SIZE)
+        out[0], out[1], out[2:] = times.max(), float(valid), q_avg
+        output.SetFromVector(out)
+
+
+class EstimateFusion(LeafSystem):
+    """Weighted fusion of several estimators' outputs (estimator contract in and out).
+
+    Args:
+        name: system name.
+        source_names: names of the fused estimators (input port prefixes).
+        weights: fusion weights (normalized to sum 1).
+        second_output_name: "bias_B_hat" or "w_IB_B_hat" (must match the sources).
+        covariance_model: "conservative" or "independent" (see module docstring).
+
+    Input ports (per source ``s``): ``s_q_IB_hat`` (4), ``s_second`` (3),
+        ``s_covariance`` (36), ``s_status`` (4).
+    Output ports: the estimator contract (``q_IB_hat``, second vector, ``covariance``,
+        ``status`` with ``t_estimate`` = the sources' common estimate time; NaN time when
+        the sources disagree on it).
+    """
+
+    def __init__(self, name, source_names, weights, second_output_name="bias_B_hat",
+                 covariance_model="conservative"):
+        LeafSystem.__init__(self)
+        self.set_name(name)
+        n = len(source_names)
+        if n < 2:
+            raise ValueError(f"{name}.sources: got {list(source_names)}; need at least 2 estimators")
+        if covariance_model not in ("conservative", "independent"):
+            raise ValueError(f"{name}.covariance_model: got {covariance_model!r}; allowed: 'conservative', 'independent'")
+        self.weights = _normalized_weights(weights, n, f"{name}.weights")
+        self.covariance_model = covariance_model
+        self.second_output_name = second_output_name
+        self.source_names = list(source_names)
+        self._in = {s: {k: self.DeclareVectorInputPort(f"{s}_{k}", size)
+                        for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))}
+                    for s in source_names}
+        self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
+        self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
+        self.DeclareVectorOutputPort("covariance", 36, self._calc_cov)
+        self.DeclareVectorOutputPort("status", 4, self._calc_status)
+
+    def _eval(self, context, key):
+        return [self._in[s][key].Eval(context) for s in self.source_names]
+
+    def _calc_q(self, context, output):
+        output.SetFromVector(average_quaternions(np.array(self._eval(context, "q_IB_hat")), self.weights))
+
+    def _calc_second(self, context, output):
+        output.SetFromVector(np.einsum("i,ij->j", self.weights, np.array(self._eval(context, "second"))))
+
+    def _calc_cov(self, context, output):
+        P = np.array(self._eval(context, "covariance"))
+        c = self.weights if self.covariance_model == "conservative" else self.weights**2
+        output.SetFromVector(np.einsum("i,ij->j", c, P))
+
+    def _calc_status(self, context, output):
+        st = np.array(self._eval(context, "status"))
+        t = st[0, 0] if np.ptp(st[:, 0]) < TIME_TOLERANCE_S else np.nan
+        output.SetFromVector([t, st[:, 1].sum(), st[:, 2].sum(), np.nan])

