@@ -105,7 +105,9 @@ def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndar
         Unit quaternion ``[w, x, y, z]``, shape ``(4,)``. Its sign is chosen so that
         ``q_avg' q1 >= 0`` (it is in the hemisphere of ``q1``, which keeps it continuous
         with ``q1`` when used inside a filter); it is *not* forced to have ``w >= 0``.
-        Use :func:`drake_att.rotations.quat_canonical` if that is wanted.
+        Use :func:`drake_att.rotations.quat_canonical` if that is wanted. Replacing ``q2``
+        by ``-q2`` returns the identical result, except when ``q1' q2 == 0`` exactly, where
+        the result can flip sign (same rotation).
 
     Raises:
         ValueError: If a quaternion is not shape ``(4,)``, not finite or zero, or a weight

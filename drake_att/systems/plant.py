@@ -85,12 +85,11 @@ class RigidBodyAttitudePlant(Diagram):
         tau = [Variable(f"tau{i}") for i in range(3)]
         p_I = [Variable(f"I{i}") for i in range(9)]
         p_Iinv = [Variable(f"Iinv{i}") for i in range(9)]
-        I = np.array(p_I, dtype=object).reshape(3, 3)
-        Iinv = np.array(p_Iinv, dtype=object).reshape(3, 3)
-        wv = np.array([Expression(x) for x in w], dtype=object)
-        Iw = I.dot(wv)
-        gyro = np.array([w[1] * Iw[2] - w[2] * Iw[1], w[2] * Iw[0] - w[0] * Iw[2], w[0] * Iw[1] - w[1] * Iw[0]])
-        w_dot = Iinv.dot(np.array(tau, dtype=object) - gyro)
+        # Written out element by element (numpy dot on object arrays warns spuriously).
+        Iw = [sum(p_I[3 * r + c] * w[c] for c in range(3)) for r in range(3)]
+        gyro = [w[1] * Iw[2] - w[2] * Iw[1], w[2] * Iw[0] - w[0] * Iw[2], w[0] * Iw[1] - w[1] * Iw[0]]
+        rhs = [tau[r] - gyro[r] for r in range(3)]
+        w_dot = [sum(p_Iinv[3 * r + c] * rhs[c] for c in range(3)) for r in range(3)]
         dynamics = _quat_kinematics(q, w) + list(w_dot) + list(w)
         output = list(q) + list(w) + list(th)
         self._symbolic = SymbolicVectorSystem(

@@ -1,0 +1,30 @@
+# drake_att: two commands do all set-up on a fresh machine.
+#   make run    run the default scenario (creates .venv and installs what is missing)
+#   make test   run the test suite (same set-up)
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test bench clean
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test]"
+	@command -v dot >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  (apt-get update -qq && apt-get install -y -qq graphviz >/dev/null) || \
+	  echo "note: Graphviz 'dot' not installed; diagram.svg will be skipped (diagram.dot is always written)"; }
+	@touch $(STAMP)
+
+run: $(STAMP)
+	$(VENV)/bin/drake-att run $(ARGS)
+
+test: $(STAMP)
+	MPLBACKEND=Agg $(PY) -m pytest -q $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_scenarios.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache
