@@ -184,7 +184,7 @@ def test_weights_stay_finite_and_normalized_over_many_steps():
         gpf.predict(1.0, rng)
         gpf.update(ys[k] if k != 5 else None, REFS, SIGMA_STAR, rng)
         assert_weights_ok(gpf)
-    assert gpf.n_skipped == 1
+    assert gpf.n_skipped == 3  # k = 5 (None), 10 (NaN), 20 (inf)
 
 
 def _run_all_filters(seed):
@@ -413,14 +413,20 @@ def test_ekpf_from_large_initial_error():
 
 
 def test_gyroless_particle_filter_tracks_attitude_and_rate():
-    """Paper S0 finding 4 (gyroless, Euler's equations with known torque)."""
+    """Paper S0 finding 4 (gyroless, Euler's equations with known torque).
+
+    As in gyro mode, the attitude cloud needs process noise to follow the truth: with
+    rate noise only (1e-6 rad/s^1.5) the error is still ~0.05 deg after 300 s; with an
+    attitude process noise of 3e-5 rad/s^0.5 it converges within ~100 s.
+    """
     data_rng = np.random.default_rng(61)
     q_true, w_true, ys = simulate_euler_truth(300, data_rng)
     q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
     w0 = np.full(3, 0.001 * DEG)
     P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
     rng = np.random.default_rng(62)
-    gpf = GyrolessParticleFilter(1000, q0, w0, P0, INERTIA, TORQUE, 1e-6, rng)
+    gpf = GyrolessParticleFilter(1000, q0, w0, P0, INERTIA, TORQUE, 1e-6, rng,
+                                 attitude_process_sigma=3e-5)
     q_err, w_err = [], []
     for k, y in enumerate(ys):
         if k > 0:
@@ -437,24 +443,28 @@ def test_gyroless_particle_filter_tracks_attitude_and_rate():
 
 def test_gyroless_propagation_matches_euler_truth_without_noise():
     """With zero process noise and a point-mass prior every particle follows the truth."""
-    data_rng = np.random.default_rng(71)
-    q_true, w_true, _ = simulate_euler_truth(50, data_rng, substeps=20)
     rng = np.random.default_rng(0)
     w0 = np.array([1e-3, -2e-3, 3e-3])
     gpf = GyrolessParticleFilter(5, [1, 0, 0, 0], w0, np.eye(6) * 1e-30, INERTIA, TORQUE,
                                  0.0, rng, num_substeps=4)
-    # Reference: the same body from w0, integrated finely.
+    # Reference: the same body from w0, integrated with a 20x finer RK4 step.
     Iinv = np.linalg.inv(INERTIA)
-    q, w = np.array([1.0, 0, 0, 0]), w0.copy()
+
+    def wdot(w):
+        return Iinv @ (TORQUE - np.cross(w, INERTIA @ w))
+
+    q, w, h = np.array([1.0, 0, 0, 0]), w0.copy(), 0.0125
     for _ in range(50):
-        for _ in range(200):
-            h = 0.005
-            f = lambda w: Iinv @ (TORQUE - np.cross(w, INERTIA @ w))  # noqa: E731
-            k1 = f(w); k2 = f(w + h / 2 * k1); k3 = f(w + h / 2 * k2); k4 = f(w + h * k3)  # noqa: E702
+        for _ in range(80):
+            k1 = wdot(w)
+            k2 = wdot(w + h / 2 * k1)
+            k3 = wdot(w + h / 2 * k2)
+            k4 = wdot(w + h * k3)
             w_next = w + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             q = rot.quat_propagate(q, 0.5 * (w + w_next), h)
             w = w_next
         gpf.predict(1.0, rng)
     q_hat, w_hat = gpf.mean()
-    assert att_err(q_hat, q) < 1e-9
+    assert att_err(q_hat, q) < 1e-8  # rad, after a 0.2 rad rotation
     np.testing.assert_allclose(w_hat, w, atol=1e-12)
+    assert np.ptp(gpf.particles, axis=0).max() < 1e-12
