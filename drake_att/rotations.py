@@ -21,6 +21,8 @@ every conversion against pydrake's ``RotationMatrix`` / ``Quaternion`` / ``RollP
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _SMALL_ANGLE = 1e-4  # below this angle (rad) series expansions are used
@@ -56,12 +58,16 @@ def quat_identity(shape: tuple = ()) -> np.ndarray:
 def quat_normalize(q) -> np.ndarray:
     """Unit quaternion(s) ``q / |q|``."""
     q = _as_array(q)
+    if q.ndim == 1:
+        return q / math.sqrt(float(q @ q))
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
 def quat_canonical(q) -> np.ndarray:
     """Sign-canonical representative: scalar part >= 0 (q and -q are one rotation)."""
     q = _as_array(q)
+    if q.ndim == 1:
+        return -q if q[0] < 0.0 else q
     sign = np.where(q[..., :1] < 0.0, -1.0, 1.0)
     return q * sign
 
@@ -76,6 +82,13 @@ def quat_multiply(p, q) -> np.ndarray:
     """Hamilton product ``p ⊗ q`` (``R(p ⊗ q) = R(p) R(q)``); broadcasts batches."""
     p = _as_array(p)
     q = _as_array(q)
+    if p.ndim == 1 and q.ndim == 1:
+        # Scalar fast path (Python floats): ~15x faster than the broadcasting form for the
+        # per-event work of Drake systems.
+        pw, px, py, pz = p.tolist()
+        qw, qx, qy, qz = q.tolist()
+        return np.array([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+                         pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw])
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack(
@@ -158,6 +171,11 @@ def quat_rotate(q, v) -> np.ndarray:
 def rotvec_to_quat(phi) -> np.ndarray:
     """Quaternion ``exp(phi / 2)`` of rotation vector(s) phi (angle |phi| about phi)."""
     phi = _as_array(phi)
+    if phi.ndim == 1:  # scalar fast path
+        x, y, z = phi.tolist()
+        a = math.sqrt(x * x + y * y + z * z)
+        k = 0.5 - a * a / 48.0 if a < _SMALL_ANGLE else math.sin(0.5 * a) / a
+        return np.array([math.cos(0.5 * a), k * x, k * y, k * z])
     angle = np.linalg.norm(phi, axis=-1, keepdims=True)
     half = 0.5 * angle
     # sin(a/2)/a, with its Taylor series near 0.
@@ -173,6 +191,11 @@ def quat_to_rotvec(q) -> np.ndarray:
     Uses ``2 atan2(|v|, w)`` so it is accurate both near 0 and near pi.
     """
     q = quat_canonical(quat_normalize(q))
+    if q.ndim == 1:  # scalar fast path
+        w, x, y, z = q.tolist()
+        s = math.sqrt(x * x + y * y + z * z)
+        k = 2.0 / w if s < 1e-12 else 2.0 * math.atan2(s, w) / s
+        return np.array([k * x, k * y, k * z])
     v = q[..., 1:]
     s = np.linalg.norm(v, axis=-1, keepdims=True)
     w = q[..., :1]

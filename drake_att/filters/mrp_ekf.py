@@ -31,7 +31,13 @@ batched helpers that :mod:`drake_att.filters.particle` reuses for the EKPF):
   ``Qd = Qg dt + (F Qg + Qg F') dt^2 / 2 + F Qg F' dt^3 / 3`` (this contains the classic
   ``sigma_u^2 dt^3 / 3`` attitude term and ``-sigma_u^2 dt^2 / 2`` cross term).
 * **Update**: analytic Jacobian ``dh/drho = [(R_BI u) x] B(rho)^-1``,
-  ``B^-1 = 16 / (1 + rho'rho)^2 B'``; Joseph-form covariance.
+  ``B^-1 = 16 / (1 + rho'rho)^2 B'``; Joseph-form covariance. Optionally iterated
+  (IEKF, ``iterations`` / ``update_iterations`` > 1, beyond the paper). Measured on S0:
+  the classic EKF's first update from a 1 deg prior with 100 urad vectors is
+  overconfident (mean NEES ~13 instead of 6 over 25 runs; the second-order
+  linearization error is ~2 posterior sigmas), consistent from ~5 steps on; 3
+  iterations make it consistent from the start, and ~8 iterations converge in one
+  update from a 170 deg error, where the classic EKF only creeps (error ~1/k).
 * **Shadow switch**: after each predict and each update, if ``|rho| > 1`` the state is
   mapped to ``-rho / |rho|^2`` and the covariance with the Jacobian
   ``d(-rho/|rho|^2)/drho = (2 rho rho' - |rho|^2 I) / |rho|^4``. Thus ``|rho| <= 1``
@@ -523,7 +529,7 @@ class MrpEkf:
         rate is used.
         """
         dt = check_positive_scalar(dt, "dt")
-        w = _valid_rate(w_meas)
+        w = valid_rate_or_none(w_meas)
         if w is None:
             self.n_skipped += 1
             w = self._last_w_meas
@@ -586,7 +592,7 @@ class MrpEkf:
         return quat_error_rotvec(self.q_IB_hat, q_IB_true)
 
 
-def _valid_rate(w_meas):
+def valid_rate_or_none(w_meas):
     """Return a finite ``(3,)`` rate or None; wrong shapes raise ValueError."""
     if w_meas is None:
         return None

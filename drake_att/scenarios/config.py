@@ -299,6 +299,11 @@ def _coerce(value, current, path):
             raise ConfigError(f"--set {path}: got {value!r}; expected true/false")
         return value
     if isinstance(current, float) or (current is None and isinstance(value, (int, float))):
+        if isinstance(value, str):  # YAML 1.1 reads "1e-10" (no dot) as a string
+            try:
+                value = float(value)
+            except ValueError:
+                pass
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise ConfigError(f"--set {path}: got {value!r}; expected a number")
         return float(value)

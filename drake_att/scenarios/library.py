@@ -7,7 +7,7 @@ import os
 from drake_att.scenarios.config import Scenario, load_scenario
 
 SCENARIO_DIR = os.path.dirname(os.path.abspath(__file__))
-DEFAULT_SCENARIO = "cubesat_single_star_tracker"
+DEFAULT_SCENARIO = "cubesat_dual_star_tracker"
 
 
 def available_scenarios() -> dict[str, str]:

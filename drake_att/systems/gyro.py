@@ -94,9 +94,9 @@ class Gyro(LeafSystem):
 
     def _initialize(self, context, discrete_state):
         words = read_seed_words(self, context, self._seed_port)
-        rng = counter_random(words, self.get_name()).generator(0)
-        bias0 = self.initial_bias + self.initial_bias_sigma * rng.standard_normal(3)
-        e, _ = self.noise.draw(rng)
+        z = counter_random(words, self.get_name()).normals(0, 9)
+        bias0 = self.initial_bias + self.initial_bias_sigma * z[6:9]
+        e, _ = self.noise.from_normals(z[:6].reshape(2, 3))
         integral = self._integral(context)
         x = np.concatenate([words, [0.0, context.get_time()], bias0 + e, bias0,
                             np.zeros(3) if integral is None else integral, [0.0]])
@@ -106,8 +106,8 @@ class Gyro(LeafSystem):
     def _on_sample(self, context, discrete_state):
         x = context.get_discrete_state_vector().value()
         words, index, bias = x[:SEED_WORDS], int(x[4]), x[9:12]
-        rng = counter_random(words, self.get_name()).generator(index + 1)
-        e, db = self.noise.draw(rng)
+        z = counter_random(words, self.get_name()).normals(index + 1, 9)
+        e, db = self.noise.from_normals(z[:6].reshape(2, 3))
         integral = self._integral(context)
         new = x.copy()
         new[4] = index + 1

@@ -137,11 +137,16 @@ class RigidBodyAttitudePlant(Diagram):
         return self.GetSubsystemContext(self._symbolic, context).get_continuous_state_vector().CopyToVector()
 
 
+def _as_expression(x):
+    """``Expression(x)``; pydrake 1.51 has no ``Expression(Expression)`` constructor."""
+    return x if isinstance(x, Expression) else Expression(x)
+
+
 def _piecewise(t, times, values):
     """Symbolic piecewise-constant: ``values[i]`` for ``times[i] <= t < times[i+1]``."""
-    expr = Expression(values[-1])
+    expr = _as_expression(values[-1])
     for i in range(len(values) - 2, -1, -1):
-        expr = if_then_else(t < times[i + 1], Expression(values[i]), expr)
+        expr = if_then_else(t < times[i + 1], _as_expression(values[i]), expr)
     return expr
 
 
@@ -164,7 +169,7 @@ class PrescribedAttitudeMotion(Diagram):
         t = time_variable
         q = [Variable(f"q{i}") for i in range(4)]
         th = [Variable(f"theta{i}") for i in range(3)]
-        w = [Expression(e) for e in w_of_t_expressions]
+        w = [_as_expression(e) for e in w_of_t_expressions]
         if len(w) != 3:
             raise ValueError(f"w_of_t_expressions: got {len(w)} expressions; need 3")
         dynamics = _quat_kinematics(q, w) + list(w)

@@ -91,7 +91,8 @@ class StarTracker(LeafSystem):
         star_tracker_measurement (6): ``[t_meas (s), valid (1/0), q_IS_meas (4, wxyz)]``.
     Output ports (vector mode):
         vector_observations (abstract :class:`VectorObservations`).
-    Discrete state: ``[seed words (4), sample index, t_sample, valid, noise (3 or 3m)]``.
+    Discrete state: ``[seed words (4), sample index, t_sample, valid, noise]`` where the noise
+        is ``q_BS ⊗ exp(delta_S)`` (4) in quaternion mode, or the ``3m`` vector errors.
     """
 
     def __init__(self, name: str, period_s: float, q_BS=(1.0, 0.0, 0.0, 0.0), mode: str = "quaternion",
@@ -134,7 +135,7 @@ class StarTracker(LeafSystem):
             n_noise = 3 * self.references_I.shape[0]
         else:
             self.references_I = None
-            n_noise = 3
+            n_noise = 4
         self._n_noise = n_noise
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
         self._seed_port = declare_seed_port(self)
@@ -155,12 +156,13 @@ class StarTracker(LeafSystem):
 
     # -- noise ----------------------------------------------------------------------
     def _draw(self, words, index, t_sample):
-        rng = counter_random(words, self.get_name()).generator(index)
+        cr = counter_random(words, self.get_name())
         if self.mode == "quaternion":
-            noise = self.sigmas_S * rng.standard_normal(3)
+            # Stored as the quaternion q_BS ⊗ exp(delta_S) so the output is one product.
+            noise = rot.quat_multiply(self.q_BS, rot.rotvec_to_quat(self.sigmas_S * cr.normals(index, 3)))
         else:
-            noise = self.sigma_vector * rng.standard_normal(self._n_noise)
-        valid = rng.uniform() >= self.dropout_probability
+            noise = self.sigma_vector * cr.normals(index, self._n_noise)
+        valid = cr.uniforms(index, 1)[0] >= self.dropout_probability
         if any(a <= t_sample < b for a, b in self.outage_windows_s):
             valid = False
         return noise, valid
@@ -186,8 +188,7 @@ class StarTracker(LeafSystem):
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
         x = context.get_discrete_state_vector().value()
-        q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
-        q_meas = rot.quat_canonical(rot.quat_multiply(q_IS, rot.rotvec_to_quat(x[7:10])))
+        q_meas = rot.quat_canonical(rot.quat_multiply(self._q_port.Eval(context), x[7:11]))
         out = np.empty(QUATERNION_MEASUREMENT_SIZE)
         out[0], out[1], out[2:] = x[5], x[6], q_meas
         output.SetFromVector(out)

@@ -1,0 +1,137 @@
+"""Time per filter step (predict + update) of the S0 filter cores.
+
+Usage::
+
+    python benchmarks/bench_particle_filters.py [--steps 300] [--particles 1000]
+
+Runs each filter on the same synthetic S0 data (constant small body rate, Farrenkopf
+gyro, two star vectors at 100 urad, 1 Hz) and prints a table of the mean and best
+wall-clock time per step, measured with ``time.perf_counter`` around each
+predict + update pair, plus the extrapolated time of the paper's 1000-step run.
+No assertions: timings depend on the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.filters.mrp_ekf import MrpEkf, vector_measurement_model
+from drake_att.filters.particle import (
+    BootstrapParticleFilter,
+    ExtendedKalmanParticleFilter,
+    GyrolessParticleFilter,
+)
+
+DEG = np.pi / 180.0
+HOUR = 3600.0
+SIGMA_V = 0.2 * DEG / HOUR
+SIGMA_U = 0.02 * DEG / HOUR / np.sqrt(HOUR)
+SIGMA_STAR = 100e-6
+REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+INERTIA = np.diag([100.0, 200.0, 200.0])
+TORQUE = np.full(3, 1e-5)
+
+
+def make_data(num_steps: int, seed: int = 0):
+    """Synthetic S0 measurements: y (K, 6) and averaged gyro rates w_meas (K, 3)."""
+    rng = np.random.default_rng(seed)
+    w = np.array([1e-3, -5e-4, 2e-4])
+    b = np.full(3, DEG / HOUR)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    ys, wms = [], []
+    for _ in range(num_steps):
+        ys.append(vector_measurement_model(rot.quat_to_mrp(q), REFS)
+                  + SIGMA_STAR * rng.standard_normal(6))
+        wms.append(w + b + SIGMA_V * rng.standard_normal(3))
+        b = b + SIGMA_U * rng.standard_normal(3)
+        q = rot.quat_propagate(q, w, 1.0)
+    return np.array(ys), np.array(wms)
+
+
+def time_steps(step, num_steps: int):
+    """Return per-step wall-clock times (s) of ``step(k)`` for k = 1..num_steps."""
+    times = np.empty(num_steps)
+    for k in range(num_steps):
+        t0 = time.perf_counter()
+        step(k)
+        times[k] = time.perf_counter() - t0
+    return times
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=300, help="timed steps per filter")
+    parser.add_argument("--particles", type=int, default=1000, help="particles per PF")
+    args = parser.parse_args(argv)
+    n, num_steps = args.particles, args.steps
+    ys, wms = make_data(num_steps + 1)
+    q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
+    b0 = np.full(3, 2 * DEG / HOUR)
+    P0 = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
+    P0_gyroless = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
+
+    rows = []
+
+    def bench(name, filt, step, particles):
+        step(-1)  # warm-up: the update at t_0 (and numpy's first-call overheads)
+        t = time_steps(step, num_steps)
+        rows.append((name, particles, 1e3 * np.mean(t), 1e3 * np.min(t), 1000 * np.mean(t)))
+
+    def gyro_step(filt, rng):
+        def step(k):
+            if k >= 0:
+                filt.predict(1.0, wms[k], rng)
+            filt.update(ys[k + 1], REFS, SIGMA_STAR, rng)
+        return step
+
+    rng = np.random.default_rng(1)
+    ekf = MrpEkf(q0, b0, P0, SIGMA_V, SIGMA_U)
+
+    def ekf_step(k):
+        if k >= 0:
+            ekf.predict(1.0, wms[k])
+        ekf.update(ys[k + 1], REFS, SIGMA_STAR)
+
+    bench("MRP EKF", ekf, ekf_step, 1)
+
+    rng = np.random.default_rng(2)
+    bpf = BootstrapParticleFilter(n, q0, b0, P0, 2e-5, rng, bias_roughening_sigma=3e-7)
+    bench("bootstrap PF (gyro)", bpf, gyro_step(bpf, rng), n)
+
+    rng = np.random.default_rng(3)
+    ekpf = ExtendedKalmanParticleFilter(n, q0, b0, P0, SIGMA_V, SIGMA_U, rng)
+    bench("EKPF (gyro)", ekpf, gyro_step(ekpf, rng), n)
+
+    rng = np.random.default_rng(4)
+    ekpf10 = ExtendedKalmanParticleFilter(n, q0, b0, P0, SIGMA_V, SIGMA_U, rng,
+                                          proposal_iterations=10)
+    bench("EKPF, iterated proposal (<=10)", ekpf10, gyro_step(ekpf10, rng), n)
+
+    rng = np.random.default_rng(5)
+    gpf = GyrolessParticleFilter(n, q0, np.full(3, 0.001 * DEG), P0_gyroless, INERTIA, TORQUE,
+                                 1e-6, rng, attitude_process_sigma=3e-5)
+
+    def gyroless_step(k):
+        if k >= 0:
+            gpf.predict(1.0, rng)
+        gpf.update(ys[k + 1], REFS, SIGMA_STAR, rng)
+
+    bench("gyroless PF (RK4, 1 substep)", gpf, gyroless_step, n)
+
+    print(f"S0 filter cores, {num_steps} timed steps (predict + update), "
+          f"numpy {np.__version__}, Python {platform.python_version()}, {platform.machine()}")
+    header = (f"{'filter':<32} {'N':>6} {'mean ms/step':>13} {'best ms/step':>13} "
+              f"{'1000 steps s':>13}")
+    print(header)
+    print("-" * len(header))
+    for name, particles, mean_ms, best_ms, total_s in rows:
+        print(f"{name:<32} {particles:>6d} {mean_ms:>13.3f} {best_ms:>13.3f} {total_s:>13.2f}")
+
+
+if __name__ == "__main__":
+    main()
