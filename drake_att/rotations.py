@@ -67,7 +67,7 @@ def quat_canonical(q) -> np.ndarray:
     """Sign-canonical representative: scalar part >= 0 (q and -q are one rotation)."""
     q = _as_array(q)
     if q.ndim == 1:
-        return -q if q[0] < 0.0 else q
+        return -q if q[0] < 0.0 else q.copy()
     sign = np.where(q[..., :1] < 0.0, -1.0, 1.0)
     return q * sign
 

@@ -184,7 +184,90 @@ class EstimateFusionConfig:
     covariance_model: str = "conservative"
 
 
-EstimatorConfig = Union[MekfConfig, EstimateFusionConfig]
+@dataclass
+class MrpEkfConfig:
+    """Paper S0's additive EKF on ``[MRP; gyro bias]`` with shadow-set switching, fed by a
+    gyro and one vector-mode star tracker.  ``update_iterations`` > 1 gives an iterated
+    EKF (beyond the paper).  Noise defaults (None) come from the gyro's config."""
+
+    name: str = "ekf"
+    period_s: float = 1.0
+    gyro: str = "gyro"
+    star_tracker: str = "st"
+    arw_deg_per_rt_h: Optional[float] = None
+    rrw_deg_per_h15: Optional[float] = None
+    initial_attitude_rpy_deg: List[float] = field(default_factory=_zeros3)
+    initial_bias_deg_per_h: List[float] = field(default_factory=_zeros3)
+    initial_attitude_sigma_deg: float = 1.0
+    initial_bias_sigma_deg_per_h: float = 1.0
+    update_iterations: int = 1
+
+
+@dataclass
+class BootstrapPfConfig:
+    """Paper S0's bootstrap (SIR) particle filter on ``[MRP; bias]`` in gyro mode.
+
+    ``attitude_process_noise_deg_per_rt_h``: the ARW used to spread the particles'
+    attitude (None: the gyro's ARW).  ``bias_roughening_deg_per_h_per_rt_s``: the
+    beyond-the-paper bias-diffusion remedy (0 = the paper's frozen particle biases)."""
+
+    name: str = "bootstrap_pf"
+    period_s: float = 1.0
+    gyro: str = "gyro"
+    star_tracker: str = "st"
+    num_particles: int = 1000
+    attitude_process_noise_deg_per_rt_h: Optional[float] = None
+    bias_roughening_deg_per_h_per_rt_s: float = 0.0
+    resample_threshold: float = 0.6666666666666666
+    initial_attitude_rpy_deg: List[float] = field(default_factory=_zeros3)
+    initial_bias_deg_per_h: List[float] = field(default_factory=_zeros3)
+    initial_attitude_sigma_deg: float = 1.0
+    initial_bias_sigma_deg_per_h: float = 1.0
+
+
+@dataclass
+class EkpfConfig:
+    """Paper S0's extended-Kalman particle filter (per-particle EKF proposal).
+    ``proposal_iterations`` > 1 iterates each particle's EKF update (beyond the paper)."""
+
+    name: str = "ekpf"
+    period_s: float = 1.0
+    gyro: str = "gyro"
+    star_tracker: str = "st"
+    num_particles: int = 1000
+    arw_deg_per_rt_h: Optional[float] = None
+    rrw_deg_per_h15: Optional[float] = None
+    proposal_iterations: int = 1
+    resample_threshold: float = 0.6666666666666666
+    initial_attitude_rpy_deg: List[float] = field(default_factory=_zeros3)
+    initial_bias_deg_per_h: List[float] = field(default_factory=_zeros3)
+    initial_attitude_sigma_deg: float = 1.0
+    initial_bias_sigma_deg_per_h: float = 1.0
+
+
+@dataclass
+class GyrolessPfConfig:
+    """Paper S0's gyroless bootstrap PF on ``[MRP; body rate]`` propagated with Euler's
+    equations (known inertia and disturbance torque; empty lists = the plant's)."""
+
+    name: str = "gyroless_pf"
+    period_s: float = 1.0
+    star_tracker: str = "st"
+    num_particles: int = 1000
+    inertia_kg_m2: List[float] = field(default_factory=list)
+    disturbance_torque_N_m: List[float] = field(default_factory=list)
+    rate_process_noise_deg_per_s_per_rt_s: float = 1e-5
+    attitude_process_noise_deg_per_rt_h: float = 0.0
+    num_substeps: int = 1
+    resample_threshold: float = 0.6666666666666666
+    initial_attitude_rpy_deg: List[float] = field(default_factory=_zeros3)
+    initial_rate_deg_per_s: List[float] = field(default_factory=_zeros3)
+    initial_attitude_sigma_deg: float = 1.0
+    initial_rate_sigma_deg_per_s: float = 0.001
+
+
+EstimatorConfig = Union[MekfConfig, EstimateFusionConfig, MrpEkfConfig, BootstrapPfConfig, EkpfConfig,
+                        GyrolessPfConfig]
 
 
 @dataclass
@@ -357,6 +440,44 @@ def _vec(path, v, n):
         _finite(f"{path}[{i}]", x)
 
 
+def _validate_vector_filter(path, est, gyros, trackers):
+    """Checks shared by the paper-S0 filters (one vector-mode tracker, optional gyro)."""
+    if hasattr(est, "gyro"):
+        if est.gyro not in gyros:
+            _fail(f"{path}.gyro", est.gyro, f"unknown gyro; gyros: {sorted(gyros)}")
+        if abs(gyros[est.gyro].period_s - est.period_s) > 1e-9:
+            _fail(f"{path}.period_s", est.period_s, f"must equal the period of gyro {est.gyro!r} ({gyros[est.gyro].period_s} s)")
+    st = trackers.get(est.star_tracker)
+    if st is None or st.mode != "vectors":
+        vec = sorted(n for n, t in trackers.items() if t.mode == "vectors")
+        _fail(f"{path}.star_tracker", est.star_tracker, f"must name a vector-mode star tracker; have {vec}")
+    ratio = est.period_s / st.period_s
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        _fail(f"{path}.period_s", est.period_s, f"must be a whole multiple of {st.name!r}'s period ({st.period_s} s)")
+    for f in ("num_particles", "update_iterations", "proposal_iterations", "num_substeps"):
+        if hasattr(est, f) and (not isinstance(getattr(est, f), int) or getattr(est, f) < 1):
+            _fail(f"{path}.{f}", getattr(est, f), "must be an integer >= 1")
+    if hasattr(est, "resample_threshold") and not 0 < est.resample_threshold <= 1:
+        _fail(f"{path}.resample_threshold", est.resample_threshold, "must be in (0, 1] (fraction of N)")
+    for f in ("arw_deg_per_rt_h", "rrw_deg_per_h15", "attitude_process_noise_deg_per_rt_h"):
+        if getattr(est, f, None) is not None:
+            _nonneg(f"{path}.{f}", getattr(est, f))
+    for f in ("bias_roughening_deg_per_h_per_rt_s", "rate_process_noise_deg_per_s_per_rt_s"):
+        if hasattr(est, f):
+            _nonneg(f"{path}.{f}", getattr(est, f))
+    _vec(f"{path}.initial_attitude_rpy_deg", est.initial_attitude_rpy_deg, 3)
+    _positive(f"{path}.initial_attitude_sigma_deg", est.initial_attitude_sigma_deg)
+    if hasattr(est, "initial_bias_deg_per_h"):
+        _vec(f"{path}.initial_bias_deg_per_h", est.initial_bias_deg_per_h, 3)
+        _positive(f"{path}.initial_bias_sigma_deg_per_h", est.initial_bias_sigma_deg_per_h)
+    if hasattr(est, "initial_rate_deg_per_s"):
+        _vec(f"{path}.initial_rate_deg_per_s", est.initial_rate_deg_per_s, 3)
+        _positive(f"{path}.initial_rate_sigma_deg_per_s", est.initial_rate_sigma_deg_per_s)
+        for f, n in (("inertia_kg_m2", (0, 3, 9)), ("disturbance_torque_N_m", (0, 3))):
+            if len(getattr(est, f)) not in n:
+                _fail(f"{path}.{f}", getattr(est, f), f"must have one of {n} entries (empty = the plant's)")
+
+
 def _weights(path, w, n):
     _vec(path, list(w), n)
     if any(x < 0 for x in w) or sum(w) <= 0:
@@ -515,6 +636,8 @@ def validate(s: Scenario) -> None:
             _positive(f"{path}.initial_bias_sigma_deg_per_h", est.initial_bias_sigma_deg_per_h)
             if est.innovation_gate_chi2 is not None:
                 _positive(f"{path}.innovation_gate_chi2", est.innovation_gate_chi2)
+        if isinstance(est, (MrpEkfConfig, BootstrapPfConfig, EkpfConfig, GyrolessPfConfig)):
+            _validate_vector_filter(path, est, gyros, trackers)
     _nonneg("scoring.score_from_s", s.scoring.score_from_s)
     if s.scoring.score_from_s >= s.duration_s:
         _fail("scoring.score_from_s", s.scoring.score_from_s, f"must be < duration_s ({s.duration_s})")
