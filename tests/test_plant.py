@@ -6,14 +6,15 @@ Reached figures (Drake 1.51.1, runge_kutta5), asserted with a safety margin:
   1e4 s at accuracy 1e-10 (~124k steps, ~10 s wall): kinetic energy conserved to ~4e-13
   relative, inertial angular momentum R_IB I w to ~1.3e-12 relative, | |q| - 1 | ~3e-11.
 * Constant torque about a principal axis over 100 s: rate to ~1e-14 rad/s, rotation angle
-  to ~1e-10 rad of the closed form.
+  to ~3e-12 rad of the closed form.
 * MultibodyPlant free body (same inertia, gravity off) over 1000 s: attitudes agree to
-  ~4e-11 rad, body rates to ~3e-13 rad/s (the MultibodyPlant reference needs accuracy
+  ~3e-11 rad, body rates to ~2e-13 rad/s (the MultibodyPlant reference needs accuracy
   1e-14 *and* max_step 0.05 s to get there; at accuracy 1e-14 with 10 s steps it is
   itself only good to ~4e-9 rad, checked against scipy DOP853 at rtol 1e-13).
-* PrescribedAttitudeMotion: closed-form rotations to ~1e-11 rad; rpy breakpoints to
-  ~1e-9 rad (rate discontinuities at the breakpoints).
-* Orbit: w_IO_O by finite differences to ~1e-16 rad/s, axes to ~1e-9.
+* PrescribedAttitudeMotion: closed-form rotations to ~5e-13 rad; rpy breakpoints to
+  ~1e-9 rad (rate discontinuities at the breakpoints); w_IB_B output exact.
+* Orbit: w_IO_O by finite differences to ~3e-17 rad/s; LVLH axes vs independent Kepler
+  position and finite-difference velocity to ~2e-13.
 """
 
 from __future__ import annotations
@@ -144,14 +145,14 @@ def test_quaternion_norm_does_not_drift(torque_free_run):
 
 
 def test_rate_integral_port_integrates_rate():
-    """w_IB_B_integral is the integral of w (trapezoid check on a fine grid, 1e-7 rad)."""
+    """w_IB_B_integral is the integral of w (trapezoid rule on a 0.025 s grid, 1e-6 rad)."""
     times = np.linspace(0.0, 50.0, 2001)
     x = run_rigid_body(INERTIA, Q0, W0, times, accuracy=1e-11, max_step=0.1)
     w, integral = x[:, 4:7], x[:, 7:10]
     dt = np.diff(times)[:, None]
     trapezoid = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (w[1:] + w[:-1]) * dt, axis=0)])
-    # Trapezoid error ~ T dt^2 max|w''| / 12 ~ 50 * 6e-4 * 1e-3 / 12 ~ 3e-6 rad.
-    assert np.max(np.abs(integral - trapezoid)) < 1e-5
+    # Trapezoid error ~ T dt^2 max|w''| / 12 (reached 3e-7 rad).
+    assert np.max(np.abs(integral - trapezoid)) < 1e-6
     assert np.max(np.abs(integral[-1])) > 0.5
 
 
@@ -161,8 +162,8 @@ def test_rate_integral_port_integrates_rate():
 @pytest.mark.parametrize("axis", [0, 1, 2])
 @pytest.mark.parametrize("w0_about_axis", [0.0, 0.05])
 def test_constant_torque_about_principal_axis(axis, w0_about_axis):
-    """w(t) = w0 + T/I t (to 1e-12 rad/s) and angle = w0 t + T t^2 / (2 I) about that axis
-    (to 1e-8 rad; reached ~1e-10) over 100 s, from rest and from a spin."""
+    """w(t) = w0 + T/I t (to 1e-13 rad/s; reached 1e-14) and angle = w0 t + T t^2 / (2 I)
+    about that axis (to 3e-11 rad; reached 3e-12) over 100 s, from rest and from a spin."""
     torque = 0.02
     e = np.eye(3)[axis]
     times = np.array([10.0, 37.0, 64.5, 100.0])
@@ -171,9 +172,9 @@ def test_constant_torque_about_principal_axis(axis, w0_about_axis):
     w_expected = (w0_about_axis + alpha * times)[:, None] * e
     angle = w0_about_axis * times + 0.5 * alpha * times**2
     q_expected = rot.quat_multiply(Q0, rot.rotvec_to_quat(angle[:, None] * e))
-    assert np.max(np.abs(x[:, 4:7] - w_expected)) < 1e-12
-    assert np.max(angle_between(x[:, :4], q_expected)) < 1e-8
-    assert np.max(np.abs(x[:, 7:10] - angle[:, None] * e)) < 1e-8
+    assert np.max(np.abs(x[:, 4:7] - w_expected)) < 1e-13
+    assert np.max(angle_between(x[:, :4], q_expected)) < 3e-11
+    assert np.max(np.abs(x[:, 7:10] - angle[:, None] * e)) < 3e-11
     assert angle[-1] > 3.0  # large rotation (> 3 rad): not a small-angle check
 
 
@@ -202,13 +203,13 @@ def multibody_free_body_final_state(inertia_diag, q0, w0_B, t_final):
 
 
 def test_agrees_with_multibody_plant_free_body():
-    """Same body, same initial state, 1000 s: attitudes agree to 1e-9 rad (reached ~4e-11)
-    and body rates to 1e-11 rad/s (reached ~3e-13)."""
+    """Same body, same initial state, 1000 s: attitudes agree to 3e-10 rad (reached ~3e-11)
+    and body rates to 2e-12 rad/s (reached ~2e-13)."""
     t_final = 1000.0
     q_mbp, w_mbp = multibody_free_body_final_state(np.diag(INERTIA), Q0, W0, t_final)
     x = run_rigid_body(INERTIA, Q0, W0, [t_final], accuracy=1e-10)[-1]
-    assert angle_between(x[:4], q_mbp) < 1e-9
-    assert np.max(np.abs(x[4:7] - w_mbp)) < 1e-11
+    assert angle_between(x[:4], q_mbp) < 3e-10
+    assert np.max(np.abs(x[4:7] - w_mbp)) < 2e-12
     # Not vacuous: both bodies turned far from where they started.
     assert angle_between(Q0, q_mbp) > 1.0
 
@@ -217,29 +218,30 @@ def test_agrees_with_multibody_plant_free_body():
 # Prescribed attitude motion
 # ----------------------------------------------------------------------------------
 def test_prescribed_constant_rate_about_one_axis_is_closed_form():
-    """Constant 0.05 rad/s about z: q(t) = q0 ⊗ exp(0.05 t z) to 1e-9 rad (reached ~1e-11)."""
+    """Constant 0.05 rad/s about z: q(t) = q0 ⊗ exp(0.05 t z) to 1e-11 rad (reached 5e-13)."""
     q0 = rot.rpy_to_quat([0.2, -0.4, 0.7])
     rate = 0.05
     motion = PrescribedAttitudeMotion.from_rate_profile((0.0, 0.0, rate), q_IB0=q0)
     times = np.array([1.0, 20.0, 63.0, 150.0])
     q, w, integral = run_outputs(motion, times)
     expected = rot.quat_multiply(q0, rot.rotvec_to_quat(np.outer(rate * times, [0.0, 0.0, 1.0])))
-    assert np.max(angle_between(q, expected)) < 1e-9
+    assert np.max(angle_between(q, expected)) < 1e-11
     assert np.allclose(w, [0.0, 0.0, rate], rtol=0, atol=1e-15)
-    assert np.allclose(integral[:, 2], rate * times, rtol=0, atol=1e-9)
+    assert np.allclose(integral[:, 2], rate * times, rtol=0, atol=1e-11)
 
 
 def test_prescribed_sinusoidal_rate_about_one_axis_is_closed_form():
-    """w_x = c + A cos(f t + phi): angle = c t + A/f (sin(f t + phi) - sin phi), 1e-9 rad."""
+    """w_x = c + A cos(f t + phi): angle = c t + A/f (sin(f t + phi) - sin phi) to 1e-11 rad
+    (reached 3e-13)."""
     c, a, f, phi = 0.01, 0.2, 0.3, 0.4
     motion = PrescribedAttitudeMotion.from_rate_profile((c, 0, 0), (a, 0, 0), (f, 0, 0), (phi, 0, 0))
     times = np.array([2.0, 7.5, 21.0, 60.0])
     q, w, integral = run_outputs(motion, times)
     angle = c * times + a / f * (np.sin(f * times + phi) - np.sin(phi))
     expected = rot.rotvec_to_quat(np.outer(angle, [1.0, 0.0, 0.0]))
-    assert np.max(angle_between(q, expected)) < 1e-9
+    assert np.max(angle_between(q, expected)) < 1e-11
     assert np.allclose(w[:, 0], c + a * np.cos(f * times + phi), rtol=0, atol=1e-14)
-    assert np.allclose(integral[:, 0], angle, rtol=0, atol=1e-9)
+    assert np.allclose(integral[:, 0], angle, rtol=0, atol=1e-11)
 
 
 RPY_TIMES = np.array([0.0, 20.0, 50.0, 80.0])
@@ -257,13 +259,13 @@ def rpy_interp(t):
 
 
 def test_prescribed_rpy_breakpoints_attitude_matches_interpolated_rpy():
-    """Integrated attitude = rpy_to_quat(piecewise-linear rpy(t)) to 1e-8 rad (reached
+    """Integrated attitude = rpy_to_quat(piecewise-linear rpy(t)) to 5e-9 rad (reached
     ~1e-9; the rate jumps at the breakpoints), including after the last breakpoint."""
     motion = PrescribedAttitudeMotion.from_rpy_breakpoints(RPY_TIMES, RPY_DEG * DEG)
     times = np.array([5.0, 19.0, 21.0, 35.0, 49.5, 60.0, 79.0, 80.0, 95.0])
     q, _, _ = run_outputs(motion, times, accuracy=1e-11, max_step=0.1)
     rpy, _ = rpy_interp(times)
-    assert np.max(angle_between(q, rot.rpy_to_quat(rpy))) < 1e-8
+    assert np.max(angle_between(q, rot.rpy_to_quat(rpy))) < 5e-9
     # Not vacuous: the attitude really moves between samples.
     assert angle_between(q[0], q[-1]) > 1.0
 
@@ -343,8 +345,8 @@ def test_mean_motion_500_km_matches_paper_s3():
 
 
 def test_lvlh_rate_from_finite_differences():
-    """rotvec(q_IO(t-h)^-1 ⊗ q_IO(t+h)) / 2h = [0, -n, 0] (1e-15 rad/s; exact for a
-    constant-rate frame, so only rounding remains)."""
+    """rotvec(q_IO(t-h)^-1 ⊗ q_IO(t+h)) / 2h = [0, -n, 0] to 1e-15 rad/s (reached 3e-17;
+    exact for a constant-rate frame, so only rounding remains)."""
     h = 10.0
     n = ORBIT.mean_motion_rad_per_s
     for t in (0.0, 1234.5, 4000.0):
@@ -366,21 +368,22 @@ def kepler_position_I(orbit, t):
 @pytest.mark.parametrize("t", [0.0, 700.0, 2500.0])
 def test_lvlh_axes_nadir_velocity_and_negative_orbit_normal(t):
     """z_O = -r/|r| (nadir), x_O = v/|v| (velocity by finite differences of position_I),
-    y_O = -(r x v)/|r x v|; position_I equals the Kepler position to 1e-6 m; |v| = n a."""
+    y_O = -(r x v)/|r x v| (all to 1e-12; reached 2e-13); position_I equals the Kepler
+    position to 1e-6 m (reached 2e-9 m); |v| = n a to 1e-7 (FD truncation 5e-8)."""
     R_IO = rot.quat_to_rotmat(ORBIT.q_IO(t))
     r = kepler_position_I(ORBIT, t)
     assert np.allclose(ORBIT.position_I(t), r, rtol=0, atol=1e-6)
     h = 0.5
     v = (ORBIT.position_I(t + h) - ORBIT.position_I(t - h)) / (2 * h)  # O(h^2 n^2) ~ 1e-7 rel.
     a, n = ORBIT.semi_major_axis_m, ORBIT.mean_motion_rad_per_s
-    assert abs(np.linalg.norm(v) - n * a) / (n * a) < 1e-6
-    assert np.allclose(R_IO[:, 2], -r / np.linalg.norm(r), atol=1e-12)
-    assert np.allclose(R_IO[:, 0], v / np.linalg.norm(v), atol=1e-6)
+    assert abs(np.linalg.norm(v) - n * a) / (n * a) < 1e-7
+    assert np.allclose(R_IO[:, 2], -r / np.linalg.norm(r), rtol=0, atol=1e-12)
+    assert np.allclose(R_IO[:, 0], v / np.linalg.norm(v), rtol=0, atol=1e-12)
     normal = np.cross(r, v)
-    assert np.allclose(R_IO[:, 1], -normal / np.linalg.norm(normal), atol=1e-6)
+    assert np.allclose(R_IO[:, 1], -normal / np.linalg.norm(normal), rtol=0, atol=1e-12)
     # The orbit normal makes the inclination with the inertial z axis.
     inclination = np.arccos(normal[2] / np.linalg.norm(normal))
-    assert abs(inclination - ORBIT.inclination_rad) < 1e-6
+    assert abs(inclination - ORBIT.inclination_rad) < 1e-12
 
 
 def test_orbit_rejects_bad_altitude():
