@@ -234,7 +234,8 @@ def test_prescribed_sinusoidal_rate_about_one_axis_is_closed_form():
     """w_x = c + A cos(f t + phi): angle = c t + A/f (sin(f t + phi) - sin phi) to 1e-11 rad
     (reached 3e-13)."""
     c, a, f, phi = 0.01, 0.2, 0.3, 0.4
-    motion = PrescribedAttitudeMotion.from_rate_profile((c, 0, 0), (a, 0, 0), (f, 0, 0), (phi, 0, 0))
+    motion = PrescribedAttitudeMotion.from_rate_profile(
+        (c, 0, 0), (a, 0, 0), (f, 0, 0), (phi, 0, 0))
     times = np.array([2.0, 7.5, 21.0, 60.0])
     q, w, integral = run_outputs(motion, times)
     angle = c * times + a / f * (np.sin(f * times + phi) - np.sin(phi))
@@ -279,7 +280,8 @@ def test_prescribed_rpy_breakpoints_body_rate_matches_rpy_rates():
     _, w, _ = run_outputs(motion, times, accuracy=1e-10, max_step=0.5)
     rpy, rates = rpy_interp(times)
     expected = rot.rpy_rates_to_body_rate(rpy, rates)
-    drake = np.array([RollPitchYaw(r).CalcAngularVelocityInChildFromRpyDt(rd) for r, rd in zip(rpy, rates)])
+    drake = np.array([RollPitchYaw(r).CalcAngularVelocityInChildFromRpyDt(rd)
+                      for r, rd in zip(rpy, rates)])
     assert np.allclose(w, expected, rtol=0, atol=1e-14)
     assert np.allclose(w, drake, rtol=0, atol=1e-14)
     assert np.allclose(w[-1], 0.0, atol=0)
@@ -294,7 +296,8 @@ def test_prescribed_rpy_breakpoints_body_rate_matches_rpy_rates():
     ([10.0, 20.0, -30.0], "positive definite"),
     ([[10.0, 0.0, 0.0], [0.0, 20.0, 0.0], [0.0, 0.0, 0.0]], "positive definite"),
     ([1.0, 1.0, 3.0], "triangle inequality"),
-    ([[10.0, 0.0, 0.0], [0.0, 10.0, 9.0], [0.0, 9.0, 10.0]], "triangle inequality"),  # eig 1, 10, 19
+    # Eigenvalues 1, 10, 19: 1 + 10 < 19.
+    ([[10.0, 0.0, 0.0], [0.0, 10.0, 9.0], [0.0, 9.0, 10.0]], "triangle inequality"),
     ([10.0, np.nan, 30.0], "finite"),
     ([10.0, 20.0, np.inf], "finite"),
     ([10.0, 20.0], "finite"),
@@ -350,7 +353,8 @@ def test_lvlh_rate_from_finite_differences():
     h = 10.0
     n = ORBIT.mean_motion_rad_per_s
     for t in (0.0, 1234.5, 4000.0):
-        w_fd = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(ORBIT.q_IO(t - h)), ORBIT.q_IO(t + h))) / (2 * h)
+        q_step = rot.quat_multiply(rot.quat_conjugate(ORBIT.q_IO(t - h)), ORBIT.q_IO(t + h))
+        w_fd = rot.quat_to_rotvec(q_step) / (2 * h)
         assert np.allclose(w_fd, [0.0, -n, 0.0], rtol=0, atol=1e-15)
         assert np.allclose(w_fd, ORBIT.w_IO_O(), rtol=0, atol=1e-15)
 
