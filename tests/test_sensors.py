@@ -409,7 +409,8 @@ def test_star_tracker_vector_mode_residual_statistics():
         obs = port.Eval(st_context)
         q_IS = rot.quat_multiply(truth.GetOutputPort("q_IB").Eval(truth_context), Q_BS_ST2)
         assert obs.valid and np.array_equal(obs.q_BS, st.q_BS)
-        assert abs(obs.time_s - (k + 1) * period) < 1e-9  # stamped with its sample time
+        # Between events the value is the coming sample (t_{k+1}), consumed at t_{k+1}.
+        assert abs(obs.time_s - (k + 1) * period) < 1e-9
         expected = obs.references_I @ rot.quat_to_rotmat(q_IS)  # rows: R_SI r_i
         residuals.append(obs.directions_S - expected)
         norms.append(np.linalg.norm(obs.directions_S, axis=1))
@@ -444,6 +445,9 @@ def noisy_rig():
 
 
 def test_same_seed_is_bit_identical_and_different_seed_differs(noisy_rig):
+    """Same seed (fresh context, same diagram): every logged array bit-identical.  Another
+    seed: every gyro sample, the random initial bias, every tracker sample and the
+    drop-out pattern differ.  Identically configured trackers get different noise."""
     a = noisy_rig.run(seed=42, duration_s=20.0)
     b = noisy_rig.run(seed=42, duration_s=20.0)
     c = noisy_rig.run(seed=43, duration_s=20.0)

@@ -64,7 +64,10 @@ class Gyro(LeafSystem):
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
-        self.noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
+        try:
+            self.noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
+        except ValueError as e:
+            raise ValueError(f"{name}.{e}") from None
         self.initial_bias = _check_vector(initial_bias_rad_per_s, 3, f"{name}.initial_bias", "rad/s")
         if not np.isfinite(initial_bias_sigma_rad_per_s) or initial_bias_sigma_rad_per_s < 0:
             raise ValueError(f"{name}.initial_bias_sigma: got {initial_bias_sigma_rad_per_s}; must be >= 0")
