@@ -105,6 +105,11 @@ def quat_multiply(p, q) -> np.ndarray:
 def quat_to_rotmat(q) -> np.ndarray:
     """Rotation matrix ``R(q)`` of (not necessarily unit) quaternion(s)."""
     q = quat_normalize(q)
+    if q.ndim == 1:  # scalar fast path
+        w, x, y, z = q.tolist()
+        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     R = np.empty(q.shape[:-1] + (3, 3))
     R[..., 0, 0] = 1 - 2 * (y * y + z * z)
@@ -209,6 +214,16 @@ def quat_to_rotvec(q) -> np.ndarray:
 def rotvec_to_rotmat(phi) -> np.ndarray:
     """``exp([phi x])`` (Rodrigues formula, series near 0)."""
     phi = _as_array(phi)
+    if phi.ndim == 1:  # scalar fast path
+        x, y, z = phi.tolist()
+        ang = math.sqrt(x * x + y * y + z * z)
+        if ang < _SMALL_ANGLE:
+            a, b = 1.0 - ang * ang / 6.0, 0.5 - ang * ang / 24.0
+        else:
+            a, b = math.sin(ang) / ang, (1.0 - math.cos(ang)) / (ang * ang)
+        return np.array([[1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
+                         [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
+                         [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)]])
     angle = np.linalg.norm(phi, axis=-1)[..., None, None]
     small = angle < _SMALL_ANGLE
     safe = np.where(small, 1.0, angle)

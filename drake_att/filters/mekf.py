@@ -71,18 +71,23 @@ def process_noise(arw: float, rrw: float, dt: float) -> np.ndarray:
     return Q
 
 
+_EYE3 = np.eye(3)
+_EYE6 = np.eye(6)
+
+
 def transition_matrix(w_hat_B, dt: float) -> np.ndarray:
     """Closed-form state transition of ``F = [[-[w x], -I], [0, 0]]`` over ``dt``."""
     w = np.asarray(w_hat_B, dtype=float)
     K = rot.skew(w)
-    wn = np.linalg.norm(w)
+    K2 = K @ K
+    wn = float(np.sqrt(w @ w))
     a = wn * dt
-    Phi = np.eye(6)
+    Phi = _EYE6.copy()
     Phi[:3, :3] = rot.rotvec_to_rotmat(w * dt).T
     if a < 1e-5:
-        integral = np.eye(3) * dt - K * dt**2 / 2.0 + K @ K * dt**3 / 6.0
+        integral = _EYE3 * dt - K * (dt * dt / 2.0) + K2 * (dt**3 / 6.0)
     else:
-        integral = np.eye(3) * dt - K * (1.0 - np.cos(a)) / wn**2 + K @ K * (a - np.sin(a)) / wn**3
+        integral = _EYE3 * dt - K * ((1.0 - np.cos(a)) / wn**2) + K2 * ((a - np.sin(a)) / wn**3)
     Phi[:3, 3:] = -integral
     return Phi
 
@@ -106,6 +111,16 @@ class MultiplicativeEKF:
         self.arw = float(arw_rad_per_rt_s)
         self.rrw = float(rrw_rad_per_s15)
         self.gate = innovation_gate_chi2
+        self._q_cache: dict = {}
+
+    def process_noise(self, dt: float) -> np.ndarray:
+        """:func:`process_noise` for this filter's gyro model (cached per ``dt``)."""
+        Q = self._q_cache.get(dt)
+        if Q is None:
+            if len(self._q_cache) > 64:
+                self._q_cache.clear()
+            Q = self._q_cache[dt] = process_noise(self.arw, self.rrw, dt)
+        return Q
 
     @staticmethod
     def initial_state(q_IB, bias_B, attitude_sigma_rad, bias_sigma_rad_per_s) -> MekfState:
@@ -121,23 +136,24 @@ class MultiplicativeEKF:
         w_hat = np.asarray(w_meas_B, dtype=float) - state.bias_B
         q = rot.quat_normalize(rot.quat_propagate(state.q_IB, w_hat, dt))
         Phi = transition_matrix(w_hat, dt)
-        P = Phi @ state.P @ Phi.T + process_noise(self.arw, self.rrw, dt)
+        P = Phi @ state.P @ Phi.T + self.process_noise(dt)
         return MekfState(q, state.bias_B, 0.5 * (P + P.T))
 
     def _update(self, state: MekfState, z, H, R):
         P = state.P
-        S = H @ P @ H.T + R
+        PHt = P @ H.T
+        S = H @ PHt + R
         S = 0.5 * (S + S.T)
         try:
-            S_inv_z = np.linalg.solve(S, z)
+            S_inv = np.linalg.inv(S)
         except np.linalg.LinAlgError:
             return state, UpdateInfo(z, S, float("nan"), False)
-        nis = float(z @ S_inv_z)
+        nis = float(z @ S_inv @ z)
         if not np.isfinite(nis) or (self.gate is not None and nis > self.gate):
             return state, UpdateInfo(z, S, nis, False)
-        K = np.linalg.solve(S, H @ P).T  # P H' S^-1 (S symmetric)
+        K = PHt @ S_inv
         dx = K @ z
-        I_KH = np.eye(6) - K @ H
+        I_KH = _EYE6 - K @ H
         P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
         q = rot.quat_normalize(rot.quat_multiply(state.q_IB, rot.rotvec_to_quat(dx[:3])))
         new = MekfState(q, state.bias_B + dx[3:], 0.5 * (P_new + P_new.T))
