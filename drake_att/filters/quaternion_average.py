@@ -20,7 +20,7 @@ multiplication: ``avg(p ⊗ q_i ⊗ r) = p ⊗ avg(q_i) ⊗ r`` (up to sign), so
 convention of the inputs (``q_IB`` vs ``q_BI``) does not matter as long as all inputs use
 the same one. Weights are dimensionless and only their ratios matter; for small,
 independent, isotropic attitude errors with standard deviations ``sigma_i`` (rad),
-``w_i = 1 / sigma_i^2`` gives the minimum-variance combination.
+``w_i = 1 / sigma_i^2`` gives the minimum-variance combination (to first order).
 
 Pure numpy; no Drake dependency.
 """
@@ -50,10 +50,11 @@ def _check_quaternion(q, name: str) -> np.ndarray:
         )
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} must be finite; got {name}={_fmt(arr)}")
-    norm = np.linalg.norm(arr)
-    if not norm > 0.0:
+    scale = np.max(np.abs(arr))
+    if not scale > 0.0:
         raise ValueError(f"{name} must be non-zero (it is normalized); got {name}={_fmt(arr)}")
-    return arr / norm
+    arr = arr / scale  # avoids overflow/underflow in the norm for extreme magnitudes
+    return arr / np.linalg.norm(arr)
 
 
 def _check_weight(w, name: str) -> float:
@@ -71,7 +72,7 @@ def _check_weight(w, name: str) -> float:
 
 
 def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndarray:
-    """Weighted average of two quaternions, closed form (Markley et al. 2007, eq. 18).
+    """Weighted average of two quaternions, closed form (Markley et al. 2007).
 
     With ``d = q1' q2`` (after normalizing both inputs) and
     ``z = sqrt((w1 - w2)^2 + 4 w1 w2 d^2)``::
@@ -193,15 +194,16 @@ def average_quaternions(quaternions, weights=None) -> np.ndarray:
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"quaternions must be finite; got quaternions[{i}]={_fmt(Q[i])}")
-    norms = np.linalg.norm(Q, axis=1)
-    zero = ~(norms > 0.0)
+    scale = np.max(np.abs(Q), axis=1)
+    zero = ~(scale > 0.0)
     if np.any(zero):
         i = int(np.flatnonzero(zero)[0])
         raise ValueError(
             f"quaternions rows must be non-zero (they are normalized); "
             f"got quaternions[{i}]={_fmt(Q[i])}"
         )
-    Q = Q / norms[:, None]
+    Q = Q / scale[:, None]  # avoids overflow/underflow in the norm for extreme magnitudes
+    Q = Q / np.linalg.norm(Q, axis=1, keepdims=True)
     n = Q.shape[0]
 
     if weights is None:
@@ -222,7 +224,7 @@ def average_quaternions(quaternions, weights=None) -> np.ndarray:
         if np.any(badw):
             i = int(np.flatnonzero(badw)[0])
             raise ValueError(
-                f"weights must be finite and >= 0; got weights[{i}]={w[i]!r} "
+                f"weights must be finite and >= 0; got weights[{i}]={float(w[i])!r} "
                 f"(weights={_fmt(w)})"
             )
         w = w / np.max(w) if np.max(w) > 0.0 else w  # scale-free; avoids sum overflow
