@@ -311,3 +311,9 @@ class ScenarioDiagram:
             log = logger.FindLog(context)
             signals[key] = (log.sample_times().copy(), log.data().T.copy())
         return RunLog(self.scenario, seed, wall, signals)
+
+
+# Paper-S0 estimators (MRP EKF and particle filters) register themselves here.
+from drake_att.scenarios.particle_builders import register as _register_s0  # noqa: E402
+
+_register_s0(ESTIMATOR_BUILDERS)

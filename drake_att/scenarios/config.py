@@ -504,7 +504,6 @@ def validate(s: Scenario) -> None:
         if not isinstance(p.inertia_kg_m2, list) or len(p.inertia_kg_m2) not in (3, 9):
             _fail("plant.inertia_kg_m2", p.inertia_kg_m2, "must be 3 principal moments or 9 matrix entries")
         from drake_att.systems.plant import validate_inertia
-        import numpy as np
 
         I = np.array(p.inertia_kg_m2, dtype=float)
         try:

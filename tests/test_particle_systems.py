@@ -1,0 +1,375 @@
+"""Drake-level tests of paper S0's estimator systems (drake_att.systems.particle_estimators):
+the estimator contract, seeding through the diagram's RandomGenerator, skipped
+measurements, state kept in the Context, the S0 claims at reduced size, the builders, and
+the S0 notebook (executed with nbclient)."""
+
+from __future__ import annotations
+
+import copy
+import os
+import sys
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
+
+from drake_att import rotations as rot
+from drake_att.analysis.metrics import compute_metrics, estimator_errors
+from drake_att.noise import DEG, DEG_PER_H
+from drake_att.scenarios import builder
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios import particle_builders
+from drake_att.scenarios.config import apply_overrides, load_scenario
+from drake_att.scenarios.library import load
+from drake_att.scenarios.particle_builders import register
+from drake_att.systems.particle_estimators import (
+    BootstrapPfEstimator,
+    EkpfEstimator,
+    GyrolessPfEstimator,
+    MrpEkfEstimator,
+)
+from drake_att.systems.star_tracker import VectorObservations
+
+register(builder.ESTIMATOR_BUILDERS)
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# All four filters in one diagram (the gyroless PF ignores the gyro), few particles.
+SCENARIO = """
+name: s0_test
+duration_s: 20.0
+simulation: {integration_scheme: runge_kutta3, use_error_control: false, max_step_size_s: 1.0}
+plant: !RigidBodyConfig
+  inertia_kg_m2: [100.0, 200.0, 200.0]
+  disturbance_torque_N_m: [1.0e-5, 1.0e-5, 1.0e-5]
+sensors:
+- !GyroConfig {name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.0033333333333333335, rrw_deg_per_h15: 0.02,
+               initial_bias_deg_per_h: [1.0, 1.0, 1.0]}
+- !StarTrackerConfig {name: st, period_s: 1.0, mode: vectors, references_I: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                      sigma_vector_urad: 100.0}
+estimators:
+- !MrpEkfConfig {name: ekf, initial_attitude_rpy_deg: [1.0, 1.0, 1.0], initial_bias_deg_per_h: [2.0, 2.0, 2.0]}
+- !BootstrapPfConfig {name: bpf, num_particles: 60, attitude_process_noise_deg_per_rt_h: 0.0688,
+                      bias_roughening_deg_per_h_per_rt_s: 0.05,
+                      initial_attitude_rpy_deg: [1.0, 1.0, 1.0], initial_bias_deg_per_h: [2.0, 2.0, 2.0]}
+- !EkpfConfig {name: ekpf, num_particles: 40, initial_attitude_rpy_deg: [1.0, 1.0, 1.0],
+               initial_bias_deg_per_h: [2.0, 2.0, 2.0]}
+- !GyrolessPfConfig {name: gpf, num_particles: 60, attitude_process_noise_deg_per_rt_h: 0.103,
+                     initial_attitude_rpy_deg: [1.0, 1.0, 1.0], initial_rate_deg_per_s: [0.001, 0.001, 0.001]}
+scoring: {score_from_s: 10.0}
+"""
+SECOND = {"ekf": "bias_B_hat", "bpf": "bias_B_hat", "ekpf": "bias_B_hat", "gpf": "w_IB_B_hat"}
+
+
+@pytest.fixture(scope="module")
+def diagram():
+    return builder.ScenarioDiagram(load_scenario(text=SCENARIO))
+
+
+@pytest.fixture(scope="module")
+def run_seed1(diagram):
+    return diagram.simulate(1)
+
+
+# --------------------------------------------------------------------------------------
+# Contract
+# --------------------------------------------------------------------------------------
+def test_systems_follow_the_estimator_contract(diagram, run_seed1):
+    for name, second in SECOND.items():
+        system = diagram.estimators[name]
+        assert system.second_output_name == second and system.period_s == 1.0
+        for port in ("q_IB_hat", second, "covariance", "status"):
+            assert system.HasOutputPort(port), (name, port)
+        assert system.GetOutputPort("covariance").size() == 36
+        assert system.HasInputPort("vectors_st")
+        assert system.HasInputPort("gyro_measurement") == (name != "gpf")
+        assert system.HasInputPort("seed_uniform") == (name != "ekf")
+        status = run_seed1.values(f"{name}/status")
+        t_log = run_seed1.times(f"{name}/status")
+        # Logged at t: the estimate of the previous step (Drake publishes before updating).
+        np.testing.assert_allclose(status[1:, 0], t_log[1:] - 1.0)
+        assert status[-1, 0] == 19.0 and status[-1, 1] == 20 and status[-1, 2] == 0  # t = 0..19, logged at 20
+        q = run_seed1.values(f"{name}/q_IB_hat")
+        np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-12)
+        P = run_seed1.values(f"{name}/covariance").reshape(-1, 6, 6)
+        assert np.all(np.isfinite(P)) and np.allclose(P, np.swapaxes(P, 1, 2))
+        assert np.all(np.linalg.eigvalsh(P[-1]) > -1e-18)
+    assert np.isfinite(run_seed1.values("ekf/status")[-1, 3])  # EKF reports its NIS
+    assert np.isnan(run_seed1.values("bpf/status")[-1, 3])  # a PF has none
+
+
+def test_particle_state_is_in_the_context_and_weights_stay_normalized(diagram):
+    context = diagram.create_context(3)
+    sim = Simulator(diagram.diagram, context)
+    sim.AdvanceTo(6.0)
+    for name in ("bpf", "ekpf", "gpf"):
+        system = diagram.estimators[name]
+        n = system.num_particles
+        s = system.filter_state(system.GetMyContextFromRoot(context))
+        particles, w, lw = s[:6 * n].reshape(n, 6), s[6 * n:7 * n], s[7 * n:8 * n]
+        assert np.all(np.isfinite(particles)) and np.all(np.linalg.norm(particles[:, :3], axis=1) <= 1.0)
+        assert np.all(w >= 0) and abs(w.sum() - 1.0) < 1e-12
+        np.testing.assert_allclose(np.exp(lw), w, rtol=1e-9, atol=1e-300)
+        diag = system.GetOutputPort("particle_diagnostics").Eval(system.GetMyContextFromRoot(context))
+        assert 1.0 <= diag[0] <= n and diag[3] == n
+    ekpf = diagram.estimators["ekpf"]
+    n = ekpf.num_particles
+    covs = ekpf.filter_state(ekpf.GetMyContextFromRoot(context))[8 * n:].reshape(n, 6, 6)
+    assert np.all(np.linalg.eigvalsh(covs) > 0)
+
+
+# --------------------------------------------------------------------------------------
+# Randomness
+# --------------------------------------------------------------------------------------
+def test_seeds_reproduce_exactly_and_differ_across_seeds(diagram, run_seed1):
+    again = diagram.simulate(1)
+    other = diagram.simulate(2)
+    for key, (t, v) in run_seed1.signals.items():
+        np.testing.assert_array_equal(v, again.signals[key][1], err_msg=key)
+    for name in ("bpf", "ekpf", "gpf", "ekf"):
+        assert not np.array_equal(run_seed1.values(f"{name}/q_IB_hat"), other.values(f"{name}/q_IB_hat"))
+
+
+def test_interleaved_contexts_give_the_same_runs(diagram, run_seed1):
+    """Nothing lives on the Python objects: two contexts advanced alternately reproduce
+    the separate runs bit for bit (a Monte Carlo reuses one diagram)."""
+    run2 = diagram.simulate(2)
+    c1, c2 = diagram.create_context(1), diagram.create_context(2)
+    sims = [Simulator(diagram.diagram, c) for c in (c1, c2)]
+    sc = diagram.scenario.simulation
+    for sim in sims:  # the integrator settings ScenarioDiagram.simulate uses
+        ApplySimulatorConfig(SimulatorConfig(integration_scheme=sc.integration_scheme,
+                                             max_step_size=sc.max_step_size_s, accuracy=sc.accuracy,
+                                             use_error_control=sc.use_error_control), sim)
+    for t in (3.0, 7.0, 12.0, 16.0, 20.0):
+        for sim in sims:
+            sim.AdvanceTo(t)
+    for context, ref in ((c1, run_seed1), (c2, run2)):
+        for name in SECOND:
+            log = diagram.loggers[f"{name}/q_IB_hat"].FindLog(context)
+            np.testing.assert_array_equal(log.data().T, ref.values(f"{name}/q_IB_hat"))
+
+
+def test_initial_particles_come_from_the_seed(diagram):
+    bpf = diagram.estimators["bpf"]
+    sets = []
+    for seed in (5, 5, 6):
+        context = diagram.create_context(seed)
+        Simulator(diagram.diagram, context).Initialize()
+        sets.append(bpf.filter_state(bpf.GetMyContextFromRoot(context))[:6 * bpf.num_particles])
+    np.testing.assert_array_equal(sets[0], sets[1])
+    assert not np.array_equal(sets[0], sets[2])
+    default = bpf.filter_state(bpf.CreateDefaultContext())[:6 * bpf.num_particles]
+    assert not np.array_equal(sets[0], default)  # drawn from the diagram's seed, not the default value
+
+
+# --------------------------------------------------------------------------------------
+# Measurement handling
+# --------------------------------------------------------------------------------------
+REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def _observation(t, dirs=None, valid=True, sigma=100e-6):
+    return VectorObservations(float(t), bool(valid), REFS.copy() if dirs is None else np.asarray(dirs, float),
+                              REFS.copy(), sigma, np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+def _systems():
+    q0 = rot.rpy_to_quat(np.full(3, 0.5 * DEG))
+    b0 = np.zeros(3)
+    P0 = np.diag([DEG**2] * 3 + [DEG_PER_H**2] * 3)
+    Pw = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
+    return [
+        MrpEkfEstimator("ekf", 1.0, "st", q0, b0, P0, 1e-6, 1e-10),
+        BootstrapPfEstimator("bpf", 1.0, "st", 50, q0, b0, P0, 2e-5),
+        EkpfEstimator("ekpf", 1.0, "st", 20, q0, b0, P0, 1e-6, 1e-10),
+        GyrolessPfEstimator("gpf", 1.0, "st", 50, q0, np.zeros(3), Pw, [100.0, 200.0, 200.0], np.full(3, 1e-5), 1e-6),
+    ]
+
+
+@pytest.mark.parametrize("index", range(4))
+def test_invalid_and_stale_vector_observations_are_skipped_and_counted(index):
+    """NaN directions and invalid samples are skipped and counted; a sample is used only at
+    its own time and only once; a stale gyro sample is counted and the last rate held."""
+    system = _systems()[index]
+    gyro = system.HasInputPort("gyro_measurement")
+    context = system.CreateDefaultContext()
+    port = system.GetInputPort("vectors_st")
+    sim = Simulator(system, context)
+
+    def fix(t_obs, **kw):
+        port.FixValue(context, _observation(t_obs, **kw))
+        if gyro:
+            system.GetInputPort("gyro_measurement").FixValue(context, np.array([t_obs, 1.0, 0.0, 0.0, 0.0]))
+
+    def status():
+        return system.GetOutputPort("status").Eval(context)
+
+    fix(0.0, dirs=np.full((2, 3), np.nan))
+    sim.AdvanceTo(0.5)
+    np.testing.assert_array_equal(status()[:3], [0.0, 0, 1])
+    fix(1.0)
+    sim.AdvanceTo(1.5)
+    np.testing.assert_array_equal(status()[:3], [1.0, 1, 1])
+    sim.AdvanceTo(2.5)  # the t = 1 sample is not reused at t = 2; the gyro sample is stale
+    np.testing.assert_array_equal(status()[:3], [2.0, 1, 2 if gyro else 1])
+    fix(3.0, valid=False)
+    sim.AdvanceTo(3.5)
+    np.testing.assert_array_equal(status()[:3], [3.0, 1, 3 if gyro else 2])
+    fix(4.0, sigma=0.0)
+    sim.AdvanceTo(4.5)
+    np.testing.assert_array_equal(status()[:3], [4.0, 1, 4 if gyro else 3])
+    q = system.GetOutputPort("q_IB_hat").Eval(context)
+    assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1) < 1e-12
+
+
+def test_outage_window_is_skipped_in_a_scenario():
+    s = load_scenario(text=SCENARIO)
+    s = apply_overrides(s, ["duration_s=12", "sensors.st.outage_windows_s=[[3.0, 6.0]]"])
+    sd = builder.ScenarioDiagram(s)
+    run = sd.simulate(1)
+    for name in SECOND:
+        st = run.values(f"{name}/status")[-1]  # estimate of t = 11
+        assert st[1] == 12 - 3 and st[2] == 3, (name, st)
+
+
+def test_star_sensor_mounting_is_undone():
+    """Vectors measured in a rotated sensor frame give the same estimate as the body frame."""
+    q_BS = rot.rpy_to_quat(np.array([0.3, -0.2, 1.0]))
+    R_SB = rot.quat_to_rotmat(q_BS).T
+    y_B = REFS + 1e-4 * np.array([[0.3, -0.5, 0.2], [0.1, 0.4, -0.7]])
+    out = []
+    for dirs, q in ((y_B, np.array([1.0, 0, 0, 0])), (y_B @ R_SB.T, q_BS)):
+        system = _systems()[0]
+        context = system.CreateDefaultContext()
+        system.GetInputPort("vectors_st").FixValue(
+            context, VectorObservations(0.0, True, dirs, REFS.copy(), 100e-6, q))
+        Simulator(system, context).AdvanceTo(0.5)
+        out.append(system.GetOutputPort("q_IB_hat").Eval(context).copy())
+    np.testing.assert_allclose(out[0], out[1], atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# Builders and shipped scenarios
+# --------------------------------------------------------------------------------------
+def test_register_is_idempotent_and_shipped_s0_scenarios_build():
+    reg = {}
+    register(reg)
+    register(reg)
+    assert set(reg) == {cfg.MrpEkfConfig, cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig}
+    for name in ("s0_particle_filters_small_error", "s0_particle_filters_large_error", "s0_gyroless_pf"):
+        s = load(name)
+        assert s.duration_s == 1000.0
+        sd = builder.ScenarioDiagram(s)
+        for e in s.estimators:
+            assert sd.estimators[e.name].get_name() == e.name
+            if hasattr(e, "num_particles"):
+                assert e.num_particles == 1000
+
+
+def test_gyroless_takes_the_plants_inertia_and_torque_and_explains_errors(diagram):
+    gpf = diagram.estimators["gpf"]
+    np.testing.assert_array_equal(gpf._template.inertia, np.diag([100.0, 200.0, 200.0]))
+    np.testing.assert_array_equal(gpf._template.torque, np.full(3, 1e-5))
+    # A kinematic truth has no inertia or torque: the filter needs them explicitly.
+    s = load_scenario(text=SCENARIO)
+    s.plant = cfg.PrescribedRateConfig()
+    c = next(e for e in s.estimators if e.name == "gpf")
+    with pytest.raises(cfg.ConfigError, match="inertia"):
+        particle_builders._plant_dynamics(builder.BuildContext(None, s, None), c)
+    c = copy.deepcopy(c)
+    c.inertia_kg_m2, c.disturbance_torque_N_m = [1.0, 2.0, 2.5], [0.0, 0.0, 1e-6]
+    inertia, torque = particle_builders._plant_dynamics(builder.BuildContext(None, s, None), c)
+    np.testing.assert_array_equal(inertia, np.diag([1.0, 2.0, 2.5]))
+    np.testing.assert_array_equal(torque, [0.0, 0.0, 1e-6])
+    s = apply_overrides(load_scenario(text=SCENARIO), ["sensors.gyro.arw_deg_per_rt_h=0.0"])
+    s.estimators = [e for e in s.estimators if e.name == "ekf"]
+    with pytest.raises(cfg.ConfigError, match="arw_deg_per_rt_h"):
+        builder.ScenarioDiagram(s)
+
+
+# --------------------------------------------------------------------------------------
+# Paper S0's claims at reduced size
+# --------------------------------------------------------------------------------------
+def _reduced(name, duration, particles, keep=None):
+    s = load(name)
+    if keep is not None:
+        s.estimators = [e for e in s.estimators if e.name in keep]
+    over = [f"duration_s={duration}", f"scoring.score_from_s={duration / 2}"]
+    over += [f"estimators.{e.name}.num_particles={particles}" for e in s.estimators if hasattr(e, "num_particles")]
+    return apply_overrides(s, over)
+
+
+def test_claim2_ekpf_small_error_converges_like_the_ekf():
+    sd = builder.ScenarioDiagram(_reduced("s0_particle_filters_small_error", 150, 100, keep=("ekf", "ekpf")))
+    m = compute_metrics(sd.simulate(1), sd.estimators)["estimators"]
+    assert m["ekpf"]["attitude_rmse_total_deg"] < 0.01
+    assert m["ekpf"]["attitude_rmse_total_deg"] < 3 * m["ekf"]["attitude_rmse_total_deg"]
+    assert m["ekpf"]["convergence_time_s"] is not None and m["ekpf"]["convergence_time_s"] < 5
+
+
+def test_claim1_bootstrap_bias_frozen_and_roughening_does_better():
+    sd = builder.ScenarioDiagram(_reduced("s0_particle_filters_small_error", 400, 500,
+                                          keep=("bootstrap_pf", "bootstrap_pf_roughened")))
+    run = sd.simulate(1)
+    m = compute_metrics(run, sd.estimators)["estimators"]
+    frozen = estimator_errors(run, "bootstrap_pf", "bias_B_hat", "gyro")
+    rough = estimator_errors(run, "bootstrap_pf_roughened", "bias_B_hat", "gyro")
+    t = frozen["t"]
+    late = t >= 300
+    assert m["bootstrap_pf"]["attitude_rmse_total_deg"] < 0.02  # attitude converged
+    b_frozen = np.linalg.norm(frozen["second_err"][late], axis=1) / DEG_PER_H
+    b_rough = np.linalg.norm(rough["second_err"][late], axis=1) / DEG_PER_H
+    assert b_frozen.mean() > 0.5  # initial bias error 1.73 deg/h: not converged
+    bias_sigma = np.sqrt(np.einsum("nii->ni", frozen["P"][late][:, 3:, 3:])) / DEG_PER_H
+    assert bias_sigma.max() < 1e-3  # the bias cloud collapsed (sample impoverishment)
+    assert b_rough.mean() < 0.6 * b_frozen.mean()
+
+
+def test_claim3_large_error_iterated_ekpf_converges_ekf_does_not():
+    sd = builder.ScenarioDiagram(_reduced("s0_particle_filters_large_error", 80, 100, keep=("ekf", "ekpf_iterated")))
+    run = sd.simulate(1)
+    ekf = estimator_errors(run, "ekf", "bias_B_hat", "gyro")
+    ekpf = estimator_errors(run, "ekpf_iterated", "bias_B_hat", "gyro")
+    assert np.linalg.norm(ekf["dtheta"][-1]) > 5 * DEG
+    assert np.max(np.linalg.norm(ekpf["dtheta"][10:], axis=1)) < 0.02 * DEG
+
+
+def test_claim4_gyroless_pf_tracks_attitude_and_rate():
+    sd = builder.ScenarioDiagram(_reduced("s0_gyroless_pf", 250, 500, keep=("gyroless_pf",)))
+    m = compute_metrics(sd.simulate(1), sd.estimators)["estimators"]["gyroless_pf"]
+    assert m["attitude_rmse_total_deg"] < 0.02
+    assert np.linalg.norm(m["rate_rmse_deg_per_s"]) < 0.002
+
+
+# --------------------------------------------------------------------------------------
+# Notebook
+# --------------------------------------------------------------------------------------
+def test_notebook_runs():
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    path = os.path.join(REPO, "notebooks", "particle_filters.ipynb")
+    nb = nbformat.read(path, as_version=4)
+    assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), "outputs must be cleared"
+    env_keys = {"DRAKE_ATT_NOTEBOOK_TEST": "1", "MPLBACKEND": "Agg"}
+    old = {k: os.environ.get(k) for k in env_keys}
+    os.environ.update(env_keys)
+    try:
+        from jupyter_client.kernelspec import KernelSpecManager
+
+        specs = KernelSpecManager().find_kernel_specs()
+        kernel = "python3"
+        if kernel not in specs:
+            pytest.skip(f"no python3 kernelspec registered (have {sorted(specs)}); "
+                        f"run {sys.executable} -m ipykernel install --sys-prefix")
+        client = nbclient.NotebookClient(nb, kernel_name=kernel, timeout=300,
+                                         resources={"metadata": {"path": os.path.join(REPO, "notebooks")}})
+        client.execute()
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    text = "\n".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+    assert "100 particles, 60 s per run" in text
