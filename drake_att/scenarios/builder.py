@@ -252,10 +252,16 @@ class ScenarioDiagram:
                 log(system, "bias_B", s.period_s)
             elif isinstance(s, cfg.StarTrackerConfig) and s.mode == "quaternion":
                 log(system, "star_tracker_measurement", s.period_s)
+        self._packed_estimators = {}
         for e in scenario.estimators:
             system = self.estimators[e.name]
-            for port in ("q_IB_hat", system.second_output_name, "covariance", "status"):
-                log(system, port, self.estimator_period(e.name))
+            if system.HasOutputPort("estimate_state"):
+                # One C++ state port instead of four Python ports; split after the run.
+                log(system, "estimate_state", self.estimator_period(e.name))
+                self._packed_estimators[e.name] = system.second_output_name
+            else:
+                for port in ("q_IB_hat", system.second_output_name, "covariance", "status"):
+                    log(system, port, self.estimator_period(e.name))
         self.diagram = builder.Build()
         self.diagram.set_name(scenario.name)
 
@@ -309,7 +315,14 @@ class ScenarioDiagram:
         signals = {}
         for key, logger in self.loggers.items():
             log = logger.FindLog(context)
-            signals[key] = (log.sample_times().copy(), log.data().T.copy())
+            t, x = log.sample_times().copy(), log.data().T.copy()
+            name = key.split("/", 1)[0]
+            if key.endswith("/estimate_state") and name in self._packed_estimators:
+                second = self._packed_estimators[name]
+                for port, (a, b) in (("q_IB_hat", (0, 4)), (second, (4, 7)), ("covariance", (7, 43)), ("status", (43, 47))):
+                    signals[f"{name}/{port}"] = (t, x[:, a:b].copy())
+            else:
+                signals[key] = (t, x)
         return RunLog(self.scenario, seed, wall, signals)
 
 

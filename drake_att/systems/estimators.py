@@ -16,7 +16,8 @@ Output ports:
         against the truth at ``t_estimate``, never at the log time.
 
 Discrete state group 0 ("estimate", :data:`ESTIMATE_SIZE`): ``[q_IB_hat (4), second (3),
-covariance (36), status (4)]``.  Subclasses may declare more state for filter internals.
+covariance (36), status (4)]``, also exposed whole as the output port ``estimate_state``
+(evaluated in C++; what the scenario builder logs).  Subclasses may declare more state for filter internals.
 The update runs in one periodic discrete event per filter step.
 
 Measurement handling: a measurement is used only at its own sample instant
@@ -78,6 +79,9 @@ class AttitudeEstimatorSystem(LeafSystem):
         self.DeclareVectorOutputPort(second_output_name, 3, lambda c, o: self._out(c, o, 4, 7), ticket)
         self.DeclareVectorOutputPort("covariance", 36, lambda c, o: self._out(c, o, 7, 43), ticket)
         self.DeclareVectorOutputPort("status", 4, lambda c, o: self._out(c, o, 43, 47), ticket)
+        # The whole estimate group as one C++-evaluated port: loggers record this one (no
+        # Python callback per logged sample); the builder splits it into the contract signals.
+        self.DeclareStateOutputPort("estimate_state", self._estimate_group)
 
     def _out(self, context, output: BasicVector, a, b):
         output.SetFromVector(context.get_discrete_state(self._estimate_group).value()[a:b])
