@@ -145,7 +145,7 @@ def format_table(metrics: dict) -> str:
     lines = [f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
              f"  wall {metrics['wall_time_s']:.2f} s"]
     hdr = (f"{'estimator':<16} {'RMSE x/y/z (deg)':>30} {'MAE x/y/z (deg)':>30} {'RMSE tot':>9} "
-           f"{'bias (deg/h) | rate (deg/s) RMSE':>34} {'conv (s)':>8} {'NEES':>7}")
+           f"{'bias (deg/h) | rate (deg/s) RMSE':>34} {'conv (s)':>8} {'NEES':>7} {'used/skipped':>13}")
     lines += [hdr, "-" * len(hdr)]
     for name, m in metrics["estimators"].items():
         rm = " ".join(f"{v:9.5f}" for v in m["attitude_rmse_deg"])
@@ -158,9 +158,11 @@ def format_table(metrics: dict) -> str:
             br = "-"
         conv = "never" if m["convergence_time_s"] is None else f"{m['convergence_time_s']:.1f}"
         nees = "-" if m["nees_mean"] is None else f"{m['nees_mean']:.2f}"
+        used = f"{m['measurements_used']}/{m['measurements_skipped']}"
         lines.append(f"{name:<16} {rm:>30} {ma:>30} {m['attitude_rmse_total_deg']:9.5f} {br:>34} {conv:>8} "
-                     f"{nees:>7}")
+                     f"{nees:>7} {used:>13}")
     first = next(iter(metrics["estimators"].values()), {"scored_from_s": 0.0})
     lines.append(f"(scored from t >= {first['scored_from_s']:.0f} s; b = gyro-bias RMSE x/y/z in deg/h, "
-                 "w = body-rate RMSE in deg/s; NEES dof = 6)")
+                 "w = body-rate RMSE in deg/s; NEES dof = 6;\n used/skipped = measurement updates applied / "
+                 "invalid or rejected measurements skipped)")
     return "\n".join(lines)

@@ -28,6 +28,7 @@ After each update the error is moved into the reference: ``q <- q ⊗ exp(dtheta
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,20 +77,54 @@ _EYE6 = np.eye(6)
 
 
 def transition_matrix(w_hat_B, dt: float) -> np.ndarray:
-    """Closed-form state transition of ``F = [[-[w x], -I], [0, 0]]`` over ``dt``."""
-    w = np.asarray(w_hat_B, dtype=float)
-    K = rot.skew(w)
-    K2 = K @ K
-    wn = float(np.sqrt(w @ w))
+    """Closed-form state transition of ``F = [[-[w x], -I], [0, 0]]`` over ``dt``.
+
+    ``Phi = [[exp(-[w x] dt), -J], [0, I]]`` with
+    ``J = integral_0^dt exp(-[w x] s) ds = dt I - c1 [w x] + c2 [w x]^2``,
+    ``c1 = (1 - cos a) / |w|^2``, ``c2 = (a - sin a) / |w|^3``, ``a = |w| dt``
+    (series for small ``a``).  Written with Python floats: one array construction.
+    """
+    wx, wy, wz = np.asarray(w_hat_B, dtype=float).tolist()
+    n2 = wx * wx + wy * wy + wz * wz
+    wn = math.sqrt(n2)
     a = wn * dt
-    Phi = _EYE6.copy()
-    Phi[:3, :3] = rot.rotvec_to_rotmat(w * dt).T
-    if a < 1e-5:
-        integral = _EYE3 * dt - K * (dt * dt / 2.0) + K2 * (dt**3 / 6.0)
+    if a < 1e-4:
+        c1 = dt * dt / 2.0 - n2 * dt**4 / 24.0
+        c2 = dt**3 / 6.0 - n2 * dt**5 / 120.0
+        s1 = dt - n2 * dt**3 / 6.0  # sin(a)/|w|
+        s2 = dt * dt / 2.0 - n2 * dt**4 / 24.0  # (1 - cos a)/|w|^2
     else:
-        integral = _EYE3 * dt - K * ((1.0 - np.cos(a)) / wn**2) + K2 * ((a - np.sin(a)) / wn**3)
-    Phi[:3, 3:] = -integral
-    return Phi
+        c1 = (1.0 - math.cos(a)) / n2
+        c2 = (a - math.sin(a)) / (n2 * wn)
+        s1 = math.sin(a) / wn
+        s2 = c1
+    # K = [w x], K^2 = w w' - |w|^2 I.  exp(-K dt) = I - s1 K + s2 K^2.
+    k2 = ((wx * wx - n2, wx * wy, wx * wz), (wy * wx, wy * wy - n2, wy * wz), (wz * wx, wz * wy, wz * wz - n2))
+    k = ((0.0, -wz, wy), (wz, 0.0, -wx), (-wy, wx, 0.0))
+    rows = []
+    for r in range(3):
+        e = [(1.0 if r == c else 0.0) - s1 * k[r][c] + s2 * k2[r][c] for c in range(3)]
+        j = [-((dt if r == c else 0.0) - c1 * k[r][c] + c2 * k2[r][c]) for c in range(3)]
+        rows.append(e + j)
+    rows += [[0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]
+    return np.array(rows)
+
+
+def _inverse(S):
+    """Inverse of a small SPD matrix (closed form for 3x3), or None if singular."""
+    if S.shape == (3, 3):
+        (a, b, c), (d, e, f), (g, h, i) = S.tolist()
+        A, B, C = e * i - f * h, -(d * i - f * g), d * h - e * g
+        det = a * A + b * B + c * C
+        if not det > 0.0 or not math.isfinite(det):
+            return None
+        return np.array([[A, -(b * i - c * h), b * f - c * e],
+                         [B, a * i - c * g, -(a * f - c * d)],
+                         [C, -(a * h - b * g), a * e - b * d]]) / det
+    try:
+        return np.linalg.inv(S)
+    except np.linalg.LinAlgError:
+        return None
 
 
 class MultiplicativeEKF:
@@ -112,6 +147,7 @@ class MultiplicativeEKF:
         self.rrw = float(rrw_rad_per_s15)
         self.gate = innovation_gate_chi2
         self._q_cache: dict = {}
+        self._model_cache: dict = {}
 
     def process_noise(self, dt: float) -> np.ndarray:
         """:func:`process_noise` for this filter's gyro model (cached per ``dt``)."""
@@ -144,9 +180,8 @@ class MultiplicativeEKF:
         PHt = P @ H.T
         S = H @ PHt + R
         S = 0.5 * (S + S.T)
-        try:
-            S_inv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
+        S_inv = _inverse(S)
+        if S_inv is None:
             return state, UpdateInfo(z, S, float("nan"), False)
         nis = float(z @ S_inv @ z)
         if not np.isfinite(nis) or (self.gate is not None and nis > self.gate):
@@ -167,12 +202,23 @@ class MultiplicativeEKF:
         """
         q_IS_hat = rot.quat_multiply(state.q_IB, q_BS)
         z = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(q_IS_hat), q_IS_meas))
-        R_SB = rot.quat_to_rotmat(q_BS).T
-        H = np.zeros((3, 6))
-        H[:, :3] = R_SB
-        noise_S = np.asarray(noise_S, dtype=float)
-        R = noise_S if noise_S.shape == (3, 3) else np.diag(noise_S**2)
+        H, R = self._quaternion_model(q_BS, noise_S)
         return self._update(state, z, H, R)
+
+    def _quaternion_model(self, q_BS, noise_S):
+        """``H = [R_SB, 0]`` and ``R`` of a mounted quaternion sensor (cached per sensor)."""
+        q_BS = np.asarray(q_BS, dtype=float)
+        noise_S = np.asarray(noise_S, dtype=float)
+        key = (q_BS.tobytes(), noise_S.tobytes())
+        model = self._model_cache.get(key)
+        if model is None:
+            H = np.zeros((3, 6))
+            H[:, :3] = rot.quat_to_rotmat(q_BS).T
+            R = noise_S if noise_S.shape == (3, 3) else np.diag(noise_S**2)
+            if len(self._model_cache) > 64:
+                self._model_cache.clear()
+            model = self._model_cache[key] = (H, R)
+        return model
 
     def update_vectors(self, state: MekfState, directions_S, references_I, sigma_rad: float,
                        q_BS=(1.0, 0.0, 0.0, 0.0)) -> tuple[MekfState, UpdateInfo]:

@@ -16,8 +16,6 @@ systems are in the diagram.
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 from pydrake.common import RandomDistribution
 
@@ -39,11 +37,16 @@ def read_seed_words(system, context, port) -> np.ndarray:
     return np.zeros(SEED_WORDS)
 
 
-@lru_cache(maxsize=4096)
-def _counter_random(words: tuple, stream: str) -> CounterRandom:
-    return CounterRandom(stream_key(list(words), stream))
+_CACHE: dict = {}
 
 
 def counter_random(seed_words, stream: str) -> CounterRandom:
     """Cached :class:`CounterRandom` for (seed words, stream name)."""
-    return _counter_random(tuple(int(w) for w in seed_words), stream)
+    words = np.asarray(seed_words, dtype=float)
+    key = (words.tobytes(), stream)
+    cr = _CACHE.get(key)
+    if cr is None:
+        if len(_CACHE) > 4096:
+            _CACHE.clear()
+        cr = _CACHE[key] = CounterRandom(stream_key([int(w) for w in words], stream))
+    return cr
