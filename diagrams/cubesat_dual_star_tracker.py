@@ -61,7 +61,7 @@ def print_tables(results, file=sys.stdout):
                              f"{pm:9.4f} {_fmt(mm[i], ms[i]):>16} {mm[i] / pm:6.2f}")
             else:
                 lines.append(f"{arch:<14} {ax:<9} {'-':>10} {_fmt(rm[i], rs[i]):>16} {'':>6}   {'-':>9} {_fmt(mm[i], ms[i]):>16}")
-    lines.append(f"\nTable 2 - gyro bias RMSE, stable stage, deg/s")
+    lines.append("\nTable 2 - gyro bias RMSE, stable stage, deg/s")
     hdr = f"{'architecture':<14} {'axis':<5} {'paper':>8} {'ours':>18} {'ratio':>6}"
     lines += [hdr, "-" * len(hdr)]
     for arch in ARCHITECTURES:
@@ -74,7 +74,7 @@ def print_tables(results, file=sys.stdout):
                 lines.append(f"{arch:<14} {ax:<5} {p:8.4f} {bm[i]:9.5f}±{bs[i]:.5f} {bm[i] / p:6.2f}")
             else:
                 lines.append(f"{arch:<14} {ax:<5} {'-':>8} {bm[i]:9.5f}±{bs[i]:.5f}")
-    lines.append(f"\nConvergence time (first time after which |error| < threshold on every axis), s")
+    lines.append("\nConvergence time (first time after which |error| < threshold on every axis), s")
     for arch in ARCHITECTURES:
         conv = [r["metrics"]["estimators"][arch]["convergence_time_s"] for r in results]
         conv_ok = [c for c in conv if c is not None]
