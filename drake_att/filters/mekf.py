@@ -59,6 +59,7 @@ class UpdateInfo:
     innovation_covariance: np.ndarray
     nis: float
     accepted: bool
+    error_transition: np.ndarray | None = None  # I - K H of an accepted update (6x6)
 
 
 def process_noise(arw: float, rrw: float, dt: float) -> np.ndarray:
@@ -167,13 +168,22 @@ class MultiplicativeEKF:
 
     def predict(self, state: MekfState, w_meas_B, dt: float) -> MekfState:
         """Propagate over ``dt`` (s) with the step's mean measured rate ``w_meas_B`` (rad/s)."""
+        return self.predict_linearized(state, w_meas_B, dt)[0]
+
+    def predict_linearized(self, state: MekfState, w_meas_B, dt: float):
+        """:meth:`predict`, also returning the step's ``Phi`` and ``Q`` (6x6 each).
+
+        The error obeys ``e_k = Phi e_{k-1} + w`` with ``cov(w) = Q``; estimators that share
+        the gyro share ``w`` (used by the decentralized fusion's cross-covariance).
+        """
         if dt <= 0:
-            return state
+            return state, _EYE6, np.zeros((6, 6))
         w_hat = np.asarray(w_meas_B, dtype=float) - state.bias_B
         q = rot.quat_normalize(rot.quat_propagate(state.q_IB, w_hat, dt))
         Phi = transition_matrix(w_hat, dt)
-        P = Phi @ state.P @ Phi.T + self.process_noise(dt)
-        return MekfState(q, state.bias_B, 0.5 * (P + P.T))
+        Q = self.process_noise(dt)
+        P = Phi @ state.P @ Phi.T + Q
+        return MekfState(q, state.bias_B, 0.5 * (P + P.T)), Phi, Q
 
     def _update(self, state: MekfState, z, H, R):
         P = state.P
@@ -192,7 +202,7 @@ class MultiplicativeEKF:
         P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
         q = rot.quat_normalize(rot.quat_multiply(state.q_IB, rot.rotvec_to_quat(dx[:3])))
         new = MekfState(q, state.bias_B + dx[3:], 0.5 * (P_new + P_new.T))
-        return new, UpdateInfo(z, S, nis, True)
+        return new, UpdateInfo(z, S, nis, True, I_KH)
 
     def update_quaternion(self, state: MekfState, q_IS_meas, q_BS, noise_S) -> tuple[MekfState, UpdateInfo]:
         """Update with a measured sensor attitude ``q_IS_meas``.

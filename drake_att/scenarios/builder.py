@@ -157,10 +157,29 @@ def build_estimate_fusion(ctx: BuildContext, c: cfg.EstimateFusionConfig):
     second = {s.second_output_name for s in sources}
     if len(second) != 1:
         raise cfg.ConfigError(f"{c.name}.sources: {c.sources} estimate different quantities {sorted(second)}")
-    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second.pop(), c.covariance_model))
+    period, P0 = None, None
+    if c.covariance_model == "tracked":
+        configs = [ctx.scenario_estimator_config(n) for n in c.sources]
+        if not all(isinstance(x, cfg.MekfConfig) for x in configs) or len(configs) != 2:
+            raise cfg.ConfigError(f"{c.name}.covariance_model: 'tracked' needs exactly 2 MEKF sources; got {c.sources}")
+        a, b = configs
+        same = (a.gyro == b.gyro and a.period_s == b.period_s and a.initial_attitude_rpy_deg == b.initial_attitude_rpy_deg
+                and a.initial_bias_deg_per_h == b.initial_bias_deg_per_h
+                and a.initial_attitude_sigma_deg == b.initial_attitude_sigma_deg
+                and a.initial_bias_sigma_deg_per_h == b.initial_bias_sigma_deg_per_h)
+        if not same:
+            raise cfg.ConfigError(f"{c.name}.covariance_model: 'tracked' needs sources {c.sources} with one gyro, one "
+                                  "period and identical initial estimates and sigmas (their initial errors are then equal)")
+        period = a.period_s
+        P0 = ctx.estimators[c.sources[0]].estimate_vector(ctx.estimators[c.sources[0]].CreateDefaultContext())[7:43]
+    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second.pop(), c.covariance_model,
+                                                  period, P0))
     for n, src in zip(c.sources, sources):
-        for port, dst in (("q_IB_hat", "q_IB_hat"), (src.second_output_name, "second"),
-                          ("covariance", "covariance"), ("status", "status")):
+        ports = [("q_IB_hat", "q_IB_hat"), (src.second_output_name, "second"), ("covariance", "covariance"),
+                 ("status", "status")]
+        if c.covariance_model == "tracked":
+            ports.append(("step_linearization", "linearization"))
+        for port, dst in ports:
             ctx.builder.Connect(src.GetOutputPort(port), fusion.GetInputPort(f"{n}_{dst}"))
     fusion.period_s = min(ctx.scenario_estimator_config(n).period_s for n in c.sources)
     fusion.gyro_name = ctx.scenario_estimator_config(c.sources[0]).gyro

@@ -175,8 +175,9 @@ class MekfConfig:
 class EstimateFusionConfig:
     """Fusion of several estimators' outputs (paper S3's "decentralized" scheme):
     quaternion average of the attitudes, linear average of the biases.
-    ``covariance_model``: "conservative" (sum w_i P_i, valid for any correlation) or
-    "independent" (sum w_i^2 P_i)."""
+    ``covariance_model``: "tracked" (exact cross-covariance of two MEKFs sharing a gyro),
+    "conservative" (sum w_i P_i, valid for any correlation) or "independent"
+    (sum w_i^2 P_i, ignores the shared gyro)."""
 
     name: str = "fusion"
     sources: List[str] = field(default_factory=lambda: ["mekf1", "mekf2"])
@@ -601,8 +602,9 @@ def validate(s: Scenario) -> None:
                 if src not in est_names:
                     _fail(f"{path}.sources", src, f"must name an estimator listed before it; have {sorted(est_names)}")
             _weights(f"{path}.weights", est.weights, len(est.sources))
-            if est.covariance_model not in ("conservative", "independent"):
-                _fail(f"{path}.covariance_model", est.covariance_model, "allowed: 'conservative', 'independent'")
+            if est.covariance_model not in ("tracked", "conservative", "independent"):
+                _fail(f"{path}.covariance_model", est.covariance_model,
+                      "allowed: 'tracked', 'conservative', 'independent'")
             est_names.add(est.name)
             continue
         est_names.add(est.name)

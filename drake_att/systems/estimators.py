@@ -41,6 +41,8 @@ from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE, VectorOb
 
 ESTIMATE_SIZE = 4 + 3 + 36 + 4
 TIME_TOLERANCE_S = 1e-6
+_EYE6 = np.eye(6)
+_ZERO6 = np.zeros((6, 6))
 
 
 @dataclass(frozen=True)
@@ -110,8 +112,12 @@ class MekfEstimator(AttitudeEstimatorSystem):
         q_meas_<sensor> (6): ``[t, valid, q_IS_meas (4)]`` per quaternion sensor.
         vectors_<sensor> (abstract VectorObservations) per vector sensor.
     Output ports: the estimator contract with ``bias_B_hat``.
+    Output ports: additionally ``step_linearization`` (109): the last step's linearized
+        error map ``e+ = A (Phi e + w)`` as ``[Phi, Q = cov(w), A]`` (row-major 6x6 each) and
+        the number of steps taken.
     Discrete state: group 0 estimate (47); group 1 ``[t_last_step, last valid gyro rate (3),
-        time of last used sample per measurement input ...]``.
+        time of last used sample per measurement input ...]``; group 2 the step
+        linearization (109).
     """
 
     def __init__(self, name: str, period_s: float, filter_core: MultiplicativeEKF, initial_state: MekfState,
@@ -132,6 +138,12 @@ class MekfEstimator(AttitudeEstimatorSystem):
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
         self._internal_group = self.DeclareDiscreteState(
             np.concatenate([[-np.inf], np.zeros(3), np.full(n_inputs, -np.inf)]))
+        # The last step's linearized error map, e+ = A (Phi e + w) + noise, cov(w) = Q:
+        # [Phi (36), Q (36), A (36), step count], row-major.  Lets a fusion track the
+        # cross-covariance of estimators that share a gyro (drake_att.systems.fusion).
+        self._linearization_group = self.DeclareDiscreteState(
+            np.concatenate([np.eye(6).ravel(), np.zeros(36), np.eye(6).ravel(), [0.0]]))
+        self.DeclareStateOutputPort("step_linearization", self._linearization_group)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
     def _on_step(self, context, discrete_state):
@@ -143,6 +155,7 @@ class MekfEstimator(AttitudeEstimatorSystem):
 
         # -- propagate with the gyro's mean rate over (t_last, t] -----------------------
         t_last = internal[0]
+        Phi, Q, A = _EYE6, _ZERO6, _EYE6
         if np.isfinite(t_last):
             w_meas = None
             if self._gyro_port.HasValue(context):
@@ -154,7 +167,7 @@ class MekfEstimator(AttitudeEstimatorSystem):
                 w_meas = internal[1:4]
             else:
                 internal[1:4] = w_meas
-            state = self.core.predict(state, w_meas, t - t_last)
+            state, Phi, Q = self.core.predict_linearized(state, w_meas, t - t_last)
         elif self._gyro_port.HasValue(context):
             g = self._gyro_port.Eval(context)
             if g[1] > 0.5 and np.all(np.isfinite(g[2:])):
@@ -174,6 +187,8 @@ class MekfEstimator(AttitudeEstimatorSystem):
                 continue
             state, info = self.core.update_quaternion(state, m[2:], sensor.q_BS, sensor.covariance_S)
             n_used, n_skipped, nis = (n_used + 1, n_skipped, info.nis) if info.accepted else (n_used, n_skipped + 1, info.nis)
+            if info.accepted:
+                A = info.error_transition @ A
         offset = 4 + len(self._quat_ports)
         for j, port in enumerate(self._vector_ports):
             if not port.HasValue(context):
@@ -188,8 +203,13 @@ class MekfEstimator(AttitudeEstimatorSystem):
                 continue
             state, info = self.core.update_vectors(state, dirs, obs.references_I, obs.sigma_rad, obs.q_BS)
             n_used, n_skipped, nis = (n_used + 1, n_skipped, info.nis) if info.accepted else (n_used, n_skipped + 1, info.nis)
+            if info.accepted:
+                A = info.error_transition @ A
 
         discrete_state.get_mutable_vector(self._estimate_group).SetFromVector(
             pack_estimate(rot.quat_canonical(state.q_IB), state.bias_B, state.P, t, n_used, n_skipped, nis))
         discrete_state.get_mutable_vector(self._internal_group).SetFromVector(internal)
+        steps = context.get_discrete_state(self._linearization_group).value()[108] + 1
+        discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
+            np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
         return EventStatus.Succeeded()

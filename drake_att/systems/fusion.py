@@ -10,19 +10,25 @@ so they add no sample delay.
   ``q_avg = q_IB ⊗ exp(sum_i w_i R_BS,i delta_i)``, hence
   ``R_avg,B = sum_i w_i^2 R_BS,i diag(sigma_S,i^2) R_BS,i'`` (independent trackers).
 * :class:`EstimateFusion` ("decentralized"): averages the attitude estimates of several
-  estimators (quaternion average) and their second vectors (linear average).  Reported
-  covariance (``covariance_model``):
-    - "conservative" (default): ``sum_i w_i P_i``.  For weights summing to one,
+  estimators (quaternion average) and their second vectors (linear average).  The fused
+  error is ``e = sum_i w_i e_i`` (first order), so its covariance is
+  ``sum_ij w_i w_j P_ij``; the estimators share one gyro, so the cross terms are not zero.
+  Reported covariance (``covariance_model``):
+    - "tracked" (two MEKFs): the cross-covariance is propagated exactly for the linearized
+      filters (track-to-track fusion with common process noise, Bar-Shalom 1981):
+      ``P_12 <- A_1 (Phi_1 P_12 Phi_2' + Q) A_2'`` from each MEKF's ``step_linearization``
+      (``Q`` is the common gyro noise, measurement noises are independent), starting from
+      ``P_12 = P_0`` (both start from the same estimate, so their initial errors are equal).
+    - "conservative": ``sum_i w_i P_i``.  For weights summing to one,
       ``(sum w_i e_i)(sum w_i e_i)' <= sum w_i e_i e_i'`` (convexity), so this bounds the
-      true covariance whatever the correlation between the estimators (they share one
-      gyro, so they *are* correlated); it is tight when they are fully correlated.
-    - "independent": ``sum_i w_i^2 P_i`` - optimistic; ignores the shared gyro.
+      true covariance whatever the correlation; tight when fully correlated.
+    - "independent": ``sum_i w_i^2 P_i`` - ignores the shared gyro (optimistic).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.filters.quaternion_average import average_quaternions
@@ -97,21 +103,30 @@ class EstimateFusion(LeafSystem):
         covariance_model: "conservative" or "independent" (see module docstring).
 
     Input ports (per source ``s``): ``s_q_IB_hat`` (4), ``s_second`` (3),
-        ``s_covariance`` (36), ``s_status`` (4).
+        ``s_covariance`` (36), ``s_status`` (4); with "tracked" also ``s_linearization``
+        (109, the MEKF's ``step_linearization``).
     Output ports: the estimator contract (``q_IB_hat``, second vector, ``covariance``,
         ``status`` with ``t_estimate`` = the sources' common estimate time; NaN time when
         the sources disagree on it).
+    Discrete state ("tracked" only, 37): ``[P_12 (36), steps applied]``, advanced by a
+        periodic event at ``period_s`` (the sources' step).  The output applies the same
+        one-step recursion to the inputs it sees, so the reported covariance always refers
+        to the same step as the fused estimate.
     """
 
     def __init__(self, name, source_names, weights, second_output_name="bias_B_hat",
-                 covariance_model="conservative"):
+                 covariance_model="conservative", period_s=None, initial_cross_covariance=None):
         LeafSystem.__init__(self)
         self.set_name(name)
         n = len(source_names)
         if n < 2:
             raise ValueError(f"{name}.sources: got {list(source_names)}; need at least 2 estimators")
-        if covariance_model not in ("conservative", "independent"):
-            raise ValueError(f"{name}.covariance_model: got {covariance_model!r}; allowed: 'conservative', 'independent'")
+        if covariance_model not in ("tracked", "conservative", "independent"):
+            raise ValueError(f"{name}.covariance_model: got {covariance_model!r}; "
+                             "allowed: 'tracked', 'conservative', 'independent'")
+        if covariance_model == "tracked" and (n != 2 or period_s is None or initial_cross_covariance is None):
+            raise ValueError(f"{name}.covariance_model: 'tracked' needs exactly 2 MEKF sources, their period "
+                             "and their common initial covariance")
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
         self.covariance_model = covariance_model
         self.second_output_name = second_output_name
@@ -119,6 +134,12 @@ class EstimateFusion(LeafSystem):
         self._in = {s: {k: self.DeclareVectorInputPort(f"{s}_{k}", size)
                         for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))}
                     for s in source_names}
+        if covariance_model == "tracked":
+            self.period_s = float(period_s)
+            self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109) for s in source_names}
+            P0 = np.asarray(initial_cross_covariance, dtype=float).reshape(6, 6)
+            self._cross_group = self.DeclareDiscreteState(np.concatenate([P0.ravel(), [0.0]]))
+            self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._advance_cross)
         self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
         self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
         self.DeclareVectorOutputPort("covariance", 36, self._calc_cov)
@@ -133,8 +154,33 @@ class EstimateFusion(LeafSystem):
     def _calc_second(self, context, output):
         output.SetFromVector(np.einsum("i,ij->j", self.weights, np.array(self._eval(context, "second"))))
 
+    def _cross_covariance(self, context):
+        """``P_12`` at the step of the current inputs: the stored one, advanced once if the
+        sources have taken a step since (NaN if the sources disagree on the step)."""
+        x = context.get_discrete_state(self._cross_group).value()
+        P12, applied = x[:36].reshape(6, 6), x[36]
+        l1, l2 = (self._lin[s].Eval(context) for s in self.source_names)
+        if l1[108] != l2[108]:
+            return np.full((6, 6), np.nan), applied
+        if l1[108] > applied:
+            Phi1, Q, A1 = (l1[k * 36:(k + 1) * 36].reshape(6, 6) for k in range(3))
+            Phi2, A2 = l2[:36].reshape(6, 6), l2[72:108].reshape(6, 6)
+            P12 = A1 @ (Phi1 @ P12 @ Phi2.T + Q) @ A2.T
+        return P12, l1[108]
+
+    def _advance_cross(self, context, discrete_state):
+        P12, steps = self._cross_covariance(context)
+        discrete_state.get_mutable_vector(self._cross_group).SetFromVector(np.concatenate([P12.ravel(), [steps]]))
+        return EventStatus.Succeeded()
+
     def _calc_cov(self, context, output):
         P = np.array(self._eval(context, "covariance"))
+        if self.covariance_model == "tracked":
+            (w1, w2), (P1, P2) = self.weights, P.reshape(2, 6, 6)
+            P12, _ = self._cross_covariance(context)
+            Pf = w1**2 * P1 + w2**2 * P2 + w1 * w2 * (P12 + P12.T)
+            output.SetFromVector(Pf.ravel())
+            return
         c = self.weights if self.covariance_model == "conservative" else self.weights**2
         output.SetFromVector(np.einsum("i,ij->j", c, P))
 
