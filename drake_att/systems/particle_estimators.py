@@ -308,6 +308,17 @@ class _ParticleEstimator(_S0Estimator):
     is_random = True
     has_covariances = False
 
+    def _setup(self, name, period_s, star_tracker, second_output_name, q_IB_hat0, second0, covariance0,
+               core_args, core_kwargs):
+        """Shared constructor: keep the core's arguments, draw a template core (fixed numpy
+        seed; replaced from the diagram's seed at initialization) and declare the system."""
+        self._args, self._kwargs = core_args, core_kwargs
+        self._template = self._draw_initial_core(np.random.default_rng(0))
+        self.num_particles = self._template.num_particles
+        q0 = rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB_hat0, float)))
+        _S0Estimator.__init__(self, name, period_s, second_output_name,
+                              pack_estimate(q0, second0, _covariance0(covariance0), 0.0, 0, 0, np.nan), star_tracker)
+
     def _initial_filter_state(self):
         # Default value only: the initialization event replaces it with the set drawn
         # from the diagram's seed (this one is drawn with a fixed numpy seed 0 and is used
@@ -376,13 +387,9 @@ class BootstrapPfEstimator(_ParticleEstimator):
     def __init__(self, name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
                  covariance0, arw_sigma: float, bias_roughening_sigma: float = 0.0,
                  resample_threshold: float = 2.0 / 3.0):
-        self._args = (num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_sigma)
-        self._kwargs = dict(bias_roughening_sigma=bias_roughening_sigma, resample_threshold=resample_threshold)
-        self._template = self._draw_initial_core(np.random.default_rng(0))
-        self.num_particles = self._template.num_particles
-        super().__init__(name, period_s, "bias_B_hat",
-                         pack_estimate(rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB_hat0, float))),
-                                       bias_hat0, _covariance0(covariance0), 0.0, 0, 0, np.nan), star_tracker)
+        self._setup(name, period_s, star_tracker, "bias_B_hat", q_IB_hat0, bias_hat0, covariance0,
+                    (num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_sigma),
+                    dict(bias_roughening_sigma=bias_roughening_sigma, resample_threshold=resample_threshold))
 
     def _draw_initial_core(self, rng):
         return BootstrapParticleFilter(*self._args, rng, **self._kwargs)
@@ -415,13 +422,9 @@ class EkpfEstimator(_ParticleEstimator):
     def __init__(self, name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
                  covariance0, arw_sigma: float, rrw_sigma: float, proposal_iterations: int = 1,
                  resample_threshold: float = 2.0 / 3.0):
-        self._args = (num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_sigma, rrw_sigma)
-        self._kwargs = dict(proposal_iterations=proposal_iterations, resample_threshold=resample_threshold)
-        self._template = self._draw_initial_core(np.random.default_rng(0))
-        self.num_particles = self._template.num_particles
-        super().__init__(name, period_s, "bias_B_hat",
-                         pack_estimate(rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB_hat0, float))),
-                                       bias_hat0, _covariance0(covariance0), 0.0, 0, 0, np.nan), star_tracker)
+        self._setup(name, period_s, star_tracker, "bias_B_hat", q_IB_hat0, bias_hat0, covariance0,
+                    (num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_sigma, rrw_sigma),
+                    dict(proposal_iterations=proposal_iterations, resample_threshold=resample_threshold))
 
     def _draw_initial_core(self, rng):
         return ExtendedKalmanParticleFilter(*self._args, rng, **self._kwargs)
@@ -459,14 +462,10 @@ class GyrolessPfEstimator(_ParticleEstimator):
         I = np.asarray(inertia, dtype=float)
         if I.shape == (3,):
             I = np.diag(I)
-        self._args = (num_particles, q_IB_hat0, w_hat0, _covariance0(covariance0), I, torque, rate_process_sigma)
-        self._kwargs = dict(attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
-                            resample_threshold=resample_threshold)
-        self._template = self._draw_initial_core(np.random.default_rng(0))
-        self.num_particles = self._template.num_particles
-        super().__init__(name, period_s, "w_IB_B_hat",
-                         pack_estimate(rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB_hat0, float))),
-                                       w_hat0, _covariance0(covariance0), 0.0, 0, 0, np.nan), star_tracker)
+        self._setup(name, period_s, star_tracker, "w_IB_B_hat", q_IB_hat0, w_hat0, covariance0,
+                    (num_particles, q_IB_hat0, w_hat0, _covariance0(covariance0), I, torque, rate_process_sigma),
+                    dict(attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
+                         resample_threshold=resample_threshold))
 
     def _draw_initial_core(self, rng):
         return GyrolessParticleFilter(*self._args, rng, **self._kwargs)
