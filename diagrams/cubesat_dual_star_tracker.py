@@ -23,7 +23,7 @@ import sys
 import numpy as np
 
 from drake_att.analysis.montecarlo import run_monte_carlo, summarize
-from drake_att.noise import DEG
+from drake_att.analysis.report import plot_error_grid
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
 
@@ -107,34 +107,6 @@ def check_ordering(table):
     return claims
 
 
-def plot_stage(series, archs, t_range, path, title):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
-    for arch in archs:
-        s = series[arch]
-        m = (s["t"] >= t_range[0]) & (s["t"] <= t_range[1])
-        for i in range(3):
-            ax[0, i].plot(s["t"][m], s["dtheta"][m, i] / DEG, lw=0.6, label=arch)
-            ax[1, i].plot(s["t"][m], s["second_err"][m, i] / DEG, lw=0.6, label=arch)
-    for i in range(3):
-        ax[0, i].set_title(f"attitude error {AXES[i]}")
-        ax[0, i].set_ylabel("deg")
-        ax[1, i].set_title(f"gyro bias error {'XYZ'[i]}")
-        ax[1, i].set_ylabel("deg/s")
-        ax[1, i].set_xlabel("time (s)")
-        for a in ax[:, i]:
-            a.grid(True, alpha=0.3)
-    ax[0, 0].legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
 def convergence_vs_p0(scenario, sigmas_deg, seed, out_dir):
     """Convergence time of each architecture as a function of the initial attitude sigma."""
     from drake_att.analysis.metrics import compute_metrics
@@ -190,10 +162,10 @@ def main(argv=None):
     series = next(r["series"] for r in results if "series" in r)
     sf = scenario.scoring.score_from_s
     for arch in ARCHITECTURES:
-        plot_stage(series, [arch], (sf, args.duration), os.path.join(args.out, f"fig_stable_{arch}.png"),
-                   f"S3 {arch}: stable stage (seed 1)")
-    plot_stage(series, ["single", "centralized", "decentralized"], (0, 60),
-               os.path.join(args.out, "fig_initial_stage.png"), "S3 initial stage (seed 1)")
+        plot_error_grid(series, [arch], os.path.join(args.out, f"fig_stable_{arch}.png"),
+                        f"S3 {arch}: stable stage (seed 1)", t_range=(sf, args.duration))
+    plot_error_grid(series, ["single", "centralized", "decentralized"], os.path.join(args.out, "fig_initial_stage.png"),
+                    "S3 initial stage (seed 1)", t_range=(0, 60))
     p0 = None
     if not args.no_p0_sweep:
         print("\nConvergence time vs the initial covariance (seed 1, 600 s):")

@@ -38,22 +38,16 @@ import time
 import numpy as np
 
 from drake_att.analysis.montecarlo import run_monte_carlo
+from drake_att.analysis.report import plot_error_grid
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder as _builder
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
-from drake_att.scenarios.particle_builders import register
-
-# Until builder.py registers the S0 builders itself; this module is also imported by the
-# Monte Carlo worker processes (multiprocessing "spawn" re-imports the main script), so the
-# registration happens there too.
-register(_builder.ESTIMATOR_BUILDERS)
 
 SCENARIOS = {"small": "s0_particle_filters_small_error", "large": "s0_particle_filters_large_error",
              "gyroless": "s0_gyroless_pf"}
 PARTICLE_CONFIGS = (cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig)
-AXES = ["roll (x)", "pitch (y)", "yaw (z)"]
 
 # Paper S0's reported figures, typed in for COMPARISON only (never used in a verdict except
 # as the reference a "class" is measured against: within a factor CLASS_FACTOR).
@@ -305,31 +299,8 @@ def _plt():
 
 def plot_axes(series, names, second_scale, second_unit, second_label, path, title, att_ylim=None, sec_ylim=None):
     """Paper style: per-axis attitude error (top) and bias/rate error (bottom) vs time."""
-    plt = _plt()
-    fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
-    for name in names:
-        s = series[name]
-        for i in range(3):
-            ax[0, i].plot(s["t"], s["dtheta"][:, i] / DEG, lw=0.7, label=name)
-            if s["second_err"] is not None:
-                ax[1, i].plot(s["t"], s["second_err"][:, i] / second_scale, lw=0.7, label=name)
-    for i in range(3):
-        ax[0, i].set_title(f"attitude error {AXES[i]}")
-        ax[0, i].set_ylabel("deg")
-        ax[1, i].set_title(f"{second_label} {AXES[i]}")
-        ax[1, i].set_ylabel(second_unit)
-        ax[1, i].set_xlabel("time (s)")
-        if att_ylim:
-            ax[0, i].set_ylim(*att_ylim)
-        if sec_ylim:
-            ax[1, i].set_ylim(*sec_ylim)
-        for a in ax[:, i]:
-            a.grid(True, alpha=0.3)
-    ax[0, 0].legend(fontsize=8)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    plot_error_grid(series, names, path, title, second_scale, second_unit, second_label,
+                    att_ylim=att_ylim, sec_ylim=sec_ylim)
 
 
 def plot_norms(series, names, path, title):

@@ -66,6 +66,51 @@ def plot_estimator(run, name, system, gyro_name, out_dir, score_from_s=0.0) -> l
     return files
 
 
+AXIS_NAMES = ["roll (x)", "pitch (y)", "yaw (z)"]
+
+
+def plot_error_grid(series: dict, names, path: str, title: str, second_scale: float = DEG,
+                    second_unit: str = "deg/s", second_label: str = "gyro bias error", t_range=None,
+                    att_ylim=None, sec_ylim=None) -> str:
+    """Paper-style figure comparing estimators: per-axis attitude error (top row, deg) and
+    bias or rate error (bottom row, ``second_unit`` = SI / ``second_scale``) versus time.
+
+    ``series[name]`` holds ``t`` (n,), ``dtheta`` (n, 3, rad) and ``second_err`` (n, 3, SI
+    or None), e.g. from :func:`drake_att.analysis.metrics.estimator_errors`.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
+    for name in names:
+        s = series[name]
+        m = np.ones(len(s["t"]), dtype=bool) if t_range is None else (s["t"] >= t_range[0]) & (s["t"] <= t_range[1])
+        for i in range(3):
+            ax[0, i].plot(s["t"][m], s["dtheta"][m, i] / DEG, lw=0.7, label=name)
+            if s["second_err"] is not None:
+                ax[1, i].plot(s["t"][m], s["second_err"][m, i] / second_scale, lw=0.7, label=name)
+    for i in range(3):
+        ax[0, i].set_title(f"attitude error {AXIS_NAMES[i]}")
+        ax[0, i].set_ylabel("deg")
+        ax[1, i].set_title(f"{second_label} {AXIS_NAMES[i]}")
+        ax[1, i].set_ylabel(second_unit)
+        ax[1, i].set_xlabel("time (s)")
+        if att_ylim:
+            ax[0, i].set_ylim(*att_ylim)
+        if sec_ylim:
+            ax[1, i].set_ylim(*sec_ylim)
+        for a in ax[:, i]:
+            a.grid(True, alpha=0.3)
+    ax[0, 0].legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def write_diagram_graph(diagram, out_dir) -> list[str]:
     """``diagram.dot`` always; ``diagram.svg`` when Graphviz ``dot`` is installed."""
     dot_path = os.path.join(out_dir, "diagram.dot")
