@@ -49,6 +49,16 @@ def test_invalid_values_name_the_field_and_the_value(override, field, value):
     assert field in msg and value in msg, msg
 
 
+def test_overrides_never_modify_the_callers_scenario():
+    s = load_scenario(text=BASE)
+    before = dump_scenario(s)
+    with pytest.raises(ConfigError):
+        apply_overrides(s, ["sensors.st1.sigma_boresight_arcsec=-3"])
+    changed = apply_overrides(s, ["sensors.st1.sigma_boresight_arcsec=7"])
+    assert dump_scenario(s) == before
+    assert changed.sensors[1].sigma_boresight_arcsec == 7.0
+
+
 def test_unknown_key_is_an_error():
     with pytest.raises(ConfigError, match="bogus"):
         load_scenario(text=BASE + "bogus: 1\n")

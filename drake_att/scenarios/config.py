@@ -326,9 +326,13 @@ def apply_overrides(scenario: Scenario, overrides: typing.Sequence[str]) -> Scen
     ``path`` is dotted; a list element is addressed by index or by its ``name`` field,
     e.g. ``duration_s=600``, ``sensors.st1.sigma_boresight_arcsec=20``,
     ``estimators.0.period_s=0.5``, ``plant.initial_rate_deg_per_s=[0,0,0.1]``.
+    Returns a new scenario; the argument is left unchanged (also when an override fails).
     """
+    import copy
+
     import yaml
 
+    scenario = copy.deepcopy(scenario)  # never modify the caller's scenario, even on error
     for item in overrides:
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected PATH=VALUE")
