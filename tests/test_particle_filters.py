@@ -9,6 +9,8 @@ from scipy.stats import chi2
 
 from drake_att import rotations as rot
 from drake_att.filters.mrp_ekf import MrpEkf, vector_measurement_model
+from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
+
 from drake_att.filters.particle import (
     BootstrapParticleFilter,
     ExtendedKalmanParticleFilter,
@@ -18,39 +20,8 @@ from drake_att.filters.particle import (
     systematic_resample,
 )
 
-DEG = np.pi / 180.0
-HOUR = 3600.0
-SIGMA_V = 0.2 * DEG / HOUR  # ARW, rad/s^0.5 (0.2 deg/h per 1 s sample)
-SIGMA_U = 0.02 * DEG / HOUR / np.sqrt(HOUR)  # RRW, rad/s^1.5
-SIGMA_STAR = 100e-6
-REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-P0_ATT = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
 INERTIA = np.diag([100.0, 200.0, 200.0])
 TORQUE = np.full(3, 1e-5)
-
-
-def simulate_gyro_truth(num_steps, rng, q0=(1.0, 0.0, 0.0, 0.0), w=(1e-3, -5e-4, 2e-4),
-                        bias0=(DEG / HOUR,) * 3, dt=1.0):
-    """Constant-rate truth, Farrenkopf gyro, star-sensor vectors (own small numpy sim).
-
-    Returns q_true (K, 4), b_true (K, 3), y (K, 6) at t_k, and w_meas (K - 1, 3), the
-    gyro output averaged over [t_k, t_k+1].
-    """
-    w = np.asarray(w, dtype=float)
-    q = np.asarray(q0, dtype=float)
-    b = np.asarray(bias0, dtype=float)
-    qs, bs, ys, wms = [], [], [], []
-    for _ in range(num_steps):
-        qs.append(q)
-        bs.append(b)
-        ys.append(vector_measurement_model(rot.quat_to_mrp(q), REFS)
-                  + SIGMA_STAR * rng.standard_normal(6))
-        b_next = b + SIGMA_U * np.sqrt(dt) * rng.standard_normal(3)
-        noise_std = np.sqrt(SIGMA_V**2 / dt + SIGMA_U**2 * dt / 12.0)
-        wms.append(w + 0.5 * (b + b_next) + noise_std * rng.standard_normal(3))
-        q = rot.quat_propagate(q, w, dt)
-        b = b_next
-    return np.array(qs), np.array(bs), np.array(ys), np.array(wms[:-1])
 
 
 def simulate_euler_truth(num_steps, rng, dt=1.0, substeps=10):

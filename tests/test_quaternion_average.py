@@ -15,6 +15,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
+from strategies import unit_quats, unit_vectors
+
 from drake_att import rotations as rot
 from drake_att.filters.quaternion_average import average_quaternions, average_two_quaternions
 
@@ -22,24 +24,9 @@ FAST = settings(max_examples=200, deadline=None)
 MEDIUM = settings(max_examples=100, deadline=None)  # invariance checks: several solves each
 PI = np.pi
 
-unit_interval = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
 weights = st.floats(0.0, 10.0, allow_nan=False, allow_infinity=False)
 
 
-@st.composite
-def unit_quats(draw):
-    v = np.array(draw(st.tuples(*[unit_interval] * 4)))
-    n = np.linalg.norm(v)
-    assume(n > 1e-3)
-    return v / n
-
-
-@st.composite
-def unit_vectors(draw):
-    v = np.array(draw(st.tuples(*[unit_interval] * 3)))
-    n = np.linalg.norm(v)
-    assume(n > 1e-3)
-    return v / n
 
 
 @st.composite

@@ -19,6 +19,8 @@ from hypothesis import strategies as st
 from pydrake.common.eigen_geometry import AngleAxis, Quaternion
 from pydrake.math import RollPitchYaw, RotationMatrix
 
+from strategies import unit_quats, unit_vectors
+
 from drake_att import rotations as rot
 
 FAST = settings(max_examples=200, deadline=None)
@@ -30,23 +32,8 @@ PI = np.pi
 # ----------------------------------------------------------------------------------
 # Strategies and helpers
 # ----------------------------------------------------------------------------------
-unit_interval = st.floats(-1.0, 1.0, allow_nan=False, allow_infinity=False)
 
 
-@st.composite
-def unit_quats(draw):
-    v = np.array(draw(st.tuples(*[unit_interval] * 4)))
-    n = np.linalg.norm(v)
-    assume(n > 1e-3)
-    return v / n
-
-
-@st.composite
-def unit_vectors(draw):
-    v = np.array(draw(st.tuples(*[unit_interval] * 3)))
-    n = np.linalg.norm(v)
-    assume(n > 1e-3)
-    return v / n
 
 
 def vectors(scale=10.0):
