@@ -84,19 +84,51 @@ def test_overrides_by_name_and_index():
 
 
 def test_every_shipped_scenario_loads_and_builds():
+    """Every shipped scenario builds a diagram holding each configured sensor and estimator
+    under its own name, each estimator exposing the contract ports; a few seconds of
+    simulation give unit quaternions and symmetric positive semi-definite covariances."""
     from drake_att.scenarios.builder import ScenarioDiagram
 
     names = available_scenarios()
     assert DEFAULT_SCENARIO in names
     for name in names:
-        s = load(name)
+        s = apply_overrides(load(name), ["duration_s=3", "scoring.score_from_s=0"])
         sd = ScenarioDiagram(s)
-        assert len(sd.diagram.GetSystems()) > 3
+        in_diagram = {sys.get_name() for sys in sd.diagram.GetSystems()}
+        configured = {x.name for x in list(s.sensors) + list(s.estimators)}
+        assert configured <= in_diagram, (name, configured - in_diagram)
+        run = sd.simulate(seed=1)
+        for e in s.estimators:
+            q = run.values(f"{e.name}/q_IB_hat")
+            np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9, err_msg=f"{name}/{e.name}")
+            P = run.values(f"{e.name}/covariance")[-1].reshape(6, 6)
+            np.testing.assert_allclose(P, P.T, atol=1e-12 * np.abs(P).max())
+            # Positive semi-definite (a bootstrap PF's collapsed cloud is singular, not negative).
+            assert np.all(np.linalg.eigvalsh(P) >= -1e-12 * np.abs(P).max()), (name, e.name)
+            status = run.values(f"{e.name}/status")
+            assert status[-1, 0] == pytest.approx(run.times(f"{e.name}/status")[-1], abs=1.0), (name, e.name)
+
+
+def _rotvec_between(q_hat, q_true):
+    """Rotation vector of q_hat^-1 ⊗ q_true (rows wxyz), written out here independently."""
+    w1, v1 = q_hat[:, :1], -q_hat[:, 1:]
+    w2, v2 = q_true[:, :1], q_true[:, 1:]
+    w = w1 * w2 - np.sum(v1 * v2, axis=1, keepdims=True)
+    v = w1 * v2 + w2 * v1 + np.cross(v1, v2)
+    v = np.where(w < 0, -v, v)
+    w = np.abs(w)
+    s = np.linalg.norm(v, axis=1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, w)
+    return v * np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0)
+
+
+def _reject_constant(name):
+    raise AssertionError(f"metrics.json must be strict JSON (null, never {name})")
 
 
 def _read_metrics(out):
     with open(os.path.join(out, "metrics.json")) as f:
-        return json.load(f)
+        return json.load(f, parse_constant=_reject_constant)
 
 
 def test_cli_run_writes_results_and_seeds_reproduce(tmp_path, capsys):
@@ -109,13 +141,21 @@ def test_cli_run_writes_results_and_seeds_reproduce(tmp_path, capsys):
         assert os.path.isfile(os.path.join(out1, f)), f
     assert any(f.endswith(".png") for f in os.listdir(out1))
     m = _read_metrics(out1)
-    for key in ("scenario", "seed", "duration_s", "wall_time_s", "estimators"):
-        assert key in m
-    est = next(iter(m["estimators"].values()))
-    for key in ("attitude_rmse_deg", "attitude_mae_deg", "attitude_rmse_total_deg", "bias_rmse_deg_per_h",
-                "convergence_time_s", "nees_mean", "scored_from_s"):
-        assert key in est
-    assert len(est["attitude_rmse_deg"]) == 3 and m["duration_s"] == 60.0 and m["seed"] == 1
+    assert m["scenario"] == "cubesat_dual_star_tracker" and m["duration_s"] == 60.0 and m["seed"] == 1
+    # metrics.json holds exactly what the metrics layer computes from the saved log: recompute
+    # the per-axis RMSE of every estimator from log.npz (truth at each estimate's own time).
+    log = np.load(os.path.join(out1, "log.npz"))
+    truth_t, truth_q = log["rigid_body_plant__q_IB__t"], log["rigid_body_plant__q_IB__x"]
+    for name, est in m["estimators"].items():
+        status = log[f"{name}__status__x"]
+        q_hat = log[f"{name}__q_IB_hat__x"]
+        ok = np.isfinite(status[:, 0]) & (status[:, 0] >= 10.0 - 1e-6)
+        t_est, keep_last = status[ok, 0], np.r_[np.diff(status[ok, 0]) > 1e-6, True]
+        idx = np.searchsorted(truth_t, t_est[keep_last] - 1e-6)
+        err = _rotvec_between(q_hat[ok][keep_last], truth_q[idx])
+        rmse = np.degrees(np.sqrt(np.mean(err**2, axis=0)))
+        np.testing.assert_allclose(est["attitude_rmse_deg"], rmse, rtol=1e-9, err_msg=name)
+        assert est["samples_scored"] == int(np.sum(keep_last))
     # The saved config is the one actually used: loading it reproduces the run exactly.
     assert cli_main(["run", os.path.join(out1, "config.yaml"), "--quiet", "--no-figures", "--out", out1b]) == 0
     assert cli_main(args + ["--seed", "2", "--out", out2, "--no-figures"]) == 0
@@ -146,7 +186,7 @@ def test_cli_list(capsys):
 ])
 def test_kinematic_truth_scenarios_run_end_to_end(plant_yaml):
     """Prescribed (kinematic) truth drives the same sensors and MEKF; the filter tracks it."""
-    from drake_att.analysis.metrics import compute_metrics
+    from drake_att.analysis.metrics import compute_metrics, estimator_errors
     from drake_att.scenarios.builder import ScenarioDiagram
 
     text = BASE.replace("plant: !RigidBodyConfig\n  inertia_kg_m2: [1.0, 2.0, 2.5]", plant_yaml)
@@ -154,7 +194,16 @@ def test_kinematic_truth_scenarios_run_end_to_end(plant_yaml):
     sd = ScenarioDiagram(s)
     run = sd.simulate(seed=3)
     m = compute_metrics(run, sd.estimators)["estimators"]["mekf"]
-    assert m["attitude_rmse_total_deg"] < 0.05
+    # The filter is as accurate as it says: pooled over the three axes, the scored RMSE over
+    # the root-mean reported attitude variance. 40 one-second samples x 3 axes with a
+    # steady-state error correlation time of a few steps leave >= 30 effective samples; the
+    # chi-square(30) 99.9% band for the variance ratio is [0.43, 1.85], i.e. [0.66, 1.36] on
+    # the RMSE ratio - asserted with a little margin as [0.6, 1.5] (measured 0.9).
+    errs = estimator_errors(run, "mekf", "bias_B_hat", "gyro")
+    scored = errs["t"] >= 20.0 - 1e-6
+    mean_var = np.einsum("nii->ni", errs["P"][scored])[:, :3].mean(axis=0)
+    ratio = np.sqrt(np.sum(np.radians(m["attitude_rmse_deg"]) ** 2) / np.sum(mean_var))
+    assert 0.6 < ratio < 1.5, ratio
     from drake_att import rotations as rot
 
     q = run.values("prescribed_motion/q_IB")
@@ -175,4 +224,7 @@ def test_monte_carlo_pool_matches_in_process_runs():
         assert a["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] == b["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"]
     assert "series" in pooled[1] and "series" not in pooled[0]
     mean, std = summarize(pooled, "attitude_rmse_deg", "mekf")
-    assert mean.shape == (3,) and np.all(std > 0)
+    per_seed = np.array([r["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] for r in pooled])
+    np.testing.assert_allclose(mean, per_seed.mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(std, per_seed.std(axis=0, ddof=1), rtol=1e-12)
+    assert np.all(std > 0)  # different seeds, different noise
