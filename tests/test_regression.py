@@ -1,0 +1,55 @@
+"""Behaviour preservation: every shipped scenario (shortened) gives exactly the metrics
+recorded from the reference commit's code (tests/data/shipped_metrics_pre_redesign.json,
+written by tests/regression/shipped_metrics.py from a git worktree of that commit).
+
+The runs are pure functions of config + seed, so the comparison is exact: a refactor that
+changes any number - an estimate, a noise draw, a counter - fails here and must say why.
+"""
+
+import json
+import os
+
+import pytest
+
+from regression.shipped_metrics import OVERRIDES, SEEDS, shipped_metrics
+
+RECORD = os.path.join(os.path.dirname(__file__), "data", "shipped_metrics_pre_redesign.json")
+
+
+def _diff(a, b, path=""):
+    """First difference between two JSON trees, as 'path: a != b' (None when equal)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        for k in sorted(set(a) | set(b)):
+            if k not in a or k not in b:
+                return f"{path}/{k}: present in only one"
+            d = _diff(a[k], b[k], f"{path}/{k}")
+            if d:
+                return d
+        return None
+    if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
+        for i, (x, y) in enumerate(zip(a, b)):
+            d = _diff(x, y, f"{path}[{i}]")
+            if d:
+                return d
+        return None
+    return None if a == b else f"{path}: {a!r} != {b!r}"
+
+
+@pytest.fixture(scope="module")
+def record():
+    with open(RECORD) as f:
+        return json.load(f)
+
+
+def test_record_covers_every_shipped_scenario(record):
+    from drake_att.scenarios.library import available_scenarios
+
+    assert set(record["metrics"]) == set(available_scenarios()) == set(OVERRIDES)
+    assert record["seeds"] == list(SEEDS) and record["overrides"] == OVERRIDES
+
+
+@pytest.mark.parametrize("name", sorted(OVERRIDES))
+def test_shipped_scenario_metrics_are_unchanged(record, name):
+    now = shipped_metrics([name])[name]
+    diff = _diff(record["metrics"][name], now)
+    assert diff is None, f"{name} differs from commit {record['recorded_from_commit'][:10]}: {diff}"
