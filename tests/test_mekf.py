@@ -1,50 +1,246 @@
-"""MEKF: discretization against independent computations, Riccati steady state, NEES
-consistency over a Monte Carlo, and robustness to missing/invalid measurements."""
+"""MEKF: discretization against independent computations, Riccati steady state against
+scipy's DARE, NEES consistency over a Monte Carlo with a power-checked band, and robustness
+to missing/invalid measurements.
+
+Independent reference model (written here from paper S3 / Markley & Crassidis 2014
+sec. 6.2, never from the library's helpers):
+
+* ``Phi = expm(F dt)``, ``F = [[-[w x], -I], [0, 0]]`` (exponential series, = scipy's).
+* ``Q`` of the integrated Farrenkopf noise (ARW N, RRW K), per axis
+  ``[[N^2 dt + K^2 dt^3/3, -K^2 dt^2/2], [-K^2 dt^2/2, K^2 dt]]``, itself checked here
+  against a Van Loan integral (scipy ``expm``).
+* Star tracker of paper S3: ``R_SB = Rz(psi) Rx(phi) Ry(theta)`` (pydrake) - eq. 7's
+  quaternion is exactly ``q_z(psi) ⊗ q_x(phi) ⊗ q_y(theta)``, read (SPEC) as mapping body
+  vectors into the sensor frame; ``H = [R_SB, 0]``; ``R = diag(5, 5, 50)^2 arcsec^2`` in
+  the SENSOR frame (boresight = sensor z).
+* Consistency bands: the estimation error of a steady-state linear filter obeys
+  ``e_{k+1} = A e_k + (independent noise)`` with ``A = (I - K H) Phi`` and stationary
+  covariance ``P`` (both from scipy's DARE), so ``cov(e_{t+k}, e_t) = A^k P`` and for any
+  weight ``W``: ``cov(e_t' W e_t, e_s' W e_s) = 2 tr(W C W C')``, ``C = A^|t-s| P``.  This
+  gives the exact standard deviation of a time-and-run averaged NEES (time correlation
+  included); bands are +-4 of those standard deviations.
+"""
 
 import numpy as np
 import pytest
 import scipy.linalg
-from scipy.stats import chi2
+import scipy.stats
+from pydrake.common.eigen_geometry import AngleAxis, Quaternion
+from pydrake.math import RollPitchYaw, RotationMatrix
 
 from drake_att import rotations as rot
 from drake_att.analysis.metrics import estimator_errors
-from drake_att.filters.mekf import MultiplicativeEKF, process_noise, transition_matrix
-from drake_att.noise import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
+from drake_att.filters.mekf import (
+    MultiplicativeEKF,
+    process_noise,
+    steady_state_covariance,
+    transition_matrix,
+)
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
 
-ARW = 0.56 * ARW_DEG_PER_RT_H
-RRW = 123.75 * RRW_DEG_PER_H_15
+DEG = np.pi / 180.0
+ARCSEC = DEG / 3600.0
+DEG_PER_H = DEG / 3600.0
+ARW = 0.56 * DEG / 60.0  # paper S3: 0.56 deg/sqrt(h) in rad/s^0.5
+RRW = 123.75 * DEG / 3600.0**1.5  # paper S3: 123.75 deg/h^1.5 in rad/s^1.5
+N_SIGMA_BAND = 4.0  # consistency bands: +-4 standard deviations of the averaged statistic
 
 
-def _F(w):
+# -- the independent reference model -----------------------------------------------------
+def skew(w):
+    """[w x]: skew(w) @ v == np.cross(w, v)."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def error_dynamics(w):
     F = np.zeros((6, 6))
-    F[:3, :3] = -rot.skew(w)
+    F[:3, :3] = -skew(np.asarray(w, dtype=float))
     F[:3, 3:] = -np.eye(3)
     return F
 
 
-@pytest.mark.parametrize("w", [[0.0, 0.0, 0.0], [0.01, -0.02, 0.005], [0.3, 0.1, -0.2]])
-def test_transition_matrix_equals_matrix_exponential(w):
-    dt = 1.0
-    Phi = transition_matrix(np.array(w), dt)
-    np.testing.assert_allclose(Phi, scipy.linalg.expm(_F(np.array(w)) * dt), atol=1e-12)
+def reference_transition(w, dt):
+    """expm(F dt) by its Taylor series (30 terms; for |F dt| <= 2 the remainder is
+    < 2^30/30! ~ 4e-24).  Exact like scipy's expm (checked below), but free of LAPACK
+    calls, which are slow with a multi-threaded BLAS on a busy machine."""
+    F_dt = error_dynamics(w) * dt
+    assert np.max(np.sum(np.abs(F_dt), axis=1)) <= 2.0
+    out = np.eye(6)
+    term = np.eye(6)
+    for k in range(1, 30):
+        term = term @ F_dt / k
+        out = out + term
+    return out
 
 
-def test_process_noise_equals_van_loan_integral_for_non_rotating_error_frame():
-    """Q of the integrated Farrenkopf noise, by Van Loan's method at w = 0."""
-    dt = 0.7
-    G = np.diag([-1.0, -1, -1, 1, 1, 1])
-    Qc = np.diag([ARW**2] * 3 + [RRW**2] * 3)
-    F = _F(np.zeros(3))
+def reference_process_noise(arw, rrw, dt):
+    """Farrenkopf / Markley-Crassidis closed form (rotation within a step neglected)."""
+    n2, k2 = arw**2, rrw**2
+    Q = np.zeros((6, 6))
+    Q[:3, :3] = (n2 * dt + k2 * dt**3 / 3.0) * np.eye(3)
+    Q[:3, 3:] = Q[3:, :3] = (-k2 * dt**2 / 2.0) * np.eye(3)
+    Q[3:, 3:] = k2 * dt * np.eye(3)
+    return Q
+
+
+def van_loan_process_noise(arw, rrw, dt, w=(0.0, 0.0, 0.0)):
+    """int_0^dt expm(F s) G Qc G' expm(F s)' ds by Van Loan's method (scipy expm)."""
+    F = error_dynamics(w)
+    G = np.diag([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+    Qc = np.diag([arw**2] * 3 + [rrw**2] * 3)
     M = np.zeros((12, 12))
     M[:6, :6] = -F
     M[:6, 6:] = G @ Qc @ G.T
     M[6:, 6:] = F.T
     E = scipy.linalg.expm(M * dt)
     Phi = E[6:, 6:].T
-    Q_vanloan = Phi @ E[:6, 6:]
+    return Phi @ E[:6, 6:]
+
+
+def paper_s3_R_SB(psi_deg, phi_deg, theta_deg):
+    """Sensor-from-body rotation of paper S3's eq. 7 angles: Rz(psi) Rx(phi) Ry(theta)."""
+    R = (RotationMatrix.MakeZRotation(psi_deg * DEG) @ RotationMatrix.MakeXRotation(phi_deg * DEG)
+         @ RotationMatrix.MakeYRotation(theta_deg * DEG))
+    return R.matrix()
+
+
+def quaternion_sensor_H(R_SB):
+    return np.hstack([R_SB, np.zeros((3, 3))])
+
+
+def vector_sensor_H(R_SB, R_BI, refs_I):
+    """Rows of b_S = R_SB R_BI r linearized in dtheta (R_BI_true = (I - [dtheta x]) R_BI):
+    d b_S = R_SB (b_B x dtheta) = R_SB [b_B x] dtheta."""
+    blocks = []
+    for r in refs_I:
+        b_B = R_BI @ r
+        blocks.append(np.hstack([R_SB @ skew(b_B), np.zeros((3, 3))]))
+    return np.vstack(blocks)
+
+
+def dare_steady_state(Phi, Q, H, R):
+    """(a-priori P, a-posteriori P, closed-loop A = (I - K H) Phi) from scipy's DARE."""
+    P_prior = scipy.linalg.solve_discrete_are(Phi.T, H.T, Q, R)
+    S = H @ P_prior @ H.T + R
+    K = np.linalg.solve(S, H @ P_prior).T
+    I_KH = np.eye(Phi.shape[0]) - K @ H
+    return P_prior, I_KH @ P_prior, I_KH @ Phi
+
+
+def averaged_quadratic_form_sd(P, A, W, num_times, num_runs):
+    """Std of the mean of ``e' W e`` over ``num_runs`` independent runs x ``num_times``
+    consecutive steps of the stationary error ``e`` (cov ``P``, ``e+ = A e + noise``)."""
+    c = np.empty(num_times)
+    Ak = np.eye(P.shape[0])
+    for k in range(num_times):
+        C = Ak @ P
+        c[k] = 2.0 * np.trace(W @ C @ W @ C.T)
+        Ak = A @ Ak
+    lags = np.arange(1, num_times)
+    var_time_mean = (num_times * c[0] + 2.0 * np.sum((num_times - lags) * c[1:])) / num_times**2
+    return float(np.sqrt(var_time_mean / num_runs))
+
+
+def consistency_weights(P):
+    """Named weights W with E[e' W e] known: full NEES (6), attitude / bias block NEES (3),
+    and each attitude axis' squared normalized error (1)."""
+    W = {"nees_6dof": (np.linalg.inv(P), 6.0)}
+    Wa = np.zeros((6, 6))
+    Wa[:3, :3] = np.linalg.inv(P[:3, :3])
+    Wb = np.zeros((6, 6))
+    Wb[3:, 3:] = np.linalg.inv(P[3:, 3:])
+    W["nees_attitude"], W["nees_bias"] = (Wa, 3.0), (Wb, 3.0)
+    for i, axis in enumerate("xyz"):
+        Wi = np.zeros((6, 6))
+        Wi[i, i] = 1.0 / P[i, i]
+        W[f"z2_attitude_{axis}"] = (Wi, 1.0)
+    return W
+
+
+def _quadratic(e, P):
+    """e_n' P_n^-1 e_n for stacks e (n, k), P (n, k, k)."""
+    return np.einsum("ni,ni->n", e, np.linalg.solve(P, e[..., None])[..., 0])
+
+
+def filter_statistics(errors_by_run, score_from_s):
+    """The same statistics from the filter's own errors and covariances, per run and time:
+    {name: (runs, times) array}."""
+    stats = {}
+    for e in errors_by_run:
+        m = e["t"] >= score_from_s - 1e-9
+        err = np.concatenate([e["dtheta"][m], e["second_err"][m]], axis=1)
+        P = e["P"][m]
+        per = {
+            "nees_6dof": _quadratic(err, P),
+            "nees_attitude": _quadratic(err[:, :3], P[:, :3, :3]),
+            "nees_bias": _quadratic(err[:, 3:], P[:, 3:, 3:]),
+        }
+        for i, axis in enumerate("xyz"):
+            per[f"z2_attitude_{axis}"] = err[:, i] ** 2 / P[:, i, i]
+        for k, v in per.items():
+            stats.setdefault(k, []).append(v)
+    return {k: np.array(v) for k, v in stats.items()}
+
+
+def assert_consistent_with_power(errors_by_run, score_from_s, P_dare, A_dare):
+    """Check each averaged statistic of ``consistency_weights`` against its +-4 sd band.
+
+    Power against a 20% covariance error (the filter reporting P while the truth is P / c,
+    c = 0.8 or 1.2, scales the statistic's mean by 1 / c and its sd by 1 / c):
+    ``Phi((|E/c - E| - 4 sd) / (sd / c))``, asserted >= 0.9 for the 6-dof NEES, the
+    attitude-block NEES and each attitude axis (the bias block alone has less; reported).
+    For the 6-dof and attitude NEES the run's own errors scored against 0.8 P and 1.2 P are
+    shown to fall outside the band.  Returns {name: (mean, sd, lowest power)}."""
+    stats = filter_statistics(errors_by_run, score_from_s)
+    out = {}
+    for name, (W, expected) in consistency_weights(P_dare).items():
+        values = stats[name]
+        runs, times = values.shape
+        sd = averaged_quadratic_form_sd(P_dare, A_dare, W, times, runs)
+        mean = float(values.mean())
+        power = min(
+            scipy.stats.norm.cdf((abs(expected / c - expected) - N_SIGMA_BAND * sd) / (sd / c))
+            for c in (0.8, 1.2))
+        out[name] = (mean, sd, power)
+        assert abs(mean - expected) < N_SIGMA_BAND * sd, (name, mean, expected, sd)
+        if name != "nees_bias":
+            assert power > 0.9, (name, sd, power)
+        if name in ("nees_6dof", "nees_attitude"):
+            # e' (c P)^-1 e = (e' P^-1 e) / c: the same errors against a scaled covariance.
+            for c in (0.8, 1.2):
+                assert abs(mean / c - expected) > N_SIGMA_BAND * sd, (name, c, mean / c, sd)
+    return out
+
+
+def paper_eq7_quaternion(psi_deg, phi_deg, theta_deg):
+    """Paper S3's eq. 7, component by component (wxyz)."""
+    c = lambda a: np.cos(0.5 * a * DEG)  # noqa: E731
+    s = lambda a: np.sin(0.5 * a * DEG)  # noqa: E731
+    th, ph, ps = theta_deg, phi_deg, psi_deg
+    return np.array([c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
+                     c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
+                     s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
+                     s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps)])
+
+
+# -- discretization and core updates -----------------------------------------------------
+@pytest.mark.parametrize("w", [[0.0, 0.0, 0.0], [0.01, -0.02, 0.005], [0.3, 0.1, -0.2]])
+def test_transition_matrix_equals_matrix_exponential(w):
+    dt = 1.0
+    expm = scipy.linalg.expm(error_dynamics(w) * dt)
+    np.testing.assert_allclose(transition_matrix(np.array(w), dt), expm, atol=1e-12)
+    np.testing.assert_allclose(reference_transition(w, dt), expm, atol=1e-15)
+
+
+@pytest.mark.parametrize("dt", [0.1, 0.7, 7.0])
+def test_process_noise_equals_van_loan_integral_for_non_rotating_error_frame(dt):
+    """Q of the integrated Farrenkopf noise, by Van Loan's method at w = 0 (and the test's
+    closed form, which the reference model below uses, agrees with it too)."""
+    Q_vanloan = van_loan_process_noise(ARW, RRW, dt)
     np.testing.assert_allclose(process_noise(ARW, RRW, dt), Q_vanloan, rtol=1e-9, atol=1e-24)
+    np.testing.assert_allclose(reference_process_noise(ARW, RRW, dt), Q_vanloan,
+                               rtol=1e-9, atol=1e-24)
 
 
 def test_quaternion_update_reduces_error_and_handles_anisotropic_mounted_sensor():
@@ -52,7 +248,8 @@ def test_quaternion_update_reduces_error_and_handles_anisotropic_mounted_sensor(
     q_true = rot.rpy_to_quat(np.array([0.3, -0.2, 1.0]))
     q_BS = rot.rpy_to_quat(np.array([0.0, np.pi / 2, 0.4]))
     err0 = np.array([0.02, -0.01, 0.03])
-    state = core.initial_state(rot.quat_multiply(q_true, rot.rotvec_to_quat(-err0)), np.zeros(3), 0.05, 1e-4)
+    q_hat0 = rot.quat_multiply(q_true, rot.rotvec_to_quat(-err0))
+    state = core.initial_state(q_hat0, np.zeros(3), 0.05, 1e-4)
     q_meas = rot.quat_multiply(q_true, q_BS)  # noise-free
     new, info = core.update_quaternion(state, q_meas, q_BS, np.array([5, 5, 50]) * ARCSEC)
     assert info.accepted
@@ -70,7 +267,8 @@ def test_vector_update_error_reduction_is_second_order(err0):
     core = MultiplicativeEKF(ARW, RRW)
     q_true = rot.rpy_to_quat(np.array([0.1, 0.2, -0.3]))
     refs = np.array([[1.0, 0, 0], [0, 1.0, 0]])
-    state = core.initial_state(rot.quat_multiply(q_true, rot.rotvec_to_quat(err0)), np.zeros(3), 0.2, 1e-4)
+    q_hat0 = rot.quat_multiply(q_true, rot.rotvec_to_quat(err0))
+    state = core.initial_state(q_hat0, np.zeros(3), 0.2, 1e-4)
     dirs = refs @ rot.quat_to_rotmat(q_true)  # rows: R_BI r (noise-free, sensor = body)
     state, info = core.update_vectors(state, dirs, refs, 100e-6)
     assert info.accepted
@@ -85,6 +283,71 @@ def test_gate_rejects_outlier_and_reports_it():
     new, info = core.update_quaternion(state, bad, [1.0, 0, 0, 0], np.full(3, 10 * ARCSEC))
     assert not info.accepted and info.nis > 16.0
     np.testing.assert_array_equal(new.q_IB, state.q_IB)
+
+
+# -- steady_state_covariance against scipy's DARE ---------------------------------------------
+def _steady_state_problem(name):
+    """(Phi, Q, H, R) of one linear filtering problem."""
+    if name == "mekf_rotating_mounted_anisotropic":
+        # Paper-S3 tracker 1, boresight sigma 10x the cross-boresight one, fast rotation.
+        Phi = reference_transition([0.3, 0.1, -0.2], 0.5)
+        Q = reference_process_noise(ARW, RRW, 0.5)
+        H = quaternion_sensor_H(paper_s3_R_SB(-90.0, 45.0, -90.0))
+        R = np.diag((np.array([5.0, 5.0, 50.0]) * ARCSEC) ** 2)
+    elif name == "mekf_full_sensor_covariance":
+        # Non-diagonal (correlated, anisotropic) measurement covariance, other mounting.
+        Phi = reference_transition([-0.05, 0.2, 0.02], 1.0)
+        Q = reference_process_noise(3 * ARW, 0.3 * RRW, 1.0)
+        H = quaternion_sensor_H(paper_s3_R_SB(90.0, 45.0, 90.0))
+        L = np.array([[1.0, 0.0, 0.0], [0.6, 2.0, 0.0], [-0.4, 1.5, 8.0]]) * 5 * ARCSEC
+        R = L @ L.T
+    elif name == "high_grade_gyro_half_arcsec_tracker":
+        # Navigation-grade gyro (0.01 deg/sqrt(h), 0.05 deg/h^1.5), 0.5 / 5 arcsec tracker.
+        Phi = reference_transition(np.zeros(3), 1.0)
+        Q = reference_process_noise(0.01 * DEG / 60.0, 0.05 * DEG / 3600.0**1.5, 1.0)
+        H = quaternion_sensor_H(paper_s3_R_SB(-90.0, 45.0, -90.0))
+        R = np.diag((np.array([0.5, 0.5, 5.0]) * ARCSEC) ** 2)
+    elif name == "mekf_two_vectors":
+        Phi = reference_transition([1e-3, -2e-3, 5e-4], 1.0)
+        Q = reference_process_noise(ARW, RRW, 1.0)
+        R_SB = RotationMatrix(RollPitchYaw(np.array([0.0, 90.0, 20.0]) * DEG)).matrix().T
+        R_BI = RotationMatrix(RollPitchYaw(np.array([10.0, -5.0, 30.0]) * DEG)).matrix().T
+        H = vector_sensor_H(R_SB, R_BI, np.array([[1.0, 0.0, 0.0], [0.0, 0.6, 0.8]]))
+        R = (100e-6) ** 2 * np.eye(6)
+    else:  # "unstable_4_state": spectral radius 1.3, 2 measurements, full R
+        rng = np.random.default_rng(4)
+        Phi = rng.standard_normal((4, 4))
+        Phi *= 1.3 / np.max(np.abs(np.linalg.eigvals(Phi)))
+        G = rng.standard_normal((4, 4))
+        # rad^2-scale covariances (the iteration's stopping tolerance is absolute).
+        Q = 1e-6 * (0.1 * (G @ G.T) + 0.01 * np.eye(4))
+        H = rng.standard_normal((2, 4))
+        R = 1e-6 * np.array([[2.0, 0.7], [0.7, 0.5]])
+    return Phi, Q, H, R
+
+
+@pytest.mark.parametrize("name", [
+    "mekf_rotating_mounted_anisotropic", "mekf_full_sensor_covariance", "mekf_two_vectors",
+    "unstable_4_state",
+    pytest.param("high_grade_gyro_half_arcsec_tracker", marks=pytest.mark.xfail(
+        strict=True, reason=(
+            "library: steady_state_covariance stops when max|P_next - P| < 1e-16 (absolute); "
+            "with covariances of 1e-14 rad^2 that stops far from the fixed point: bias "
+            "sigma 3.5% off"))),
+])
+def test_steady_state_covariance_matches_scipy_dare(name):
+    """a-priori P = scipy.linalg.solve_discrete_are(Phi', H', Q, R) and a-posteriori
+    (I - K H) P: every entry within 2e-5 of sigma_i sigma_j.  Reached: 9e-7 (paper S3
+    tracker, fast rotation), 4.8e-6 (full sensor covariance, low-RRW gyro), 2.3e-7 (two
+    vectors), 1.4e-11 (unstable, rad^2-scale); the residual is the iteration's absolute
+    stopping tolerance (1e-16), see the xfail case, where it is 7e-2."""
+    Phi, Q, H, R = _steady_state_problem(name)
+    P_prior, P_post = steady_state_covariance(Phi, Q, H, R)
+    ref_prior, ref_post, _ = dare_steady_state(Phi, Q, H, R)
+    for P, ref in ((P_prior, ref_prior), (P_post, ref_post)):
+        sig = np.sqrt(np.diag(ref))
+        normalized = np.max(np.abs(P - ref) / np.outer(sig, sig))
+        assert normalized < 2e-5, (name, normalized)
 
 
 # -- Drake-level scenarios ---------------------------------------------------------------
@@ -124,76 +387,123 @@ scoring:
 """
 
 
+def slow_scenario_reference_problem(dt=1.0):
+    """(Phi, Q, H, R) of the slow scenario from the paper's numbers, independently."""
+    return (reference_transition(np.zeros(3), dt), reference_process_noise(ARW, RRW, dt),
+            quaternion_sensor_H(paper_s3_R_SB(-90.0, 45.0, -90.0)),
+            np.diag((np.array([5.0, 5.0, 50.0]) * ARCSEC) ** 2))
+
+
+SLOW_RUNS = 12
+SLOW_SCORE_FROM_S = 100.0
+
+
 @pytest.fixture(scope="module")
 def slow_scenario():
-    # Built once per module (pydrake does not garbage-collect Python systems).
+    # Built once per module (pydrake does not garbage-collect Python systems).  The body
+    # turns at ~2e-5 rad/s: Phi is the w = 0 one to ~2e-5.
     return ScenarioDiagram(load_scenario(text=_scenario_yaml(400.0, "[0.001, -0.001, 0.0005]")))
 
 
-def test_steady_state_sigma_matches_discrete_riccati_solution(slow_scenario):
-    """Slowly rotating body: the filter's steady-state attitude sigma agrees with the DARE
-    of the linearized error model (Phi at w = 0, Q, H = [R_SB 0], R) within 10%."""
-    run = slow_scenario.simulate(seed=3)
-    e = estimator_errors(run, "mekf", "bias_B_hat", "gyro")
-    P_filter = e["P"][-1]
-    st = slow_scenario.scenario.sensors[1]
-    from drake_att.scenarios.builder import star_tracker_mounting, star_tracker_sigmas_S
+@pytest.fixture(scope="module")
+def slow_monte_carlo(slow_scenario):
+    """Aligned errors of SLOW_RUNS seeds (shared by the steady-state and NEES tests)."""
+    return [estimator_errors(slow_scenario.simulate(seed=seed), "mekf", "bias_B_hat", "gyro")
+            for seed in range(SLOW_RUNS)]
 
-    R_SB = rot.quat_to_rotmat(star_tracker_mounting(st)).T
-    H = np.hstack([R_SB, np.zeros((3, 3))])
-    R = np.diag(star_tracker_sigmas_S(st) ** 2)
-    Phi = transition_matrix(np.zeros(3), 1.0)
-    Q = process_noise(ARW, RRW, 1.0)
-    P_prior = scipy.linalg.solve_discrete_are(Phi.T, H.T, Q, R)
-    K = P_prior @ H.T @ np.linalg.inv(H @ P_prior @ H.T + R)
-    P_post = (np.eye(6) - K @ H) @ P_prior
+
+def test_steady_state_covariance_matches_independent_dare(slow_monte_carlo):
+    """The Drake MEKF's covariance at t = 399 s equals the a-posteriori DARE solution of the
+    paper's model built here (Q closed form = Van Loan, R = diag(5, 5, 50 arcsec)^2 in the
+    sensor frame, H = [R_SB 0] with R_SB from eq. 7), not from the library's helpers.
+
+    Reached (the residual is the body's ~2e-5 rad/s rotation, absent from the w = 0 Phi):
+    sigmas within 2.2e-6, every entry within 2.6e-5 of sigma_i sigma_j.  Bounds 1e-5 and
+    1e-4.  For scale: K^2 dt^3/2 instead of /3 in Q moves the sigmas by ~1e-4; swapping the
+    boresight / cross-boresight sigmas or transposing the mounting moves them by O(1)."""
+    # The reference mounting is eq. 7 (checked component by component) ...
+    for angles in ((-90.0, 45.0, -90.0), (90.0, 45.0, 90.0), (17.0, -33.0, 71.0)):
+        R7 = RotationMatrix(Quaternion(paper_eq7_quaternion(*angles))).matrix()
+        np.testing.assert_allclose(paper_s3_R_SB(*angles), R7, atol=1e-15)
+    # ... with the boresight where the paper's figure puts it (x-y plane, 45 deg from +y).
+    boresight_B = paper_s3_R_SB(-90.0, 45.0, -90.0).T @ [0.0, 0.0, 1.0]
+    np.testing.assert_allclose(boresight_B, [np.sqrt(0.5), np.sqrt(0.5), 0.0], atol=1e-15)
+    _, P_dare, _ = dare_steady_state(*slow_scenario_reference_problem())
+    P_filter = slow_monte_carlo[0]["P"][-1]
+    assert slow_monte_carlo[0]["t"][-1] == pytest.approx(399.0)
+    sig_dare = np.sqrt(np.diag(P_dare))
     sig_filter = np.sqrt(np.diag(P_filter))
-    sig_dare = np.sqrt(np.diag(P_post))
-    np.testing.assert_allclose(sig_filter[:3], sig_dare[:3], rtol=0.10)
-    np.testing.assert_allclose(sig_filter[3:], sig_dare[3:], rtol=0.10)
+    assert np.max(np.abs(sig_filter / sig_dare - 1.0)) < 1e-5, sig_filter / sig_dare - 1.0
+    normalized = (P_filter - P_dare) / np.outer(sig_dare, sig_dare)
+    assert np.max(np.abs(normalized)) < 1e-4, np.max(np.abs(normalized))
 
 
-def test_nees_consistent_over_monte_carlo(slow_scenario):
-    """20 seeds: the ensemble-averaged 6-dof NEES lies in its 95% chi-square band at
-    >= 90% of the scored times, and its time average lies inside the band too."""
-    seeds = range(20)
-    nees = []
-    for seed in seeds:
-        run = slow_scenario.simulate(seed=seed)
-        e = estimator_errors(run, "mekf", "bias_B_hat", "gyro")
-        nees.append(e["nees"][e["t"] >= 100.0])
-    nees = np.array(nees)
-    M, dof = nees.shape[0], 6
-    lo, hi = chi2.ppf(0.025, M * dof) / M, chi2.ppf(0.975, M * dof) / M
-    avg = nees.mean(axis=0)
-    assert lo < avg.mean() < hi, (lo, avg.mean(), hi)
-    inside = np.mean((avg > lo) & (avg < hi))
-    assert inside >= 0.90, inside
+def test_nees_and_normalized_errors_consistent_over_monte_carlo(slow_monte_carlo):
+    """12 seeds x 300 scored steps (t >= 100 s).  Averaged over runs and times, each of
+    6-dof NEES, attitude-block NEES, bias-block NEES and the squared normalized error of
+    each attitude axis lies within +-4 sd of its expectation (6, 3, 3, 1), the sd computed
+    exactly from the DARE's closed loop (time correlation included, module docstring;
+    ~34 effectively independent samples per run, not 300).
+
+    Reached (mean, sd): 6-dof 5.81, 0.17 (band 5.32..6.68; the same errors against 1.2 P
+    give 4.84, against 0.8 P 7.27: both rejected); attitude 2.96, 0.045 (2.46 / 3.70
+    rejected); x/y/z axes 0.99 / 0.98 / 0.99, sd 0.031 / 0.031 / 0.024; bias block 2.84,
+    0.16.  Power against a 20% covariance error: >= 0.96 for the 6-dof, attitude and
+    per-axis statistics (asserted > 0.9), only 0.13 for the bias block alone."""
+    _, P_dare, A_dare = dare_steady_state(*slow_scenario_reference_problem())
+    assert_consistent_with_power(slow_monte_carlo, SLOW_SCORE_FROM_S, P_dare, A_dare)
 
 
-def test_empirical_error_matches_reported_sigma_over_seeds(slow_scenario):
-    errs, sig = [], []
-    for seed in range(10):
-        e = estimator_errors(slow_scenario.simulate(seed=100 + seed), "mekf", "bias_B_hat", "gyro")
-        m = e["t"] >= 100.0
-        errs.append(e["dtheta"][m])
-        sig.append(np.sqrt(np.einsum("nii->ni", e["P"][m][:, :3, :3])))
-    rms = np.sqrt(np.mean(np.concatenate(errs) ** 2, axis=0))
-    reported = np.sqrt(np.mean(np.concatenate(sig) ** 2, axis=0))
-    np.testing.assert_allclose(rms, reported, rtol=0.10)
+def test_dropouts_are_skipped_counted_and_covariance_follows_riccati_recursion():
+    """Paper rate (-0.5, 0.5, 0.5) deg/s, 30% tracker drop-outs, 300 s:
 
-
-def test_dropouts_are_skipped_and_counted_and_filter_keeps_tracking():
+    * the MEKF's used / skipped counters equal the tracker's own valid / invalid flags at
+      the filter instants, exactly; the invalid fraction is within 4 binomial SE of 0.3;
+    * its covariance equals, at every step, the Riccati recursion computed here (Phi =
+      expm(F(w_hat) dt) at the filter's rate estimate, the paper's Q, H, R) that updates
+      exactly at the valid samples: every entry within 1e-8 of sigma_i sigma_j (reached
+      1.6e-9, rounding);
+    * it keeps tracking at its own accuracy: after 100 s every attitude and bias error
+      component is within 4.5 of its sigma (Bonferroni: 1200 values x P(|z| > 4.5) = 0.8%;
+      reached 3.5), the sigma being the one just checked against the recursion."""
     sd = ScenarioDiagram(load_scenario(text=_scenario_yaml(300.0, "[-0.5, 0.5, 0.5]", dropout=0.3)))
     run = sd.simulate(seed=5)
     e = estimator_errors(run, "mekf", "bias_B_hat", "gyro")
+    t_est = e["t"]
+    n = len(t_est)
+    np.testing.assert_allclose(t_est, np.arange(n), atol=1e-9)  # one estimate per second
+    st = run.values("st1/star_tracker_measurement")[:n]
+    gyro = run.values("gyro/gyro_measurement")[:n]
+    np.testing.assert_allclose(st[:, 0], t_est, atol=1e-9)
+    np.testing.assert_allclose(gyro[:, 0], t_est, atol=1e-9)
+    valid = st[:, 1] > 0.5
     used, skipped = e["status"][-1, 1], e["status"][-1, 2]
-    # ~300 measurement instants, 30% invalid (binomial: sd ~ 8).
-    assert used + skipped == pytest.approx(len(e["t"]), abs=2)
-    assert 0.3 * (used + skipped) - 40 < skipped < 0.3 * (used + skipped) + 40
-    st_valid = run.values("st1/star_tracker_measurement")[:, 1]
-    assert 0.2 < 1 - st_valid.mean() < 0.4
-    assert np.sqrt(np.mean(e["dtheta"][e["t"] > 100] ** 2)) < 0.05 * DEG
+    assert (used, skipped) == (valid.sum(), (~valid).sum())
+    p = 0.3
+    assert abs((~valid).mean() - p) < 4.0 * np.sqrt(p * (1 - p) / n)
+    # Independent Riccati recursion along the run, linearized at the filter's own rate
+    # estimate w_meas(t_k) - bias_hat(t_{k-1}) (its Phi; the recursion is the test's).
+    bias_true = run.values("gyro/bias_B")[:n]
+    bias_hat = bias_true - e["second_err"]
+    _, Q, H, R = slow_scenario_reference_problem()
+    P = np.diag([(5.0 * DEG) ** 2] * 3 + [(20.0 * DEG_PER_H) ** 2] * 3)
+    worst = 0.0
+    for k in range(n):
+        if k > 0:
+            w_hat = gyro[k, 2:] - bias_hat[k - 1]
+            Phi = reference_transition(w_hat, 1.0)
+            P = Phi @ P @ Phi.T + Q
+        if valid[k]:
+            K = np.linalg.solve(H @ P @ H.T + R, H @ P).T
+            P = (np.eye(6) - K @ H) @ P
+            P = 0.5 * (P + P.T)
+        sig = np.sqrt(np.diag(P))
+        worst = max(worst, np.max(np.abs(e["P"][k] - P) / np.outer(sig, sig)))
+    assert worst < 1e-8, worst
+    scored = t_est >= 100.0
+    z = np.concatenate([e["dtheta"], e["second_err"]], axis=1)[scored] / np.sqrt(
+        np.einsum("nii->ni", e["P"][scored]))
+    assert np.max(np.abs(z)) < 4.5, np.max(np.abs(z))
 
 
 def test_invalid_measurement_values_are_skipped_not_crashing():
@@ -203,7 +513,8 @@ def test_invalid_measurement_values_are_skipped_not_crashing():
     core = MultiplicativeEKF(ARW, RRW)
     init = core.initial_state([1.0, 0, 0, 0], np.zeros(3), 1 * DEG, 10 * DEG_PER_H)
     est = MekfEstimator("mekf", 1.0, core, init,
-                        [QuaternionSensorModel("st", np.array([1.0, 0, 0, 0]), np.eye(3) * (10 * ARCSEC) ** 2)])
+                        [QuaternionSensorModel("st", np.array([1.0, 0, 0, 0]),
+                                               np.eye(3) * (10 * ARCSEC) ** 2)])
     ctx = est.CreateDefaultContext()
     est.GetInputPort("gyro_measurement").FixValue(ctx, [0.0, 1.0, 0.0, 0.0, 0.0])
     for meas in ([0.0, 1.0, np.nan, 0, 0, 0], [0.0, 0.0, 1.0, 0, 0, 0]):
@@ -212,6 +523,59 @@ def test_invalid_measurement_values_are_skipped_not_crashing():
         status = values.get_vector(0).value()[43:47]
         assert status[1] == 0 and status[2] == 1
         assert np.all(np.isfinite(values.get_vector(0).value()[:43]))
+
+
+def test_missing_gyro_sample_is_counted_and_propagates_with_last_valid_rate():
+    """MekfEstimator alone, inputs FixValue'd, stepped event by event (period 0.5 s).  The
+    gyro gives w_a at t = 0 (initialization), w_b at 0.5 s, then a NaN sample, an
+    invalid-flagged sample and a stale (wrong-time) sample, both carrying a wild rate, then
+    w_c.  Each bad sample is counted as skipped and the step propagates with w_b - the
+    last VALID rate: the attitude equals R_IB <- R_IB expm([(w_b - b) x] dt) (pydrake
+    AngleAxis) to 1e-12 rad and the covariance equals Phi P Phi' + Q with Phi = expm(F dt)
+    of that rate and the paper's Q (every entry within 1e-9 of sigma_i sigma_j); the bias
+    estimate is unchanged."""
+    from drake_att.systems.estimators import MekfEstimator
+
+    period = 0.5
+    core = MultiplicativeEKF(ARW, RRW)
+    bias = np.array([3e-4, -2e-4, 1e-4])
+    q0 = rot.rpy_to_quat([0.3, -0.2, 1.1])
+    init = core.initial_state(q0, bias, 1 * DEG, 10 * DEG_PER_H)
+    est = MekfEstimator("mekf", period, core, init)
+    ctx = est.CreateDefaultContext()
+    gyro_port = est.GetInputPort("gyro_measurement")
+    w_a = np.array([0.2, 0.0, 0.0])
+    w_b = np.array([0.01, -0.03, 0.02])
+    w_c = np.array([-0.05, 0.04, 0.1])
+    wild = np.array([3.0, -2.0, 1.0])
+    steps = [  # (gyro sample, rate the filter must use, skipped count after the step)
+        ([0.0, 1.0, *w_a], None, 0),
+        ([0.5, 1.0, *w_b], w_b, 0),
+        ([1.0, 1.0, np.nan, 0.1, 0.2], w_b, 1),
+        ([1.5, 0.0, *wild], w_b, 2),
+        ([1.25, 1.0, *wild], w_b, 3),
+        ([2.5, 1.0, *w_c], w_c, 3),
+    ]
+    R_IB = RotationMatrix(Quaternion(q0)).matrix()
+    P = init.P.copy()
+    for k, (sample, w_used, n_skipped) in enumerate(steps):
+        ctx.SetTime(k * period)
+        gyro_port.FixValue(ctx, sample)
+        ctx.get_mutable_discrete_state().SetFrom(est.EvalUniquePeriodicDiscreteUpdate(ctx))
+        x = est.estimate_vector(ctx)
+        if w_used is not None:
+            w_hat = w_used - bias
+            angle = np.linalg.norm(w_hat) * period
+            R_IB = R_IB @ RotationMatrix(AngleAxis(angle, w_hat / np.linalg.norm(w_hat))).matrix()
+            Phi = reference_transition(w_hat, period)
+            P = Phi @ P @ Phi.T + reference_process_noise(ARW, RRW, period)
+        R_est = RotationMatrix(Quaternion(x[:4] / np.linalg.norm(x[:4]))).matrix()
+        angle_err = np.linalg.norm(RotationMatrix(R_IB.T @ R_est).ToAngleAxis().angle())
+        assert angle_err < 1e-12, (k, angle_err)
+        sig = np.sqrt(np.diag(P))
+        assert np.max(np.abs(x[7:43].reshape(6, 6) - P) / np.outer(sig, sig)) < 1e-9, k
+        np.testing.assert_array_equal(x[4:7], bias)
+        assert x[43] == pytest.approx(k * period) and x[45] == n_skipped, (k, x[43:47])
 
 
 def test_same_seed_repeats_exactly_and_different_seed_differs(slow_scenario):
@@ -232,7 +596,8 @@ plant: !RigidBodyConfig
   initial_attitude_rpy_deg: [10.0, -5.0, 30.0]
   initial_rate_deg_per_s: [0.01, -0.02, 0.005]
 sensors:
-- !GyroConfig {name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.05, rrw_deg_per_h15: 0.5, initial_bias_deg_per_h: [1.0, -2.0, 0.5]}
+- !GyroConfig {name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.56, rrw_deg_per_h15: 123.75,
+               initial_bias_deg_per_h: [0.0, 0.0, 0.0], initial_bias_sigma_deg_per_h: 5.0}
 - !StarTrackerConfig
   name: st
   period_s: 1.0
@@ -252,23 +617,27 @@ estimators:
 scoring:
   score_from_s: 50.0
 """
+VECTOR_RUNS = 12
 
 
 def test_mekf_with_mounted_vector_tracker_is_consistent():
-    """System level: two reference directions from a mounted vector-mode tracker; 8 seeds,
-    the time-averaged ensemble NEES lies in its 95% chi-square band and the attitude error
-    is at the 100-urad class."""
+    """System level: two reference directions from a mounted vector-mode tracker (S = B
+    rotated by roll/pitch/yaw (0, 90, 20) deg), the paper-S3 gyro (short bias correlation,
+    so 250 s per run carry ~29 independent NEES samples) with a random initial bias drawn
+    with the filter's own prior sigma.  12 seeds x 250 scored steps: 6-dof, attitude-block,
+    bias-block NEES and each attitude axis' squared normalized error in their +-4 sd bands
+    from the DARE of H = [R_SB [b_B x], 0] (pydrake RollPitchYaw, at the initial attitude;
+    the sds change < 1% along the 7-deg path).  Reached (mean, sd): 6-dof 5.80, 0.185
+    (against 1.2 P: 4.83, 0.8 P: 7.24, both outside 5.26..6.74); attitude 3.03, 0.047;
+    axes 0.98 / 0.99 / 1.06, sd 0.027 / 0.027 / 0.026; bias block 2.76, 0.18.  Power
+    against a 20% covariance error >= 0.95 (6-dof, attitude, per axis), 0.08 (bias block)."""
     sd = ScenarioDiagram(load_scenario(text=VECTOR_SCENARIO))
-    nees, errs = [], []
-    for seed in range(8):
-        e = estimator_errors(sd.simulate(seed=seed), "mekf", "bias_B_hat", "gyro")
-        m = e["t"] >= 50.0
-        nees.append(e["nees"][m])
-        errs.append(e["dtheta"][m])
-    nees = np.array(nees)
-    M = nees.shape[0]
-    avg = nees.mean(axis=0)
-    lo, hi = chi2.ppf(0.025, M * 6) / M, chi2.ppf(0.975, M * 6) / M
-    assert lo < avg.mean() < hi, (lo, avg.mean(), hi)
-    rms = np.sqrt(np.mean(np.concatenate(errs) ** 2))
-    assert rms < 100e-6, rms
+    errors = [estimator_errors(sd.simulate(seed=seed), "mekf", "bias_B_hat", "gyro")
+              for seed in range(VECTOR_RUNS)]
+    R_SB = RotationMatrix(RollPitchYaw(np.array([0.0, 90.0, 20.0]) * DEG)).matrix().T
+    R_BI = RotationMatrix(RollPitchYaw(np.array([10.0, -5.0, 30.0]) * DEG)).matrix().T
+    H = vector_sensor_H(R_SB, R_BI, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    _, P_dare, A_dare = dare_steady_state(
+        reference_transition(np.zeros(3), 1.0), reference_process_noise(ARW, RRW, 1.0), H,
+        (100e-6) ** 2 * np.eye(6))
+    assert_consistent_with_power(errors, 50.0, P_dare, A_dare)
