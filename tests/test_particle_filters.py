@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from scipy.stats import chi2
 
 from drake_att import rotations as rot
@@ -66,6 +67,42 @@ def run_gyro_filter(pf, ys, wms, rng, dt=1.0, check=None):
 
 def att_err(q_hat, q_true):
     return np.linalg.norm(rot.quat_error_rotvec(q_hat, q_true))
+
+
+def steady_state_sd(q_att, q_second, dt=1.0, truth_without_noise=False):
+    """Per-axis steady-state sigmas ``(2, 3)`` [attitude (rad); second state] of the linear
+    model the S0 particle filters assume for small errors, solved in the test with the
+    discrete Riccati equation (independent of the library):
+
+        theta_{k+1} = theta_k + s_k dt + N(0, q_att^2 dt),   s_{k+1} = s_k + N(0, q_second^2 dt)
+
+    (s = rate error (gyroless) or minus the bias error (gyro mode), theta measured every
+    step). The two S0 reference vectors (x, y) carry the information sum_j (I - u_j u_j')
+    / sigma^2 = diag(1, 1, 2) / sigma^2, i.e. an effective sigma of [1, 1, 1/sqrt 2] sigma.
+
+    By default: the model's posterior sigmas (what a consistent filter reports). With
+    ``truth_without_noise``: the actual error sigmas of that steady-state Kalman filter when
+    the truth has no process noise (as in the test simulations), from the Lyapunov equation
+    P = M A P A' M' + K R K', M = I - K C."""
+    sds = []
+    for s_axis in SIGMA_STAR / np.sqrt([1.0, 1.0, 2.0]):
+        A = np.array([[1.0, dt], [0.0, 1.0]])
+        C = np.array([[1.0, 0.0]])
+        Q = np.diag([q_att**2 * dt, max(q_second, 1e-15) ** 2 * dt])
+        Pm = solve_discrete_are(A.T, C.T, Q, np.array([[s_axis**2]]))
+        K = Pm @ C.T / (Pm[0, 0] + s_axis**2)
+        P = Pm - K @ C @ Pm
+        if truth_without_noise:
+            M = np.eye(2) - K @ C
+            P = solve_discrete_lyapunov(M @ A, s_axis**2 * K @ K.T)
+        sds.append(np.sqrt(np.diag(P)))
+    return np.array(sds).T
+
+
+def mean_square_normalized(errors, sd):
+    """Mean over steps and axes of (e / sd)^2 (1 for a filter whose errors have exactly
+    the model's variance)."""
+    return float(np.mean((np.asarray(errors) / sd) ** 2))
 
 
 def assert_weights_ok(pf):
@@ -300,14 +337,24 @@ def test_bootstrap_posterior_matches_ekf_in_linear_regime():
     d = rot.quat_error_rotvec(ekf.q_IB_hat, pf.mean()[0])
     # Difference of the means: Monte Carlo error of the weighted mean only.
     assert np.all(np.abs(d) < 4.0 * np.sqrt(np.diag(C_ekf) / n_eff))
-    np.testing.assert_allclose(np.diag(C_pf), np.diag(C_ekf), rtol=0.15)
+    # Weighted sample variances of N_eff effective samples: relative standard error
+    # sqrt(2 / N_eff) (Gaussian), plus the ~1e-3 linearization difference; 4 SE.
+    np.testing.assert_allclose(np.diag(C_pf), np.diag(C_ekf), rtol=4 * np.sqrt(2 / n_eff))
 
 
 def test_bootstrap_bias_does_not_converge_without_roughening():
     """Paper S0 finding 1 (Fig. 2): b_{k+1} = b_k, resampling collapses the bias cloud
     and the bias error freezes; attitude still converges (with the attitude process noise
     inflated to 2e-5 rad/s^0.5 -- with the true ARW, 1e-6, the attitude cloud cannot follow
-    either). Bias roughening (beyond the paper) reduces the bias error."""
+    either). Bias roughening (beyond the paper) reduces the bias error.
+
+    Attitude bound: over steps 300-499 the errors, normalized per axis by the steady-state
+    sigmas of the filter's own linear model (``steady_state_sd``: 0.0024/0.0024/0.0020 deg,
+    which the particle clouds reproduce), have a mean square below the 99.9 % quantile of
+    chi-square(nu)/nu with nu = 30 effective samples (attitude errors decorrelate in
+    ~3-5 steps; 600 axis-steps / 20 is conservative): 1.99. Measured 0.66-0.83 here
+    (0.8-1.6 over other seeds: the frozen bias error adds a small lag the model lacks);
+    a filter 1.5x worse (x2.25) fails."""
     data_rng = np.random.default_rng(31)
     q_true, b_true, ys, wms = simulate_gyro_truth(500, data_rng)
     q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
@@ -322,8 +369,14 @@ def test_bootstrap_bias_does_not_converge_without_roughening():
                               check=lambda f: spreads.append(np.std(f.particles[:, 3:], 0)))
         b_err = np.array([b - bt for (_, b), bt in zip(out, b_true)])
         results[rough] = (out, b_err, np.array(spreads))
+    msn_bound = chi2.ppf(0.999, 30) / 30
+
+    def attitude_msn(out, rough):
+        errors = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out[300:], q_true[300:])]
+        return mean_square_normalized(errors, steady_state_sd(2e-5, rough)[0])
+
     out, b_err, spreads = results[0.0]
-    assert att_err(out[-1][0], q_true[-1]) < 0.02 * DEG
+    assert attitude_msn(out, 0.0) < msn_bound
     assert np.max(spreads[20:]) < 1e-3 * DEG / HOUR  # bias cloud collapsed
     err_norm = np.linalg.norm(b_err, axis=1)
     assert err_norm[-1] > 0.5 * DEG / HOUR  # no convergence ...
@@ -331,56 +384,94 @@ def test_bootstrap_bias_does_not_converge_without_roughening():
     out_r, b_err_r, spreads_r = results[3e-7]
     assert np.min(spreads_r[20:]) > 0.05 * DEG / HOUR  # diversity kept
     assert np.linalg.norm(b_err_r[-1]) < 0.5 * err_norm[-1]
-    assert att_err(out_r[-1][0], q_true[-1]) < 0.02 * DEG
+    assert attitude_msn(out_r, 3e-7) < msn_bound
 
 
-def test_ekpf_converges_from_small_error_like_the_ekf():
-    """Paper S0 finding 2: EKPF converges, attitude ~ 0.002 deg, comparable to the EKF."""
-    data_rng = np.random.default_rng(41)
-    q_true, b_true, ys, wms = simulate_gyro_truth(250, data_rng)
-    q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
-    b0 = np.full(3, 2 * DEG / HOUR)
-    rng = np.random.default_rng(42)
-    ekpf = ExtendedKalmanParticleFilter(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng)
-    out = run_gyro_filter(ekpf, ys, wms, rng)
-    ekf = MrpEkf(q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
-    for k in range(len(ys)):
-        if k > 0:
-            ekf.predict(1.0, wms[k - 1])
-        ekf.update(ys[k], REFS, SIGMA_STAR)
-    errs = [att_err(q, qt) for (q, _), qt in zip(out[-50:], q_true[-50:])]
-    assert np.sqrt(np.mean(np.square(errs))) < 0.006 * DEG
-    assert np.linalg.norm(out[-1][1] - b_true[-1]) < 0.5 * DEG / HOUR  # initial: 1.7 deg/h
-    sd_ekf = np.sqrt(np.diag(ekf.covariance()))
-    d = rot.quat_error_rotvec(ekf.q_IB_hat, out[-1][0])
-    assert np.all(np.abs(d) < 5 * sd_ekf[:3])
-    assert ekpf.covariances.shape == (200, 6, 6)
+def test_ekpf_attitude_is_consistent_and_near_the_ekf_optimum_over_monte_carlo():
+    """Paper S0 finding 2 (EKPF converges like the EKF), as statistics over 10 runs.
+
+    Truth drawn from the filters' common prior (1 deg, 1 deg/h), S0 noise, 25 s each; at
+    the last step, over the runs (independent errors):
+
+    * consistency: sum of the EKPF's attitude NEES w.r.t. its OWN reported covariance is
+      below the 99.9 % quantile of chi-square(3R) (measured over six 10-run sets:
+      0.6-1.3 x 3R; the cloud is wider than the EKF, so it errs on the safe side);
+    * efficiency: the same errors normalized by the EKF's covariance (the near-optimal
+      reference, Cramer-Rao-like; its own NEES is checked here and in test_mrp_ekf) give
+      the EKPF's mean-square error as a multiple kappa^2 of the optimum. The EKPF's
+      draw-from-P+ jitter costs kappa^2 = 1.5-3.1 (six sets; ~1.6x the EKF's error), so
+      the bound is kappa^2 <= 3 times the chi-square(3R) 99.9 % quantile: an EKPF 2-3x
+      worse than now (kappa^2 ~ 8-18) fails. The lower chi-square bound checks the EKPF
+      does not beat the optimum (which would mean the comparison is broken).
+    """
+    num_runs, num_steps = 10, 25
+    rng = np.random.default_rng(2025)
+    L = np.linalg.cholesky(P0_ATT)
+    q_hat0 = rot.rpy_to_quat(np.array([10.0, -20.0, 30.0]) * DEG)
+    b_hat0 = np.full(3, DEG / HOUR)
+    nees_own = nees_vs_ekf = nees_ekf = 0.0
+    for _ in range(num_runs):
+        d = L @ rng.standard_normal(6)
+        q_true0 = rot.quat_multiply(q_hat0, rot.rotvec_to_quat(d[:3]))
+        q_true, _, ys, wms = simulate_gyro_truth(num_steps, rng, q0=q_true0,
+                                                 bias0=b_hat0 + d[3:])
+        ekpf = ExtendedKalmanParticleFilter(40, q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U, rng)
+        q_hat = run_gyro_filter(ekpf, ys, wms, rng)[-1][0]
+        ekf = MrpEkf(q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U)
+        for k in range(num_steps):
+            if k > 0:
+                ekf.predict(1.0, wms[k - 1])
+            ekf.update(ys[k], REFS, SIGMA_STAR)
+        C_ekf = ekf.covariance()[:3, :3]
+        e = rot.quat_error_rotvec(q_hat, q_true[-1])
+        e_ekf = rot.quat_error_rotvec(ekf.q_IB_hat, q_true[-1])
+        nees_own += e @ np.linalg.solve(ekpf.covariance()[:3, :3], e)
+        nees_vs_ekf += e @ np.linalg.solve(C_ekf, e)
+        nees_ekf += e_ekf @ np.linalg.solve(C_ekf, e_ekf)
+    dof = 3 * num_runs
+    lo, hi = chi2.ppf([0.001, 0.999], dof)
+    assert lo < nees_ekf < hi  # the reference covariance is a valid yardstick
+    assert nees_own < hi, nees_own / dof
+    assert lo < nees_vs_ekf < 3.0 * hi, nees_vs_ekf / dof
     assert np.all(np.linalg.norm(ekpf.particles[:, :3], axis=1) <= 1.0)
 
 
 def test_ekpf_from_large_initial_error():
     """Paper S0 finding 3, initial estimate [12, -10, 170] deg (rpy), 200 particles.
 
-    With the paper's single-linearization EKF proposal the particles only creep towards
-    the truth, like the EKF; with the iterated-EKF proposal (proposal_iterations=10,
-    beyond the paper) the EKPF converges at the first measurement and stays converged.
+    With the iterated-EKF proposal (proposal_iterations=10, beyond the paper) the EKPF
+    converges at the first measurement and then stays consistent: from step 1 on, every
+    step's attitude NEES w.r.t. the EKPF's own covariance is below the 99.9 % chi-square(3)
+    quantile Bonferroni-corrected for the 119 steps (~26, i.e. ~5 sigma; errors are
+    positively correlated, so this is conservative). The first update itself is
+    overconfident, like the EKF's (measured NEES 21-53), so step 0 is only required to be
+    within 0.05 deg (one 2-vector fix has ~100 urad = 0.006 deg per axis; the estimate
+    came from 170 deg). With the paper's single-linearization proposal the particles only
+    creep towards the truth, like the EKF (measured ~20-25 deg error after 60 s).
     """
+    num_steps = 120
     data_rng = np.random.default_rng(51)
-    q_true, b_true, ys, wms = simulate_gyro_truth(300, data_rng)
+    q_true, b_true, ys, wms = simulate_gyro_truth(num_steps, data_rng)
     q0 = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
     b0 = np.full(3, 2 * DEG / HOUR)
     rng = np.random.default_rng(52)
     ekpf = ExtendedKalmanParticleFilter(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng,
                                         proposal_iterations=10)
-    out = run_gyro_filter(ekpf, ys, wms, rng)
-    errs = np.array([att_err(q, qt) for (q, _), qt in zip(out, q_true)])
-    assert errs[0] < 0.05 * DEG
-    assert np.max(errs[100:]) < 0.01 * DEG
-    assert np.linalg.norm(out[-1][1] - b_true[-1]) < 0.5 * DEG / HOUR
+    covs = []
+    out = run_gyro_filter(ekpf, ys, wms, rng, check=lambda f: covs.append(f.covariance()))
+    errs = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out, q_true)]
+    assert np.linalg.norm(errs[0]) < 0.05 * DEG
+    nees = np.array([e @ np.linalg.solve(C[:3, :3], e) for e, C in zip(errs, covs)])
+    assert np.max(nees[1:]) < chi2.ppf(1.0 - 0.001 / (num_steps - 1), 3), np.argmax(nees[1:])
+    # Bias (initial error 1.7 deg/h): consistent with the EKPF's own bias covariance and
+    # reduced to under a third of the initial error (measured 0.2 deg/h).
+    b_err = out[-1][1] - b_true[-1]
+    assert b_err @ np.linalg.solve(covs[-1][3:, 3:], b_err) < chi2.ppf(0.999, 3)
+    assert np.linalg.norm(b_err) < 0.5 * DEG / HOUR
     rng = np.random.default_rng(52)
     plain = ExtendedKalmanParticleFilter(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng)
-    out = run_gyro_filter(plain, ys[:150], wms, rng)
-    assert att_err(out[-1][0], q_true[149]) > 0.5 * DEG
+    out = run_gyro_filter(plain, ys[:60], wms, rng)
+    assert att_err(out[-1][0], q_true[59]) > 5.0 * DEG
 
 
 def test_gyroless_particle_filter_tracks_attitude_and_rate():
@@ -389,6 +480,19 @@ def test_gyroless_particle_filter_tracks_attitude_and_rate():
     As in gyro mode, the attitude cloud needs process noise to follow the truth: with
     rate noise only (1e-6 rad/s^1.5) the error is still ~0.05 deg after 300 s; with an
     attitude process noise of 3e-5 rad/s^0.5 it converges within ~100 s.
+
+    Bounds, over the last 100 steps, on the mean square of the errors normalized per axis
+    by the sigmas a steady-state Kalman filter with the PF's own model would actually
+    achieve on this noise-free truth (``steady_state_sd(..., truth_without_noise=True)``:
+    attitude 0.0024/0.0024/0.0020 deg, rate 7e-5/7e-5/6e-5 deg/s; the model's own sigmas
+    are 0.0030 deg and 0.00033 deg/s): below the 99.9 % quantile of chi-square(nu)/nu, with
+    nu = 30 for the attitude (decorrelates in ~3 steps; 300 axis-steps / 10) and nu = 6 for
+    the rate (correlation time >~ 50 steps). Measured 1.1 and 2.4 (the rate still carries
+    some of its initial error). A filter that does not track the rate (its prior
+    0.001 deg/s per axis, held) scores ~30 on the rate and fails.
+    (A caveat the fixed seed hides: an unlucky initial draw, e.g. seeds 65/66, leaves a
+    collapsed rate cloud 0.003 deg/s off for > 300 s -- sample impoverishment, as for the
+    bias in gyro mode.)
     """
     data_rng = np.random.default_rng(61)
     q_true, w_true, ys = simulate_euler_truth(300, data_rng)
@@ -404,12 +508,13 @@ def test_gyroless_particle_filter_tracks_attitude_and_rate():
             gpf.predict(1.0, rng)
         gpf.update(y, REFS, SIGMA_STAR, rng)
         q_hat, w_hat = gpf.mean()
-        q_err.append(att_err(q_hat, q_true[k]))
-        w_err.append(np.linalg.norm(w_hat - w_true[k]))
-    assert np.sqrt(np.mean(np.square(q_err[-100:]))) < 0.01 * DEG
-    assert np.sqrt(np.mean(np.square(w_err[-100:]))) < 0.001 * DEG
-    C = gpf.covariance()
-    assert np.all(np.diag(C) > 0.0)
+        q_err.append(rot.quat_error_rotvec(q_hat, q_true[k]))
+        w_err.append(w_hat - w_true[k])
+    sd = steady_state_sd(3e-5, 1e-6, truth_without_noise=True)
+    assert mean_square_normalized(q_err[-100:], sd[0]) < chi2.ppf(0.999, 30) / 30
+    assert mean_square_normalized(w_err[-100:], sd[1]) < chi2.ppf(0.999, 6) / 6
+    # The held prior would fail the rate bound: the test can tell tracking from not.
+    assert mean_square_normalized(w0 - w_true[-100:], sd[1]) > 5 * chi2.ppf(0.999, 6) / 6
 
 
 def test_gyroless_propagation_matches_euler_truth_without_noise():

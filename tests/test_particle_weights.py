@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from s0_truth import DEG, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V
+from s0_truth import P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V
 
 from drake_att.filters.mrp_ekf import vector_measurement_model
 from drake_att.filters.particle import (
