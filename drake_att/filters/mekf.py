@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 
 
 @dataclass(frozen=True)
@@ -49,17 +50,6 @@ class MekfState:
 
     def attitude_sigma_rad(self) -> np.ndarray:
         return np.sqrt(np.diag(self.P)[:3])
-
-
-@dataclass(frozen=True)
-class UpdateInfo:
-    """Diagnostics of one measurement update: innovation, its covariance and the NIS."""
-
-    innovation: np.ndarray
-    innovation_covariance: np.ndarray
-    nis: float
-    accepted: bool
-    error_transition: np.ndarray | None = None  # I - K H of an accepted update (6x6)
 
 
 def process_noise(arw: float, rrw: float, dt: float) -> np.ndarray:
@@ -131,12 +121,21 @@ def _inverse(S):
 class MultiplicativeEKF:
     """MEKF core: :meth:`predict`, :meth:`update_quaternion`, :meth:`update_vectors`.
 
+    Implements :class:`drake_att.contract.FilterCore` (:meth:`update` dispatches on the
+    measurement type; the state vector is ``[q_IB (4), bias_B (3), P (36)]``) and publishes
+    its step linearization (:meth:`predict_linearized`, ``UpdateInfo.error_transition``).
+
     Args:
         arw_rad_per_rt_s: filter's gyro ARW ``sigma_v`` (rad/s^0.5) >= 0.
         rrw_rad_per_s15: filter's gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
         innovation_gate_chi2: reject a measurement whose NIS exceeds this value (None: no
             gate).  Rejections are reported in :class:`UpdateInfo`, never silent.
     """
+
+    second_quantity = SecondQuantity.GYRO_BIAS
+    uses_gyro = True
+    is_random = False
+    state_size = 43
 
     def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None):
         for field, v in (("arw", arw_rad_per_rt_s), ("rrw", rrw_rad_per_s15)):
@@ -166,9 +165,35 @@ class MultiplicativeEKF:
                                     np.broadcast_to(bias_sigma_rad_per_s, 3) ** 2]).astype(float))
         return MekfState(rot.quat_normalize(q_IB), np.asarray(bias_B, dtype=float).copy(), P)
 
-    def predict(self, state: MekfState, w_meas_B, dt: float) -> MekfState:
+    def predict(self, state: MekfState, w_meas_B, dt: float, rng=None) -> MekfState:
         """Propagate over ``dt`` (s) with the step's mean measured rate ``w_meas_B`` (rad/s)."""
         return self.predict_linearized(state, w_meas_B, dt)[0]
+
+    def update(self, state: MekfState, measurement, rng=None) -> tuple[MekfState, UpdateInfo]:
+        """Update with a :class:`~drake_att.contract.QuaternionSample` or
+        :class:`~drake_att.contract.VectorObservations` (the contract's entry point)."""
+        if isinstance(measurement, QuaternionSample):
+            return self.update_quaternion(state, measurement.q_IS_meas, measurement.q_BS, measurement.covariance_S)
+        if isinstance(measurement, VectorObservations):
+            return self.update_vectors(state, np.asarray(measurement.directions_S), measurement.references_I,
+                                       measurement.sigma_rad, measurement.q_BS)
+        raise TypeError(f"MultiplicativeEKF.update: got a {type(measurement).__name__}; "
+                        "allowed: QuaternionSample, VectorObservations")
+
+    @staticmethod
+    def estimate(state: MekfState):
+        """``(q_IB, bias_B, P)`` of the state."""
+        return state.q_IB, state.bias_B, state.P
+
+    @staticmethod
+    def to_vector(state: MekfState) -> np.ndarray:
+        """``[q_IB (4, scalar part >= 0), bias_B (3), P (36, row-major)]``."""
+        return np.concatenate([rot.quat_canonical(state.q_IB), state.bias_B, np.asarray(state.P).ravel()])
+
+    @staticmethod
+    def from_vector(vector) -> MekfState:
+        v = np.array(vector, dtype=float)
+        return MekfState(v[:4], v[4:7], v[7:43].reshape(6, 6))
 
     def predict_linearized(self, state: MekfState, w_meas_B, dt: float):
         """:meth:`predict`, also returning the step's ``Phi`` and ``Q`` (6x6 each).

@@ -51,13 +51,16 @@ dimension so that particle filters can run one EKF per particle without a Python
 from __future__ import annotations
 
 import numbers
+from dataclasses import dataclass
 
 import numpy as np
 
+from drake_att.contract import SecondQuantity, UpdateInfo
 from drake_att.rotations import (
     mrp_kinematics_matrix,
     mrp_to_quat,
     mrp_to_rotmat,
+    quat_to_rotmat,
     quat_error_rotvec,
     quat_propagate,
     quat_to_mrp,
@@ -66,6 +69,8 @@ from drake_att.rotations import (
 
 __all__ = [
     "MrpEkf",
+    "MrpEkfCore",
+    "MrpEkfState",
     "mrp_rate_jacobian",
     "mrp_dynamics_jacobian",
     "mrp_kinematics_inverse",
@@ -590,6 +595,80 @@ class MrpEkf:
     def attitude_error(self, q_IB_true) -> np.ndarray:
         """Body-frame error ``dtheta_B = log(q_hat^-1 ⊗ q_true)`` (rad), for scoring."""
         return quat_error_rotvec(self.q_IB_hat, q_IB_true)
+
+
+@dataclass(frozen=True)
+class MrpEkfState:
+    """MRP EKF state: ``x = [rho; b]`` (6, ``|rho| <= 1``) and its covariance ``P`` (6x6, MRP chart)."""
+
+    x: np.ndarray
+    P: np.ndarray
+
+
+class MrpEkfCore:
+    """Paper S0's additive EKF on ``[rho; b]`` as a :class:`drake_att.contract.FilterCore`.
+
+    The same math as :class:`MrpEkf` (:func:`ekf_predict`, :func:`ekf_update`) on an explicit
+    immutable state; vector observations are rotated into the body frame
+    (``y_B = R_BS y_S``: exact for the isotropic vector noise of the vector-mode tracker).
+    State vector: ``[x (6), P (36, MRP chart, row-major)]``.
+
+    Args:
+        arw_sigma: gyro ARW ``sigma_v`` (rad/s^0.5) > 0.
+        rrw_sigma: gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
+        update_iterations: linearizations per update (1 = the paper's EKF; > 1 iterated).
+    """
+
+    second_quantity = SecondQuantity.GYRO_BIAS
+    uses_gyro = True
+    is_random = False
+    state_size = 42
+
+    def __init__(self, arw_sigma: float, rrw_sigma: float = 0.0, update_iterations: int = 1):
+        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
+        self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
+        self.update_iterations = check_int(update_iterations, "update_iterations", 1)
+
+    @staticmethod
+    def initial_state(q_IB_hat0, bias_hat0, covariance0) -> MrpEkfState:
+        """State from an attitude, a bias (rad/s) and the (6, 6) covariance of ``[dtheta_B; b]``."""
+        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
+        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
+        P_att = check_covariance(covariance0, "covariance0", 6)
+        rho0 = quat_to_mrp(q0)
+        return MrpEkfState(np.concatenate([rho0, b0]), attitude_to_mrp_covariance(rho0, P_att))
+
+    def predict(self, state: MrpEkfState, w_meas_B, dt: float, rng=None) -> MrpEkfState:
+        dt = check_positive_scalar(dt, "dt")
+        x, P = ekf_predict(state.x, state.P, np.asarray(w_meas_B, dtype=float), dt, self.arw_sigma,
+                           self.rrw_sigma)
+        return MrpEkfState(x, P)
+
+    def update(self, state: MrpEkfState, observations, rng=None) -> tuple[MrpEkfState, UpdateInfo]:
+        """Update with a :class:`~drake_att.contract.VectorObservations` sample."""
+        R_BS = quat_to_rotmat(np.asarray(observations.q_BS, dtype=float))
+        y_B = (np.asarray(observations.directions_S, dtype=float) @ R_BS.T).ravel()
+        U = check_reference_vectors(observations.references_I)
+        sigma = check_positive_scalar(observations.sigma_rad, "sigma")
+        yv = measurement_is_valid(y_B, U.shape[0])
+        if yv is None:
+            return state, UpdateInfo(None, None, float("nan"), False)
+        x, P, innov, S = ekf_update(state.x, state.P, yv, U, sigma, iterations=self.update_iterations)
+        return MrpEkfState(x, P), UpdateInfo(innov, S, float(innov @ np.linalg.solve(S, innov)), True)
+
+    @staticmethod
+    def estimate(state: MrpEkfState):
+        """``(q_IB_hat, bias_hat, covariance of [dtheta_B; b])``."""
+        return mrp_to_quat(state.x[:3]), state.x[3:].copy(), mrp_to_attitude_covariance(state.x[:3], state.P)
+
+    @staticmethod
+    def to_vector(state: MrpEkfState) -> np.ndarray:
+        return np.concatenate([state.x, np.asarray(state.P).ravel()])
+
+    @staticmethod
+    def from_vector(vector) -> MrpEkfState:
+        v = np.array(vector, dtype=float)
+        return MrpEkfState(v[:6], v[6:42].reshape(6, 6))
 
 
 def valid_rate_or_none(w_meas):

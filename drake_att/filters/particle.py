@@ -34,7 +34,12 @@ Units: SI and radians (rad, rad/s, ARW rad/s^0.5, RRW / process noise rad/s^1.5)
 
 from __future__ import annotations
 
+import copy
+from dataclasses import dataclass
+
 import numpy as np
+
+from drake_att.contract import SecondQuantity, UpdateInfo
 
 from drake_att.filters.mrp_ekf import (
     valid_rate_or_none,
@@ -57,6 +62,7 @@ from drake_att.rotations import (
     quat_error_rotvec,
     quat_multiply,
     quat_to_mrp,
+    quat_to_rotmat,
     rotvec_to_quat,
 )
 
@@ -68,6 +74,8 @@ __all__ = [
     "BootstrapParticleFilter",
     "ExtendedKalmanParticleFilter",
     "GyrolessParticleFilter",
+    "ParticleSetState",
+    "ParticleFilterCore",
 ]
 
 
@@ -649,3 +657,118 @@ class GyrolessParticleFilter(_ParticleFilterBase):
         self.n_updates += 1
         self._maybe_resample(rng)
         return True
+
+
+# ----------------------------------------------------------------------------------
+# The filter-core protocol (drake_att.contract.FilterCore) for the particle filters
+# ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ParticleSetState:
+    """A particle filter's state: particles ``(N, 6)`` ``[rho; s]``, normalized weights and
+    log-weights ``(N,)``, per-particle EKF covariances ``(N, 6, 6)`` (EKPF) or None.
+
+    ``estimate_set``: after an update that resampled, the weighted set from just before
+    resampling ``(particles, weights)``, which the estimate of that step uses (same
+    expectation, less Monte Carlo noise); not part of the stored state.
+    """
+
+    particles: np.ndarray
+    weights: np.ndarray
+    log_weights: np.ndarray
+    covariances: np.ndarray | None = None
+    estimate_set: tuple | None = None
+
+
+class ParticleFilterCore:
+    """One of the particle filters above as a :class:`drake_att.contract.FilterCore`.
+
+    Each call runs the filter's own ``predict``/``update`` on a shallow copy of a template
+    filter whose arrays are replaced by the state's, and returns a new
+    :class:`ParticleSetState`; the template is never modified, so the core has no hidden
+    state and no counters (resamplings and degenerate updates are reported in
+    :class:`~drake_att.contract.UpdateInfo`). State vector: ``[particles (N*6, row-major),
+    weights (N), log weights (N), (EKPF) covariances (N*36, MRP chart)]``.
+
+    Args:
+        make_filter: ``rng -> filter`` building the filter (and drawing its initial set)
+            with every constructor argument but the generator fixed.
+        second_quantity: gyro bias (gyro mode) or body rate (gyroless).
+    """
+
+    is_random = True
+
+    def __init__(self, make_filter, second_quantity: SecondQuantity):
+        self._make_filter = make_filter
+        self.template = make_filter(np.random.default_rng(0))
+        self.second_quantity = second_quantity
+        self.num_particles = self.template.num_particles
+        self.uses_gyro = not isinstance(self.template, GyrolessParticleFilter)
+        self._has_covariances = isinstance(self.template, ExtendedKalmanParticleFilter)
+        self.state_size = self.num_particles * (8 + (36 if self._has_covariances else 0))
+
+    # -- state <-> filter object ------------------------------------------------------
+    @staticmethod
+    def _state_of(pf) -> ParticleSetState:
+        return ParticleSetState(pf.particles, pf.weights, pf.log_weights, getattr(pf, "covariances", None),
+                                pf._estimate_set)
+
+    def _filter_of(self, state: ParticleSetState):
+        pf = copy.copy(self.template)
+        pf.particles = np.array(state.particles)
+        pf.weights = np.array(state.weights)
+        pf.log_weights = np.array(state.log_weights)
+        if self._has_covariances:
+            pf.covariances = np.array(state.covariances)
+        pf.n_skipped = pf.n_updates = pf.n_resamples = pf.n_degenerate = 0
+        pf._estimate_set = state.estimate_set
+        return pf
+
+    def draw_initial_state(self, rng: np.random.Generator) -> ParticleSetState:
+        """A fresh initial particle set drawn with ``rng``."""
+        return self._state_of(self._make_filter(rng))
+
+    def initial_state(self) -> ParticleSetState:
+        """The template's set (drawn with numpy seed 0): the default before initialization."""
+        return self._state_of(self.template)
+
+    # -- protocol ---------------------------------------------------------------------
+    def predict(self, state, w_meas_B, dt, rng):
+        pf = self._filter_of(state)
+        if isinstance(pf, GyrolessParticleFilter):
+            pf.predict(dt, rng)
+        elif isinstance(pf, ExtendedKalmanParticleFilter):
+            pf.predict(dt, w_meas_B)
+        else:
+            pf.predict(dt, w_meas_B, rng)
+        return self._state_of(pf)
+
+    def update(self, state, observations, rng):
+        """Weight by a :class:`~drake_att.contract.VectorObservations` sample (rotated into the
+        body frame, ``y_B = R_BS y_S``: exact for isotropic vector noise) and resample."""
+        pf = self._filter_of(state)
+        R_BS = quat_to_rotmat(np.asarray(observations.q_BS, dtype=float))
+        y_B = (np.asarray(observations.directions_S, dtype=float) @ R_BS.T).ravel()
+        used = pf.update(y_B, np.asarray(observations.references_I, dtype=float),
+                         float(observations.sigma_rad), rng)
+        info = UpdateInfo(None, None, float("nan"), bool(used),
+                          effective_sample_size=pf.last_effective_sample_size if used else float("nan"),
+                          resampled=pf.n_resamples > 0, degenerate=pf.n_degenerate > 0)
+        return self._state_of(pf), info
+
+    def estimate(self, state):
+        pf = self._filter_of(state)
+        q_hat, second = pf.mean()
+        return q_hat, second, pf.covariance()
+
+    def to_vector(self, state) -> np.ndarray:
+        parts = [np.asarray(state.particles).ravel(), state.weights, state.log_weights]
+        if self._has_covariances:
+            parts.append(np.asarray(state.covariances).ravel())
+        return np.concatenate(parts)
+
+    def from_vector(self, vector) -> ParticleSetState:
+        n = self.num_particles
+        s = np.asarray(vector, dtype=float)
+        covariances = np.array(s[8 * n:]).reshape(n, 6, 6) if self._has_covariances else None
+        return ParticleSetState(np.array(s[:6 * n]).reshape(n, 6), np.array(s[6 * n:7 * n]),
+                                np.array(s[7 * n:8 * n]), covariances)

@@ -1,48 +1,90 @@
-"""Estimator systems: thin Drake wrappers around the numpy filter cores.
+"""The one estimator system: a Drake ``LeafSystem`` that runs any filter core.
 
-Estimator contract (every estimator system):
+Every estimator — MEKF, MRP EKF, particle filters, a user's own — is a filter core
+(:class:`drake_att.contract.FilterCore`, plain numpy) run by :class:`EstimatorSystem`,
+which owns the loop they all share, once:
 
+* one periodic discrete update per filter step (``period_s``);
+* **time update** over ``(t_last, t]`` with the gyro's mean rate of that interval; a
+  missing, invalid, stale or non-finite gyro sample is counted (``skipped``) and the last
+  valid rate is held;
+* **measurement updates** at this instant, inputs in declaration order (quaternion sensors,
+  then vector sensors): a measurement is used only at its own sample instant
+  (``|t_meas - t| < 1e-6 s``) and at most once; one that fails
+  :func:`drake_att.contract.is_usable` (invalid or NaN flag, NaN time, non-finite numbers)
+  is skipped and counted; the core's own rejection (innovation gate, singular innovation
+  covariance: ``UpdateInfo.accepted`` false) is counted as skipped too;
+* **randomness** (cores with ``is_random``): the seed comes from the diagram's
+  ``RandomGenerator`` through the random input port ``seed_uniform``; the initialization
+  event draws the initial state with generator 0 of
+  ``counter_random(seed words, system name)``, step ``k`` uses generator ``k`` — every
+  number is a pure function of (seed, system name, step index);
+* publishes the estimator contract (:mod:`drake_att.contract`).
+
+Input ports:
+    gyro_measurement (5): ``[t, valid, w_meas_B (3, rad/s)]`` (cores with ``uses_gyro``).
+    q_meas_<sensor> (6): ``[t, valid, q_IS_meas (4)]`` per quaternion sensor.
+    vectors_<sensor> (abstract :class:`~drake_att.contract.VectorObservations`) per vector
+        sensor.
+    seed_uniform (4, random uniform) (cores with ``is_random``).
 Output ports:
-    q_IB_hat (4): attitude estimate, wxyz.
-    bias_B_hat (3) or w_IB_B_hat (3): the second estimated 3-vector (name in
-        ``second_output_name``): gyro bias (rad/s) or body rate (rad/s).
-    covariance (36): row-major 6x6 covariance of ``[dtheta_B (rad); second-vector error]``
-        (the project's attitude error ``q_IB = q_IB_hat ⊗ exp(dtheta_B)``); particle
-        filters report their weighted sample covariance.
-    status (4): ``[t_estimate (s), measurements used, measurements skipped, last NIS]``.
-        ``t_estimate`` is the time the estimate refers to.  Drake publishes (and so logs)
-        before the discrete update of the same instant, so the logged estimate at ``t``
-        is the one computed at the previous step; the metrics layer scores each estimate
-        against the truth at ``t_estimate``, never at the log time.
-
-Discrete state group 0 ("estimate", :data:`ESTIMATE_SIZE`): ``[q_IB_hat (4), second (3),
-covariance (36), status (4)]``, also exposed whole as the output port ``estimate_state``
-(evaluated in C++; what the scenario builder logs).  Subclasses may declare more state for filter internals.
-The update runs in one periodic discrete event per filter step.
-
-Measurement handling: a measurement is used only at its own sample instant
-(``|t_meas - t| < 1e-6 s``) and at most once; a sample flagged invalid or carrying
-non-finite numbers is skipped and counted in ``status``.  A missing or invalid gyro
-sample is counted too; the filter then propagates with the last valid gyro rate.
+    q_IB_hat (4), bias_B_hat or w_IB_B_hat (3, named by the core's ``second_quantity``),
+    covariance (36), status (4): the contract (see :mod:`drake_att.contract`).
+    estimate_state (47): the packed estimate (C++-evaluated; what the builder logs).
+    step_linearization (109) (cores with ``predict_linearized``, e.g. the MEKF): the last
+        step's linearized error map ``e+ = A (Phi e + w)`` as ``[Phi, Q = cov(w), A]``
+        (row-major 6x6 each) and the number of steps taken (for track-to-track fusion).
+    particle_diagnostics (4) (cores with ``num_particles``): ``[N_eff after the last
+        update (before resampling), resamplings so far, degenerate updates so far, N]``.
+Discrete state:
+    group 0: the packed estimate (47).
+    group 1: bookkeeping ``[t_last, last valid gyro rate (3), step index, seed words (4),
+        resamplings, last N_eff, degenerate updates, time of the last used sample per
+        measurement input ...]``.
+    group 2: the core's state vector (``core.to_vector``).
+    group 3 (linearizing cores): the step linearization (109).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
+from drake_att import contract
 from drake_att import rotations as rot
-from drake_att.filters.mekf import MekfState, MultiplicativeEKF
-from drake_att.systems.gyro import GYRO_MEASUREMENT_SIZE
-from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE, VectorObservations
+from drake_att.contract import (
+    COVARIANCE,
+    ESTIMATE_SIZE,
+    GYRO_MEASUREMENT_SIZE,
+    Q_IB,
+    QUATERNION_MEASUREMENT_SIZE,
+    SECOND,
+    STATUS,
+    GyroSample,
+    QuaternionSample,
+    SecondQuantity,
+    pack_estimate,
+)
+from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
 
-ESTIMATE_SIZE = 4 + 3 + 36 + 4
 TIME_TOLERANCE_S = 1e-6
+LINEARIZATION_SIZE = 3 * 36 + 1
+PARTICLE_DIAGNOSTICS_SIZE = 4
 _EYE6 = np.eye(6)
 _ZERO6 = np.zeros((6, 6))
+
+# Bookkeeping group layout.
+_T_LAST, _W_LAST, _STEP = 0, slice(1, 4), 4
+_SEED = slice(5, 5 + SEED_WORDS)
+_N_RESAMPLES, _ESS, _N_DEGENERATE = 5 + SEED_WORDS, 6 + SEED_WORDS, 7 + SEED_WORDS
+_LAST_SAMPLE = 8 + SEED_WORDS  # first per-input "time of last used sample"
+
+__all__ = ["EstimatorSystem", "QuaternionSensorModel", "MekfEstimator", "pack_estimate", "ESTIMATE_SIZE",
+           "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
 
 
 @dataclass(frozen=True)
@@ -54,162 +96,205 @@ class QuaternionSensorModel:
     covariance_S: np.ndarray  # (3, 3) rotation-vector noise in the sensor frame (rad^2)
 
 
-def pack_estimate(q, second, P, t, n_used, n_skipped, nis) -> np.ndarray:
-    return np.concatenate([q, second, np.asarray(P).ravel(), [t, n_used, n_skipped, nis]])
-
-
-class AttitudeEstimatorSystem(LeafSystem):
-    """Base class implementing the estimator contract (see module docstring).
+class EstimatorSystem(LeafSystem):
+    """Runs one filter core as a Drake system (see the module docstring for ports and state).
 
     Args:
-        name: system name.
-        period_s: filter step (s) > 0.
-        second_output_name: "bias_B_hat" or "w_IB_B_hat".
-        initial_estimate: packed estimate vector (:func:`pack_estimate`).
+        name: system name (also the random stream name of random cores).
+        period_s: filter step (s), finite and > 0; for gyro-driven cores it must equal the
+            gyro period (the gyro delivers the mean rate over exactly one step).
+        core: a :class:`~drake_att.contract.FilterCore`.
+        initial_state: the core's state at t = 0 (for random cores: the default, replaced
+            at initialization by ``core.draw_initial_state(rng)``).
+        quaternion_sensors: :class:`QuaternionSensorModel` per attitude-quaternion input.
+        vector_sensors: names of vector-observation inputs.
     """
 
-    def __init__(self, name: str, period_s: float, second_output_name: str, initial_estimate):
+    def __init__(self, name: str, period_s: float, core, initial_state, quaternion_sensors=(),
+                 vector_sensors=()):
         LeafSystem.__init__(self)
         self.set_name(name)
-        if not np.isfinite(period_s) or period_s <= 0:
+        if not isinstance(core, contract.FilterCore):
+            raise TypeError(f"{name}: core {type(core).__name__} does not implement drake_att.contract.FilterCore")
+        if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
-        self.second_output_name = second_output_name
-        self._estimate_group = self.DeclareDiscreteState(np.asarray(initial_estimate, dtype=float))
-        ticket = {self.discrete_state_ticket(self._estimate_group)}
-        self.DeclareVectorOutputPort("q_IB_hat", 4, lambda c, o: self._out(c, o, 0, 4), ticket)
-        self.DeclareVectorOutputPort(second_output_name, 3, lambda c, o: self._out(c, o, 4, 7), ticket)
-        self.DeclareVectorOutputPort("covariance", 36, lambda c, o: self._out(c, o, 7, 43), ticket)
-        self.DeclareVectorOutputPort("status", 4, lambda c, o: self._out(c, o, 43, 47), ticket)
-        # The whole estimate group as one C++-evaluated port: loggers record this one (no
-        # Python callback per logged sample); the builder splits it into the contract signals.
-        self.DeclareStateOutputPort("estimate_state", self._estimate_group)
+        self.core = core
+        self.second_quantity: SecondQuantity = core.second_quantity
+        self.second_output_name = core.second_quantity.port_name
+        self._linearizing = hasattr(core, "predict_linearized")
+        self.num_particles = getattr(core, "num_particles", None)
 
-    def _out(self, context, output: BasicVector, a, b):
-        output.SetFromVector(context.get_discrete_state(self._estimate_group).value()[a:b])
-
-    def estimate_vector(self, context) -> np.ndarray:
-        return context.get_discrete_state(self._estimate_group).value()
-
-    def set_initial_estimate(self, context, packed) -> None:
-        context.get_mutable_discrete_state(self._estimate_group).SetFromVector(packed)
-
-
-class MekfEstimator(AttitudeEstimatorSystem):
-    """MEKF with one gyro and any number of quaternion and vector star trackers.
-
-    Args:
-        name: system name.
-        period_s: filter step (s); must equal the gyro period (the gyro delivers the mean
-            rate over exactly one step).
-        filter_core: a :class:`MultiplicativeEKF`.
-        initial_state: :class:`MekfState` at t = 0.
-        quaternion_sensors: list of :class:`QuaternionSensorModel`.
-        vector_sensors: names of vector-observation sensors.
-
-    Input ports:
-        gyro_measurement (5): ``[t, valid, w_meas_B (3)]``.
-        q_meas_<sensor> (6): ``[t, valid, q_IS_meas (4)]`` per quaternion sensor.
-        vectors_<sensor> (abstract VectorObservations) per vector sensor.
-    Output ports: the estimator contract with ``bias_B_hat``.
-    Output ports: additionally ``step_linearization`` (109): the last step's linearized
-        error map ``e+ = A (Phi e + w)`` as ``[Phi, Q = cov(w), A]`` (row-major 6x6 each) and
-        the number of steps taken.
-    Discrete state: group 0 estimate (47); group 1 ``[t_last_step, last valid gyro rate (3),
-        time of last used sample per measurement input ...]``; group 2 the step
-        linearization (109).
-    """
-
-    def __init__(self, name: str, period_s: float, filter_core: MultiplicativeEKF, initial_state: MekfState,
-                 quaternion_sensors=(), vector_sensors=()):
-        super().__init__(name, period_s, "bias_B_hat",
-                         pack_estimate(initial_state.q_IB, initial_state.bias_B, initial_state.P, 0.0, 0, 0, np.nan))
-        self.core = filter_core
-        self._gyro_port = self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE)
+        # -- inputs (order matters for the diagram's random streams: keep it stable) ------
+        self._gyro_port = (self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE)
+                           if core.uses_gyro else None)
         self._quat_sensors = list(quaternion_sensors)
         self._quat_ports = [self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE)
                             for s in self._quat_sensors]
-        self._vector_names = list(vector_sensors)
         self._vector_ports = [
-            self.DeclareAbstractInputPort(
-                f"vectors_{n}", AbstractValue.Make(VectorObservations(0.0, False, np.zeros((0, 3)),
-                                                                      np.zeros((0, 3)), 0.0, np.array([1.0, 0, 0, 0]))))
-            for n in self._vector_names]
+            self.DeclareAbstractInputPort(f"vectors_{n}", AbstractValue.Make(contract.empty_vector_observations()))
+            for n in vector_sensors]
+        self._seed_port = declare_seed_port(self) if core.is_random else None
+
+        # -- state -------------------------------------------------------------------------
+        q0, second0, P0 = core.estimate(initial_state)
+        self._estimate_group = self.DeclareDiscreteState(
+            pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
-        self._internal_group = self.DeclareDiscreteState(
-            np.concatenate([[-np.inf], np.zeros(3), np.full(n_inputs, -np.inf)]))
-        # The last step's linearized error map, e+ = A (Phi e + w) + noise, cov(w) = Q:
-        # [Phi (36), Q (36), A (36), step count], row-major.  Lets a fusion track the
-        # cross-covariance of estimators that share a gyro (drake_att.systems.fusion).
-        self._linearization_group = self.DeclareDiscreteState(
-            np.concatenate([np.eye(6).ravel(), np.zeros(36), np.eye(6).ravel(), [0.0]]))
-        self.DeclareStateOutputPort("step_linearization", self._linearization_group)
+        book = np.zeros(_LAST_SAMPLE + n_inputs)
+        book[_T_LAST] = -np.inf
+        book[_ESS] = float(self.num_particles) if self.num_particles is not None else np.nan
+        book[_LAST_SAMPLE:] = -np.inf
+        self._book_group = self.DeclareDiscreteState(book)
+        self._core_group = self.DeclareDiscreteState(np.asarray(core.to_vector(initial_state), dtype=float))
+        if self._linearizing:
+            self._linearization_group = self.DeclareDiscreteState(
+                np.concatenate([_EYE6.ravel(), _ZERO6.ravel(), _EYE6.ravel(), [0.0]]))
+
+        # -- outputs -----------------------------------------------------------------------
+        ticket = {self.discrete_state_ticket(self._estimate_group)}
+        for port, part in (("q_IB_hat", Q_IB), (self.second_output_name, SECOND), ("covariance", COVARIANCE),
+                           ("status", STATUS)):
+            self.DeclareVectorOutputPort(port, part.stop - part.start,
+                                         lambda c, o, part=part: self._out(c, o, part), ticket)
+        # The whole estimate group as one C++-evaluated port: loggers record this one (no
+        # Python callback per logged sample); the builder splits it into the contract signals.
+        self.DeclareStateOutputPort("estimate_state", self._estimate_group)
+        if self._linearizing:
+            self.DeclareStateOutputPort("step_linearization", self._linearization_group)
+        if self.num_particles is not None:
+            self.DeclareVectorOutputPort("particle_diagnostics", PARTICLE_DIAGNOSTICS_SIZE, self._calc_diagnostics,
+                                         {self.discrete_state_ticket(self._book_group)})
+
+        # -- events ------------------------------------------------------------------------
+        if core.is_random:
+            self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
+    # -- outputs and accessors -------------------------------------------------------------
+    def _out(self, context, output: BasicVector, part: slice):
+        output.SetFromVector(context.get_discrete_state(self._estimate_group).value()[part])
+
+    def _calc_diagnostics(self, context, output: BasicVector):
+        book = context.get_discrete_state(self._book_group).value()
+        output.SetFromVector([book[_ESS], book[_N_RESAMPLES], book[_N_DEGENERATE], float(self.num_particles)])
+
+    def estimate_vector(self, context) -> np.ndarray:
+        """The packed estimate (47) in ``context`` (this system's context)."""
+        return context.get_discrete_state(self._estimate_group).value()
+
+    def filter_state(self, context) -> np.ndarray:
+        """A copy of the core's state vector in ``context`` (layout: the core's ``to_vector``)."""
+        return context.get_discrete_state(self._core_group).value().copy()
+
+    # -- events ------------------------------------------------------------------------------
+    def _initialize(self, context, discrete_state):
+        """Random cores: keep the seed words, draw the initial state with generator 0."""
+        words = read_seed_words(self, context, self._seed_port)
+        book = context.get_discrete_state(self._book_group).value().copy()
+        book[_SEED] = words
+        book[_STEP] = 0.0
+        state = self.core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
+        discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
+        discrete_state.get_mutable_vector(self._core_group).SetFromVector(self.core.to_vector(state))
+        return EventStatus.Succeeded()
+
+    def _gyro_rate(self, context, t):
+        """The gyro's mean rate over the interval ending at ``t``, or None if unusable."""
+        if not self._gyro_port.HasValue(context):
+            return None
+        g = GyroSample.from_port(self._gyro_port.Eval(context))
+        if abs(g.time_s - t) < TIME_TOLERANCE_S and g.valid and np.all(np.isfinite(g.w_meas_B)):
+            return g.w_meas_B
+        return None
+
+    def _measurements(self, context):
+        """``(input index, measurement)`` for every connected measurement input, in order."""
+        for i, (sensor, port) in enumerate(zip(self._quat_sensors, self._quat_ports)):
+            if port.HasValue(context):
+                m = port.Eval(context)
+                yield i, QuaternionSample(float(m[0]), contract.flag_is_true(m[1]), np.array(m[2:6]),
+                                          sensor.q_BS, sensor.covariance_S)
+        offset = len(self._quat_ports)
+        for j, port in enumerate(self._vector_ports):
+            if port.HasValue(context):
+                yield offset + j, port.Eval(context)
+
     def _on_step(self, context, discrete_state):
+        core = self.core
         t = context.get_time()
         est = self.estimate_vector(context)
-        internal = context.get_discrete_state(self._internal_group).value().copy()
-        state = MekfState(est[:4], est[4:7], est[7:43].reshape(6, 6))
+        book = context.get_discrete_state(self._book_group).value().copy()
+        state = core.from_vector(context.get_discrete_state(self._core_group).value())
         n_used, n_skipped, nis = est[44], est[45], est[46]
+        rng = None
+        if core.is_random:
+            book[_STEP] += 1.0
+            rng = counter_random(book[_SEED], self.get_name()).generator(int(book[_STEP]))
 
-        # -- propagate with the gyro's mean rate over (t_last, t] -----------------------
-        t_last = internal[0]
+        # -- time update over (t_last, t] ----------------------------------------------------
+        t_last = book[_T_LAST]
         Phi, Q, A = _EYE6, _ZERO6, _EYE6
         if np.isfinite(t_last):
             w_meas = None
-            if self._gyro_port.HasValue(context):
-                g = self._gyro_port.Eval(context)
-                if abs(g[0] - t) < TIME_TOLERANCE_S and g[1] > 0.5 and np.all(np.isfinite(g[2:])):
-                    w_meas = g[2:]
-            if w_meas is None:
-                n_skipped += 1
-                w_meas = internal[1:4]
+            if core.uses_gyro:
+                w_meas = self._gyro_rate(context, t)
+                if w_meas is None:
+                    n_skipped += 1
+                    w_meas = book[_W_LAST].copy()
+                else:
+                    book[_W_LAST] = w_meas
+            if self._linearizing:
+                state, Phi, Q = core.predict_linearized(state, w_meas, t - t_last)
             else:
-                internal[1:4] = w_meas
-            state, Phi, Q = self.core.predict_linearized(state, w_meas, t - t_last)
-        elif self._gyro_port.HasValue(context):
-            g = self._gyro_port.Eval(context)
-            if g[1] > 0.5 and np.all(np.isfinite(g[2:])):
-                internal[1:4] = g[2:]
-        internal[0] = t
+                state = core.predict(state, w_meas, t - t_last, rng)
+        elif core.uses_gyro and self._gyro_port.HasValue(context):
+            g = GyroSample.from_port(self._gyro_port.Eval(context))
+            if g.valid and np.all(np.isfinite(g.w_meas_B)):
+                book[_W_LAST] = g.w_meas_B
+        book[_T_LAST] = t
 
-        # -- measurement updates at this instant -----------------------------------------
-        for i, (sensor, port) in enumerate(zip(self._quat_sensors, self._quat_ports)):
-            if not port.HasValue(context):
+        # -- measurement updates at this instant ------------------------------------------------
+        for i, m in self._measurements(context):
+            t_meas = float(m.time_s)
+            if not math.isfinite(t_meas):
+                n_skipped += 1  # a sample with no usable time stamp
                 continue
-            m = port.Eval(context)
-            if abs(m[0] - t) >= TIME_TOLERANCE_S or m[0] <= internal[4 + i]:
-                continue
-            internal[4 + i] = m[0]
-            if m[1] < 0.5 or not np.all(np.isfinite(m[2:])) or np.linalg.norm(m[2:]) < 0.5:
+            if abs(t_meas - t) >= TIME_TOLERANCE_S or t_meas <= book[_LAST_SAMPLE + i]:
+                continue  # not this instant's sample, or already used
+            book[_LAST_SAMPLE + i] = t_meas
+            if not contract.is_usable(m):
                 n_skipped += 1
                 continue
-            state, info = self.core.update_quaternion(state, m[2:], sensor.q_BS, sensor.covariance_S)
-            n_used, n_skipped, nis = (n_used + 1, n_skipped, info.nis) if info.accepted else (n_used, n_skipped + 1, info.nis)
+            state, info = core.update(state, m, rng)
+            nis = info.nis
             if info.accepted:
-                A = info.error_transition @ A
-        offset = 4 + len(self._quat_ports)
-        for j, port in enumerate(self._vector_ports):
-            if not port.HasValue(context):
-                continue
-            obs = port.Eval(context)
-            if abs(obs.time_s - t) >= TIME_TOLERANCE_S or obs.time_s <= internal[offset + j]:
-                continue
-            internal[offset + j] = obs.time_s
-            dirs = np.asarray(obs.directions_S)
-            if not obs.valid or dirs.size == 0 or not np.all(np.isfinite(dirs)):
+                n_used += 1
+                if self._linearizing and info.error_transition is not None:
+                    A = info.error_transition @ A
+            else:
                 n_skipped += 1
-                continue
-            state, info = self.core.update_vectors(state, dirs, obs.references_I, obs.sigma_rad, obs.q_BS)
-            n_used, n_skipped, nis = (n_used + 1, n_skipped, info.nis) if info.accepted else (n_used, n_skipped + 1, info.nis)
-            if info.accepted:
-                A = info.error_transition @ A
+            book[_N_RESAMPLES] += info.resampled
+            book[_N_DEGENERATE] += info.degenerate
+            if math.isfinite(info.effective_sample_size):
+                book[_ESS] = info.effective_sample_size
 
+        q_hat, second, P = core.estimate(state)
         discrete_state.get_mutable_vector(self._estimate_group).SetFromVector(
-            pack_estimate(rot.quat_canonical(state.q_IB), state.bias_B, state.P, t, n_used, n_skipped, nis))
-        discrete_state.get_mutable_vector(self._internal_group).SetFromVector(internal)
-        steps = context.get_discrete_state(self._linearization_group).value()[108] + 1
-        discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
-            np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
+            pack_estimate(rot.quat_canonical(q_hat), second, P, t, n_used, n_skipped, nis))
+        discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
+        discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
+        if self._linearizing:
+            steps = context.get_discrete_state(self._linearization_group).value()[-1] + 1
+            discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
+                np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
         return EventStatus.Succeeded()
+
+
+def MekfEstimator(name: str, period_s: float, filter_core, initial_state, quaternion_sensors=(),
+                  vector_sensors=()) -> EstimatorSystem:
+    """An :class:`EstimatorSystem` running a :class:`~drake_att.filters.mekf.MultiplicativeEKF`.
+
+    Ports as :class:`EstimatorSystem`, with ``bias_B_hat`` and ``step_linearization``.
+    """
+    return EstimatorSystem(name, period_s, filter_core, initial_state, quaternion_sensors, vector_sensors)

@@ -12,11 +12,11 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
+from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B (3)]
 from drake_att.noise import FarrenkopfGyroNoise
 from drake_att.systems.randomness import (
     SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
 
-GYRO_MEASUREMENT_SIZE = 5  # [t_meas, valid, w_meas_B (3)]
 
 
 def _check_vector(value, n, field, unit):

@@ -15,39 +15,14 @@ configured outage window or, with the configured probability, at random (drop-ou
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
+from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
 from drake_att.systems.randomness import (
     SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
-
-QUATERNION_MEASUREMENT_SIZE = 6  # [t_meas, valid, q_IS_meas (4)]
-
-
-@dataclass(frozen=True)
-class VectorObservations:
-    """Unit-vector observations of one star-tracker sample (abstract port value).
-
-    Attributes:
-        time_s: sample time (s).
-        valid: False if the sample must not be used.
-        directions_S: (m, 3) measured directions in the sensor frame.
-        references_I: (m, 3) the matching inertial reference directions.
-        sigma_rad: per-component noise 1-sigma (rad).
-        q_BS: (4,) sensor mounting.
-    """
-
-    time_s: float
-    valid: bool
-    directions_S: np.ndarray
-    references_I: np.ndarray
-    sigma_rad: float
-    q_BS: np.ndarray
-
 
 def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
     """``q_BS`` from paper S3's three mounting angles (its eq. 7).
