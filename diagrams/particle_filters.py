@@ -254,10 +254,10 @@ def ekf_initial_error_sweep(duration, seed, yaw_errors_deg=(5, 10, 20, 30, 45, 6
     s = apply_overrides(s, [f"duration_s={duration}", f"scoring.score_from_s={duration / 2}"])
     sd = _builder.ScenarioDiagram(s)
     run = sd.simulate(seed)
-    m = compute_metrics(run, sd.estimators)["estimators"]
+    m = compute_metrics(run)["estimators"]
     rows = []
     for yaw, e in zip(yaw_errors_deg, ests):
-        err = estimator_errors(run, e.name, "bias_B_hat", "gyro")
+        err = estimator_errors(run, e.name)
         rows.append({"initial_yaw_error_deg": yaw, "convergence_time_s": m[e.name]["convergence_time_s"],
                      "final_error_deg": float(np.linalg.norm(err["dtheta"][-1]) / DEG),
                      "t": err["t"], "error_norm_deg": np.linalg.norm(err["dtheta"], axis=1) / DEG})

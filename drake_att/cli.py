@@ -1,5 +1,5 @@
-"""Command line: ``drake-att run [SCENARIO] [--seed N] [--out DIR] [--set path=value ...]``
-and ``drake-att list``."""
+"""Command line: ``drake-att run [SCENARIO] [--seed N] [--out DIR] [--set path=value ...]``,
+``drake-att score OUT_DIR [--out FILE]`` and ``drake-att list``."""
 
 from __future__ import annotations
 
@@ -42,10 +42,58 @@ def _cmd_run(args) -> int:
     print(f"Building {scenario.name} ({path}) ...", file=sys.stderr)
     sd = ScenarioDiagram(scenario)
     run = sd.simulate(scenario.seed, progress=not args.quiet)
-    metrics = compute_metrics(run, sd.estimators)
+    metrics = compute_metrics(run)
     print(format_table(metrics))
     files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)
     print(f"\nWrote {len(files)} files to {out_dir}/: " + ", ".join(os.path.basename(f) for f in files))
+    return 0
+
+
+def _cmd_score(args) -> int:
+    import zipfile
+
+    from drake_att.analysis.metrics import compute_metrics, format_table
+    from drake_att.analysis.report import write_metrics_json
+    from drake_att.scenarios.builder import RunLog
+
+    def fail(msg):
+        print(f"drake-att score: {msg}", file=sys.stderr)
+        return 2
+
+    out_dir = args.out_dir
+    if not os.path.isdir(out_dir):
+        return fail(f"{out_dir}: no such result folder")
+    npz_path, config_path = os.path.join(out_dir, "log.npz"), os.path.join(out_dir, "config.yaml")
+    for path in (npz_path, config_path):
+        if not os.path.isfile(path):
+            return fail(f"{path}: missing (a result folder of `drake-att run` holds log.npz and config.yaml)")
+    try:
+        scenario = load_scenario(filename=config_path)
+    except (ConfigError, ValueError, OSError) as e:
+        return fail(f"{config_path}: not a valid scenario: {e}")
+    try:
+        run = RunLog.load(npz_path, scenario)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        return fail(f"{npz_path}: cannot be scored: {e}")
+    try:
+        metrics = compute_metrics(run)
+    except (ValueError, KeyError, IndexError) as e:
+        return fail(f"{npz_path}: cannot be scored: {e}")
+    print(format_table(metrics))
+    out = args.out or os.path.join(out_dir, "metrics.json")
+    previous = None
+    if os.path.isfile(out):
+        with open(out, "rb") as f:
+            previous = f.read()
+    try:
+        write_metrics_json(metrics, out)
+        with open(out, "rb") as f:
+            now = f.read()
+    except OSError as e:
+        return fail(f"{out}: cannot write: {e}")
+    same = "" if previous is None else (" (identical to the file it replaced)" if previous == now
+                                        else " (differs from the file it replaced)")
+    print(f"\nWrote {out}{same}")
     return 0
 
 
@@ -61,6 +109,11 @@ def main(argv=None) -> int:
     p_run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p_run.add_argument("--quiet", action="store_true", help="no progress line")
     p_run.set_defaults(func=_cmd_run)
+    p_score = sub.add_parser("score", help="recompute a result folder's metrics.json from its log.npz + config.yaml")
+    p_score.add_argument("out_dir", metavar="OUT_DIR", help="result folder written by `drake-att run`")
+    p_score.add_argument("--out", default=None, metavar="FILE",
+                         help="write the metrics here (default OUT_DIR/metrics.json)")
+    p_score.set_defaults(func=_cmd_score)
     p_list = sub.add_parser("list", help="list the shipped scenarios")
     p_list.set_defaults(func=_cmd_list)
     args = parser.parse_args(argv)

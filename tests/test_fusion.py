@@ -361,7 +361,7 @@ def dual_run():
 
 
 def _scored(run, name):
-    e = estimator_errors(run, name, "bias_B_hat", "gyro")
+    e = estimator_errors(run, name)
     m = e["t"] >= SCORE_FROM_S
     return {"err": np.concatenate([e["dtheta"], e["second_err"]], axis=1)[m], "P": e["P"][m], "nees": e["nees"][m],
             "q_hat": e["q_hat"][m]}
@@ -378,8 +378,8 @@ def test_three_architectures_share_one_truth_and_one_noise_realization(dual_run)
     # same truth log, and the centralized average is built from the same tracker samples.
     assert sum(1 for k in run.signals if k.endswith("/q_IB")) == 1
     assert sum(1 for k in run.signals if k.endswith("/gyro_measurement")) == 1
-    e_single = estimator_errors(run, "single", "bias_B_hat", "gyro")
-    e_cent = estimator_errors(run, "centralized", "bias_B_hat", "gyro")
+    e_single = estimator_errors(run, "single")
+    e_cent = estimator_errors(run, "centralized")
     np.testing.assert_array_equal(e_single["q_true"], e_cent["q_true"])
 
 

@@ -402,7 +402,7 @@ def slow_scenario():
 @pytest.fixture(scope="module")
 def slow_monte_carlo(slow_scenario):
     """Aligned errors of SLOW_RUNS seeds (shared by the steady-state and NEES tests)."""
-    return [estimator_errors(slow_scenario.simulate(seed=seed), "mekf", "bias_B_hat", "gyro")
+    return [estimator_errors(slow_scenario.simulate(seed=seed), "mekf")
             for seed in range(SLOW_RUNS)]
 
 
@@ -462,7 +462,7 @@ def test_dropouts_are_skipped_counted_and_covariance_follows_riccati_recursion()
       reached 3.5), the sigma being the one just checked against the recursion."""
     sd = ScenarioDiagram(load_scenario(text=_scenario_yaml(300.0, "[-0.5, 0.5, 0.5]", dropout=0.3)))
     run = sd.simulate(seed=5)
-    e = estimator_errors(run, "mekf", "bias_B_hat", "gyro")
+    e = estimator_errors(run, "mekf")
     t_est = e["t"]
     n = len(t_est)
     np.testing.assert_allclose(t_est, np.arange(n), atol=1e-9)  # one estimate per second
@@ -626,7 +626,7 @@ def test_mekf_with_mounted_vector_tracker_is_consistent():
     axes 0.98 / 0.99 / 1.06, sd 0.027 / 0.027 / 0.026; bias block 2.76, 0.18.  Power
     against a 20% covariance error >= 0.95 (6-dof, attitude, per axis), 0.08 (bias block)."""
     sd = ScenarioDiagram(load_scenario(text=VECTOR_SCENARIO))
-    errors = [estimator_errors(sd.simulate(seed=seed), "mekf", "bias_B_hat", "gyro")
+    errors = [estimator_errors(sd.simulate(seed=seed), "mekf")
               for seed in range(VECTOR_RUNS)]
     R_SB = RotationMatrix(RollPitchYaw(np.array([0.0, 90.0, 20.0]) * DEG)).matrix().T
     R_BI = RotationMatrix(RollPitchYaw(np.array([10.0, -5.0, 30.0]) * DEG)).matrix().T

@@ -13,7 +13,6 @@ statistics (RMSE, NEES) then agree to ~1e-12 relative; ``rtol=1e-9`` is used.
 
 import math
 import re
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -114,9 +113,26 @@ def estimator_signals(name, t_log, status, q_hat, second, P, second_name="bias_B
             f"{name}/covariance": (t_log, np.asarray(P, dtype=float).reshape(len(t_log), 36))}
 
 
-def make_run(signals, scenario=None):
+def make_run(signals, scenario=None, estimators=None):
+    """A RunLog with the metadata ScenarioDiagram writes (RunLog.metadata), spelled out here:
+    ``estimators`` maps name -> (second output port, gyro whose bias is the truth or None)."""
+    kinds = {"bias_B_hat": "gyro_bias", "w_IB_B_hat": "body_rate"}
+    meta = {"schema": 1, "scenario": "tiny", "seed": 7, "wall_time_s": 1.25, "signals": list(signals),
+            "truth": {"attitude": f"{PLANT}/q_IB", "rate": f"{PLANT}/w_IB_B"},
+            "estimators": {name: {"second_kind": kinds[second],
+                                  "true_bias": None if gyro is None else f"{gyro}/bias_B",
+                                  "signals": {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
+                                              "covariance": f"{name}/covariance", "status": f"{name}/status"}}
+                           for name, (second, gyro) in (estimators or {}).items()}}
     return RunLog(scenario=scenario if scenario is not None else cfg.Scenario(), seed=7,
-                  wall_time_s=1.25, signals=signals)
+                  wall_time_s=1.25, signals=signals, metadata=meta)
+
+
+def errors_of(run, name, second_name, gyro):
+    """metrics.estimator_errors of ``name`` described (in the run's metadata) as estimating
+    ``second_name`` and scored against gyro ``gyro``'s bias (None: no bias truth)."""
+    run = make_run(run.signals, run.scenario, {name: (second_name, gyro)})
+    return metrics.estimator_errors(run, name)
 
 
 def lagged_estimator(name="mekf", n=6, second_name="bias_B_hat", bias_offset=0.0, dup_first_d=None):
@@ -231,11 +247,11 @@ def test_attitude_error_convention_matches_design():
     sig = truth_signals(t)
     sig.update(estimator_signals("mekf", t, [[ti, 0, 0, 0] for ti in t], [q_hat_for(ti, di) for ti, di in zip(t, d)],
                                  np.zeros((3, 3)), [np.eye(6)] * 3))
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", None)
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", None)
     np.testing.assert_allclose(errs["dtheta"], np.array(d), rtol=0, atol=1e-12)
     # q_hat and -q_hat are the same attitude: the error must not depend on the sign.
     sig["mekf/q_IB_hat"] = (t, -sig["mekf/q_IB_hat"][1])
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", None)
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", None)
     np.testing.assert_allclose(errs["dtheta"], np.array(d), rtol=0, atol=1e-12)
 
 
@@ -243,7 +259,7 @@ def test_estimate_is_scored_against_truth_at_its_own_time():
     sig, t_expected = lagged_estimator(n=6)
     sig.update(truth_signals(np.arange(6.0)))
     sig.update(gyro_signals())
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", "gyro")
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", "gyro")
     np.testing.assert_array_equal(errs["t"], t_expected)
     np.testing.assert_allclose(errs["dtheta"], [d_at(t) for t in t_expected], rtol=0, atol=1e-12)
     np.testing.assert_allclose(errs["q_true"], [q_true_at(t) for t in t_expected], rtol=0, atol=1e-15)
@@ -264,7 +280,7 @@ def test_duplicate_estimate_times_keep_the_last_sample():
     sig, t_expected = lagged_estimator(n=5, dup_first_d=bogus)
     sig.update(truth_signals(np.arange(5.0)))
     sig.update(gyro_signals())
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", "gyro")
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", "gyro")
     np.testing.assert_array_equal(errs["t"], t_expected)  # one sample per estimate time
     np.testing.assert_allclose(errs["dtheta"][0], d_at(0.0), rtol=0, atol=1e-12)
     # status / covariance of the kept sample are the last row's (log index 1), too
@@ -282,7 +298,7 @@ def test_nan_and_negative_estimate_times_are_dropped():
     sig = estimator_signals("mekf", t_log, status, q_hat, second, [np.eye(6)] * 6)
     sig.update(truth_signals(t_log))
     sig.update(gyro_signals())
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", "gyro")
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", "gyro")
     np.testing.assert_array_equal(errs["t"], [2.0, 4.0, 5.0])
     np.testing.assert_allclose(errs["dtheta"], [d_at(t) for t in (2.0, 4.0, 5.0)], rtol=0, atol=1e-12)
     np.testing.assert_allclose(errs["second_err"], [e2_at(t) for t in (2.0, 4.0, 5.0)], rtol=1e-9, atol=0)
@@ -295,12 +311,12 @@ def test_estimate_time_without_truth_sample_raises_naming_it():
                             np.zeros((4, 3)), [np.eye(6)] * 4)
     sig.update(truth_signals(t_log))
     with pytest.raises(ValueError, match=r"mekf.*2\.5"):
-        metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", None)
+        errors_of(make_run(sig), "mekf", "bias_B_hat", None)
     # Within the documented time-match tolerance it aligns (float jitter of logged times).
     t_est[2] = 2.0 + 0.5 * metrics.TIME_MATCH_TOLERANCE_S
     sig["mekf/status"][1][:, 0] = t_est
     sig["mekf/q_IB_hat"][1][2] = q_true_at(2.0)
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", None)
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", None)
     np.testing.assert_allclose(errs["dtheta"], 0.0, atol=1e-12)
 
 
@@ -308,17 +324,57 @@ def test_bias_error_is_true_minus_estimate_at_estimate_time():
     sig, t_expected = lagged_estimator(n=6)
     sig.update(truth_signals(np.arange(6.0)))
     sig.update(gyro_signals(dt=0.5))  # the gyro logs on its own, finer grid
-    errs = metrics.estimator_errors(make_run(sig), "mekf", "bias_B_hat", "gyro")
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", "gyro")
     # e2_at is bias_true - bias_hat by construction; the bias drifts by ~0.5 deg/h per s
     # (~2.4e-6 rad/s), so a misaligned gyro sample would be off by more than the error itself.
     np.testing.assert_allclose(errs["second_err"], [e2_at(t) for t in t_expected], rtol=1e-9, atol=1e-20)
     assert errs["nees_dof"] == 6
 
 
+def test_truth_and_true_bias_are_the_signals_the_metadata_names():
+    """Decoy ``*/q_IB`` and ``*/bias_B`` signals logged first (0.3 rad and 40 deg/h off the
+    truth) are not what the estimate is scored against unless the metadata names them."""
+    sig, t_expected = lagged_estimator(n=6)
+    t = np.arange(6.0)
+    decoy_q = np.array([qmul(q_true_at(ti), qexp([0.3, 0.0, 0.0])) for ti in t])
+    signals = {"decoy/q_IB": (t, decoy_q), **gyro_signals("decoy", offset=40.0), **sig}
+    signals.update(truth_signals(t))
+    signals.update(gyro_signals())
+    run = make_run(signals, estimators={"mekf": ("bias_B_hat", "gyro")})
+    errs = metrics.estimator_errors(run, "mekf")
+    np.testing.assert_allclose(errs["q_true"], [q_true_at(ti) for ti in t_expected], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(errs["dtheta"], [d_at(ti) for ti in t_expected], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(errs["second_err"], [e2_at(ti) for ti in t_expected], rtol=1e-9, atol=1e-20)
+    # Named by the metadata, the decoys are the truth: the decoy quaternion at the estimate
+    # times, and a bias error larger by exactly the 40 deg/h offset (bias_true_at is linear).
+    run.metadata["truth"]["attitude"] = "decoy/q_IB"
+    run.metadata["estimators"]["mekf"]["true_bias"] = "decoy/bias_B"
+    errs = metrics.estimator_errors(run, "mekf")
+    np.testing.assert_array_equal(errs["q_true"], decoy_q[t_expected.astype(int)])
+    np.testing.assert_allclose(errs["second_err"], [e2_at(ti) + 40.0 * DEG_PER_H_ for ti in t_expected],
+                               rtol=1e-9, atol=1e-20)
+
+
+def test_scoring_a_run_without_metadata_says_so():
+    sig, _ = lagged_estimator(n=3)
+    sig.update(truth_signals(np.arange(3.0)))
+    bare = RunLog(scenario=cfg.Scenario(), seed=1, wall_time_s=0.0, signals=sig)
+    with pytest.raises(ValueError, match="metadata"):
+        metrics.estimator_errors(bare, "mekf")
+    with pytest.raises(ValueError, match="metadata"):
+        metrics.compute_metrics(bare)
+    run = make_run(sig, estimators={"mekf": ("bias_B_hat", None)})
+    with pytest.raises(ValueError, match="not an estimator of this run"):
+        metrics.estimator_errors(run, "ekf")
+    run.metadata["estimators"]["mekf"]["second_kind"] = "bias_B_hat"  # a port name, not a kind
+    with pytest.raises(ValueError, match="neither 'gyro_bias' nor 'body_rate'"):
+        metrics.estimator_errors(run, "mekf")
+
+
 def test_rate_error_for_w_hat_estimators():
     sig, t_expected = lagged_estimator(name="gpf", n=6, second_name="w_IB_B_hat")
     sig.update(truth_signals(np.arange(6.0)))
-    errs = metrics.estimator_errors(make_run(sig), "gpf", "w_IB_B_hat", None)
+    errs = errors_of(make_run(sig), "gpf", "w_IB_B_hat", None)
     np.testing.assert_allclose(errs["second_err"], [e2_at(t) for t in t_expected], rtol=1e-9, atol=1e-20)
     assert errs["nees_dof"] == 6
 
@@ -345,7 +401,7 @@ def test_nees_six_dof_hand_computed_and_singular_sample_is_nan():
     P2[5, 5] = 0.0  # singular (e.g. a collapsed particle cloud)
     P3 = np.diag(diag) * 4.0
     run, t = _nees_log([P0, P1, P2, P3])
-    errs = metrics.estimator_errors(run, "est", "bias_B_hat", "gyro")
+    errs = errors_of(run, "est", "bias_B_hat", "gyro")
     e = [np.r_[d_at(ti), e2_at(ti)] for ti in t]
     expected0 = sum(e[0][i] ** 2 / diag[i] for i in range(6))
     # 2x2 inverse: [[b, -c], [-c, a]] / (ab - c^2)
@@ -360,7 +416,7 @@ def test_nees_six_dof_hand_computed_and_singular_sample_is_nan():
 def test_nees_six_dof_for_rate_estimators():
     diag = np.array([1e-6, 4e-6, 2.25e-6, 1e-12, 4e-12, 9e-12])
     run, t = _nees_log([np.diag(diag)] * 3, second_name="w_IB_B_hat")
-    errs = metrics.estimator_errors(run, "est", "w_IB_B_hat", None)
+    errs = errors_of(run, "est", "w_IB_B_hat", None)
     expected = [sum(v ** 2 / s for v, s in zip(np.r_[d_at(ti), e2_at(ti)], diag)) for ti in t]
     np.testing.assert_allclose(errs["nees"], expected, rtol=1e-9)
 
@@ -378,7 +434,7 @@ def test_nees_three_dof_without_bias_truth_uses_attitude_block_only():
     P_att_singular = P.copy()
     P_att_singular[2, 2] = 0.0
     run, t = _nees_log([P, P_bias_singular, P_att_singular])
-    errs = metrics.estimator_errors(run, "est", "bias_B_hat", None)
+    errs = errors_of(run, "est", "bias_B_hat", None)
     assert errs["second_err"] is None and errs["nees_dof"] == 3
 
     def nees3(d):
@@ -415,7 +471,7 @@ def _rms(rows, axis):
 
 def test_score_rmse_mae_total_over_stable_stage():
     t = np.arange(6.0)
-    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "bias_B_hat")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
     scored = D_DEG[2:]
     np.testing.assert_allclose(m["attitude_rmse_deg"], [_rms(scored, i) for i in range(3)], rtol=1e-12)
     np.testing.assert_allclose(m["attitude_mae_deg"], [sum(abs(r[i]) for r in scored) / 4 for i in range(3)],
@@ -435,7 +491,7 @@ def test_score_rmse_mae_total_over_stable_stage():
 ])
 def test_score_from_s_boundary(t2, included):
     t = np.array([0.0, 1.0, t2, 3.0, 4.0, 5.0])
-    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "bias_B_hat")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
     scored = D_DEG[2:] if included else D_DEG[3:]
     assert m["samples_scored"] == len(scored)
     np.testing.assert_allclose(m["attitude_rmse_deg"], [_rms(scored, i) for i in range(3)], rtol=1e-12)
@@ -447,7 +503,7 @@ def test_score_from_s_comparison_is_inclusive_at_the_tolerance_edge():
     edge = 2.0 - metrics.TIME_MATCH_TOLERANCE_S
     for t2, n_scored in ((edge, 4), (np.nextafter(edge, 0.0), 3)):
         t = np.array([0.0, 1.0, t2, 3.0, 4.0, 5.0])
-        m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "bias_B_hat")
+        m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
         assert m["samples_scored"] == n_scored
 
 
@@ -456,7 +512,7 @@ def test_score_bias_rmse_in_deg_per_h():
     b_deg_h = [[50, -50, 50], [9, 8, 7], [1.5, -2.0, 0.5], [-0.5, 1.0, 2.5], [1.0, 0.0, -1.5], [2.0, -1.0, 0.5]]
     second = np.array(b_deg_h) * DEG_PER_H_
     m = metrics.score_estimator(_errors_dict(t, D_DEG, second=second), cfg.ScoringConfig(score_from_s=2.0),
-                                "bias_B_hat")
+                                "gyro_bias")
     np.testing.assert_allclose(m["bias_rmse_deg_per_h"], [_rms(b_deg_h[2:], i) for i in range(3)], rtol=1e-12)
     assert m["rate_rmse_deg_per_s"] is None
 
@@ -466,24 +522,24 @@ def test_score_rate_rmse_in_deg_per_s():
     w_deg_s = [[5, 5, 5], [1, 1, 1], [1e-3, -2e-3, 3e-3], [2e-3, 0.0, -1e-3], [-1e-3, 1e-3, 1e-3], [0.0, 2e-3, 0.0]]
     second = np.array(w_deg_s) * DEG_
     m = metrics.score_estimator(_errors_dict(t, D_DEG, second=second), cfg.ScoringConfig(score_from_s=2.0),
-                                "w_IB_B_hat")
+                                "body_rate")
     np.testing.assert_allclose(m["rate_rmse_deg_per_s"], [_rms(w_deg_s[2:], i) for i in range(3)], rtol=1e-12)
     assert m["bias_rmse_deg_per_h"] is None
 
 
 def test_score_without_second_truth_has_no_second_rmse():
-    m = metrics.score_estimator(_errors_dict(np.arange(6.0), D_DEG), cfg.ScoringConfig(), "bias_B_hat")
+    m = metrics.score_estimator(_errors_dict(np.arange(6.0), D_DEG), cfg.ScoringConfig(), "gyro_bias")
     assert m["bias_rmse_deg_per_h"] is None and m["rate_rmse_deg_per_s"] is None and m["nees_dof"] == 3
 
 
 def test_nees_mean_over_scored_samples_ignores_nan():
     t = np.arange(6.0)
     nees = [1e6, 1e6, 3.0, np.nan, 5.0, 10.0]  # huge values before score_from_s: not scored
-    m = metrics.score_estimator(_errors_dict(t, D_DEG, nees=nees), cfg.ScoringConfig(score_from_s=2.0), "bias_B_hat")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG, nees=nees), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
     assert m["nees_mean"] == pytest.approx((3.0 + 5.0 + 10.0) / 3, rel=1e-12)
     # all scored samples NaN -> None (even though unscored samples are finite)
     nees = [1.0, 2.0, np.nan, np.nan, np.nan, np.nan]
-    m = metrics.score_estimator(_errors_dict(t, D_DEG, nees=nees), cfg.ScoringConfig(score_from_s=2.0), "bias_B_hat")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG, nees=nees), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
     assert m["nees_mean"] is None
 
 
@@ -496,7 +552,7 @@ def test_measurement_counts_and_final_three_sigma_from_last_sample():
     P[-1, :3, :3] = np.diag(np.square(np.array(sig_deg) * DEG_))
     P[-1, 0, 1] = P[-1, 1, 0] = 1e-9  # off-diagonal terms do not enter the per-axis 3-sigma
     P[-1, 3:, 3:] = 42.0
-    m = metrics.score_estimator(_errors_dict(t, D_DEG, status=status, P=P), cfg.ScoringConfig(), "bias_B_hat")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG, status=status, P=P), cfg.ScoringConfig(), "gyro_bias")
     assert m["measurements_used"] == 17 and m["measurements_skipped"] == 4
     np.testing.assert_allclose(m["attitude_3sigma_final_deg"], [3 * s for s in sig_deg], rtol=1e-12)
 
@@ -507,10 +563,10 @@ def test_score_convergence_time_uses_all_samples_and_degree_threshold():
     t = np.arange(6.0)
     m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=4.0,
                                                                          convergence_threshold_deg=0.05),
-                                "bias_B_hat")
+                                "gyro_bias")
     assert m["convergence_time_s"] == 2.0
     m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(convergence_threshold_deg=0.035),
-                                "bias_B_hat")
+                                "gyro_bias")
     assert m["convergence_time_s"] is None  # |-0.04| deg at the last sample
 
 
@@ -534,10 +590,11 @@ def tiny_metrics():
                                            ("fusion", 40.0, "bias_B_hat"), ("gpf", None, "w_IB_B_hat")):
         s, _ = lagged_estimator(name=name, n=6, second_name=second_name, bias_offset=gyro_offset or 0.0)
         sig.update(s)
-    run = make_run(sig, scenario)
-    systems = {n: SimpleNamespace(second_output_name=s) for n, s in
-               (("mekf1", "bias_B_hat"), ("mekf2", "bias_B_hat"), ("fusion", "bias_B_hat"), ("gpf", "w_IB_B_hat"))}
-    return metrics.compute_metrics(run, systems)
+    # The metadata names each estimator's true bias (the builder's rule, tested in
+    # test_score.py: a fusion is scored against its first source's gyro, here g2).
+    run = make_run(sig, scenario, {"mekf1": ("bias_B_hat", "g1"), "mekf2": ("bias_B_hat", "g2"),
+                                   "fusion": ("bias_B_hat", "g2"), "gpf": ("w_IB_B_hat", None)})
+    return metrics.compute_metrics(run)
 
 
 def test_compute_metrics_on_tiny_scenario(tiny_metrics):

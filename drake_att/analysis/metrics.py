@@ -15,6 +15,11 @@ step).
   within ``scoring.convergence_threshold_deg`` until the end (None if never).
 * NEES: ``e' P^-1 e`` with ``e = [dtheta; second-vector error]`` (6-dof) when the second
   vector's truth is known, else the 3-dof attitude NEES; mean over the scored samples.
+
+Which signals are the truth, each estimator's second quantity ("gyro_bias" or "body_rate")
+and the true gyro bias it is scored against come from the run's metadata
+(:attr:`drake_att.scenarios.builder.RunLog.metadata`), so a saved log scores without the
+diagram (``drake-att score``).
 """
 
 from __future__ import annotations
@@ -38,9 +43,34 @@ def _align(t_query, t_ref, what):
     return idx
 
 
-def estimator_errors(run, name: str, second_output_name: str, gyro_name: str | None) -> dict:
-    """Aligned errors of one estimator: times, dtheta (rad), second error, covariance, NEES."""
-    status = run.values(f"{name}/status")
+def _metadata(run) -> dict:
+    """The run's metadata (ValueError if it has none)."""
+    meta = getattr(run, "metadata", None)
+    if not meta:
+        raise ValueError("the run carries no metadata (which signal is the truth, how each estimator is scored): "
+                         "use a RunLog from ScenarioDiagram.simulate() or RunLog.load()")
+    return meta
+
+
+def _values(run, key: str, width: int, what: str) -> np.ndarray:
+    """``run.values(key)``, checked to hold ``width`` components per sample."""
+    x = run.values(key)
+    if x.ndim != 2 or x.shape[1] != width:
+        raise ValueError(f"{what} {key!r}: expected {width} components per sample, got shape {x.shape}")
+    return x
+
+
+def estimator_errors(run, name: str) -> dict:
+    """Aligned errors of one estimator: times, dtheta (rad), second error, covariance, NEES.
+
+    What is compared with what comes from ``run.metadata`` (truth keys, the estimator's
+    signal keys, its second-quantity kind and true gyro bias)."""
+    meta = _metadata(run)
+    if name not in meta["estimators"]:
+        raise ValueError(f"{name}: not an estimator of this run; estimators: {list(meta['estimators'])}")
+    spec = meta["estimators"][name]
+    keys, kind = spec["signals"], spec["second_kind"]
+    status = _values(run, keys["status"], 4, f"{name} status")
     valid = np.isfinite(status[:, 0]) & (status[:, 0] >= 0)
     # The first log (t = 0, before the first update) carries the initial estimate with
     # t_estimate = 0 as well; keep only the last sample of each estimate time.
@@ -48,23 +78,24 @@ def estimator_errors(run, name: str, second_output_name: str, gyro_name: str | N
     keep = np.r_[np.diff(t_est) > TIME_MATCH_TOLERANCE_S, True]
     sel = np.flatnonzero(valid)[keep]
     t_est = status[sel, 0]
-    q_hat = run.values(f"{name}/q_IB_hat")[sel]
-    second_hat = run.values(f"{name}/{second_output_name}")[sel]
-    P = run.values(f"{name}/covariance")[sel].reshape(-1, 6, 6)
-    truth_key = next(k for k in run.signals if k.endswith("/q_IB") and "/" in k)
-    t_truth = run.times(truth_key)
-    idx = _align(t_est, t_truth, name)
-    q_true = run.values(truth_key)[idx]
+    q_hat = _values(run, keys["attitude"], 4, f"{name} attitude")[sel]
+    second_hat = _values(run, keys["second"], 3, f"{name} second quantity")[sel]
+    P = _values(run, keys["covariance"], 36, f"{name} covariance")[sel].reshape(-1, 6, 6)
+    truth_key = meta["truth"]["attitude"]
+    idx = _align(t_est, run.times(truth_key), name)
+    q_true = _values(run, truth_key, 4, "truth attitude")[idx]
     dtheta = rot.quat_error_rotvec(q_hat, q_true)
     second_err = None
-    if second_output_name == "bias_B_hat" and gyro_name is not None:
-        key = f"{gyro_name}/bias_B"
-        tb = run.times(key)
-        ib = _align(t_est, tb, f"{name} bias")
-        second_err = run.values(key)[ib] - second_hat
-    elif second_output_name == "w_IB_B_hat":
-        w_key = truth_key.replace("/q_IB", "/w_IB_B")
-        second_err = run.values(w_key)[idx] - second_hat
+    if kind == "gyro_bias" and spec["true_bias"] is not None:
+        key = spec["true_bias"]
+        ib = _align(t_est, run.times(key), f"{name} bias")
+        second_err = _values(run, key, 3, f"{name} true bias")[ib] - second_hat
+    elif kind == "body_rate":
+        key = meta["truth"]["rate"]
+        iw = _align(t_est, run.times(key), f"{name} rate")
+        second_err = _values(run, key, 3, "truth rate")[iw] - second_hat
+    elif kind != "gyro_bias":
+        raise ValueError(f"{name}: second_kind {kind!r} is neither 'gyro_bias' nor 'body_rate'")
     if second_err is not None:
         e = np.concatenate([dtheta, second_err], axis=1)
         Pe = P
@@ -78,7 +109,8 @@ def estimator_errors(run, name: str, second_output_name: str, gyro_name: str | N
     if np.any(ok):
         nees[ok] = np.einsum("ni,ni->n", e[ok], np.linalg.solve(Pe[ok], e[ok][..., None])[..., 0])
     return {"t": t_est, "dtheta": dtheta, "second_err": second_err, "P": P, "nees": nees,
-            "nees_dof": e.shape[1], "status": status[sel], "q_hat": q_hat, "q_true": q_true}
+            "nees_dof": e.shape[1], "status": status[sel], "q_hat": q_hat, "q_true": q_true,
+            "second_kind": kind}
 
 
 def convergence_time(t, dtheta, threshold_rad) -> float | None:
@@ -92,7 +124,9 @@ def convergence_time(t, dtheta, threshold_rad) -> float | None:
     return float(t[last_out + 1])
 
 
-def score_estimator(errors: dict, scoring: cfg.ScoringConfig, second_output_name: str) -> dict:
+def score_estimator(errors: dict, scoring: cfg.ScoringConfig, second_kind: str) -> dict:
+    """Scalar metrics of :func:`estimator_errors` output (``second_kind``: "gyro_bias" or
+    "body_rate", which of the bias / rate RMSE the second error is)."""
     t = errors["t"]
     m = t >= scoring.score_from_s - TIME_MATCH_TOLERANCE_S
     d = errors["dtheta"][m] / DEG
@@ -113,30 +147,22 @@ def score_estimator(errors: dict, scoring: cfg.ScoringConfig, second_output_name
     }
     if errors["second_err"] is not None:
         s = errors["second_err"][m]
-        if second_output_name == "bias_B_hat":
+        if second_kind == "gyro_bias":
             out["bias_rmse_deg_per_h"] = (np.sqrt(np.mean(s**2, axis=0)) / DEG_PER_H).tolist()
         else:
             out["rate_rmse_deg_per_s"] = (np.sqrt(np.mean(s**2, axis=0)) / DEG).tolist()
     return out
 
 
-def estimator_gyro(scenario: cfg.Scenario, estimator_config) -> str | None:
-    """The gyro whose true bias scores an estimator (fusions: their first source's)."""
-    if isinstance(estimator_config, cfg.EstimateFusionConfig):
-        first = next(e for e in scenario.estimators if e.name == estimator_config.sources[0])
-        return estimator_gyro(scenario, first)
-    return getattr(estimator_config, "gyro", None)
-
-
-def compute_metrics(run, estimators: dict) -> dict:
-    """Metrics of every estimator of a run (``estimators``: name -> system)."""
+def compute_metrics(run) -> dict:
+    """Metrics of every estimator of a run (in its metadata's order), scored by
+    ``run.scenario.scoring``; needs only the :class:`RunLog` (no Drake systems)."""
     scenario = run.scenario
     result = {"scenario": scenario.name, "seed": run.seed, "duration_s": scenario.duration_s,
               "wall_time_s": run.wall_time_s, "estimators": {}}
-    for e in scenario.estimators:
-        system = estimators[e.name]
-        errs = estimator_errors(run, e.name, system.second_output_name, estimator_gyro(scenario, e))
-        result["estimators"][e.name] = score_estimator(errs, scenario.scoring, system.second_output_name)
+    for name, spec in _metadata(run)["estimators"].items():
+        result["estimators"][name] = score_estimator(estimator_errors(run, name), scenario.scoring,
+                                                     spec["second_kind"])
     return result
 
 

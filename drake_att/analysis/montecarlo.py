@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from drake_att.analysis.metrics import compute_metrics, estimator_errors, estimator_gyro
+from drake_att.analysis.metrics import compute_metrics, estimator_errors
 from drake_att.scenarios.config import dump_scenario, load_scenario
 
 _WORKER = {}
@@ -28,13 +28,12 @@ def _run_seed(args):
     seed, keep_series = args
     sd = _WORKER["sd"]
     run = sd.simulate(seed)
-    out = {"metrics": compute_metrics(run, sd.estimators)}
+    out = {"metrics": compute_metrics(run)}
     if keep_series:
         series = {}
-        for e in sd.scenario.estimators:
-            system = sd.estimators[e.name]
-            err = estimator_errors(run, e.name, system.second_output_name, estimator_gyro(sd.scenario, e))
-            series[e.name] = {"t": err["t"], "dtheta": err["dtheta"], "second_err": err["second_err"],
+        for name in run.metadata["estimators"]:
+            err = estimator_errors(run, name)
+            series[name] = {"t": err["t"], "dtheta": err["dtheta"], "second_err": err["second_err"],
                               "sigma": np.sqrt(np.maximum(np.einsum("nii->ni", err["P"]), 0.0))}
         out["series"] = series
     return out

@@ -14,14 +14,15 @@ from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios.config import dump_scenario
 
 
-def plot_estimator(run, name, system, gyro_name, out_dir, score_from_s=0.0) -> list[str]:
+def plot_estimator(run, name, out_dir, score_from_s=0.0) -> list[str]:
     """Per-axis attitude error with +-3 sigma bounds, and bias/rate error; returns files."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    e = met.estimator_errors(run, name, system.second_output_name, gyro_name)
+    e = met.estimator_errors(run, name)
+    is_bias = e["second_kind"] == "gyro_bias"
     t = e["t"]
     sig = np.sqrt(np.maximum(np.einsum("nii->ni", e["P"]), 0.0))
     files = []
@@ -44,8 +45,8 @@ def plot_estimator(run, name, system, gyro_name, out_dir, score_from_s=0.0) -> l
                 a.set_ylim(-lim, lim)
             if e["second_err"] is not None:
                 b = ax[1, i]
-                scale, unit = (DEG_PER_H, "deg/h") if system.second_output_name == "bias_B_hat" else (DEG, "deg/s")
-                label = "bias error" if system.second_output_name == "bias_B_hat" else "rate error"
+                scale, unit = (DEG_PER_H, "deg/h") if is_bias else (DEG, "deg/s")
+                label = "bias error" if is_bias else "rate error"
                 b.plot(t[sel], e["second_err"][sel, i] / scale, lw=0.7)
                 b.plot(t[sel], 3 * sig[sel, 3 + i] / scale, "r--", lw=0.7)
                 b.plot(t[sel], -3 * sig[sel, 3 + i] / scale, "r--", lw=0.7)
@@ -125,14 +126,21 @@ def write_diagram_graph(diagram, out_dir) -> list[str]:
     return files
 
 
-def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool = True) -> list[str]:
-    """Write every result file of one run into ``out_dir``; returns the paths."""
-    os.makedirs(out_dir, exist_ok=True)
-    files = []
-    path = os.path.join(out_dir, "metrics.json")
+def write_metrics_json(metrics: dict, path: str) -> str:
+    """``metrics.json`` as :func:`write_results` writes it (``drake-att score`` rewrites it
+    byte for byte)."""
     with open(path, "w") as f:
         json.dump(metrics, f, indent=2)
-    files.append(path)
+    return path
+
+
+def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool = True) -> list[str]:
+    """Write every result file of one run into ``out_dir``; returns the paths.
+
+    ``log.npz`` holds the signals and the run's metadata, so ``metrics.json`` can be
+    recomputed from ``log.npz`` + ``config.yaml`` alone (``drake-att score``)."""
+    os.makedirs(out_dir, exist_ok=True)
+    files = [write_metrics_json(metrics, os.path.join(out_dir, "metrics.json"))]
     path = os.path.join(out_dir, "config.yaml")
     with open(path, "w") as f:
         f.write(f"# Resolved configuration of this run (seed {run.seed}).\n")
@@ -142,8 +150,7 @@ def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: b
     np.savez_compressed(path, **run.to_npz_dict())
     files.append(path)
     if figures:
-        for e in run.scenario.estimators:
-            files += plot_estimator(run, e.name, scenario_diagram.estimators[e.name],
-                                    met.estimator_gyro(run.scenario, e), out_dir, run.scenario.scoring.score_from_s)
+        for name in run.metadata["estimators"]:
+            files += plot_estimator(run, name, out_dir, run.scenario.scoring.score_from_s)
     files += write_diagram_graph(scenario_diagram.diagram, out_dir)
     return files

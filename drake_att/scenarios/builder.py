@@ -189,17 +189,60 @@ def build_estimate_fusion(ctx: BuildContext, c: cfg.EstimateFusionConfig):
 ESTIMATOR_BUILDERS = {cfg.MekfConfig: build_mekf, cfg.EstimateFusionConfig: build_estimate_fusion}
 
 
+def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys) -> dict:
+    """What scoring a run needs, as plain JSON-able data (:attr:`RunLog.metadata`).
+
+    Keys: ``schema`` (:attr:`RunLog.METADATA_SCHEMA`), ``scenario`` (name), ``seed``,
+    ``wall_time_s``, ``signals`` (every logged key, in order), ``truth``
+    (``{"attitude": key of q_IB, "rate": key of w_IB_B}``) and ``estimators`` (in the
+    scenario's order): name -> ``second_kind`` ("gyro_bias" or "body_rate"), ``true_bias``
+    (key of the gyro bias it is scored against, or None; a fusion: its first source's gyro)
+    and ``signals`` (``{"attitude", "second", "covariance", "status"}`` -> logged key).
+    The second-quantity kind comes from the system's ``second_output_name``, here only.
+    """
+    sd = scenario_diagram
+    kinds = {"bias_B_hat": "gyro_bias", "w_IB_B_hat": "body_rate"}
+    configs = {e.name: e for e in sd.scenario.estimators}
+    truth = sd.truth.get_name()
+    meta = {"schema": RunLog.METADATA_SCHEMA, "scenario": sd.scenario.name, "seed": int(seed),
+            "wall_time_s": float(wall_time_s), "signals": list(signal_keys),
+            "truth": {"attitude": f"{truth}/q_IB", "rate": f"{truth}/w_IB_B"}, "estimators": {}}
+    for c in sd.scenario.estimators:
+        system = sd.estimators[c.name]
+        second = system.second_output_name
+        if second not in kinds:
+            raise ValueError(f"{c.name}: second output {second!r} is none of {sorted(kinds)}")
+        gyro_config = c
+        while isinstance(gyro_config, cfg.EstimateFusionConfig):
+            gyro_config = configs[gyro_config.sources[0]]
+        gyro = getattr(gyro_config, "gyro", None)
+        name = system.get_name()
+        meta["estimators"][c.name] = {
+            "second_kind": kinds[second],
+            "true_bias": f"{sd.sensors[gyro].get_name()}/bias_B" if kinds[second] == "gyro_bias" and gyro else None,
+            "signals": {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
+                        "covariance": f"{name}/covariance", "status": f"{name}/status"}}
+    RunLog.check_metadata(meta)
+    return meta
+
+
 @dataclass
 class RunLog:
     """Everything logged in one run (numpy arrays; times in s, SI units).
 
     ``signals`` maps ``"<system>/<port>"`` to ``(times (n,), values (n, k))``.
+    ``metadata`` (see :func:`run_metadata`) says which signals are the truth and how each
+    estimator is scored, so a saved log can be re-scored without the diagram
+    (:meth:`load`, ``drake-att score``).
     """
+
+    METADATA_SCHEMA = 1
 
     scenario: cfg.Scenario
     seed: int
     wall_time_s: float
     signals: dict
+    metadata: dict = field(default_factory=dict)
 
     def times(self, key):
         return self.signals[key][0]
@@ -208,12 +251,94 @@ class RunLog:
         return self.signals[key][1]
 
     def to_npz_dict(self) -> dict:
+        """Arrays ``<system>__<port>__t`` / ``__x`` and ``metadata`` (a JSON string)."""
+        import json
+
         out = {}
         for key, (t, v) in self.signals.items():
             k = key.replace("/", "__")
             out[f"{k}__t"] = t
             out[f"{k}__x"] = v
+        if self.metadata:
+            out["metadata"] = np.array(json.dumps(self.metadata))
         return out
+
+    @staticmethod
+    def check_metadata(meta) -> None:
+        """Raise ValueError saying what is missing or inconsistent in ``meta``."""
+        if not isinstance(meta, dict):
+            raise ValueError(f"metadata: expected a JSON object, got {type(meta).__name__}")
+        missing = [k for k in ("schema", "scenario", "seed", "wall_time_s", "signals", "truth", "estimators")
+                   if k not in meta]
+        if missing:
+            raise ValueError(f"metadata: missing {missing}")
+        if meta["schema"] != RunLog.METADATA_SCHEMA:
+            raise ValueError(f"metadata: schema {meta['schema']!r}, this drake_att reads {RunLog.METADATA_SCHEMA}")
+        for key, kind in (("signals", list), ("truth", dict), ("estimators", dict)):
+            if not isinstance(meta[key], kind):
+                raise ValueError(f"metadata: {key} must be a JSON {'array' if kind is list else 'object'}")
+        if not isinstance(meta["seed"], int) or not isinstance(meta["wall_time_s"], (int, float)):
+            raise ValueError("metadata: seed must be an integer and wall_time_s a number")
+        if not all(isinstance(k, str) for k in meta["signals"]):
+            raise ValueError("metadata: signals must be strings '<system>/<port>'")
+        logged = set(meta["signals"])
+        refs = [("truth.attitude", meta["truth"].get("attitude")), ("truth.rate", meta["truth"].get("rate"))]
+        for name, e in meta["estimators"].items():
+            if not isinstance(e, dict) or not isinstance(e.get("signals"), dict):
+                raise ValueError(f"metadata: estimators.{name} must be an object with a 'signals' object")
+            if e.get("second_kind") not in ("gyro_bias", "body_rate"):
+                raise ValueError(f"metadata: estimators.{name}.second_kind {e.get('second_kind')!r} is neither "
+                                 "'gyro_bias' nor 'body_rate'")
+            refs += [(f"estimators.{name}.signals.{k}", e["signals"].get(k))
+                     for k in ("attitude", "second", "covariance", "status")]
+            if e.get("true_bias") is not None:
+                refs.append((f"estimators.{name}.true_bias", e["true_bias"]))
+        for where, key in refs:
+            if not isinstance(key, str) or key not in logged:
+                raise ValueError(f"metadata: {where} = {key!r} is not a logged signal")
+
+    @classmethod
+    def from_npz(cls, npz, scenario: cfg.Scenario) -> "RunLog":
+        """Rebuild a run from :meth:`to_npz_dict` arrays (e.g. ``np.load("log.npz")``) and
+        its scenario; ValueError if the arrays lack metadata or do not match ``scenario``."""
+        import json
+
+        if "metadata" not in npz:
+            raise ValueError("no 'metadata' entry (a log written before runs carried their metadata?); "
+                             "re-run the scenario to score it")
+        try:
+            meta = json.loads(str(npz["metadata"]))
+        except ValueError as e:
+            raise ValueError(f"metadata is not valid JSON: {e}") from e
+        cls.check_metadata(meta)
+        if meta["scenario"] != scenario.name:
+            raise ValueError(f"the log is of scenario {meta['scenario']!r}, the configuration is {scenario.name!r}")
+        names = [e.name for e in scenario.estimators]
+        if list(meta["estimators"]) != names:
+            raise ValueError(f"the log's estimators {list(meta['estimators'])} differ from the configuration's {names}")
+        signals = {}
+        for key in meta["signals"]:
+            k = key.replace("/", "__")
+            if f"{k}__t" not in npz or f"{k}__x" not in npz:
+                raise ValueError(f"signal {key!r} is listed in the metadata but its arrays {k}__t / {k}__x are missing")
+            signals[key] = (np.asarray(npz[f"{k}__t"]), np.asarray(npz[f"{k}__x"]))
+        return cls(scenario, int(meta["seed"]), float(meta["wall_time_s"]), signals, meta)
+
+    @classmethod
+    def load(cls, path: str, scenario: cfg.Scenario | None = None) -> "RunLog":
+        """Load a saved run: ``path`` is a result folder or its ``log.npz``; ``scenario``
+        defaults to the ``config.yaml`` next to the log."""
+        import os
+
+        npz_path = os.path.join(path, "log.npz") if os.path.isdir(path) else path
+        import zipfile
+
+        if scenario is None:
+            scenario = cfg.load_scenario(filename=os.path.join(os.path.dirname(npz_path), "config.yaml"))
+        if not zipfile.is_zipfile(npz_path):
+            raise ValueError("not an .npz archive (as written by numpy.savez)")
+        with np.load(npz_path, allow_pickle=False) as npz:
+            return cls.from_npz(npz, scenario)
 
 
 class ScenarioDiagram:
@@ -342,7 +467,7 @@ class ScenarioDiagram:
                     signals[f"{name}/{port}"] = (t, x[:, a:b].copy())
             else:
                 signals[key] = (t, x)
-        return RunLog(self.scenario, seed, wall, signals)
+        return RunLog(self.scenario, seed, wall, signals, run_metadata(self, seed, wall, signals))
 
 
 # Paper-S0 estimators (MRP EKF and particle filters) register themselves here.
