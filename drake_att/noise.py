@@ -18,6 +18,9 @@ import zlib
 
 import numpy as np
 
+# Unit conversions used at config edges: their home is drake_att.units (re-exported here).
+from drake_att.units import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15  # noqa: F401
+
 
 def stream_key(seed_words, stream_name: str) -> np.ndarray:
     """128-bit Philox key derived from seed words and a stream (sensor) name."""
@@ -175,11 +178,3 @@ def overlapping_allan_deviation(rate: np.ndarray, dt: float, taus_s) -> np.ndarr
         out.append(np.sqrt(avar))
     return np.array(out)
 
-
-# Unit conversions used at config edges.
-DEG = np.pi / 180.0
-ARCSEC = DEG / 3600.0
-DEG_PER_H = DEG / 3600.0
-ARW_DEG_PER_RT_H = DEG / 60.0  # 1 deg/sqrt(h) in rad/s^0.5
-RRW_DEG_PER_H_15 = DEG / 3600.0 / 60.0  # 1 deg/h^1.5 in rad/s^1.5
-RRW_DEG_PER_H_PER_RT_H = RRW_DEG_PER_H_15  # deg/h/sqrt(h) == deg/h^1.5

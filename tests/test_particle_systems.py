@@ -17,20 +17,18 @@ from drake_att.analysis.metrics import compute_metrics, estimator_errors
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder
 from drake_att.scenarios import config as cfg
-from drake_att.scenarios import particle_builders
 from drake_att.scenarios.config import apply_overrides, load_scenario
 from drake_att.scenarios.library import load
-from drake_att.scenarios.particle_builders import register
 from drake_att.systems.particle_estimators import (
     BootstrapPfEstimator,
     EkpfEstimator,
     GyrolessPfEstimator,
     MrpEkfEstimator,
 )
+from drake_att.estimators.gyroless_pf import plant_dynamics
+from drake_att.scenarios.registry import ESTIMATOR, plugins
 from drake_att.systems.star_tracker import VectorObservations
 from test_particle_filters import mean_square_normalized, steady_state_sd
-
-register(builder.ESTIMATOR_BUILDERS)
 
 # All four filters in one diagram (the gyroless PF ignores the gyro), few particles.
 SCENARIO = """
@@ -250,17 +248,15 @@ def test_star_sensor_mounting_is_undone():
 # --------------------------------------------------------------------------------------
 # Builders and shipped scenarios
 # --------------------------------------------------------------------------------------
-def test_register_is_idempotent_and_shipped_s0_scenarios_carry_the_paper_noise_in_si():
+def test_s0_plugins_are_registered_and_shipped_s0_scenarios_carry_the_paper_noise_in_si():
     """The shipped S0 scenarios build filters with paper S0's numbers converted to SI
     (conversions written here): gyro ARW 0.2 deg/h per 1 s sample = 0.2 pi/180/3600
     rad/s^0.5, RRW 0.02 deg/h^1.5 = 0.02 pi/180/3600^1.5 rad/s^1.5; the bootstrap's
     inflated attitude noise 0.0688 deg/sqrt(h) = 2e-5 rad/s^0.5, its roughening
     0.05 deg/h/sqrt(s); the gyroless PF's 3e-5 rad/s^0.5 and 1e-6 rad/s^1.5; 1000 particles
     and 1000 s as in the paper."""
-    reg = {}
-    register(reg)
-    register(reg)
-    assert set(reg) == {cfg.MrpEkfConfig, cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig}
+    registered = {p.config_type for p in plugins(ESTIMATOR).values()}
+    assert {cfg.MrpEkfConfig, cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig} <= registered
     arw, rrw = 0.2 * np.pi / 180 / 3600, 0.02 * np.pi / 180 / 3600**1.5
     expected = {
         "ekf": dict(arw_sigma=arw, rrw_sigma=rrw), "ekf_iterated": dict(arw_sigma=arw, rrw_sigma=rrw),
@@ -296,16 +292,18 @@ def test_gyroless_takes_the_plants_inertia_and_torque_and_explains_errors(diagra
     s.plant = cfg.PrescribedRateConfig()
     c = next(e for e in s.estimators if e.name == "gpf")
     with pytest.raises(cfg.ConfigError, match="inertia"):
-        particle_builders._plant_dynamics(builder.BuildContext(None, s, None), c)
+        plant_dynamics(s, c)
+    # ... and load_scenario says so (the check is at load time, not at build time).
+    with pytest.raises(cfg.ConfigError, match="inertia_kg_m2"):
+        cfg.validate(s)
     c = copy.deepcopy(c)
     c.inertia_kg_m2, c.disturbance_torque_N_m = [1.0, 2.0, 2.5], [0.0, 0.0, 1e-6]
-    inertia, torque = particle_builders._plant_dynamics(builder.BuildContext(None, s, None), c)
+    inertia, torque = plant_dynamics(s, c)
     np.testing.assert_array_equal(inertia, np.diag([1.0, 2.0, 2.5]))
     np.testing.assert_array_equal(torque, [0.0, 0.0, 1e-6])
-    s = apply_overrides(load_scenario(text=SCENARIO), ["sensors.gyro.arw_deg_per_rt_h=0.0"])
-    s.estimators = [e for e in s.estimators if e.name == "ekf"]
-    with pytest.raises(cfg.ConfigError, match="arw_deg_per_rt_h"):
-        builder.ScenarioDiagram(s)
+    # A filter that would need the gyro's ARW gets none: refused when the scenario loads.
+    with pytest.raises(cfg.ConfigError, match=r"estimators\[0\] \(ekf\)\.arw_deg_per_rt_h"):
+        apply_overrides(load_scenario(text=SCENARIO), ["sensors.gyro.arw_deg_per_rt_h=0.0"])
 
 
 # --------------------------------------------------------------------------------------

@@ -5,10 +5,11 @@ collected in pydrake 1.51, so build once per process and reseed per run);
 ``ScenarioDiagram.simulate(seed)`` runs it and returns a :class:`RunLog` with every
 logged signal as numpy arrays.
 
-Extending: register a builder for a new config type in :data:`SENSOR_BUILDERS` or
-:data:`ESTIMATOR_BUILDERS` (``fn(ctx: BuildContext, config) -> system``).  The estimator
-system must follow the estimator contract (``drake_att.systems.estimators``); the builder
-logs its contract ports automatically.
+Sensors and estimators are plug-ins (:mod:`drake_att.scenarios.registry`): the builder
+calls each config's registered build function with a
+:class:`~drake_att.scenarios.build_context.BuildContext`, logs what each sensor plug-in
+names and every estimator's contract ports. Extending means writing a plug-in module,
+not editing this file.
 """
 
 from __future__ import annotations
@@ -24,169 +25,12 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
 
 from drake_att import rotations as rot
-from drake_att.filters.mekf import MultiplicativeEKF
-from drake_att.noise import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
-from drake_att.orbit import CircularOrbit
 from drake_att.scenarios import config as cfg
-from drake_att.systems.estimators import MekfEstimator, QuaternionSensorModel
-from drake_att.systems.fusion import EstimateFusion, StarTrackerAverage
-from drake_att.systems.gyro import Gyro
+from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
+from drake_att.scenarios.registry import plugin_for
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
 from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
-from drake_att.systems.star_tracker import StarTracker, mounting_from_paper_s3_angles
-
-
-def make_orbit(scenario: cfg.Scenario) -> CircularOrbit | None:
-    o = scenario.orbit
-    if o is None:
-        return None
-    return CircularOrbit(o.altitude_km * 1e3, o.inclination_deg * DEG, o.raan_deg * DEG, o.arg_latitude0_deg * DEG)
-
-
-def attitude_from_rpy_deg(scenario: cfg.Scenario, rpy_deg) -> np.ndarray:
-    """``q_IB`` at t = 0 for roll/pitch/yaw (deg) relative to the scenario's reference frame."""
-    q = rot.rpy_to_quat(np.asarray(rpy_deg, dtype=float) * DEG)
-    orbit = make_orbit(scenario)
-    if orbit is not None:
-        q = rot.quat_multiply(orbit.q_IO(0.0), q)
-    return rot.quat_canonical(q)
-
-
-def star_tracker_mounting(st: cfg.StarTrackerConfig) -> np.ndarray:
-    if len(st.mounting_paper_s3_angles_deg):
-        psi, phi, theta = np.asarray(st.mounting_paper_s3_angles_deg) * DEG
-        return mounting_from_paper_s3_angles(psi, phi, theta)
-    return rot.rpy_to_quat(np.asarray(st.mounting_rpy_deg) * DEG)
-
-
-def star_tracker_sigmas_S(st: cfg.StarTrackerConfig) -> np.ndarray:
-    return np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
-                     st.sigma_boresight_arcsec]) * ARCSEC
-
-
-@dataclass
-class BuildContext:
-    """What sensor/estimator builder functions get: the builder, truth ports and registries."""
-
-    builder: DiagramBuilder
-    scenario: cfg.Scenario
-    truth: object  # plant or prescribed motion (ports q_IB, w_IB_B, w_IB_B_integral)
-    sensors: dict = field(default_factory=dict)  # name -> system
-    sensor_configs: dict = field(default_factory=dict)
-    estimators: dict = field(default_factory=dict)
-
-    def scenario_estimator_config(self, name):
-        return next(e for e in self.scenario.estimators if e.name == name)
-
-
-# -- sensors ---------------------------------------------------------------------------
-def build_gyro(ctx: BuildContext, c: cfg.GyroConfig):
-    m = np.zeros((3, 3))
-    m[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = np.asarray(c.misalignment_urad) * 1e-6
-    gyro = ctx.builder.AddSystem(Gyro(
-        c.name, c.period_s, c.arw_deg_per_rt_h * ARW_DEG_PER_RT_H, c.rrw_deg_per_h15 * RRW_DEG_PER_H_15,
-        np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H, c.initial_bias_sigma_deg_per_h * DEG_PER_H,
-        np.asarray(c.scale_factor_error_ppm) * 1e-6, m))
-    ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B"), gyro.GetInputPort("w_IB_B"))
-    ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B_integral"), gyro.GetInputPort("w_IB_B_integral"))
-    return gyro
-
-
-def build_star_tracker(ctx: BuildContext, c: cfg.StarTrackerConfig):
-    st = ctx.builder.AddSystem(StarTracker(
-        c.name, c.period_s, star_tracker_mounting(c), c.mode,
-        c.sigma_cross_boresight_arcsec * ARCSEC, c.sigma_boresight_arcsec * ARCSEC,
-        c.references_I if c.mode == "vectors" else None, c.sigma_vector_urad * 1e-6,
-        c.dropout_probability, [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))]))
-    ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))
-    return st
-
-
-def build_star_tracker_average(ctx: BuildContext, c: cfg.StarTrackerAverageConfig):
-    trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
-    avg = ctx.builder.AddSystem(StarTrackerAverage(
-        c.name, c.star_trackers, [star_tracker_mounting(t) for t in trackers],
-        [star_tracker_sigmas_S(t) for t in trackers], c.weights))
-    for n in c.star_trackers:
-        ctx.builder.Connect(ctx.sensors[n].GetOutputPort("star_tracker_measurement"), avg.GetInputPort(f"q_meas_{n}"))
-    return avg
-
-
-SENSOR_BUILDERS = {cfg.GyroConfig: build_gyro, cfg.StarTrackerConfig: build_star_tracker,
-                   cfg.StarTrackerAverageConfig: build_star_tracker_average}
-
-
-def quaternion_sensor_model(ctx: BuildContext, name: str) -> QuaternionSensorModel | None:
-    """The filter's model of a quaternion sensor (a tracker or an averaged virtual one)."""
-    c = ctx.sensor_configs[name]
-    if isinstance(c, cfg.StarTrackerAverageConfig):
-        return QuaternionSensorModel(name, np.array([1.0, 0.0, 0.0, 0.0]), ctx.sensors[name].covariance_B)
-    if c.mode == "quaternion":
-        return QuaternionSensorModel(name, star_tracker_mounting(c), np.diag(star_tracker_sigmas_S(c) ** 2))
-    return None
-
-
-# -- estimators ------------------------------------------------------------------------
-def build_mekf(ctx: BuildContext, c: cfg.MekfConfig):
-    g = ctx.sensor_configs[c.gyro]
-    arw = g.arw_deg_per_rt_h if c.arw_deg_per_rt_h is None else c.arw_deg_per_rt_h
-    rrw = g.rrw_deg_per_h15 if c.rrw_deg_per_h15 is None else c.rrw_deg_per_h15
-    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, c.innovation_gate_chi2)
-    init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
-                              np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
-                              c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
-    quat_models, vector_names = [], []
-    for name in c.star_trackers:
-        model = quaternion_sensor_model(ctx, name)
-        if model is not None:
-            quat_models.append(model)
-        else:
-            vector_names.append(name)
-    est = ctx.builder.AddSystem(MekfEstimator(c.name, c.period_s, core, init, quat_models, vector_names))
-    b = ctx.builder
-    b.Connect(ctx.sensors[c.gyro].GetOutputPort("gyro_measurement"), est.GetInputPort("gyro_measurement"))
-    for m in quat_models:
-        b.Connect(ctx.sensors[m.name].GetOutputPort("star_tracker_measurement"), est.GetInputPort(f"q_meas_{m.name}"))
-    for n in vector_names:
-        b.Connect(ctx.sensors[n].GetOutputPort("vector_observations"), est.GetInputPort(f"vectors_{n}"))
-    return est
-
-
-def build_estimate_fusion(ctx: BuildContext, c: cfg.EstimateFusionConfig):
-    sources = [ctx.estimators[n] for n in c.sources]
-    second = {s.second_output_name for s in sources}
-    if len(second) != 1:
-        raise cfg.ConfigError(f"{c.name}.sources: {c.sources} estimate different quantities {sorted(second)}")
-    period, P0 = None, None
-    if c.covariance_model == "tracked":
-        configs = [ctx.scenario_estimator_config(n) for n in c.sources]
-        if not all(isinstance(x, cfg.MekfConfig) for x in configs) or len(configs) != 2:
-            raise cfg.ConfigError(f"{c.name}.covariance_model: 'tracked' needs exactly 2 MEKF sources; got {c.sources}")
-        a, b = configs
-        same = (a.gyro == b.gyro and a.period_s == b.period_s and a.initial_attitude_rpy_deg == b.initial_attitude_rpy_deg
-                and a.initial_bias_deg_per_h == b.initial_bias_deg_per_h
-                and a.initial_attitude_sigma_deg == b.initial_attitude_sigma_deg
-                and a.initial_bias_sigma_deg_per_h == b.initial_bias_sigma_deg_per_h)
-        if not same:
-            raise cfg.ConfigError(f"{c.name}.covariance_model: 'tracked' needs sources {c.sources} with one gyro, one "
-                                  "period and identical initial estimates and sigmas (their initial errors are then equal)")
-        period = a.period_s
-        P0 = ctx.estimators[c.sources[0]].estimate_vector(ctx.estimators[c.sources[0]].CreateDefaultContext())[7:43]
-    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second.pop(), c.covariance_model,
-                                                  period, P0))
-    for n, src in zip(c.sources, sources):
-        ports = [("q_IB_hat", "q_IB_hat"), (src.second_output_name, "second"), ("covariance", "covariance"),
-                 ("status", "status")]
-        if c.covariance_model == "tracked":
-            ports.append(("step_linearization", "linearization"))
-        for port, dst in ports:
-            ctx.builder.Connect(src.GetOutputPort(port), fusion.GetInputPort(f"{n}_{dst}"))
-    fusion.period_s = min(ctx.scenario_estimator_config(n).period_s for n in c.sources)
-    fusion.gyro_name = ctx.scenario_estimator_config(c.sources[0]).gyro
-    return fusion
-
-
-ESTIMATOR_BUILDERS = {cfg.MekfConfig: build_mekf, cfg.EstimateFusionConfig: build_estimate_fusion}
+from drake_att.units import DEG
 
 
 def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys) -> dict:
@@ -372,14 +216,15 @@ class ScenarioDiagram:
         ctx = BuildContext(builder, scenario, truth)
         for s in scenario.sensors:
             ctx.sensor_configs[s.name] = s
-            ctx.sensors[s.name] = SENSOR_BUILDERS[type(s)](ctx, s)
+            ctx.sensors[s.name] = plugin_for(s).build(ctx, s)
         for e in scenario.estimators:
-            ctx.estimators[e.name] = ESTIMATOR_BUILDERS[type(e)](ctx, e)
+            ctx.estimator_configs[e.name] = e
+            ctx.estimators[e.name] = plugin_for(e).build(ctx, e)
         self.sensors, self.estimators = ctx.sensors, ctx.estimators
         AddRandomInputs(RANDOM_SOURCE_SAMPLING_INTERVAL_S, builder)
 
         periods = [self.estimator_period(e.name) for e in scenario.estimators] + [
-            s.period_s for s in scenario.sensors if hasattr(s, "period_s")]
+            ctx.sensor_output(s.name).period_s for s in scenario.sensors]
         self.truth_log_period_s = min(periods) if periods else 1.0
         self.loggers = {}
 
@@ -390,12 +235,9 @@ class ScenarioDiagram:
         log(truth, "q_IB", self.truth_log_period_s)
         log(truth, "w_IB_B", self.truth_log_period_s)
         for s in scenario.sensors:
-            system = self.sensors[s.name]
-            if isinstance(s, cfg.GyroConfig):
-                log(system, "gyro_measurement", s.period_s)
-                log(system, "bias_B", s.period_s)
-            elif isinstance(s, cfg.StarTrackerConfig) and s.mode == "quaternion":
-                log(system, "star_tracker_measurement", s.period_s)
+            logged = plugin_for(s).logged_ports
+            for port, period in (logged(s) if logged is not None else []):
+                log(self.sensors[s.name], port, period)
         self._packed_estimators = {}
         for e in scenario.estimators:
             system = self.estimators[e.name]
@@ -469,8 +311,3 @@ class ScenarioDiagram:
                 signals[key] = (t, x)
         return RunLog(self.scenario, seed, wall, signals, run_metadata(self, seed, wall, signals))
 
-
-# Paper-S0 estimators (MRP EKF and particle filters) register themselves here.
-from drake_att.scenarios.particle_builders import register as _register_s0  # noqa: E402
-
-_register_s0(ESTIMATOR_BUILDERS)

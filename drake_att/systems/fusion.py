@@ -100,7 +100,10 @@ class EstimateFusion(LeafSystem):
         source_names: names of the fused estimators (input port prefixes).
         weights: fusion weights (normalized to sum 1).
         second_output_name: "bias_B_hat" or "w_IB_B_hat" (must match the sources).
-        covariance_model: "conservative" or "independent" (see module docstring).
+        covariance_model: "tracked", "conservative" or "independent" (see module docstring).
+        period_s: the sources' filter step (s); needed by "tracked", and the period at which
+            the scenario builder logs the fused estimate.
+        initial_cross_covariance: "tracked": the sources' common initial covariance (6x6).
 
     Input ports (per source ``s``): ``s_q_IB_hat`` (4), ``s_second`` (3),
         ``s_covariance`` (36), ``s_status`` (4); with "tracked" also ``s_linearization``
@@ -130,12 +133,12 @@ class EstimateFusion(LeafSystem):
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
         self.covariance_model = covariance_model
         self.second_output_name = second_output_name
+        self.period_s = None if period_s is None else float(period_s)  # the sources' step
         self.source_names = list(source_names)
         self._in = {s: {k: self.DeclareVectorInputPort(f"{s}_{k}", size)
                         for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))}
                     for s in source_names}
         if covariance_model == "tracked":
-            self.period_s = float(period_s)
             self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109) for s in source_names}
             P0 = np.asarray(initial_cross_covariance, dtype=float).reshape(6, 6)
             self._cross_group = self.DeclareDiscreteState(np.concatenate([P0.ravel(), [0.0]]))

@@ -1,0 +1,63 @@
+"""Estimator plug-in: paper S0's bootstrap (SIR) particle filter in gyro mode
+(:class:`drake_att.filters.particle.BootstrapParticleFilter`). YAML tag ``!BootstrapPfConfig``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+from drake_att.contract import SecondQuantity
+from drake_att.estimators import common
+from drake_att.filters.particle import BootstrapParticleFilter, ParticleFilterCore
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios.registry import register_estimator
+from drake_att.systems.estimators import EstimatorSystem
+from drake_att.units import ARW_DEG_PER_RT_H, DEG_PER_H
+
+
+@dataclass
+class BootstrapPfConfig:
+    """Paper S0's bootstrap (SIR) particle filter on ``[MRP; bias]`` in gyro mode.
+
+    ``attitude_process_noise_deg_per_rt_h``: the ARW used to spread the particles'
+    attitude (None: the gyro's ARW).  ``bias_roughening_deg_per_h_per_rt_s``: the
+    beyond-the-paper bias-diffusion remedy (0 = the paper's frozen particle biases)."""
+
+    name: str = "bootstrap_pf"
+    period_s: float = 1.0
+    gyro: str = "gyro"
+    star_tracker: str = "st"
+    num_particles: int = 1000
+    attitude_process_noise_deg_per_rt_h: Optional[float] = None
+    bias_roughening_deg_per_h_per_rt_s: float = 0.0
+    resample_threshold: float = 0.6666666666666666
+    initial_attitude_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
+    initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
+    initial_attitude_sigma_deg: float = 1.0
+    initial_bias_sigma_deg_per_h: float = 1.0
+
+
+def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
+    common.validate_vector_filter(path, c, checks)
+    common.check_integers_at_least_one(path, c, "num_particles")
+    common.check_resample_threshold(path, c)
+    if c.attitude_process_noise_deg_per_rt_h is not None:
+        cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
+    cfg.check_nonnegative(f"{path}.bias_roughening_deg_per_h_per_rt_s", c.bias_roughening_deg_per_h_per_rt_s)
+    common.check_initial_bias(path, c)
+
+
+@register_estimator(BootstrapPfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_bootstrap_pf)
+def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
+    g = ctx.sensor_configs[c.gyro]
+    arw_deg = g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None \
+        else c.attitude_process_noise_deg_per_rt_h
+    q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
+    core = ParticleFilterCore(lambda rng: BootstrapParticleFilter(
+        c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H, rng,
+        bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
+        resample_threshold=c.resample_threshold), SecondQuantity.GYRO_BIAS)
+    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, core.initial_state(),
+                                                vector_sensors=[c.star_tracker]))
+    return common.connect_vector_filter(ctx, c, est)

@@ -1,0 +1,109 @@
+"""Checks and conversions shared by estimator plug-ins (config edge -> SI)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios.build_context import attitude_from_rpy_deg
+from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
+
+
+def require_sensor(checks, path: str, field: str, name: str, kind: str):
+    """The config of sensor ``name`` listed before, whose output is of ``kind``."""
+    out = checks.sensor_output(name)
+    if out is None or out.kind != kind:
+        have = sorted(n for n in checks.sensors if checks.sensor_output(n).kind == kind)
+        label = {"gyro": "gyro", "vectors": "vector-mode star tracker", "quaternion": "quaternion star tracker"}[kind]
+        cfg.fail(f"{path}.{field}", name, f"unknown {label}; {label}s listed before: {have}")
+    return checks.sensors[name]
+
+
+def check_period_multiple(path: str, period_s: float, sensor_name: str, sensor_period_s: float) -> None:
+    ratio = period_s / sensor_period_s
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        cfg.fail(f"{path}.period_s", period_s,
+                 f"must be a whole multiple of {sensor_name!r}'s period ({sensor_period_s} s)")
+
+
+def check_gyro_period(path: str, period_s: float, gyro) -> None:
+    if abs(gyro.period_s - period_s) > 1e-9:
+        cfg.fail(f"{path}.period_s", period_s, f"must equal the period of gyro {gyro.name!r} ({gyro.period_s} s): "
+                 "the gyro delivers the mean rate over one filter step")
+
+
+def filter_gyro_noise_deg(c, gyro):
+    """The filter's ARW (deg/sqrt(h)) and RRW (deg/h^1.5): the config's, else the gyro's."""
+    arw = gyro.arw_deg_per_rt_h if getattr(c, "arw_deg_per_rt_h", None) is None else c.arw_deg_per_rt_h
+    rrw = gyro.rrw_deg_per_h15 if getattr(c, "rrw_deg_per_h15", None) is None else c.rrw_deg_per_h15
+    return arw, rrw
+
+
+def filter_gyro_noise(ctx, c):
+    """The filter's ARW (rad/s^0.5) and RRW (rad/s^1.5)."""
+    arw, rrw = filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
+    return arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15
+
+
+def check_initial_attitude(path: str, c) -> None:
+    cfg.check_vector(f"{path}.initial_attitude_rpy_deg", c.initial_attitude_rpy_deg, 3)
+    cfg.check_positive(f"{path}.initial_attitude_sigma_deg", c.initial_attitude_sigma_deg)
+
+
+def check_initial_bias(path: str, c) -> None:
+    cfg.check_vector(f"{path}.initial_bias_deg_per_h", c.initial_bias_deg_per_h, 3)
+    cfg.check_positive(f"{path}.initial_bias_sigma_deg_per_h", c.initial_bias_sigma_deg_per_h)
+
+
+def check_integers_at_least_one(path: str, c, *fields) -> None:
+    for f in fields:
+        v = getattr(c, f)
+        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+            cfg.fail(f"{path}.{f}", v, "must be an integer >= 1")
+
+
+def check_resample_threshold(path: str, c) -> None:
+    cfg.check_finite(f"{path}.resample_threshold", c.resample_threshold)
+    if not 0 < c.resample_threshold <= 1:
+        cfg.fail(f"{path}.resample_threshold", c.resample_threshold, "must be in (0, 1] (fraction of N)")
+
+
+def initial_gyro_mode_estimate(ctx, c):
+    """``(q0, b0 (rad/s), P0 (6, 6))`` from the config's attitude/bias and their sigmas."""
+    q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
+    b0 = np.asarray(c.initial_bias_deg_per_h, dtype=float) * DEG_PER_H
+    P0 = np.diag([(c.initial_attitude_sigma_deg * DEG) ** 2] * 3
+                 + [(c.initial_bias_sigma_deg_per_h * DEG_PER_H) ** 2] * 3)
+    return q0, b0, P0
+
+
+def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True):
+    """Checks shared by filters fed by one vector-mode tracker (and a gyro): paper S0's."""
+    cfg.check_positive(f"{path}.period_s", c.period_s)
+    gyro = None
+    if uses_gyro:
+        gyro = require_sensor(checks, path, "gyro", c.gyro, "gyro")
+        check_gyro_period(path, c.period_s, gyro)
+    st = require_sensor(checks, path, "star_tracker", c.star_tracker, "vectors")
+    check_period_multiple(path, c.period_s, st.name, checks.sensor_output(st.name).period_s)
+    check_initial_attitude(path, c)
+    return gyro
+
+
+def connect_vector_filter(ctx, c, est, uses_gyro: bool = True):
+    if uses_gyro:
+        ctx.connect_sensor(c.gyro, est, "gyro_measurement")
+    ctx.connect_sensor(c.star_tracker, est, f"vectors_{c.star_tracker}")
+    # seed_uniform (random cores) is wired by the builder's AddRandomInputs.
+    return est
+
+
+def validate_filter_gyro_noise(path: str, c, gyro) -> None:
+    """The filter's ARW/RRW (its own or the gyro's) are usable: ARW > 0, RRW >= 0."""
+    for f in ("arw_deg_per_rt_h", "rrw_deg_per_h15"):
+        if getattr(c, f, None) is not None:
+            cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
+    arw, _ = filter_gyro_noise_deg(c, gyro)
+    if not arw > 0:
+        cfg.fail(f"{path}.arw_deg_per_rt_h", arw, f"the filter needs an ARW > 0 (deg/sqrt(h)); gyro {gyro.name!r} has "
+                 f"{gyro.arw_deg_per_rt_h!r} and the filter sets none")

@@ -1,0 +1,83 @@
+"""Estimator plug-in: the multiplicative EKF (:class:`drake_att.filters.mekf.MultiplicativeEKF`)
+fed by one gyro and any number of quaternion and vector star trackers (papers S3 and S0's
+sensor set). YAML tag ``!MekfConfig``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List, Optional
+
+import numpy as np
+
+from drake_att.contract import SecondQuantity
+from drake_att.estimators import common
+from drake_att.filters.mekf import MultiplicativeEKF
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios.build_context import attitude_from_rpy_deg
+from drake_att.scenarios.registry import register_estimator
+from drake_att.systems.estimators import EstimatorSystem
+from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
+
+
+@dataclass
+class MekfConfig:
+    """MEKF fed by one gyro and star trackers (names of sensors).
+
+    The filter's gyro noise defaults to the gyro's configured ARW/RRW (``None``).
+    """
+
+    name: str = "mekf"
+    period_s: float = 1.0
+    gyro: str = "gyro"
+    star_trackers: List[str] = field(default_factory=lambda: ["st1"])
+    arw_deg_per_rt_h: Optional[float] = None
+    rrw_deg_per_h15: Optional[float] = None
+    initial_attitude_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
+    initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
+    initial_attitude_sigma_deg: float = 5.0
+    initial_bias_sigma_deg_per_h: float = 20.0
+    innovation_gate_chi2: Optional[float] = None
+
+
+def validate_mekf(path: str, c: MekfConfig, checks) -> None:
+    cfg.check_positive(f"{path}.period_s", c.period_s)
+    gyro = common.require_sensor(checks, path, "gyro", c.gyro, "gyro")
+    common.check_gyro_period(path, c.period_s, gyro)
+    if not c.star_trackers:
+        cfg.fail(f"{path}.star_trackers", c.star_trackers, "needs at least one star tracker")
+    trackers = sorted(n for n in checks.sensors if checks.sensor_output(n).kind in ("quaternion", "vectors"))
+    for st in c.star_trackers:
+        out = checks.sensor_output(st)
+        if out is None or out.kind not in ("quaternion", "vectors"):
+            cfg.fail(f"{path}.star_trackers", st, f"unknown star tracker; star trackers: {trackers}")
+        common.check_period_multiple(path, c.period_s, st, out.period_s)
+    for f in ("arw_deg_per_rt_h", "rrw_deg_per_h15"):
+        if getattr(c, f) is not None:
+            cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
+    common.check_initial_attitude(path, c)
+    common.check_initial_bias(path, c)
+    if c.innovation_gate_chi2 is not None:
+        cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+
+
+@register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf)
+def build_mekf(ctx, c: MekfConfig):
+    arw, rrw = common.filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
+    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, c.innovation_gate_chi2)
+    init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
+                              np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
+                              c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
+    quaternion_models, vector_names = [], []
+    for name in c.star_trackers:
+        if ctx.sensor_output(name).kind == "quaternion":
+            quaternion_models.append(ctx.quaternion_model(name))
+        else:
+            vector_names.append(name)
+    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, init, quaternion_models, vector_names))
+    ctx.connect_sensor(c.gyro, est, "gyro_measurement")
+    for m in quaternion_models:
+        ctx.connect_sensor(m.name, est, f"q_meas_{m.name}")
+    for n in vector_names:
+        ctx.connect_sensor(n, est, f"vectors_{n}")
+    return est

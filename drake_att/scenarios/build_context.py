@@ -1,0 +1,70 @@
+"""What a plug-in's build function gets: the diagram builder, the scenario, the truth and
+every system built so far, with helpers to wire an estimator to its sensors.
+
+Plug-ins (:mod:`drake_att.scenarios.registry`) import this module, never the scenario
+builder (:mod:`drake_att.scenarios.builder`), which imports them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.orbit import CircularOrbit
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios.registry import SensorOutput, plugin_for
+from drake_att.units import DEG
+
+
+def make_orbit(scenario: cfg.Scenario) -> CircularOrbit | None:
+    o = scenario.orbit
+    if o is None:
+        return None
+    return CircularOrbit(o.altitude_km * 1e3, o.inclination_deg * DEG, o.raan_deg * DEG, o.arg_latitude0_deg * DEG)
+
+
+def attitude_from_rpy_deg(scenario: cfg.Scenario, rpy_deg) -> np.ndarray:
+    """``q_IB`` at t = 0 for roll/pitch/yaw (deg) relative to the scenario's reference frame."""
+    q = rot.rpy_to_quat(np.asarray(rpy_deg, dtype=float) * DEG)
+    orbit = make_orbit(scenario)
+    if orbit is not None:
+        q = rot.quat_multiply(orbit.q_IO(0.0), q)
+    return rot.quat_canonical(q)
+
+
+@dataclass
+class BuildContext:
+    """The builder, the scenario, the truth system and the systems built so far.
+
+    Attributes:
+        builder: the ``DiagramBuilder``.
+        scenario: the validated scenario.
+        truth: plant or prescribed motion (output ports ``q_IB``, ``w_IB_B``,
+            ``w_IB_B_integral``).
+        sensors, sensor_configs, estimators, estimator_configs: name -> system / config.
+    """
+
+    builder: object
+    scenario: cfg.Scenario
+    truth: object
+    sensors: dict = field(default_factory=dict)
+    sensor_configs: dict = field(default_factory=dict)
+    estimators: dict = field(default_factory=dict)
+    estimator_configs: dict = field(default_factory=dict)
+
+    def sensor_output(self, name: str) -> SensorOutput:
+        """What sensor ``name`` delivers (kind, port, period)."""
+        c = self.sensor_configs[name]
+        return plugin_for(c).output(c, self.sensor_configs)
+
+    def quaternion_model(self, name: str):
+        """What a filter assumes about quaternion sensor ``name`` (mounting, noise covariance)."""
+        c = self.sensor_configs[name]
+        return plugin_for(c).quaternion_model(self, c)
+
+    def connect_sensor(self, name: str, system, input_port: str) -> None:
+        """Wire sensor ``name``'s measurement output to ``system``'s ``input_port``."""
+        self.builder.Connect(self.sensors[name].GetOutputPort(self.sensor_output(name).port),
+                             system.GetInputPort(input_port))

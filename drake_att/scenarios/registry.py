@@ -1,0 +1,210 @@
+"""The plug-in registry: every estimator and every sensor is one module that registers itself.
+
+A plug-in module holds a config dataclass (its class name is the YAML tag, e.g.
+``!MekfConfig``; it must have a ``name`` field), a build function and, optionally, a
+validation function, registered with one decorator::
+
+    from drake_att.scenarios.registry import register_estimator
+
+    @dataclass
+    class MyFilterConfig:
+        name: str = "my_filter"
+        ...
+
+    def validate_my_filter(path, config, checks):  # checks: ValidationContext
+        ...                                          # raise ConfigError naming path.field
+
+    @register_estimator(MyFilterConfig, validate=validate_my_filter)
+    def build_my_filter(ctx, config):                # ctx: drake_att.scenarios.build_context.BuildContext
+        return ctx.builder.AddSystem(...)            # wired to its sensors
+
+Sensors register the same way (:func:`register_sensor`) and also say what they output
+(:class:`SensorOutput`: gyro samples, attitude quaternions or vector observations, which
+port, which period), what the filter should assume about them (``quaternion_model``) and
+what the builder logs for them (``logged_ports``).
+
+The scenario schema's ``sensors`` and ``estimators`` lists accept exactly the registered
+config types (:func:`refresh_schema`); nothing central grows. The library's own plug-ins
+live in :mod:`drake_att.estimators` and :mod:`drake_att.sensors`; a scenario's
+``plugins: [module.name, ...]`` are imported by the loader before it reads the lists, so a
+user's estimator runs from the CLI, the notebooks and Monte Carlo without editing the
+library. Plug-ins import this module and :mod:`drake_att.scenarios.build_context`, never
+the scenario builder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import typing
+from dataclasses import dataclass, field
+from typing import Callable
+
+ESTIMATOR, SENSOR = "estimator", "sensor"
+BUILTIN_PLUGIN_PACKAGES = ("drake_att.sensors", "drake_att.estimators")
+
+
+class PluginError(ValueError):
+    """A plug-in could not be registered or imported (the message names it)."""
+
+
+@dataclass(frozen=True)
+class SensorOutput:
+    """What a sensor delivers to estimators.
+
+    Attributes:
+        kind: "gyro" (``[t, valid, w_meas_B]``), "quaternion" (``[t, valid, q_IS_meas]``)
+            or "vectors" (abstract :class:`~drake_att.contract.VectorObservations`).
+        port: the sensor system's output port name.
+        period_s: sample period (s).
+    """
+
+    kind: str
+    port: str
+    period_s: float
+
+
+@dataclass(frozen=True)
+class Plugin:
+    """One registered estimator or sensor."""
+
+    kind: str
+    config_type: type
+    build: Callable
+    validate: Callable | None = None
+    module: str = ""
+    # Estimators only: a SecondQuantity, or (config, checks) -> SecondQuantity.
+    second_quantity: object = None
+    # Sensors only:
+    output: Callable | None = None  # (config, sensor_configs: dict) -> SensorOutput
+    quaternion_model: Callable | None = None  # (ctx, config) -> QuaternionSensorModel
+    logged_ports: Callable | None = None  # (config) -> [(port, period_s), ...]
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def tag(self) -> str:
+        return self.config_type.__name__
+
+
+_PLUGINS: dict[str, dict[str, Plugin]] = {ESTIMATOR: {}, SENSOR: {}}
+
+
+def _register(kind, config_type, build, **kwargs) -> None:
+    if not (isinstance(config_type, type) and dataclasses.is_dataclass(config_type)):
+        raise PluginError(f"{kind} plug-in {build.__name__!r}: config_type must be a dataclass; got {config_type!r}")
+    if "name" not in {f.name for f in dataclasses.fields(config_type)}:
+        raise PluginError(f"{kind} config {config_type.__name__}: needs a 'name' field (names the system)")
+    # Drake's YAML loader reads each field's ``type``; resolve postponed (string) annotations
+    # (``from __future__ import annotations`` in the plug-in module) into real types.
+    try:
+        hints = typing.get_type_hints(config_type)
+    except Exception as e:
+        raise PluginError(f"{kind} config {config_type.__name__}: cannot resolve its field types: {e}") from e
+    for f in dataclasses.fields(config_type):
+        f.type = hints.get(f.name, f.type)
+    tag = config_type.__name__
+    for other_kind, plugins in _PLUGINS.items():
+        existing = plugins.get(tag)
+        if existing is not None and (existing.config_type is not config_type or other_kind != kind):
+            raise PluginError(f"{kind} config {tag} (module {build.__module__}): the tag {tag!r} is already "
+                              f"registered by {existing.module} as a {other_kind}; rename the config class")
+    _PLUGINS[kind][tag] = Plugin(kind, config_type, build, module=build.__module__, **kwargs)
+
+
+def register_estimator(config_type: type, *, second_quantity, validate: Callable | None = None):
+    """Decorator registering ``build(ctx, config) -> system`` for ``config_type``.
+
+    Args:
+        second_quantity: what the estimator's second 3-vector is
+            (:class:`~drake_att.contract.SecondQuantity`), or ``(config, checks) ->
+            SecondQuantity`` when it depends on the config (e.g. a fusion of estimators).
+        validate: ``(path, config, checks) -> None`` raising ``ConfigError``; ``checks`` is a
+            :class:`~drake_att.scenarios.config.ValidationContext`.
+    """
+
+    def decorate(build):
+        _register(ESTIMATOR, config_type, build, validate=validate, second_quantity=second_quantity)
+        return build
+
+    return decorate
+
+
+def register_sensor(config_type: type, *, output: Callable, validate: Callable | None = None,
+                    quaternion_model: Callable | None = None, logged_ports: Callable | None = None):
+    """Decorator registering a sensor's ``build(ctx, config) -> system``.
+
+    Args:
+        output: ``(config, sensor_configs) -> SensorOutput``.
+        validate: ``(path, config, checks) -> None``.
+        quaternion_model: for "quaternion" outputs, ``(ctx, config) -> QuaternionSensorModel``
+            (what a filter assumes about the sensor: mounting and noise covariance).
+        logged_ports: ``(config) -> [(port, period_s), ...]`` logged by the builder.
+    """
+
+    def decorate(build):
+        _register(SENSOR, config_type, build, validate=validate, output=output,
+                  quaternion_model=quaternion_model, logged_ports=logged_ports)
+        return build
+
+    return decorate
+
+
+def ensure_builtin_plugins() -> None:
+    """Import the library's own plug-in packages (idempotent)."""
+    for package in BUILTIN_PLUGIN_PACKAGES:
+        importlib.import_module(package)
+
+
+def load_plugins(module_names) -> None:
+    """Import the built-in plug-ins and ``module_names`` (a scenario's ``plugins``)."""
+    ensure_builtin_plugins()
+    for i, name in enumerate(module_names or ()):
+        if not isinstance(name, str) or not name.strip():
+            raise PluginError(f"plugins[{i}]: got {name!r}; expected a module name such as 'my_package.my_filter'")
+        try:
+            importlib.import_module(name)
+        except Exception as e:  # report any import failure as a config error naming the module
+            raise PluginError(f"plugins[{i}]: cannot import {name!r}: {type(e).__name__}: {e} "
+                              "(is its folder on PYTHONPATH?)") from e
+
+
+def plugins(kind: str) -> dict[str, Plugin]:
+    """Registered plug-ins of ``kind`` ("estimator" or "sensor"), by tag."""
+    ensure_builtin_plugins()
+    return dict(_PLUGINS[kind])
+
+
+def plugin_for(config) -> Plugin:
+    """The plug-in registered for ``type(config)``."""
+    tag = type(config).__name__
+    for kind in (ESTIMATOR, SENSOR):
+        p = _PLUGINS[kind].get(tag)
+        if p is not None and p.config_type is type(config):
+            return p
+    raise PluginError(f"{getattr(config, 'name', tag)}: no plug-in is registered for config type {tag}")
+
+
+def config_type(tag: str) -> type:
+    """The registered config class with class name ``tag``."""
+    ensure_builtin_plugins()
+    for kind in (ESTIMATOR, SENSOR):
+        if tag in _PLUGINS[kind]:
+            return _PLUGINS[kind][tag].config_type
+    raise AttributeError(tag)
+
+
+def union_of(kind: str):
+    """``typing.Union`` of the registered config types of ``kind`` (in registration order)."""
+    types = tuple(p.config_type for p in plugins(kind).values())
+    return typing.Union[types] if len(types) > 1 else types[0]
+
+
+def refresh_schema(scenario_type: type) -> None:
+    """Point ``scenario_type``'s ``sensors``/``estimators`` list fields at the registered types.
+
+    Drake's YAML loader reads each dataclass field's ``type``; updating it after plug-ins
+    are imported is what lets a plug-in's tag appear in a scenario.
+    """
+    fields = scenario_type.__dataclass_fields__
+    fields["sensors"].type = typing.List[union_of(SENSOR)]
+    fields["estimators"].type = typing.List[union_of(ESTIMATOR)]

@@ -1,0 +1,5 @@
+"""The library's sensor plug-ins (:mod:`drake_att.scenarios.registry`): each module holds a
+sensor's config dataclass (its YAML tag), build, validation and logging, registered with
+:func:`~drake_att.scenarios.registry.register_sensor`."""
+
+from drake_att.sensors import gyro, star_tracker, star_tracker_average  # noqa: F401  (registers them)

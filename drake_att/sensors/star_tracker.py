@@ -1,0 +1,116 @@
+"""Sensor plug-in: the star tracker (:class:`drake_att.systems.star_tracker.StarTracker`).
+
+YAML tag ``!StarTrackerConfig``. Output: "quaternion" samples ``[t, valid, q_IS_meas]``
+or "vectors" (:class:`~drake_att.contract.VectorObservations`) by ``mode``; logged: the
+quaternion measurement (quaternion mode).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import List
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios.registry import SensorOutput, register_sensor
+from drake_att.systems.estimators import QuaternionSensorModel
+from drake_att.systems.star_tracker import StarTracker, mounting_from_paper_s3_angles
+from drake_att.units import ARCSEC, DEG
+
+MODES = ("quaternion", "vectors")
+
+
+@dataclass
+class StarTrackerConfig:
+    """Star tracker (boresight = sensor +z).
+
+    Mounting: ``mounting_paper_s3_angles_deg`` = ``[psi, phi, theta]`` of paper S3's
+    eq. 7 when non-empty, else ``mounting_rpy_deg`` (roll/pitch/yaw of S in B).
+    ``mode``: "quaternion" (attitude output) or "vectors" (``references_I`` directions).
+    """
+
+    name: str = "st1"
+    period_s: float = 1.0
+    mode: str = "quaternion"
+    mounting_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
+    mounting_paper_s3_angles_deg: List[float] = field(default_factory=list)  # [] = unused
+    sigma_cross_boresight_arcsec: float = 0.0
+    sigma_boresight_arcsec: float = 0.0
+    references_I: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (m, 3)
+    sigma_vector_urad: float = 0.0
+    dropout_probability: float = 0.0
+    outage_windows_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (k, 2) [start, end]
+
+
+def star_tracker_mounting(st: StarTrackerConfig) -> np.ndarray:
+    """``q_BS`` of a tracker config."""
+    if len(st.mounting_paper_s3_angles_deg):
+        psi, phi, theta = np.asarray(st.mounting_paper_s3_angles_deg) * DEG
+        return mounting_from_paper_s3_angles(psi, phi, theta)
+    return rot.rpy_to_quat(np.asarray(st.mounting_rpy_deg) * DEG)
+
+
+def star_tracker_sigmas_S(st: StarTrackerConfig) -> np.ndarray:
+    """Sensor-frame rotation-vector noise sigmas (rad): cross-boresight x, y; boresight z."""
+    return np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
+                     st.sigma_boresight_arcsec]) * ARCSEC
+
+
+def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
+    cfg.check_positive(f"{path}.period_s", c.period_s)
+    if c.mode not in MODES:
+        cfg.fail(f"{path}.mode", c.mode, "allowed: 'quaternion', 'vectors'")
+    cfg.check_vector(f"{path}.mounting_rpy_deg", c.mounting_rpy_deg, 3)
+    if c.mounting_paper_s3_angles_deg:
+        cfg.check_vector(f"{path}.mounting_paper_s3_angles_deg", c.mounting_paper_s3_angles_deg, 3)
+    cfg.check_nonnegative(f"{path}.sigma_cross_boresight_arcsec", c.sigma_cross_boresight_arcsec)
+    cfg.check_nonnegative(f"{path}.sigma_boresight_arcsec", c.sigma_boresight_arcsec)
+    cfg.check_nonnegative(f"{path}.sigma_vector_urad", c.sigma_vector_urad)
+    cfg.check_finite(f"{path}.dropout_probability", c.dropout_probability)
+    if not 0 <= c.dropout_probability < 1:
+        cfg.fail(f"{path}.dropout_probability", c.dropout_probability, "must be in [0, 1)")
+    if c.mode == "vectors":
+        if np.ndim(c.references_I) != 2 or len(c.references_I) < 1:
+            cfg.fail(f"{path}.references_I", c.references_I, "vector mode needs >= 1 direction")
+        for j, r in enumerate(c.references_I):
+            cfg.check_vector(f"{path}.references_I[{j}]", r, 3)
+            if float(np.linalg.norm(r)) < 1e-9:
+                cfg.fail(f"{path}.references_I[{j}]", r, "must be non-zero")
+        if c.sigma_vector_urad <= 0:
+            cfg.fail(f"{path}.sigma_vector_urad", c.sigma_vector_urad, "vector mode needs > 0")
+    elif c.sigma_cross_boresight_arcsec <= 0 or c.sigma_boresight_arcsec <= 0:
+        cfg.fail(f"{path}.sigma_*_arcsec", [c.sigma_cross_boresight_arcsec, c.sigma_boresight_arcsec],
+                 "quaternion mode needs both sigmas > 0 (a filter cannot use a perfect sensor)")
+    if np.size(c.outage_windows_s) and np.ndim(c.outage_windows_s) != 2:
+        cfg.fail(f"{path}.outage_windows_s", c.outage_windows_s, "must be a list of [start, end]")
+    for j, w in enumerate(np.reshape(c.outage_windows_s, (-1, 2))):
+        if len(w) != 2 or not w[1] > w[0]:
+            cfg.fail(f"{path}.outage_windows_s[{j}]", w, "must be [start, end] with end > start")
+
+
+def star_tracker_output(c: StarTrackerConfig, sensor_configs) -> SensorOutput:
+    if c.mode == "vectors":
+        return SensorOutput("vectors", "vector_observations", c.period_s)
+    return SensorOutput("quaternion", "star_tracker_measurement", c.period_s)
+
+
+def star_tracker_quaternion_model(ctx, c: StarTrackerConfig) -> QuaternionSensorModel:
+    return QuaternionSensorModel(c.name, star_tracker_mounting(c), np.diag(star_tracker_sigmas_S(c) ** 2))
+
+
+def star_tracker_logged_ports(c: StarTrackerConfig):
+    return [("star_tracker_measurement", c.period_s)] if c.mode == "quaternion" else []
+
+
+@register_sensor(StarTrackerConfig, output=star_tracker_output, validate=validate_star_tracker,
+                 quaternion_model=star_tracker_quaternion_model, logged_ports=star_tracker_logged_ports)
+def build_star_tracker(ctx, c: StarTrackerConfig):
+    st = ctx.builder.AddSystem(StarTracker(
+        c.name, c.period_s, star_tracker_mounting(c), c.mode,
+        c.sigma_cross_boresight_arcsec * ARCSEC, c.sigma_boresight_arcsec * ARCSEC,
+        c.references_I if c.mode == "vectors" else None, c.sigma_vector_urad * 1e-6,
+        c.dropout_probability, [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))]))
+    ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))
+    return st
