@@ -1,0 +1,75 @@
+#!/usr/bin/env python3
+"""A/B speed of two checkouts of drake_att on the same cases, in one run, as ratios.
+
+    git worktree add /tmp/drake_att_old <old commit>
+    .venv/bin/python benchmarks/bench_ab.py --old /tmp/drake_att_old [--new .] [--rounds 3]
+
+Each measurement is a fresh interpreter with ``PYTHONPATH`` pointing at one checkout: it
+builds the case's diagram, runs it once (warm-up, seed 1), then times ``simulate`` for
+seed 2. Rounds alternate old/new so drifting machine load hits both alike; the figure
+reported is the best of the rounds, and the ratio is new/old (below 1: new is faster).
+
+Cases: the default scenario (S3 dual tracker, 4 MEKFs + fusion, 1 Hz) and the S3 single
+tracker with gyro, tracker and MEKF all at 10 Hz, each over ``--duration`` seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+
+CASES = {
+    "default (S3 dual tracker, 1 Hz)": ("cubesat_dual_star_tracker", []),
+    "S3 single tracker, 10 Hz gyro + ST + MEKF": (
+        "cubesat_single_star_tracker",
+        ["simulation.integration_scheme=runge_kutta3", "simulation.use_error_control=false",
+         "simulation.max_step_size_s=0.1", "sensors.gyro.period_s=0.1", "sensors.st1.period_s=0.1",
+         "estimators.single.period_s=0.1"]),
+}
+
+CHILD = """
+import sys, time
+from drake_att.scenarios.builder import ScenarioDiagram
+from drake_att.scenarios.config import apply_overrides
+from drake_att.scenarios.library import load
+name, duration, *over = sys.argv[1:]
+s = apply_overrides(load(name), [f"duration_s={duration}", f"scoring.score_from_s={float(duration) / 10}"] + over)
+sd = ScenarioDiagram(s)
+sd.simulate(seed=1)
+t0 = time.perf_counter()
+sd.simulate(seed=2)
+print(time.perf_counter() - t0)
+"""
+
+
+def measure(checkout: str, scenario: str, duration: float, overrides) -> float:
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(checkout), MPLBACKEND="Agg")
+    out = subprocess.run([sys.executable, "-c", CHILD, scenario, str(duration), *overrides], env=env,
+                         capture_output=True, text=True, cwd=os.path.abspath(checkout))
+    if out.returncode != 0:
+        raise SystemExit(f"{checkout}: {scenario} failed:\n{out.stderr[-2000:]}")
+    return float(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--old", required=True, help="checkout of the reference commit (git worktree)")
+    ap.add_argument("--new", default=os.path.join(os.path.dirname(__file__), os.pardir))
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--duration", type=float, default=1000.0, help="simulated seconds per case")
+    args = ap.parse_args(argv)
+    print(f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
+          f"{args.rounds} alternating rounds, {args.duration:.0f} s simulated per case, best wall time shown")
+    print(f"{'case':<45} {'old (s)':>9} {'new (s)':>9} {'new/old':>8}")
+    for label, (scenario, overrides) in CASES.items():
+        old, new = [], []
+        for _ in range(args.rounds):
+            old.append(measure(args.old, scenario, args.duration, overrides))
+            new.append(measure(args.new, scenario, args.duration, overrides))
+        print(f"{label:<45} {min(old):9.3f} {min(new):9.3f} {min(new) / min(old):8.3f}")
+
+
+if __name__ == "__main__":
+    main()
