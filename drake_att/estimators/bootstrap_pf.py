@@ -39,13 +39,10 @@ class BootstrapPfConfig:
 
 
 def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
-    common.validate_vector_filter(path, c, checks)
-    common.check_integers_at_least_one(path, c, "num_particles")
-    common.check_resample_threshold(path, c)
+    common.validate_vector_filter(path, c, checks, integer_fields=("num_particles",), resampling=True)
     if c.attitude_process_noise_deg_per_rt_h is not None:
         cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
     cfg.check_nonnegative(f"{path}.bias_roughening_deg_per_h_per_rt_s", c.bias_roughening_deg_per_h_per_rt_s)
-    common.check_initial_bias(path, c)
 
 
 @register_estimator(BootstrapPfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_bootstrap_pf)

@@ -77,8 +77,18 @@ def initial_gyro_mode_estimate(ctx, c):
     return q0, b0, P0
 
 
-def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True):
-    """Checks shared by filters fed by one vector-mode tracker (and a gyro): paper S0's."""
+def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True, integer_fields=(),
+                           resampling: bool = False, filter_gyro_noise: bool = False, initial_bias: bool = True):
+    """Checks shared by filters fed by one vector-mode tracker (and a gyro): paper S0's.
+
+    Args:
+        integer_fields: config fields that must be integers >= 1 (particles, iterations).
+        resampling: check ``resample_threshold`` in (0, 1].
+        filter_gyro_noise: the filter models the gyro noise (its ARW, or the gyro's, > 0).
+        initial_bias: check ``initial_bias_deg_per_h`` and its sigma.
+    Returns:
+        The gyro's config (None without a gyro).
+    """
     cfg.check_positive(f"{path}.period_s", c.period_s)
     gyro = None
     if uses_gyro:
@@ -87,6 +97,13 @@ def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True):
     st = require_sensor(checks, path, "star_tracker", c.star_tracker, "vectors")
     check_period_multiple(path, c.period_s, st.name, checks.sensor_output(st.name).period_s)
     check_initial_attitude(path, c)
+    check_integers_at_least_one(path, c, *integer_fields)
+    if resampling:
+        check_resample_threshold(path, c)
+    if filter_gyro_noise:
+        validate_filter_gyro_noise(path, c, gyro)
+    if initial_bias:
+        check_initial_bias(path, c)
     return gyro
 
 

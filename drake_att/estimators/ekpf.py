@@ -36,11 +36,8 @@ class EkpfConfig:
 
 
 def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
-    gyro = common.validate_vector_filter(path, c, checks)
-    common.check_integers_at_least_one(path, c, "num_particles", "proposal_iterations")
-    common.check_resample_threshold(path, c)
-    common.validate_filter_gyro_noise(path, c, gyro)
-    common.check_initial_bias(path, c)
+    common.validate_vector_filter(path, c, checks, integer_fields=("num_particles", "proposal_iterations"),
+                                  resampling=True, filter_gyro_noise=True)
 
 
 @register_estimator(EkpfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_ekpf)

@@ -58,9 +58,8 @@ def plant_dynamics(scenario, c: GyrolessPfConfig, path: str | None = None):
 
 
 def validate_gyroless_pf(path: str, c: GyrolessPfConfig, checks) -> None:
-    common.validate_vector_filter(path, c, checks, uses_gyro=False)
-    common.check_integers_at_least_one(path, c, "num_particles", "num_substeps")
-    common.check_resample_threshold(path, c)
+    common.validate_vector_filter(path, c, checks, uses_gyro=False, integer_fields=("num_particles", "num_substeps"),
+                                  resampling=True, initial_bias=False)
     cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
     cfg.check_nonnegative(f"{path}.rate_process_noise_deg_per_s_per_rt_s", c.rate_process_noise_deg_per_s_per_rt_s)
     cfg.check_vector(f"{path}.initial_rate_deg_per_s", c.initial_rate_deg_per_s, 3)

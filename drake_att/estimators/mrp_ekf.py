@@ -35,10 +35,7 @@ class MrpEkfConfig:
 
 
 def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
-    gyro = common.validate_vector_filter(path, c, checks)
-    common.check_integers_at_least_one(path, c, "update_iterations")
-    common.validate_filter_gyro_noise(path, c, gyro)
-    common.check_initial_bias(path, c)
+    common.validate_vector_filter(path, c, checks, integer_fields=("update_iterations",), filter_gyro_noise=True)
 
 
 @register_estimator(MrpEkfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mrp_ekf)

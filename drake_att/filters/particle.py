@@ -229,10 +229,17 @@ class _ParticleFilterBase:
         self.particles = np.zeros((n, 6))
 
     # -- helpers -------------------------------------------------------------------
-    def _measurement(self, y, ref_vectors_I, sigma):
+    def _begin_update(self, y, ref_vectors_I, sigma, rng):
+        """``(y, U, sigma)`` checked for an update, or None (skipped and counted)."""
+        _check_rng(rng)
         U = check_reference_vectors(ref_vectors_I)
         sigma = check_positive_scalar(sigma, "sigma")
-        return measurement_is_valid(y, U.shape[0]), U, sigma
+        yv = measurement_is_valid(y, U.shape[0])
+        if yv is None:
+            self.n_skipped += 1
+            return None
+        self._estimate_set = None
+        return yv, U, sigma
 
     def _gyro(self, w_meas):
         w = valid_rate_or_none(w_meas)
@@ -265,6 +272,28 @@ class _ParticleFilterBase:
 
     def _take(self, idx) -> None:
         self.particles = self.particles[idx]
+
+    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
+        """Bootstrap update (the bootstrap and gyroless filters): weight by the star-sensor
+        likelihood and resample if ``N_eff`` is low.
+
+        Args:
+            y: ``(3m,)`` measured body-frame vectors; None / non-finite: skipped.
+            ref_vectors_I: ``(m, 3)`` inertial reference directions.
+            sigma: Noise std per component (rad), > 0.
+            rng: Generator for resampling.
+
+        Returns:
+            True if the measurement was used, False if skipped.
+        """
+        checked = self._begin_update(y, ref_vectors_I, sigma, rng)
+        if checked is None:
+            return False
+        yv, U, sigma = checked
+        self._reweight(vector_log_likelihood(self.particles[:, :3], yv, U, sigma))
+        self.n_updates += 1
+        self._maybe_resample(rng)
+        return True
 
     def effective_sample_size(self) -> float:
         """Current ``N_eff = 1 / sum(w^2)``."""
@@ -387,30 +416,6 @@ class BootstrapParticleFilter(_ParticleFilterBase):
             self.particles[:, 3:] += rng.standard_normal((n, 3)) * (
                 self.bias_roughening_sigma * np.sqrt(dt))
 
-    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
-        """Weight by the star-sensor likelihood and resample if ``N_eff`` is low.
-
-        Args:
-            y: ``(3m,)`` measured body-frame vectors; None / non-finite: skipped.
-            ref_vectors_I: ``(m, 3)`` inertial reference directions.
-            sigma: Noise std per component (rad), > 0.
-            rng: Generator for resampling.
-
-        Returns:
-            True if the measurement was used, False if skipped.
-        """
-        _check_rng(rng)
-        yv, U, sigma = self._measurement(y, ref_vectors_I, sigma)
-        if yv is None:
-            self.n_skipped += 1
-            return False
-        self._estimate_set = None
-        self._reweight(vector_log_likelihood(self.particles[:, :3], yv, U, sigma))
-        self.n_updates += 1
-        self._maybe_resample(rng)
-        return True
-
-
 # ----------------------------------------------------------------------------------
 # Extended Kalman particle filter, gyro mode
 # ----------------------------------------------------------------------------------
@@ -519,12 +524,10 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         Returns:
             True if the measurement was used, False if skipped.
         """
-        _check_rng(rng)
-        yv, U, sigma = self._measurement(y, ref_vectors_I, sigma)
-        if yv is None:
-            self.n_skipped += 1
+        checked = self._begin_update(y, ref_vectors_I, sigma, rng)
+        if checked is None:
             return False
-        self._estimate_set = None
+        yv, U, sigma = checked
         n = self.num_particles
         m_prior, P_prior = self.particles, self.covariances
         m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False,
@@ -641,22 +644,6 @@ class GyrolessParticleFilter(_ParticleFilterBase):
             w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
         self.particles[:, :3] = quat_to_mrp(q)
         self.particles[:, 3:] = w
-
-    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
-        """Weight by the star-sensor likelihood and resample if ``N_eff`` is low.
-
-        Same arguments and return value as :meth:`BootstrapParticleFilter.update`.
-        """
-        _check_rng(rng)
-        yv, U, sigma = self._measurement(y, ref_vectors_I, sigma)
-        if yv is None:
-            self.n_skipped += 1
-            return False
-        self._estimate_set = None
-        self._reweight(vector_log_likelihood(self.particles[:, :3], yv, U, sigma))
-        self.n_updates += 1
-        self._maybe_resample(rng)
-        return True
 
 
 # ----------------------------------------------------------------------------------
