@@ -166,7 +166,7 @@ def compute_metrics(run) -> dict:
     return result
 
 
-def format_table(metrics: dict) -> str:
+def format_table(metrics: dict) -> str:  # pragma: no mutate block (presentation: column text and widths)
     """Human-readable table of :func:`compute_metrics` output."""
     lines = [f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
              f"  wall {metrics['wall_time_s']:.2f} s"]
