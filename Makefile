@@ -28,12 +28,11 @@ test: $(STAMP)
 # the survivors judged equivalent: tests/README.md.
 mutation: $(STAMP)
 	$(PY) -m pip install --quiet "mutmut==3.8.1"
-	rm -rf mutants
-	MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 $(VENV)/bin/mutmut run --max-children 2
+	$(PY) tests/mutation_run.py
 	$(PY) tests/mutation_report.py
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_scenarios.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache mutants
+	rm -rf $(VENV) out .pytest_cache mutants /tmp/drake_att_mutation

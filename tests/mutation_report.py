@@ -1,24 +1,29 @@
-"""Summarize a mutmut run (``make mutation``): figures, and every surviving mutant that is
-not judged equivalent in ``tests/mutation_equivalents.txt``.
+"""Summarize a mutation run (``tests/mutation_run.py``): figures per module, and every
+surviving mutant not judged equivalent in ``tests/mutation_equivalents.txt``.
 
 Each line of that file is ``<mutant name>  <one-line reason>``; ``#`` starts a comment.
 Mutant names are ``<module>.x_<function>__mutmut_<n>`` and change when the function
-changes, so the file is re-judged after each run (``mutmut show <name>`` prints the diff).
+changes, so the file is re-judged after each run (``cd <work>/<module> && mutmut show
+<name>`` prints the diff).
+
+    .venv/bin/python tests/mutation_report.py [--work DIR]
 
 Exit status 0 when every survivor is judged equivalent, 1 otherwise.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(HERE)
 MUTMUT = os.path.join(os.path.dirname(sys.executable), "mutmut")
 EQUIVALENTS = os.path.join(HERE, "mutation_equivalents.txt")
+sys.path.insert(0, HERE)
+from mutation_run import DEFAULT_WORK, MODULES  # noqa: E402
 
 
 def judged_equivalent(path: str = EQUIVALENTS) -> dict[str, str]:
@@ -32,10 +37,10 @@ def judged_equivalent(path: str = EQUIVALENTS) -> dict[str, str]:
     return out
 
 
-def results() -> dict[str, str]:
-    """mutant name -> status, from ``mutmut results --all true``."""
-    text = subprocess.run([MUTMUT, "results", "--all", "true"], cwd=REPO, capture_output=True,
-                          text=True, check=True).stdout
+def results(folder: str) -> dict[str, str]:
+    """mutant name -> status, from ``mutmut results --all true`` in ``folder``."""
+    text = subprocess.run([MUTMUT, "results", "--all", "true"], cwd=folder, capture_output=True,
+                          text=True).stdout
     out = {}
     for line in text.splitlines():
         name, sep, status = line.strip().rpartition(": ")
@@ -44,23 +49,32 @@ def results() -> dict[str, str]:
     return out
 
 
-def main() -> int:
-    res = results()
-    counts: dict[str, int] = {}
-    for status in res.values():
-        counts[status] = counts.get(status, 0) + 1
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--work", default=DEFAULT_WORK)
+    args = ap.parse_args(argv)
     equivalent = judged_equivalent()
-    survivors = sorted(n for n, s in res.items() if s == "survived")
-    unjudged = [n for n in survivors if n not in equivalent]
-    per_module: dict[str, dict[str, int]] = {}
-    for n, s in res.items():
-        module = n.split(".x_")[0].split(".xǁ")[0]
-        per_module.setdefault(module, {}).setdefault(s, 0)
-        per_module[module][s] += 1
-    print(json.dumps({"total": len(res), **counts, "survived_judged_equivalent": len(survivors) - len(unjudged),
-                      "survived_not_judged": len(unjudged)}, indent=1))
-    for module in sorted(per_module):
-        print(f"  {module:<36} " + ", ".join(f"{k} {v}" for k, v in sorted(per_module[module].items())))
+    totals: dict[str, int] = {}
+    unjudged = []
+    for key, (mutated, tests) in MODULES.items():
+        folder = os.path.join(args.work, key)
+        if not os.path.isdir(os.path.join(folder, "mutants")):
+            print(f"{key:<20} not run")
+            continue
+        res = results(folder)
+        counts: dict[str, int] = {}
+        for status in res.values():
+            counts[status] = counts.get(status, 0) + 1
+            totals[status] = totals.get(status, 0) + 1
+        survivors = sorted(n for n, s in res.items() if s == "survived")
+        judged = [n for n in survivors if n in equivalent]
+        unjudged += [n for n in survivors if n not in equivalent]
+        commit = open(os.path.join(folder, "COMMIT")).read().strip()[:10] if os.path.exists(
+            os.path.join(folder, "COMMIT")) else "?"
+        print(f"{key:<20} {len(res):5d} mutants  " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+              + f"  (equivalent {len(judged)}; commit {commit})")
+    totals["survived_judged_equivalent"] = totals.get("survived", 0) - len(unjudged)
+    print(json.dumps(totals, indent=1, sort_keys=True))
     for n in unjudged:
         print(f"SURVIVED (not judged equivalent): {n}")
     return 1 if unjudged else 0

@@ -1,0 +1,91 @@
+"""Mutation testing of the math and filter-core modules (``make mutation``; not part of
+``make test``).
+
+Each module is mutated against its own fast unit tests (``MODULES``), in a clean snapshot
+of the committed code (``git archive HEAD``), one mutmut run per module in its own folder
+under ``--work`` (default ``/tmp/drake_att_mutation``): editing the working tree while
+mutmut generates its mutants cannot leak into the run, and modules run in sequence.
+Hypothesis runs its derandomized ``mutation`` profile (fewer examples).
+
+    .venv/bin/python tests/mutation_run.py [--modules rotations noise ...] [--work DIR]
+    .venv/bin/python tests/mutation_report.py [--work DIR]     # figures, unjudged survivors
+
+The shared mutmut settings (what is never mutated, timeouts) are ``[tool.mutmut]`` in
+pyproject.toml; this script sets ``only_mutate`` and the test selection per module.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+MUTMUT = os.path.join(os.path.dirname(sys.executable), "mutmut")
+DEFAULT_WORK = "/tmp/drake_att_mutation"
+
+# module key -> (file mutated, the unit tests that exercise it)
+MODULES = {
+    "rotations": ("drake_att/rotations.py",
+                  ["tests/test_rotations.py", "tests/test_quaternion_average.py", "tests/test_mrp_ekf.py"]),
+    "noise": ("drake_att/noise.py", ["tests/test_sensors.py"]),
+    "metrics": ("drake_att/analysis/metrics.py", ["tests/test_metrics.py"]),
+    "quaternion_average": ("drake_att/filters/quaternion_average.py", ["tests/test_quaternion_average.py"]),
+    "mekf": ("drake_att/filters/mekf.py", ["tests/test_mekf.py"]),
+    "mrp_ekf": ("drake_att/filters/mrp_ekf.py",
+                ["tests/test_mrp_ekf.py", "tests/test_particle_filters.py", "tests/test_particle_weights.py"]),
+    "particle": ("drake_att/filters/particle.py",
+                 ["tests/test_particle_filters.py", "tests/test_particle_weights.py", "tests/test_particle_systems.py"]),
+}
+
+
+def snapshot(dest: str) -> str:
+    """The committed tree (HEAD) unpacked into ``dest``; returns the commit."""
+    os.makedirs(dest, exist_ok=True)
+    archive = subprocess.run(["git", "archive", "HEAD"], cwd=REPO, capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
+    return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def configure(folder: str, mutated: str, tests: list[str]) -> None:
+    """Set only_mutate and the test selection of ``folder``'s [tool.mutmut]."""
+    path = os.path.join(folder, "pyproject.toml")
+    text = open(path).read()
+    text = re.sub(r"only_mutate = \[[^\]]*\]", f"only_mutate = [\"{mutated}\"]", text)
+    selection = ",\n".join(f'    "{t}"' for t in tests)
+    text = re.sub(r"pytest_add_cli_args_test_selection = \[[^\]]*\]",
+                  f"pytest_add_cli_args_test_selection = [\n{selection},\n]", text)
+    open(path, "w").write(text)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--modules", nargs="*", default=list(MODULES), choices=list(MODULES))
+    ap.add_argument("--work", default=DEFAULT_WORK)
+    args = ap.parse_args(argv)
+    env = dict(os.environ, MPLBACKEND="Agg", HYPOTHESIS_PROFILE="mutation", OPENBLAS_NUM_THREADS="1")
+    for key in args.modules:
+        mutated, tests = MODULES[key]
+        folder = os.path.join(args.work, key)
+        shutil.rmtree(folder, ignore_errors=True)
+        commit = snapshot(folder)
+        configure(folder, mutated, tests)
+        start = time.perf_counter()
+        print(f"[{key}] {mutated} against {', '.join(tests)} (commit {commit[:10]})", flush=True)
+        with open(os.path.join(folder, "mutmut.log"), "w") as log:
+            rc = subprocess.run([MUTMUT, "run", "--max-children", str(os.cpu_count() or 2)], cwd=folder, env=env,
+                                stdout=log, stderr=subprocess.STDOUT).returncode
+        with open(os.path.join(folder, "COMMIT"), "w") as f:
+            f.write(commit + "\n")
+        print(f"[{key}] mutmut exit {rc}, {time.perf_counter() - start:.0f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
