@@ -209,8 +209,8 @@ class CameraCentroids:
 def is_usable(measurement) -> bool:
     """The one validity rule: flag true, finite time, at least one number, all finite.
 
-    Vector observations must also pair each direction with a reference and carry a finite,
-    positive sigma; a quaternion must be near unit norm (> 0.5).
+    Vector observations must also pair each direction with a finite, non-zero reference and
+    carry a finite, positive sigma; a quaternion must be near unit norm (> 0.5).
     """
     if not flag_is_true(measurement.valid):
         return False
@@ -224,6 +224,8 @@ def is_usable(measurement) -> bool:
         sigma = float(measurement.sigma_rad)
         if numbers.shape != refs.shape or not (math.isfinite(sigma) and sigma > 0.0):
             return False
+        if not np.all(np.isfinite(refs)) or np.any(np.linalg.norm(refs, axis=-1) < 1e-9):
+            return False  # a reference direction must be a finite, non-zero vector
     if isinstance(measurement, QuaternionSample) and np.linalg.norm(numbers) < 0.5:
         return False
     return True

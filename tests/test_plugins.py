@@ -454,11 +454,6 @@ def test_contract_a_measurement_the_core_rejects_is_counted_and_changes_only_the
     _assert_finite_outputs(d, t)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "library bug: drake_att.contract.is_usable checks the directions of a VectorObservations "
-    "but not its references_I, so a NaN/inf reference reaches the core: the MRP EKF and the "
-    "particle filters raise ValueError (the simulation stops), the MEKF rejects it with a NaN "
-    "NIS; it should be skipped and counted by the system like a NaN direction"))
 @pytest.mark.parametrize("tag", LIBRARY_TAGS)
 def test_contract_non_finite_reference_directions_are_skipped_and_counted(contract_diagram, tag):
     system = _estimator_system(contract_diagram, tag)
