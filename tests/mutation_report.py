@@ -23,7 +23,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 MUTMUT = os.path.join(os.path.dirname(sys.executable), "mutmut")
 EQUIVALENTS = os.path.join(HERE, "mutation_equivalents.txt")
 sys.path.insert(0, HERE)
-from mutation_run import DEFAULT_WORK, MODULES  # noqa: E402
+from mutation_run import DEFAULT_WORK, MODULES, _statuses as results  # noqa: E402
 
 
 def judged_equivalent(path: str = EQUIVALENTS) -> dict[str, str]:
@@ -34,18 +34,6 @@ def judged_equivalent(path: str = EQUIVALENTS) -> dict[str, str]:
             if line:
                 name, _, reason = line.partition(" ")
                 out[name] = reason.strip()
-    return out
-
-
-def results(folder: str) -> dict[str, str]:
-    """mutant name -> status, from ``mutmut results --all true`` in ``folder``."""
-    text = subprocess.run([MUTMUT, "results", "--all", "true"], cwd=folder, capture_output=True,
-                          text=True).stdout
-    out = {}
-    for line in text.splitlines():
-        name, sep, status = line.strip().rpartition(": ")
-        if sep:
-            out[name] = status
     return out
 
 
@@ -62,6 +50,12 @@ def main(argv=None) -> int:
             print(f"{key:<20} not run")
             continue
         res = results(folder)
+        sample_path = os.path.join(folder, "SAMPLE")
+        sampled = None
+        if os.path.exists(sample_path):
+            lines = open(sample_path).read().splitlines()
+            sampled = set(lines[1:])
+            res = {n: s for n, s in res.items() if n in sampled}
         counts: dict[str, int] = {}
         for status in res.values():
             counts[status] = counts.get(status, 0) + 1
@@ -71,8 +65,11 @@ def main(argv=None) -> int:
         unjudged += [n for n in survivors if n not in equivalent]
         commit = open(os.path.join(folder, "COMMIT")).read().strip()[:10] if os.path.exists(
             os.path.join(folder, "COMMIT")) else "?"
-        print(f"{key:<20} {len(res):5d} mutants  " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-              + f"  (equivalent {len(judged)}; commit {commit})")
+        killed = counts.get("killed", 0) + counts.get("timeout", 0)
+        score = (killed + len(judged)) / max(1, len(res))
+        print(f"{key:<20} {len(res):5d} mutants{' (sample)' if sampled else ''}  "
+              + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+              + f"  (equivalent {len(judged)}; score {score:.3f}; commit {commit})")
     totals["survived_judged_equivalent"] = totals.get("survived", 0) - len(unjudged)
     print(json.dumps(totals, indent=1, sort_keys=True))
     for n in unjudged:
