@@ -271,15 +271,69 @@ def test_rotvec_small_angles(axis, angle):
     np.testing.assert_allclose(rot.rotmat_to_rotvec(R), phi, rtol=0, atol=1e-15)
 
 
-def test_rotvec_series_threshold_is_continuous():
-    """Both sides of the series switch (1e-4 rad) agree to rounding."""
+def _expm_minus_identity(phi):
+    """exp([phi x]) - I by Rodrigues without cancellation: (sin a / a) K + (2 sin^2(a/2) / a^2) K^2.
+
+    Never forms I + (small), so it is accurate to a few ulps of its own (small) entries.
+    """
+    a = np.linalg.norm(phi)
+    K = rot.skew(phi)
+    return np.sin(a) / a * K + 2 * np.sin(a / 2) ** 2 / a**2 * K @ K
+
+
+# Angles straddling the series switch (1e-4 rad) and deep inside the series branch.
+THRESHOLD_ANGLES = [1e-8, 0.5 * rot._SMALL_ANGLE, rot._SMALL_ANGLE * (1 - 1e-12),
+                    rot._SMALL_ANGLE, rot._SMALL_ANGLE * (1 + 1e-12), 2 * rot._SMALL_ANGLE]
+
+
+@pytest.mark.parametrize("batched", [False, True], ids=["scalar", "batched"])
+def test_rotvec_series_threshold_is_continuous(batched):
+    """Both sides of the series switch (1e-4 rad) agree with the exact maps to rounding.
+
+    The series 1 - a^2/6, 1/2 - a^2/24, 1/2 - a^2/48 are truncated at O(a^4) ~ 1e-16 relative
+    at the switch, so the only error left is rounding: the vector part of q is good to a few
+    ulps of |phi| (<= 1e-15 a), and R - I to the rounding of the ~1 diagonal (ulp(1)/2 =
+    5.6e-17 < 1e-16; the off-diagonals are ~a, their ulps ~1e-20).  rtol=0 everywhere: the
+    default rtol=1e-7 would hide an error in the a^2 coefficient (~a^3 ~ 1e-13 in R).
+    Scalar (1-D fast path) and batched forms are separate code: both are checked.
+    """
     axis = np.array([0.6, -0.48, 0.64])
-    for a in (rot._SMALL_ANGLE * (1 - 1e-12), rot._SMALL_ANGLE, rot._SMALL_ANGLE * (1 + 1e-12)):
-        phi = a * axis
-        np.testing.assert_allclose(rot.rotvec_to_quat(phi)[1:], np.sin(a / 2) / a * phi,
-                                   rtol=0, atol=1e-16 * a * 10)
-        np.testing.assert_allclose(rot.rotvec_to_rotmat(phi),
-                                   RotationMatrix(AngleAxis(a, axis)).matrix(), atol=1e-16)
+    phis = np.array([a * axis for a in THRESHOLD_ANGLES])
+    if batched:
+        qs, Rs = rot.rotvec_to_quat(phis), rot.rotvec_to_rotmat(phis)
+    else:
+        qs = np.stack([rot.rotvec_to_quat(phi) for phi in phis])
+        Rs = np.stack([rot.rotvec_to_rotmat(phi) for phi in phis])
+    for a, phi, q, R in zip(THRESHOLD_ANGLES, phis, qs, Rs):
+        np.testing.assert_allclose(q[1:], np.sin(a / 2) / a * phi, rtol=0, atol=1e-15 * a)
+        assert abs(q[0] - np.cos(a / 2)) <= 1.2e-16  # one ulp of a number just below 1
+        np.testing.assert_allclose(R - np.eye(3), _expm_minus_identity(phi), rtol=0, atol=1e-16)
+        np.testing.assert_allclose(R, RotationMatrix(AngleAxis(a, axis)).matrix(), rtol=0,
+                                   atol=2.3e-16)  # Drake's own rounding adds ~1 ulp
+
+
+def test_batched_zero_rotation_is_exact_identity_without_fp_errors():
+    """Identity particles (zero increments) in a batch: exact identity, no 0/0 anywhere.
+
+    The batched exp maps divide by the angle on their non-series branch; a guarded divisor
+    must keep 0/0 from being evaluated, so even under np.errstate(all="raise") (users who
+    turn floating-point warnings into errors) a zero rotation vector maps to the identity.
+    """
+    phis = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.1], [0.0, 0.0, 0.0]])
+    with np.errstate(all="raise"):
+        qs = rot.rotvec_to_quat(phis)
+        Rs = rot.rotvec_to_rotmat(phis)
+        back = rot.quat_to_rotvec(qs)
+    for i in (0, 2):
+        np.testing.assert_array_equal(qs[i], [1.0, 0.0, 0.0, 0.0])
+        np.testing.assert_array_equal(Rs[i], np.eye(3))
+        np.testing.assert_array_equal(back[i], np.zeros(3))
+    # The non-zero member is unaffected by its zero neighbours (closed form, ~eps accuracy).
+    np.testing.assert_allclose(Rs[1] - np.eye(3), _expm_minus_identity(phis[1]), rtol=0,
+                               atol=1e-15)
+    a = np.linalg.norm(phis[1])
+    q_ref = np.concatenate([[np.cos(a / 2)], np.sin(a / 2) / a * phis[1]])
+    np.testing.assert_allclose(qs[1], q_ref, rtol=0, atol=1e-16)
 
 
 def test_rotvec_zero():
@@ -514,6 +568,21 @@ def test_grp_identity_and_default(a, f):
     np.testing.assert_array_equal(rot.quat_to_grp(q), rot.quat_to_grp(q, 1.0, 4.0))
 
 
+def test_grp_defaults_are_a1_f4():
+    """The documented default GRP (a = 1, f = 4: |p| ~ rotation angle) in both directions.
+
+    quat_to_grp and grp_to_quat must share the default so that the default round trip is
+    the identity map; |p| = 4 tan(theta / 4) = theta + theta^3 / 48 + ... for the default.
+    """
+    q = rot.rotvec_to_quat([0.1, -0.2, 0.3])
+    theta = np.linalg.norm([0.1, -0.2, 0.3])
+    p = rot.quat_to_grp(q)
+    np.testing.assert_array_equal(p, rot.quat_to_grp(q, 1.0, 4.0))
+    assert abs(np.linalg.norm(p) - 4 * np.tan(theta / 4)) < 1e-15
+    np.testing.assert_array_equal(rot.grp_to_quat(p), rot.grp_to_quat(p, 1.0, 4.0))
+    np.testing.assert_allclose(rot.grp_to_quat(p), q, rtol=0, atol=1e-15)  # round-trip ulps
+
+
 # ----------------------------------------------------------------------------------
 # Roll-pitch-yaw
 # ----------------------------------------------------------------------------------
@@ -654,6 +723,34 @@ def test_batched_empty(name):
     args = make(np.random.default_rng(0), (0,))
     out = fn(*args)
     assert out.shape[0] == 0
+
+
+def test_single_precision_input_is_computed_in_double():
+    """float32 data (a logged or float32 particle cloud) is converted, not computed in float32.
+
+    float32 values are exactly representable in double, so the result must be the double
+    result of the same numbers: bit-identical to passing the float64 copy, unit quaternions
+    unit to a few ulps (|q| - 1 <= 4 eps = 8.9e-16) and rotation matrices orthonormal to
+    1e-14 (3-term dot products of O(1) entries, ~45 eps).  Arithmetic in float32 would be
+    off by ~eps32 = 1.2e-7 in both.
+    """
+    rng = np.random.default_rng(7)
+    phi = rng.normal(size=(200, 3)).astype(np.float32)
+    q4 = rng.normal(size=(200, 4)).astype(np.float32)
+    eps = np.finfo(float).eps
+    for fn, x in ((rot.rotvec_to_quat, phi), (rot.quat_normalize, q4),
+                  (rot.rotmat_to_quat, rot.quat_to_rotmat(q4).astype(np.float32))):
+        q = fn(x)
+        assert q.dtype == np.float64
+        np.testing.assert_array_equal(q, fn(x.astype(np.float64)))
+        assert np.max(np.abs(np.linalg.norm(q, axis=-1) - 1.0)) <= 4 * eps
+    for fn, x in ((rot.rotvec_to_rotmat, phi), (rot.quat_to_rotmat, q4),
+                  (rot.mrp_to_rotmat, 0.3 * phi)):
+        R = fn(x)
+        assert R.dtype == np.float64
+        np.testing.assert_array_equal(R, fn(x.astype(np.float64)))
+        np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape),
+                                   rtol=0, atol=1e-14)
 
 
 def test_broadcasting_single_against_batch():
