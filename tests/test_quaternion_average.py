@@ -9,6 +9,8 @@ attained objective value is always well conditioned.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from hypothesis import assume, given, settings
@@ -452,6 +454,8 @@ q_ok = np.array([1.0, 0.0, 0.0, 0.0])
         (lambda: average_two_quaternions(q_ok, q_ok, 1.0, np.nan), ["w2", "finite", "nan"]),
         (lambda: average_two_quaternions(q_ok, q_ok, 1.0, np.inf), ["w2", "finite", "inf"]),
         (lambda: average_two_quaternions(q_ok, q_ok, [1.0, 2.0], 1.0), ["w1", "scalar"]),
+        (lambda: average_two_quaternions(q_ok, q_ok, 1j, 1.0), ["w1", "real", "1j"]),
+        (lambda: average_two_quaternions(q_ok, q_ok, 1.0, "abc"), ["w2", "real", "abc"]),
         (lambda: average_two_quaternions(q_ok, q_ok, 0.0, 0.0), ["w1 + w2", "> 0", "0.0"]),
         (lambda: average_quaternions(np.zeros((0, 4))), ["quaternions", "(N, 4)", "(0, 4)"]),
         (lambda: average_quaternions(np.ones((3, 3))), ["quaternions", "(N, 4)", "(3, 3)"]),
@@ -459,6 +463,9 @@ q_ok = np.array([1.0, 0.0, 0.0, 0.0])
         (lambda: average_quaternions([[1.0, 0, 0, 0], [0, 0, 0, 0]]),
          ["quaternions[1]", "non-zero", "0."]),
         (lambda: average_quaternions([[1.0, 0, 0, np.nan]]), ["quaternions[0]", "finite", "nan"]),
+        # A missing value (None, e.g. a null in a parsed log) is a NaN, not a TypeError.
+        (lambda: average_quaternions([[1.0, 0, 0, None]]), ["quaternions[0]", "finite", "nan"]),
+        (lambda: average_quaternions([[1.0 + 1j, 0, 0, 0]]), ["quaternions", "real", "1j"]),
         (lambda: average_quaternions(Q_OK, [1.0, -2.0]), ["weights[1]", ">= 0", "-2.0"]),
         (lambda: average_quaternions(Q_OK, [1.0, np.nan]), ["weights[1]", "finite", "nan"]),
         (lambda: average_quaternions(Q_OK, [np.inf, 1.0]), ["weights[0]", "finite", "inf"]),
@@ -468,8 +475,19 @@ q_ok = np.array([1.0, 0.0, 0.0, 0.0])
     ],
 )
 def test_invalid_inputs_raise_value_error(call, needles):
-    with pytest.raises(ValueError) as info:
+    """The documented ValueError, naming the argument and the offending value.
+
+    Argument names must appear as whole words (a mangled "XXw1XX" does not name w1). Run
+    under np.errstate(all="raise"): validation must reject the input before any arithmetic
+    on it (e.g. no 0/0 while scaling all-zero weights), so a caller who turns floating-point
+    warnings into errors still gets the ValueError.
+    """
+    with np.errstate(all="raise"), pytest.raises(ValueError) as info:
         call()
     msg = str(info.value)
     for needle in needles:
-        assert needle in msg, f"{needle!r} not in {msg!r}"
+        if re.fullmatch(r"\w+(\[\d+\])?", needle):
+            assert re.search(rf"(?<!\w){re.escape(needle)}(?!\w)", msg), (
+                f"{needle!r} not a whole word in {msg!r}")
+        else:
+            assert needle in msg, f"{needle!r} not in {msg!r}"
