@@ -39,7 +39,7 @@ DEFAULT_WORK = "/tmp/drake_att_mutation"
 MODULES = {
     "rotations": ("drake_att/rotations.py",
                   ["tests/test_rotations.py", "tests/test_quaternion_average.py", "tests/test_mrp_ekf.py"]),
-    "noise": ("drake_att/noise.py", ["tests/test_sensors.py"]),
+    "noise": ("drake_att/noise.py", ["tests/test_sensors.py", "tests/test_noise.py"]),
     "metrics": ("drake_att/analysis/metrics.py", ["tests/test_metrics.py"]),
     "quaternion_average": ("drake_att/filters/quaternion_average.py", ["tests/test_quaternion_average.py"]),
     "mekf": ("drake_att/filters/mekf.py", ["tests/test_mekf.py"]),

@@ -320,6 +320,44 @@ def test_estimate_time_without_truth_sample_raises_naming_it():
     np.testing.assert_allclose(errs["dtheta"], 0.0, atol=1e-12)
 
 
+@pytest.mark.parametrize("t_truth, missing", [
+    (np.arange(4.0), r"4\."),        # truth stops at 3 s, an estimate at 4 s (after the last sample)
+    (np.arange(1.0, 6.0), r"0\."),   # truth starts at 1 s, an estimate at 0 s (before the first)
+])
+def test_estimate_time_outside_the_truth_log_raises_naming_it(t_truth, missing):
+    """An estimate time beyond either end of the truth log is a missing truth sample too:
+    the same ValueError naming the estimator and the time (not an IndexError from the
+    search past the end)."""
+    t_est = np.arange(5.0)
+    sig = estimator_signals("mekf", t_est, [[te, 0, 0, 0] for te in t_est], [q_true_at(te) for te in t_est],
+                            np.zeros((5, 3)), [np.eye(6)] * 5)
+    sig.update(truth_signals(t_truth))
+    with pytest.raises(ValueError, match=r"mekf: no truth sample at estimate times \[" + missing):
+        errors_of(make_run(sig), "mekf", "bias_B_hat", None)
+
+
+@pytest.mark.parametrize("signal, width, what", [
+    ("mekf/status", 5, "mekf status"),
+    ("mekf/q_IB_hat", 3, "mekf attitude"),          # a rotation vector logged for a quaternion
+    ("mekf/bias_B_hat", 4, "mekf second quantity"),
+    ("mekf/covariance", 9, "mekf covariance"),      # a 3x3 attitude-only covariance
+    (f"{PLANT}/q_IB", 3, "truth attitude"),
+    ("gyro/bias_B", 2, "mekf true bias"),
+])
+def test_signal_with_wrong_number_of_components_raises_naming_it(signal, width, what):
+    """A logged signal with the wrong number of components per sample is rejected, naming
+    the estimator's quantity and the signal key, instead of being scored (a 5-column status
+    or a 4-column bias would otherwise be read silently; 9 covariance entries x 4 samples
+    would even reshape into one 6x6 matrix)."""
+    sig, _ = lagged_estimator(n=5)
+    sig.update(truth_signals(np.arange(5.0)))
+    sig.update(gyro_signals())
+    t, x = sig[signal]
+    sig[signal] = (t, np.resize(x, (len(t), width)))
+    with pytest.raises(ValueError, match=re.escape(f"{what} {signal!r}: expected ")):
+        errors_of(make_run(sig), "mekf", "bias_B_hat", "gyro")
+
+
 def test_bias_error_is_true_minus_estimate_at_estimate_time():
     sig, t_expected = lagged_estimator(n=6)
     sig.update(truth_signals(np.arange(6.0)))
@@ -329,6 +367,10 @@ def test_bias_error_is_true_minus_estimate_at_estimate_time():
     # (~2.4e-6 rad/s), so a misaligned gyro sample would be off by more than the error itself.
     np.testing.assert_allclose(errs["second_err"], [e2_at(t) for t in t_expected], rtol=1e-9, atol=1e-20)
     assert errs["nees_dof"] == 6
+    # The errors say what their second error is (analysis/report.py labels and scales it by
+    # this: deg/h for a bias, deg/s for a rate), also when there is no bias truth to score.
+    assert errs["second_kind"] == "gyro_bias"
+    assert errors_of(make_run(sig), "mekf", "bias_B_hat", None)["second_kind"] == "gyro_bias"
 
 
 def test_truth_and_true_bias_are_the_signals_the_metadata_names():
@@ -377,6 +419,7 @@ def test_rate_error_for_w_hat_estimators():
     errs = errors_of(make_run(sig), "gpf", "w_IB_B_hat", None)
     np.testing.assert_allclose(errs["second_err"], [e2_at(t) for t in t_expected], rtol=1e-9, atol=1e-20)
     assert errs["nees_dof"] == 6
+    assert errs["second_kind"] == "body_rate"
 
 
 def _nees_log(P_list, second_name="bias_B_hat"):
