@@ -226,8 +226,8 @@ def is_usable(measurement) -> bool:
             return False
         if not np.all(np.isfinite(refs)) or np.any(np.linalg.norm(refs, axis=-1) < 1e-9):
             return False  # a reference direction must be a finite, non-zero vector
-    if isinstance(measurement, QuaternionSample) and np.linalg.norm(numbers) < 0.5:
-        return False
+    if isinstance(measurement, QuaternionSample) and float(numbers @ numbers) < 0.25:
+        return False  # |q| < 0.5: not a quaternion
     return True
 
 

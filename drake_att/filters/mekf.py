@@ -192,7 +192,7 @@ class MultiplicativeEKF:
 
     @staticmethod
     def from_vector(vector) -> MekfState:
-        v = np.array(vector, dtype=float)
+        v = np.asarray(vector, dtype=float)  # read-only use: every step returns new arrays
         return MekfState(v[:4], v[4:7], v[7:43].reshape(6, 6))
 
     def predict_linearized(self, state: MekfState, w_meas_B, dt: float):

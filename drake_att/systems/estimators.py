@@ -203,9 +203,9 @@ class EstimatorSystem(LeafSystem):
         """The gyro's mean rate over the interval ending at ``t``, or None if unusable."""
         if not self._gyro_port.HasValue(context):
             return None
-        g = GyroSample.from_port(self._gyro_port.Eval(context))
-        if abs(g.time_s - t) < TIME_TOLERANCE_S and g.valid and np.all(np.isfinite(g.w_meas_B)):
-            return g.w_meas_B
+        g = self._gyro_port.Eval(context)  # the GyroSample layout [t, valid, w_meas_B], read in place
+        if abs(g[0] - t) < TIME_TOLERANCE_S and contract.flag_is_true(g[1]) and np.all(np.isfinite(g[2:])):
+            return np.array(g[2:5])
         return None
 
     def _measurements(self, context):
