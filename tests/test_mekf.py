@@ -21,6 +21,8 @@ sec. 6.2, never from the library's helpers):
   included); bands are +-4 of those standard deviations.
 """
 
+import math
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -31,6 +33,7 @@ from pydrake.math import RollPitchYaw, RotationMatrix
 from drake_att import rotations as rot
 from drake_att.analysis.metrics import estimator_errors
 from drake_att.filters.mekf import (
+    MekfState,
     MultiplicativeEKF,
     process_noise,
     steady_state_covariance,
@@ -283,6 +286,170 @@ def test_gate_rejects_outlier_and_reports_it():
     new, info = core.update_quaternion(state, bad, [1.0, 0, 0, 0], np.full(3, 10 * ARCSEC))
     assert not info.accepted and info.nis > 16.0
     np.testing.assert_array_equal(new.q_IB, state.q_IB)
+
+
+# -- exact single steps: series branch of Phi, predict, the Kalman update, gate edges -----------
+def pd_quat(q):
+    """wxyz array of a pydrake Quaternion."""
+    return np.array([q.w(), q.x(), q.y(), q.z()])
+
+
+def pd_exp(phi):
+    """Unit quaternion of rotation vector phi, by pydrake (angle |phi| about phi/|phi|)."""
+    phi = np.asarray(phi, dtype=float)
+    a = np.linalg.norm(phi)
+    return AngleAxis(a, phi / a).quaternion() if a > 0 else Quaternion()
+
+
+def same_rotation(q1, q2, atol):
+    """Unit quaternions equal up to sign, entrywise within atol."""
+    q1, q2 = np.asarray(q1), np.asarray(q2)
+    return min(np.max(np.abs(q1 - q2)), np.max(np.abs(q1 + q2))) <= atol
+
+
+@pytest.mark.parametrize("dt", [0.1, 10.0])
+@pytest.mark.parametrize("a", [1e-6, 9.9e-5])
+def test_transition_matrix_series_branch_entry_by_entry(a, dt):
+    """Below the switch (|w| dt < 1e-4) Phi uses two-term series of sin a/|w|,
+    (1 - cos a)/|w|^2 and (a - sin a)/|w|^3.  Each coefficient is isolated in one entry and
+    checked against a cancellation-free closed form with rtol 1e-14: w along z gives
+    exp(-[w x] dt)_xy = sin a and J_xy = -(1 - cos a)/|w| (= -2 sin^2(a/2)/|w|); w in the x-y
+    plane gives exp(-[w x] dt)_xy = 2 sin^2(a/2) wx wy/|w|^2 and J_xy = -(a - sin a) wx wy/|w|^3,
+    the latter by its Taylor series to a^6 (remainder < a^8/4e7 ~ 1e-40).  The two-term
+    series truncate at a^4/360 < 3e-19 relative, so only rounding (observed 2e-16) remains;
+    a wrong series term is off by >= a^2/12 x (its error) ~ 4e-12 at a = 9.9e-5.  dt != 1 so
+    the powers of dt count.  (The expm check above is absolute, 1e-12: these entries are
+    O(a dt) and O(a^2 dt) and would pass it whatever their coefficients.)"""
+    wn = a / dt
+    half = math.sin(a / 2.0)
+    Phi = transition_matrix(np.array([0.0, 0.0, wn]), dt)
+    assert Phi[0, 1] == pytest.approx(math.sin(a), rel=1e-14, abs=0)
+    assert Phi[0, 4] == pytest.approx(-2.0 * half * half / wn, rel=1e-14, abs=0)
+    wx, wy = 0.6 * wn, 0.8 * wn
+    Phi = transition_matrix(np.array([wx, wy, 0.0]), dt)
+    assert Phi[0, 1] == pytest.approx(2.0 * half * half * wx * wy / wn**2, rel=1e-14, abs=0)
+    c2 = dt**3 * (1.0 / 6.0 - a**2 / 120.0 + a**4 / 5040.0 - a**6 / 362880.0)
+    assert Phi[0, 4] == pytest.approx(-c2 * wx * wy, rel=1e-14, abs=0)
+
+
+def test_predict_is_exact_rotation_and_covariance_propagation():
+    """predict() with a constant measured rate: q = q0 ⊗ exp((w_meas - b) dt) (pydrake
+    quaternion product), bias unchanged, P = Phi P Phi' + Q with Phi = expm(F dt) and the
+    integrated-noise Q of the reference model; attitude_sigma_rad() is sqrt(diag P)[:3].
+    Tolerances: quaternion entries to 1e-15 (one product and a normalization), P to 1e-12
+    relative (the library's closed-form Phi vs the 30-term series, both exact to ~1e-15).
+    A zero-length step (dt = 0) is the identity: same state, Phi = I, Q = 0 (6x6)."""
+    core = MultiplicativeEKF(ARW, RRW)
+    q0 = pd_quat(AngleAxis(0.7, np.array([1.0, -2.0, 2.0]) / 3.0).quaternion())
+    bias = np.array([2e-5, -1e-5, 3e-5])
+    A = np.array([[2.0, 0.3, -0.1, 0.2, 0.0, 0.1], [0.3, 1.5, 0.2, 0.0, -0.1, 0.0],
+                  [-0.1, 0.2, 1.0, 0.1, 0.0, 0.3], [0.2, 0.0, 0.1, 1.2, 0.1, 0.0],
+                  [0.0, -0.1, 0.0, 0.1, 0.9, 0.2], [0.1, 0.0, 0.3, 0.0, 0.2, 1.1]])
+    scale = np.array([1e-3] * 3 + [1e-5] * 3)
+    P0 = (A @ A.T) * np.outer(scale, scale)
+    state = MekfState(q0, bias, P0)
+    w_meas, dt = np.array([0.05, -0.02, 0.1]), 0.5
+    new = core.predict(state, w_meas, dt)
+    w = w_meas - bias
+    q_expected = pd_quat(Quaternion(q0).multiply(pd_exp(w * dt)))
+    assert same_rotation(new.q_IB, q_expected, 1e-15)
+    np.testing.assert_array_equal(new.bias_B, bias)
+    Phi = reference_transition(w, dt)
+    P_expected = Phi @ P0 @ Phi.T + reference_process_noise(ARW, RRW, dt)
+    np.testing.assert_allclose(new.P, P_expected, rtol=1e-12, atol=1e-12 * np.max(np.abs(P_expected)))
+    np.testing.assert_allclose(new.attitude_sigma_rad(), np.sqrt(np.diag(P_expected)[:3]), rtol=1e-12, atol=0)
+    same, Phi0, Q0 = core.predict_linearized(state, w_meas, 0.0)
+    assert same is state
+    np.testing.assert_array_equal(Phi0, np.eye(6))
+    np.testing.assert_array_equal(Q0, np.zeros((6, 6)))
+
+
+def _mounted_update_problem():
+    """A non-diagonal prior (attitude-bias correlated), a sensor mounted by q_BS with a full,
+    anisotropic noise covariance, and a measurement whose residual is a known z."""
+    q_hat = pd_quat(AngleAxis(1.1, np.array([0.0, 0.6, 0.8])).quaternion())
+    q_BS = pd_quat(AngleAxis(2.0, np.array([2.0, -1.0, 2.0]) / 3.0).quaternion())
+    L = np.array([[3.0, 0, 0, 0, 0, 0], [1.0, 2.0, 0, 0, 0, 0], [-0.5, 0.7, 2.5, 0, 0, 0],
+                  [0.4, 0.0, 0.2, 1.0, 0, 0], [0.0, -0.3, 0.1, 0.2, 1.5, 0], [0.2, 0.1, 0.0, -0.1, 0.3, 0.8]])
+    scale = np.array([1e-4] * 3 + [1e-6] * 3)
+    P = (L @ L.T) * np.outer(scale, scale)
+    M = np.array([[1.0, 0.2, 0.0], [0.2, 1.5, 0.3], [0.0, 0.3, 8.0]])
+    R = (M @ M.T) * (5 * ARCSEC) ** 2
+    z = np.array([2e-4, -1e-4, 3e-4])
+    q_meas = pd_quat(Quaternion(q_hat).multiply(Quaternion(q_BS)).multiply(pd_exp(z)))
+    return q_hat, q_BS, P, R, z, q_meas
+
+
+def test_quaternion_update_is_the_kalman_update_and_reports_it():
+    """One update against the textbook Kalman step written here: H = [R_SB, 0] (R_SB from
+    pydrake), S = H P H' + R, K = P H' S^-1, dx = K z, P+ = (I - K H) P (I - K H)' + K R K',
+    q+ = q ⊗ exp(dx_att), b+ = b + dx_bias.  UpdateInfo carries the innovation z, S, the
+    NIS z' S^-1 z and I - K H (the system counts the update and the fusion chains I - K H).
+    Full P, mounting and R make every entry of S and of the closed-form 3x3 inverse
+    matter.  Tolerances 1e-10 relative: a conditioned solve (cond S ~ 1e2) against a
+    closed-form adjugate inverse, both O(1e-15)."""
+    q_hat, q_BS, P, R, z, q_meas = _mounted_update_problem()
+    bias = np.array([1e-5, 2e-5, -3e-5])
+    core = MultiplicativeEKF(ARW, RRW)
+    new, info = core.update_quaternion(MekfState(q_hat, bias, P), q_meas, q_BS, R)
+    H = quaternion_sensor_H(RotationMatrix(Quaternion(q_BS)).matrix().T)
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T
+    dx = K @ z
+    I_KH = np.eye(6) - K @ H
+    assert info.accepted is True
+    np.testing.assert_allclose(info.innovation, z, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(info.innovation_covariance, S, rtol=1e-12, atol=0)
+    assert info.nis == pytest.approx(z @ np.linalg.solve(S, z), rel=1e-10)
+    np.testing.assert_allclose(info.error_transition, I_KH, rtol=0, atol=1e-10)
+    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    np.testing.assert_allclose(new.P, P_new, rtol=0, atol=1e-10 * np.max(np.abs(P_new)))
+    np.testing.assert_allclose(new.bias_B, bias + dx[3:], rtol=1e-9, atol=0)
+    assert same_rotation(new.q_IB, pd_quat(Quaternion(q_hat).multiply(pd_exp(dx[:3]))), 1e-14)
+
+
+def test_gate_accepts_nis_equal_to_it_and_small_gates_are_valid():
+    """The gate rejects a NIS that *exceeds* it: a gate equal to the (bit-identical) NIS of
+    the update accepts, the next float below rejects.  Any positive gate is valid (a gate
+    below 1, e.g. 0.5, is a strict gate, not an error); zero and negative gates raise."""
+    q_hat, q_BS, P, R, z, q_meas = _mounted_update_problem()
+    state = MekfState(q_hat, np.zeros(3), P)
+    nis = MultiplicativeEKF(ARW, RRW).update_quaternion(state, q_meas, q_BS, R)[1].nis
+    assert 1.0 < nis < 1e3
+    at = MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=nis).update_quaternion(state, q_meas, q_BS, R)[1]
+    below = MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=np.nextafter(nis, 0.0))
+    assert at.accepted and not below.update_quaternion(state, q_meas, q_BS, R)[1].accepted
+    small = MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=0.5)
+    q_close = pd_quat(Quaternion(q_hat).multiply(Quaternion(q_BS)).multiply(pd_exp(z * 1e-3)))
+    assert small.update_quaternion(state, q_close, q_BS, R)[1].accepted  # NIS = 1e-6 x nis
+    assert not small.update_quaternion(state, q_meas, q_BS, R)[1].accepted
+    for gate in (0.0, -1.0):
+        with pytest.raises(ValueError, match="innovation_gate_chi2"):
+            MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=gate)
+
+
+def test_update_with_singular_or_indefinite_innovation_covariance_is_rejected():
+    """S = H P H' + R not positive definite - singular (zero attitude covariance and zero
+    noise) or indefinite (a noise covariance with a negative eigenvalue, det S < 0) - has no
+    valid gain (an indefinite S pushes the estimate away from the measurement on one axis):
+    the core rejects the measurement (accepted False, NIS NaN, state unchanged) and still
+    reports S."""
+    q_hat, q_BS, P, R, z, q_meas = _mounted_update_problem()
+    core = MultiplicativeEKF(ARW, RRW)
+    P_zero_att = P.copy()
+    P_zero_att[:3, :] = 0.0
+    P_zero_att[:, :3] = 0.0
+    state_p = MekfState(q_hat, np.zeros(3), P)
+    H = quaternion_sensor_H(RotationMatrix(Quaternion(q_BS)).matrix().T)
+    HPH = H @ P @ H.T
+    R_indef = np.diag([1.0, 1.0, -(1.0 + 2.0 * np.max(np.linalg.eigvalsh(HPH)) / ARCSEC**2)]) * ARCSEC**2
+    for state, noise in ((MekfState(q_hat, np.zeros(3), P_zero_att), np.zeros((3, 3))), (state_p, R_indef)):
+        S = H @ state.P @ H.T + noise
+        assert np.linalg.det(S) <= 0.0
+        new, info = core.update_quaternion(state, q_meas, q_BS, noise)
+        assert info.accepted is False and math.isnan(info.nis)
+        assert new is state
+        np.testing.assert_allclose(info.innovation_covariance, S, rtol=1e-12, atol=0)
 
 
 # -- steady_state_covariance against scipy's DARE ---------------------------------------------
