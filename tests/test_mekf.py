@@ -450,6 +450,12 @@ def test_update_with_singular_or_indefinite_innovation_covariance_is_rejected():
         assert info.accepted is False and math.isnan(info.nis)
         assert new is state
         np.testing.assert_allclose(info.innovation_covariance, S, rtol=1e-12, atol=0)
+    # Two negative eigenvalues: det S > 0 although S is not positive definite.
+    R_two_negative = np.diag([-(1.0 + 2.0 * np.max(np.linalg.eigvalsh(HPH)) / ARCSEC**2)] * 2 + [1.0]) * ARCSEC**2
+    S = HPH + R_two_negative
+    assert np.linalg.det(S) > 0.0 and np.sum(np.linalg.eigvalsh(S) < 0) == 2
+    new, info = core.update_quaternion(state_p, q_meas, q_BS, R_two_negative)
+    assert info.accepted is False and math.isnan(info.nis) and new is state_p
 
 
 # -- steady_state_covariance against scipy's DARE ---------------------------------------------

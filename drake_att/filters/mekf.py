@@ -102,17 +102,19 @@ def transition_matrix(w_hat_B, dt: float) -> np.ndarray:
 
 
 def _inverse(S):
-    """Inverse of a small SPD matrix (closed form for 3x3), or None if singular."""
+    """Inverse of a small symmetric positive-definite matrix (closed form for 3x3), or None
+    if it is not positive definite (Sylvester: every leading minor > 0) or not finite."""
     if S.shape == (3, 3):
         (a, b, c), (d, e, f), (g, h, i) = S.tolist()
         A, B, C = e * i - f * h, -(d * i - f * g), d * h - e * g
         det = a * A + b * B + c * C
-        if not det > 0.0 or not math.isfinite(det):
+        if not (a > 0.0 and a * e - b * d > 0.0 and det > 0.0) or not math.isfinite(det):
             return None
         return np.array([[A, -(b * i - c * h), b * f - c * e],
                          [B, a * i - c * g, -(a * f - c * d)],
                          [C, -(a * h - b * g), a * e - b * d]]) / det
     try:
+        np.linalg.cholesky(S)  # positive definite, or LinAlgError
         return np.linalg.inv(S)
     except np.linalg.LinAlgError:
         return None
