@@ -7,15 +7,19 @@ import functools
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
+from scipy.linalg import expm
 from scipy.stats import chi2
 
 from drake_att import rotations as rot
+from drake_att.contract import UpdateInfo, VectorObservations
 from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V
 from s0_truth import simulate_gyro_truth as simulate_truth
 
 from drake_att.filters.mrp_ekf import (
     MrpEkf,
+    MrpEkfCore,
     attitude_to_mrp_covariance,
+    check_quaternion,
     discrete_process_noise,
     discrete_transition_matrix,
     ekf_predict,
@@ -350,7 +354,8 @@ def test_constructor_validation_names_the_field(kwargs, field):
     args = dict(q_IB_hat0=[1, 0, 0, 0], bias_hat0=np.zeros(3), covariance0=P0_ATT,
                 arw_sigma=SIGMA_V, rrw_sigma=SIGMA_U)
     args.update(kwargs)
-    with pytest.raises(ValueError, match=field):
+    # The field as a whole word (not inside a longer identifier).
+    with pytest.raises(ValueError, match=rf"(?<!\w){field}(?!\w)"):
         MrpEkf(**args)
 
 
@@ -366,3 +371,194 @@ def test_call_validation_names_the_field():
         ekf.update(REFS.ravel(), np.zeros((2, 2)), SIGMA_STAR)
     with pytest.raises(ValueError, match="y must have shape"):
         ekf.update(np.zeros(5), REFS, SIGMA_STAR)
+
+
+# --------------------------------------------------------------------------------------
+# Discretization against independent computations (written here, not the library's)
+# --------------------------------------------------------------------------------------
+def _quat_mul(p, q):
+    """Hamilton product of [w, x, y, z] quaternions, written out."""
+    w1, v1, w2, v2 = p[0], p[1:], q[0], q[1:]
+    return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
+
+
+def _exact_step(x, w_meas, dt):
+    """The exact mean map of [rho; b] over dt at the constant rate w_meas - b:
+    q(rho) = [1 - |rho|^2, 2 rho] / (1 + |rho|^2), q+ = q ⊗ [cos(a/2), sin(a/2) n],
+    rho+ = q+_vec / (1 + q+_w) (same sign of q, i.e. the MRP the ODE reaches)."""
+    rho, b = x[:3], x[3:]
+    n2 = rho @ rho
+    q = np.concatenate([[1.0 - n2], 2.0 * rho]) / (1.0 + n2)
+    w = w_meas - b
+    a = np.linalg.norm(w) * dt
+    q_new = _quat_mul(q, np.concatenate([[np.cos(a / 2)], np.sin(a / 2) * w / np.linalg.norm(w)]))
+    return np.concatenate([q_new[1:] / (1.0 + q_new[0]), b])
+
+
+def test_transition_matrix_is_the_third_order_exponential():
+    """Phi = I + A + A^2/2 + A^3/6 (A = F dt) is expm(A) up to the Taylor remainder
+    ||sum_{k>=4} A^k / k!|| <= ||A||^4 / 24 e^||A|| (scipy's expm as the reference). Taken
+    at a fast spin (|A| ~ 0.47, bound 0.0033) where the cubic term (||A^3|| / 6 = 0.011)
+    is over 3x the bound: a missing cubic term (error 0.011) or one of the wrong sign
+    (0.022) fails; the actual error is 0.0011 (the quartic term, ~||A||^4 / 24)."""
+    x = np.array([0.2, -0.1, 0.3, 1e-3, -2e-3, 5e-4])
+    F = mrp_dynamics_jacobian(x, np.array([0.5, -0.3, 0.4]))
+    A = F * 1.0
+    norm_A = np.linalg.norm(A, 2)
+    bound = norm_A**4 / 24 * np.exp(norm_A)
+    assert np.linalg.norm(A @ A @ A, 2) / 6 > 3 * bound  # the cubic term matters here
+    assert np.linalg.norm(discrete_transition_matrix(F, 1.0) - expm(A), 2) < bound
+
+
+@pytest.mark.parametrize("w_meas", [(0.05, -0.03, 0.04), (0.03, 0.02, -0.01)])
+def test_predicted_covariance_is_the_step_maps_linearization(w_meas):
+    """Without process noise ekf_predict gives P+ = Phi P Phi'; Phi must be the Jacobian J
+    of the exact discrete mean map (central differences of ``_exact_step``, written here)
+    to O(|w dt|^3) (F at the half-step mean; module docstring). Bound: relative Frobenius
+    error < |w dt|^3 (3.5e-4 and 5e-5 here; measured 2.1e-5 and 7e-6), while F at the
+    start (or end) of the step is off by O(|w dt|^2) (measured 3.7e-3 and 2.1e-3, 10x
+    and 40x the bound) and at 1.5 dt by twice that. The mean is the exact map."""
+    w_meas = np.array(w_meas)
+    dt = 1.0
+    x0 = np.array([0.2, -0.1, 0.3, 1e-3, -2e-3, 5e-4])
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(6, 6))
+    D = np.diag([0.01] * 6)
+    P = D @ (A @ A.T / 6 + 0.5 * np.eye(6)) @ D
+    J = central_jacobian(lambda z: _exact_step(z, w_meas, dt), x0)
+    x1, P1 = ekf_predict(x0, P, w_meas, dt, 0.0, 0.0)
+    np.testing.assert_allclose(x1, _exact_step(x0, w_meas, dt), rtol=0, atol=1e-15)
+    P_ref = J @ P @ J.T
+    assert np.linalg.norm(P1 - P_ref) / np.linalg.norm(P_ref) < np.linalg.norm(w_meas * dt)**3
+
+
+# --------------------------------------------------------------------------------------
+# Inputs: normalization, covariance round trip, validation
+# --------------------------------------------------------------------------------------
+def test_initial_estimate_normalizes_q_and_reports_covariance0():
+    """A non-unit q_IB_hat0 is normalized (the documented [w, x, y, z] input is a direction
+    in R^4) and covariance() right after construction is covariance0 (the B(rho0) map to
+    the MRP chart and back is exact; rtol 1e-12 is round-off of two 6x6 congruences), at
+    an attitude where B(rho0) is far from I/4."""
+    q = rot.quat_normalize(np.array([0.6, -0.3, 0.5, 0.4]))
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(6, 6))
+    D = np.diag([DEG] * 3 + [DEG / HOUR] * 3)
+    P0 = D @ (A @ A.T / 6 + 0.5 * np.eye(6)) @ D
+    ekf = MrpEkf(2.5 * q, np.zeros(3), P0, SIGMA_V, SIGMA_U)
+    np.testing.assert_allclose(ekf.q_IB_hat, q, rtol=0, atol=1e-15)
+    # The shared validation helper (also used by the particle filters) returns the unit
+    # quaternion, as documented.
+    np.testing.assert_allclose(check_quaternion(2.5 * q, "q"), q, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(ekf.covariance(), P0, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(ekf.P, ekf.P.T, rtol=0, atol=0)
+
+
+def test_covariance0_symmetry_is_checked_to_round_off():
+    """covariance0 must be symmetric: an asymmetry of 1e-6 relative (far above round-off,
+    1e-16) is rejected, a 1-ulp asymmetry is accepted and symmetrized (the tolerance is
+    1e-9 relative to the entry plus 1e-12 of the largest entry)."""
+    P0 = P0_ATT.copy()
+    P0[0, 1] = P0[1, 0] = 0.3 * DEG**2
+    bad = P0.copy()
+    bad[0, 1] *= 1.0 + 1e-6
+    with pytest.raises(ValueError, match=r"(?<!\w)covariance0(?!\w).*symmetric"):
+        MrpEkf([1, 0, 0, 0], np.zeros(3), bad, SIGMA_V, SIGMA_U)
+    ulp = P0.copy()
+    ulp[0, 1] = np.nextafter(ulp[0, 1], 1.0)
+    ekf = MrpEkf([1, 0, 0, 0], np.zeros(3), ulp, SIGMA_V, SIGMA_U)
+    np.testing.assert_allclose(ekf.covariance(), P0, rtol=1e-12, atol=0)
+
+
+def test_measurement_with_a_missing_component_is_skipped():
+    """A y with a None entry (e.g. a dropped component) is a missing measurement: skipped
+    and counted, the state untouched (not a TypeError)."""
+    ekf = MrpEkf([1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U)
+    x, P = ekf.x.copy(), ekf.P.copy()
+    assert ekf.update([1.0, 0.0, None, 0.0, 1.0, 0.0], REFS, SIGMA_STAR) is False
+    assert ekf.n_skipped == 1 and ekf.n_updates == 0
+    np.testing.assert_array_equal(ekf.x, x)
+    np.testing.assert_array_equal(ekf.P, P)
+
+
+def test_shadow_switch_of_integer_input_is_computed_in_floating_point():
+    """switch_to_short_mrp returns new float arrays: the integer MRP [0, 2, 0] (180 + 2
+    atan... i.e. |rho| = 2 > 1) maps to its shadow -rho/|rho|^2 = [0, -0.5, 0] exactly."""
+    xs, P, switched = switch_to_short_mrp(np.array([[0, 2, 0], [0, 0, 1]]))
+    assert P is None and list(switched) == [True, False]
+    np.testing.assert_array_equal(xs, [[0.0, -0.5, 0.0], [0.0, 0.0, 1.0]])
+
+
+# --------------------------------------------------------------------------------------
+# MrpEkfCore (the FilterCore the estimator system runs)
+# --------------------------------------------------------------------------------------
+def test_core_with_mounted_sensor_matches_mrp_ekf_and_its_nis_is_chi_square():
+    """MrpEkfCore fed sensor-frame directions of a star tracker mounted at q_BS (y_S =
+    R_BS' y_B, exact for isotropic noise) runs the same filter as MrpEkf fed the body-frame
+    vectors: states, covariances and innovations agree to round-off (rtol 1e-9; the
+    rotation adds ~1e-16 per step and the filter contracts errors). Its NIS is
+    r' S^-1 r of the reported innovation, and over steps 10-119 (after the documented
+    first-update overconfidence) the sum of the NIS lies within the 99.9 % two-sided
+    chi-square(6 x 110) band (innovations of a consistent filter are white)."""
+    rng = np.random.default_rng(3)
+    num_steps = 120
+    q_true, _, ys, wms = simulate_truth(num_steps, rng)
+    q_BS = rot.quat_normalize(np.array([0.7, 0.1, -0.6, 0.3]))
+    R_BS = rot.quat_to_rotmat(q_BS)
+    q0 = rot.rpy_to_quat(np.array([0.5, -0.5, 0.5]) * DEG)
+    b0 = np.full(3, DEG / HOUR)
+    core = MrpEkfCore(SIGMA_V, SIGMA_U)  # default rrw_sigma (0) must be accepted too
+    assert MrpEkfCore(SIGMA_V).rrw_sigma == 0.0
+    state = core.initial_state(q0, b0, P0_ATT)
+    ekf = MrpEkf(q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
+    np.testing.assert_array_equal(state.x, ekf.x)
+    np.testing.assert_array_equal(state.P, ekf.P)
+    nis = []
+    for k in range(num_steps):
+        if k > 0:
+            state = core.predict(state, wms[k - 1], 1.0)
+            ekf.predict(1.0, wms[k - 1])
+        obs = VectorObservations(float(k), True, ys[k].reshape(2, 3) @ R_BS, REFS, SIGMA_STAR, q_BS)
+        state, info = core.update(state, obs)
+        ekf.update(ys[k], REFS, SIGMA_STAR)
+        assert isinstance(info, UpdateInfo) and info.accepted
+        np.testing.assert_allclose(info.innovation, ekf.last_innovation, rtol=1e-9, atol=1e-15)
+        r, S = info.innovation, info.innovation_covariance
+        assert info.nis == pytest.approx(r @ np.linalg.solve(S, r), rel=1e-12)
+        nis.append(info.nis)
+    np.testing.assert_allclose(state.x, ekf.x, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(state.P, ekf.P, rtol=1e-7, atol=1e-24)
+    q_hat, b_hat, C = core.estimate(state)
+    np.testing.assert_allclose(q_hat, ekf.q_IB_hat, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b_hat, ekf.bias_hat, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(C, ekf.covariance(), rtol=1e-7, atol=0)
+    lo, hi = chi2.ppf([0.0005, 0.9995], 6 * (num_steps - 10))
+    assert lo < np.sum(nis[10:]) < hi
+    # The state vector round trip is exact.
+    back = core.from_vector(core.to_vector(state))
+    np.testing.assert_array_equal(back.x, state.x)
+    np.testing.assert_array_equal(back.P, state.P)
+
+
+def test_core_skips_unusable_observations_and_names_bad_arguments():
+    core = MrpEkfCore(SIGMA_V, SIGMA_U, update_iterations=2)
+    state = core.initial_state([1, 0, 0, 0], np.zeros(3), P0_ATT)
+    obs = VectorObservations(0.0, True, np.full((2, 3), np.nan), REFS, SIGMA_STAR,
+                             np.array([1.0, 0, 0, 0]))
+    new, info = core.update(state, obs)
+    assert new is state and not info.accepted and np.isnan(info.nis)
+    word = r"(?<!\w){}(?!\w)".format
+    for kwargs, field in [(dict(arw_sigma=0.0), "arw_sigma"), (dict(rrw_sigma=-1.0), "rrw_sigma"),
+                          (dict(update_iterations=0), "update_iterations")]:
+        with pytest.raises(ValueError, match=word(field)):
+            MrpEkfCore(**dict(dict(arw_sigma=SIGMA_V), **kwargs))
+    for args, field in [(([0, 0, 0, 0], np.zeros(3), P0_ATT), "q_IB_hat0"),
+                        (([1, 0, 0, 0], np.zeros(2), P0_ATT), "bias_hat0"),
+                        (([1, 0, 0, 0], np.zeros(3), np.eye(5)), "covariance0")]:
+        with pytest.raises(ValueError, match=word(field)):
+            core.initial_state(*args)
+    with pytest.raises(ValueError, match=word("dt")):
+        core.predict(state, np.zeros(3), 0.0)
+    bad_sigma = VectorObservations(0.0, True, REFS, REFS, -1.0, np.array([1.0, 0, 0, 0]))
+    with pytest.raises(ValueError, match=word("sigma")):
+        core.update(state, bad_sigma)
