@@ -12,10 +12,12 @@ from drake_att import rotations as rot
 from drake_att.filters.mrp_ekf import MrpEkf, vector_measurement_model
 from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
 
+from drake_att.contract import SecondQuantity
 from drake_att.filters.particle import (
     BootstrapParticleFilter,
     ExtendedKalmanParticleFilter,
     GyrolessParticleFilter,
+    ParticleFilterCore,
     effective_sample_size,
     normalize_log_weights,
     systematic_resample,
@@ -270,10 +272,18 @@ def test_missing_inputs_are_skipped_and_counted():
                                           [1.0, 2.0], 1e-6, r), "torque"),
         (lambda r: GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA,
                                           TORQUE, 1e-6, r, num_substeps=0), "num_substeps"),
+        (lambda r: BootstrapParticleFilter(10, [0, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r),
+         "q_IB_hat0"),
+        # The unit of a wrong-shape array is part of the message.
+        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, 1e-6, r),
+         r"bias_hat0 must have shape \(3,\) \(rad/s\)"),
+        (lambda r: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6,
+                                                1e-9, r), "covariance0"),
     ],
 )
 def test_constructor_validation_names_the_field(make, field):
-    with pytest.raises(ValueError, match=field):
+    # The field as a whole word (not inside a longer identifier).
+    with pytest.raises(ValueError, match=rf"(?<!\w){field}(?!\w)"):
         make(np.random.default_rng(0))
 
 
@@ -284,10 +294,15 @@ def test_call_validation_names_the_field():
         pf.predict(-1.0, np.zeros(3), rng)
     with pytest.raises(ValueError, match="rng"):
         pf.predict(1.0, np.zeros(3), 42)
-    with pytest.raises(ValueError, match="sigma"):
+    with pytest.raises(ValueError, match=r"(?<!\w)sigma(?!\w)"):
         pf.update(REFS.ravel(), REFS, 0.0, rng)
     with pytest.raises(ValueError, match="y must have shape"):
         pf.update(np.zeros(3), REFS, SIGMA_STAR, rng)
+    gpf = GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 0.0, rng)
+    with pytest.raises(ValueError, match=r"(?<!\w)dt(?!\w)"):
+        gpf.predict(0.0, rng)
+    with pytest.raises(ValueError, match=r"(?<!\w)torque must have shape \(3,\) \(N m\)"):
+        gpf.predict(1.0, rng, torque=[1.0, 2.0])
 
 
 # --------------------------------------------------------------------------------------
@@ -544,3 +559,164 @@ def test_gyroless_propagation_matches_euler_truth_without_noise():
     assert att_err(q_hat, q) < 1e-8  # rad, after a 0.2 rad rotation
     np.testing.assert_allclose(w_hat, w, atol=1e-12)
     assert np.ptp(gpf.particles, axis=0).max() < 1e-12
+
+
+# --------------------------------------------------------------------------------------
+# Edge cases and statistics against computations written here
+# --------------------------------------------------------------------------------------
+def test_a_single_particle_is_a_valid_filter():
+    """N >= 1 (documented): one particle has weight 1 and N_eff = 1 whatever the likelihood
+    (so it never needs resampling: 1 >= 2/3), its mean is the particle itself."""
+    assert effective_sample_size([3.0]) == 1.0
+    np.testing.assert_array_equal(systematic_resample([2.0], np.random.default_rng(0)), [0])
+    rng = np.random.default_rng(4)
+    pf = BootstrapParticleFilter(1, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, rng)
+    y = vector_measurement_model(np.array([0.01, 0.0, 0.0]), REFS)
+    assert pf.update(y, REFS, SIGMA_STAR, rng)
+    np.testing.assert_array_equal(pf.weights, [1.0])
+    assert pf.effective_sample_size() == 1.0 and pf.n_resamples == 0
+    np.testing.assert_allclose(pf.mean()[0], pf.particle_quaternions()[0], rtol=0, atol=1e-15)
+
+
+def _quat_mul(p, q):
+    w1, v1, w2, v2 = p[0], p[1:], q[0], q[1:]
+    return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
+
+
+def _rotvec_of(q):
+    """Rotation vector of a unit quaternion (either sign), 2 atan2(|v|, w) v / |v|."""
+    q = q if q[0] >= 0 else -q
+    s = np.linalg.norm(q[1:])
+    return 2.0 * np.arctan2(s, q[0]) * q[1:] / s
+
+
+def test_mean_and_covariance_are_weighted_statistics_of_the_set():
+    """Two clusters of particles (5 deg apart) with weights 0.8 / 0.2 spread over them at
+    random: mean() must be Markley's WEIGHTED average (largest eigenvector of
+    sum w_i q_i q_i', computed here with eigh) and covariance() the weighted second moment
+    of [log(q_hat^-1 q_i); b_i - b_hat] (written out here). Round-off only (1e-12); the
+    unweighted average would be ~1 deg off (0.5 vs 0.8 of the 5 deg). particle_quaternions
+    are the particles' MRPs as quaternions, q = [1 - |rho|^2, 2 rho] / (1 + |rho|^2)."""
+    rng = np.random.default_rng(7)
+    n = 40
+    pf = BootstrapParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, rng)
+    centers = [rot.rpy_to_quat(np.array([10.0, -20.0, 30.0]) * DEG),
+               rot.rpy_to_quat(np.array([10.0, -20.0, 35.0]) * DEG)]
+    q = np.array([_quat_mul(centers[i % 2], rot.rotvec_to_quat(0.01 * rng.standard_normal(3)))
+                  for i in range(n)])
+    pf.particles[:, :3] = rot.quat_to_mrp(q)
+    pf.particles[:, 3:] = 1e-5 * rng.standard_normal((n, 3))
+    w = np.where(np.arange(n) % 2 == 0, 0.8, 0.2) * rng.uniform(0.5, 1.5, n)
+    pf.weights = w / w.sum()
+    pf.log_weights = np.log(pf.weights)
+    w = pf.weights
+    n2 = np.sum(pf.particles[:, :3] ** 2, axis=1, keepdims=True)
+    q_set = np.concatenate([1.0 - n2, 2.0 * pf.particles[:, :3]], axis=1) / (1.0 + n2)
+    np.testing.assert_allclose(pf.particle_quaternions(), q_set, rtol=0, atol=1e-15)
+    vals, vecs = np.linalg.eigh((q_set * w[:, None]).T @ q_set)
+    q_hat = vecs[:, -1] * np.sign(vecs[0, -1])
+    b_hat = w @ pf.particles[:, 3:]
+    q_mean, b_mean = pf.mean()
+    np.testing.assert_allclose(q_mean * np.sign(q_mean[0]), q_hat, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b_mean, b_hat, rtol=1e-12, atol=0)
+    q_hat_conj = q_hat * np.array([1.0, -1.0, -1.0, -1.0])
+    e = np.array([np.concatenate([_rotvec_of(_quat_mul(q_hat_conj, qi)), bi - b_hat])
+                  for qi, bi in zip(q_set, pf.particles[:, 3:])])
+    C = (e * w[:, None]).T @ e
+    np.testing.assert_allclose(pf.covariance(), C, rtol=1e-9, atol=1e-12 * np.max(np.abs(C)))
+    # The weights matter here: the unweighted average is far from the weighted one.
+    vals_u, vecs_u = np.linalg.eigh(q_set.T @ q_set)
+    assert att_err(vecs_u[:, -1], q_hat) > 0.5 * DEG
+
+
+def test_gyroless_process_noise_has_the_documented_variances_and_torque_override():
+    """Point-mass prior, isotropic inertia (w x I w = 0): one predict over dt adds rate noise
+    N(0, s_w^2 dt I) and body-frame attitude noise N(0, s_a^2 dt I) after the deterministic
+    step (module docstring). Sample variances of N = 4000 particles per axis: (N-1) s^2 /
+    sigma^2 ~ chi-square(N-1), checked at the 99.9 % two-sided level Bonferroni-corrected
+    for the 6 axes (a missing or mis-scaled noise, e.g. sqrt(dt) -> dt with dt = 2, fails).
+
+    Torque override (noise-free): with J = j I and w0 = 0 the rate is w = T dt / j and the
+    attitude turns by T dt^2 / (2 j) about T, exactly (RK4 and the Simpson rate average are
+    exact for a rate linear in t); the next predict uses the constructor's torque (zero)."""
+    n, dt, s_w, s_a = 4000, 2.0, 3e-5, 2e-4
+    rng = np.random.default_rng(13)
+    J = 150.0 * np.eye(3)
+    q0 = rot.rpy_to_quat(np.array([5.0, 10.0, -15.0]) * DEG)
+    w0 = np.array([1e-3, -2e-3, 0.5e-3])
+    gpf = GyrolessParticleFilter(n, q0, w0, np.eye(6) * 1e-30, J, np.zeros(3), s_w, rng,
+                                 attitude_process_sigma=s_a)
+    gpf.predict(dt, rng)
+    q_det = _quat_mul(q0, rot.rotvec_to_quat(w0 * dt))
+    q_det_conj = q_det * np.array([1.0, -1.0, -1.0, -1.0])
+    dtheta = np.array([_rotvec_of(_quat_mul(q_det_conj, qi)) for qi in gpf.particle_quaternions()])
+    lo, hi = chi2.ppf([0.001 / 12, 1 - 0.001 / 12], n - 1) / (n - 1)
+    var_w = np.var(gpf.particles[:, 3:] - w0, axis=0, ddof=1) / (s_w**2 * dt)
+    var_a = np.var(dtheta, axis=0, ddof=1) / (s_a**2 * dt)
+    assert np.all((lo < var_w) & (var_w < hi)), var_w
+    assert np.all((lo < var_a) & (var_a < hi)), var_a
+
+    T = np.array([2e-3, -1e-3, 3e-3])
+    quiet = GyrolessParticleFilter(3, q0, np.zeros(3), np.eye(6) * 1e-30, J, np.zeros(3), 0.0, rng)
+    quiet.predict(dt, rng, torque=T)
+    # atol: the point-mass prior still has sigma 1e-15 per component (covariance 1e-30).
+    np.testing.assert_allclose(quiet.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
+                               rtol=0, atol=1e-14)
+    q_expected = _quat_mul(q0, rot.rotvec_to_quat(T * dt**2 / 300.0))
+    assert max(att_err(qi, q_expected) for qi in quiet.particle_quaternions()) < 1e-13
+    quiet.predict(dt, rng)  # constructor torque (zero): the rate is held
+    np.testing.assert_allclose(quiet.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
+                               rtol=0, atol=1e-14)
+
+
+def _ekpf_with_known_bias():
+    """EKPF whose particles' covariances have an exactly zero bias block (bias known, no
+    RRW): singular, so every Cholesky factor goes through the eigenvalue repair."""
+    q0 = rot.quat_normalize(np.array([0.9, 0.2, -0.3, 0.25]))
+    P0 = np.diag([(100e-6) ** 2] * 3 + [(1e-7) ** 2] * 3)
+    pf = ExtendedKalmanParticleFilter(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U,
+                                      np.random.default_rng(5), resample_threshold=0.0)
+    pf.covariances[:, 3:, :] = 0.0
+    pf.covariances[:, :, 3:] = 0.0
+    y = (vector_measurement_model(rot.quat_to_mrp(q0), REFS)
+         + SIGMA_STAR * np.random.default_rng(1).standard_normal(6))
+    return pf, y
+
+
+def test_ekpf_update_with_a_singular_covariance_keeps_zero_variance_states():
+    """The proposal draw x = m+ + L eps with a singular P+ (zero bias variance): the repaired
+    factor must not move a zero-variance state beyond round-off of the covariance scale.
+    Bound: |db| < 1e-4 sqrt(lambda_max(P+)) (a repair that injects at most 1e-8 of the
+    largest variance; measured 2.4e-6 of it). Weights stay finite and normalized."""
+    pf, y = _ekpf_with_known_bias()
+    b_before = pf.particles[:, 3:].copy()
+    assert pf.update(y, REFS, SIGMA_STAR, np.random.default_rng(2))
+    scale = np.sqrt(np.max(np.linalg.eigvalsh(pf.covariances), axis=1))
+    assert np.all(np.abs(pf.particles[:, 3:] - b_before) < 1e-4 * scale[:, None])
+    assert_weights_ok(pf)
+
+
+@pytest.mark.parametrize("kind", ["bootstrap", "ekpf", "gyroless"])
+def test_particle_core_state_size_is_the_length_of_its_state_vector(kind):
+    """The FilterCore contract: state_size is len(to_vector(state)) (the Context's
+    discrete-state group: N x (6 + 1 + 1) numbers, + 36 per particle for the EKPF's
+    covariances), and from_vector inverts to_vector exactly."""
+    n = 7
+    make = {
+        "bootstrap": lambda r: BootstrapParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r),
+        "ekpf": lambda r: ExtendedKalmanParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6,
+                                                       1e-9, r),
+        "gyroless": lambda r: GyrolessParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA,
+                                                     TORQUE, 1e-6, r),
+    }[kind]
+    second = SecondQuantity.BODY_RATE if kind == "gyroless" else SecondQuantity.GYRO_BIAS
+    core = ParticleFilterCore(make, second)
+    state = core.draw_initial_state(np.random.default_rng(3))
+    vector = core.to_vector(state)
+    assert core.state_size == vector.size == n * (8 + (36 if kind == "ekpf" else 0))
+    back = core.from_vector(vector)
+    np.testing.assert_array_equal(back.particles, state.particles)
+    np.testing.assert_array_equal(back.weights, state.weights)
+    np.testing.assert_array_equal(back.log_weights, state.log_weights)
+    if kind == "ekpf":
+        np.testing.assert_array_equal(back.covariances, state.covariances)
