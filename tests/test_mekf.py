@@ -536,7 +536,7 @@ sensors:
 - !StarTrackerConfig
   name: st1
   period_s: {st_period}
-  mounting_paper_s3_angles_deg: [-90.0, 45.0, -90.0]
+  mounting: !PaperS3Eq7Mounting {{psi_phi_theta_deg: [-90.0, 45.0, -90.0]}}
   sigma_cross_boresight_arcsec: 5.0
   sigma_boresight_arcsec: 50.0
   dropout_probability: {dropout}
@@ -769,7 +769,7 @@ sensors:
   name: st
   period_s: 1.0
   mode: vectors
-  mounting_rpy_deg: [0.0, 90.0, 20.0]
+  mounting: !RpyMounting {rpy_deg: [0.0, 90.0, 20.0]}
   references_I: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
   sigma_vector_urad: 100.0
 estimators:

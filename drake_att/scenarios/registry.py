@@ -94,14 +94,7 @@ def _register(kind, config_type, build, **kwargs) -> None:
         raise PluginError(f"{kind} plug-in {build.__name__!r}: config_type must be a dataclass; got {config_type!r}")
     if "name" not in {f.name for f in dataclasses.fields(config_type)}:
         raise PluginError(f"{kind} config {config_type.__name__}: needs a 'name' field (names the system)")
-    # Drake's YAML loader reads each field's ``type``; resolve postponed (string) annotations
-    # (``from __future__ import annotations`` in the plug-in module) into real types.
-    try:
-        hints = typing.get_type_hints(config_type)
-    except Exception as e:
-        raise PluginError(f"{kind} config {config_type.__name__}: cannot resolve its field types: {e}") from e
-    for f in dataclasses.fields(config_type):
-        f.type = hints.get(f.name, f.type)
+    _resolve_field_types(config_type, kind)
     tag = config_type.__name__
     for other_kind, plugins in _PLUGINS.items():
         existing = plugins.get(tag)
@@ -109,6 +102,28 @@ def _register(kind, config_type, build, **kwargs) -> None:
             raise PluginError(f"{kind} config {tag} (module {build.__module__}): the tag {tag!r} is already "
                               f"registered by {existing.module} as a {other_kind}; rename the config class")
     _PLUGINS[kind][tag] = Plugin(kind, config_type, build, module=build.__module__, **kwargs)
+
+
+def _resolve_field_types(config_type: type, kind: str, seen=None) -> None:
+    """Drake's YAML loader reads each dataclass field's ``type``: resolve postponed (string)
+    annotations (``from __future__ import annotations`` in a plug-in module) into real types,
+    for the config and every dataclass nested in it (e.g. a ``Union`` of mounting types)."""
+    seen = set() if seen is None else seen
+    if config_type in seen:
+        return
+    seen.add(config_type)
+    try:
+        hints = typing.get_type_hints(config_type)
+    except Exception as e:
+        raise PluginError(f"{kind} config {config_type.__name__}: cannot resolve its field types: {e}") from e
+    for f in dataclasses.fields(config_type):
+        f.type = hints.get(f.name, f.type)
+        stack = [f.type]
+        while stack:
+            t = stack.pop()
+            if isinstance(t, type) and dataclasses.is_dataclass(t):
+                _resolve_field_types(t, kind, seen)
+            stack.extend(typing.get_args(t))
 
 
 def register_estimator(config_type: type, *, second_quantity, validate: Callable | None = None):

@@ -8,7 +8,7 @@ quaternion measurement (quaternion mode).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List
+from typing import List, Union
 
 import numpy as np
 
@@ -23,19 +23,34 @@ MODES = ("quaternion", "vectors")
 
 
 @dataclass
+class RpyMounting:
+    """Sensor frame S relative to the body B: roll/pitch/yaw (x-y-z) of S in B (deg)."""
+
+    rpy_deg: List[float] = field(default_factory=cfg.zeros3)
+
+
+@dataclass
+class PaperS3Eq7Mounting:
+    """Paper S3's mounting convention (its eq. 7): three angles ``[psi, phi, theta]`` (deg)
+    give a quaternion ``q7``, read as ``R_SB = R(q7)`` (``q_BS = q7^-1``); see
+    :func:`drake_att.systems.star_tracker.mounting_from_paper_s3_angles`."""
+
+    psi_phi_theta_deg: List[float] = field(default_factory=cfg.zeros3)
+
+
+@dataclass
 class StarTrackerConfig:
     """Star tracker (boresight = sensor +z).
 
-    Mounting: ``mounting_paper_s3_angles_deg`` = ``[psi, phi, theta]`` of paper S3's
-    eq. 7 when non-empty, else ``mounting_rpy_deg`` (roll/pitch/yaw of S in B).
+    ``mounting``: ``!RpyMounting {rpy_deg: [...]}`` (default: aligned with the body) or
+    ``!PaperS3Eq7Mounting {psi_phi_theta_deg: [...]}``.
     ``mode``: "quaternion" (attitude output) or "vectors" (``references_I`` directions).
     """
 
     name: str = "st1"
     period_s: float = 1.0
     mode: str = "quaternion"
-    mounting_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
-    mounting_paper_s3_angles_deg: List[float] = field(default_factory=list)  # [] = unused
+    mounting: Union[RpyMounting, PaperS3Eq7Mounting] = field(default_factory=RpyMounting)
     sigma_cross_boresight_arcsec: float = 0.0
     sigma_boresight_arcsec: float = 0.0
     references_I: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (m, 3)
@@ -46,10 +61,11 @@ class StarTrackerConfig:
 
 def star_tracker_mounting(st: StarTrackerConfig) -> np.ndarray:
     """``q_BS`` of a tracker config."""
-    if len(st.mounting_paper_s3_angles_deg):
-        psi, phi, theta = np.asarray(st.mounting_paper_s3_angles_deg) * DEG
+    m = st.mounting
+    if isinstance(m, PaperS3Eq7Mounting):
+        psi, phi, theta = np.asarray(m.psi_phi_theta_deg) * DEG
         return mounting_from_paper_s3_angles(psi, phi, theta)
-    return rot.rpy_to_quat(np.asarray(st.mounting_rpy_deg) * DEG)
+    return rot.rpy_to_quat(np.asarray(m.rpy_deg) * DEG)
 
 
 def star_tracker_sigmas_S(st: StarTrackerConfig) -> np.ndarray:
@@ -62,9 +78,10 @@ def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
     cfg.check_positive(f"{path}.period_s", c.period_s)
     if c.mode not in MODES:
         cfg.fail(f"{path}.mode", c.mode, "allowed: 'quaternion', 'vectors'")
-    cfg.check_vector(f"{path}.mounting_rpy_deg", c.mounting_rpy_deg, 3)
-    if c.mounting_paper_s3_angles_deg:
-        cfg.check_vector(f"{path}.mounting_paper_s3_angles_deg", c.mounting_paper_s3_angles_deg, 3)
+    if isinstance(c.mounting, PaperS3Eq7Mounting):
+        cfg.check_vector(f"{path}.mounting.psi_phi_theta_deg", c.mounting.psi_phi_theta_deg, 3)
+    else:
+        cfg.check_vector(f"{path}.mounting.rpy_deg", c.mounting.rpy_deg, 3)
     cfg.check_nonnegative(f"{path}.sigma_cross_boresight_arcsec", c.sigma_cross_boresight_arcsec)
     cfg.check_nonnegative(f"{path}.sigma_boresight_arcsec", c.sigma_boresight_arcsec)
     cfg.check_nonnegative(f"{path}.sigma_vector_urad", c.sigma_vector_urad)
