@@ -428,6 +428,14 @@ def test_gate_accepts_nis_equal_to_it_and_small_gates_are_valid():
             MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=gate)
 
 
+@pytest.mark.parametrize("arw, rrw, field", [(-1e-6, 1e-9, "arw"), (np.nan, 1e-9, "arw"),
+                                              (1e-6, -1e-9, "rrw"), (1e-6, np.inf, "rrw")])
+def test_invalid_gyro_noise_names_the_field(arw, rrw, field):
+    """A negative or non-finite ARW/RRW is refused with a message that starts with the field."""
+    with pytest.raises(ValueError, match=rf"^{field}: got"):
+        MultiplicativeEKF(arw, rrw)
+
+
 def test_update_with_singular_or_indefinite_innovation_covariance_is_rejected():
     """S = H P H' + R not positive definite - singular (zero attitude covariance and zero
     noise) or indefinite (a noise covariance with a negative eigenvalue, det S < 0) - has no
