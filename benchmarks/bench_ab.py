@@ -6,8 +6,10 @@
 
 Each measurement is a fresh interpreter with ``PYTHONPATH`` pointing at one checkout: it
 builds the case's diagram, runs it once (warm-up, seed 1), then times ``simulate`` for
-seed 2. Rounds alternate old/new so drifting machine load hits both alike; the figure
-reported is the best of the rounds, and the ratio is new/old (below 1: new is faster).
+seed 2. Each round measures old then new back to back, so drifting machine load hits both
+alike; reported: the best time of each, the ratio of the bests, and the median of the
+per-round ratios with its range (below 1: new is faster). On a shared VM single rounds
+scatter by 10-30%: read the median over several rounds.
 
 Cases: the default scenario (S3 dual tracker, 4 MEKFs + fusion, 1 Hz) and the S3 single
 tracker with gyro, tracker and MEKF all at 10 Hz, each over ``--duration`` seconds.
@@ -62,13 +64,16 @@ def main(argv=None):
     args = ap.parse_args(argv)
     print(f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
           f"{args.rounds} alternating rounds, {args.duration:.0f} s simulated per case, best wall time shown")
-    print(f"{'case':<45} {'old (s)':>9} {'new (s)':>9} {'new/old':>8}")
+    print(f"{'case':<45} {'old (s)':>9} {'new (s)':>9} {'best/best':>9} {'median ratio [range]':>24}")
     for label, (scenario, overrides) in CASES.items():
         old, new = [], []
         for _ in range(args.rounds):
             old.append(measure(args.old, scenario, args.duration, overrides))
             new.append(measure(args.new, scenario, args.duration, overrides))
-        print(f"{label:<45} {min(old):9.3f} {min(new):9.3f} {min(new) / min(old):8.3f}")
+        ratios = sorted(n / o for n, o in zip(new, old))
+        median = ratios[len(ratios) // 2] if len(ratios) % 2 else 0.5 * (ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2])
+        print(f"{label:<45} {min(old):9.3f} {min(new):9.3f} {min(new) / min(old):9.3f} "
+              f"{median:10.3f} [{ratios[0]:.2f}, {ratios[-1]:.2f}]")
 
 
 if __name__ == "__main__":
