@@ -20,6 +20,7 @@ import pytest
 
 from drake_att.cli import main as cli_main
 from drake_att.scenarios.builder import RunLog
+from test_metrics import qmul  # the independent quaternion product written in the metrics tests
 
 SCENARIO_YAML = """
 name: score_mix
@@ -73,16 +74,6 @@ def _read(path):
 def _metrics(path):
     with open(path) as f:
         return json.load(f)
-
-
-# Independent quaternion math (scalar first, Hamilton product; R(p ⊗ q) = R(p) R(q)).
-def qmul(p, q):
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return np.array([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw])
 
 
 def test_metadata_names_the_truth_each_kind_and_each_estimators_gyro(result):
