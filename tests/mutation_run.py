@@ -45,7 +45,7 @@ MODULES = {
     "mekf": ("drake_att/filters/mekf.py", ["tests/test_mekf.py"]),
     "mrp_ekf": ("drake_att/filters/mrp_ekf.py",
                 ["tests/test_mrp_ekf.py", "tests/test_particle_filters.py", "tests/test_particle_weights.py"]),
-    "contract": ("drake_att/contract.py", ["tests/test_plugins.py", "-k", "contract"]),
+    "contract": ("drake_att/contract.py", ["tests/test_contract.py", "tests/test_plugins.py", "-k", "contract"]),
     "particle": ("drake_att/filters/particle.py",
                  ["tests/test_particle_filters.py", "tests/test_particle_weights.py", "tests/test_particle_systems.py"]),
 }
