@@ -9,10 +9,9 @@ from typing import List, Optional
 
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
-from drake_att.filters.particle import BootstrapParticleFilter, ParticleFilterCore
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.particle_estimators import BootstrapPfEstimator
 from drake_att.units import ARW_DEG_PER_RT_H, DEG_PER_H
 
 
@@ -51,10 +50,8 @@ def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
     arw_deg = g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None \
         else c.attitude_process_noise_deg_per_rt_h
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    core = ParticleFilterCore(lambda rng: BootstrapParticleFilter(
-        c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H, rng,
+    est = ctx.builder.AddSystem(BootstrapPfEstimator(
+        c.name, c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H,
         bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
-        resample_threshold=c.resample_threshold), SecondQuantity.GYRO_BIAS)
-    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, core.initial_state(),
-                                                vector_sensors=[c.star_tracker]))
+        resample_threshold=c.resample_threshold))
     return common.connect_vector_filter(ctx, c, est)

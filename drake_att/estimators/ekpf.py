@@ -9,10 +9,9 @@ from typing import List, Optional
 
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
-from drake_att.filters.particle import ExtendedKalmanParticleFilter, ParticleFilterCore
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.particle_estimators import EkpfEstimator
 
 
 @dataclass
@@ -44,9 +43,7 @@ def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
 def build_ekpf(ctx, c: EkpfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    core = ParticleFilterCore(lambda rng: ExtendedKalmanParticleFilter(
-        c.num_particles, q0, b0, P0, arw, rrw, rng, proposal_iterations=c.proposal_iterations,
-        resample_threshold=c.resample_threshold), SecondQuantity.GYRO_BIAS)
-    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, core.initial_state(),
-                                                vector_sensors=[c.star_tracker]))
+    est = ctx.builder.AddSystem(EkpfEstimator(c.name, c.period_s, c.star_tracker, c.num_particles, q0, b0, P0,
+                                              arw, rrw, proposal_iterations=c.proposal_iterations,
+                                              resample_threshold=c.resample_threshold))
     return common.connect_vector_filter(ctx, c, est)

@@ -12,11 +12,10 @@ import numpy as np
 
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
-from drake_att.filters.particle import GyrolessParticleFilter, ParticleFilterCore
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.particle_estimators import GyrolessPfEstimator
 from drake_att.units import ARW_DEG_PER_RT_H, DEG
 
 
@@ -82,10 +81,9 @@ def build_gyroless_pf(ctx, c: GyrolessPfConfig):
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
     w0 = np.asarray(c.initial_rate_deg_per_s, dtype=float) * DEG
     P0 = np.diag([(c.initial_attitude_sigma_deg * DEG) ** 2] * 3 + [(c.initial_rate_sigma_deg_per_s * DEG) ** 2] * 3)
-    core = ParticleFilterCore(lambda rng: GyrolessParticleFilter(
-        c.num_particles, q0, w0, P0, inertia, torque, c.rate_process_noise_deg_per_s_per_rt_s * DEG, rng,
+    est = ctx.builder.AddSystem(GyrolessPfEstimator(
+        c.name, c.period_s, c.star_tracker, c.num_particles, q0, w0, P0, inertia, torque,
+        c.rate_process_noise_deg_per_s_per_rt_s * DEG,
         attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
-        num_substeps=c.num_substeps, resample_threshold=c.resample_threshold), SecondQuantity.BODY_RATE)
-    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, core.initial_state(),
-                                                vector_sensors=[c.star_tracker]))
+        num_substeps=c.num_substeps, resample_threshold=c.resample_threshold))
     return common.connect_vector_filter(ctx, c, est, uses_gyro=False)

@@ -9,10 +9,9 @@ from typing import List, Optional
 
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
-from drake_att.filters.mrp_ekf import MrpEkfCore
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.particle_estimators import MrpEkfEstimator
 
 
 @dataclass
@@ -42,7 +41,6 @@ def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
 def build_mrp_ekf(ctx, c: MrpEkfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    core = MrpEkfCore(arw, rrw, c.update_iterations)
-    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, core.initial_state(q0, b0, P0),
-                                                vector_sensors=[c.star_tracker]))
+    est = ctx.builder.AddSystem(MrpEkfEstimator(c.name, c.period_s, c.star_tracker, q0, b0, P0, arw, rrw,
+                                                c.update_iterations))
     return common.connect_vector_filter(ctx, c, est)
