@@ -232,3 +232,24 @@ def test_monte_carlo_pool_matches_in_process_runs():
     np.testing.assert_allclose(mean, per_seed.mean(axis=0), rtol=1e-12)
     np.testing.assert_allclose(std, per_seed.std(axis=0, ddof=1), rtol=1e-12)
     assert np.all(std > 0)  # different seeds, different noise
+
+
+def test_estimator_plugins_start_from_the_configured_estimate_in_si():
+    """Every gyro-mode plug-in's initial estimate (the published estimate before the first
+    step) is the configured attitude and bias converted to SI (conversions written here):
+    bias [deg/h] * pi/180/3600, attitude from roll/pitch/yaw, covariance diag(sigma^2)."""
+    from drake_att.scenarios.builder import ScenarioDiagram
+
+    bias_deg_h = [3.0, -2.0, 1.5]
+    s = load_scenario(text=BASE.replace(
+        "!MekfConfig {name: mekf, period_s: 1.0, gyro: gyro, star_trackers: [st1]}",
+        "!MekfConfig {name: mekf, period_s: 1.0, gyro: gyro, star_trackers: [st1], initial_bias_deg_per_h: "
+        "[3.0, -2.0, 1.5], initial_attitude_rpy_deg: [0.0, 0.0, 10.0], initial_attitude_sigma_deg: 2.0, "
+        "initial_bias_sigma_deg_per_h: 4.0}"))
+    sd = ScenarioDiagram(s)
+    est = sd.estimators["mekf"]
+    x = est.estimate_vector(est.CreateDefaultContext())
+    np.testing.assert_allclose(x[4:7], np.array(bias_deg_h) * np.pi / 180 / 3600, rtol=1e-15)
+    np.testing.assert_allclose(x[:4], [np.cos(np.radians(5.0)), 0.0, 0.0, np.sin(np.radians(5.0))], atol=1e-15)
+    np.testing.assert_allclose(np.diag(x[7:43].reshape(6, 6)),
+                               [np.radians(2.0) ** 2] * 3 + [(4.0 * np.pi / 180 / 3600) ** 2] * 3, rtol=1e-14)
