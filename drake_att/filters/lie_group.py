@@ -1,0 +1,313 @@
+"""Lie-group (SO(3)) Kalman filter of paper S4 (Xu, Pei & Jiang 2020), gyro + star vectors.
+
+Plain numpy (no Drake).  The attitude is a rotation matrix, the error a 3-vector of the
+Lie algebra, the covariance 3x3; there is no gyro-bias state (as in the paper).
+
+**Frame sense.**  The paper's eq 2 calls its ``X`` inertial-to-body (``l = X r``) while its
+kinematics ``X_dot = X [w x]`` (eq 8, 10) is the body-to-inertial form.  This core takes
+the kinematics as the physics: the state matrix is ``R_IB`` (body B in inertial I,
+``v_I = R_IB v_B``) propagated with the body-frame gyro rate ``w_IB_B``, and the paper's
+measurement ``l = X r`` is read with ``X = R_BI = R_IB'`` (star direction in the body frame
+``b_B = R_IB' r_I``).  Eq 34's matrix is therefore ``R_BI(0)`` (it maps the references of
+eq 33 onto the measured vectors of eq 35); ``R_IB(0)`` is its transpose.  The published
+``q_IB_hat`` is the quaternion of the state matrix.
+
+**Error convention** (the project's, one for the whole filter): the truth is
+``R_IB = R_IB_hat exp([dtheta_B x])`` (``R_err = R_IB_hat' R_IB``), ``P = cov(dtheta_B)``
+(rad^2).  In the paper's ``X = R_BI`` this is ``X = exp(-[dtheta_B x]) X_hat``, i.e. the
+paper's *left* error ``eta = X X_hat'`` of eqs 22-23 with ``eta = exp(-[dtheta_B x])``.
+
+**Consistent formulation** (``formulation="consistent"``, default).  With the star
+tracker mounted by ``q_BS`` (``R_SB = R(q_BS)'``) and ``m >= 1`` stars:
+
+* predict over ``dt`` with the step's mean gyro rate ``w``: ``A = exp([w dt x])``
+  (Rodrigues), ``R_IB_hat <- R_IB_hat A`` (the paper's ``X_hat A_k``, exact for a constant
+  rate), ``P <- A' P A + Q`` (the body-frame error is seen from the new body axes; the
+  paper's ``A P A' + Q`` differs by ``O(|w| dt)``, negligible for S4's ``|w dt| < 2e-4``);
+* predicted directions ``b_i = R_IB_hat' r_i`` (body), measured ``d_i`` (sensor frame);
+  innovation ``z_i = d_i - R_SB b_i`` (sensor frame), ``H_i = R_SB [b_i x]`` (from
+  ``R_IB' r = exp(-[dtheta x]) b = b + [b x] dtheta``), ``R = Q_v I_3m``;
+* ``S = H P H' + R``, ``K = P H' S^-1``, ``dtheta = K z``,
+  ``R_IB_hat <- R_IB_hat exp([dtheta x])`` (right update of ``R_IB``), Joseph form
+  ``P <- (I - K H) P (I - K H)' + K R K'`` (= eq 32's ``(I - K H) P`` for the optimal gain;
+  eq 29 adds the 6x6 ``Q_v`` to a 3x3 matrix and is not used).
+
+In the paper's ``X = R_BI`` this is SPEC's pairing (c): left update
+``X_hat <- exp(-[K z x]) X_hat`` with ``H = -[(X_hat r) x]`` (up to the sign of ``dtheta``).
+
+**Literal formulation** (``formulation="paper_literal"``): eqs 26-32 exactly as printed on
+the paper's ``X_hat = R_IB_hat'``: body-frame innovation ``eps_i = l_i - X_hat r_i``
+(``l_i = R_BS d_i``), ``H_i = -[r_i x]`` (no ``X_hat`` in it), right update
+``X_hat <- X_hat exp([K eps x])`` and ``P <- A P A' + Q``.  The predict of the mean is the
+same kinematic one as above (so only the update pairing differs).  This pairing is not
+consistent: run noise-free from ``X_0 = I`` with the paper's tuning it stays ~20 deg off
+after 400 updates (see the tests).  Its ``P`` is reported as if it were ``cov(dtheta_B)``
+(the paper's eq 22 reading, ``eta = exp(-[dtheta x])``); it is not a consistent covariance.
+
+**Process noise.**  ``Q_w`` (rad^2, scalar or 3x3) is the attitude-error covariance added
+per step of length ``step_s`` (the paper: ``5e-5 I3`` per 1 s step); a predict over ``dt``
+adds ``Q_w dt / step_s`` (random walk), plus ``arw^2 dt I`` if a gyro noise figure
+``gyro_arw_rad_per_rt_s`` is given.  ``Q_v`` (rad^2) is the per-component variance of the
+star directions (the paper: ``0.125^2``); None uses each measurement's ``sigma_rad^2``.
+
+**Second quantity: the body rate** (:attr:`SecondQuantity.BODY_RATE`).  The filter does not
+estimate the rate: the published ``w_IB_B_hat`` is the gyro's mean rate of the last predict
+(zero before the first).  Its error ``e_w = w_true - w_hat`` enters the attitude error as
+``dtheta <- A' dtheta + e_w dt``, so the 6x6 covariance is the honest joint covariance of
+``[dtheta_B; e_w]`` (see :func:`rate_error_model`):
+
+* with a gyro noise figure (ARW ``N``): ``cov(e_w) = N^2 / dt I`` (white rate noise
+  averaged over the step), cross ``cov(dtheta, e_w) = N^2 I`` right after the predict;
+* without one (default): the whole per-step process noise is attributed to the gyro,
+  ``cov(e_w) = Q / dt^2`` and cross ``Q / dt`` (the paper's ``W_k`` read as the integrated
+  rate error of the step).  With S4's tuning that is ``5e-5 (rad/s)^2``.
+* before the first predict: ``cov(e_w) = initial_rate_sigma^2 I`` (:meth:`initial_state`,
+  default 1 rad/s: no rate information yet), cross 0.
+
+Updates correct the attitude only: ``cov(e_w)`` is unchanged and the cross block becomes
+``(I - K H) C``.  A gyro bias or the change of the true rate within the step is not in the
+rate block (this filter has no bias model, as in the paper).
+
+``innovation_gate_chi2``: reject an update whose NIS exceeds it (``accepted=False``); a
+singular or non-positive-definite ``S`` is rejected the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
+
+FORMULATIONS = ("consistent", "paper_literal")
+_EYE3 = np.eye(3)
+DEFAULT_INITIAL_RATE_SIGMA = 1.0  # rad/s: the rate block before any gyro sample
+
+
+@dataclass(frozen=True)
+class LieGroupState:
+    """Estimate of :class:`LieGroupFilter`.
+
+    Attributes:
+        R_IB: (3, 3) attitude, body B in inertial I (``v_I = R_IB v_B``).
+        P: (3, 3) covariance of ``dtheta_B`` (rad^2), ``R_IB = R_IB_hat exp([dtheta_B x])``.
+        w_B: (3,) last gyro mean rate used by predict (rad/s), the published body rate.
+        P_w: (3, 3) covariance of the rate error ``w_true - w_B`` ((rad/s)^2).
+        C: (3, 3) cross covariance ``cov(dtheta_B, w_true - w_B)`` (rad^2/s).
+    """
+
+    R_IB: np.ndarray
+    P: np.ndarray
+    w_B: np.ndarray
+    P_w: np.ndarray
+    C: np.ndarray
+
+    def attitude_sigma_rad(self) -> np.ndarray:
+        return np.sqrt(np.diag(self.P))
+
+
+def _as_cov3(value, name: str) -> np.ndarray:
+    """A 3x3 symmetric PSD matrix from a scalar variance or a 3x3 matrix (ValueError otherwise)."""
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 0:
+        a = float(a) * _EYE3
+    if a.shape != (3, 3) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0, atol=1e-15 * (1 + np.abs(a).max())):
+        raise ValueError(f"{name}: got {value!r}; need a finite scalar variance >= 0 or a symmetric 3x3 matrix")
+    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
+        raise ValueError(f"{name}: got {value!r}; must be positive semi-definite")
+    return a.copy()
+
+
+def orthonormalize(R) -> np.ndarray:
+    """One Newton step of the polar decomposition, ``R (3 I - R'R) / 2``: removes the
+    O(eps) drift from orthogonality that products of rotation matrices accumulate."""
+    R = np.asarray(R, dtype=float)
+    return R @ (1.5 * _EYE3 - 0.5 * (R.T @ R))
+
+
+def rate_error_model(Q_step, arw: float | None, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(cov(e_w), cov(dtheta, e_w))`` right after a predict over ``dt`` (s).
+
+    ``Q_step``: the attitude process noise added by that predict (rad^2, 3x3, body frame).
+    With a gyro ARW ``N`` (rad/s^0.5): ``N^2/dt I`` and ``N^2 I``; without (None):
+    ``Q_step/dt^2`` and ``Q_step/dt`` (the whole step noise read as integrated rate error).
+    Both follow from ``dtheta <- A' dtheta + e_w dt`` with ``e_w`` independent of the prior.
+    """
+    if arw is not None and arw > 0.0:
+        v = arw * arw
+        return (v / dt) * _EYE3, v * _EYE3
+    return Q_step / (dt * dt), Q_step / dt
+
+
+def _inverse_spd(S):
+    """Inverse of a symmetric positive-definite matrix, or None (not PD / not finite)."""
+    if not np.all(np.isfinite(S)):
+        return None
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return None
+    L_inv = np.linalg.inv(L)
+    return L_inv.T @ L_inv
+
+
+def _sensor_directions(measurement: VectorObservations) -> tuple[np.ndarray, np.ndarray]:
+    """``(directions_S (m, 3), R_SB (3, 3))`` of a star-tracker sample, ``R_SB = R(q_BS)'``."""
+    return np.atleast_2d(np.asarray(measurement.directions_S, dtype=float)), rot.quat_to_rotmat(measurement.q_BS).T
+
+
+class LieGroupFilter:
+    """Lie-group filter core (paper S4); implements :class:`drake_att.contract.FilterCore`.
+
+    State vector: ``[R_IB (9, row-major), P (9), w_B (3), P_w (9), C (9)]`` (39).
+
+    Args:
+        Q_w: attitude process noise per step of length ``step_s`` (rad^2; scalar or 3x3,
+            body frame).  Paper: ``5e-5``.
+        Q_v: per-component star-direction variance (rad^2) or None to use each
+            measurement's ``sigma_rad^2``.  Paper: ``0.125**2``.
+        formulation: "consistent" (default) or "paper_literal" (see the module docstring).
+        step_s: the step length ``Q_w`` refers to (s), default 1.
+        gyro_arw_rad_per_rt_s: gyro angle random walk (rad/s^0.5) or None; adds
+            ``arw^2 dt I`` to the process noise and sets the rate block (module docstring).
+        innovation_gate_chi2: reject updates whose NIS exceeds this value (None: no gate).
+    """
+
+    second_quantity = SecondQuantity.BODY_RATE
+    uses_gyro = True
+    is_random = False
+    state_size = 39
+
+    def __init__(self, Q_w=5e-5, Q_v=None, formulation: str = "consistent", step_s: float = 1.0,
+                 gyro_arw_rad_per_rt_s: float | None = None, innovation_gate_chi2=None):
+        if formulation not in FORMULATIONS:
+            raise ValueError(f"formulation: got {formulation!r}; allowed: {list(FORMULATIONS)}")
+        if not (math.isfinite(step_s) and step_s > 0.0):
+            raise ValueError(f"step_s: got {step_s}; must be finite and > 0")
+        if Q_v is not None and not (math.isfinite(Q_v) and Q_v >= 0.0):
+            raise ValueError(f"Q_v: got {Q_v}; must be finite and >= 0, or None")
+        if gyro_arw_rad_per_rt_s is not None and not (math.isfinite(gyro_arw_rad_per_rt_s)
+                                                      and gyro_arw_rad_per_rt_s >= 0.0):
+            raise ValueError(f"gyro_arw_rad_per_rt_s: got {gyro_arw_rad_per_rt_s}; must be finite and >= 0, or None")
+        if innovation_gate_chi2 is not None and not innovation_gate_chi2 > 0:
+            raise ValueError(f"innovation_gate_chi2: got {innovation_gate_chi2}; must be > 0 or None")
+        self.Q_w = _as_cov3(Q_w, "Q_w")
+        self.Q_v = None if Q_v is None else float(Q_v)
+        self.formulation = formulation
+        self.step_s = float(step_s)
+        self.arw = None if gyro_arw_rad_per_rt_s is None else float(gyro_arw_rad_per_rt_s)
+        self.gate = innovation_gate_chi2
+
+    # -- construction and the state vector --------------------------------------------------
+    @staticmethod
+    def initial_state(attitude, P0, initial_rate_sigma: float = DEFAULT_INITIAL_RATE_SIGMA) -> LieGroupState:
+        """State from ``q_IB`` (4) or ``R_IB`` (3, 3) and ``P0`` (scalar variance or 3x3, rad^2).
+
+        The rate block starts at ``w_B = 0`` with ``initial_rate_sigma`` (rad/s) per axis.
+        """
+        a = np.asarray(attitude, dtype=float)
+        if a.shape == (4,):
+            R = rot.quat_to_rotmat(a)
+        elif a.shape == (3, 3):
+            if not np.allclose(a.T @ a, _EYE3, atol=1e-9) or np.linalg.det(a) <= 0:
+                raise ValueError(f"attitude: got a 3x3 matrix that is not a rotation: {a.tolist()}")
+            R = orthonormalize(a)
+        else:
+            raise ValueError(f"attitude: got shape {a.shape}; need q_IB (4,) or R_IB (3, 3)")
+        if not (math.isfinite(initial_rate_sigma) and initial_rate_sigma > 0.0):
+            raise ValueError(f"initial_rate_sigma: got {initial_rate_sigma}; must be finite and > 0")
+        return LieGroupState(R, _as_cov3(P0, "P0"), np.zeros(3), initial_rate_sigma**2 * _EYE3, np.zeros((3, 3)))
+
+    @staticmethod
+    def to_vector(state: LieGroupState) -> np.ndarray:
+        return np.concatenate([np.ravel(state.R_IB), np.ravel(state.P), state.w_B, np.ravel(state.P_w),
+                               np.ravel(state.C)])
+
+    @staticmethod
+    def from_vector(vector) -> LieGroupState:
+        v = np.asarray(vector, dtype=float)
+        if v.shape != (39,):
+            raise ValueError(f"LieGroupFilter state vector: got shape {v.shape}; need (39,)")
+        return LieGroupState(v[0:9].reshape(3, 3), v[9:18].reshape(3, 3), v[18:21], v[21:30].reshape(3, 3),
+                             v[30:39].reshape(3, 3))
+
+    def estimate(self, state: LieGroupState):
+        """``(q_IB_hat, w_IB_B_hat, 6x6 covariance of [dtheta_B; w_true - w_hat])``."""
+        P6 = np.empty((6, 6))
+        P6[:3, :3] = state.P
+        P6[:3, 3:] = state.C
+        P6[3:, :3] = state.C.T
+        P6[3:, 3:] = state.P_w
+        return rot.rotmat_to_quat(state.R_IB), np.array(state.w_B, dtype=float), P6
+
+    # -- time update ---------------------------------------------------------------------------
+    def process_noise(self, dt: float) -> np.ndarray:
+        """Attitude process noise of a predict over ``dt`` (s): ``Q_w dt/step_s + arw^2 dt I``."""
+        Q = self.Q_w * (dt / self.step_s)
+        if self.arw:
+            Q = Q + (self.arw**2 * dt) * _EYE3
+        return Q
+
+    def predict(self, state: LieGroupState, w_meas_B, dt: float, rng=None) -> LieGroupState:
+        """Propagate over ``dt`` (s) with the gyro's mean rate ``w_meas_B`` (rad/s, body).
+
+        ``dt <= 0`` returns the state unchanged; ``w_meas_B`` None is a zero rate.
+        """
+        if not dt > 0.0:
+            return state
+        w = np.zeros(3) if w_meas_B is None else np.asarray(w_meas_B, dtype=float).copy()
+        A = rot.rotvec_to_rotmat(w * dt)
+        Q = self.process_noise(dt)
+        if self.formulation == "consistent":
+            P = A.T @ state.P @ A + Q
+        else:  # the paper's eq 25
+            P = A @ state.P @ A.T + Q
+        P_w, C = rate_error_model(Q, self.arw, dt)
+        return LieGroupState(orthonormalize(state.R_IB @ A), 0.5 * (P + P.T), w, P_w, C)
+
+    # -- measurement update --------------------------------------------------------------------
+    def update(self, state: LieGroupState, measurement, rng=None) -> tuple[LieGroupState, UpdateInfo]:
+        """Update with a :class:`~drake_att.contract.VectorObservations` (m >= 1 stars)."""
+        if not isinstance(measurement, VectorObservations):
+            raise TypeError(f"LieGroupFilter.update: got a {type(measurement).__name__}; allowed: VectorObservations")
+        d_S, R_SB = _sensor_directions(measurement)
+        r_I = np.atleast_2d(np.asarray(measurement.references_I, dtype=float))
+        m = d_S.shape[0]
+        var = float(measurement.sigma_rad) ** 2 if self.Q_v is None else self.Q_v
+        R_meas = var * np.eye(3 * m)
+        X_hat = state.R_IB.T  # the paper's X = R_BI
+        if self.formulation == "consistent":
+            b_B = r_I @ X_hat.T  # predicted body directions (m, 3)
+            z = (d_S - b_B @ R_SB.T).ravel()
+            H = (R_SB @ rot.skew(b_B)).reshape(3 * m, 3)
+        else:
+            l_B = d_S @ R_SB  # R_BS d_i, rows
+            z = (l_B - r_I @ X_hat.T).ravel()
+            H = (-rot.skew(r_I)).reshape(3 * m, 3)
+        P = state.P
+        PHt = P @ H.T
+        S = H @ PHt + R_meas
+        S = 0.5 * (S + S.T)
+        S_inv = _inverse_spd(S)
+        if S_inv is None or not np.all(np.isfinite(z)):
+            return state, UpdateInfo(z, S, float("nan"), False)
+        nis = float(z @ S_inv @ z)
+        if not math.isfinite(nis) or (self.gate is not None and nis > self.gate):
+            return state, UpdateInfo(z, S, nis, False)
+        K = PHt @ S_inv
+        dx = K @ z
+        I_KH = _EYE3 - K @ H
+        P_new = I_KH @ P @ I_KH.T + K @ R_meas @ K.T
+        if self.formulation == "consistent":
+            R_new = state.R_IB @ rot.rotvec_to_rotmat(dx)
+        else:  # X_hat <- X_hat exp([dx x])  <=>  R_IB_hat <- exp(-[dx x]) R_IB_hat
+            R_new = rot.rotvec_to_rotmat(-dx) @ state.R_IB
+        new = LieGroupState(orthonormalize(R_new), 0.5 * (P_new + P_new.T), state.w_B, state.P_w, I_KH @ state.C)
+        return new, UpdateInfo(z, S, nis, True)
+
+
+__all__ = ["LieGroupState", "LieGroupFilter", "FORMULATIONS", "rate_error_model", "orthonormalize",
+           "DEFAULT_INITIAL_RATE_SIGMA"]

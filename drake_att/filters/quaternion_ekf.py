@@ -1,0 +1,264 @@
+"""Additive quaternion EKF: the baseline of paper S4 (Xu, Pei & Jiang 2020), gyro + stars.
+
+Plain numpy (no Drake).  State: the 4 components of ``q_IB`` (wxyz, Hamilton; body B in
+inertial I, ``v_I = R(q_IB) v_B``) with a 4x4 covariance ``P_q`` of the *additive* error
+``dq = q_true - q_hat``; no gyro-bias state.  Paper defaults: ``q0 = [1, 0, 0, 0]``,
+``P0 = I4``, ``Q = 1e-5 I4`` (per 1 s step), ``R = 0.01 I4``.
+
+* **Predict** over ``dt`` with the gyro's mean body rate ``w`` (rad/s):
+  ``q <- Phi q`` with ``Phi = [dq]_R`` the right-multiplication matrix of
+  ``dq = exp(w dt / 2) = [cos(|w| dt/2), sin(|w| dt/2) w/|w|]`` (``q ⊗ dq = Phi q``; the
+  closed-form transition of ``q_dot = 1/2 q ⊗ [0, w]`` for a constant rate, orthogonal, so
+  ``|q|`` is kept).  The model is linear in ``q``: its Jacobian is ``Phi`` itself and
+  ``P <- Phi P Phi' + Q dt/step_s`` (plus ``1/4 N^2 dt Xi Xi'`` for a gyro ARW ``N``,
+  ``Xi`` below).
+* **Measurement**: a quaternion computed from the star directions (the paper's ``R = 0.01 I4``
+  is a quaternion-noise figure, SPEC S4).  Body directions ``b_i = R_BS d_i`` (mounting
+  ``q_BS``) and references ``r_i`` (both normalized, equal weights) give Wahba's problem
+  ``min sum |b_i - R_BI r_i|^2``, solved by the SVD of ``B = sum b_i r_i'`` (Markley 1988;
+  the same optimum as Davenport's q-method / QUEST); ``q_meas`` is the quaternion of
+  ``R_IB = R_BI'``, its sign chosen so that ``q_meas . q_hat >= 0``.  Needs ``m >= 2``
+  non-collinear references; otherwise the update is rejected (``accepted=False``).
+* **Update** with ``H = I4``: ``z = q_meas - q_hat``, ``S = P + R``, ``K = P S^-1``,
+  ``q <- q + K z``, Joseph form ``P <- (I - K) P (I - K)' + K R K'``, then ``q <- q / |q|``
+  (the common textbook variant: the covariance is not corrected for the normalization).
+
+**Published covariance.**  The project's attitude error ``dtheta_B``
+(``q_IB = q_hat ⊗ exp(dtheta_B)``) relates to the additive error to first order by
+``dtheta = 2 [q_hat^-1 ⊗ dq]_vec = 2 G dq`` with ``G = Xi(q_hat)'`` (3x4), ``Xi(q)`` the
+last three columns of the left-multiplication matrix of ``q`` (``q ⊗ [0, v] = Xi(q) v``).
+So ``P_theta = 4 G P_q G'``; the component of ``P_q`` along ``q_hat`` (the norm direction)
+is dropped.
+
+**Second quantity: the body rate** (:attr:`SecondQuantity.BODY_RATE`), the gyro's mean rate
+of the last predict, with the same honest rate block as
+:mod:`drake_att.filters.lie_group` (:func:`~drake_att.filters.lie_group.rate_error_model`):
+``cov(e_w) = N^2/dt I`` with a gyro ARW ``N``, else ``Q_theta/dt^2`` with
+``Q_theta = 4 G Q G'`` the attitude-equivalent process noise of the step (``4e-5 (rad/s)^2``
+for the paper's tuning), and before the first predict ``initial_rate_sigma^2 I``.  The cross
+covariance is kept in quaternion form, ``C_q = cov(dq, e_w)``: ``1/2 Xi(q_hat) cov(e_w) dt``
+after a predict (``dq`` gains ``1/2 q_hat ⊗ [0, e_w dt]``), ``(I - K) C_q`` after an
+update; published as ``2 G C_q``.
+
+``innovation_gate_chi2``: reject an update whose NIS (4 dof) exceeds it; a singular ``S`` is
+rejected the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
+from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _inverse_spd, rate_error_model
+
+_EYE4 = np.eye(4)
+COLLINEAR_SINE = 1e-6  # references closer than this (sine of the angle) to collinear: no attitude
+
+
+@dataclass(frozen=True)
+class QuaternionEkfState:
+    """Estimate of :class:`AdditiveQuaternionEKF`.
+
+    Attributes:
+        q_IB: (4,) unit quaternion (wxyz) of body B in inertial I.
+        P: (4, 4) covariance of the additive error ``q_true - q_IB``.
+        w_B: (3,) last gyro mean rate used by predict (rad/s).
+        P_w: (3, 3) covariance of the rate error ``w_true - w_B`` ((rad/s)^2).
+        C_q: (4, 3) cross covariance ``cov(q_true - q_IB, w_true - w_B)``.
+    """
+
+    q_IB: np.ndarray
+    P: np.ndarray
+    w_B: np.ndarray
+    P_w: np.ndarray
+    C_q: np.ndarray
+
+
+def right_matrix(p) -> np.ndarray:
+    """``[p]_R`` with ``q ⊗ p = [p]_R q``."""
+    w, x, y, z = np.asarray(p, dtype=float).tolist()
+    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
+
+
+def xi_matrix(q) -> np.ndarray:
+    """``Xi(q)`` (4x3) with ``q ⊗ [0, v] = Xi(q) v``."""
+    w, x, y, z = np.asarray(q, dtype=float).tolist()
+    return np.array([[-x, -y, -z], [w, -z, y], [z, w, -x], [-y, x, w]])
+
+
+def transition_matrix(w_B, dt: float) -> np.ndarray:
+    """``Phi`` (4x4) with ``q(t + dt) = Phi q(t)`` for the constant body rate ``w_B`` (rad/s)."""
+    return right_matrix(rot.rotvec_to_quat(np.asarray(w_B, dtype=float) * dt))
+
+
+def wahba_quaternion(directions_B, references_I) -> np.ndarray | None:
+    """``q_IB`` best fitting ``b_i = R_IB' r_i`` (equal weights; SVD solution of Wahba's
+    problem), or None if fewer than two non-collinear, finite, non-zero references."""
+    b = np.atleast_2d(np.asarray(directions_B, dtype=float))
+    r = np.atleast_2d(np.asarray(references_I, dtype=float))
+    if b.shape != r.shape or b.shape[0] < 2 or not (np.all(np.isfinite(b)) and np.all(np.isfinite(r))):
+        return None
+    nb, nr = np.linalg.norm(b, axis=1), np.linalg.norm(r, axis=1)
+    if np.any(nb < 1e-12) or np.any(nr < 1e-12):
+        return None
+    b, r = b / nb[:, None], r / nr[:, None]
+    sv_r = np.linalg.svd(r, compute_uv=False)  # two non-collinear references <=> sv_r[1] > 0
+    if sv_r[1] <= COLLINEAR_SINE * sv_r[0]:
+        return None
+    U, s, Vt = np.linalg.svd(b.T @ r)
+    d = np.linalg.det(U) * np.linalg.det(Vt)
+    R_BI = U @ np.diag([1.0, 1.0, d]) @ Vt
+    return rot.rotmat_to_quat(R_BI.T)
+
+
+class AdditiveQuaternionEKF:
+    """Additive quaternion EKF core (paper S4's baseline); a
+    :class:`drake_att.contract.FilterCore`.
+
+    State vector: ``[q_IB (4), P (16), w_B (3), P_w (9), C_q (12)]`` (44).
+
+    Args:
+        Q: quaternion process noise per step of length ``step_s`` (scalar variance or 4x4).
+            Paper: ``1e-5``.
+        R: quaternion measurement noise (scalar variance or 4x4).  Paper: ``0.01``.
+        step_s: the step length ``Q`` refers to (s), default 1.
+        gyro_arw_rad_per_rt_s: gyro angle random walk (rad/s^0.5) or None (module docstring).
+        innovation_gate_chi2: reject updates whose NIS exceeds this value (None: no gate).
+    """
+
+    second_quantity = SecondQuantity.BODY_RATE
+    uses_gyro = True
+    is_random = False
+    state_size = 44
+
+    def __init__(self, Q=1e-5, R=0.01, step_s: float = 1.0, gyro_arw_rad_per_rt_s: float | None = None,
+                 innovation_gate_chi2=None):
+        self.Q = _as_cov4(Q, "Q")
+        self.R = _as_cov4(R, "R")
+        if not (math.isfinite(step_s) and step_s > 0.0):
+            raise ValueError(f"step_s: got {step_s}; must be finite and > 0")
+        if gyro_arw_rad_per_rt_s is not None and not (math.isfinite(gyro_arw_rad_per_rt_s)
+                                                      and gyro_arw_rad_per_rt_s >= 0.0):
+            raise ValueError(f"gyro_arw_rad_per_rt_s: got {gyro_arw_rad_per_rt_s}; must be finite and >= 0, or None")
+        if innovation_gate_chi2 is not None and not innovation_gate_chi2 > 0:
+            raise ValueError(f"innovation_gate_chi2: got {innovation_gate_chi2}; must be > 0 or None")
+        self.step_s = float(step_s)
+        self.arw = None if gyro_arw_rad_per_rt_s is None else float(gyro_arw_rad_per_rt_s)
+        self.gate = innovation_gate_chi2
+
+    @staticmethod
+    def initial_state(q_IB=(1.0, 0.0, 0.0, 0.0), P0=1.0,
+                      initial_rate_sigma: float = DEFAULT_INITIAL_RATE_SIGMA) -> QuaternionEkfState:
+        """State from ``q_IB`` (4, normalized) and ``P0`` (scalar variance or 4x4); paper:
+        ``[1, 0, 0, 0]`` and ``I4``.  The rate block starts at 0 with ``initial_rate_sigma``."""
+        q = np.asarray(q_IB, dtype=float)
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or float(q @ q) < 1e-12:
+            raise ValueError(f"q_IB: got {q_IB!r}; need a finite, non-zero quaternion (4,)")
+        if not (math.isfinite(initial_rate_sigma) and initial_rate_sigma > 0.0):
+            raise ValueError(f"initial_rate_sigma: got {initial_rate_sigma}; must be finite and > 0")
+        return QuaternionEkfState(rot.quat_normalize(q), _as_cov4(P0, "P0"), np.zeros(3),
+                                  initial_rate_sigma**2 * np.eye(3), np.zeros((4, 3)))
+
+    @staticmethod
+    def to_vector(state: QuaternionEkfState) -> np.ndarray:
+        return np.concatenate([state.q_IB, np.ravel(state.P), state.w_B, np.ravel(state.P_w), np.ravel(state.C_q)])
+
+    @staticmethod
+    def from_vector(vector) -> QuaternionEkfState:
+        v = np.asarray(vector, dtype=float)
+        if v.shape != (44,):
+            raise ValueError(f"AdditiveQuaternionEKF state vector: got shape {v.shape}; need (44,)")
+        return QuaternionEkfState(v[0:4], v[4:20].reshape(4, 4), v[20:23], v[23:32].reshape(3, 3),
+                                  v[32:44].reshape(4, 3))
+
+    @staticmethod
+    def estimate(state: QuaternionEkfState):
+        """``(q_IB_hat, w_IB_B_hat, 6x6 covariance of [dtheta_B; w_true - w_hat])`` with
+        ``P_theta = 4 G P_q G'`` and cross ``2 G C_q`` (module docstring)."""
+        q = rot.quat_normalize(state.q_IB)
+        G = xi_matrix(q).T
+        P6 = np.empty((6, 6))
+        P_theta = 4.0 * G @ state.P @ G.T
+        P6[:3, :3] = 0.5 * (P_theta + P_theta.T)
+        P6[:3, 3:] = 2.0 * G @ state.C_q
+        P6[3:, :3] = P6[:3, 3:].T
+        P6[3:, 3:] = state.P_w
+        return q, np.array(state.w_B, dtype=float), P6
+
+    def process_noise(self, q_IB, dt: float) -> np.ndarray:
+        """Quaternion process noise of a predict over ``dt`` at ``q_IB`` (4x4)."""
+        Q = self.Q * (dt / self.step_s)
+        if self.arw:
+            Xi = xi_matrix(q_IB)
+            Q = Q + (0.25 * self.arw**2 * dt) * (Xi @ Xi.T)
+        return Q
+
+    def predict(self, state: QuaternionEkfState, w_meas_B, dt: float, rng=None) -> QuaternionEkfState:
+        """Propagate over ``dt`` (s) with the gyro's mean rate ``w_meas_B`` (rad/s, body)."""
+        if not dt > 0.0:
+            return state
+        w = np.zeros(3) if w_meas_B is None else np.asarray(w_meas_B, dtype=float).copy()
+        Phi = transition_matrix(w, dt)
+        q = Phi @ state.q_IB
+        Q = self.process_noise(q, dt)
+        P = Phi @ state.P @ Phi.T + Q
+        Xi = xi_matrix(q)
+        P_w, _ = rate_error_model(4.0 * Xi.T @ Q @ Xi, self.arw, dt)
+        C_q = 0.5 * Xi @ P_w * dt
+        return QuaternionEkfState(q, 0.5 * (P + P.T), w, P_w, C_q)
+
+    def update(self, state: QuaternionEkfState, measurement, rng=None) -> tuple[QuaternionEkfState, UpdateInfo]:
+        """Update with a :class:`~drake_att.contract.VectorObservations` (m >= 2 stars)."""
+        if not isinstance(measurement, VectorObservations):
+            raise TypeError(f"AdditiveQuaternionEKF.update: got a {type(measurement).__name__}; "
+                            "allowed: VectorObservations")
+        R_BS = rot.quat_to_rotmat(measurement.q_BS)
+        d_S = np.atleast_2d(np.asarray(measurement.directions_S, dtype=float))
+        q_meas = wahba_quaternion(d_S @ R_BS.T, measurement.references_I)
+        if q_meas is None:
+            return state, UpdateInfo(None, None, float("nan"), False)
+        q_hat = state.q_IB
+        if float(q_meas @ q_hat) < 0.0:
+            q_meas = -q_meas
+        return self.update_quaternion(state, q_meas)
+
+    def update_quaternion(self, state: QuaternionEkfState, q_meas) -> tuple[QuaternionEkfState, UpdateInfo]:
+        """Update with a measured ``q_IB`` (4; used as given: align its sign first)."""
+        z = np.asarray(q_meas, dtype=float) - state.q_IB
+        P = state.P
+        S = 0.5 * (P + P.T) + self.R
+        S_inv = _inverse_spd(S)
+        if S_inv is None or not np.all(np.isfinite(z)):
+            return state, UpdateInfo(z, S, float("nan"), False)
+        nis = float(z @ S_inv @ z)
+        if not math.isfinite(nis) or (self.gate is not None and nis > self.gate):
+            return state, UpdateInfo(z, S, nis, False)
+        K = P @ S_inv
+        I_K = _EYE4 - K
+        P_new = I_K @ P @ I_K.T + K @ self.R @ K.T
+        q = state.q_IB + K @ z
+        n = math.sqrt(float(q @ q))
+        if not (math.isfinite(n) and n > 0.0):
+            return state, UpdateInfo(z, S, nis, False)
+        new = QuaternionEkfState(q / n, 0.5 * (P_new + P_new.T), state.w_B, state.P_w, I_K @ state.C_q)
+        return new, UpdateInfo(z, S, nis, True)
+
+
+def _as_cov4(value, name: str) -> np.ndarray:
+    """A 4x4 symmetric PSD matrix from a scalar variance or a 4x4 matrix (ValueError otherwise)."""
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 0:
+        a = float(a) * _EYE4
+    if a.shape != (4, 4) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0, atol=1e-15 * (1 + np.abs(a).max())):
+        raise ValueError(f"{name}: got {value!r}; need a finite scalar variance >= 0 or a symmetric 4x4 matrix")
+    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
+        raise ValueError(f"{name}: got {value!r}; must be positive semi-definite")
+    return a.copy()
+
+
+__all__ = ["QuaternionEkfState", "AdditiveQuaternionEKF", "wahba_quaternion", "transition_matrix",
+           "right_matrix", "xi_matrix"]
