@@ -85,6 +85,7 @@ from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
 FORMULATIONS = ("consistent", "paper_literal")
 _EYE3 = np.eye(3)
 DEFAULT_INITIAL_RATE_SIGMA = 1.0  # rad/s: the rate block before any gyro sample
+SINGULAR_PIVOT = 1e-14  # innovation covariances with a smaller relative Cholesky pivot are singular
 
 
 @dataclass(frozen=True)
@@ -142,16 +143,24 @@ def rate_error_model(Q_step, arw: float | None, dt: float) -> tuple[np.ndarray, 
     return Q_step / (dt * dt), Q_step / dt
 
 
-def _inverse_spd(S):
-    """Inverse of a symmetric positive-definite matrix, or None (not PD / not finite)."""
-    if not np.all(np.isfinite(S)):
+def _solve_spd(S, B):
+    """``S^-1 B`` for a symmetric positive-definite ``S``, or None (not PD / not finite).
+
+    Positive definiteness is checked by a Cholesky factorization (every pivot must exceed
+    :data:`SINGULAR_PIVOT` times the largest); the solve itself is an LU
+    solve, which keeps the gain accurate when ``S`` is ill-conditioned (a prior far wider
+    than the measurement noise: the explicit inverse from the Cholesky factor loses ~3
+    orders of magnitude more there).
+    """
+    if not (np.all(np.isfinite(S)) and np.all(np.isfinite(B))):
         return None
     try:
-        L = np.linalg.cholesky(S)
+        pivots = np.diag(np.linalg.cholesky(S)) ** 2
     except np.linalg.LinAlgError:
         return None
-    L_inv = np.linalg.inv(L)
-    return L_inv.T @ L_inv
+    if not pivots.min() > SINGULAR_PIVOT * pivots.max():
+        return None  # numerically singular (rounding left a ~1e-17 relative pivot)
+    return np.linalg.solve(S, B)
 
 
 def _sensor_directions(measurement: VectorObservations) -> tuple[np.ndarray, np.ndarray]:
@@ -288,16 +297,16 @@ class LieGroupFilter:
             z = (l_B - r_I @ X_hat.T).ravel()
             H = (-rot.skew(r_I)).reshape(3 * m, 3)
         P = state.P
-        PHt = P @ H.T
-        S = H @ PHt + R_meas
+        HP = H @ P
+        S = HP @ H.T + R_meas
         S = 0.5 * (S + S.T)
-        S_inv = _inverse_spd(S)
-        if S_inv is None or not np.all(np.isfinite(z)):
+        sol = _solve_spd(S, np.column_stack([HP, z]))  # [S^-1 H P, S^-1 z]
+        if sol is None:
             return state, UpdateInfo(z, S, float("nan"), False)
-        nis = float(z @ S_inv @ z)
+        nis = float(z @ sol[:, 3])
         if not math.isfinite(nis) or (self.gate is not None and nis > self.gate):
             return state, UpdateInfo(z, S, nis, False)
-        K = PHt @ S_inv
+        K = sol[:, :3].T  # P H' S^-1
         dx = K @ z
         I_KH = _EYE3 - K @ H
         P_new = I_KH @ P @ I_KH.T + K @ R_meas @ K.T

@@ -53,7 +53,7 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
-from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _inverse_spd, rate_error_model
+from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
 
 _EYE4 = np.eye(4)
 COLLINEAR_SINE = 1e-6  # references closer than this (sine of the angle) to collinear: no attitude
@@ -231,13 +231,13 @@ class AdditiveQuaternionEKF:
         z = np.asarray(q_meas, dtype=float) - state.q_IB
         P = state.P
         S = 0.5 * (P + P.T) + self.R
-        S_inv = _inverse_spd(S)
-        if S_inv is None or not np.all(np.isfinite(z)):
+        sol = _solve_spd(S, np.column_stack([P, z]))  # [S^-1 P, S^-1 z]
+        if sol is None:
             return state, UpdateInfo(z, S, float("nan"), False)
-        nis = float(z @ S_inv @ z)
+        nis = float(z @ sol[:, 4])
         if not math.isfinite(nis) or (self.gate is not None and nis > self.gate):
             return state, UpdateInfo(z, S, nis, False)
-        K = P @ S_inv
+        K = sol[:, :4].T  # P S^-1
         I_K = _EYE4 - K
         P_new = I_K @ P @ I_K.T + K @ self.R @ K.T
         q = state.q_IB + K @ z

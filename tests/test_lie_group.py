@@ -1,0 +1,420 @@
+"""Lie-group filter of paper S4 (:mod:`drake_att.filters.lie_group`): kinematics against
+pydrake, the update's error reduction, the paper's convergence claim (and the failure of its
+literal equations), NEES over a Monte Carlo, the body-rate block, and rejections.
+
+Independent reference model (written here, never from the library's helpers):
+
+* rotations: pydrake ``RotationMatrix`` / ``AngleAxis``; the S4 truth is integrated with a
+  matrix exponential by its Taylor series (not Rodrigues) over 10 sub-steps per second, each
+  with the exact mean of the prescribed rate ``w = 1e-4 [cos 0.1t, cos 0.08t, cos 0.06t]``
+  (closed-form integral; the neglected commutator terms are ~1e-10 rad);
+* frame sense (SPEC S4, module docstring): the truth matrix is ``R_IB`` with
+  ``R_IB_dot = R_IB [w x]`` and stars ``b_B = R_IB' r_I``; eq 34's matrix is ``R_BI(0)``
+  (it maps eq 33's references onto eq 35's measured vectors, checked below);
+* the error of the project, ``R_err = R_IB_hat' R_IB``, its angle from pydrake.
+
+Consistency bands: at a fixed step the NEES of N independent runs sums to a chi-square
+with ``dof N`` degrees of freedom for a consistent linear filter; each checked step uses the
+two-sided ``1e-4`` quantiles (8 checks: family-wise false alarm < 1e-3). Power: with
+N = 100 a covariance off by a factor 1.5 moves the 3-dof mean NEES to 2 or 4.5, outside the
+band (3 +- 0.6).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.stats
+from pydrake.common.eigen_geometry import AngleAxis
+from pydrake.math import RollPitchYaw, RotationMatrix
+
+from drake_att.contract import FilterCore, QuaternionSample, SecondQuantity, VectorObservations
+from drake_att.filters.lie_group import LieGroupFilter, LieGroupState
+
+DEG = math.pi / 180.0
+X34 = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # S4 eq 34: R_BI(0)
+S4_REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # eq 33
+S4_RATE_FREQ = np.array([0.1, 0.08, 0.06])  # rad/s, eq 36
+IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+# -- the independent reference model -------------------------------------------------------
+def skew(w):
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def expm_series(w):
+    """exp([w x]) by its Taylor series (25 terms; |w| <= 1 here: remainder < 1e-25)."""
+    K = skew(w)
+    out, term = np.eye(3), np.eye(3)
+    for k in range(1, 25):
+        term = term @ K / k
+        out = out + term
+    return out
+
+
+def drake_exp(w):
+    """exp([w x]) from pydrake's AngleAxis."""
+    w = np.asarray(w, dtype=float)
+    a = np.linalg.norm(w)
+    if a == 0.0:
+        return np.eye(3)
+    return RotationMatrix(AngleAxis(a, w / a)).matrix()
+
+
+def error_angle(R_hat, R):
+    """Angle (rad) of the project's error R_hat' R (pydrake)."""
+    return RotationMatrix(R_hat.T @ R).ToAngleAxis().angle()
+
+
+def error_vector(R_hat, R):
+    """dtheta_B with R = R_hat exp([dtheta x]) (pydrake)."""
+    aa = RotationMatrix(R_hat.T @ R).ToAngleAxis()
+    return aa.angle() * aa.axis()
+
+
+def s4_mean_rate(t0, t1):
+    """Mean of the prescribed S4 body rate over [t0, t1] (rad/s), closed form."""
+    return 1e-4 * (np.sin(S4_RATE_FREQ * t1) - np.sin(S4_RATE_FREQ * t0)) / (S4_RATE_FREQ * (t1 - t0))
+
+
+def s4_truth(n_steps, substeps=10):
+    """R_IB at t = 0, 1, ..., n_steps s (from R_IB(0) = X34'), finely integrated."""
+    R = X34.T.copy()
+    out = [R]
+    h = 1.0 / substeps
+    for k in range(n_steps):
+        for j in range(substeps):
+            t0 = k + j * h
+            R = R @ expm_series(s4_mean_rate(t0, t0 + h) * h)
+        out.append(R)
+    return out
+
+
+def stars(R_IB, refs=S4_REFS, noise=None, q_BS=IDENTITY_Q, R_SB=np.eye(3), t=0.0, sigma=1e-3):
+    """VectorObservations of the references seen from attitude R_IB (sensor frame S)."""
+    d = refs @ R_IB @ R_SB.T  # rows: R_SB R_IB' r_i
+    if noise is not None:
+        d = d + noise
+    return VectorObservations(float(t), True, d, np.array(refs, dtype=float), sigma, np.array(q_BS, dtype=float))
+
+
+def run_s4(formulation, truth):
+    """The paper's filter (X0 = I, P0 = 5 I3, Q_w = 5e-5 I3, Q_v = 0.125^2 I6, 1 Hz) on
+    noise-free truth with a perfect gyro; returns the error angle (deg) after each update."""
+    core = LieGroupFilter(Q_w=5e-5, Q_v=0.125**2, formulation=formulation)
+    state = core.initial_state(np.eye(3), 5.0)
+    errors = []
+    for k in range(1, len(truth)):
+        state = core.predict(state, s4_mean_rate(k - 1.0, float(k)), 1.0)
+        state, info = core.update(state, stars(truth[k], t=k))
+        assert info.accepted
+        errors.append(error_angle(state.R_IB, truth[k]) / DEG)
+    return np.array(errors)
+
+
+@pytest.fixture(scope="module")
+def s4_truth_400():
+    return s4_truth(400)
+
+
+# -- the reference model itself --------------------------------------------------------------
+def test_eq34_maps_eq33_references_onto_eq35_measurements_in_the_chosen_frame_sense():
+    # l = X r with X = R_BI(0) = eq 34: the measured vectors of eq 35.
+    assert np.allclose(X34 @ S4_REFS[0], [0.0, 0.0, 1.0])
+    assert np.allclose(X34 @ S4_REFS[1], [1.0, 0.0, 0.0])
+    # The initial error from X0 = I is 120 deg.
+    assert error_angle(np.eye(3), X34.T) == pytest.approx(120.0 * DEG, abs=1e-12)
+
+
+def test_truth_exponential_agrees_with_pydrake():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        w = rng.normal(size=3)
+        w *= rng.uniform(0.0, 1.0) / np.linalg.norm(w)
+        assert np.allclose(expm_series(w), drake_exp(w), atol=1e-14)
+
+
+# -- protocol and state vector ---------------------------------------------------------------
+@pytest.mark.parametrize("formulation", ["consistent", "paper_literal"])
+def test_core_implements_the_filter_core_protocol(formulation):
+    core = LieGroupFilter(formulation=formulation)
+    assert isinstance(core, FilterCore)
+    assert core.second_quantity is SecondQuantity.BODY_RATE
+    assert core.uses_gyro is True and core.is_random is False
+
+
+def test_state_vector_round_trip_is_exact_and_has_the_declared_size():
+    core = LieGroupFilter(Q_w=1e-6, Q_v=1e-6)
+    q0 = RollPitchYaw(0.3, -0.2, 1.1).ToQuaternion().wxyz()
+    state = core.initial_state(q0, np.diag([1e-2, 2e-2, 3e-2]))
+    state = core.predict(state, np.array([1e-3, -2e-3, 5e-4]), 0.5)
+    state, info = core.update(state, stars(state.R_IB @ drake_exp([1e-3, -2e-3, 5e-4]), t=0.5))
+    assert info.accepted
+    v = core.to_vector(state)
+    assert v.shape == (core.state_size,)
+    back = core.from_vector(v)
+    assert isinstance(back, LieGroupState)
+    for field in ("R_IB", "P", "w_B", "P_w", "C"):
+        assert np.array_equal(getattr(back, field), getattr(state, field)), field
+    assert np.array_equal(core.to_vector(back), v)
+    with pytest.raises(ValueError, match="39"):
+        core.from_vector(v[:-1])
+
+
+def test_initial_state_from_quaternion_and_matrix_agree_with_pydrake():
+    rpy = RollPitchYaw(0.4, 0.3, -2.0)
+    from_q = LieGroupFilter.initial_state(rpy.ToQuaternion().wxyz(), 0.01)
+    from_R = LieGroupFilter.initial_state(RotationMatrix(rpy).matrix(), 0.01)
+    assert np.allclose(from_q.R_IB, RotationMatrix(rpy).matrix(), atol=1e-14)
+    assert np.allclose(from_R.R_IB, from_q.R_IB, atol=1e-14)
+    q_hat = LieGroupFilter().estimate(from_R)[0]
+    assert abs(abs(q_hat @ rpy.ToQuaternion().wxyz()) - 1.0) < 1e-14
+    with pytest.raises(ValueError, match="not a rotation"):
+        LieGroupFilter.initial_state(2.0 * np.eye(3), 0.01)
+    with pytest.raises(ValueError, match="formulation"):
+        LieGroupFilter(formulation="left")
+
+
+# -- predict ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("formulation", ["consistent", "paper_literal"])
+def test_predict_with_constant_rate_is_the_exact_rotation(formulation):
+    core = LieGroupFilter(formulation=formulation)
+    R0 = RotationMatrix(RollPitchYaw(0.2, -0.7, 2.5)).matrix()
+    state = core.initial_state(R0, 1e-4)
+    w = np.array([0.3, -0.1, 0.45])  # rad/s, large enough that Rodrigues' non-series branch is used
+    for _ in range(10):
+        state = core.predict(state, w, 0.1)
+    # Body rate: R_IB(t) = R_IB(0) exp([w t x]); one rotation of 1 s about w.
+    assert np.allclose(state.R_IB, R0 @ drake_exp(w * 1.0), atol=1e-13)
+    # About body z only: the pydrake elementary rotation.
+    state = core.predict(core.initial_state(R0, 1e-4), np.array([0.0, 0.0, 0.7]), 2.0)
+    assert np.allclose(state.R_IB, R0 @ RotationMatrix.MakeZRotation(1.4).matrix(), atol=1e-14)
+    # Tiny rate (series branch) and the orthonormality kept over many steps.
+    state = core.initial_state(R0, 1e-4)
+    for _ in range(1000):
+        state = core.predict(state, np.array([1e-5, 2e-5, -3e-5]), 1.0)
+    assert np.allclose(state.R_IB, R0 @ drake_exp(np.array([1e-2, 2e-2, -3e-2])), atol=1e-13)
+    assert np.allclose(state.R_IB.T @ state.R_IB, np.eye(3), atol=1e-14)
+
+
+def test_predicted_covariance_is_the_propagated_error_covariance_plus_process_noise():
+    """Sigma points dtheta_i = +-sqrt(3) L e_i of P: the true errors after a common
+    rotation A are log(A' exp(dtheta) A) = A' dtheta exactly, so their covariance is exact."""
+    Q_w = np.diag([1e-5, 2e-5, 3e-5])
+    core = LieGroupFilter(Q_w=Q_w, step_s=2.0)
+    P = np.array([[4e-3, 1e-3, -5e-4], [1e-3, 2e-3, 2e-4], [-5e-4, 2e-4, 1e-3]])
+    R0 = RotationMatrix(RollPitchYaw(1.0, 0.2, -0.3)).matrix()
+    w, dt = np.array([0.8, -0.5, 0.3]), 0.7
+    state = core.predict(core.initial_state(R0, P), w, dt)
+    L = np.linalg.cholesky(P)
+    errors = []
+    for sign in (1.0, -1.0):
+        for i in range(3):
+            truth = R0 @ drake_exp(sign * math.sqrt(3.0) * L[:, i]) @ drake_exp(w * dt)
+            errors.append(error_vector(state.R_IB, truth))
+    errors = np.array(errors)
+    P_sigma = errors.T @ errors / 6.0
+    assert np.allclose(state.P - Q_w * dt / 2.0, P_sigma, atol=1e-12)  # Q_w per 2 s step
+    # The literal form keeps the paper's A P A' (different from the exact one here).
+    literal = LieGroupFilter(Q_w=Q_w, step_s=2.0, formulation="paper_literal")
+    P_lit = literal.predict(literal.initial_state(R0, P), w, dt).P - Q_w * dt / 2.0
+    A = drake_exp(w * dt)
+    assert np.allclose(P_lit, A @ P @ A.T, atol=1e-15)
+    assert not np.allclose(P_lit, P_sigma, atol=1e-5)
+
+
+def test_predict_over_no_time_changes_nothing():
+    core = LieGroupFilter()
+    state = core.initial_state(IDENTITY_Q, 0.1)
+    assert core.predict(state, np.ones(3), 0.0) is state
+    assert core.predict(state, np.ones(3), -1.0) is state
+
+
+# -- update ----------------------------------------------------------------------------------
+def test_update_removes_a_small_error_to_second_order_with_a_mounted_tracker():
+    """Noise-free stars and P >> R: one update leaves an error O(|dtheta|^2)."""
+    core = LieGroupFilter(Q_v=1e-12)
+    R_true = RotationMatrix(RollPitchYaw(0.3, -1.0, 2.0)).matrix()
+    q_BS = RollPitchYaw(0.5, 0.2, -0.8).ToQuaternion().wxyz()
+    R_SB = RotationMatrix(RollPitchYaw(0.5, 0.2, -0.8)).matrix().T
+    refs = np.array([[0.6, 0.8, 0.0], [0.0, 0.6, 0.8], [0.8, 0.0, 0.6]])
+    for err in (1e-2, 1e-3):
+        dtheta = err * np.array([0.48, -0.6, 0.64])
+        state = core.initial_state(R_true @ drake_exp(-dtheta), 1.0)  # truth = hat exp(dtheta)
+        m = stars(R_true, refs, q_BS=q_BS, R_SB=R_SB)
+        new, info = core.update(state, m)
+        assert info.accepted
+        # The innovation is the measured minus the predicted sensor-frame directions.
+        assert np.allclose(info.innovation, (m.directions_S - refs @ state.R_IB @ R_SB.T).ravel(), atol=1e-15)
+        assert error_angle(new.R_IB, R_true) < 2.0 * err**2
+        # Posterior covariance: three well-observed axes, P ~ R / (number of stars).
+        assert np.all(np.linalg.eigvalsh(new.P) < 1e-11)
+
+
+def test_literal_update_is_the_papers_equations_26_to_32():
+    """eqs 26-32 transcribed on X = R_BI (eq 2): eps = l - X r, H = -[r x], S = H P H' + Q_v,
+    K = P H' S^-1, P = (I - K H) P, X <- X exp([K eps x])."""
+    q_v = 0.125**2
+    core = LieGroupFilter(Q_w=5e-5, Q_v=q_v, formulation="paper_literal")
+    R_hat = RotationMatrix(RollPitchYaw(0.2, 0.1, -0.3)).matrix()
+    R_true = RotationMatrix(RollPitchYaw(0.25, 0.05, -0.2)).matrix()
+    P = np.diag([0.5, 1.0, 2.0])
+    new, info = core.update(core.initial_state(R_hat, P), stars(R_true))
+    X = R_hat.T
+    l_meas = S4_REFS @ R_true  # rows: R_BI r_i
+    eps = np.concatenate([l_meas[i] - X @ S4_REFS[i] for i in range(2)])
+    H = np.vstack([-skew(S4_REFS[0]), -skew(S4_REFS[1])])
+    S = H @ P @ H.T + q_v * np.eye(6)
+    K = P @ H.T @ np.linalg.inv(S)
+    assert info.accepted and np.allclose(info.innovation, eps, atol=1e-15)
+    assert np.allclose(new.R_IB.T, X @ drake_exp(K @ eps), atol=1e-13)
+    assert np.allclose(new.P, (np.eye(3) - K @ H) @ P, atol=1e-13)
+    assert info.nis == pytest.approx(eps @ np.linalg.solve(S, eps), rel=1e-12)
+
+
+@pytest.mark.parametrize("m_stars", [1, 2, 5])
+def test_any_number_of_stars_is_used(m_stars):
+    rng = np.random.default_rng(m_stars)
+    refs = rng.normal(size=(m_stars, 3))
+    refs /= np.linalg.norm(refs, axis=1, keepdims=True)
+    core = LieGroupFilter(Q_v=1e-8)
+    R_true = RotationMatrix(RollPitchYaw(-0.4, 0.9, 0.1)).matrix()
+    state = core.initial_state(R_true @ drake_exp([2e-3, -1e-3, 3e-3]), 1e-4)
+    new, info = core.update(state, stars(R_true, refs))
+    assert info.accepted and info.innovation.shape == (3 * m_stars,)
+    assert info.innovation_covariance.shape == (3 * m_stars, 3 * m_stars)
+    # One star observes the two axes perpendicular to it, not the rotation about it.
+    eig = np.linalg.eigvalsh(new.P)
+    n_observed = 2 if m_stars == 1 else 3
+    assert np.sum(eig < 1e-6) == n_observed
+    if m_stars == 1:
+        b = state.R_IB.T @ refs[0]  # the predicted direction H is built from
+        assert b @ new.P @ b == pytest.approx(1e-4, rel=1e-6)
+
+
+def test_singular_innovation_covariance_and_gate_are_rejected_not_raised():
+    R_true = RotationMatrix(RollPitchYaw(0.1, 0.2, 0.3)).matrix()
+    # One star with zero measurement noise: S = H P H' has rank 2.
+    core = LieGroupFilter(Q_v=0.0)
+    state = core.initial_state(R_true, 1e-4)
+    new, info = core.update(state, stars(R_true, S4_REFS[:1]))
+    assert info.accepted is False and math.isnan(info.nis) and new is state
+    # A zero prior and zero noise: S = 0.
+    new, info = core.update(core.initial_state(R_true, 0.0), stars(R_true))
+    assert info.accepted is False
+    # Gate: a 10-sigma outlier is rejected with its NIS reported; a clean sample passes.
+    gated = LieGroupFilter(Q_v=1e-6, innovation_gate_chi2=scipy.stats.chi2.ppf(0.999, 6))
+    state = gated.initial_state(R_true, 1e-6)
+    noise = np.zeros((2, 3))
+    noise[0, 1] = 1e-2
+    new, info = gated.update(state, stars(R_true, noise=noise))
+    assert info.accepted is False and new is state and info.nis > 50.0
+    new, info = gated.update(state, stars(R_true))
+    assert info.accepted is True
+    with pytest.raises(TypeError, match="VectorObservations"):
+        core.update(state, QuaternionSample(0.0, True, IDENTITY_Q, IDENTITY_Q, np.ones(3)))
+    with pytest.raises(ValueError, match="innovation_gate_chi2"):
+        LieGroupFilter(innovation_gate_chi2=0.0)
+
+
+def test_measurement_noise_defaults_to_the_sample_sigma():
+    R_true = np.eye(3)
+    core = LieGroupFilter()  # Q_v None
+    state = core.initial_state(R_true, 1e-4)
+    _, info = core.update(state, stars(R_true, sigma=3e-3))
+    H_P_Ht = LieGroupFilter(Q_v=0.0).update(state, stars(R_true, sigma=3e-3))[1].innovation_covariance
+    assert np.allclose(info.innovation_covariance - H_P_Ht, 9e-6 * np.eye(6), atol=1e-18)
+
+
+# -- the paper's claim ------------------------------------------------------------------------
+def test_s4_consistent_filter_converges_as_the_paper_and_the_literal_one_does_not(s4_truth_400):
+    """SPEC S4: noise-free truth, perfect gyro, X0 = I (120 deg off): the consistent pairing
+    reaches 0.005 deg at about step 140-150 and stays there; the paper's literal pairing is
+    still ~22 deg off after 400 steps."""
+    consistent = run_s4("consistent", s4_truth_400)
+    first = int(np.flatnonzero(consistent <= 0.005)[0]) + 1
+    assert 140 <= first <= 150, first
+    assert np.all(consistent[first - 1:] <= 0.005)
+    assert consistent[-1] < 1e-4  # and it keeps converging (noise-free)
+    literal = run_s4("paper_literal", s4_truth_400)
+    assert np.all(literal > 10.0)
+    assert 15.0 < literal[-1] < 30.0, literal[-1]
+
+
+# -- statistics --------------------------------------------------------------------------------
+def chi2_band(dof, p=1e-4):
+    return scipy.stats.chi2.ppf(p / 2, dof), scipy.stats.chi2.ppf(1 - p / 2, dof)
+
+
+def test_nees_is_chi_square_over_a_monte_carlo_with_truth_matching_the_tuning():
+    """The paper's tuning taken as truth (SPEC S4, "tuning-as-truth"): stars l = R_BI r + v,
+    v ~ N(0, 0.125^2 I3), and a gyro whose mean-rate error over the 1 s step is
+    N(0, 5e-5 I3) (rad/s)^2, so the integrated per-step attitude noise is Q_w = 5e-5 I3 and
+    the filter's rate block (Q_w / dt^2) is the truth's. Start: error ~ N(0, P0),
+    P0 = (3 deg)^2 I3. The 3-dof attitude NEES and the 6-dof [dtheta; rate error] NEES
+    summed over runs must lie in the chi-square bands at steps 25, 50, 100 and 150."""
+    n_runs, n_steps, sigma, q_w = 100, 150, 0.125, 5e-5
+    checks = (25, 50, 100, 150)
+    core = LieGroupFilter(Q_w=q_w, Q_v=sigma**2)
+    rng = np.random.default_rng(20200102)
+    nees3 = np.zeros((n_runs, len(checks)))
+    nees6 = np.zeros((n_runs, len(checks)))
+    P0 = (3.0 * DEG) ** 2
+    for run in range(n_runs):
+        R = RotationMatrix(RollPitchYaw(*rng.uniform(-np.pi, np.pi, 3))).matrix()
+        state = core.initial_state(R @ drake_exp(-math.sqrt(P0) * rng.normal(size=3)), P0)
+        for k in range(1, n_steps + 1):
+            w_true = s4_mean_rate(k - 1.0, float(k))
+            R = R @ drake_exp(w_true)
+            w_meas = w_true + math.sqrt(q_w) * rng.normal(size=3)
+            state = core.predict(state, w_meas, 1.0)
+            state, info = core.update(state, stars(R, noise=sigma * rng.normal(size=(2, 3)), t=k))
+            assert info.accepted
+            if k in checks:
+                j = checks.index(k)
+                _, w_hat, P6 = core.estimate(state)
+                e = np.concatenate([error_vector(state.R_IB, R), w_true - w_hat])
+                nees3[run, j] = e[:3] @ np.linalg.solve(P6[:3, :3], e[:3])
+                nees6[run, j] = e @ np.linalg.solve(P6, e)
+    for dof, nees in ((3, nees3), (6, nees6)):
+        lo, hi = chi2_band(dof * n_runs)
+        sums = nees.sum(axis=0)
+        assert np.all((lo <= sums) & (sums <= hi)), (dof, sums / n_runs, lo / n_runs, hi / n_runs)
+
+
+def test_rate_block_is_the_gyro_noise_and_the_cross_block_follows_the_updates():
+    dt = 0.25
+    R_true = np.eye(3)
+    # No gyro figure: the step's process noise read as integrated rate error.
+    core = LieGroupFilter(Q_w=np.diag([1e-6, 2e-6, 4e-6]), Q_v=1e-6)
+    state = core.initial_state(R_true, 1e-4, initial_rate_sigma=0.5)
+    _, w0, P6 = core.estimate(state)
+    assert np.array_equal(w0, np.zeros(3)) and np.allclose(P6[3:, 3:], 0.25 * np.eye(3)) and not P6[:3, 3:].any()
+    w = np.array([0.01, -0.02, 0.03])
+    state = core.predict(state, w, dt)
+    Q = np.diag([1e-6, 2e-6, 4e-6]) * dt
+    _, w_hat, P6 = core.estimate(state)
+    assert np.array_equal(w_hat, w)
+    assert np.allclose(P6[3:, 3:], Q / dt**2, rtol=1e-14)
+    assert np.allclose(P6[:3, 3:], Q / dt, rtol=1e-14)
+    assert np.allclose(P6, P6.T) and np.linalg.eigvalsh(P6).min() > -1e-18
+    state2, info = core.update(state, stars(R_true @ drake_exp(w * dt)))
+    assert info.accepted
+    _, _, P6b = core.estimate(state2)
+    # Joseph update with the optimal gain: (I - K H) from P_post = (I - K H) P.
+    I_KH = state2.P @ np.linalg.inv(state.P)
+    assert np.allclose(P6b[:3, 3:], I_KH @ (Q / dt), rtol=1e-6)
+    assert np.allclose(P6b[3:, 3:], Q / dt**2)
+    assert np.linalg.eigvalsh(P6b).min() > -1e-15
+    # With a gyro ARW N: rate block N^2/dt, cross N^2, process noise Q_w dt + N^2 dt.
+    arw = 1e-3
+    core = LieGroupFilter(Q_w=1e-6, gyro_arw_rad_per_rt_s=arw)
+    state = core.predict(core.initial_state(R_true, 0.0), w, dt)
+    _, _, P6 = core.estimate(state)
+    assert np.allclose(P6[3:, 3:], arw**2 / dt * np.eye(3))
+    assert np.allclose(P6[:3, 3:], arw**2 * np.eye(3))
+    assert np.allclose(P6[:3, :3], (1e-6 * dt + arw**2 * dt) * np.eye(3))
+
