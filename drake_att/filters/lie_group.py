@@ -40,8 +40,9 @@ the paper's ``X_hat = R_IB_hat'``: body-frame innovation ``eps_i = l_i - X_hat r
 (``l_i = R_BS d_i``), ``H_i = -[r_i x]`` (no ``X_hat`` in it), right update
 ``X_hat <- X_hat exp([K eps x])`` and ``P <- A P A' + Q``.  The predict of the mean is the
 same kinematic one as above (so only the update pairing differs).  This pairing is not
-consistent: run noise-free from ``X_0 = I`` with the paper's tuning it stays ~20 deg off
-after 400 updates (see the tests).  Its ``P`` is reported as if it were ``cov(dtheta_B)``
+consistent: run noise-free from ``X_0 = I`` with the paper's tuning it is still 22.4 deg off
+after 400 updates (tests/test_lie_group.py), where the consistent form reached 0.005 deg at
+update 147 (the paper: ~150; SPEC: 140-150) and keeps converging.  Its ``P`` is reported as if it were ``cov(dtheta_B)``
 (the paper's eq 22 reading, ``eta = exp(-[dtheta x])``); it is not a consistent covariance.
 
 **Process noise.**  ``Q_w`` (rad^2, scalar or 3x3) is the attitude-error covariance added
@@ -67,6 +68,13 @@ estimate the rate: the published ``w_IB_B_hat`` is the gyro's mean rate of the l
 Updates correct the attitude only: ``cov(e_w)`` is unchanged and the cross block becomes
 ``(I - K H) C``.  A gyro bias or the change of the true rate within the step is not in the
 rate block (this filter has no bias model, as in the paper).
+
+**Large initial errors.**  This is a first-order EKF: from ``X_0 = I`` (120 deg off) its first
+update shrinks ``P`` to about ``Q_v`` however large the error still is.  With the paper's
+loose ``Q_v = 0.125^2`` that is harmless (the gain stays high); with a tuning that matches
+a precise tracker (e.g. ``Q_v = (100 urad)^2``, ``P0 = 5``) the filter becomes
+overconfident after one update (error ~1.4 rad, sigma ~1e-4 rad) and then creeps (error
+~1/k).  Start such runs from a TRIAD/Wahba attitude or keep ``Q_v`` loose until converged.
 
 ``innovation_gate_chi2``: reject an update whose NIS exceeds it (``accepted=False``); a
 singular or non-positive-definite ``S`` is rejected the same way.
