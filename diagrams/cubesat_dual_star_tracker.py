@@ -113,11 +113,11 @@ def convergence_vs_p0(scenario, sigmas_deg, seed, out_dir):
     from drake_att.scenarios.builder import ScenarioDiagram
 
     rows = []
+    # One diagram; each sigma is a context parameter of the same diagram (no rebuild).
+    sd = ScenarioDiagram(apply_overrides(scenario, ["duration_s=600", "scoring.score_from_s=300"]))
     for sig in sigmas_deg:
         over = [f"estimators.{n}.initial_attitude_sigma_deg={sig}" for n in ("single", "centralized", "single_st2", "joint")]
-        s = apply_overrides(scenario, over + ["duration_s=600", "scoring.score_from_s=300"])
-        sd = ScenarioDiagram(s)
-        m = compute_metrics(sd.simulate(seed))["estimators"]
+        m = compute_metrics(sd.simulate(seed, overrides=over))["estimators"]
         rows.append([m[a]["convergence_time_s"] for a in ARCHITECTURES])
         print(f"  P0 attitude sigma {sig:6.3f} deg: " + ", ".join(
             f"{a} {('never' if c is None else f'{c:.0f} s')}" for a, c in zip(ARCHITECTURES, rows[-1])))

@@ -294,15 +294,15 @@ def _lin(Phi, Q, A, steps):
 
 def test_estimate_fusion_tracked_cross_covariance_recursion():
     """tracked: w1^2 P1 + w2^2 P2 + w1 w2 (P12 + P12'), P12 advanced once per source step
-    by P12 <- A1 (Phi1 P12 Phi2' + Q) A2' (computed here), starting from the initial cross
-    covariance; the periodic event stores the advanced P12 so the same step is not applied
+    by P12 <- A1 (Phi1 P12 Phi2' + Q) A2' (computed here), starting from P12 = the first
+    source's covariance at initialization (their common initial one); the periodic event stores the advanced P12 so the same step is not applied
     twice; NaN covariance when the sources are at different steps.  Weights 1:3."""
     rng = np.random.default_rng(5)
     w1, w2 = 0.25, 0.75
-    P0 = random_spd(rng, 1e-2)
-    sys_ = EstimateFusion("fusion", ["m1", "m2"], [1.0, 3.0], "bias_B_hat", "tracked", 1.0, P0.ravel())
+    sys_ = EstimateFusion("fusion", ["m1", "m2"], [1.0, 3.0], "bias_B_hat", "tracked", 1.0)
     ctx = sys_.CreateDefaultContext()
     q, second, P, status = _random_sources(rng, 2)
+    P0 = P[0]
     Phi1, Phi2 = np.eye(6) + 0.1 * rng.normal(size=(6, 6)), np.eye(6) + 0.1 * rng.normal(size=(6, 6))
     A1, A2 = np.eye(6) - 0.3 * rng.random((6, 6)), np.eye(6) - 0.3 * rng.random((6, 6))
     Q = random_spd(rng, 1e-3)
@@ -310,9 +310,11 @@ def test_estimate_fusion_tracked_cross_covariance_recursion():
     def fused(P12):
         return w1**2 * P[0] + w2**2 * P[1] + w1 * w2 * (P12 + P12.T)
 
-    # No source step yet (step count 0 = applied 0): P12 = P0.
+    # No source step yet (step count 0 = applied 0): initialization sets P12 = P0.
     _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status,
                  [_lin(np.eye(6), np.zeros((6, 6)), np.eye(6), 0)] * 2)
+    sys_.ExecuteInitializationEvents(ctx)
+    np.testing.assert_array_equal(ctx.get_discrete_state(0).value(), np.r_[P0.ravel(), 0.0])
     np.testing.assert_allclose(sys_.GetOutputPort("covariance").Eval(ctx).reshape(6, 6), fused(P0), rtol=1e-12)
     # One step taken by both sources: advanced once.
     P12_1 = A1 @ (Phi1 @ P0 @ Phi2.T + Q) @ A2.T

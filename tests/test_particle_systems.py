@@ -1,4 +1,4 @@
-"""Drake-level tests of paper S0's estimator systems (drake_att.systems.particle_estimators):
+"""Drake-level tests of paper S0's estimator systems (drake_att.systems.filter_setups):
 the estimator contract, seeding through the diagram's RandomGenerator, skipped
 measurements, state kept in the Context, the S0 claims at reduced size and the builders.
 (The S0 notebook is executed by tests/test_notebooks.py.)"""
@@ -19,7 +19,7 @@ from drake_att.scenarios import builder
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.config import apply_overrides, load_scenario
 from drake_att.scenarios.library import load
-from drake_att.systems.particle_estimators import (
+from drake_att.systems.filter_setups import (
     BootstrapPfEstimator,
     EkpfEstimator,
     GyrolessPfEstimator,

@@ -11,7 +11,7 @@ from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.particle_estimators import BootstrapPfEstimator
+from drake_att.systems.filter_setups import bootstrap_pf_setup
 from drake_att.units import ARW_DEG_PER_RT_H, DEG_PER_H
 
 
@@ -44,14 +44,14 @@ def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.bias_roughening_deg_per_h_per_rt_s", c.bias_roughening_deg_per_h_per_rt_s)
 
 
-@register_estimator(BootstrapPfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_bootstrap_pf)
+@register_estimator(BootstrapPfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_bootstrap_pf,
+                    parameters=("attitude_process_noise_deg_per_rt_h", "bias_roughening_deg_per_h_per_rt_s",
+                                "resample_threshold", *common.INITIAL_GYRO_MODE_FIELDS))
 def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
     g = ctx.sensor_configs[c.gyro]
     arw_deg = g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None \
         else c.attitude_process_noise_deg_per_rt_h
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    est = ctx.builder.AddSystem(BootstrapPfEstimator(
-        c.name, c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H,
-        bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
-        resample_threshold=c.resample_threshold))
-    return common.connect_vector_filter(ctx, c, est)
+    return bootstrap_pf_setup(c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H,
+                              bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
+                              resample_threshold=c.resample_threshold, gyro=c.gyro)

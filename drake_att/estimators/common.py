@@ -45,6 +45,11 @@ def filter_gyro_noise(ctx, c):
     return arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15
 
 
+# The initial-estimate fields of gyro-mode filters: context parameters (sweepable per run).
+INITIAL_GYRO_MODE_FIELDS = ("initial_attitude_rpy_deg", "initial_bias_deg_per_h", "initial_attitude_sigma_deg",
+                            "initial_bias_sigma_deg_per_h")
+
+
 def check_initial_attitude(path: str, c) -> None:
     cfg.check_vector(f"{path}.initial_attitude_rpy_deg", c.initial_attitude_rpy_deg, 3)
     cfg.check_positive(f"{path}.initial_attitude_sigma_deg", c.initial_attitude_sigma_deg)
@@ -105,14 +110,6 @@ def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True, integer
     if initial_bias:
         check_initial_bias(path, c)
     return gyro
-
-
-def connect_vector_filter(ctx, c, est, uses_gyro: bool = True):
-    if uses_gyro:
-        ctx.connect_sensor(c.gyro, est, "gyro_measurement")
-    ctx.connect_sensor(c.star_tracker, est, f"vectors_{c.star_tracker}")
-    # seed_uniform (random cores) is wired by the builder's AddRandomInputs.
-    return est
 
 
 def validate_filter_gyro_noise(path: str, c, gyro) -> None:

@@ -11,7 +11,7 @@ from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.particle_estimators import EkpfEstimator
+from drake_att.systems.filter_setups import ekpf_setup
 
 
 @dataclass
@@ -39,11 +39,11 @@ def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
                                   resampling=True, filter_gyro_noise=True)
 
 
-@register_estimator(EkpfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_ekpf)
+@register_estimator(EkpfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_ekpf,
+                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "proposal_iterations", "resample_threshold",
+                                *common.INITIAL_GYRO_MODE_FIELDS))
 def build_ekpf(ctx, c: EkpfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    est = ctx.builder.AddSystem(EkpfEstimator(c.name, c.period_s, c.star_tracker, c.num_particles, q0, b0, P0,
-                                              arw, rrw, proposal_iterations=c.proposal_iterations,
-                                              resample_threshold=c.resample_threshold))
-    return common.connect_vector_filter(ctx, c, est)
+    return ekpf_setup(c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw, rrw,
+                      proposal_iterations=c.proposal_iterations, resample_threshold=c.resample_threshold, gyro=c.gyro)

@@ -68,13 +68,8 @@ def validate_estimate_fusion(path: str, c: EstimateFusionConfig, checks) -> None
 def build_estimate_fusion(ctx, c: EstimateFusionConfig):
     sources = [ctx.estimators[n] for n in c.sources]
     period = min(ctx.estimator_configs[n].period_s for n in c.sources)
-    P0 = None
-    if c.covariance_model == "tracked":
-        first = sources[0]
-        P0 = first.estimate_vector(first.CreateDefaultContext())[7:43]
     second = sources[0].second_output_name
-    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second, c.covariance_model,
-                                                  period, P0))
+    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second, c.covariance_model, period))
     for n, src in zip(c.sources, sources):
         ports = [("q_IB_hat", "q_IB_hat"), (second, "second"), ("covariance", "covariance"), ("status", "status")]
         if c.covariance_model == "tracked":

@@ -15,7 +15,7 @@ from drake_att.estimators import common
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.particle_estimators import GyrolessPfEstimator
+from drake_att.systems.filter_setups import gyroless_pf_setup
 from drake_att.units import ARW_DEG_PER_RT_H, DEG
 
 
@@ -75,15 +75,17 @@ def validate_gyroless_pf(path: str, c: GyrolessPfConfig, checks) -> None:
         raise cfg.ConfigError(str(e)) from e
 
 
-@register_estimator(GyrolessPfConfig, second_quantity=SecondQuantity.BODY_RATE, validate=validate_gyroless_pf)
+@register_estimator(GyrolessPfConfig, second_quantity=SecondQuantity.BODY_RATE, validate=validate_gyroless_pf,
+                    parameters=("inertia_kg_m2", "disturbance_torque_N_m", "rate_process_noise_deg_per_s_per_rt_s",
+                                "attitude_process_noise_deg_per_rt_h", "num_substeps", "resample_threshold",
+                                "initial_attitude_rpy_deg", "initial_rate_deg_per_s", "initial_attitude_sigma_deg",
+                                "initial_rate_sigma_deg_per_s"))
 def build_gyroless_pf(ctx, c: GyrolessPfConfig):
     inertia, torque = plant_dynamics(ctx.scenario, c)
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
     w0 = np.asarray(c.initial_rate_deg_per_s, dtype=float) * DEG
     P0 = np.diag([(c.initial_attitude_sigma_deg * DEG) ** 2] * 3 + [(c.initial_rate_sigma_deg_per_s * DEG) ** 2] * 3)
-    est = ctx.builder.AddSystem(GyrolessPfEstimator(
-        c.name, c.period_s, c.star_tracker, c.num_particles, q0, w0, P0, inertia, torque,
-        c.rate_process_noise_deg_per_s_per_rt_s * DEG,
-        attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
-        num_substeps=c.num_substeps, resample_threshold=c.resample_threshold))
-    return common.connect_vector_filter(ctx, c, est, uses_gyro=False)
+    return gyroless_pf_setup(c.period_s, c.star_tracker, c.num_particles, q0, w0, P0, inertia, torque,
+                             c.rate_process_noise_deg_per_s_per_rt_s * DEG,
+                             attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
+                             num_substeps=c.num_substeps, resample_threshold=c.resample_threshold)

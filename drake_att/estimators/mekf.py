@@ -16,7 +16,7 @@ from drake_att.filters.mekf import MultiplicativeEKF
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
 
@@ -61,23 +61,16 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
         cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
 
 
-@register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf)
-def build_mekf(ctx, c: MekfConfig):
+@register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf,
+                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "innovation_gate_chi2",
+                                *common.INITIAL_GYRO_MODE_FIELDS))
+def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
     core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, c.innovation_gate_chi2)
     init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
                               np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
                               c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
-    quaternion_models, vector_names = [], []
-    for name in c.star_trackers:
-        if ctx.sensor_output(name).kind == "quaternion":
-            quaternion_models.append(ctx.quaternion_model(name))
-        else:
-            vector_names.append(name)
-    est = ctx.builder.AddSystem(EstimatorSystem(c.name, c.period_s, core, init, quaternion_models, vector_names))
-    ctx.connect_sensor(c.gyro, est, "gyro_measurement")
-    for m in quaternion_models:
-        ctx.connect_sensor(m.name, est, f"q_meas_{m.name}")
-    for n in vector_names:
-        ctx.connect_sensor(n, est, f"vectors_{n}")
-    return est
+    quaternion = [n for n in c.star_trackers if ctx.sensor_output(n).kind == "quaternion"]
+    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro,
+                          quaternion_sensors=tuple(ctx.quaternion_model(n) for n in quaternion),
+                          vector_sensors=tuple(n for n in c.star_trackers if n not in quaternion))

@@ -11,7 +11,7 @@ from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.particle_estimators import MrpEkfEstimator
+from drake_att.systems.filter_setups import mrp_ekf_setup
 
 
 @dataclass
@@ -37,10 +37,9 @@ def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
     common.validate_vector_filter(path, c, checks, integer_fields=("update_iterations",), filter_gyro_noise=True)
 
 
-@register_estimator(MrpEkfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mrp_ekf)
+@register_estimator(MrpEkfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mrp_ekf,
+                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "update_iterations", *common.INITIAL_GYRO_MODE_FIELDS))
 def build_mrp_ekf(ctx, c: MrpEkfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    est = ctx.builder.AddSystem(MrpEkfEstimator(c.name, c.period_s, c.star_tracker, q0, b0, P0, arw, rrw,
-                                                c.update_iterations))
-    return common.connect_vector_filter(ctx, c, est)
+    return mrp_ekf_setup(c.period_s, c.star_tracker, q0, b0, P0, arw, rrw, c.update_iterations, gyro=c.gyro)

@@ -15,6 +15,7 @@ from drake_att import rotations as rot
 from drake_att.orbit import CircularOrbit
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, plugin_for
+from drake_att.systems.estimators import EstimatorSystem
 from drake_att.units import DEG
 
 
@@ -63,6 +64,21 @@ class BuildContext:
         """What a filter assumes about quaternion sensor ``name`` (mounting, noise covariance)."""
         c = self.sensor_configs[name]
         return plugin_for(c).quaternion_model(self, c)
+
+    def add_estimator(self, name: str, setup):
+        """Add the :class:`~drake_att.systems.estimators.EstimatorSystem` of ``setup`` (an
+        :class:`~drake_att.systems.estimators.EstimatorSetup`) and wire its gyro, quaternion
+        and vector sensors; the random seed port is wired by the builder. Returns the system."""
+        est = self.builder.AddSystem(EstimatorSystem.from_setup(name, setup))
+        if setup.core.uses_gyro:
+            if setup.gyro is None:
+                raise ValueError(f"{name}: the core uses a gyro but the setup names none")
+            self.connect_sensor(setup.gyro, est, "gyro_measurement")
+        for m in setup.quaternion_sensors:
+            self.connect_sensor(m.name, est, f"q_meas_{m.name}")
+        for n in setup.vector_sensors:
+            self.connect_sensor(n, est, f"vectors_{n}")
+        return est
 
     def connect_sensor(self, name: str, system, input_port: str) -> None:
         """Wire sensor ``name``'s measurement output to ``system``'s ``input_port``."""

@@ -5,6 +5,14 @@ collected in pydrake 1.51, so build once per process and reseed per run);
 ``ScenarioDiagram.simulate(seed)`` runs it and returns a :class:`RunLog` with every
 logged signal as numpy arrays.
 
+**Sweeps on one diagram.** ``simulate(seed, overrides=[...], estimators=[...])`` runs the
+same diagram with other values of its context parameters — the fields each plug-in
+registers as ``parameters`` (filter tunings, initial estimates, sensor noise levels), the
+plant's initial attitude and rate, the duration, scoring and integrator settings — and/or
+with only some estimators switched on. Overrides that would change the diagram's
+structure (a period, a particle count, a sensor list) are refused with a message naming
+the field. The run's log carries the scenario actually used.
+
 Sensors and estimators are plug-ins (:mod:`drake_att.scenarios.registry`): the builder
 calls each config's registered build function with a
 :class:`~drake_att.scenarios.build_context.BuildContext`, logs what each sensor plug-in
@@ -14,6 +22,7 @@ not editing this file.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from dataclasses import dataclass, field
@@ -28,12 +37,32 @@ from drake_att import rotations as rot
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
+from drake_att.systems.estimators import EstimatorSetup, EstimatorSystem
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
 from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
 from drake_att.units import DEG
 
 
-def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys) -> dict:
+def _same(a, b) -> bool:
+    """Equal config values (dataclasses, lists, numpy arrays, numbers)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+        return a.shape == b.shape and bool(np.all((a == b) | (np.isnan(a) & np.isnan(b))))
+    if dataclasses.is_dataclass(a) or dataclasses.is_dataclass(b):
+        return type(a) is type(b) and not _changed_fields(a, b)
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return bool(a == b)
+
+
+def _changed_fields(a, b) -> list[str]:
+    """Names of the top-level fields of dataclass ``a`` whose value differs in ``b``."""
+    if type(a) is not type(b):
+        return ["(type)"]
+    return [f.name for f in dataclasses.fields(a) if not _same(getattr(a, f.name), getattr(b, f.name))]
+
+
+def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, scenario=None) -> dict:
     """What scoring a run needs, as plain JSON-able data (:attr:`RunLog.metadata`).
 
     Keys: ``schema`` (:attr:`RunLog.METADATA_SCHEMA`), ``scenario`` (name), ``seed``,
@@ -45,13 +74,14 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys) -
     The second-quantity kind comes from the system's ``second_output_name``, here only.
     """
     sd = scenario_diagram
+    scenario = sd.scenario if scenario is None else scenario
     kinds = {"bias_B_hat": "gyro_bias", "w_IB_B_hat": "body_rate"}
-    configs = {e.name: e for e in sd.scenario.estimators}
+    configs = {e.name: e for e in scenario.estimators}
     truth = sd.truth.get_name()
-    meta = {"schema": RunLog.METADATA_SCHEMA, "scenario": sd.scenario.name, "seed": int(seed),
+    meta = {"schema": RunLog.METADATA_SCHEMA, "scenario": scenario.name, "seed": int(seed),
             "wall_time_s": float(wall_time_s), "signals": list(signal_keys),
             "truth": {"attitude": f"{truth}/q_IB", "rate": f"{truth}/w_IB_B"}, "estimators": {}}
-    for c in sd.scenario.estimators:
+    for c in scenario.estimators:
         system = sd.estimators[c.name]
         second = system.second_output_name
         if second not in kinds:
@@ -219,7 +249,8 @@ class ScenarioDiagram:
             ctx.sensors[s.name] = plugin_for(s).build(ctx, s)
         for e in scenario.estimators:
             ctx.estimator_configs[e.name] = e
-            ctx.estimators[e.name] = plugin_for(e).build(ctx, e)
+            built = plugin_for(e).build(ctx, e)
+            ctx.estimators[e.name] = ctx.add_estimator(e.name, built) if isinstance(built, EstimatorSetup) else built
         self.sensors, self.estimators = ctx.sensors, ctx.estimators
         AddRandomInputs(RANDOM_SOURCE_SAMPLING_INTERVAL_S, builder)
 
@@ -254,60 +285,167 @@ class ScenarioDiagram:
     def estimator_period(self, name: str) -> float:
         return self.estimators[name].period_s
 
-    def initial_q_IB(self) -> np.ndarray:
-        p = self.scenario.plant
+    def initial_q_IB(self, scenario: cfg.Scenario | None = None) -> np.ndarray:
+        scenario = self.scenario if scenario is None else scenario
+        p = scenario.plant
         if isinstance(p, cfg.PrescribedRpyConfig):
             return rot.rpy_to_quat(np.asarray(p.rpy_deg[0]) * DEG)
-        return attitude_from_rpy_deg(self.scenario, p.initial_attitude_rpy_deg)
+        return attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg)
 
-    def create_context(self, seed: int):
-        """A context randomized by ``seed`` with the scenario's initial conditions."""
+    # -- per-run scenarios: context parameters instead of new diagrams ------------------------
+    # Scenario fields that never touch the diagram, and plant fields set in the context.
+    _RUN_FIELDS = ("name", "description", "duration_s", "seed", "simulation", "scoring")
+    _PLANT_CONTEXT_FIELDS = ("initial_attitude_rpy_deg", "initial_rate_deg_per_s")
+
+    def scenario_for(self, overrides=None, estimators=None) -> cfg.Scenario:
+        """The scenario a run with ``overrides`` (``path=value`` strings, as ``--set``) and
+        the selected ``estimators`` (names; None = all; [] = none, e.g. to time the sensors
+        alone) uses on this diagram.
+
+        Raises:
+            ConfigError: an override fails validation, changes the diagram's structure
+                (naming the field and the fields that may change), or the selection names
+                an unknown estimator or leaves out the source of a selected fusion.
+        """
+        scenario = self.scenario
+        if overrides:
+            scenario = cfg.apply_overrides(scenario, overrides)
+            structural = self._structural_changes(self._normalized_scenario(), scenario)
+            if structural:
+                raise cfg.ConfigError("these overrides change the diagram, not just its parameters: "
+                                      + "; ".join(structural) + ". Build a new ScenarioDiagram for them.")
+        if estimators is not None:
+            import copy
+
+            names = [e.name for e in scenario.estimators]
+            unknown = [n for n in estimators if n not in names]
+            if unknown or isinstance(estimators, str):
+                raise cfg.ConfigError(f"estimators: got {estimators!r}; choose a list of names from {names} "
+                                      "(empty: sensors only)")
+            keep = [e for e in scenario.estimators if e.name in estimators]
+            for e in keep:
+                missing = [s for s in getattr(e, "sources", []) if s not in estimators]
+                if missing:
+                    raise cfg.ConfigError(f"estimators: {e.name!r} fuses {missing}, which are not selected")
+            scenario = copy.deepcopy(scenario)
+            scenario.estimators = copy.deepcopy(keep)
+        return scenario
+
+    def _normalized_scenario(self) -> cfg.Scenario:
+        """The diagram's scenario as the YAML round trip gives it (what overrides compare to)."""
+        if not hasattr(self, "_normalized"):
+            self._normalized = cfg.load_scenario(text=cfg.dump_scenario(self.scenario))
+        return self._normalized
+
+    def _structural_changes(self, base: cfg.Scenario, new: cfg.Scenario) -> list[str]:
+        """Messages for every changed field of ``new`` that is not a context parameter."""
+        out = []
+        for f in dataclasses.fields(cfg.Scenario):
+            a, b = getattr(base, f.name), getattr(new, f.name)
+            if f.name in self._RUN_FIELDS or _same(a, b):
+                continue
+            if f.name == "plant":
+                out += [f"plant.{p} (the plant's structure; may change: {list(self._PLANT_CONTEXT_FIELDS)})"
+                        for p in _changed_fields(a, b) if type(a) is not type(b) or p not in self._PLANT_CONTEXT_FIELDS]
+            elif f.name in ("sensors", "estimators"):
+                if [x.name for x in a] != [x.name for x in b] or [type(x) for x in a] != [type(x) for x in b]:
+                    out.append(f"{f.name} (the list of {f.name} or their types)")
+                    continue
+                for x, y in zip(a, b):
+                    allowed = plugin_for(x).parameters
+                    out += [f"{f.name}.{x.name}.{p} (may change: {list(allowed)})"
+                            for p in _changed_fields(x, y) if p not in allowed]
+            else:
+                out.append(f"{f.name}")
+        return out
+
+    def _apply_parameters(self, context, scenario: cfg.Scenario) -> None:
+        """Write ``scenario``'s sensor and estimator parameters into ``context``."""
+        ctx = BuildContext(None, scenario, self.truth, sensors=dict(self.sensors), estimators=dict(self.estimators))
+        for s in scenario.sensors:
+            ctx.sensor_configs[s.name] = s
+        for s in scenario.sensors:
+            configure = plugin_for(s).configure
+            if configure is not None:
+                system = self.sensors[s.name]
+                configure(ctx, s, system, system.GetMyMutableContextFromRoot(context))
+        for e in scenario.estimators:
+            ctx.estimator_configs[e.name] = e
+            system = self.estimators[e.name]
+            if isinstance(system, EstimatorSystem) and plugin_for(e).parameters:
+                setup = plugin_for(e).build(ctx, e)
+                system.set_filter(system.GetMyMutableContextFromRoot(context), setup)
+
+    def create_context(self, seed: int, overrides=None, estimators=None):
+        """A context randomized by ``seed`` with the initial conditions and parameters of
+        :meth:`scenario_for` ``(overrides, estimators)`` (estimators not selected are
+        switched off)."""
+        scenario = self.scenario_for(overrides, estimators)
         context = self.diagram.CreateDefaultContext()
         # SetRandomContext resets every state and parameter to its default: set initial
-        # conditions after it.
+        # conditions and parameters after it.
         self.diagram.SetRandomContext(context, RandomGenerator(int(seed)))
+        if overrides:
+            self._apply_parameters(context, scenario)
+        if estimators is not None:
+            for name, system in self.estimators.items():
+                if isinstance(system, EstimatorSystem) and name not in estimators:
+                    system.set_filter(system.GetMyMutableContextFromRoot(context), enabled=False)
         truth_ctx = self.truth.GetMyMutableContextFromRoot(context)
         self.truth.SetDefaultParametersAndState(truth_ctx)
-        p = self.scenario.plant
+        p = scenario.plant
+        q0 = self.initial_q_IB(scenario)
         if isinstance(p, cfg.RigidBodyConfig):
-            self.truth.SetInitialState(truth_ctx, self.initial_q_IB(), np.asarray(p.initial_rate_deg_per_s) * DEG)
+            self.truth.SetInitialState(truth_ctx, q0, np.asarray(p.initial_rate_deg_per_s) * DEG)
         else:
-            self.truth.SetInitialState(truth_ctx, self.initial_q_IB())
+            self.truth.SetInitialState(truth_ctx, q0)
         return context
 
-    def simulate(self, seed: int | None = None, progress: bool = False) -> RunLog:
-        """Run the scenario for ``seed`` (default: the scenario's) and return its logs."""
-        seed = self.scenario.seed if seed is None else int(seed)
-        context = self.create_context(seed)
+    def simulate(self, seed: int | None = None, progress: bool = False, overrides=None, estimators=None) -> RunLog:
+        """Run the scenario for ``seed`` (default: the scenario's) and return its logs.
+
+        Args:
+            overrides: ``path=value`` changes of context parameters for this run (see
+                :meth:`scenario_for`); the diagram is reused.
+            estimators: names of the estimators to run and log (default: all); the others
+                are switched off for this run.
+        """
+        scenario = self.scenario_for(overrides, estimators)
+        seed = scenario.seed if seed is None else int(seed)
+        context = self.create_context(seed, overrides, estimators)
         simulator = Simulator(self.diagram, context)
-        sc = self.scenario.simulation
+        sc = scenario.simulation
         ApplySimulatorConfig(SimulatorConfig(
             integration_scheme=sc.integration_scheme, max_step_size=sc.max_step_size_s,
             accuracy=sc.accuracy, use_error_control=sc.use_error_control,
             target_realtime_rate=0.0, publish_every_time_step=False), simulator)
         start = time.perf_counter()
         simulator.Initialize()
-        duration = self.scenario.duration_s
+        duration = scenario.duration_s
         chunks = 20 if progress else 1
         for k in range(1, chunks + 1):
             simulator.AdvanceTo(duration * k / chunks)
             if progress:
                 elapsed = time.perf_counter() - start
-                print(f"\r  [{self.scenario.name} seed {seed}] t = {duration * k / chunks:8.1f} / {duration:.1f} s"
+                print(f"\r  [{scenario.name} seed {seed}] t = {duration * k / chunks:8.1f} / {duration:.1f} s"
                       f"  ({elapsed:6.1f} s wall)", end="", file=sys.stderr, flush=True)
         if progress:
             print(file=sys.stderr)
         wall = time.perf_counter() - start
         signals = {}
+        dropped = {self.estimators[e.name].get_name() for e in self.scenario.estimators} - {
+            self.estimators[e.name].get_name() for e in scenario.estimators}
         for key, logger in self.loggers.items():
+            name = key.split("/", 1)[0]
+            if name in dropped:
+                continue
             log = logger.FindLog(context)
             t, x = log.sample_times().copy(), log.data().T.copy()
-            name = key.split("/", 1)[0]
             if key.endswith("/estimate_state") and name in self._packed_estimators:
                 second = self._packed_estimators[name]
                 for port, (a, b) in (("q_IB_hat", (0, 4)), (second, (4, 7)), ("covariance", (7, 43)), ("status", (43, 47))):
                     signals[f"{name}/{port}"] = (t, x[:, a:b].copy())
             else:
                 signals[key] = (t, x)
-        return RunLog(self.scenario, seed, wall, signals, run_metadata(self, seed, wall, signals))
+        return RunLog(scenario, seed, wall, signals, run_metadata(self, seed, wall, signals, scenario))
 

@@ -14,9 +14,21 @@ validation function, registered with one decorator::
     def validate_my_filter(path, config, checks):  # checks: ValidationContext
         ...                                          # raise ConfigError naming path.field
 
-    @register_estimator(MyFilterConfig, validate=validate_my_filter)
+    @register_estimator(MyFilterConfig, second_quantity=SecondQuantity.GYRO_BIAS,
+                        validate=validate_my_filter, parameters=("gain",))
     def build_my_filter(ctx, config):                # ctx: drake_att.scenarios.build_context.BuildContext
-        return ctx.builder.AddSystem(...)            # wired to its sensors
+        return EstimatorSetup(core, initial_state, config.period_s, gyro=..., vector_sensors=(...,))
+
+An estimator's build returns an :class:`~drake_att.systems.estimators.EstimatorSetup` (the
+builder adds the one estimator system and wires it) or, for an estimator that is not a
+filter core (e.g. a fusion of estimators), a system it added and wired itself.
+
+**Context parameters.** ``parameters`` names the config fields a run may change without a
+new diagram (tunings, initial estimates, noise levels): for such a change the builder
+calls the build function again on the changed config and puts the result in the run's
+Context (:meth:`EstimatorSystem.set_filter`); sensors say how with ``configure``. Any
+other field is structural (ports, periods, particle counts, sensor lists): changing it
+needs a new diagram, and ``ScenarioDiagram.create_context`` says so.
 
 Sensors register the same way (:func:`register_sensor`) and also say what they output
 (:class:`SensorOutput`: gyro samples, attitude quaternions or vector observations, which
@@ -79,6 +91,9 @@ class Plugin:
     output: Callable | None = None  # (config, sensor_configs: dict) -> SensorOutput
     quaternion_model: Callable | None = None  # (ctx, config) -> QuaternionSensorModel
     logged_ports: Callable | None = None  # (config) -> [(port, period_s), ...]
+    configure: Callable | None = None  # (ctx, config, system, system_context) -> None
+    # Config fields a context may change without a new diagram (see the module docstring).
+    parameters: tuple = ()
     extra: dict = field(default_factory=dict)
 
     @property
@@ -95,6 +110,10 @@ def _register(kind, config_type, build, **kwargs) -> None:
     if "name" not in {f.name for f in dataclasses.fields(config_type)}:
         raise PluginError(f"{kind} config {config_type.__name__}: needs a 'name' field (names the system)")
     _resolve_field_types(config_type, kind)
+    names = {f.name for f in dataclasses.fields(config_type)}
+    bad = [p for p in kwargs.get("parameters", ()) if p not in names]
+    if bad:
+        raise PluginError(f"{kind} config {config_type.__name__}: parameters {bad} are not fields of the config")
     tag = config_type.__name__
     for other_kind, plugins in _PLUGINS.items():
         existing = plugins.get(tag)
@@ -126,8 +145,9 @@ def _resolve_field_types(config_type: type, kind: str, seen=None) -> None:
             stack.extend(typing.get_args(t))
 
 
-def register_estimator(config_type: type, *, second_quantity, validate: Callable | None = None):
-    """Decorator registering ``build(ctx, config) -> system`` for ``config_type``.
+def register_estimator(config_type: type, *, second_quantity, validate: Callable | None = None,
+                       parameters=()):
+    """Decorator registering ``build(ctx, config) -> EstimatorSetup | system`` for ``config_type``.
 
     Args:
         second_quantity: what the estimator's second 3-vector is
@@ -135,17 +155,21 @@ def register_estimator(config_type: type, *, second_quantity, validate: Callable
             SecondQuantity`` when it depends on the config (e.g. a fusion of estimators).
         validate: ``(path, config, checks) -> None`` raising ``ConfigError``; ``checks`` is a
             :class:`~drake_att.scenarios.config.ValidationContext`.
+        parameters: config fields a context may change (build must return an
+            ``EstimatorSetup`` for them to apply).
     """
 
     def decorate(build):
-        _register(ESTIMATOR, config_type, build, validate=validate, second_quantity=second_quantity)
+        _register(ESTIMATOR, config_type, build, validate=validate, second_quantity=second_quantity,
+                  parameters=tuple(parameters))
         return build
 
     return decorate
 
 
 def register_sensor(config_type: type, *, output: Callable, validate: Callable | None = None,
-                    quaternion_model: Callable | None = None, logged_ports: Callable | None = None):
+                    quaternion_model: Callable | None = None, logged_ports: Callable | None = None,
+                    parameters=(), configure: Callable | None = None):
     """Decorator registering a sensor's ``build(ctx, config) -> system``.
 
     Args:
@@ -154,11 +178,20 @@ def register_sensor(config_type: type, *, output: Callable, validate: Callable |
         quaternion_model: for "quaternion" outputs, ``(ctx, config) -> QuaternionSensorModel``
             (what a filter assumes about the sensor: mounting and noise covariance).
         logged_ports: ``(config) -> [(port, period_s), ...]`` logged by the builder.
+        parameters: config fields a context may change; ``configure(ctx, config, system,
+            system_context)`` writes them (and anything derived from other sensors) into
+            the system's context. Called for every sensor with a ``configure`` whenever a
+            context changes any parameter, so derived values (e.g. an average's
+            covariance) follow the sensors they derive from.
     """
+    if parameters and configure is None:
+        raise PluginError(f"sensor config {config_type.__name__}: parameters {list(parameters)} need a configure "
+                          "function")
 
     def decorate(build):
         _register(SENSOR, config_type, build, validate=validate, output=output,
-                  quaternion_model=quaternion_model, logged_ports=logged_ports)
+                  quaternion_model=quaternion_model, logged_ports=logged_ports, parameters=tuple(parameters),
+                  configure=configure)
         return build
 
     return decorate

@@ -121,13 +121,25 @@ def star_tracker_logged_ports(c: StarTrackerConfig):
     return [("star_tracker_measurement", c.period_s)] if c.mode == "quaternion" else []
 
 
+def star_tracker_noise_si(c: StarTrackerConfig) -> tuple:
+    """The config's noise and availability in SI, in :meth:`StarTracker.set_noise`'s order."""
+    return (c.sigma_cross_boresight_arcsec * ARCSEC, c.sigma_boresight_arcsec * ARCSEC, c.sigma_vector_urad * 1e-6,
+            c.dropout_probability, [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))])
+
+
+def configure_star_tracker(ctx, c: StarTrackerConfig, st: StarTracker, context) -> None:
+    st.set_noise(context, *star_tracker_noise_si(c))
+
+
 @register_sensor(StarTrackerConfig, output=star_tracker_output, validate=validate_star_tracker,
-                 quaternion_model=star_tracker_quaternion_model, logged_ports=star_tracker_logged_ports)
+                 quaternion_model=star_tracker_quaternion_model, logged_ports=star_tracker_logged_ports,
+                 parameters=("sigma_cross_boresight_arcsec", "sigma_boresight_arcsec", "sigma_vector_urad",
+                             "dropout_probability", "outage_windows_s"),
+                 configure=configure_star_tracker)
 def build_star_tracker(ctx, c: StarTrackerConfig):
+    sc, sb, sv, dropout, outages = star_tracker_noise_si(c)
     st = ctx.builder.AddSystem(StarTracker(
-        c.name, c.period_s, star_tracker_mounting(c), c.mode,
-        c.sigma_cross_boresight_arcsec * ARCSEC, c.sigma_boresight_arcsec * ARCSEC,
-        c.references_I if c.mode == "vectors" else None, c.sigma_vector_urad * 1e-6,
-        c.dropout_probability, [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))]))
+        c.name, c.period_s, star_tracker_mounting(c), c.mode, sc, sb,
+        c.references_I if c.mode == "vectors" else None, sv, dropout, outages))
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))
     return st

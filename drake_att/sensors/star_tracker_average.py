@@ -16,7 +16,7 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
 from drake_att.sensors.star_tracker import StarTrackerConfig, star_tracker_mounting, star_tracker_sigmas_S
 from drake_att.systems.estimators import QuaternionSensorModel
-from drake_att.systems.fusion import StarTrackerAverage
+from drake_att.systems.fusion import StarTrackerAverage, average_measurement_covariance_B
 
 
 @dataclass
@@ -49,7 +49,11 @@ def star_tracker_average_output(c: StarTrackerAverageConfig, sensor_configs) -> 
 
 
 def star_tracker_average_quaternion_model(ctx, c: StarTrackerAverageConfig) -> QuaternionSensorModel:
-    return QuaternionSensorModel(c.name, np.array([1.0, 0.0, 0.0, 0.0]), ctx.sensors[c.name].covariance_B)
+    """Identity mounting; the covariance derived from the trackers' configs (so it follows a
+    context that changes their noise)."""
+    trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
+    return QuaternionSensorModel(c.name, np.array([1.0, 0.0, 0.0, 0.0]), average_measurement_covariance_B(
+        [star_tracker_mounting(t) for t in trackers], [star_tracker_sigmas_S(t) for t in trackers], c.weights))
 
 
 @register_sensor(StarTrackerAverageConfig, output=star_tracker_average_output,

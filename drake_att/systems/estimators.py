@@ -36,6 +36,11 @@ Output ports:
         (row-major 6x6 each) and the number of steps taken (for track-to-track fusion).
     particle_diagnostics (4) (cores with ``num_particles``): ``[N_eff after the last
         update (before resampling), resamplings so far, degenerate updates so far, N]``.
+Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
+    abstract parameter 0: the :class:`FilterModel` — the core (its tuning), the initial
+        state, the quaternion sensor models (mounting, noise) and whether the estimator
+        runs. :meth:`set_filter` replaces it (and the state it implies) in a context;
+        structure (state size, ports, period) cannot change.
 Discrete state:
     group 0: the packed estimate (47).
     group 1: bookkeeping ``[t_last, last valid gyro rate (3), step index, seed words (4),
@@ -48,7 +53,8 @@ Discrete state:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -83,7 +89,7 @@ _SEED = slice(5, 5 + SEED_WORDS)
 _N_RESAMPLES, _ESS, _N_DEGENERATE = 5 + SEED_WORDS, 6 + SEED_WORDS, 7 + SEED_WORDS
 _LAST_SAMPLE = 8 + SEED_WORDS  # first per-input "time of last used sample"
 
-__all__ = ["EstimatorSystem", "QuaternionSensorModel", "MekfEstimator", "pack_estimate", "ESTIMATE_SIZE",
+__all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensorModel", "MekfEstimator", "pack_estimate", "ESTIMATE_SIZE",
            "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
 
 
@@ -94,6 +100,41 @@ class QuaternionSensorModel:
     name: str
     q_BS: np.ndarray
     covariance_S: np.ndarray  # (3, 3) rotation-vector noise in the sensor frame (rad^2)
+
+
+@dataclass(frozen=True)
+class EstimatorSetup:
+    """What an estimator plug-in's build function returns: the builder turns it into an
+    :class:`EstimatorSystem` wired to the named sensors (one home for that wiring), and
+    re-evaluates it for a context whose parameters change (:meth:`EstimatorSystem.set_filter`).
+
+    Attributes:
+        core: the :class:`~drake_att.contract.FilterCore` (its tuning included).
+        initial_state: the core's state at t = 0.
+        period_s: filter step (s).
+        gyro: name of the gyro feeding ``gyro_measurement`` (cores with ``uses_gyro``).
+        quaternion_sensors: :class:`QuaternionSensorModel` per attitude-quaternion input.
+        vector_sensors: names of the vector-observation sensors.
+    """
+
+    core: Any
+    initial_state: Any
+    period_s: float
+    gyro: str | None = None
+    quaternion_sensors: tuple = ()
+    vector_sensors: tuple = ()
+
+
+@dataclass(frozen=True)
+class FilterModel:
+    """The per-context part of an estimator (its abstract parameter): the core, the initial
+    state, what it assumes about its quaternion sensors and whether it runs at all
+    (``enabled`` false: every step does nothing; the estimate stays the initial one)."""
+
+    core: Any
+    initial_state: Any
+    quaternion_sensors: tuple
+    enabled: bool = True
 
 
 class EstimatorSystem(LeafSystem):
@@ -119,7 +160,7 @@ class EstimatorSystem(LeafSystem):
         if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
-        self.core = core
+        self.core = core  # the default core (a context may carry another: FilterModel)
         self.second_quantity: SecondQuantity = core.second_quantity
         self.second_output_name = core.second_quantity.port_name
         self._linearizing = hasattr(core, "predict_linearized")
@@ -135,6 +176,9 @@ class EstimatorSystem(LeafSystem):
             self.DeclareAbstractInputPort(f"vectors_{n}", AbstractValue.Make(contract.empty_vector_observations()))
             for n in vector_sensors]
         self._seed_port = declare_seed_port(self) if core.is_random else None
+        self._vector_names = tuple(vector_sensors)
+        self._model_index = self.DeclareAbstractParameter(
+            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors))))
 
         # -- state -------------------------------------------------------------------------
         q0, second0, P0 = core.estimate(initial_state)
@@ -171,6 +215,60 @@ class EstimatorSystem(LeafSystem):
             self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
+    @classmethod
+    def from_setup(cls, name: str, setup: EstimatorSetup) -> "EstimatorSystem":
+        """The system for a plug-in's :class:`EstimatorSetup` (ports unconnected)."""
+        return cls(name, setup.period_s, setup.core, setup.initial_state, setup.quaternion_sensors,
+                   setup.vector_sensors)
+
+    # -- per-context parameters ---------------------------------------------------------------
+    def filter_model(self, context) -> FilterModel:
+        """The :class:`FilterModel` in ``context`` (this system's context)."""
+        return context.get_abstract_parameter(self._model_index).get_value()
+
+    def set_filter(self, context, setup: EstimatorSetup | None = None, enabled: bool | None = None) -> None:
+        """Give ``context`` (this system's) another core / initial state / sensor models
+        (``setup``) and/or switch the estimator on or off, and reset the filter state to the
+        new initial state. The structure must not change.
+
+        Raises:
+            ValueError: naming what differs (state size, gyro use, randomness, second
+                quantity, linearization, particle count, period or sensors).
+        """
+        model = self.filter_model(context)
+        if setup is not None:
+            self._check_compatible(setup)
+            model = FilterModel(setup.core, setup.initial_state, tuple(setup.quaternion_sensors), model.enabled)
+        if enabled is not None:
+            model = replace(model, enabled=bool(enabled))
+        context.get_mutable_abstract_parameter(self._model_index).set_value(model)
+        if setup is not None:
+            core, state = model.core, model.initial_state
+            q0, second0, P0 = core.estimate(state)
+            context.get_mutable_discrete_state(self._estimate_group).SetFromVector(
+                pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
+            context.get_mutable_discrete_state(self._core_group).SetFromVector(
+                np.asarray(core.to_vector(state), dtype=float))
+
+    def _check_compatible(self, setup: EstimatorSetup) -> None:
+        name, old, new = self.get_name(), self.core, setup.core
+        if not isinstance(new, contract.FilterCore):
+            raise TypeError(f"{name}: core {type(new).__name__} does not implement drake_att.contract.FilterCore")
+        checks = [("period_s", self.period_s, float(setup.period_s)),
+                  ("state size", old.state_size, new.state_size),
+                  ("uses_gyro", old.uses_gyro, new.uses_gyro),
+                  ("is_random", old.is_random, new.is_random),
+                  ("second quantity", old.second_quantity, new.second_quantity),
+                  ("linearizing", self._linearizing, hasattr(new, "predict_linearized")),
+                  ("num_particles", self.num_particles, getattr(new, "num_particles", None)),
+                  ("quaternion sensors", [s.name for s in self._quat_sensors],
+                   [s.name for s in setup.quaternion_sensors]),
+                  ("vector sensors", list(self._vector_names), list(setup.vector_sensors))]
+        for what, was, now in checks:
+            if was != now:
+                raise ValueError(f"{name}: the new filter setup changes the {what} ({was!r} -> {now!r}); "
+                                 "that changes the diagram's structure: build a new diagram")
+
     # -- outputs and accessors -------------------------------------------------------------
     def _out(self, context, output: BasicVector, part: slice):
         output.SetFromVector(context.get_discrete_state(self._estimate_group).value()[part])
@@ -194,9 +292,10 @@ class EstimatorSystem(LeafSystem):
         book = context.get_discrete_state(self._book_group).value().copy()
         book[_SEED] = words
         book[_STEP] = 0.0
-        state = self.core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
+        core = self.filter_model(context).core
+        state = core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
-        discrete_state.get_mutable_vector(self._core_group).SetFromVector(self.core.to_vector(state))
+        discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
         return EventStatus.Succeeded()
 
     def _gyro_rate(self, context, t):
@@ -208,9 +307,9 @@ class EstimatorSystem(LeafSystem):
             return np.array(g[2:5])
         return None
 
-    def _measurements(self, context):
+    def _measurements(self, context, quaternion_sensors):
         """``(input index, measurement)`` for every connected measurement input, in order."""
-        for i, (sensor, port) in enumerate(zip(self._quat_sensors, self._quat_ports)):
+        for i, (sensor, port) in enumerate(zip(quaternion_sensors, self._quat_ports)):
             if port.HasValue(context):
                 m = port.Eval(context)
                 yield i, QuaternionSample(float(m[0]), contract.flag_is_true(m[1]), np.array(m[2:6]),
@@ -221,7 +320,10 @@ class EstimatorSystem(LeafSystem):
                 yield offset + j, port.Eval(context)
 
     def _on_step(self, context, discrete_state):
-        core = self.core
+        model = self.filter_model(context)
+        if not model.enabled:
+            return EventStatus.DidNothing()
+        core = model.core
         t = context.get_time()
         est = self.estimate_vector(context)
         book = context.get_discrete_state(self._book_group).value().copy()
@@ -255,7 +357,7 @@ class EstimatorSystem(LeafSystem):
         book[_T_LAST] = t
 
         # -- measurement updates at this instant ------------------------------------------------
-        for i, m in self._measurements(context):
+        for i, m in self._measurements(context, model.quaternion_sensors):
             t_meas = float(m.time_s)
             if not math.isfinite(t_meas):
                 n_skipped += 1  # a sample with no usable time stamp

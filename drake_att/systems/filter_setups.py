@@ -1,6 +1,10 @@
-"""Paper S0's estimators as Drake systems: MRP EKF, bootstrap PF, EKPF and gyroless PF.
+"""Setups and systems of the estimators fed by one vector-mode star tracker (paper S0's):
+MRP EKF, bootstrap PF, EKPF and gyroless PF.
 
-Each is the one :class:`~drake_att.systems.estimators.EstimatorSystem` running a numpy filter core
+``*_setup`` functions return the :class:`~drake_att.systems.estimators.EstimatorSetup` (core,
+initial state, sensors) that the estimator plug-ins build from a config; the ``*Estimator``
+constructor functions wrap the same setup in a system for direct use (tests, notebooks).
+Each system is the one :class:`~drake_att.systems.estimators.EstimatorSystem` running a numpy filter core
 (:class:`~drake_att.filters.mrp_ekf.MrpEkf`,
 :class:`~drake_att.filters.particle.BootstrapParticleFilter`,
 :class:`~drake_att.filters.particle.ExtendedKalmanParticleFilter`,
@@ -46,9 +50,13 @@ from drake_att.filters.particle import (
     GyrolessParticleFilter,
     ParticleFilterCore,
 )
-from drake_att.systems.estimators import PARTICLE_DIAGNOSTICS_SIZE, EstimatorSystem
+from drake_att.systems.estimators import PARTICLE_DIAGNOSTICS_SIZE, EstimatorSetup, EstimatorSystem
 
 __all__ = [
+    "mrp_ekf_setup",
+    "bootstrap_pf_setup",
+    "ekpf_setup",
+    "gyroless_pf_setup",
     "MrpEkfEstimator",
     "BootstrapPfEstimator",
     "EkpfEstimator",
@@ -62,6 +70,14 @@ def _covariance0(covariance0) -> np.ndarray:
     if P0.shape == (6,):
         P0 = np.diag(P0)
     return P0
+
+
+def mrp_ekf_setup(period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0, arw_sigma: float,
+                  rrw_sigma: float, update_iterations: int = 1, gyro: str | None = None) -> EstimatorSetup:
+    """The setup of :func:`MrpEkfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+    core = MrpEkfCore(arw_sigma, rrw_sigma, update_iterations)
+    return EstimatorSetup(core, core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)), period_s,
+                          gyro=gyro, vector_sensors=(star_tracker,))
 
 
 def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0,
@@ -84,14 +100,13 @@ def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bi
     Ports: gyro_measurement, vectors_<star_tracker>; the estimator contract with
     ``bias_B_hat`` (``status[3]`` = NIS of the last update, 6 dof for two vectors).
     """
-    core = MrpEkfCore(arw_sigma, rrw_sigma, update_iterations)
-    return EstimatorSystem(name, period_s, core, core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)),
-                           vector_sensors=[star_tracker])
+    return EstimatorSystem.from_setup(name, mrp_ekf_setup(period_s, star_tracker, q_IB_hat0, bias_hat0, covariance0,
+                                                          arw_sigma, rrw_sigma, update_iterations))
 
 
-def _particle_system(name, period_s, star_tracker, second: SecondQuantity, make_filter) -> EstimatorSystem:
+def _particle_setup(period_s, star_tracker, gyro, second: SecondQuantity, make_filter) -> EstimatorSetup:
     core = ParticleFilterCore(make_filter, second)
-    return EstimatorSystem(name, period_s, core, core.initial_state(), vector_sensors=[star_tracker])
+    return EstimatorSetup(core, core.initial_state(), period_s, gyro=gyro, vector_sensors=(star_tracker,))
 
 
 _PF_PORTS_DOC = """
@@ -103,13 +118,22 @@ _PF_PORTS_DOC = """
 """
 
 
+def bootstrap_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
+                       arw_sigma: float, bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0,
+                       gyro: str | None = None) -> EstimatorSetup:
+    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+    P0 = _covariance0(covariance0)
+    return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS, lambda rng: BootstrapParticleFilter(
+        num_particles, q_IB_hat0, bias_hat0, P0, arw_sigma, rng, bias_roughening_sigma=bias_roughening_sigma,
+        resample_threshold=resample_threshold))
+
+
 def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
                          covariance0, arw_sigma: float, bias_roughening_sigma: float = 0.0,
                          resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
-    P0 = _covariance0(covariance0)
-    return _particle_system(name, period_s, star_tracker, SecondQuantity.GYRO_BIAS, lambda rng: BootstrapParticleFilter(
-        num_particles, q_IB_hat0, bias_hat0, P0, arw_sigma, rng, bias_roughening_sigma=bias_roughening_sigma,
-        resample_threshold=resample_threshold))
+    return EstimatorSystem.from_setup(name, bootstrap_pf_setup(
+        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_sigma, bias_roughening_sigma,
+        resample_threshold))
 
 
 BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:class:`~drake_att.filters.particle.BootstrapParticleFilter`).
@@ -128,14 +152,23 @@ BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:c
 """ + _PF_PORTS_DOC.format(gyro="gyro_measurement, ", second="bias_B_hat", second_short="bias")
 
 
+def ekpf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
+               arw_sigma: float, rrw_sigma: float, proposal_iterations: int = 1,
+               resample_threshold: float = 2.0 / 3.0, gyro: str | None = None) -> EstimatorSetup:
+    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+    P0 = _covariance0(covariance0)
+    return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS,
+                           lambda rng: ExtendedKalmanParticleFilter(
+                               num_particles, q_IB_hat0, bias_hat0, P0, arw_sigma, rrw_sigma, rng,
+                               proposal_iterations=proposal_iterations, resample_threshold=resample_threshold))
+
+
 def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
                   covariance0, arw_sigma: float, rrw_sigma: float, proposal_iterations: int = 1,
                   resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
-    P0 = _covariance0(covariance0)
-    return _particle_system(name, period_s, star_tracker, SecondQuantity.GYRO_BIAS,
-                            lambda rng: ExtendedKalmanParticleFilter(
-                                num_particles, q_IB_hat0, bias_hat0, P0, arw_sigma, rrw_sigma, rng,
-                                proposal_iterations=proposal_iterations, resample_threshold=resample_threshold))
+    return EstimatorSystem.from_setup(name, ekpf_setup(
+        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_sigma, rrw_sigma,
+        proposal_iterations, resample_threshold))
 
 
 EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~drake_att.filters.particle.ExtendedKalmanParticleFilter`).
@@ -155,18 +188,27 @@ EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~
 """ + _PF_PORTS_DOC.format(gyro="gyro_measurement, ", second="bias_B_hat", second_short="bias")
 
 
-def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0,
-                        covariance0, inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
-                        num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
+def gyroless_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0, covariance0,
+                      inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
+                      num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSetup:
+    """The setup of :func:`GyrolessPfEstimator` (same arguments)."""
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
         I = np.diag(I)
     P0 = _covariance0(covariance0)
-    return _particle_system(name, period_s, star_tracker, SecondQuantity.BODY_RATE,
-                            lambda rng: GyrolessParticleFilter(
-                                num_particles, q_IB_hat0, w_hat0, P0, I, torque, rate_process_sigma, rng,
-                                attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
-                                resample_threshold=resample_threshold))
+    return _particle_setup(period_s, star_tracker, None, SecondQuantity.BODY_RATE,
+                           lambda rng: GyrolessParticleFilter(
+                               num_particles, q_IB_hat0, w_hat0, P0, I, torque, rate_process_sigma, rng,
+                               attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
+                               resample_threshold=resample_threshold))
+
+
+def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0,
+                        covariance0, inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
+                        num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
+    return EstimatorSystem.from_setup(name, gyroless_pf_setup(
+        period_s, star_tracker, num_particles, q_IB_hat0, w_hat0, covariance0, inertia, torque, rate_process_sigma,
+        attitude_process_sigma, num_substeps, resample_threshold))
 
 
 GyrolessPfEstimator.__doc__ = """Paper S0's gyroless bootstrap PF on ``[rho; w]`` (:class:`~drake_att.filters.particle.GyrolessParticleFilter`).

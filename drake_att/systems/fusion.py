@@ -18,7 +18,9 @@ so they add no sample delay.
       filters (track-to-track fusion with common process noise, Bar-Shalom 1981):
       ``P_12 <- A_1 (Phi_1 P_12 Phi_2' + Q) A_2'`` from each MEKF's ``step_linearization``
       (``Q`` is the common gyro noise, measurement noises are independent), starting from
-      ``P_12 = P_0`` (both start from the same estimate, so their initial errors are equal).
+      ``P_12 = P_0`` (both start from the same estimate, so their initial errors are equal;
+      ``P_0`` is read from the first source's covariance at initialization, so it follows
+      a context that changes the sources' initial covariance).
     - "conservative": ``sum_i w_i P_i``.  For weights summing to one,
       ``(sum w_i e_i)(sum w_i e_i)' <= sum w_i e_i e_i'`` (convexity), so this bounds the
       true covariance whatever the correlation; tight when fully correlated.
@@ -42,6 +44,16 @@ def _normalized_weights(weights, n, field):
     if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
         raise ValueError(f"{field}: got {list(np.atleast_1d(weights))}; need {n} finite weights >= 0 with positive sum")
     return w / w.sum()
+
+
+def average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights) -> np.ndarray:
+    """``R_avg,B = sum_i w_i^2 R_BS,i diag(sigma_S,i^2) R_BS,i'`` (weights normalized to 1)."""
+    w = _normalized_weights(weights, len(q_BS_list), "weights")
+    covariance_B = np.zeros((3, 3))
+    for wi, q, s in zip(w, q_BS_list, sigmas_S_list):
+        R_BS = rot.quat_to_rotmat(rot.quat_normalize(q))
+        covariance_B += wi**2 * R_BS @ np.diag(np.asarray(s, dtype=float) ** 2) @ R_BS.T
+    return covariance_B
 
 
 class StarTrackerAverage(LeafSystem):
@@ -71,10 +83,7 @@ class StarTrackerAverage(LeafSystem):
             raise ValueError(f"{name}.star_trackers: got {list(tracker_names)}; need at least 2 trackers")
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
         self.q_BS = [rot.quat_normalize(q) for q in q_BS_list]
-        self.covariance_B = np.zeros((3, 3))
-        for w, q, s in zip(self.weights, self.q_BS, sigmas_S_list):
-            R_BS = rot.quat_to_rotmat(q)
-            self.covariance_B += w**2 * R_BS @ np.diag(np.asarray(s, dtype=float) ** 2) @ R_BS.T
+        self.covariance_B = average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights)
         self._ports = [self.DeclareVectorInputPort(f"q_meas_{t}", QUATERNION_MEASUREMENT_SIZE) for t in tracker_names]
         self.DeclareVectorOutputPort("star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc)
 
@@ -103,7 +112,6 @@ class EstimateFusion(LeafSystem):
         covariance_model: "tracked", "conservative" or "independent" (see module docstring).
         period_s: the sources' filter step (s); needed by "tracked", and the period at which
             the scenario builder logs the fused estimate.
-        initial_cross_covariance: "tracked": the sources' common initial covariance (6x6).
 
     Input ports (per source ``s``): ``s_q_IB_hat`` (4), ``s_second`` (3),
         ``s_covariance`` (36), ``s_status`` (4); with "tracked" also ``s_linearization``
@@ -118,7 +126,7 @@ class EstimateFusion(LeafSystem):
     """
 
     def __init__(self, name, source_names, weights, second_output_name="bias_B_hat",
-                 covariance_model="conservative", period_s=None, initial_cross_covariance=None):
+                 covariance_model="conservative", period_s=None):
         LeafSystem.__init__(self)
         self.set_name(name)
         n = len(source_names)
@@ -127,9 +135,8 @@ class EstimateFusion(LeafSystem):
         if covariance_model not in ("tracked", "conservative", "independent"):
             raise ValueError(f"{name}.covariance_model: got {covariance_model!r}; "
                              "allowed: 'tracked', 'conservative', 'independent'")
-        if covariance_model == "tracked" and (n != 2 or period_s is None or initial_cross_covariance is None):
-            raise ValueError(f"{name}.covariance_model: 'tracked' needs exactly 2 MEKF sources, their period "
-                             "and their common initial covariance")
+        if covariance_model == "tracked" and (n != 2 or period_s is None):
+            raise ValueError(f"{name}.covariance_model: 'tracked' needs exactly 2 MEKF sources and their period")
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
         self.covariance_model = covariance_model
         self.second_output_name = second_output_name
@@ -140,8 +147,8 @@ class EstimateFusion(LeafSystem):
                     for s in source_names}
         if covariance_model == "tracked":
             self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109) for s in source_names}
-            P0 = np.asarray(initial_cross_covariance, dtype=float).reshape(6, 6)
-            self._cross_group = self.DeclareDiscreteState(np.concatenate([P0.ravel(), [0.0]]))
+            self._cross_group = self.DeclareDiscreteState(np.concatenate([np.eye(6).ravel(), [0.0]]))
+            self.DeclareInitializationDiscreteUpdateEvent(self._initialize_cross)
             self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._advance_cross)
         self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
         self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
@@ -170,6 +177,12 @@ class EstimateFusion(LeafSystem):
             Phi2, A2 = l2[:36].reshape(6, 6), l2[72:108].reshape(6, 6)
             P12 = A1 @ (Phi1 @ P12 @ Phi2.T + Q) @ A2.T
         return P12, l1[108]
+
+    def _initialize_cross(self, context, discrete_state):
+        """``P_12 = P_0``: the first source's covariance at initialization (its initial one)."""
+        P0 = self._in[self.source_names[0]]["covariance"].Eval(context)
+        discrete_state.get_mutable_vector(self._cross_group).SetFromVector(np.concatenate([P0, [0.0]]))
+        return EventStatus.Succeeded()
 
     def _advance_cross(self, context, discrete_state):
         P12, steps = self._cross_covariance(context)

@@ -9,7 +9,10 @@ the true mean rate is exact, from the plant's ``w_IB_B_integral`` port.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B (3)]
@@ -24,6 +27,40 @@ def _check_vector(value, n, field, unit):
     if v.shape != (n,) or not np.all(np.isfinite(v)):
         raise ValueError(f"{field}: got {value!r}; must be {n} finite numbers ({unit})")
     return v
+
+
+@dataclass(frozen=True)
+class GyroModel:
+    """The gyro's numbers (its abstract parameter: one diagram, any noise level per run).
+
+    Attributes:
+        noise: the Farrenkopf interval statistics (ARW, RRW, period).
+        initial_bias: bias at t = 0 (3, rad/s). initial_bias_sigma: its random part (rad/s).
+        sensor_matrix: ``I + S + M`` (scale factors and misalignment).
+    """
+
+    noise: FarrenkopfGyroNoise
+    initial_bias: np.ndarray
+    initial_bias_sigma: float
+    sensor_matrix: np.ndarray
+
+    @classmethod
+    def make(cls, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
+             initial_bias_rad_per_s=(0.0, 0.0, 0.0), initial_bias_sigma_rad_per_s: float = 0.0,
+             scale_factor_error=(0.0, 0.0, 0.0), misalignment=None) -> "GyroModel":
+        """Check and convert the arguments of :class:`Gyro` (ValueError naming the field)."""
+        try:
+            noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
+        except ValueError as e:
+            raise ValueError(f"{name}.{e}") from None
+        initial_bias = _check_vector(initial_bias_rad_per_s, 3, f"{name}.initial_bias", "rad/s")
+        if not np.isfinite(initial_bias_sigma_rad_per_s) or initial_bias_sigma_rad_per_s < 0:
+            raise ValueError(f"{name}.initial_bias_sigma: got {initial_bias_sigma_rad_per_s}; must be >= 0")
+        sf = _check_vector(scale_factor_error, 3, f"{name}.scale_factor_error", "dimensionless")
+        M = np.zeros((3, 3)) if misalignment is None else np.asarray(misalignment, dtype=float)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)) or np.any(np.diag(M) != 0):
+            raise ValueError(f"{name}.misalignment: got {misalignment!r}; must be 3x3 finite with zero diagonal (rad)")
+        return cls(noise, initial_bias, float(initial_bias_sigma_rad_per_s), np.eye(3) + np.diag(sf) + M)
 
 
 class Gyro(LeafSystem):
@@ -49,6 +86,7 @@ class Gyro(LeafSystem):
         w_IB_B_integral (3): integral of the true body rate (rad); the interval mean is its
             difference over the interval divided by the elapsed time.
         seed_uniform (4, random uniform): seed, see ``drake_att.systems.randomness``.
+    Parameters: abstract parameter 0: the :class:`GyroModel` (:meth:`set_model` per context).
     Output ports:
         gyro_measurement (5): ``[t_meas (s), valid (1/0), w_meas_B (3, rad/s)]``.
         bias_B (3): true bias at the sample time (rad/s), for scoring only.
@@ -64,19 +102,9 @@ class Gyro(LeafSystem):
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
-        try:
-            self.noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
-        except ValueError as e:
-            raise ValueError(f"{name}.{e}") from None
-        self.initial_bias = _check_vector(initial_bias_rad_per_s, 3, f"{name}.initial_bias", "rad/s")
-        if not np.isfinite(initial_bias_sigma_rad_per_s) or initial_bias_sigma_rad_per_s < 0:
-            raise ValueError(f"{name}.initial_bias_sigma: got {initial_bias_sigma_rad_per_s}; must be >= 0")
-        self.initial_bias_sigma = float(initial_bias_sigma_rad_per_s)
-        sf = _check_vector(scale_factor_error, 3, f"{name}.scale_factor_error", "dimensionless")
-        M = np.zeros((3, 3)) if misalignment is None else np.asarray(misalignment, dtype=float)
-        if M.shape != (3, 3) or not np.all(np.isfinite(M)) or np.any(np.diag(M) != 0):
-            raise ValueError(f"{name}.misalignment: got {misalignment!r}; must be 3x3 finite with zero diagonal (rad)")
-        self.sensor_matrix = np.eye(3) + np.diag(sf) + M
+        self.default_model = GyroModel.make(name, period_s, arw_rad_per_rt_s, rrw_rad_per_s15, initial_bias_rad_per_s,
+                                            initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
+        self._model_index = self.DeclareAbstractParameter(AbstractValue.Make(self.default_model))
 
         self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
         self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
@@ -89,6 +117,21 @@ class Gyro(LeafSystem):
             {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket()})
         self.DeclareVectorOutputPort("bias_B", 3, self._calc_bias, {self.xd_ticket()})
 
+    # -- parameters -----------------------------------------------------------------
+    def model(self, context) -> GyroModel:
+        """The :class:`GyroModel` in ``context`` (this system's context)."""
+        return context.get_abstract_parameter(self._model_index).get_value()
+
+    def set_model(self, context, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, initial_bias_rad_per_s=(0.0, 0.0, 0.0),
+                  initial_bias_sigma_rad_per_s: float = 0.0, scale_factor_error=(0.0, 0.0, 0.0),
+                  misalignment=None) -> None:
+        """Give ``context`` (this system's) other noise levels and errors (arguments as the
+        constructor's). Takes effect at the next initialization (the first sample's noise
+        is drawn there)."""
+        model = GyroModel.make(self.get_name(), self.period_s, arw_rad_per_rt_s, rrw_rad_per_s15,
+                               initial_bias_rad_per_s, initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
+        context.get_mutable_abstract_parameter(self._model_index).set_value(model)
+
     # -- events -------------------------------------------------------------------
     def _integral(self, context):
         if self._integral_port.HasValue(context):
@@ -97,9 +140,10 @@ class Gyro(LeafSystem):
 
     def _initialize(self, context, discrete_state):
         words = read_seed_words(self, context, self._seed_port)
+        m = self.model(context)
         z = counter_random(words, self.get_name()).normals(0, 9)
-        bias0 = self.initial_bias + self.initial_bias_sigma * z[6:9]
-        e, _ = self.noise.from_normals(z[:6].reshape(2, 3))
+        bias0 = m.initial_bias + m.initial_bias_sigma * z[6:9]
+        e, _ = m.noise.from_normals(z[:6].reshape(2, 3))
         integral = self._integral(context)
         x = np.concatenate([words, [0.0, context.get_time()], bias0 + e, bias0,
                             np.zeros(3) if integral is None else integral, [0.0]])
@@ -110,7 +154,7 @@ class Gyro(LeafSystem):
         x = context.get_discrete_state_vector().value()
         words, index, bias = x[:SEED_WORDS], int(x[4]), x[9:12]
         z = counter_random(words, self.get_name()).normals(index + 1, 9)
-        e, db = self.noise.from_normals(z[:6].reshape(2, 3))
+        e, db = self.model(context).noise.from_normals(z[:6].reshape(2, 3))
         integral = self._integral(context)
         new = x.copy()
         new[4] = index + 1
@@ -133,7 +177,7 @@ class Gyro(LeafSystem):
             w_true = (integral - x[12:15]) / elapsed
         else:
             w_true = self._w_port.Eval(context)
-        w_meas = self.sensor_matrix @ w_true + x[6:9]
+        w_meas = self.model(context).sensor_matrix @ w_true + x[6:9]
         output.SetFromVector(np.concatenate([[x[5], 1.0], w_meas]))
 
     def _calc_bias(self, context, output: BasicVector):

@@ -15,6 +15,8 @@ configured outage window or, with the configured probability, at random (drop-ou
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
@@ -45,6 +47,39 @@ def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: flo
     return rot.quat_conjugate(q7)
 
 
+@dataclass(frozen=True)
+class StarTrackerNoise:
+    """A star tracker's noise and availability (its abstract parameter: any level per run).
+
+    Attributes:
+        sigmas_S: quaternion-mode rotation-vector sigmas ``[s_c, s_c, s_b]`` (rad).
+        sigma_vector: vector-mode per-component sigma (rad).
+        dropout_probability: in [0, 1). outage_windows_s: ``((start, end), ...)`` (s).
+    """
+
+    sigmas_S: np.ndarray
+    sigma_vector: float
+    dropout_probability: float
+    outage_windows_s: tuple
+
+    @classmethod
+    def make(cls, name: str, sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
+             sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> "StarTrackerNoise":
+        """Check the arguments of :class:`StarTracker` (ValueError naming the field)."""
+        for field, v in (("sigma_cross_boresight", sigma_cross_boresight_rad),
+                         ("sigma_boresight", sigma_boresight_rad), ("sigma_vector", sigma_vector_rad)):
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{name}.{field}: got {v}; must be finite and >= 0")
+        if not (0.0 <= dropout_probability < 1.0):
+            raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
+        windows = tuple((float(a), float(b)) for a, b in outage_windows_s)
+        for a, b in windows:
+            if not b > a:
+                raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
+        return cls(np.array([sigma_cross_boresight_rad, sigma_cross_boresight_rad, sigma_boresight_rad]),
+                   float(sigma_vector_rad), float(dropout_probability), windows)
+
+
 class StarTracker(LeafSystem):
     """Star tracker with quaternion or vector output.
 
@@ -62,6 +97,7 @@ class StarTracker(LeafSystem):
     Input ports:
         q_IB (4): true attitude.
         seed_uniform (4, random uniform): seed.
+    Parameters: abstract parameter 0: the :class:`StarTrackerNoise` (:meth:`set_noise`).
     Output ports (quaternion mode):
         star_tracker_measurement (6): ``[t_meas (s), valid (1/0), q_IS_meas (4, wxyz)]``.
     Output ports (vector mode):
@@ -80,24 +116,14 @@ class StarTracker(LeafSystem):
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         if mode not in ("quaternion", "vectors"):
             raise ValueError(f"{name}.mode: got {mode!r}; allowed: 'quaternion', 'vectors'")
-        for field, v in (("sigma_cross_boresight", sigma_cross_boresight_rad),
-                         ("sigma_boresight", sigma_boresight_rad), ("sigma_vector", sigma_vector_rad)):
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"{name}.{field}: got {v}; must be finite and >= 0")
-        if not (0.0 <= dropout_probability < 1.0):
-            raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
+        self.default_noise = StarTrackerNoise.make(name, sigma_cross_boresight_rad, sigma_boresight_rad,
+                                                   sigma_vector_rad, dropout_probability, outage_windows_s)
         q_BS = np.asarray(q_BS, dtype=float)
         if q_BS.shape != (4,) or not np.all(np.isfinite(q_BS)) or np.linalg.norm(q_BS) < 1e-9:
             raise ValueError(f"{name}.q_BS: got {q_BS.tolist()}; must be 4 finite numbers, not all zero")
         self.period_s = float(period_s)
         self.q_BS = rot.quat_normalize(q_BS)
         self.mode = mode
-        self.sigmas_S = np.array([sigma_cross_boresight_rad, sigma_cross_boresight_rad, sigma_boresight_rad])
-        self.dropout_probability = float(dropout_probability)
-        self.outage_windows_s = [(float(a), float(b)) for a, b in outage_windows_s]
-        for a, b in self.outage_windows_s:
-            if not b > a:
-                raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
         if mode == "vectors":
             refs = np.asarray(references_I, dtype=float) if references_I is not None else np.zeros((0, 3))
             if refs.ndim != 2 or refs.shape[1] != 3 or refs.shape[0] < 1 or not np.all(np.isfinite(refs)):
@@ -106,12 +132,12 @@ class StarTracker(LeafSystem):
             if np.any(norms < 1e-9):
                 raise ValueError(f"{name}.references_I: zero-length direction in {refs.tolist()}")
             self.references_I = refs / norms[:, None]
-            self.sigma_vector = float(sigma_vector_rad)
             n_noise = 3 * self.references_I.shape[0]
         else:
             self.references_I = None
             n_noise = 4
         self._n_noise = n_noise
+        self._noise_index = self.DeclareAbstractParameter(AbstractValue.Make(self.default_noise))
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
         self._seed_port = declare_seed_port(self)
         self.DeclareDiscreteState(SEED_WORDS + 3 + n_noise)
@@ -129,23 +155,36 @@ class StarTracker(LeafSystem):
     def _empty_observations(self):
         return VectorObservations(0.0, False, np.zeros((0, 3)), np.zeros((0, 3)), 0.0, self.q_BS)
 
+    # -- parameters -----------------------------------------------------------------
+    def noise(self, context) -> StarTrackerNoise:
+        """The :class:`StarTrackerNoise` in ``context`` (this system's context)."""
+        return context.get_abstract_parameter(self._noise_index).get_value()
+
+    def set_noise(self, context, sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
+                  sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> None:
+        """Give ``context`` (this system's) other noise levels / availability (arguments as
+        the constructor's); takes effect at the next initialization."""
+        noise = StarTrackerNoise.make(self.get_name(), sigma_cross_boresight_rad, sigma_boresight_rad,
+                                      sigma_vector_rad, dropout_probability, outage_windows_s)
+        context.get_mutable_abstract_parameter(self._noise_index).set_value(noise)
+
     # -- noise ----------------------------------------------------------------------
-    def _draw(self, words, index, t_sample):
+    def _draw(self, p: StarTrackerNoise, words, index, t_sample):
         cr = counter_random(words, self.get_name())
         if self.mode == "quaternion":
             # Stored as the quaternion q_BS ⊗ exp(delta_S) so the output is one product.
-            noise = rot.quat_multiply(self.q_BS, rot.rotvec_to_quat(self.sigmas_S * cr.normals(index, 3)))
+            noise = rot.quat_multiply(self.q_BS, rot.rotvec_to_quat(p.sigmas_S * cr.normals(index, 3)))
         else:
-            noise = self.sigma_vector * cr.normals(index, self._n_noise)
-        valid = cr.uniforms(index, 1)[0] >= self.dropout_probability
-        if any(a <= t_sample < b for a, b in self.outage_windows_s):
+            noise = p.sigma_vector * cr.normals(index, self._n_noise)
+        valid = cr.uniforms(index, 1)[0] >= p.dropout_probability
+        if any(a <= t_sample < b for a, b in p.outage_windows_s):
             valid = False
         return noise, valid
 
     def _initialize(self, context, discrete_state):
         words = read_seed_words(self, context, self._seed_port)
         t = context.get_time()
-        noise, valid = self._draw(words, 0, t)
+        noise, valid = self._draw(self.noise(context), words, 0, t)
         discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], noise]))
         return EventStatus.Succeeded()
 
@@ -153,7 +192,7 @@ class StarTracker(LeafSystem):
         x = context.get_discrete_state_vector().value()
         index = int(x[4]) + 1
         t_next = context.get_time() + self.period_s
-        noise, valid = self._draw(x[:SEED_WORDS], index, t_next)
+        noise, valid = self._draw(self.noise(context), x[:SEED_WORDS], index, t_next)
         new = x.copy()
         new[4:7] = [index, t_next, float(valid)]
         new[7:] = noise
@@ -174,4 +213,4 @@ class StarTracker(LeafSystem):
         R_SI = rot.quat_to_rotmat(q_IS).T
         dirs = self.references_I @ R_SI.T + x[7:].reshape(-1, 3)
         output.set_value(VectorObservations(
-            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, self.sigma_vector, self.q_BS))
+            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, self.noise(context).sigma_vector, self.q_BS))
