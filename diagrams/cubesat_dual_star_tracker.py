@@ -107,16 +107,19 @@ def check_ordering(table):
     return claims
 
 
-def convergence_vs_p0(scenario, sigmas_deg, seed, out_dir):
-    """Convergence time of each architecture as a function of the initial attitude sigma."""
+def convergence_vs_p0(scenario, sigmas_deg, seed, out_dir, duration_s=600.0):
+    """Convergence time of each architecture as a function of the initial attitude sigma.
+
+    Runs on this process's diagram of ``scenario`` (the Monte Carlo's, when it ran here):
+    the sigmas and the run length are context parameters, so no diagram is built."""
     from drake_att.analysis.metrics import compute_metrics
-    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.builder import diagram_for
 
     rows = []
-    # One diagram; each sigma is a context parameter of the same diagram (no rebuild).
-    sd = ScenarioDiagram(apply_overrides(scenario, ["duration_s=600", "scoring.score_from_s=300"]))
+    sd = diagram_for(scenario)
     for sig in sigmas_deg:
         over = [f"estimators.{n}.initial_attitude_sigma_deg={sig}" for n in ("single", "centralized", "single_st2", "joint")]
+        over += [f"duration_s={duration_s}", f"scoring.score_from_s={duration_s / 2}"]
         m = compute_metrics(sd.simulate(seed, overrides=over))["estimators"]
         rows.append([m[a]["convergence_time_s"] for a in ARCHITECTURES])
         print(f"  P0 attitude sigma {sig:6.3f} deg: " + ", ".join(

@@ -373,14 +373,10 @@ def main(argv=None) -> int:
     claims, text = evaluate_claims(res, threshold, args.particles)
     print("\n=== The paper's claims, our evidence " + "=" * 50 + text)
 
-    # This process builds one diagram per scenario (pydrake 1.51 never frees diagrams); the
-    # sweep and the timing runs change contexts, not diagrams.
-    diagrams = {}
-
+    # This process builds one diagram per scenario (pydrake 1.51 never frees diagrams; the
+    # Monte Carlo's, when it ran here); the sweep and the timing runs change contexts.
     def diagram(key):
-        if key not in diagrams:
-            diagrams[key] = _builder.ScenarioDiagram(scen[key])
-        return diagrams[key]
+        return _builder.diagram_for(scen[key])
 
     sweep = None
     if not args.no_sweep:

@@ -20,6 +20,7 @@ import numpy as np
 
 # Unit conversions used at config edges: their home is drake_att.units (re-exported here).
 from drake_att.units import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15  # noqa: F401
+from drake_att.validation import check_nonnegative, check_positive
 
 
 def stream_key(seed_words, stream_name: str) -> np.ndarray:
@@ -104,14 +105,9 @@ class FarrenkopfGyroNoise:
     """
 
     def __init__(self, arw: float, rrw: float, interval_s: float):
-        if not np.isfinite(arw) or arw < 0:
-            raise ValueError(f"arw: got {arw}; must be finite and >= 0 (rad/s^0.5)")
-        if not np.isfinite(rrw) or rrw < 0:
-            raise ValueError(f"rrw: got {rrw}; must be finite and >= 0 (rad/s^1.5)")
-        if not np.isfinite(interval_s) or interval_s <= 0:
-            raise ValueError(f"interval_s: got {interval_s}; must be finite and > 0 (s)")
-        self.arw = float(arw)
-        self.rrw = float(rrw)
+        self.arw = check_nonnegative("arw", arw)  # rad/s^0.5
+        self.rrw = check_nonnegative("rrw", rrw)  # rad/s^1.5
+        check_positive("interval_s", interval_s)  # s
         self.interval_s = float(interval_s)
         cov = self.interval_covariance()
         # Cholesky of the 2x2 (e, db) covariance; handle rrw == 0 (singular).

@@ -187,3 +187,45 @@ def test_set_filter_refuses_a_structural_change(s3):
     with pytest.raises(ValueError, match=r"period_s \(1.0 -> 2.0\)"):
         system.set_filter(context, EstimatorSetup(model.core, model.initial_state, 2.0,
                                                   quaternion_sensors=model.quaternion_sensors))
+
+
+def _load_script(name):
+    import importlib.util
+    import os
+
+    path = os.path.join(os.path.dirname(__file__), "..", "diagrams", f"{name}.py")
+    spec = importlib.util.spec_from_file_location(f"_script_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(tmp_path, monkeypatch):
+    """The S0 script (three scenarios: Monte Carlo, EKF initial-error sweep, per-filter
+    timing) and the S3 script's P0 sweep, run in this process (one worker), construct
+    exactly one ScenarioDiagram per scenario."""
+    from drake_att.scenarios import builder
+
+    built = []
+    original = builder.ScenarioDiagram.__init__
+
+    def counting(self, scenario):
+        built.append(scenario.name)
+        original(self, scenario)
+
+    monkeypatch.setattr(builder.ScenarioDiagram, "__init__", counting)
+    monkeypatch.setattr(builder, "_DIAGRAMS", {})
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    s0 = _load_script("particle_filters")
+    assert s0.main(["--seeds", "1", "--particles", "8", "--duration", "6", "--workers", "1",
+                    "--out", str(tmp_path / "s0")]) == 0
+    assert sorted(built) == sorted(s0.SCENARIOS.values()), built
+
+    built.clear()
+    s3 = _load_script("cubesat_dual_star_tracker")
+    from drake_att.analysis.montecarlo import run_monte_carlo
+
+    scenario = apply_overrides(load("cubesat_dual_star_tracker"), ["duration_s=6", "scoring.score_from_s=2"])
+    run_monte_carlo(scenario, [1], workers=1)
+    rows = s3.convergence_vs_p0(scenario, [5.0, 0.01], 1, str(tmp_path), duration_s=6.0)
+    assert built == ["cubesat_dual_star_tracker"] and len(rows["convergence_s"]) == 2

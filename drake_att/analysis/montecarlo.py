@@ -19,9 +19,9 @@ _WORKER = {}
 
 
 def _init_worker(yaml_text: str):
-    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.builder import diagram_for
 
-    _WORKER["sd"] = ScenarioDiagram(load_scenario(text=yaml_text))
+    _WORKER["sd"] = diagram_for(load_scenario(text=yaml_text))
 
 
 def _run_seed(args):

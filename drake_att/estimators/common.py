@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from drake_att import validation
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
@@ -62,9 +63,7 @@ def check_initial_bias(path: str, c) -> None:
 
 def check_integers_at_least_one(path: str, c, *fields) -> None:
     for f in fields:
-        v = getattr(c, f)
-        if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-            cfg.fail(f"{path}.{f}", v, "must be an integer >= 1")
+        validation.check_int(f"{path}.{f}", getattr(c, f), 1, cfg.ConfigError)
 
 
 def check_resample_threshold(path: str, c) -> None:

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.validation import check_nonnegative, check_positive
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 
 
@@ -140,13 +141,10 @@ class MultiplicativeEKF:
     state_size = 43
 
     def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None):
-        for field, v in (("arw", arw_rad_per_rt_s), ("rrw", rrw_rad_per_s15)):
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"{field}: got {v}; must be finite and >= 0")
-        if innovation_gate_chi2 is not None and not innovation_gate_chi2 > 0:
-            raise ValueError(f"innovation_gate_chi2: got {innovation_gate_chi2}; must be > 0 or None")
-        self.arw = float(arw_rad_per_rt_s)
-        self.rrw = float(rrw_rad_per_s15)
+        self.arw = check_nonnegative("arw", arw_rad_per_rt_s)
+        self.rrw = check_nonnegative("rrw", rrw_rad_per_s15)
+        if innovation_gate_chi2 is not None:
+            check_positive("innovation_gate_chi2", innovation_gate_chi2)
         self.gate = innovation_gate_chi2
         self._q_cache: dict = {}
         self._model_cache: dict = {}

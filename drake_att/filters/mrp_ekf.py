@@ -50,11 +50,19 @@ dimension so that particle filters can run one EKF per particle without a Python
 
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
+from drake_att.validation import (
+    check_array,
+    check_covariance,
+    check_int,
+    check_positive,
+    check_quaternion,
+    check_reference_vectors,
+    fail,
+)
 from drake_att.contract import SecondQuantity, UpdateInfo
 from drake_att.rotations import (
     mrp_kinematics_matrix,
@@ -88,90 +96,6 @@ __all__ = [
 ]
 
 
-# ----------------------------------------------------------------------------------
-# Validation helpers (shared with particle.py)
-# ----------------------------------------------------------------------------------
-def _fmt(value) -> str:
-    return np.array2string(np.asarray(value), precision=10, threshold=12)
-
-
-def check_positive_scalar(value, name: str, allow_zero: bool = False) -> float:
-    """Return ``value`` as float if it is finite and > 0 (>= 0 if ``allow_zero``)."""
-    bound = ">= 0" if allow_zero else "> 0"
-    try:
-        val = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a finite real number {bound}; got {name}={value!r}") \
-            from exc
-    if not np.isfinite(val) or val < 0.0 or (val == 0.0 and not allow_zero):
-        raise ValueError(f"{name} must be a finite real number {bound}; got {name}={val!r}")
-    return val
-
-
-def check_int(value, name: str, minimum: int) -> int:
-    """Return ``value`` as int if it is an integer >= ``minimum``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}; got {name}={value!r}")
-    return int(value)
-
-
-def check_array(value, name: str, shape: tuple, what: str = "") -> np.ndarray:
-    """Return ``value`` as a finite float array of exactly ``shape``."""
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a finite real array of shape {shape}{what}; "
-                         f"got {name}={value!r}") from exc
-    if arr.shape != tuple(shape):
-        raise ValueError(f"{name} must have shape {shape}{what}; got shape {arr.shape}: "
-                         f"{name}={_fmt(arr)}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite (allowed range: finite reals){what}; "
-                         f"got {name}={_fmt(arr)}")
-    return arr
-
-
-def check_quaternion(value, name: str) -> np.ndarray:
-    """Return a unit quaternion ``[w, x, y, z]`` from ``value`` (finite, non-zero)."""
-    q = check_array(value, name, (4,), " ([w, x, y, z])")
-    n = np.linalg.norm(q)
-    if not n > 1e-12:
-        raise ValueError(f"{name} must be a non-zero quaternion (allowed: |q| > 0); "
-                         f"got {name}={_fmt(q)}")
-    return q / n
-
-
-def check_covariance(value, name: str, n: int) -> np.ndarray:
-    """Return a symmetric positive-definite ``(n, n)`` covariance."""
-    P = check_array(value, name, (n, n))
-    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-300 + 1e-12 * np.max(np.abs(P))):
-        raise ValueError(f"{name} must be symmetric; got {name}={_fmt(P)}")
-    P = 0.5 * (P + P.T)
-    try:
-        np.linalg.cholesky(P)
-    except np.linalg.LinAlgError as exc:
-        eig = np.linalg.eigvalsh(P)
-        raise ValueError(f"{name} must be positive definite (allowed: all eigenvalues > 0); "
-                         f"got eigenvalues {_fmt(eig)}") from exc
-    return P
-
-
-def check_reference_vectors(value, name: str = "ref_vectors_I") -> np.ndarray:
-    """Return ``(m, 3)`` finite non-zero reference directions (inertial frame)."""
-    try:
-        U = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a finite real array of shape (m, 3), m >= 1; "
-                         f"got {name}={value!r}") from exc
-    if U.ndim != 2 or U.shape[1] != 3 or U.shape[0] < 1:
-        raise ValueError(f"{name} must have shape (m, 3) with m >= 1; got shape {U.shape}")
-    if not np.all(np.isfinite(U)):
-        raise ValueError(f"{name} must be finite; got {name}={_fmt(U)}")
-    if np.any(np.linalg.norm(U, axis=1) <= 0.0):
-        raise ValueError(f"{name} rows must be non-zero directions; got {name}={_fmt(U)}")
-    return U
-
-
 def measurement_is_valid(y, m: int) -> np.ndarray | None:
     """Return ``y`` as a ``(3m,)`` float array, or None if missing / non-finite.
 
@@ -185,8 +109,8 @@ def measurement_is_valid(y, m: int) -> np.ndarray | None:
     except (TypeError, ValueError):
         return None
     if arr.shape != (3 * m,):
-        raise ValueError(f"y must have shape ({3 * m},) (3 components per reference "
-                         f"vector, {m} vectors); got shape {arr.shape}")
+        fail("y", arr, f"must have shape ({3 * m},) (3 components per reference vector, {m} vectors), "
+             f"not {arr.shape}")
     if not np.all(np.isfinite(arr)):
         return None
     return arr
@@ -510,12 +434,12 @@ class MrpEkf:
 
     def __init__(self, q_IB_hat0, bias_hat0, covariance0, arw_sigma: float,
                  rrw_sigma: float = 0.0, update_iterations: int = 1):
-        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
-        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
-        P_att = check_covariance(covariance0, "covariance0", 6)
-        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
-        self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
-        self.update_iterations = check_int(update_iterations, "update_iterations", 1)
+        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
+        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
+        P_att = check_covariance("covariance0", covariance0, 6)
+        self.arw_sigma = check_positive("arw_sigma", arw_sigma)
+        self.rrw_sigma = check_positive("rrw_sigma", rrw_sigma, allow_zero=True)
+        self.update_iterations = check_int("update_iterations", update_iterations, 1)
         rho0 = quat_to_mrp(q0)
         self.x = np.concatenate([rho0, b0])
         self.P = attitude_to_mrp_covariance(rho0, P_att)
@@ -533,7 +457,7 @@ class MrpEkf:
         output). None / non-finite ``w_meas`` is skipped (counted) and the last valid
         rate is used.
         """
-        dt = check_positive_scalar(dt, "dt")
+        dt = check_positive("dt", dt)
         w = valid_rate_or_none(w_meas)
         if w is None:
             self.n_skipped += 1
@@ -555,8 +479,8 @@ class MrpEkf:
         Returns:
             True if the update was applied, False if the measurement was skipped.
         """
-        U = check_reference_vectors(ref_vectors_I)
-        sigma = check_positive_scalar(sigma, "sigma")
+        U = check_reference_vectors("ref_vectors_I", ref_vectors_I)
+        sigma = check_positive("sigma", sigma)
         yv = measurement_is_valid(y, U.shape[0])
         if yv is None:
             self.n_skipped += 1
@@ -625,21 +549,21 @@ class MrpEkfCore:
     state_size = 42
 
     def __init__(self, arw_sigma: float, rrw_sigma: float = 0.0, update_iterations: int = 1):
-        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
-        self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
-        self.update_iterations = check_int(update_iterations, "update_iterations", 1)
+        self.arw_sigma = check_positive("arw_sigma", arw_sigma)
+        self.rrw_sigma = check_positive("rrw_sigma", rrw_sigma, allow_zero=True)
+        self.update_iterations = check_int("update_iterations", update_iterations, 1)
 
     @staticmethod
     def initial_state(q_IB_hat0, bias_hat0, covariance0) -> MrpEkfState:
         """State from an attitude, a bias (rad/s) and the (6, 6) covariance of ``[dtheta_B; b]``."""
-        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
-        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
-        P_att = check_covariance(covariance0, "covariance0", 6)
+        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
+        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
+        P_att = check_covariance("covariance0", covariance0, 6)
         rho0 = quat_to_mrp(q0)
         return MrpEkfState(np.concatenate([rho0, b0]), attitude_to_mrp_covariance(rho0, P_att))
 
     def predict(self, state: MrpEkfState, w_meas_B, dt: float, rng=None) -> MrpEkfState:
-        dt = check_positive_scalar(dt, "dt")
+        dt = check_positive("dt", dt)
         x, P = ekf_predict(state.x, state.P, np.asarray(w_meas_B, dtype=float), dt, self.arw_sigma,
                            self.rrw_sigma)
         return MrpEkfState(x, P)
@@ -648,8 +572,8 @@ class MrpEkfCore:
         """Update with a :class:`~drake_att.contract.VectorObservations` sample."""
         R_BS = quat_to_rotmat(np.asarray(observations.q_BS, dtype=float))
         y_B = (np.asarray(observations.directions_S, dtype=float) @ R_BS.T).ravel()
-        U = check_reference_vectors(observations.references_I)
-        sigma = check_positive_scalar(observations.sigma_rad, "sigma")
+        U = check_reference_vectors("ref_vectors_I", observations.references_I)
+        sigma = check_positive("sigma", observations.sigma_rad)
         yv = measurement_is_valid(y_B, U.shape[0])
         if yv is None:
             return state, UpdateInfo(None, None, float("nan"), False)
@@ -680,7 +604,7 @@ def valid_rate_or_none(w_meas):
     except (TypeError, ValueError):
         return None
     if w.shape != (3,):
-        raise ValueError(f"w_meas must have shape (3,) (rad/s); got shape {w.shape}")
+        fail("w_meas", w, f"must have shape (3,) (rad/s), not {w.shape}")
     if not np.all(np.isfinite(w)):
         return None
     return w

@@ -44,12 +44,6 @@ from drake_att.contract import SecondQuantity, UpdateInfo
 from drake_att.filters.mrp_ekf import (
     valid_rate_or_none,
     attitude_to_mrp_covariance,
-    check_array,
-    check_covariance,
-    check_int,
-    check_positive_scalar,
-    check_quaternion,
-    check_reference_vectors,
     ekf_predict,
     ekf_update,
     measurement_is_valid,
@@ -57,6 +51,15 @@ from drake_att.filters.mrp_ekf import (
     vector_measurement_model,
 )
 from drake_att.filters.quaternion_average import average_quaternions
+from drake_att.validation import (
+    check_array,
+    check_covariance,
+    check_int,
+    check_positive,
+    check_quaternion,
+    check_reference_vectors,
+    fail,
+)
 from drake_att.rotations import (
     mrp_to_quat,
     quat_error_rotvec,
@@ -84,25 +87,24 @@ __all__ = [
 # ----------------------------------------------------------------------------------
 def _check_rng(rng, name: str = "rng") -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"{name} must be a numpy.random.Generator "
-                         f"(e.g. numpy.random.default_rng(seed)); got {name}={rng!r}")
+        fail(name, rng, "must be a numpy.random.Generator (e.g. numpy.random.default_rng(seed))")
     return rng
 
 
 def _check_weights(weights) -> np.ndarray:
     try:
         w = np.asarray(weights, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"weights must be a real array of shape (N,); got {weights!r}") from exc
+    except (TypeError, ValueError):
+        fail("weights", weights, "must be a real array of shape (N,)")
     if w.ndim != 1 or w.size < 1:
-        raise ValueError(f"weights must have shape (N,) with N >= 1; got shape {w.shape}")
+        fail("weights", w, f"must have shape (N,) with N >= 1, not {w.shape}")
     bad = ~np.isfinite(w) | (w < 0.0)
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"weights must be finite and >= 0; got weights[{i}]={w[i]!r}")
+        fail(f"weights[{i}]", w[i], "must be finite and >= 0")
     total = float(np.sum(w))
     if not total > 0.0:
-        raise ValueError(f"weights must have a positive sum; got sum(weights)={total!r}")
+        fail("sum(weights)", total, "must be > 0")
     return w / total
 
 
@@ -210,11 +212,10 @@ class _ParticleFilterBase:
     """Weights, resampling, skipped-measurement bookkeeping and outputs."""
 
     def __init__(self, num_particles, resample_threshold):
-        self.num_particles = check_int(num_particles, "num_particles", 1)
-        thr = check_positive_scalar(resample_threshold, "resample_threshold", allow_zero=True)
+        self.num_particles = check_int("num_particles", num_particles, 1)
+        thr = check_positive("resample_threshold", resample_threshold, allow_zero=True)
         if thr > 1.0:
-            raise ValueError("resample_threshold must be in [0, 1] (fraction of N; paper 2/3); "
-                             f"got resample_threshold={thr!r}")
+            fail("resample_threshold", thr, "must be in [0, 1] (fraction of N; paper 2/3)")
         self.resample_threshold = thr
         n = self.num_particles
         self.weights = np.full(n, 1.0 / n)
@@ -232,8 +233,8 @@ class _ParticleFilterBase:
     def _begin_update(self, y, ref_vectors_I, sigma, rng):
         """``(y, U, sigma)`` checked for an update, or None (skipped and counted)."""
         _check_rng(rng)
-        U = check_reference_vectors(ref_vectors_I)
-        sigma = check_positive_scalar(sigma, "sigma")
+        U = check_reference_vectors("ref_vectors_I", ref_vectors_I)
+        sigma = check_positive("sigma", sigma)
         yv = measurement_is_valid(y, U.shape[0])
         if yv is None:
             self.n_skipped += 1
@@ -383,12 +384,11 @@ class BootstrapParticleFilter(_ParticleFilterBase):
                  arw_sigma: float, rng: np.random.Generator, *,
                  bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0):
         super().__init__(num_particles, resample_threshold)
-        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
-        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
-        P0 = check_covariance(covariance0, "covariance0", 6)
-        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma", allow_zero=True)
-        self.bias_roughening_sigma = check_positive_scalar(
-            bias_roughening_sigma, "bias_roughening_sigma", allow_zero=True)
+        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
+        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
+        P0 = check_covariance("covariance0", covariance0, 6)
+        self.arw_sigma = check_positive("arw_sigma", arw_sigma, allow_zero=True)
+        self.bias_roughening_sigma = check_positive("bias_roughening_sigma", bias_roughening_sigma, allow_zero=True)
         _check_rng(rng)
         rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
         self.particles = np.concatenate([rho, b], axis=1)
@@ -402,7 +402,7 @@ class BootstrapParticleFilter(_ParticleFilterBase):
                 non-finite: skipped (counted) and the last valid rate is used.
             rng: Generator for the ARW samples (and the bias roughening).
         """
-        dt = check_positive_scalar(dt, "dt")
+        dt = check_positive("dt", dt)
         self._estimate_set = None
         _check_rng(rng)
         w_meas = self._gyro(w_meas)
@@ -480,12 +480,12 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
                  arw_sigma: float, rrw_sigma: float, rng: np.random.Generator, *,
                  resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1):
         super().__init__(num_particles, resample_threshold)
-        self.proposal_iterations = check_int(proposal_iterations, "proposal_iterations", 1)
-        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
-        b0 = check_array(bias_hat0, "bias_hat0", (3,), " (rad/s)")
-        P0 = check_covariance(covariance0, "covariance0", 6)
-        self.arw_sigma = check_positive_scalar(arw_sigma, "arw_sigma")
-        self.rrw_sigma = check_positive_scalar(rrw_sigma, "rrw_sigma", allow_zero=True)
+        self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
+        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
+        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
+        P0 = check_covariance("covariance0", covariance0, 6)
+        self.arw_sigma = check_positive("arw_sigma", arw_sigma)
+        self.rrw_sigma = check_positive("rrw_sigma", rrw_sigma, allow_zero=True)
         _check_rng(rng)
         rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
         self.particles = np.concatenate([rho, b], axis=1)
@@ -504,7 +504,7 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
                 (counted) and the last valid rate is held.
             rng: Accepted for a uniform interface with the other filters; unused.
         """
-        dt = check_positive_scalar(dt, "dt")
+        dt = check_positive("dt", dt)
         self._estimate_set = None
         if rng is not None:
             _check_rng(rng)
@@ -590,17 +590,15 @@ class GyrolessParticleFilter(_ParticleFilterBase):
                  attitude_process_sigma: float = 0.0, num_substeps: int = 1,
                  resample_threshold: float = 2.0 / 3.0):
         super().__init__(num_particles, resample_threshold)
-        q0 = check_quaternion(q_IB_hat0, "q_IB_hat0")
-        w0 = check_array(w_hat0, "w_hat0", (3,), " (rad/s)")
-        P0 = check_covariance(covariance0, "covariance0", 6)
-        self.inertia = check_covariance(inertia, "inertia", 3)
+        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
+        w0 = check_array("w_hat0", w_hat0, (3,), " (rad/s)")
+        P0 = check_covariance("covariance0", covariance0, 6)
+        self.inertia = check_covariance("inertia", inertia, 3)
         self.inertia_inverse = np.linalg.inv(self.inertia)
-        self.torque = check_array(torque, "torque", (3,), " (N m)")
-        self.rate_process_sigma = check_positive_scalar(
-            rate_process_sigma, "rate_process_sigma", allow_zero=True)
-        self.attitude_process_sigma = check_positive_scalar(
-            attitude_process_sigma, "attitude_process_sigma", allow_zero=True)
-        self.num_substeps = check_int(num_substeps, "num_substeps", 1)
+        self.torque = check_array("torque", torque, (3,), " (N m)")
+        self.rate_process_sigma = check_positive("rate_process_sigma", rate_process_sigma, allow_zero=True)
+        self.attitude_process_sigma = check_positive("attitude_process_sigma", attitude_process_sigma, allow_zero=True)
+        self.num_substeps = check_int("num_substeps", num_substeps, 1)
         _check_rng(rng)
         rho, w = _sample_initial_attitudes(self.num_particles, q0, w0, P0, rng)
         self.particles = np.concatenate([rho, w], axis=1)
@@ -618,10 +616,10 @@ class GyrolessParticleFilter(_ParticleFilterBase):
             torque: Optional ``(3,)`` torque (N m) for this step; default: the
                 constructor's ``torque``.
         """
-        dt = check_positive_scalar(dt, "dt")
+        dt = check_positive("dt", dt)
         self._estimate_set = None
         _check_rng(rng)
-        T = self.torque if torque is None else check_array(torque, "torque", (3,), " (N m)")
+        T = self.torque if torque is None else check_array("torque", torque, (3,), " (N m)")
         n = self.num_particles
         q = mrp_to_quat(self.particles[:, :3])
         w = self.particles[:, 3:].copy()

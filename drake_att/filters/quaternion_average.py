@@ -29,46 +29,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from drake_att.validation import check_array, check_nonnegative, describe, fail
+
 __all__ = ["average_two_quaternions", "average_quaternions"]
 
 
-def _fmt(value) -> str:
-    return np.array2string(np.asarray(value), precision=17, threshold=20)
-
-
 def _check_quaternion(q, name: str) -> np.ndarray:
-    """Validate a single quaternion ``(4,)`` and return it normalized."""
-    try:
-        arr = np.asarray(q, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"{name} must be a real quaternion [w, x, y, z] of shape (4,); got {q!r}"
-        ) from exc
-    if arr.shape != (4,):
-        raise ValueError(
-            f"{name} must have shape (4,) ([w, x, y, z]); got shape {arr.shape}: {_fmt(arr)}"
-        )
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite; got {name}={_fmt(arr)}")
+    """A finite, non-zero quaternion ``(4,)``, normalized without overflow or underflow
+    (any magnitude: it is scaled by its largest component first)."""
+    arr = check_array(name, q, (4,), " ([w, x, y, z])")
     scale = np.max(np.abs(arr))
     if not scale > 0.0:
-        raise ValueError(f"{name} must be non-zero (it is normalized); got {name}={_fmt(arr)}")
-    arr = arr / scale  # avoids overflow/underflow in the norm for extreme magnitudes
+        fail(name, arr, "must be non-zero (it is normalized)")
+    arr = arr / scale
     return arr / np.linalg.norm(arr)
 
 
 def _check_weight(w, name: str) -> float:
-    """Validate a scalar weight: finite and >= 0."""
-    try:
-        arr = np.asarray(w, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be a finite real number >= 0; got {name}={w!r}") from exc
-    if arr.ndim != 0:
-        raise ValueError(f"{name} must be a scalar (finite, >= 0); got {name}={_fmt(arr)}")
-    val = float(arr)
-    if not np.isfinite(val) or val < 0.0:
-        raise ValueError(f"{name} must be a finite real number >= 0; got {name}={val!r}")
-    return val
+    """A scalar weight: finite and >= 0."""
+    return check_nonnegative(name, w)
 
 
 def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndarray:
@@ -121,7 +100,7 @@ def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndar
     w2 = _check_weight(w2, "w2")
     wmax = max(w1, w2)
     if not wmax > 0.0:
-        raise ValueError(f"w1 + w2 must be > 0 (weights are >= 0); got w1={w1!r}, w2={w2!r}")
+        fail("w1 + w2", w1 + w2, "must be > 0 (weights are >= 0)")
 
     # Only the ratio matters; normalizing keeps every intermediate O(1) (no under/overflow
     # for extreme weights such as 1e-320 or 1e308).
@@ -181,27 +160,19 @@ def average_quaternions(quaternions, weights=None) -> np.ndarray:
     """
     try:
         Q = np.asarray(quaternions, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(
-            f"quaternions must be a real array of shape (N, 4); got {quaternions!r}"
-        ) from exc
+    except (TypeError, ValueError):
+        fail("quaternions", quaternions, "must be a real array of shape (N, 4)")
     if Q.ndim != 2 or Q.shape[1] != 4 or Q.shape[0] < 1:
-        raise ValueError(
-            f"quaternions must have shape (N, 4) with N >= 1 (rows [w, x, y, z]); "
-            f"got shape {Q.shape}"
-        )
+        fail("quaternions", Q, f"must have shape (N, 4) with N >= 1 (rows [w, x, y, z]), not {Q.shape}")
     bad = ~np.all(np.isfinite(Q), axis=1)
     if np.any(bad):
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"quaternions must be finite; got quaternions[{i}]={_fmt(Q[i])}")
+        fail(f"quaternions[{i}]", Q[i], "must be finite")
     scale = np.max(np.abs(Q), axis=1)
     zero = ~(scale > 0.0)
     if np.any(zero):
         i = int(np.flatnonzero(zero)[0])
-        raise ValueError(
-            f"quaternions rows must be non-zero (they are normalized); "
-            f"got quaternions[{i}]={_fmt(Q[i])}"
-        )
+        fail(f"quaternions[{i}]", Q[i], "must be non-zero (rows are normalized)")
     Q = Q / scale[:, None]  # avoids overflow/underflow in the norm for extreme magnitudes
     Q = Q / np.linalg.norm(Q, axis=1, keepdims=True)
     n = Q.shape[0]
@@ -211,28 +182,18 @@ def average_quaternions(quaternions, weights=None) -> np.ndarray:
     else:
         try:
             w = np.asarray(weights, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(
-                f"weights must be a real array of shape ({n},); got {weights!r}"
-            ) from exc
+        except (TypeError, ValueError):
+            fail("weights", weights, f"must be a real array of shape ({n},)")
         if w.shape != (n,):
-            raise ValueError(
-                f"weights must have shape ({n},) to match quaternions (N={n}); "
-                f"got shape {w.shape}: {_fmt(w)}"
-            )
+            fail("weights", w, f"must have shape ({n},) to match quaternions (N={n}), not {w.shape}")
         badw = ~np.isfinite(w) | (w < 0.0)
         if np.any(badw):
             i = int(np.flatnonzero(badw)[0])
-            raise ValueError(
-                f"weights must be finite and >= 0; got weights[{i}]={float(w[i])!r} "
-                f"(weights={_fmt(w)})"
-            )
+            fail(f"weights[{i}]", float(w[i]), f"must be finite and >= 0 (weights={describe(w)})")
         w = w / np.max(w) if np.max(w) > 0.0 else w  # scale-free; avoids sum overflow
         total = float(np.sum(w))
         if not total > 0.0:
-            raise ValueError(
-                f"weights must have a positive sum; got weights={_fmt(np.asarray(weights))}"
-            )
+            fail("weights", np.asarray(weights), "must have a positive sum")
         w = w / total  # keeps M well scaled
 
     M = (Q * w[:, None]).T @ Q

@@ -449,3 +449,16 @@ class ScenarioDiagram:
                 signals[key] = (t, x)
         return RunLog(scenario, seed, wall, signals, run_metadata(self, seed, wall, signals, scenario))
 
+
+_DIAGRAMS: dict[str, ScenarioDiagram] = {}
+
+
+def diagram_for(scenario: cfg.Scenario) -> ScenarioDiagram:
+    """This process's diagram of ``scenario``, built on first use (pydrake 1.51 never frees a
+    diagram: build once per process, then change contexts - seeds, :meth:`ScenarioDiagram.simulate`
+    ``overrides`` and ``estimators``). Keyed by the scenario's YAML text."""
+    key = cfg.dump_scenario(scenario)
+    if key not in _DIAGRAMS:
+        _DIAGRAMS[key] = ScenarioDiagram(cfg.load_scenario(text=key))
+    return _DIAGRAMS[key]
+

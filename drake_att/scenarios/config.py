@@ -21,7 +21,6 @@ axes).
 
 
 import dataclasses
-import math
 import typing
 from dataclasses import dataclass, field
 from typing import List, Optional, Union
@@ -29,9 +28,13 @@ from typing import List, Optional, Union
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
+from drake_att import validation
 
-class ConfigError(ValueError):
-    """A scenario value is invalid; the message names the field and the value."""
+
+# A scenario value is invalid; the message names the field path and the value. Defined
+# with the one validation family (drake_att.validation), whose checks the loader and the
+# plug-ins' validators call with error=ConfigError through the check_* functions below.
+ConfigError = validation.ConfigError
 
 
 def _zeros3():
@@ -157,7 +160,7 @@ def _declared_plugins(text: str) -> list:
         raise ConfigError(f"invalid YAML: {e}") from e
     plugins = data.get("plugins", []) if isinstance(data, dict) else []
     if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
-        _fail("plugins", plugins, "must be a list of module names, e.g. [my_package.my_filter]")
+        fail("plugins", plugins, "must be a list of module names, e.g. [my_package.my_filter]")
     return plugins
 
 
@@ -289,53 +292,33 @@ def _coerce(value, current, path):
 # --------------------------------------------------------------------------------------
 # Validation
 # --------------------------------------------------------------------------------------
-def _fail(path, value, allowed):
-    raise ConfigError(f"{path}: got {value!r}; {allowed}")
-
-
-def _finite(path, v):
-    if not isinstance(v, (int, float)) or not math.isfinite(v):
-        _fail(path, v, "must be a finite number")
-
-
-def _positive(path, v):
-    _finite(path, v)
-    if v <= 0:
-        _fail(path, v, "must be > 0")
-
-
-def _nonneg(path, v):
-    _finite(path, v)
-    if v < 0:
-        _fail(path, v, "must be >= 0")
-
-
-def _vec(path, v, n):
-    if isinstance(v, np.ndarray):
-        v = v.tolist()
-    if not isinstance(v, list) or len(v) != n:
-        _fail(path, v, f"must be a list of {n} numbers")
-    for i, x in enumerate(v):
-        _finite(f"{path}[{i}]", x)
-
-
-def _weights(path, w, n):
-    _vec(path, list(w), n)
-    if any(x < 0 for x in w) or sum(w) <= 0:
-        _fail(path, w, "weights must be >= 0 with a positive sum")
-
-
 zeros3 = _zeros3  # default factory for 3-vectors in plug-in configs
 
 
 # The one validation family: plug-ins use these (each raises ConfigError naming the field
 # path, the value and what is allowed).
-fail = _fail
-check_finite = _finite
-check_positive = _positive
-check_nonnegative = _nonneg
-check_vector = _vec
-check_weights = _weights
+def fail(path: str, value, allowed: str):
+    validation.fail(path, value, allowed, ConfigError)
+
+
+def check_finite(path: str, value) -> float:
+    return validation.check_finite(path, value, ConfigError)
+
+
+def check_positive(path: str, value) -> float:
+    return validation.check_positive(path, value, error=ConfigError)
+
+
+def check_nonnegative(path: str, value) -> float:
+    return validation.check_nonnegative(path, value, ConfigError)
+
+
+def check_vector(path: str, value, n: int) -> list:
+    return validation.check_vector(path, value, n, ConfigError)
+
+
+def check_weights(path: str, value, n: int) -> list:
+    return validation.check_weights(path, value, n, ConfigError)
 
 
 @dataclass
@@ -365,23 +348,23 @@ class ValidationContext:
 
 def validate(s: Scenario) -> None:
     """Check every value of a scenario; raise :class:`ConfigError` on the first bad one."""
-    _positive("duration_s", s.duration_s)
+    check_positive("duration_s", s.duration_s)
     if not isinstance(s.seed, int) or s.seed < 0:
-        _fail("seed", s.seed, "must be an integer >= 0")
-    _positive("simulation.max_step_size_s", s.simulation.max_step_size_s)
-    _positive("simulation.accuracy", s.simulation.accuracy)
+        fail("seed", s.seed, "must be an integer >= 0")
+    check_positive("simulation.max_step_size_s", s.simulation.max_step_size_s)
+    check_positive("simulation.accuracy", s.simulation.accuracy)
     schemes = {"runge_kutta2", "runge_kutta3", "runge_kutta5", "bogacki_shampine3", "radau1", "radau3",
                "explicit_euler", "semi_explicit_euler", "implicit_euler", "velocity_implicit_euler"}
     if s.simulation.integration_scheme not in schemes:
-        _fail("simulation.integration_scheme", s.simulation.integration_scheme, f"allowed: {sorted(schemes)}")
+        fail("simulation.integration_scheme", s.simulation.integration_scheme, f"allowed: {sorted(schemes)}")
     if s.orbit is not None:
-        _positive("orbit.altitude_km", s.orbit.altitude_km)
+        check_positive("orbit.altitude_km", s.orbit.altitude_km)
         for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg"):
-            _finite(f"orbit.{f}", getattr(s.orbit, f))
+            check_finite(f"orbit.{f}", getattr(s.orbit, f))
     p = s.plant
     if isinstance(p, RigidBodyConfig):
         if not isinstance(p.inertia_kg_m2, list) or len(p.inertia_kg_m2) not in (3, 9):
-            _fail("plant.inertia_kg_m2", p.inertia_kg_m2, "must be 3 principal moments or 9 matrix entries")
+            fail("plant.inertia_kg_m2", p.inertia_kg_m2, "must be 3 principal moments or 9 matrix entries")
         from drake_att.systems.plant import validate_inertia
 
         I = np.array(p.inertia_kg_m2, dtype=float)
@@ -389,21 +372,21 @@ def validate(s: Scenario) -> None:
             validate_inertia(I if I.size == 3 else I.reshape(3, 3), "plant.inertia_kg_m2")
         except ValueError as e:
             raise ConfigError(str(e)) from e
-        _vec("plant.initial_attitude_rpy_deg", p.initial_attitude_rpy_deg, 3)
-        _vec("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
-        _vec("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
+        check_vector("plant.initial_attitude_rpy_deg", p.initial_attitude_rpy_deg, 3)
+        check_vector("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
+        check_vector("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
     elif isinstance(p, PrescribedRateConfig):
         for f in ("initial_attitude_rpy_deg", "constant_deg_per_s", "amplitude_deg_per_s",
                   "frequency_rad_per_s", "phase_deg"):
-            _vec(f"plant.{f}", getattr(p, f), 3)
+            check_vector(f"plant.{f}", getattr(p, f), 3)
     elif isinstance(p, PrescribedRpyConfig):
         if len(p.times_s) < 2 or np.ndim(p.rpy_deg) != 2 or len(p.rpy_deg) != len(p.times_s):
-            _fail("plant.times_s", p.times_s, "need >= 2 breakpoints and one rpy_deg row per time")
+            fail("plant.times_s", p.times_s, "need >= 2 breakpoints and one rpy_deg row per time")
         for i in range(1, len(p.times_s)):
             if not p.times_s[i] > p.times_s[i - 1]:
-                _fail("plant.times_s", p.times_s, "must be strictly increasing")
+                fail("plant.times_s", p.times_s, "must be strictly increasing")
         for i, row in enumerate(p.rpy_deg):
-            _vec(f"plant.rpy_deg[{i}]", row, 3)
+            check_vector(f"plant.rpy_deg[{i}]", row, 3)
 
     from drake_att.scenarios.registry import plugin_for
 
@@ -411,7 +394,7 @@ def validate(s: Scenario) -> None:
     for i, sensor in enumerate(s.sensors):
         path = f"sensors[{i}] ({getattr(sensor, 'name', '?')})"
         if not sensor.name or sensor.name in checks.sensors:
-            _fail(f"{path}.name", sensor.name, "must be a non-empty name unique among sensors")
+            fail(f"{path}.name", sensor.name, "must be a non-empty name unique among sensors")
         plugin = plugin_for(sensor)
         if plugin.validate is not None:
             plugin.validate(path, sensor, checks)
@@ -419,15 +402,15 @@ def validate(s: Scenario) -> None:
     for i, est in enumerate(s.estimators):
         path = f"estimators[{i}] ({getattr(est, 'name', '?')})"
         if not est.name or est.name in checks.estimators or est.name in checks.sensors:
-            _fail(f"{path}.name", est.name, "must be non-empty and unique among sensors and estimators")
+            fail(f"{path}.name", est.name, "must be non-empty and unique among sensors and estimators")
         plugin = plugin_for(est)
         if plugin.validate is not None:
             plugin.validate(path, est, checks)
         checks.estimators[est.name] = est
-    _nonneg("scoring.score_from_s", s.scoring.score_from_s)
+    check_nonnegative("scoring.score_from_s", s.scoring.score_from_s)
     if s.scoring.score_from_s >= s.duration_s:
-        _fail("scoring.score_from_s", s.scoring.score_from_s, f"must be < duration_s ({s.duration_s})")
-    _positive("scoring.convergence_threshold_deg", s.scoring.convergence_threshold_deg)
+        fail("scoring.score_from_s", s.scoring.score_from_s, f"must be < duration_s ({s.duration_s})")
+    check_positive("scoring.convergence_threshold_deg", s.scoring.convergence_threshold_deg)
 
 
 def __getattr__(name):

@@ -17,16 +17,12 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B (3)]
 from drake_att.noise import FarrenkopfGyroNoise
+from drake_att.validation import check_array, check_nonnegative
 from drake_att.systems.randomness import (
     SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
 
 
 
-def _check_vector(value, n, field, unit):
-    v = np.asarray(value, dtype=float)
-    if v.shape != (n,) or not np.all(np.isfinite(v)):
-        raise ValueError(f"{field}: got {value!r}; must be {n} finite numbers ({unit})")
-    return v
 
 
 @dataclass(frozen=True)
@@ -53,10 +49,9 @@ class GyroModel:
             noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
         except ValueError as e:
             raise ValueError(f"{name}.{e}") from None
-        initial_bias = _check_vector(initial_bias_rad_per_s, 3, f"{name}.initial_bias", "rad/s")
-        if not np.isfinite(initial_bias_sigma_rad_per_s) or initial_bias_sigma_rad_per_s < 0:
-            raise ValueError(f"{name}.initial_bias_sigma: got {initial_bias_sigma_rad_per_s}; must be >= 0")
-        sf = _check_vector(scale_factor_error, 3, f"{name}.scale_factor_error", "dimensionless")
+        initial_bias = check_array(f"{name}.initial_bias", initial_bias_rad_per_s, (3,), " (rad/s)")
+        check_nonnegative(f"{name}.initial_bias_sigma", initial_bias_sigma_rad_per_s)
+        sf = check_array(f"{name}.scale_factor_error", scale_factor_error, (3,), " (dimensionless)")
         M = np.zeros((3, 3)) if misalignment is None else np.asarray(misalignment, dtype=float)
         if M.shape != (3, 3) or not np.all(np.isfinite(M)) or np.any(np.diag(M) != 0):
             raise ValueError(f"{name}.misalignment: got {misalignment!r}; must be 3x3 finite with zero diagonal (rad)")

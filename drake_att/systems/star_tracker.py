@@ -23,6 +23,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
+from drake_att.validation import check_nonnegative
 from drake_att.systems.randomness import (
     SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
 
@@ -68,8 +69,7 @@ class StarTrackerNoise:
         """Check the arguments of :class:`StarTracker` (ValueError naming the field)."""
         for field, v in (("sigma_cross_boresight", sigma_cross_boresight_rad),
                          ("sigma_boresight", sigma_boresight_rad), ("sigma_vector", sigma_vector_rad)):
-            if not np.isfinite(v) or v < 0:
-                raise ValueError(f"{name}.{field}: got {v}; must be finite and >= 0")
+            check_nonnegative(f"{name}.{field}", v)
         if not (0.0 <= dropout_probability < 1.0):
             raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
         windows = tuple((float(a), float(b)) for a, b in outage_windows_s)

@@ -1,0 +1,138 @@
+"""The one validation family: every check of a value the library is given.
+
+Each check returns the value converted (float, int, array, unit quaternion, covariance) or
+raises ``error`` (default ``ValueError``; the scenario loader passes
+:class:`ConfigError`) with one message shape::
+
+    <field>: got <value>; <what is allowed>
+
+so every refusal names the field, the value and what is allowed - from a YAML field path
+(``estimators[0] (single).period_s``) down to a filter core's argument (``covariance0``).
+Math layer: numpy only, no Drake.
+"""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+__all__ = ["ConfigError", "describe", "fail", "check_finite", "check_positive", "check_nonnegative", "check_int",
+           "check_vector", "check_weights", "check_array", "check_quaternion", "check_covariance",
+           "check_reference_vectors"]
+
+
+class ConfigError(ValueError):
+    """An invalid scenario configuration (the message names the field path)."""
+
+
+def describe(value) -> str:
+    """A short rendering of ``value`` for a message (arrays abridged)."""
+    if isinstance(value, np.ndarray):
+        return np.array2string(value, precision=10, threshold=12, max_line_width=10**6).replace("\n", "")
+    return repr(value)
+
+
+def fail(field: str, value, allowed: str, error: type = ValueError):
+    """Raise ``error("<field>: got <value>; <allowed>")``."""
+    raise error(f"{field}: got {describe(value)}; {allowed}")
+
+
+def _is_real(v) -> bool:
+    if isinstance(v, np.ndarray):  # a 0-d numeric array is a number
+        return v.ndim == 0 and np.issubdtype(v.dtype, np.number) and not np.issubdtype(v.dtype, np.bool_)
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+
+
+def check_finite(field: str, value, error: type = ValueError) -> float:
+    """``value`` as float if it is a finite real number (not a string, not a bool)."""
+    if not _is_real(value) or not np.isfinite(float(value)):
+        fail(field, value, "must be a finite real scalar", error)
+    return float(value)
+
+
+def check_positive(field: str, value, allow_zero: bool = False, error: type = ValueError) -> float:
+    """``value`` as float if it is finite and > 0 (>= 0 with ``allow_zero``)."""
+    v = check_finite(field, value, error)
+    if v < 0.0 or (v == 0.0 and not allow_zero):
+        fail(field, value, "must be >= 0" if allow_zero else "must be > 0", error)
+    return v
+
+
+def check_nonnegative(field: str, value, error: type = ValueError) -> float:
+    """``value`` as float if it is finite and >= 0."""
+    return check_positive(field, value, allow_zero=True, error=error)
+
+
+def check_int(field: str, value, minimum: int, error: type = ValueError) -> int:
+    """``value`` as int if it is an integer (not a bool, not a float) >= ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        fail(field, value, f"must be an integer >= {minimum}", error)
+    return int(value)
+
+
+def check_vector(field: str, value, n: int, error: type = ValueError) -> list:
+    """A list (or 1-D array) of ``n`` finite numbers, each checked and named ``field[i]``."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)) or len(value) != n:
+        fail(field, value, f"must be a list of {n} numbers", error)
+    return [check_finite(f"{field}[{i}]", x, error) for i, x in enumerate(value)]
+
+
+def check_weights(field: str, value, n: int, error: type = ValueError) -> list:
+    """``n`` finite weights >= 0 with a positive sum."""
+    w = check_vector(field, list(value), n, error)
+    if any(x < 0 for x in w) or sum(w) <= 0:
+        fail(field, value, "weights must be >= 0 with a positive sum", error)
+    return w
+
+
+def check_array(field: str, value, shape: tuple, unit: str = "", error: type = ValueError) -> np.ndarray:
+    """``value`` as a finite float array of exactly ``shape`` (``unit``: e.g. " (rad/s)")."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        fail(field, value, f"must be a finite real array of shape {tuple(shape)}{unit}", error)
+    if arr.shape != tuple(shape):
+        fail(field, arr, f"must have shape {tuple(shape)}{unit}, not {arr.shape}", error)
+    if not np.all(np.isfinite(arr)):
+        fail(field, arr, f"must be finite{unit}", error)
+    return arr
+
+
+def check_quaternion(field: str, value, error: type = ValueError) -> np.ndarray:
+    """A unit quaternion ``[w, x, y, z]`` from finite ``value`` with ``|q| > 1e-12``."""
+    q = check_array(field, value, (4,), " ([w, x, y, z])", error)
+    n = np.linalg.norm(q)
+    if not n > 1e-12:
+        fail(field, q, "must be a non-zero quaternion (|q| > 1e-12)", error)
+    return q / n
+
+
+def check_covariance(field: str, value, n: int, error: type = ValueError) -> np.ndarray:
+    """A symmetric positive-definite ``(n, n)`` matrix (symmetrized to round-off)."""
+    P = check_array(field, value, (n, n), "", error)
+    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-300 + 1e-12 * np.max(np.abs(P))):
+        fail(field, P, "must be symmetric", error)
+    P = 0.5 * (P + P.T)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        fail(field, P, f"must be positive definite (its eigenvalues are {describe(np.linalg.eigvalsh(P))})", error)
+    return P
+
+
+def check_reference_vectors(field: str, value, error: type = ValueError) -> np.ndarray:
+    """``(m, 3)`` finite, non-zero reference directions, ``m >= 1``."""
+    try:
+        U = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        fail(field, value, "must be a finite real array of shape (m, 3), m >= 1", error)
+    if U.ndim != 2 or U.shape[1] != 3 or U.shape[0] < 1:
+        fail(field, U, f"must have shape (m, 3) with m >= 1, not {U.shape}", error)
+    if not np.all(np.isfinite(U)):
+        fail(field, U, "must be finite", error)
+    if np.any(np.linalg.norm(U, axis=1) <= 0.0):
+        fail(field, U, "rows must be non-zero directions", error)
+    return U
