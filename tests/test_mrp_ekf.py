@@ -341,9 +341,9 @@ def test_missing_measurements_are_skipped_and_counted():
 @pytest.mark.parametrize(
     "kwargs, field",
     [
-        (dict(arw_sigma=0.0), "arw_sigma"),
-        (dict(arw_sigma=-1.0), "arw_sigma"),
-        (dict(rrw_sigma=-1e-9), "rrw_sigma"),
+        (dict(arw_rad_per_rt_s=0.0), "arw_rad_per_rt_s"),
+        (dict(arw_rad_per_rt_s=-1.0), "arw_rad_per_rt_s"),
+        (dict(rrw_rad_per_s15=-1e-9), "rrw_rad_per_s15"),
         (dict(q_IB_hat0=[0, 0, 0, 0]), "q_IB_hat0"),
         (dict(bias_hat0=[0.0, 0.0]), "bias_hat0"),
         (dict(covariance0=-np.eye(6)), "covariance0"),
@@ -352,7 +352,7 @@ def test_missing_measurements_are_skipped_and_counted():
 )
 def test_constructor_validation_names_the_field(kwargs, field):
     args = dict(q_IB_hat0=[1, 0, 0, 0], bias_hat0=np.zeros(3), covariance0=P0_ATT,
-                arw_sigma=SIGMA_V, rrw_sigma=SIGMA_U)
+                arw_rad_per_rt_s=SIGMA_V, rrw_rad_per_s15=SIGMA_U)
     args.update(kwargs)
     # The field as a whole word (not inside a longer identifier).
     with pytest.raises(ValueError, match=rf"(?<!\w){field}(?!\w)"):
@@ -507,8 +507,8 @@ def test_core_with_mounted_sensor_matches_mrp_ekf_and_its_nis_is_chi_square():
     R_BS = rot.quat_to_rotmat(q_BS)
     q0 = rot.rpy_to_quat(np.array([0.5, -0.5, 0.5]) * DEG)
     b0 = np.full(3, DEG / HOUR)
-    core = MrpEkfCore(SIGMA_V, SIGMA_U)  # default rrw_sigma (0) must be accepted too
-    assert MrpEkfCore(SIGMA_V).rrw_sigma == 0.0
+    core = MrpEkfCore(SIGMA_V, SIGMA_U)  # default rrw_rad_per_s15 (0) must be accepted too
+    assert MrpEkfCore(SIGMA_V).rrw_rad_per_s15 == 0.0
     state = core.initial_state(q0, b0, P0_ATT)
     ekf = MrpEkf(q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
     np.testing.assert_array_equal(state.x, ekf.x)
@@ -548,10 +548,10 @@ def test_core_skips_unusable_observations_and_names_bad_arguments():
     new, info = core.update(state, obs)
     assert new is state and not info.accepted and np.isnan(info.nis)
     word = r"(?<!\w){}(?!\w)".format
-    for kwargs, field in [(dict(arw_sigma=0.0), "arw_sigma"), (dict(rrw_sigma=-1.0), "rrw_sigma"),
+    for kwargs, field in [(dict(arw_rad_per_rt_s=0.0), "arw_rad_per_rt_s"), (dict(rrw_rad_per_s15=-1.0), "rrw_rad_per_s15"),
                           (dict(update_iterations=0), "update_iterations")]:
         with pytest.raises(ValueError, match=word(field)):
-            MrpEkfCore(**dict(dict(arw_sigma=SIGMA_V), **kwargs))
+            MrpEkfCore(**dict(dict(arw_rad_per_rt_s=SIGMA_V), **kwargs))
     for args, field in [(([0, 0, 0, 0], np.zeros(3), P0_ATT), "q_IB_hat0"),
                         (([1, 0, 0, 0], np.zeros(2), P0_ATT), "bias_hat0"),
                         (([1, 0, 0, 0], np.zeros(3), np.eye(5)), "covariance0")]:

@@ -14,6 +14,9 @@ from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simu
 
 from drake_att.contract import SecondQuantity
 from drake_att.filters.particle import (
+    EffectiveSampleSizeGate,
+    RandomWalkRoughening,
+    SystematicResampler,
     BootstrapParticleFilter,
     ExtendedKalmanParticleFilter,
     GyrolessParticleFilter,
@@ -149,6 +152,51 @@ def test_systematic_resample_is_unbiased():
     assert np.max(np.abs(counts.mean(axis=0) - expected)) < 5 * 0.5 / np.sqrt(draws)
 
 
+def test_effective_sample_size_gate_boundary_and_validation():
+    """Resample exactly when N_eff < threshold N (paper 2/3): not at equality; 0 never."""
+    gate = EffectiveSampleSizeGate(2.0 / 3.0)
+    assert gate.should_resample(66.0, 100) and not gate.should_resample(200.0 / 3.0, 100)
+    assert not EffectiveSampleSizeGate(0.0).should_resample(1.0, 100)
+    assert EffectiveSampleSizeGate(1.0).should_resample(99.999, 100)
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="resample_threshold: got"):
+            EffectiveSampleSizeGate(bad)
+
+
+def test_random_walk_roughening_statistics_and_zero_sigma():
+    """Increments ~ N(0, sigma^2 dt) per component (variance within 3% over 60000 draws,
+    mean within 4 standard errors); sigma = 0 returns the block and draws nothing."""
+    rng = np.random.default_rng(11)
+    block = rng.normal(size=(20000, 3))
+    sigma, dt = 2e-6, 0.25
+    out = RandomWalkRoughening(sigma).apply(block, dt, rng)
+    inc = (out - block).ravel()
+    assert abs(inc.var() / (sigma**2 * dt) - 1.0) < 0.03
+    assert abs(inc.mean()) < 4 * sigma * np.sqrt(dt) / np.sqrt(inc.size)
+    state = rng.bit_generator.state
+    assert RandomWalkRoughening(0.0).apply(block, dt, rng) is block
+    assert rng.bit_generator.state == state
+    with pytest.raises(ValueError, match="roughening sigma: got -1"):
+        RandomWalkRoughening(-1.0)
+
+
+def test_filters_take_their_resampler():
+    """A filter resamples with the resampler it is given (here one that always keeps
+    particle 0), so resampling schemes are swappable components."""
+    class KeepFirst:
+        def indices(self, weights, rng):
+            return np.zeros(len(weights), dtype=np.int64)
+
+    rng = np.random.default_rng(3)
+    pf = BootstrapParticleFilter(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, rng, resample_threshold=1.0,
+                                 resampler=KeepFirst())
+    first = pf.particles[0].copy()
+    pf.update(vector_measurement_model(np.zeros(3), REFS), REFS, SIGMA_STAR, rng)
+    assert pf.n_resamples == 1 and np.all(pf.particles == first)
+    default = BootstrapParticleFilter(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, rng)
+    assert isinstance(default.resampler, SystematicResampler) and default.resample_threshold == 2.0 / 3.0
+
+
 def test_systematic_resample_degenerate_weights():
     rng = np.random.default_rng(1)
     w = np.zeros(7)
@@ -251,7 +299,7 @@ def test_missing_inputs_are_skipped_and_counted():
         (lambda r: BootstrapParticleFilter(0, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r),
          "num_particles"),
         (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, -1.0, r),
-         "arw_sigma"),
+         "arw_rad_per_rt_s"),
         (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r,
                                            resample_threshold=1.5), "resample_threshold"),
         (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r,
@@ -262,7 +310,7 @@ def test_missing_inputs_are_skipped_and_counted():
         (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6, r),
          "covariance0"),
         (lambda r: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 0.0,
-                                                1e-9, r), "arw_sigma"),
+                                                1e-9, r), "arw_rad_per_rt_s"),
         (lambda r: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6,
                                                 1e-9, r, proposal_iterations=0),
          "proposal_iterations"),

@@ -259,11 +259,11 @@ def test_s0_plugins_are_registered_and_shipped_s0_scenarios_carry_the_paper_nois
     assert {cfg.MrpEkfConfig, cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig} <= registered
     arw, rrw = 0.2 * np.pi / 180 / 3600, 0.02 * np.pi / 180 / 3600**1.5
     expected = {
-        "ekf": dict(arw_sigma=arw, rrw_sigma=rrw), "ekf_iterated": dict(arw_sigma=arw, rrw_sigma=rrw),
-        "ekpf": dict(arw_sigma=arw, rrw_sigma=rrw), "ekpf_iterated": dict(arw_sigma=arw, rrw_sigma=rrw),
-        "bootstrap_pf": dict(arw_sigma=2e-5, bias_roughening_sigma=0.0),
-        "bootstrap_pf_true_arw": dict(arw_sigma=arw, bias_roughening_sigma=0.0),
-        "bootstrap_pf_roughened": dict(arw_sigma=2e-5, bias_roughening_sigma=0.05 * np.pi / 180 / 3600),
+        "ekf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
+        "ekpf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekpf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
+        "bootstrap_pf": dict(arw_rad_per_rt_s=2e-5, bias_roughening_sigma=0.0),
+        "bootstrap_pf_true_arw": dict(arw_rad_per_rt_s=arw, bias_roughening_sigma=0.0),
+        "bootstrap_pf_roughened": dict(arw_rad_per_rt_s=2e-5, bias_roughening_sigma=0.05 * np.pi / 180 / 3600),
         "gyroless_pf": dict(attitude_process_sigma=3e-5, rate_process_sigma=1e-6),
         "gyroless_pf_paper": dict(attitude_process_sigma=0.0, rate_process_sigma=1e-6),
     }

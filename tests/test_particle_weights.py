@@ -264,7 +264,7 @@ def test_ekpf_weights_with_a_zero_variance_bias_are_the_predictive_likelihood():
     """A known bias (zero variance, H has no bias columns) changes nothing in the
     linear-Gaussian argument above: the weights must still be prior x predictive likelihood
     (same tolerance). Singular covariances are reached e.g. from a set whose bias block
-    was zeroed by the user (rrw_sigma = 0, bias known)."""
+    was zeroed by the user (rrw_rad_per_s15 = 0, bias known)."""
     rng = np.random.default_rng(5)
     q0 = np.array([0.9, 0.2, -0.3, 0.25])
     q0 /= np.linalg.norm(q0)

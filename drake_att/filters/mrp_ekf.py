@@ -417,9 +417,9 @@ class MrpEkf:
         covariance0: Initial covariance ``(6, 6)`` of ``[dtheta_B (rad); b (rad/s)]``
             where ``q_IB = q_IB_hat ⊗ exp(dtheta_B / 2)``. It is mapped to MRP
             coordinates with ``B(rho0)`` (see :func:`attitude_to_mrp_covariance`).
-        arw_sigma: Gyro angle random walk ``sigma_v`` (rad/s^0.5), > 0.
+        arw_rad_per_rt_s: Gyro angle random walk ``sigma_v`` (rad/s^0.5), > 0.
             (A white-noise std ``s`` per sample of period ``T`` is ``s sqrt(T)``.)
-        rrw_sigma: Gyro rate random walk ``sigma_u`` (rad/s^1.5), >= 0.
+        rrw_rad_per_s15: Gyro rate random walk ``sigma_u`` (rad/s^1.5), >= 0.
         update_iterations: Linearizations per measurement update, >= 1. 1 (default) is
             the classic EKF of the paper; > 1 gives the iterated EKF (see
             :func:`ekf_update`), which converges from large initial errors.
@@ -432,13 +432,13 @@ class MrpEkf:
         last_innovation, last_innovation_covariance: From the last update (or None).
     """
 
-    def __init__(self, q_IB_hat0, bias_hat0, covariance0, arw_sigma: float,
-                 rrw_sigma: float = 0.0, update_iterations: int = 1):
+    def __init__(self, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
+                 rrw_rad_per_s15: float = 0.0, update_iterations: int = 1):
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
         P_att = check_covariance("covariance0", covariance0, 6)
-        self.arw_sigma = check_positive("arw_sigma", arw_sigma)
-        self.rrw_sigma = check_positive("rrw_sigma", rrw_sigma, allow_zero=True)
+        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
+        self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
         self.update_iterations = check_int("update_iterations", update_iterations, 1)
         rho0 = quat_to_mrp(q0)
         self.x = np.concatenate([rho0, b0])
@@ -464,7 +464,7 @@ class MrpEkf:
             w = self._last_w_meas
         else:
             self._last_w_meas = w
-        self.x, self.P = ekf_predict(self.x, self.P, w, dt, self.arw_sigma, self.rrw_sigma)
+        self.x, self.P = ekf_predict(self.x, self.P, w, dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
 
     # -- measurement update ------------------------------------------------------
     def update(self, y, ref_vectors_I, sigma: float) -> bool:
@@ -538,8 +538,8 @@ class MrpEkfCore:
     State vector: ``[x (6), P (36, MRP chart, row-major)]``.
 
     Args:
-        arw_sigma: gyro ARW ``sigma_v`` (rad/s^0.5) > 0.
-        rrw_sigma: gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
+        arw_rad_per_rt_s: gyro ARW ``sigma_v`` (rad/s^0.5) > 0.
+        rrw_rad_per_s15: gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
         update_iterations: linearizations per update (1 = the paper's EKF; > 1 iterated).
     """
 
@@ -548,9 +548,9 @@ class MrpEkfCore:
     is_random = False
     state_size = 42
 
-    def __init__(self, arw_sigma: float, rrw_sigma: float = 0.0, update_iterations: int = 1):
-        self.arw_sigma = check_positive("arw_sigma", arw_sigma)
-        self.rrw_sigma = check_positive("rrw_sigma", rrw_sigma, allow_zero=True)
+    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float = 0.0, update_iterations: int = 1):
+        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
+        self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
         self.update_iterations = check_int("update_iterations", update_iterations, 1)
 
     @staticmethod
@@ -564,8 +564,8 @@ class MrpEkfCore:
 
     def predict(self, state: MrpEkfState, w_meas_B, dt: float, rng=None) -> MrpEkfState:
         dt = check_positive("dt", dt)
-        x, P = ekf_predict(state.x, state.P, np.asarray(w_meas_B, dtype=float), dt, self.arw_sigma,
-                           self.rrw_sigma)
+        x, P = ekf_predict(state.x, state.P, np.asarray(w_meas_B, dtype=float), dt, self.arw_rad_per_rt_s,
+                           self.rrw_rad_per_s15)
         return MrpEkfState(x, P)
 
     def update(self, state: MrpEkfState, observations, rng=None) -> tuple[MrpEkfState, UpdateInfo]:

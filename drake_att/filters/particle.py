@@ -182,6 +182,56 @@ def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------
+# Components the filters take (Stone Soup's split: resampler / when to resample /
+# regulariser); each is a small frozen object, tested on its own.
+# ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SystematicResampler:
+    """Which particles survive a resampling: :func:`systematic_resample` (one uniform draw)."""
+
+    def indices(self, weights, rng: np.random.Generator) -> np.ndarray:
+        """``(N,)`` offspring indices (sorted) for normalized ``weights``."""
+        return systematic_resample(weights, rng)
+
+
+@dataclass(frozen=True)
+class EffectiveSampleSizeGate:
+    """When to resample: after an update whose ``N_eff < threshold * N``.
+
+    ``threshold`` in ``[0, 1]``: 0 never resamples, 2/3 is paper S0's rule, 1 resamples
+    whenever the weights are not all equal."""
+
+    threshold: float = 2.0 / 3.0
+
+    def __post_init__(self):
+        t = check_positive("resample_threshold", self.threshold, allow_zero=True)
+        if t > 1.0:
+            fail("resample_threshold", t, "must be in [0, 1] (fraction of N; paper 2/3)")
+
+    def should_resample(self, effective_sample_size: float, num_particles: int) -> bool:
+        return effective_sample_size < self.threshold * num_particles
+
+
+@dataclass(frozen=True)
+class RandomWalkRoughening:
+    """Regulariser: a random walk ``x_i <- x_i + N(0, sigma^2 dt I)`` on a block of every
+    particle (e.g. the gyro bias), restoring the diversity resampling removes.
+
+    ``sigma``: density (units of the block per sqrt(s)), >= 0; 0 draws nothing."""
+
+    sigma: float = 0.0
+
+    def __post_init__(self):
+        check_positive("roughening sigma", self.sigma, allow_zero=True)
+
+    def apply(self, block: np.ndarray, dt: float, rng: np.random.Generator) -> np.ndarray:
+        """The roughened ``(N, k)`` block (a new array; ``block`` itself if ``sigma = 0``)."""
+        if self.sigma == 0.0:
+            return block
+        return block + rng.standard_normal(block.shape) * (self.sigma * np.sqrt(dt))
+
+
+# ----------------------------------------------------------------------------------
 # Shared machinery
 # ----------------------------------------------------------------------------------
 def _sample_initial_attitudes(num_particles, q0, s0, covariance0, rng):
@@ -209,14 +259,13 @@ def _robust_cholesky(P):
 
 
 class _ParticleFilterBase:
-    """Weights, resampling, skipped-measurement bookkeeping and outputs."""
+    """Weights, resampling (a gate and a resampler component), skipped-measurement
+    bookkeeping and outputs."""
 
-    def __init__(self, num_particles, resample_threshold):
+    def __init__(self, num_particles, resample_threshold, resampler=None):
         self.num_particles = check_int("num_particles", num_particles, 1)
-        thr = check_positive("resample_threshold", resample_threshold, allow_zero=True)
-        if thr > 1.0:
-            fail("resample_threshold", thr, "must be in [0, 1] (fraction of N; paper 2/3)")
-        self.resample_threshold = thr
+        self.resampling_gate = EffectiveSampleSizeGate(resample_threshold)
+        self.resampler = SystematicResampler() if resampler is None else resampler
         n = self.num_particles
         self.weights = np.full(n, 1.0 / n)
         self.log_weights = np.full(n, -np.log(n))
@@ -257,14 +306,18 @@ class _ParticleFilterBase:
         self.weights, self.log_weights = normalize_log_weights(lw)
         self.last_effective_sample_size = float(1.0 / np.sum(self.weights ** 2))
 
+    @property
+    def resample_threshold(self) -> float:
+        return self.resampling_gate.threshold
+
     def _maybe_resample(self, rng) -> bool:
         n = self.num_particles
-        if self.last_effective_sample_size >= self.resample_threshold * n:
+        if not self.resampling_gate.should_resample(self.last_effective_sample_size, n):
             return False
         # Keep the weighted set for the estimates of this step: resampling only adds
         # Monte Carlo noise (the arrays are replaced, not modified, by _take).
         self._estimate_set = (self.particles, self.weights)
-        idx = systematic_resample(self.weights, rng)
+        idx = self.resampler.indices(self.weights, rng)
         self._take(idx)
         self.weights = np.full(n, 1.0 / n)
         self.log_weights = np.full(n, -np.log(n))
@@ -348,7 +401,7 @@ class BootstrapParticleFilter(_ParticleFilterBase):
 
     Prediction per particle ``i`` (batched)::
 
-        w_i   = w_meas - b_i - n_i,          n_i ~ N(0, arw_sigma^2 / dt I)
+        w_i   = w_meas - b_i - n_i,          n_i ~ N(0, arw_rad_per_rt_s^2 / dt I)
         q_i  <- q_i ⊗ exp(w_i dt / 2)          (closed form, exact for constant rate)
         rho_i = MRP(q_i) with |rho_i| <= 1     (shadow switch)
         b_i  <- b_i [+ N(0, bias_roughening_sigma^2 dt I)]
@@ -368,12 +421,15 @@ class BootstrapParticleFilter(_ParticleFilterBase):
         bias_hat0: Initial bias estimate ``(3,)`` (rad/s).
         covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); b (rad/s)]`` used to draw
             the initial set: ``q_i = q0 ⊗ exp(dtheta_i / 2)``, ``b_i = b0 + db_i``.
-        arw_sigma: Gyro ARW ``sigma_v`` (rad/s^0.5) used for the attitude process noise,
+        arw_rad_per_rt_s: Gyro ARW ``sigma_v`` (rad/s^0.5) used for the attitude process noise,
             >= 0 (0 means a deterministic attitude propagation).
         rng: Generator for the initial draw.
         bias_roughening_sigma: Bias random-walk density (rad/s per sqrt(s) = rad/s^1.5),
             >= 0; default 0 (paper).
-        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3 (paper).
+        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3 (paper)
+            (:class:`EffectiveSampleSizeGate`).
+        resampler: which particles survive (default :class:`SystematicResampler`); any
+            object with ``indices(weights, rng) -> (N,) int array``.
 
     Attributes:
         particles: ``(N, 6)`` ``[rho; b]``. weights: ``(N,)`` normalized weights.
@@ -381,17 +437,23 @@ class BootstrapParticleFilter(_ParticleFilterBase):
     """
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-                 arw_sigma: float, rng: np.random.Generator, *,
-                 bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0):
-        super().__init__(num_particles, resample_threshold)
+                 arw_rad_per_rt_s: float, rng: np.random.Generator, *,
+                 bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0, resampler=None):
+        super().__init__(num_particles, resample_threshold, resampler)
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
         P0 = check_covariance("covariance0", covariance0, 6)
-        self.arw_sigma = check_positive("arw_sigma", arw_sigma, allow_zero=True)
-        self.bias_roughening_sigma = check_positive("bias_roughening_sigma", bias_roughening_sigma, allow_zero=True)
+        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s, allow_zero=True)
+        self.roughening = RandomWalkRoughening(check_positive("bias_roughening_sigma", bias_roughening_sigma,
+                                                              allow_zero=True))
         _check_rng(rng)
         rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
         self.particles = np.concatenate([rho, b], axis=1)
+
+    @property
+    def bias_roughening_sigma(self) -> float:
+        """The bias roughening density (rad/s^1.5) of :attr:`roughening`."""
+        return self.roughening.sigma
 
     def predict(self, dt: float, w_meas, rng: np.random.Generator) -> None:
         """Propagate every particle over ``dt`` (s) with gyro rate ``w_meas`` (rad/s).
@@ -408,13 +470,11 @@ class BootstrapParticleFilter(_ParticleFilterBase):
         w_meas = self._gyro(w_meas)
         n = self.num_particles
         w = w_meas - self.particles[:, 3:]
-        if self.arw_sigma > 0.0:
-            w = w - rng.standard_normal((n, 3)) * (self.arw_sigma / np.sqrt(dt))
+        if self.arw_rad_per_rt_s > 0.0:
+            w = w - rng.standard_normal((n, 3)) * (self.arw_rad_per_rt_s / np.sqrt(dt))
         q = quat_multiply(mrp_to_quat(self.particles[:, :3]), rotvec_to_quat(w * dt))
         self.particles[:, :3] = quat_to_mrp(q)
-        if self.bias_roughening_sigma > 0.0:
-            self.particles[:, 3:] += rng.standard_normal((n, 3)) * (
-                self.bias_roughening_sigma * np.sqrt(dt))
+        self.particles[:, 3:] = self.roughening.apply(self.particles[:, 3:], dt, rng)
 
 # ----------------------------------------------------------------------------------
 # Extended Kalman particle filter, gyro mode
@@ -462,10 +522,11 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); b (rad/s)]``: used to
             draw the particles and, mapped into each particle's MRP chart, as every
             particle's initial EKF covariance.
-        arw_sigma: Gyro ARW ``sigma_v`` (rad/s^0.5), > 0.
-        rrw_sigma: Gyro RRW ``sigma_u`` (rad/s^1.5), >= 0.
+        arw_rad_per_rt_s: Gyro ARW ``sigma_v`` (rad/s^0.5), > 0.
+        rrw_rad_per_s15: Gyro RRW ``sigma_u`` (rad/s^1.5), >= 0.
         rng: Generator for the initial draw.
         resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
+        resampler: default :class:`SystematicResampler` (see :class:`BootstrapParticleFilter`).
         proposal_iterations: Linearizations of each particle's EKF update, >= 1.
             1 (default) is the paper's EKF proposal; > 1 uses the iterated EKF update
             (Gauss-Newton), a beyond-the-paper option that lets every particle reach the
@@ -477,15 +538,15 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
     """
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-                 arw_sigma: float, rrw_sigma: float, rng: np.random.Generator, *,
-                 resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1):
-        super().__init__(num_particles, resample_threshold)
+                 arw_rad_per_rt_s: float, rrw_rad_per_s15: float, rng: np.random.Generator, *,
+                 resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1, resampler=None):
+        super().__init__(num_particles, resample_threshold, resampler)
         self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
         P0 = check_covariance("covariance0", covariance0, 6)
-        self.arw_sigma = check_positive("arw_sigma", arw_sigma)
-        self.rrw_sigma = check_positive("rrw_sigma", rrw_sigma, allow_zero=True)
+        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
+        self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
         _check_rng(rng)
         rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
         self.particles = np.concatenate([rho, b], axis=1)
@@ -510,7 +571,7 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
             _check_rng(rng)
         w_meas = self._gyro(w_meas)
         self.particles, self.covariances = ekf_predict(
-            self.particles, self.covariances, w_meas, dt, self.arw_sigma, self.rrw_sigma)
+            self.particles, self.covariances, w_meas, dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
 
     def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
         """Per-particle EKF update as proposal, draw, weight, resample.
@@ -580,6 +641,7 @@ class GyrolessParticleFilter(_ParticleFilterBase):
             default 0.
         num_substeps: RK4 substeps per :meth:`predict`, >= 1 (default 1).
         resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
+        resampler: default :class:`SystematicResampler` (see :class:`BootstrapParticleFilter`).
 
     Attributes:
         particles: ``(N, 6)`` ``[rho; w]``. weights, n_skipped, n_updates, n_resamples.
@@ -588,8 +650,8 @@ class GyrolessParticleFilter(_ParticleFilterBase):
     def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
                  rate_process_sigma: float, rng: np.random.Generator, *,
                  attitude_process_sigma: float = 0.0, num_substeps: int = 1,
-                 resample_threshold: float = 2.0 / 3.0):
-        super().__init__(num_particles, resample_threshold)
+                 resample_threshold: float = 2.0 / 3.0, resampler=None):
+        super().__init__(num_particles, resample_threshold, resampler)
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         w0 = check_array("w_hat0", w_hat0, (3,), " (rad/s)")
         P0 = check_covariance("covariance0", covariance0, 6)

@@ -72,16 +72,16 @@ def _covariance0(covariance0) -> np.ndarray:
     return P0
 
 
-def mrp_ekf_setup(period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0, arw_sigma: float,
-                  rrw_sigma: float, update_iterations: int = 1, gyro: str | None = None) -> EstimatorSetup:
+def mrp_ekf_setup(period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
+                  rrw_rad_per_s15: float, update_iterations: int = 1, gyro: str | None = None) -> EstimatorSetup:
     """The setup of :func:`MrpEkfEstimator` (same arguments; ``gyro``: the gyro's name)."""
-    core = MrpEkfCore(arw_sigma, rrw_sigma, update_iterations)
+    core = MrpEkfCore(arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations)
     return EstimatorSetup(core, core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)), period_s,
                           gyro=gyro, vector_sensors=(star_tracker,))
 
 
 def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0,
-                    arw_sigma: float, rrw_sigma: float, update_iterations: int = 1) -> EstimatorSystem:
+                    arw_rad_per_rt_s: float, rrw_rad_per_s15: float, update_iterations: int = 1) -> EstimatorSystem:
     """Paper S0's additive EKF on ``x = [rho; b]`` (:class:`~drake_att.filters.mrp_ekf.MrpEkfCore`).
 
     Args:
@@ -93,15 +93,15 @@ def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bi
         bias_hat0: initial bias estimate (3, rad/s).
         covariance0: (6, 6) (or its diagonal (6,)) covariance of
             ``[dtheta_B (rad); b (rad/s)]``.
-        arw_sigma: gyro ARW (rad/s^0.5) > 0.
-        rrw_sigma: gyro RRW (rad/s^1.5) >= 0.
+        arw_rad_per_rt_s: gyro ARW (rad/s^0.5) > 0.
+        rrw_rad_per_s15: gyro RRW (rad/s^1.5) >= 0.
         update_iterations: linearizations per update (1 = paper's EKF; > 1 iterated EKF).
 
     Ports: gyro_measurement, vectors_<star_tracker>; the estimator contract with
     ``bias_B_hat`` (``status[3]`` = NIS of the last update, 6 dof for two vectors).
     """
     return EstimatorSystem.from_setup(name, mrp_ekf_setup(period_s, star_tracker, q_IB_hat0, bias_hat0, covariance0,
-                                                          arw_sigma, rrw_sigma, update_iterations))
+                                                          arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations))
 
 
 def _particle_setup(period_s, star_tracker, gyro, second: SecondQuantity, make_filter) -> EstimatorSetup:
@@ -119,20 +119,20 @@ _PF_PORTS_DOC = """
 
 
 def bootstrap_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-                       arw_sigma: float, bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0,
+                       arw_rad_per_rt_s: float, bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0,
                        gyro: str | None = None) -> EstimatorSetup:
     """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name)."""
     P0 = _covariance0(covariance0)
     return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS, lambda rng: BootstrapParticleFilter(
-        num_particles, q_IB_hat0, bias_hat0, P0, arw_sigma, rng, bias_roughening_sigma=bias_roughening_sigma,
+        num_particles, q_IB_hat0, bias_hat0, P0, arw_rad_per_rt_s, rng, bias_roughening_sigma=bias_roughening_sigma,
         resample_threshold=resample_threshold))
 
 
 def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
-                         covariance0, arw_sigma: float, bias_roughening_sigma: float = 0.0,
+                         covariance0, arw_rad_per_rt_s: float, bias_roughening_sigma: float = 0.0,
                          resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
     return EstimatorSystem.from_setup(name, bootstrap_pf_setup(
-        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_sigma, bias_roughening_sigma,
+        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s, bias_roughening_sigma,
         resample_threshold))
 
 
@@ -146,28 +146,28 @@ BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:c
         q_IB_hat0, bias_hat0, covariance0: initial estimate (wxyz; rad/s) and the (6, 6)
             (or diagonal (6,)) covariance of ``[dtheta_B (rad); b (rad/s)]`` the initial
             particles are drawn from.
-        arw_sigma: attitude process noise of the particles, as an ARW (rad/s^0.5) >= 0.
+        arw_rad_per_rt_s: attitude process noise of the particles, as an ARW (rad/s^0.5) >= 0.
         bias_roughening_sigma: bias random-walk roughening (rad/s^1.5) >= 0; 0 = paper.
         resample_threshold: resample when ``N_eff < threshold * N`` (paper 2/3).
 """ + _PF_PORTS_DOC.format(gyro="gyro_measurement, ", second="bias_B_hat", second_short="bias")
 
 
 def ekpf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-               arw_sigma: float, rrw_sigma: float, proposal_iterations: int = 1,
+               arw_rad_per_rt_s: float, rrw_rad_per_s15: float, proposal_iterations: int = 1,
                resample_threshold: float = 2.0 / 3.0, gyro: str | None = None) -> EstimatorSetup:
     """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name)."""
     P0 = _covariance0(covariance0)
     return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS,
                            lambda rng: ExtendedKalmanParticleFilter(
-                               num_particles, q_IB_hat0, bias_hat0, P0, arw_sigma, rrw_sigma, rng,
+                               num_particles, q_IB_hat0, bias_hat0, P0, arw_rad_per_rt_s, rrw_rad_per_s15, rng,
                                proposal_iterations=proposal_iterations, resample_threshold=resample_threshold))
 
 
 def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
-                  covariance0, arw_sigma: float, rrw_sigma: float, proposal_iterations: int = 1,
+                  covariance0, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, proposal_iterations: int = 1,
                   resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
     return EstimatorSystem.from_setup(name, ekpf_setup(
-        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_sigma, rrw_sigma,
+        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s, rrw_rad_per_s15,
         proposal_iterations, resample_threshold))
 
 
@@ -181,7 +181,7 @@ EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~
         q_IB_hat0, bias_hat0, covariance0: initial estimate and covariance (as
             :func:`BootstrapPfEstimator`); ``covariance0`` is also every particle's
             initial EKF covariance.
-        arw_sigma: gyro ARW (rad/s^0.5) > 0. rrw_sigma: gyro RRW (rad/s^1.5) >= 0.
+        arw_rad_per_rt_s: gyro ARW (rad/s^0.5) > 0. rrw_rad_per_s15: gyro RRW (rad/s^1.5) >= 0.
         proposal_iterations: linearizations of each particle's EKF update (1 = paper;
             > 1 iterated-EKF proposal, beyond the paper).
         resample_threshold: resample when ``N_eff < threshold * N`` (paper 2/3).
