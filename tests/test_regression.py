@@ -41,10 +41,12 @@ def record():
         return json.load(f)
 
 
-def test_record_covers_every_shipped_scenario(record):
+def test_record_covers_every_scenario_shipped_before_the_redesign(record):
+    """Every scenario of the reference commit is recorded and still shipped (scenarios added
+    since, e.g. paper S4's, have no pre-redesign numbers)."""
     from drake_att.scenarios.library import available_scenarios
 
-    assert set(record["metrics"]) == set(available_scenarios()) == set(OVERRIDES)
+    assert set(record["metrics"]) == set(OVERRIDES) <= set(available_scenarios())
     assert record["seeds"] == list(SEEDS) and record["overrides"] == OVERRIDES
 
 

@@ -10,4 +10,6 @@ from drake_att.estimators import (  # noqa: F401  (registers them, in this order
     bootstrap_pf,
     ekpf,
     gyroless_pf,
+    lie_group,
+    quaternion_ekf,
 )

@@ -82,7 +82,8 @@ def initial_gyro_mode_estimate(ctx, c):
 
 
 def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True, integer_fields=(),
-                           resampling: bool = False, filter_gyro_noise: bool = False, initial_bias: bool = True):
+                           resampling: bool = False, filter_gyro_noise: bool = False, initial_bias: bool = True,
+                           initial_sigma: bool = True):
     """Checks shared by filters fed by one vector-mode tracker (and a gyro): paper S0's.
 
     Args:
@@ -90,6 +91,7 @@ def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True, integer
         resampling: check ``resample_threshold`` in (0, 1].
         filter_gyro_noise: the filter models the gyro noise (its ARW, or the gyro's, > 0).
         initial_bias: check ``initial_bias_deg_per_h`` and its sigma.
+        initial_sigma: check ``initial_attitude_sigma_deg`` (filters with another P0 field: False).
     Returns:
         The gyro's config (None without a gyro).
     """
@@ -100,7 +102,10 @@ def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True, integer
         check_gyro_period(path, c.period_s, gyro)
     st = require_sensor(checks, path, "star_tracker", c.star_tracker, "vectors")
     check_period_multiple(path, c.period_s, st.name, checks.sensor_output(st.name).period_s)
-    check_initial_attitude(path, c)
+    if initial_sigma:
+        check_initial_attitude(path, c)
+    else:
+        cfg.check_vector(f"{path}.initial_attitude_rpy_deg", c.initial_attitude_rpy_deg, 3)
     check_integers_at_least_one(path, c, *integer_fields)
     if resampling:
         check_resample_threshold(path, c)

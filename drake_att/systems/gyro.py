@@ -85,8 +85,9 @@ class Gyro(LeafSystem):
     Output ports:
         gyro_measurement (5): ``[t_meas (s), valid (1/0), w_meas_B (3, rad/s)]``.
         bias_B (3): true bias at the sample time (rad/s), for scoring only.
-    Discrete state (16): ``[seed words (4), sample index, t_sample, meas offset (3),
-        bias at sample (3), integral at previous sample (3), has_previous]``.
+    Discrete state (25): ``[seed words (4), sample index, t_sample, meas offset (3),
+        bias at sample (3), integral at previous sample (3), has_previous, sensor matrix I + S + M
+        (9, row-major; copied from the parameter at initialization, read by the output)]``.
     """
 
     def __init__(self, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
@@ -104,7 +105,7 @@ class Gyro(LeafSystem):
         self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
         self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
         self._seed_port = declare_seed_port(self)
-        self._state_index = self.DeclareDiscreteState(16)
+        self._state_index = self.DeclareDiscreteState(np.concatenate([np.zeros(16), self.default_model.sensor_matrix.ravel()]))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
         self.DeclareVectorOutputPort(
@@ -141,7 +142,7 @@ class Gyro(LeafSystem):
         e, _ = m.noise.from_normals(z[:6].reshape(2, 3))
         integral = self._integral(context)
         x = np.concatenate([words, [0.0, context.get_time()], bias0 + e, bias0,
-                            np.zeros(3) if integral is None else integral, [0.0]])
+                            np.zeros(3) if integral is None else integral, [0.0], m.sensor_matrix.ravel()])
         discrete_state.set_value(x)
         return EventStatus.Succeeded()
 
@@ -172,7 +173,7 @@ class Gyro(LeafSystem):
             w_true = (integral - x[12:15]) / elapsed
         else:
             w_true = self._w_port.Eval(context)
-        w_meas = self.model(context).sensor_matrix @ w_true + x[6:9]
+        w_meas = x[16:25].reshape(3, 3) @ w_true + x[6:9]  # the context's sensor matrix, copied at initialization
         output.SetFromVector(np.concatenate([[x[5], 1.0], w_meas]))
 
     def _calc_bias(self, context, output: BasicVector):
