@@ -45,7 +45,7 @@ CASES = {
     "noise_free": [],
     "100urad_nav_gyro": ["sensors.st.sigma_vector_urad=100.0", "sensors.gyro.arw_deg_per_rt_h=0.005"],
     "tuning_as_truth": ["sensors.st.sigma_vector_urad=125000.0",
-                        f"sensors.gyro.arw_deg_per_rt_h={np.sqrt(5e-5) * RAD_PER_S_TO_DEG_PER_RT_H!r}"],
+                        f"sensors.gyro.arw_deg_per_rt_h={float(np.sqrt(5e-5) * RAD_PER_S_TO_DEG_PER_RT_H)!r}"],
 }
 
 
@@ -59,12 +59,16 @@ def first_step_staying_below(t, dtheta_deg, threshold_deg):
     return float(t[0]) if last.size == 0 else float(t[last[-1] + 1])
 
 
+def run_overrides(case_overrides, duration):
+    """The overrides of one case's runs (truth noise + run length; scored from the middle)."""
+    return case_overrides + [f"duration_s={duration}", f"scoring.score_from_s={duration / 2}"]
+
+
 def run_case(sd, overrides, seeds, duration):
     """Per seed: metrics, per-filter error series and attitude-only NEES."""
     out = []
     for seed in seeds:
-        run = sd.simulate(seed, overrides=overrides + [f"duration_s={duration}",
-                                                       f"scoring.score_from_s={duration / 2}"])
+        run = sd.simulate(seed, overrides=run_overrides(overrides, duration))
         m = compute_metrics(run)["estimators"]
         series = {}
         for f in FILTERS:
@@ -180,7 +184,7 @@ def main(argv=None) -> int:
     for case, over in CASES.items():
         results[case] = run_case(sd, over, seeds, args.duration)
         with open(os.path.join(args.out, f"config_{case}.yaml"), "w") as f:
-            f.write(dump_scenario(apply_overrides(scenario, over + [f"duration_s={args.duration}"])))
+            f.write(dump_scenario(apply_overrides(scenario, run_overrides(over, args.duration))))
 
     claims = evaluate(results, args.duration)
     print("\n=== The paper's claims, our evidence " + "=" * 40)

@@ -232,6 +232,9 @@ estimators:
                       bias_roughening_deg_per_h_per_rt_s: 0.05}
 - !EkpfConfig {name: ekpf, star_tracker: stv, num_particles: 8}
 - !GyrolessPfConfig {name: gyroless_pf, star_tracker: stv, num_particles: 20}
+- !LieGroupConfig {name: lie_group, star_tracker: stv}
+- !LieGroupConfig {name: lie_group_literal, star_tracker: stv, formulation: paper_literal}
+- !QuaternionEkfConfig {name: quaternion_ekf, star_tracker: stv}
 """
 NOT_ON_ESTIMATOR_SYSTEM = {
     "EstimateFusionConfig": "EstimateFusion is not an EstimatorSystem: it averages other estimators' outputs "

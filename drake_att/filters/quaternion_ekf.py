@@ -58,6 +58,7 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
+from drake_att.validation import check_nonnegative, check_positive, check_quaternion
 from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
 
 _EYE4 = np.eye(4)
@@ -144,15 +145,11 @@ class AdditiveQuaternionEKF:
                  innovation_gate_chi2=None):
         self.Q = _as_cov4(Q, "Q")
         self.R = _as_cov4(R, "R")
-        if not (math.isfinite(step_s) and step_s > 0.0):
-            raise ValueError(f"step_s: got {step_s}; must be finite and > 0")
-        if gyro_arw_rad_per_rt_s is not None and not (math.isfinite(gyro_arw_rad_per_rt_s)
-                                                      and gyro_arw_rad_per_rt_s >= 0.0):
-            raise ValueError(f"gyro_arw_rad_per_rt_s: got {gyro_arw_rad_per_rt_s}; must be finite and >= 0, or None")
-        if innovation_gate_chi2 is not None and not innovation_gate_chi2 > 0:
-            raise ValueError(f"innovation_gate_chi2: got {innovation_gate_chi2}; must be > 0 or None")
-        self.step_s = float(step_s)
-        self.arw = None if gyro_arw_rad_per_rt_s is None else float(gyro_arw_rad_per_rt_s)
+        self.step_s = check_positive("step_s", step_s)
+        self.arw = None if gyro_arw_rad_per_rt_s is None else check_nonnegative("gyro_arw_rad_per_rt_s",
+                                                                                  gyro_arw_rad_per_rt_s)
+        if innovation_gate_chi2 is not None:
+            check_positive("innovation_gate_chi2", innovation_gate_chi2)
         self.gate = innovation_gate_chi2
 
     @staticmethod
@@ -160,12 +157,9 @@ class AdditiveQuaternionEKF:
                       initial_rate_sigma: float = DEFAULT_INITIAL_RATE_SIGMA) -> QuaternionEkfState:
         """State from ``q_IB`` (4, normalized) and ``P0`` (scalar variance or 4x4); paper:
         ``[1, 0, 0, 0]`` and ``I4``.  The rate block starts at 0 with ``initial_rate_sigma``."""
-        q = np.asarray(q_IB, dtype=float)
-        if q.shape != (4,) or not np.all(np.isfinite(q)) or float(q @ q) < 1e-12:
-            raise ValueError(f"q_IB: got {q_IB!r}; need a finite, non-zero quaternion (4,)")
-        if not (math.isfinite(initial_rate_sigma) and initial_rate_sigma > 0.0):
-            raise ValueError(f"initial_rate_sigma: got {initial_rate_sigma}; must be finite and > 0")
-        return QuaternionEkfState(rot.quat_normalize(q), _as_cov4(P0, "P0"), np.zeros(3),
+        q = check_quaternion("q_IB", q_IB)
+        check_positive("initial_rate_sigma", initial_rate_sigma)
+        return QuaternionEkfState(q, _as_cov4(P0, "P0"), np.zeros(3),
                                   initial_rate_sigma**2 * np.eye(3), np.zeros((4, 3)))
 
     @staticmethod
