@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["ConfigError", "describe", "fail", "check_finite", "check_positive", "check_nonnegative", "check_int",
            "check_vector", "check_weights", "check_array", "check_quaternion", "check_covariance",
-           "check_reference_vectors"]
+           "check_reference_vectors", "check_variance_matrix", "measurement_or_none"]
 
 
 class ConfigError(ValueError):
@@ -136,3 +136,33 @@ def check_reference_vectors(field: str, value, error: type = ValueError) -> np.n
     if np.any(np.linalg.norm(U, axis=1) <= 0.0):
         fail(field, U, "rows must be non-zero directions", error)
     return U
+
+
+def check_variance_matrix(field: str, value, n: int, error: type = ValueError) -> np.ndarray:
+    """An ``(n, n)`` symmetric positive semi-definite matrix from a scalar variance (times
+    ``I_n``) or an ``(n, n)`` matrix (round-off asymmetry and negativity tolerated)."""
+    a = np.asarray(value, dtype=float) if _is_real(value) or isinstance(value, (list, tuple, np.ndarray)) else None
+    if a is not None and a.ndim == 0:
+        return check_nonnegative(field, float(a), error) * np.eye(n)
+    if a is None or a.shape != (n, n) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0.0, atol=1e-15 * (1.0 + np.abs(a).max())):
+        fail(field, value, f"must be a finite scalar variance >= 0 or a symmetric {n}x{n} matrix", error)
+    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
+        fail(field, a, "must be positive semi-definite", error)
+    return 0.5 * (a + a.T)
+
+
+def measurement_or_none(field: str, value, shape: tuple, what: str = "") -> np.ndarray | None:
+    """A measurement as a finite float array of ``shape``, or None when it is missing (None),
+    not numeric or not finite (a data problem: the caller skips and counts it). A wrong
+    *shape* is a programming error and raises ValueError naming ``field``."""
+    if value is None:
+        return None
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if arr.shape != tuple(shape):
+        fail(field, arr, f"must have shape {tuple(shape)}{what}, not {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        return None
+    return arr

@@ -61,7 +61,7 @@ from drake_att.validation import (
     check_positive,
     check_quaternion,
     check_reference_vectors,
-    fail,
+    measurement_or_none,
 )
 from drake_att.contract import SecondQuantity, UpdateInfo
 from drake_att.rotations import (
@@ -97,23 +97,9 @@ __all__ = [
 
 
 def measurement_is_valid(y, m: int) -> np.ndarray | None:
-    """Return ``y`` as a ``(3m,)`` float array, or None if missing / non-finite.
-
-    A wrong *shape* is a programming error and raises ValueError; a missing (None) or
-    non-finite measurement is a data problem and returns None (the caller skips it).
-    """
-    if y is None:
-        return None
-    try:
-        arr = np.array(y, dtype=float)
-    except (TypeError, ValueError):
-        return None
-    if arr.shape != (3 * m,):
-        fail("y", arr, f"must have shape ({3 * m},) (3 components per reference vector, {m} vectors), "
-             f"not {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        return None
-    return arr
+    """``y`` as a ``(3m,)`` float array, or None if missing / non-finite (skipped by the
+    caller); a wrong shape raises ValueError (:func:`drake_att.validation.measurement_or_none`)."""
+    return measurement_or_none("y", y, (3 * m,), f" (3 components per reference vector, {m} vectors)")
 
 
 # ----------------------------------------------------------------------------------
@@ -596,15 +582,5 @@ class MrpEkfCore:
 
 
 def valid_rate_or_none(w_meas):
-    """Return a finite ``(3,)`` rate or None; wrong shapes raise ValueError."""
-    if w_meas is None:
-        return None
-    try:
-        w = np.array(w_meas, dtype=float)
-    except (TypeError, ValueError):
-        return None
-    if w.shape != (3,):
-        fail("w_meas", w, f"must have shape (3,) (rad/s), not {w.shape}")
-    if not np.all(np.isfinite(w)):
-        return None
-    return w
+    """A finite ``(3,)`` rate or None; a wrong shape raises ValueError."""
+    return measurement_or_none("w_meas", w_meas, (3,), " (rad/s)")

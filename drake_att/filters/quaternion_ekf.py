@@ -58,7 +58,7 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
-from drake_att.validation import check_nonnegative, check_positive, check_quaternion
+from drake_att.validation import check_nonnegative, check_positive, check_quaternion, check_variance_matrix
 from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
 
 _EYE4 = np.eye(4)
@@ -143,8 +143,8 @@ class AdditiveQuaternionEKF:
 
     def __init__(self, Q=1e-5, R=0.01, step_s: float = 1.0, gyro_arw_rad_per_rt_s: float | None = None,
                  innovation_gate_chi2=None):
-        self.Q = _as_cov4(Q, "Q")
-        self.R = _as_cov4(R, "R")
+        self.Q = check_variance_matrix("Q", Q, 4)
+        self.R = check_variance_matrix("R", R, 4)
         self.step_s = check_positive("step_s", step_s)
         self.arw = None if gyro_arw_rad_per_rt_s is None else check_nonnegative("gyro_arw_rad_per_rt_s",
                                                                                   gyro_arw_rad_per_rt_s)
@@ -159,7 +159,7 @@ class AdditiveQuaternionEKF:
         ``[1, 0, 0, 0]`` and ``I4``.  The rate block starts at 0 with ``initial_rate_sigma``."""
         q = check_quaternion("q_IB", q_IB)
         check_positive("initial_rate_sigma", initial_rate_sigma)
-        return QuaternionEkfState(q, _as_cov4(P0, "P0"), np.zeros(3),
+        return QuaternionEkfState(q, check_variance_matrix("P0", P0, 4), np.zeros(3),
                                   initial_rate_sigma**2 * np.eye(3), np.zeros((4, 3)))
 
     @staticmethod
@@ -245,18 +245,6 @@ class AdditiveQuaternionEKF:
             return state, UpdateInfo(z, S, nis, False)
         new = QuaternionEkfState(q / n, 0.5 * (P_new + P_new.T), state.w_B, state.P_w, I_K @ state.C_q)
         return new, UpdateInfo(z, S, nis, True)
-
-
-def _as_cov4(value, name: str) -> np.ndarray:
-    """A 4x4 symmetric PSD matrix from a scalar variance or a 4x4 matrix (ValueError otherwise)."""
-    a = np.asarray(value, dtype=float)
-    if a.ndim == 0:
-        a = float(a) * _EYE4
-    if a.shape != (4, 4) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0, atol=1e-15 * (1 + np.abs(a).max())):
-        raise ValueError(f"{name}: got {value!r}; need a finite scalar variance >= 0 or a symmetric 4x4 matrix")
-    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
-        raise ValueError(f"{name}: got {value!r}; must be positive semi-definite")
-    return a.copy()
 
 
 __all__ = ["QuaternionEkfState", "AdditiveQuaternionEKF", "wahba_quaternion", "transition_matrix",
