@@ -102,8 +102,10 @@ class StarTracker(LeafSystem):
         star_tracker_measurement (6): ``[t_meas (s), valid (1/0), q_IS_meas (4, wxyz)]``.
     Output ports (vector mode):
         vector_observations (abstract :class:`VectorObservations`).
-    Discrete state: ``[seed words (4), sample index, t_sample, valid, noise]`` where the noise
-        is ``q_BS ⊗ exp(delta_S)`` (4) in quaternion mode, or the ``3m`` vector errors.
+    Discrete state: ``[seed words (4), sample index, t_sample, valid, noise, noise numbers (6)]``
+        where the noise is ``q_BS ⊗ exp(delta_S)`` (4) in quaternion mode, or the ``3m`` vector
+        errors, and the noise numbers are the parameter's ``[sigmas_S (3), sigma_vector,
+        dropout_probability, has outage windows]`` copied at initialization.
     """
 
     def __init__(self, name: str, period_s: float, q_BS=(1.0, 0.0, 0.0, 0.0), mode: str = "quaternion",
@@ -140,7 +142,8 @@ class StarTracker(LeafSystem):
         self._noise_index = self.DeclareAbstractParameter(AbstractValue.Make(self.default_noise))
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
         self._seed_port = declare_seed_port(self)
-        self.DeclareDiscreteState(SEED_WORDS + 3 + n_noise)
+        self._noise_end = SEED_WORDS + 3 + n_noise  # then the noise numbers (_NOISE_NUMBERS)
+        self.DeclareDiscreteState(np.concatenate([np.zeros(self._noise_end), self._noise_numbers(self.default_noise)]))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
         deps = {self.xd_ticket(), self.all_input_ports_ticket()}
@@ -169,33 +172,41 @@ class StarTracker(LeafSystem):
         context.get_mutable_abstract_parameter(self._noise_index).set_value(noise)
 
     # -- noise ----------------------------------------------------------------------
-    def _draw(self, p: StarTrackerNoise, words, index, t_sample):
+    @staticmethod
+    def _noise_numbers(p: StarTrackerNoise) -> np.ndarray:
+        """What the sample events read (copied into the state at initialization, so the
+        per-sample events need no parameter read): ``[sigmas_S (3), sigma_vector,
+        dropout_probability, has outage windows]``."""
+        return np.array([*p.sigmas_S, p.sigma_vector, p.dropout_probability, float(bool(p.outage_windows_s))])
+
+    def _draw(self, context, numbers, words, index, t_sample):
         cr = counter_random(words, self.get_name())
         if self.mode == "quaternion":
             # Stored as the quaternion q_BS ⊗ exp(delta_S) so the output is one product.
-            noise = rot.quat_multiply(self.q_BS, rot.rotvec_to_quat(p.sigmas_S * cr.normals(index, 3)))
+            noise = rot.quat_multiply(self.q_BS, rot.rotvec_to_quat(numbers[0:3] * cr.normals(index, 3)))
         else:
-            noise = p.sigma_vector * cr.normals(index, self._n_noise)
-        valid = cr.uniforms(index, 1)[0] >= p.dropout_probability
-        if any(a <= t_sample < b for a, b in p.outage_windows_s):
+            noise = numbers[3] * cr.normals(index, self._n_noise)
+        valid = cr.uniforms(index, 1)[0] >= numbers[4]
+        if numbers[5] and any(a <= t_sample < b for a, b in self.noise(context).outage_windows_s):
             valid = False
         return noise, valid
 
     def _initialize(self, context, discrete_state):
         words = read_seed_words(self, context, self._seed_port)
         t = context.get_time()
-        noise, valid = self._draw(self.noise(context), words, 0, t)
-        discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], noise]))
+        numbers = self._noise_numbers(self.noise(context))
+        noise, valid = self._draw(context, numbers, words, 0, t)
+        discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], noise, numbers]))
         return EventStatus.Succeeded()
 
     def _on_sample(self, context, discrete_state):
         x = context.get_discrete_state_vector().value()
         index = int(x[4]) + 1
         t_next = context.get_time() + self.period_s
-        noise, valid = self._draw(self.noise(context), x[:SEED_WORDS], index, t_next)
+        noise, valid = self._draw(context, x[self._noise_end:], x[:SEED_WORDS], index, t_next)
         new = x.copy()
         new[4:7] = [index, t_next, float(valid)]
-        new[7:] = noise
+        new[7:self._noise_end] = noise
         discrete_state.set_value(new)
         return EventStatus.Succeeded()
 
@@ -211,6 +222,6 @@ class StarTracker(LeafSystem):
         x = context.get_discrete_state_vector().value()
         q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
         R_SI = rot.quat_to_rotmat(q_IS).T
-        dirs = self.references_I @ R_SI.T + x[7:].reshape(-1, 3)
+        dirs = self.references_I @ R_SI.T + x[7:self._noise_end].reshape(-1, 3)
         output.set_value(VectorObservations(
-            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, self.noise(context).sigma_vector, self.q_BS))
+            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, float(x[self._noise_end + 3]), self.q_BS))
