@@ -47,8 +47,11 @@ class LieGroupConfig:
         initial_attitude_variance_rad2: ``P0 = value * I3`` (rad^2; paper 5).
         process_noise_rad2_per_step: ``Q_w = value * I3`` per ``period_s`` (rad^2); None:
             the paper's 5e-5 without a bias state, 0 with one.
-        star_noise_variance_rad2: ``Q_v`` per direction component (rad^2; paper 0.125^2);
-            None: the tracker's ``sigma_vector_urad`` squared.
+        star_noise_variance_rad2: ``Q_v`` per direction component (rad^2; paper 0.125^2).
+            ``null`` is refused: Drake's YAML dump omits it, so the scenario's round trip
+            (overrides, ``diagram_for``) would turn it into the default 0.125^2.
+        star_noise_from_tracker: use the tracker's ``sigma_vector_urad`` squared as ``Q_v``
+            (instead of ``star_noise_variance_rad2``).
         gyro_arw_deg_per_rt_h: no bias state only: the gyro ARW the filter models (adds
             ``arw^2 dt`` and sets the rate block); None: the process noise is ``Q_w`` only.
         estimate_gyro_bias: add the gyro-bias state (structural: a new diagram).
@@ -67,6 +70,7 @@ class LieGroupConfig:
     initial_attitude_variance_rad2: float = 5.0
     process_noise_rad2_per_step: Optional[float] = None
     star_noise_variance_rad2: Optional[float] = 0.015625
+    star_noise_from_tracker: bool = False
     gyro_arw_deg_per_rt_h: Optional[float] = None
     innovation_gate_chi2: Optional[float] = None
     estimate_gyro_bias: bool = False
@@ -100,8 +104,13 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
     cfg.check_positive(f"{path}.initial_attitude_variance_rad2", c.initial_attitude_variance_rad2)
     if c.process_noise_rad2_per_step is not None:
         cfg.check_nonnegative(f"{path}.process_noise_rad2_per_step", c.process_noise_rad2_per_step)
-    if c.star_noise_variance_rad2 is not None:
-        cfg.check_positive(f"{path}.star_noise_variance_rad2", c.star_noise_variance_rad2)
+    if c.star_noise_variance_rad2 is None:
+        cfg.fail(f"{path}.star_noise_variance_rad2", None, "null does not survive the scenario's YAML round trip "
+                 "(overrides, diagram_for: it would become the paper's 0.015625); to use the tracker's sigma set "
+                 "star_noise_from_tracker: true")
+    cfg.check_positive(f"{path}.star_noise_variance_rad2", c.star_noise_variance_rad2)
+    if not isinstance(c.star_noise_from_tracker, bool):
+        cfg.fail(f"{path}.star_noise_from_tracker", c.star_noise_from_tracker, "must be true or false")
     if c.innovation_gate_chi2 is not None:
         cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
     if c.estimate_gyro_bias:
@@ -128,7 +137,8 @@ def lie_group_second_quantity(c: LieGroupConfig, checks) -> SecondQuantity:
 
 @register_estimator(LieGroupConfig, second_quantity=lie_group_second_quantity, validate=validate_lie_group,
                     parameters=("formulation", "initial_attitude_rpy_deg", "initial_attitude_variance_rad2",
-                                "process_noise_rad2_per_step", "star_noise_variance_rad2", "gyro_arw_deg_per_rt_h",
+                                "process_noise_rad2_per_step", "star_noise_variance_rad2", "star_noise_from_tracker",
+                                "gyro_arw_deg_per_rt_h",
                                 "innovation_gate_chi2", "arw_deg_per_rt_h", "rrw_deg_per_h15",
                                 "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h"))
 def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
@@ -137,7 +147,8 @@ def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
     else:
         arw = None if c.gyro_arw_deg_per_rt_h is None else c.gyro_arw_deg_per_rt_h * ARW_DEG_PER_RT_H
         rrw = None
-    core = LieGroupFilter(Q_w=c.process_noise_rad2_per_step, Q_v=c.star_noise_variance_rad2,
+    Q_v = None if c.star_noise_from_tracker else c.star_noise_variance_rad2
+    core = LieGroupFilter(Q_w=c.process_noise_rad2_per_step, Q_v=Q_v,
                           formulation=c.formulation, step_s=c.period_s, gyro_arw_rad_per_rt_s=arw,
                           innovation_gate_chi2=c.innovation_gate_chi2, estimate_gyro_bias=c.estimate_gyro_bias,
                           gyro_rrw_rad_per_s15=rrw)
