@@ -100,11 +100,14 @@ def bench_scenario(name: str):
     return scenario, kalman + list(LIE_NAMES), mekf
 
 
-def run_overrides(scenario, duration):
-    if duration is None:
-        return []
-    score_from = min(scenario.scoring.score_from_s, duration / 2.0)
-    return [f"duration_s={duration}", f"scoring.score_from_s={score_from}"]
+def run_overrides(scenario, duration, convergence_threshold_deg=None):
+    out = []
+    if duration is not None:
+        score_from = min(scenario.scoring.score_from_s, duration / 2.0)
+        out += [f"duration_s={duration}", f"scoring.score_from_s={score_from}"]
+    if convergence_threshold_deg is not None:
+        out.append(f"scoring.convergence_threshold_deg={convergence_threshold_deg}")
+    return out
 
 
 def one_run(sd, seed, names, mekf, overrides):
@@ -173,6 +176,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5, help="seeds 1..N")
     ap.add_argument("--duration", type=float, default=None,
                     help="simulated time per run (s); default: each scenario's (S0 1000 s, S3 5000 s)")
+    ap.add_argument("--convergence-threshold-deg", type=float, default=None,
+                    help="per-axis threshold of the convergence time (default: each scenario's, 0.05 deg, which "
+                         "both meet from the first update)")
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--out", default=os.path.join("out", "lie_group_bench"))
     args = ap.parse_args(argv)
@@ -185,7 +191,7 @@ def main(argv=None) -> int:
                "seeds": seeds, "scenarios": {}}
     for name in args.scenarios:
         scenario, names, mekf = bench_scenario(name)
-        overrides = run_overrides(scenario, args.duration)
+        overrides = run_overrides(scenario, args.duration, args.convergence_threshold_deg)
         t0 = time.perf_counter()
         sd = diagram_for(scenario)
         runs = []
