@@ -31,7 +31,7 @@ import scipy.linalg as sla
 import yaml
 from scipy.stats import chi2
 
-from drake_att.contract import VectorObservations
+from drake_att.contract import SecondQuantity, VectorObservations
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
 from drake_att.scenarios.registry import ESTIMATOR, plugins
@@ -563,3 +563,20 @@ def test_every_module_imports_alone_in_a_fresh_interpreter():
     with ThreadPoolExecutor(max_workers=2) as pool:
         failures = [(m, err.strip().splitlines()[-1:]) for m, rc, err in pool.map(run, modules) if rc != 0]
     assert not failures, failures
+
+
+def test_registry_refuses_optional_fields_whose_default_is_not_none():
+    """An Optional config field with a non-None default loses a user's None on every YAML
+    round trip (the dump omits it, the load restores the default): refused at registration,
+    naming the field (this happened once: the Lie-group filter's star noise)."""
+    import dataclasses as dc
+    import typing
+
+    from drake_att.scenarios.registry import PluginError, register_estimator
+
+    _LossyConfig = dc.make_dataclass("_LossyConfig", [("name", str, dc.field(default="lossy")),
+                                                      ("gain", typing.Optional[float], dc.field(default=0.5))])
+
+    with pytest.raises(PluginError, match=r"_LossyConfig.gain: an Optional field must default to None"):
+        register_estimator(_LossyConfig, second_quantity=SecondQuantity.GYRO_BIAS)(lambda ctx, c: None)
+    assert "_LossyConfig" not in plugins(ESTIMATOR)

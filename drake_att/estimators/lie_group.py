@@ -69,7 +69,7 @@ class LieGroupConfig:
     initial_attitude_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_variance_rad2: float = 5.0
     process_noise_rad2_per_step: Optional[float] = None
-    star_noise_variance_rad2: Optional[float] = 0.015625
+    star_noise_variance_rad2: float = 0.015625
     star_noise_from_tracker: bool = False
     gyro_arw_deg_per_rt_h: Optional[float] = None
     innovation_gate_chi2: Optional[float] = None
@@ -104,10 +104,6 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
     cfg.check_positive(f"{path}.initial_attitude_variance_rad2", c.initial_attitude_variance_rad2)
     if c.process_noise_rad2_per_step is not None:
         cfg.check_nonnegative(f"{path}.process_noise_rad2_per_step", c.process_noise_rad2_per_step)
-    if c.star_noise_variance_rad2 is None:
-        cfg.fail(f"{path}.star_noise_variance_rad2", None, "null does not survive the scenario's YAML round trip "
-                 "(overrides, diagram_for: it would become the paper's 0.015625); to use the tracker's sigma set "
-                 "star_noise_from_tracker: true")
     cfg.check_positive(f"{path}.star_noise_variance_rad2", c.star_noise_variance_rad2)
     if not isinstance(c.star_noise_from_tracker, bool):
         cfg.fail(f"{path}.star_noise_from_tracker", c.star_noise_from_tracker, "must be true or false")

@@ -110,6 +110,14 @@ def _register(kind, config_type, build, **kwargs) -> None:
     if "name" not in {f.name for f in dataclasses.fields(config_type)}:
         raise PluginError(f"{kind} config {config_type.__name__}: needs a 'name' field (names the system)")
     _resolve_field_types(config_type, kind)
+    for f in dataclasses.fields(config_type):
+        optional = typing.get_origin(f.type) is typing.Union and type(None) in typing.get_args(f.type)
+        if optional and f.default is not None and f.default is not dataclasses.MISSING:
+            # The YAML dump omits a None, and the load then restores the default: a None that
+            # is not the default would silently become the default on every round trip
+            # (overrides, saved configs, Monte Carlo workers).
+            raise PluginError(f"{kind} config {config_type.__name__}.{f.name}: an Optional field must default to "
+                              f"None (got {f.default!r}); a None set by a user would not survive a YAML round trip")
     names = {f.name for f in dataclasses.fields(config_type)}
     bad = [p for p in kwargs.get("parameters", ()) if p not in names]
     if bad:
