@@ -355,8 +355,8 @@ def simulate_reference(q_IB, w_mean_B, dt: float, normals, gyro_noise: Farrenkop
     z = np.asarray(normals, dtype=float)
     e, db = gyro_noise.from_normals(np.moveaxis(z[:, :GYRO_NORMALS].reshape(n, 2, 3), 1, 0))
     zeta, v = model.from_normals(z[:, ZETA_INDEX:], star_sigma_rad)
-    bias = np.vstack([np.asarray(bias0_B, dtype=float)[None, :],
-                      np.asarray(bias0_B, dtype=float) + np.cumsum(db, axis=0)])
+    # b_{k+1} = b_k + db_k, summed in that order (bit-identical to stepping).
+    bias = np.cumsum(np.vstack([np.asarray(bias0_B, dtype=float)[None, :], db]), axis=0)
     w_meas = w_mean_B / (1.0 + model.scale_per_zeta * zeta)[:, None] + bias[:-1] + e
     steps = np.arange(0, n, star_every)
     dirs = star_directions(q_IB[steps], refs, q_BS) + v[steps]
