@@ -134,6 +134,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.validation import check_variance_matrix
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf as _mekf
 
@@ -188,28 +189,6 @@ class LieGroupBiasState:
 
     def bias_sigma_rad_per_s(self) -> np.ndarray:
         return np.sqrt(np.diag(self.P)[3:])
-
-
-def _as_cov3(value, name: str) -> np.ndarray:
-    """A 3x3 symmetric PSD matrix from a scalar variance or a 3x3 matrix (ValueError otherwise)."""
-    a = np.asarray(value, dtype=float)
-    if a.ndim == 0:
-        a = float(a) * _EYE3
-    if a.shape != (3, 3) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0, atol=1e-15 * (1 + np.abs(a).max())):
-        raise ValueError(f"{name}: got {value!r}; need a finite scalar variance >= 0 or a symmetric 3x3 matrix")
-    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
-        raise ValueError(f"{name}: got {value!r}; must be positive semi-definite")
-    return a.copy()
-
-
-def _as_cov(value, name: str, n: int) -> np.ndarray:
-    """An ``n x n`` symmetric PSD matrix (ValueError otherwise)."""
-    a = np.array(value, dtype=float)
-    if a.shape != (n, n) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0, atol=1e-15 * (1 + np.abs(a).max())):
-        raise ValueError(f"{name}: got shape {a.shape}; need a finite symmetric {n}x{n} matrix")
-    if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
-        raise ValueError(f"{name}: got {value!r}; must be positive semi-definite")
-    return a
 
 
 def orthonormalize(R) -> np.ndarray:
@@ -316,7 +295,7 @@ class LieGroupFilter:
         self.estimate_gyro_bias = bool(estimate_gyro_bias)
         if Q_w is None:
             Q_w = 0.0 if self.estimate_gyro_bias else DEFAULT_Q_W
-        self.Q_w = _as_cov3(Q_w, "Q_w")
+        self.Q_w = check_variance_matrix("Q_w", Q_w, 3)
         self.Q_v = None if Q_v is None else float(Q_v)
         self.formulation = formulation
         self.step_s = float(step_s)
@@ -352,13 +331,13 @@ class LieGroupFilter:
             b = np.zeros(3) if bias_B is None else np.array(bias_B, dtype=float).reshape(-1)
             if b.shape != (3,) or not np.all(np.isfinite(b)):
                 raise ValueError(f"bias_B: got {bias_B!r}; need 3 finite numbers (rad/s)")
-            return LieGroupBiasState(R, b, _as_cov(P0, "P0", 6))
+            return LieGroupBiasState(R, b, check_variance_matrix("P0", P0, 6))
         if bias_B is not None:
             raise ValueError(f"P0: got shape {np.shape(P0)} with bias_B; a bias state needs a 6x6 P0 "
                              "(covariance of [dtheta_B; dbias_B])")
         if not (math.isfinite(initial_rate_sigma) and initial_rate_sigma > 0.0):
             raise ValueError(f"initial_rate_sigma: got {initial_rate_sigma}; must be finite and > 0")
-        return LieGroupState(R, _as_cov3(P0, "P0"), np.zeros(3), initial_rate_sigma**2 * _EYE3, np.zeros((3, 3)))
+        return LieGroupState(R, check_variance_matrix("P0", P0, 3), np.zeros(3), initial_rate_sigma**2 * _EYE3, np.zeros((3, 3)))
 
     @staticmethod
     def to_vector(state) -> np.ndarray:
