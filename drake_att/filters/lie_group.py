@@ -134,7 +134,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att import rotations as rot
-from drake_att.validation import check_variance_matrix
+from drake_att.validation import check_array, check_nonnegative, check_positive, check_variance_matrix, fail
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf as _mekf
 
@@ -273,25 +273,22 @@ class LieGroupFilter:
                  gyro_arw_rad_per_rt_s: float | None = None, innovation_gate_chi2=None,
                  estimate_gyro_bias: bool = False, gyro_rrw_rad_per_s15: float | None = None):
         if formulation not in FORMULATIONS:
-            raise ValueError(f"formulation: got {formulation!r}; allowed: {list(FORMULATIONS)}")
-        if not (math.isfinite(step_s) and step_s > 0.0):
-            raise ValueError(f"step_s: got {step_s}; must be finite and > 0")
-        if Q_v is not None and not (math.isfinite(Q_v) and Q_v >= 0.0):
-            raise ValueError(f"Q_v: got {Q_v}; must be finite and >= 0, or None")
-        for name, value in (("gyro_arw_rad_per_rt_s", gyro_arw_rad_per_rt_s),
+            fail("formulation", formulation, f"allowed: {list(FORMULATIONS)}")
+        check_positive("step_s", step_s)
+        for name, value in (("Q_v", Q_v), ("gyro_arw_rad_per_rt_s", gyro_arw_rad_per_rt_s),
                             ("gyro_rrw_rad_per_s15", gyro_rrw_rad_per_s15)):
-            if value is not None and not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name}: got {value}; must be finite and >= 0, or None")
-        if innovation_gate_chi2 is not None and not innovation_gate_chi2 > 0:
-            raise ValueError(f"innovation_gate_chi2: got {innovation_gate_chi2}; must be > 0 or None")
+            if value is not None:
+                check_nonnegative(name, value)
+        if innovation_gate_chi2 is not None:
+            check_positive("innovation_gate_chi2", innovation_gate_chi2)
         if not isinstance(estimate_gyro_bias, (bool, np.bool_)):
-            raise ValueError(f"estimate_gyro_bias: got {estimate_gyro_bias!r}; must be True or False")
+            fail("estimate_gyro_bias", estimate_gyro_bias, "must be True or False")
         if estimate_gyro_bias and formulation != "consistent":
-            raise ValueError(f"estimate_gyro_bias: got True with formulation={formulation!r}; the bias state "
-                             "needs formulation='consistent' (the paper's literal pairing does not converge)")
+            fail("estimate_gyro_bias", True, f"with formulation={formulation!r}: the bias state needs "
+                 "formulation='consistent' (the paper's literal pairing does not converge)")
         if gyro_rrw_rad_per_s15 is not None and not estimate_gyro_bias:
-            raise ValueError(f"gyro_rrw_rad_per_s15: got {gyro_rrw_rad_per_s15}; the rate random walk is "
-                             "modelled only with estimate_gyro_bias=True")
+            fail("gyro_rrw_rad_per_s15", gyro_rrw_rad_per_s15, "the rate random walk is modelled only with "
+                 "estimate_gyro_bias=True")
         self.estimate_gyro_bias = bool(estimate_gyro_bias)
         if Q_w is None:
             Q_w = 0.0 if self.estimate_gyro_bias else DEFAULT_Q_W
@@ -328,15 +325,11 @@ class LieGroupFilter:
         else:
             raise ValueError(f"attitude: got shape {a.shape}; need q_IB (4,) or R_IB (3, 3)")
         if np.shape(P0) == (6, 6):
-            b = np.zeros(3) if bias_B is None else np.array(bias_B, dtype=float).reshape(-1)
-            if b.shape != (3,) or not np.all(np.isfinite(b)):
-                raise ValueError(f"bias_B: got {bias_B!r}; need 3 finite numbers (rad/s)")
+            b = np.zeros(3) if bias_B is None else check_array("bias_B", np.ravel(bias_B), (3,), " (rad/s)")
             return LieGroupBiasState(R, b, check_variance_matrix("P0", P0, 6))
         if bias_B is not None:
-            raise ValueError(f"P0: got shape {np.shape(P0)} with bias_B; a bias state needs a 6x6 P0 "
-                             "(covariance of [dtheta_B; dbias_B])")
-        if not (math.isfinite(initial_rate_sigma) and initial_rate_sigma > 0.0):
-            raise ValueError(f"initial_rate_sigma: got {initial_rate_sigma}; must be finite and > 0")
+            fail("P0", np.shape(P0), "with bias_B a bias state needs a 6x6 P0 (covariance of [dtheta_B; dbias_B])")
+        check_positive("initial_rate_sigma", initial_rate_sigma)
         return LieGroupState(R, check_variance_matrix("P0", P0, 3), np.zeros(3), initial_rate_sigma**2 * _EYE3, np.zeros((3, 3)))
 
     @staticmethod
