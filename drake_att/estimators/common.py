@@ -21,10 +21,16 @@ def require_sensor(checks, path: str, field: str, name: str, kind: str):
 
 
 def check_period_multiple(path: str, period_s: float, sensor_name: str, sensor_period_s: float) -> None:
-    ratio = period_s / sensor_period_s
-    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+    """The filter's steps and the sensor's samples must coincide: one period a whole multiple
+    of the other (a filter uses a sample only at its own instant; e.g. paper S1 steps at the
+    1 s gyro and updates at every 10 s star sample)."""
+    def whole(r):
+        return abs(r - round(r)) <= 1e-9 and round(r) >= 1
+
+    if not (whole(period_s / sensor_period_s) or whole(sensor_period_s / period_s)):
         cfg.fail(f"{path}.period_s", period_s,
-                 f"must be a whole multiple of {sensor_name!r}'s period ({sensor_period_s} s)")
+                 f"must be a whole multiple or a whole fraction of {sensor_name!r}'s period ({sensor_period_s} s): "
+                 "the filter uses a sample only at its own instant")
 
 
 def check_gyro_period(path: str, period_s: float, gyro) -> None:

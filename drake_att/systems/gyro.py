@@ -81,6 +81,9 @@ class Gyro(LeafSystem):
         w_IB_B_integral (3): integral of the true body rate (rad); the interval mean is its
             difference over the interval divided by the elapsed time.
         seed_uniform (4, random uniform): seed, see ``drake_att.systems.randomness``.
+        scale_error (1, optional): the scale-factor error ``s_k`` of the interval ending at the
+            sample time (paper S1's multiplicative noise ``kappa zeta_k``); the output is then
+            ``(I + S + M) mean(w_IB_B) / (1 + s_k) + mean(b) + e``. Unconnected: 0.
     Parameters: abstract parameter 0: the :class:`GyroModel` (:meth:`set_model` per context).
     Output ports:
         gyro_measurement (5): ``[t_meas (s), valid (1/0), w_meas_B (3, rad/s)]``.
@@ -105,6 +108,9 @@ class Gyro(LeafSystem):
         self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
         self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
         self._seed_port = declare_seed_port(self)
+        # Optional: a per-step scale-factor error s_k from a correlated-noise source
+        # (paper S1, drake_att.systems.correlated_noise); unconnected = 0.
+        self._scale_error_port = self.DeclareVectorInputPort("scale_error", 1)
         self._state_index = self.DeclareDiscreteState(np.concatenate([np.zeros(16), self.default_model.sensor_matrix.ravel()]))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
@@ -173,7 +179,10 @@ class Gyro(LeafSystem):
             w_true = (integral - x[12:15]) / elapsed
         else:
             w_true = self._w_port.Eval(context)
-        w_meas = x[16:25].reshape(3, 3) @ w_true + x[6:9]  # the context's sensor matrix, copied at initialization
+        w_meas = x[16:25].reshape(3, 3) @ w_true  # the context's sensor matrix, copied at initialization
+        if self._scale_error_port.HasValue(context):
+            w_meas = w_meas / (1.0 + self._scale_error_port.Eval(context)[0])
+        w_meas = w_meas + x[6:9]
         output.SetFromVector(np.concatenate([[x[5], 1.0], w_meas]))
 
     def _calc_bias(self, context, output: BasicVector):

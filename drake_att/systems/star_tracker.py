@@ -97,6 +97,8 @@ class StarTracker(LeafSystem):
     Input ports:
         q_IB (4): true attitude.
         seed_uniform (4, random uniform): seed.
+        vector_noise (3m, vector mode, optional): the sample's additive noise (rad), replacing the
+            tracker's own draw (a correlated-noise source, paper S1); unconnected: own noise.
     Parameters: abstract parameter 0: the :class:`StarTrackerNoise` (:meth:`set_noise`).
     Output ports (quaternion mode):
         star_tracker_measurement (6): ``[t_meas (s), valid (1/0), q_IS_meas (4, wxyz)]``.
@@ -142,6 +144,9 @@ class StarTracker(LeafSystem):
         self._noise_index = self.DeclareAbstractParameter(AbstractValue.Make(self.default_noise))
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
         self._seed_port = declare_seed_port(self)
+        # Vector mode, optional: the additive noise of this sample (3m) from a correlated-noise
+        # source (paper S1, drake_att.systems.correlated_noise), used instead of the tracker's own.
+        self._noise_port = self.DeclareVectorInputPort("vector_noise", n_noise) if mode == "vectors" else None
         self._noise_end = SEED_WORDS + 3 + n_noise  # then the noise numbers (_NOISE_NUMBERS)
         self.DeclareDiscreteState(np.concatenate([np.zeros(self._noise_end), self._noise_numbers(self.default_noise)]))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
@@ -222,6 +227,8 @@ class StarTracker(LeafSystem):
         x = context.get_discrete_state_vector().value()
         q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
         R_SI = rot.quat_to_rotmat(q_IS).T
-        dirs = self.references_I @ R_SI.T + x[7:self._noise_end].reshape(-1, 3)
+        noise = (self._noise_port.Eval(context) if self._noise_port.HasValue(context)
+                 else x[7:self._noise_end])
+        dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
         output.set_value(VectorObservations(
             float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, float(x[self._noise_end + 3]), self.q_BS))
