@@ -450,8 +450,9 @@ def test_zeta_mean_gate_falls_back_to_the_prior_on_an_implausible_innovation():
 # -- rejections, validation, contract ------------------------------------------------------------
 def test_invalid_measurements_are_rejected_never_raised():
     """Singular innovation covariance (zero attitude covariance and a perfect sensor),
-    non-finite directions, mismatched shapes, a non-finite sigma, and (CQE-MCNS) more stars
-    than the noise model admits: ``accepted=False`` and the state unchanged."""
+    non-finite directions, mismatched shapes, a non-finite or negative sigma, and (CQE-MCNS)
+    more stars than the noise model admits: ``accepted=False`` and the state unchanged (a
+    perfect sensor with a regular prior included: three stars give a rank-deficient P_zz)."""
     q, b, P = small_state(13)
     core = CubatureQuaternionEstimator(ARW, RRW)
     mcns = CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=PAPER_MODEL)
@@ -469,6 +470,10 @@ def test_invalid_measurements_are_rejected_never_raised():
     for c, state, dirs, refs, sigma in cases:
         new, info = c.update_vectors(state, dirs, refs, sigma)
         assert not info.accepted and new is state
+    # a perfect sensor with a regular prior: 9 components of 3 degrees of freedom, P_zz singular
+    for core_ in (core, mcns):
+        new, info = core_.update_vectors(s, y, STARS_I, 0.0)
+        assert not info.accepted and new is s and np.linalg.matrix_rank(info.innovation_covariance) < 9
     # a usable 15-star sample is fine for the CQE
     new, info = core.update_vectors(s, np.tile(y, (5, 1)), np.tile(STARS_I, (5, 1)), STAR_SIGMA)
     assert info.accepted

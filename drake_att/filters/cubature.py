@@ -144,7 +144,8 @@ _XI6 = cubature_rule(STATE_DIM)[0]
 _W6 = 1.0 / math.sqrt(2 * STATE_DIM)
 _XI6W = _XI6 * _W6  # orthonormal columns: _XI6W' _XI6W = I
 # Hamilton product as a bilinear form: (p ⊗ q)_i = sum_jk _HAMILTON[i, j, k] p_j q_k.
-_HAMILTON = np.array([[rot.quat_multiply(np.eye(4)[j], np.eye(4)[k]) for k in range(4)] for j in range(4)]).transpose(2, 0, 1)
+_HAMILTON = np.array([[rot.quat_multiply(np.eye(4)[j], np.eye(4)[k]) for k in range(4)]
+                      for j in range(4)]).transpose(2, 0, 1)
 _HAMILTON_FLAT = np.ascontiguousarray(_HAMILTON.reshape(4, 16).T)  # (16, 4)
 
 
@@ -177,7 +178,9 @@ class CubatureState:
         zero after an update. bias_B: gyro bias (3, rad/s). sqrt_P: lower-triangular square
         root of the covariance of ``[dp; beta]`` (6x6, GRP units). zeta_mean: ``M`` of the last
         update (0 otherwise). zeta_var_reduction: ``S' P_zz^-1 S`` of the last update
-        (0 otherwise; ``U = Q_zeta - zeta_var_reduction``).
+        (0 otherwise; ``U = Q_zeta - zeta_var_reduction``). zeta_cross: ``Cov([dp; beta], zeta | D)
+        = -K S`` of the last update (6, GRP units; 0 otherwise), used only with
+        ``zeta_state_correlation``.
     """
 
     q_ref: np.ndarray
@@ -262,6 +265,7 @@ class CubatureQuaternionEstimator:
         self.iteration_tolerance = check_positive("iteration_tolerance", iteration_tolerance)
         # First-order GRP factor: dp = c dtheta.
         self.c = self.grp_f / (2.0 * (1.0 + self.grp_a))
+        self._J = np.diag([1.0 / self.c] * 3 + [1.0] * 3)  # GRP -> rotation vector (first order)
         self._lq_cache: dict = {}
 
     # -- conversions ---------------------------------------------------------------------
@@ -270,9 +274,6 @@ class CubatureQuaternionEstimator:
 
     def _to_grp(self, q) -> np.ndarray:
         return rot.quat_to_grp(q, self.grp_a, self.grp_f)
-
-    def _theta_from_grp(self) -> np.ndarray:
-        return np.diag([1.0 / self.c] * 3 + [1.0] * 3)
 
     def process_noise_sqrt(self, dt: float) -> np.ndarray:
         """Square root of the GRP-unit process noise over ``dt`` (cached per ``dt``)."""
@@ -307,8 +308,7 @@ class CubatureQuaternionEstimator:
     def estimate(self, state: CubatureState):
         """``(q_IB_hat, bias_B_hat, P)``, ``P`` the covariance of ``[dtheta_B; dbias]``."""
         q = rot.quat_canonical(rot.quat_normalize(rot.quat_multiply(state.q_ref, self._to_quat(state.dp))))
-        J = self._theta_from_grp()
-        JL = J @ state.sqrt_P
+        JL = self._J @ state.sqrt_P
         return q, state.bias_B, JL @ JL.T
 
     @staticmethod
@@ -341,7 +341,8 @@ class CubatureQuaternionEstimator:
         # Propagated mean quaternion relative to q_ref: dq(dp_hat) ⊗ exp(u_hat); each point's
         # error relative to it: (dq(dp_hat) ⊗ exp(u_hat))^-1 ⊗ dq(dp_i) ⊗ exp(u_i).
         ref_step = rot.quat_multiply(self._to_quat(state.dp), rot.rotvec_to_quat(u_hat))
-        e = quat_products(self._to_quat(X[:, :3]), rot.rotvec_to_quat(u)) @ left_matrix(rot.quat_conjugate(ref_step)).T
+        to_ref = left_matrix(rot.quat_conjugate(ref_step)).T
+        e = quat_products(self._to_quat(X[:, :3]), rot.rotvec_to_quat(u)) @ to_ref
         F = np.empty_like(X)
         F[:, :3] = self._to_grp(e)
         F[:, 3:] = X[:, 3:]
@@ -410,20 +411,23 @@ class CubatureQuaternionEstimator:
             Zc = (Z - z_bar) * _W6
             A = Zc.T @ _XI6W  # H Lj (3m, n); its bias columns are exactly 0 (h ignores beta)
             Zr = Zc - _XI6W @ A.T  # rows of Omega^(1/2): the part of Zc no linear map explains
-            if j == 0:
-                HL0, nu = A, y.ravel() - z_bar
-            else:
-                H_att = np.linalg.solve(Lj[:3, :3].T, A[:, :3].T).T
-                HL0 = H_att @ L0[:3]
-                nu = y.ravel() - z_bar - H_att @ (x0[:3] - xj[:3])
-            Pzz = HL0 @ HL0.T + Zr.T @ Zr + (sigma * sigma) * eye_m
-            Pzz = 0.5 * (Pzz + Pzz.T)
             try:
-                Lz = np.linalg.cholesky(Pzz)
+                if j == 0:
+                    HL0_j, nu_j = A, y.ravel() - z_bar
+                else:
+                    H_att = np.linalg.solve(Lj[:3, :3].T, A[:, :3].T).T
+                    HL0_j = H_att @ L0[:3]
+                    nu_j = y.ravel() - z_bar - H_att @ (x0[:3] - xj[:3])
+                Pzz_j = HL0_j @ HL0_j.T + Zr.T @ Zr + (sigma * sigma) * eye_m
+                Pzz_j = 0.5 * (Pzz_j + Pzz_j.T)
+                Lz_j = np.linalg.cholesky(Pzz_j)
+                if not (np.all(np.isfinite(Lz_j)) and np.min(np.diag(Lz_j)) > 0.0 and np.all(np.isfinite(nu_j))):
+                    raise np.linalg.LinAlgError("innovation covariance not positive definite")
             except np.linalg.LinAlgError:
-                return state, UpdateInfo(nu, Pzz, float("nan"), False)
-            if not (np.all(np.isfinite(Lz)) and np.min(np.diag(Lz)) > 0.0):
-                return state, UpdateInfo(nu, Pzz, float("nan"), False)
+                if j == 0:  # the paper's update itself is impossible: reject
+                    return state, UpdateInfo(y.ravel() - z_bar, Zc.T @ Zc + (sigma * sigma) * eye_m, float("nan"), False)
+                break  # a relinearization is impossible: keep the last iterate
+            HL0, nu, Pzz, Lz = HL0_j, nu_j, Pzz_j, Lz_j
             w_nu = np.linalg.solve(Lz, nu)
             K = np.linalg.solve(Lz.T, np.linalg.solve(Lz, HL0 @ L0.T)).T  # P0 H' Pzz^-1
             x_next = x0 + K @ nu
