@@ -12,4 +12,5 @@ from drake_att.estimators import (  # noqa: F401  (registers them, in this order
     gyroless_pf,
     lie_group,
     quaternion_ekf,
+    cubature,
 )
