@@ -235,6 +235,7 @@ estimators:
 - !LieGroupConfig {name: lie_group, star_tracker: stv}
 - !LieGroupConfig {name: lie_group_literal, star_tracker: stv, formulation: paper_literal}
 - !QuaternionEkfConfig {name: quaternion_ekf, star_tracker: stv}
+- !CubatureQuaternionConfig {name: cqe, star_tracker: stv}
 """
 NOT_ON_ESTIMATOR_SYSTEM = {
     "EstimateFusionConfig": "EstimateFusion is not an EstimatorSystem: it averages other estimators' outputs "
