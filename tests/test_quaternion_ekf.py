@@ -23,7 +23,7 @@ import scipy.stats
 from pydrake.common.eigen_geometry import AngleAxis, Quaternion
 from pydrake.math import RollPitchYaw, RotationMatrix
 
-from test_lie_group import S4_REFS, drake_exp, error_angle, s4_mean_rate, s4_truth, stars
+from test_lie_group import S4_REFS, assert_nees_sums_in_band, drake_exp, error_angle, s4_mean_rate, s4_truth, stars
 
 from drake_att.contract import FilterCore, QuaternionSample, SecondQuantity
 from drake_att.filters.quaternion_ekf import (
@@ -228,10 +228,6 @@ def test_s4_baseline_from_identity_converges_without_drift_and_keeps_unit_norm()
     assert errors[-1] < 1e-4
 
 
-def chi2_band(dof, p=1e-4):
-    return scipy.stats.chi2.ppf(p / 2, dof), scipy.stats.chi2.ppf(1 - p / 2, dof)
-
-
 def test_nees_is_chi_square_over_a_monte_carlo_with_truth_matching_the_tuning():
     """Isotropic tuning Q = q I4, R = r I4 is, on the tangent space, an attitude process
     noise N(0, 4 q I3) per step and a measured attitude with error N(0, 4 r I3); the
@@ -265,10 +261,7 @@ def test_nees_is_chi_square_over_a_monte_carlo_with_truth_matching_the_tuning():
                 e = np.concatenate([dtheta(q_est, q), w_true - w_hat])
                 nees3[run, j] = e[:3] @ np.linalg.solve(P6[:3, :3], e[:3])
                 nees6[run, j] = e @ np.linalg.solve(P6, e)
-    for dof, nees in ((3, nees3), (6, nees6)):
-        lo, hi = chi2_band(dof * n_runs)
-        sums = nees.sum(axis=0)
-        assert np.all((lo <= sums) & (sums <= hi)), (dof, sums / n_runs, lo / n_runs, hi / n_runs)
+    assert_nees_sums_in_band(nees3, nees6, n_runs)
 
 
 def test_rate_block_follows_the_same_rule_as_the_lie_group_filter():

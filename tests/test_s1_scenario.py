@@ -6,9 +6,6 @@ core) are in tests/test_cubature.py; the noise source in tests/test_correlated_n
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -69,14 +66,12 @@ def test_three_orbits_converge_keep_p_positive_definite_and_mcns_is_consistent_w
     assert m["cqe"]["nees_mean"] > 20.0
 
 
-def test_cli_lists_and_runs_s1(tmp_path):
-    env = dict(os.environ, MPLBACKEND="Agg")
-    cli = [sys.executable, "-m", "drake_att.cli"]
-    listed = subprocess.run(cli + ["list"], capture_output=True, text=True, env=env)
+def test_cli_lists_and_runs_s1(tmp_path, drake_att_cli):
+    listed = drake_att_cli("list")
     assert listed.returncode == 0 and "s1_cqe" in listed.stdout
     out = tmp_path / "s1"
-    run = subprocess.run(cli + ["run", "s1_cqe", "--set", "duration_s=300", "--set", "scoring.score_from_s=100",
-                                "--no-figures", "--quiet", "--out", str(out)], capture_output=True, text=True, env=env)
+    run = drake_att_cli("run", "s1_cqe", "--set", "duration_s=300", "--set", "scoring.score_from_s=100",
+                        "--no-figures", "--quiet", "--out", str(out))
     assert run.returncode == 0, run.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["estimators"]) == {"cqe", "cqe_mcns", "mekf"}

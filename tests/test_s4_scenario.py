@@ -9,9 +9,6 @@ same claims are checked end to end in the Drake diagram.
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -81,38 +78,23 @@ def test_consistent_filter_nees_in_band_over_20_seeds_when_truth_matches_its_mod
     assert np.all((lo < anees) & (anees < hi)), f"ANEES {anees} outside [{lo:.2f}, {hi:.2f}]"
 
 
-def test_cli_lists_and_runs_s4(tmp_path):
-    env = dict(os.environ, MPLBACKEND="Agg")
-    cli = [sys.executable, "-m", "drake_att.cli"]
-    listed = subprocess.run(cli + ["list"], capture_output=True, text=True, env=env)
+def test_cli_lists_and_runs_s4(tmp_path, drake_att_cli):
+    listed = drake_att_cli("list")
     assert listed.returncode == 0 and "s4_lie_group" in listed.stdout
     out = tmp_path / "s4"
-    run = subprocess.run(cli + ["run", "s4_lie_group", "--set", "duration_s=200", "--set", "scoring.score_from_s=100",
-                                "--no-figures", "--quiet", "--out", str(out)], capture_output=True, text=True, env=env)
+    run = drake_att_cli("run", "s4_lie_group", "--set", "duration_s=200", "--set", "scoring.score_from_s=100",
+                        "--no-figures", "--quiet", "--out", str(out))
     assert run.returncode == 0, run.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["estimators"]) == {"lie_group", "lie_group_paper_literal", "quaternion_ekf"}
     assert metrics["estimators"]["lie_group"]["convergence_time_s"] <= 160.0
 
 
-def test_reproduction_script_runs_all_cases_on_one_diagram(tmp_path, monkeypatch):
+def test_reproduction_script_runs_all_cases_on_one_diagram(tmp_path, diagram_builds, load_script):
     """diagrams/lie_group_filter.py: three truth-noise cases x seeds in one diagram; claims
     (a) and (c) hold, (b) does not (our quaternion EKF does not drift), computed."""
-    import importlib.util
-
-    built = []
-    original = builder.ScenarioDiagram.__init__
-
-    def counting(self, scenario):
-        built.append(scenario.name)
-        original(self, scenario)
-
-    monkeypatch.setattr(builder.ScenarioDiagram, "__init__", counting)
-    monkeypatch.setattr(builder, "_DIAGRAMS", {})
-    path = os.path.join(os.path.dirname(__file__), "..", "diagrams", "lie_group_filter.py")
-    spec = importlib.util.spec_from_file_location("_s4_script", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    built = diagram_builds
+    script = load_script("lie_group_filter")
     assert script.main(["--seeds", "1", "--duration", "300", "--out", str(tmp_path)]) == 0
     assert built == ["s4_lie_group"]
     res = json.loads((tmp_path / "results.json").read_text())

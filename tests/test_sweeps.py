@@ -189,40 +189,20 @@ def test_set_filter_refuses_a_structural_change(s3):
                                                   quaternion_sensors=model.quaternion_sensors))
 
 
-def _load_script(name):
-    import importlib.util
-    import os
-
-    path = os.path.join(os.path.dirname(__file__), "..", "diagrams", f"{name}.py")
-    spec = importlib.util.spec_from_file_location(f"_script_{name}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(tmp_path, monkeypatch):
+def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(tmp_path, monkeypatch, diagram_builds,
+                                                                          load_script):
     """The S0 script (three scenarios: Monte Carlo, EKF initial-error sweep, per-filter
     timing) and the S3 script's P0 sweep, run in this process (one worker), construct
     exactly one ScenarioDiagram per scenario."""
-    from drake_att.scenarios import builder
-
-    built = []
-    original = builder.ScenarioDiagram.__init__
-
-    def counting(self, scenario):
-        built.append(scenario.name)
-        original(self, scenario)
-
-    monkeypatch.setattr(builder.ScenarioDiagram, "__init__", counting)
-    monkeypatch.setattr(builder, "_DIAGRAMS", {})
+    built = diagram_builds
     monkeypatch.setenv("MPLBACKEND", "Agg")
-    s0 = _load_script("particle_filters")
+    s0 = load_script("particle_filters")
     assert s0.main(["--seeds", "1", "--particles", "8", "--duration", "6", "--workers", "1",
                     "--out", str(tmp_path / "s0")]) == 0
     assert sorted(built) == sorted(s0.SCENARIOS.values()), built
 
     built.clear()
-    s3 = _load_script("cubesat_dual_star_tracker")
+    s3 = load_script("cubesat_dual_star_tracker")
     from drake_att.analysis.montecarlo import run_monte_carlo
 
     scenario = apply_overrides(load("cubesat_dual_star_tracker"), ["duration_s=6", "scoring.score_from_s=2"])
