@@ -79,8 +79,8 @@ def evaluate(rows):
     (a_c, b_c), (a_m, b_m) = mean_norms(rows, "cqe"), mean_norms(rows, "cqe_mcns")
     claims.append({"claim": "CQE-MCNS beats CQE (paper: ~4x on attitude, ~2x on bias)",
                    "evidence": f"MCNS/CQE = {a_m / a_c:.2f} (attitude), {b_m / b_c:.2f} (bias)",
-                   "verdict": ("holds" if a_m < a_c and b_m < b_c else "does not hold")
-                   + (" (but the ratio is not the paper's 4x)" if a_m < a_c and a_c / a_m < 3 else "")})
+                   "verdict": ("does not hold" if not (a_m < a_c and b_m < b_c)
+                               else "holds, but the ratio is not the paper's 4x" if a_c / a_m < 3 else "holds")})
     return claims
 
 
