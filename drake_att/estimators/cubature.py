@@ -8,10 +8,12 @@ the filter then models it (CQE-MCNS) with that sensor's ``Q_zeta``, ``rho`` and 
 ``assumed_correlation`` overrides the ``rho`` it assumes (mismatch studies). Empty: the plain
 CQE. Defaults follow the paper (SPEC.md S1): ``P0 = diag((40 deg)^2, (0.1 deg/h)^2)``, GRP
 ``a = 1, f = 4`` (the USQUE convention: ``dp`` ~ the rotation angle for small errors).
-``update_iterations`` > 1 iterates the measurement update (ours: from the paper's 155 deg
-error a single update leaves the bias wrecked for hours with 2 arcsec stars; 1 = the paper).
+``update_iterations`` > 1 iterates the measurement update (ours: from the paper's [-45, 45, 155]
+deg error, a 175 deg rotation, a single update leaves the bias wrecked for hours with 2 arcsec
+stars; 1 = the paper).
 ``zeta_gate_sigmas`` > 0 ignores ``M`` on innovations that are implausible under the model
-(ours; 0 = never, the patent).
+(ours; 0 = never, the patent). ``zeta_state_correlation`` adds the term the patent's
+prediction drops, ``Cov(x, zeta | D) = -K S`` (ours; false = the patent).
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ class CubatureQuaternionConfig:
     grp_f: float = 4.0
     update_iterations: int = 10
     zeta_gate_sigmas: float = 4.0
+    zeta_state_correlation: bool = False
     innovation_gate_chi2: Optional[float] = None
 
 
@@ -60,6 +63,8 @@ def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
         cfg.fail(f"{path}.grp_a", c.grp_a, "must be in [0, 1]")
     cfg.check_positive(f"{path}.grp_f", c.grp_f)
     cfg.check_nonnegative(f"{path}.zeta_gate_sigmas", c.zeta_gate_sigmas)
+    if not isinstance(c.zeta_state_correlation, bool):
+        cfg.fail(f"{path}.zeta_state_correlation", c.zeta_state_correlation, "must be true or false")
     if c.innovation_gate_chi2 is not None:
         cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
     if c.multiplicative_noise:
@@ -90,13 +95,14 @@ def _assumed_model(c: CubatureQuaternionConfig, source: ScaleFactorStarNoiseConf
 
 @register_estimator(CubatureQuaternionConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_cubature,
                     parameters=("assumed_correlation", "arw_deg_per_rt_h", "rrw_deg_per_h15", "grp_a", "grp_f",
-                                "update_iterations", "zeta_gate_sigmas", "innovation_gate_chi2",
+                                "update_iterations", "zeta_gate_sigmas", "zeta_state_correlation", "innovation_gate_chi2",
                                 *common.INITIAL_GYRO_MODE_FIELDS))
 def build_cubature(ctx, c: CubatureQuaternionConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise(ctx, c)
     model = _assumed_model(c, ctx.sensor_configs[c.multiplicative_noise]) if c.multiplicative_noise else None
     core = CubatureQuaternionEstimator(arw, rrw, c.grp_a, c.grp_f, c.innovation_gate_chi2, model,
-                                       c.zeta_gate_sigmas if c.zeta_gate_sigmas > 0 else None, c.update_iterations)
+                                       c.zeta_gate_sigmas if c.zeta_gate_sigmas > 0 else None, c.update_iterations,
+                                       zeta_state_correlation=c.zeta_state_correlation)
     q0, b0, _ = common.initial_gyro_mode_estimate(ctx, c)
     init = core.initial_state(q0, b0, c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
     return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))

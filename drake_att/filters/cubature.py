@@ -62,7 +62,8 @@ shapes, a negative sigma, or (MCNS) more stars than the noise model admits give
 behaviour stays available):
 
 * *Iterated update* (``update_iterations``, default 10; 1 = the paper). From the paper's
-  167 deg initial error with 2 arcsec stars, one cubature update explains the measurement by
+  [-45, 45, 155] deg initial error (a 175 deg rotation) with 2 arcsec stars, one cubature
+  update leaves the estimate ~167 deg off yet explains the measurement by
   a linear fit over the +-98 deg points almost exactly: the attitude sigma collapses to
   ~2 arcsec while the mean moves ~10 deg; the filter then slews its bias to ~1e4 deg/h and
   stays beyond 0.01 deg until ~6800 s (bias RMS over orbits 2-3: 0.3 deg/h). Here the
