@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["ConfigError", "describe", "fail", "check_finite", "check_positive", "check_nonnegative", "check_int",
            "check_vector", "check_weights", "check_array", "check_quaternion", "check_covariance",
-           "check_reference_vectors", "check_variance_matrix", "measurement_or_none"]
+           "check_reference_vectors", "check_variance_matrix", "measurement_or_none", "check_seed", "SEED_MAX"]
 
 
 class ConfigError(ValueError):
@@ -68,6 +68,19 @@ def check_int(field: str, value, minimum: int, error: type = ValueError) -> int:
     """``value`` as int if it is an integer (not a bool, not a float) >= ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
         fail(field, value, f"must be an integer >= {minimum}", error)
+    return int(value)
+
+
+# Drake's RandomGenerator (std::mt19937) takes a 32-bit seed: a larger one would wrap and
+# alias a smaller one (2^32 would repeat seed 0's run).
+SEED_MAX = 2**32 - 1
+
+
+def check_seed(field: str, value, error: type = ValueError) -> int:
+    """A run's seed: an integer in ``[0, 2^32 - 1]`` (not a bool, not a float)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= SEED_MAX:
+        fail(field, value, f"must be an integer in [0, {SEED_MAX}] (Drake's 32-bit seed; a larger one would alias "
+             "a smaller one)", error)
     return int(value)
 
 

@@ -253,3 +253,29 @@ def test_estimator_plugins_start_from_the_configured_estimate_in_si():
     np.testing.assert_allclose(x[:4], [np.cos(np.radians(5.0)), 0.0, 0.0, np.sin(np.radians(5.0))], atol=1e-15)
     np.testing.assert_allclose(np.diag(x[7:43].reshape(6, 6)),
                                [np.radians(2.0) ** 2] * 3 + [(4.0 * np.pi / 180 / 3600) ** 2] * 3, rtol=1e-14)
+
+
+@pytest.mark.parametrize("seed", [-1, 2**32, 99999999999999999999, 2.0, True, "3"])
+def test_seed_outside_drakes_32_bit_range_is_refused_not_aliased(seed):
+    """Drake's RandomGenerator takes a 32-bit seed: 2^32 would silently repeat seed 0's run
+    and a 20-digit seed crashed in the binding. Refused with the allowed range, from the
+    config and from simulate()."""
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.config import ConfigError, Scenario, validate
+
+    with pytest.raises(ConfigError, match=r"seed: got .*; must be an integer in \[0, 4294967295\]"):
+        validate(Scenario(seed=seed))
+    sd = ScenarioDiagram(Scenario(duration_s=1.0))
+    with pytest.raises(ValueError, match=r"seed: got .*; must be an integer in \[0, 4294967295\]"):
+        sd.simulate(seed)
+
+
+def test_largest_seed_runs_and_differs_from_seed_zero():
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.library import load
+
+    s = load("cubesat_single_star_tracker")
+    s.duration_s, s.scoring.score_from_s = 5.0, 1.0
+    sd = ScenarioDiagram(s)
+    a, b = sd.simulate(0), sd.simulate(2**32 - 1)
+    assert not np.array_equal(a.values("gyro/gyro_measurement"), b.values("gyro/gyro_measurement"))

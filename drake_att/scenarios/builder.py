@@ -37,6 +37,7 @@ from drake_att import rotations as rot
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
+from drake_att.validation import check_seed
 from drake_att.systems.estimators import EstimatorSetup, EstimatorSystem
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
 from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
@@ -384,7 +385,7 @@ class ScenarioDiagram:
         context = self.diagram.CreateDefaultContext()
         # SetRandomContext resets every state and parameter to its default: set initial
         # conditions and parameters after it.
-        self.diagram.SetRandomContext(context, RandomGenerator(int(seed)))
+        self.diagram.SetRandomContext(context, RandomGenerator(check_seed("seed", seed)))
         if overrides:
             self._apply_parameters(context, scenario)
         if estimators is not None:
@@ -411,7 +412,7 @@ class ScenarioDiagram:
                 are switched off for this run.
         """
         scenario = self.scenario_for(overrides, estimators)
-        seed = scenario.seed if seed is None else int(seed)
+        seed = scenario.seed if seed is None else check_seed("seed", seed)
         context = self.create_context(seed, overrides, estimators)
         simulator = Simulator(self.diagram, context)
         sc = scenario.simulation

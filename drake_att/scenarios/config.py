@@ -349,8 +349,7 @@ class ValidationContext:
 def validate(s: Scenario) -> None:
     """Check every value of a scenario; raise :class:`ConfigError` on the first bad one."""
     check_positive("duration_s", s.duration_s)
-    if not isinstance(s.seed, int) or s.seed < 0:
-        fail("seed", s.seed, "must be an integer >= 0")
+    validation.check_seed("seed", s.seed, ConfigError)
     check_positive("simulation.max_step_size_s", s.simulation.max_step_size_s)
     check_positive("simulation.accuracy", s.simulation.accuracy)
     schemes = {"runge_kutta2", "runge_kutta3", "runge_kutta5", "bogacki_shampine3", "radau1", "radau3",
