@@ -24,7 +24,7 @@ def _cmd_list(args) -> int:
 def _cmd_run(args) -> int:
     from drake_att.analysis.metrics import compute_metrics, format_table
     from drake_att.analysis.report import write_results
-    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.builder import NonFiniteRunError, ScenarioDiagram
     from drake_att.scenarios.library import scenario_path
 
     try:
@@ -41,7 +41,11 @@ def _cmd_run(args) -> int:
     out_dir = args.out or os.path.join("out", f"{scenario.name}_seed{scenario.seed}")
     print(f"Building {scenario.name} ({path}) ...", file=sys.stderr)
     sd = ScenarioDiagram(scenario)
-    run = sd.simulate(scenario.seed, progress=not args.quiet)
+    try:
+        run = sd.simulate(scenario.seed, progress=not args.quiet)
+    except NonFiniteRunError as e:
+        print(f"drake-att: the run failed: {e}", file=sys.stderr)
+        return 2
     metrics = compute_metrics(run)
     print(format_table(metrics))
     files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)

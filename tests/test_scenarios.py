@@ -279,3 +279,36 @@ def test_largest_seed_runs_and_differs_from_seed_zero():
     sd = ScenarioDiagram(s)
     a, b = sd.simulate(0), sd.simulate(2**32 - 1)
     assert not np.array_equal(a.values("gyro/gyro_measurement"), b.values("gyro/gyro_measurement"))
+
+
+def test_truth_going_non_finite_fails_loudly_and_writes_nothing(tmp_path):
+    """A plant driven out of range (1e9 deg/s) used to exit 0 and write NaN into metrics.json:
+    the run now fails with a message naming the truth signal and the time, exit code 2, no
+    result folder."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "nan"
+    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "run", "cubesat_single_star_tracker", "--set",
+                        "plant.initial_rate_deg_per_s=[1e9,0,0]", "--set", "duration_s=20", "--set",
+                        "scoring.score_from_s=5", "--quiet", "--no-figures", "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert "the truth signal 'rigid_body_plant/q_IB' is not finite from t =" in r.stderr
+    assert "Traceback" not in r.stderr and not out.exists()
+
+
+def test_metrics_json_is_strict_json_with_null_for_non_finite_numbers(tmp_path):
+    """JSON has no NaN or Infinity: they are written as null (a strict parser reads the file)."""
+    import json
+
+    from drake_att.analysis.report import write_metrics_json
+
+    path = write_metrics_json({"a": float("nan"), "b": [1.0, float("inf"), -float("inf")], "c": {"d": 2.5}},
+                              str(tmp_path / "m.json"))
+
+    def refuse(name):
+        raise ValueError(f"non-strict JSON constant {name}")
+
+    assert json.loads(open(path).read(), parse_constant=refuse) == {"a": None, "b": [1.0, None, None],
+                                                                     "c": {"d": 2.5}}

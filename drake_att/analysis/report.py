@@ -126,11 +126,23 @@ def write_diagram_graph(diagram, out_dir) -> list[str]:
     return files
 
 
+def strict_json(value):
+    """``value`` with every non-finite float replaced by ``None`` (strict JSON: ``null``,
+    never ``NaN``/``Infinity``, which JSON does not have)."""
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
 def write_metrics_json(metrics: dict, path: str) -> str:
     """``metrics.json`` as :func:`write_results` writes it (``drake-att score`` rewrites it
-    byte for byte)."""
+    byte for byte); strict JSON (a non-finite number is written as ``null``)."""
     with open(path, "w") as f:
-        json.dump(metrics, f, indent=2)
+        json.dump(strict_json(metrics), f, indent=2, allow_nan=False)
     return path
 
 

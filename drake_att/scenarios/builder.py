@@ -44,6 +44,23 @@ from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
 from drake_att.units import DEG
 
 
+class NonFiniteRunError(RuntimeError):
+    """The truth went non-finite during a run (the message names the signal and the time)."""
+
+
+def _check_truth_finite(signals: dict, keys, scenario_name: str, seed: int) -> None:
+    for key in keys:
+        t, x = signals[key]
+        bad = ~np.all(np.isfinite(x), axis=1)
+        if np.any(bad):
+            i = int(np.flatnonzero(bad)[0])
+            raise NonFiniteRunError(
+                f"{scenario_name} seed {seed}: the truth signal {key!r} is not finite from t = {t[i]:g} s "
+                f"(last finite value {x[i - 1].tolist() if i else 'none'}); the plant's initial conditions, inertia, "
+                "torque or integrator step are out of range for this run (see the scenario's plant and simulation "
+                "settings). Nothing was scored.")
+
+
 def _same(a, b) -> bool:
     """Equal config values (dataclasses, lists, numpy arrays, numbers)."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
@@ -448,6 +465,8 @@ class ScenarioDiagram:
                     signals[f"{name}/{port}"] = (t, x[:, a:b].copy())
             else:
                 signals[key] = (t, x)
+        truth = self.truth.get_name()
+        _check_truth_finite(signals, (f"{truth}/q_IB", f"{truth}/w_IB_B"), scenario.name, seed)
         return RunLog(scenario, seed, wall, signals, run_metadata(self, seed, wall, signals, scenario))
 
 
