@@ -39,6 +39,10 @@ def _cmd_run(args) -> int:
         print(f"drake-att: invalid scenario: {e}", file=sys.stderr)
         return 2
     out_dir = args.out or os.path.join("out", f"{scenario.name}_seed{scenario.seed}")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        print(f"drake-att: --out {out_dir}: is an existing file, not a folder; name a folder for the results",
+              file=sys.stderr)
+        return 2
     print(f"Building {scenario.name} ({path}) ...", file=sys.stderr)
     sd = ScenarioDiagram(scenario)
     try:

@@ -312,3 +312,43 @@ def test_metrics_json_is_strict_json_with_null_for_non_finite_numbers(tmp_path):
 
     assert json.loads(open(path).read(), parse_constant=refuse) == {"a": None, "b": [1.0, None, None],
                                                                      "c": {"d": 2.5}}
+
+
+@pytest.mark.parametrize("text, message", [
+    ("", "the scenario is empty"),
+    ("- 1\n- 2\n", "got a YAML list at the top level"),
+    ("name: x\nduration_s: 5.0\nduration_s: 6.0\n", r"duplicate key 'duration_s' at line 3 \(first at line 2\)"),
+    ("name: x\nbogus_key: 1\n", r"unknown field\(s\) \['bogus_key'\]; allowed: \['name', "),
+    ("name: x\nduration_s: [\n", "invalid YAML"),
+])
+def test_bad_scenario_files_are_refused_with_a_message(text, message):
+    """What used to be tracebacks or silent (a duplicate key kept the last value): a message
+    naming the file and what is wrong."""
+    from drake_att.scenarios.config import ConfigError, load_scenario
+
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(text=text)
+
+
+@pytest.mark.parametrize("override, section", [("plant=5", "plant"), ("sensors.st1=5", "sensors.st1"),
+                                               ("estimators.single=[1, 2]", "estimators.single")])
+def test_overriding_a_whole_section_with_a_value_names_its_fields(override, section):
+    from drake_att.scenarios.config import ConfigError, apply_overrides
+    from drake_att.scenarios.library import load
+
+    with pytest.raises(ConfigError, match=rf"--set {section}: got .*; {section} is a section \(\w+Config\): set one "
+                                          r"of its fields"):
+        apply_overrides(load("cubesat_single_star_tracker"), [override])
+
+
+def test_out_naming_an_existing_file_is_refused(tmp_path):
+    import subprocess
+    import sys
+
+    f = tmp_path / "a_file"
+    f.write_text("keep me")
+    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "run", "cubesat_single_star_tracker", "--set",
+                        "duration_s=5", "--set", "scoring.score_from_s=1", "--quiet", "--no-figures", "--out", str(f)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "is an existing file, not a folder" in r.stderr and "Traceback" not in r.stderr
+    assert f.read_text() == "keep me"

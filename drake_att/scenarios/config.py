@@ -137,13 +137,24 @@ class Scenario:
 # --------------------------------------------------------------------------------------
 # Loading, dumping, overrides
 # --------------------------------------------------------------------------------------
-def _declared_plugins(text: str) -> list:
+def _declared_plugins(text: str, where: str = "scenario") -> list:
     """The ``plugins`` list of a scenario's YAML text, read before the typed load (tags of
-    not-yet-imported plug-ins are read as plain mappings here)."""
+    not-yet-imported plug-ins are read as plain mappings here). Also refuses, naming what
+    and where, what the typed loader would not say clearly: an empty file, a top level that
+    is not a mapping, a duplicate key (the typed loader keeps the last silently) and an
+    unknown top-level field (with the allowed ones)."""
     import yaml
 
     class _Loader(yaml.SafeLoader):
-        pass
+        def construct_mapping(self, node, deep=False):
+            seen = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                if key in seen:
+                    raise ConfigError(f"{where}: duplicate key {key!r} at line {key_node.start_mark.line + 1} "
+                                      f"(first at line {seen[key] + 1}); each key may appear once")
+                seen[key] = key_node.start_mark.line
+            return super().construct_mapping(node, deep=deep)
 
     def _untagged(loader, suffix, node):
         if isinstance(node, yaml.MappingNode):
@@ -157,8 +168,17 @@ def _declared_plugins(text: str) -> list:
     try:
         data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as e:
-        raise ConfigError(f"invalid YAML: {e}") from e
-    plugins = data.get("plugins", []) if isinstance(data, dict) else []
+        raise ConfigError(f"{where}: invalid YAML: {e}") from e
+    if data is None:
+        raise ConfigError(f"{where}: the scenario is empty; it needs at least a name and a plant, sensors and "
+                          "estimators (see drake_att/scenarios/*.yaml)")
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: got a YAML {type(data).__name__} at the top level; a scenario is a mapping "
+                          f"of the fields {[f.name for f in dataclasses.fields(Scenario)]}")
+    unknown = [k for k in data if k not in {f.name for f in dataclasses.fields(Scenario)}]
+    if unknown:
+        raise ConfigError(f"{where}: unknown field(s) {unknown}; allowed: {[f.name for f in dataclasses.fields(Scenario)]}")
+    plugins = data.get("plugins", [])
     if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
         fail("plugins", plugins, "must be a list of module names, e.g. [my_package.my_filter]")
     return plugins
@@ -183,10 +203,10 @@ def load_scenario(text: str | None = None, filename: str | None = None) -> Scena
                 text = f.read()
         except OSError as e:
             raise ConfigError(f"{filename}: cannot read the scenario: {e.strerror}") from e
-    prepare_schema(_declared_plugins(text))
+    prepare_schema(_declared_plugins(text, filename or "scenario"))
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
-    except RuntimeError as e:  # Drake reports schema errors as RuntimeError
+    except (RuntimeError, TypeError, ValueError) as e:  # Drake reports schema errors as RuntimeError
         raise ConfigError(f"{filename + ': ' if filename else ''}{e}") from e
     validate(scenario)
     return scenario
@@ -222,15 +242,30 @@ def apply_overrides(scenario: Scenario, overrides: typing.Sequence[str]) -> Scen
         last = parts[-1]
         if isinstance(target, list):
             idx = _list_index(target, last, path)
+            _refuse_section(target[idx], value, path)
             target[idx] = value
         else:
             if not dataclasses.is_dataclass(target) or last not in {f.name for f in dataclasses.fields(target)}:
                 allowed = [f.name for f in dataclasses.fields(target)] if dataclasses.is_dataclass(target) else []
                 raise ConfigError(f"--set {path}: unknown field {last!r}; allowed: {allowed}")
             current = getattr(target, last)
+            _refuse_section(current, value, path)
             setattr(target, last, _coerce(value, current, path))
     # Round-trip through the typed loader so types and unknown keys are checked again.
-    return load_scenario(text=dump_scenario(scenario))
+    try:
+        text = dump_scenario(scenario)
+    except (RuntimeError, TypeError, ValueError) as e:
+        raise ConfigError(f"--set: the overridden scenario is not valid: {e}") from e
+    return load_scenario(text=text)
+
+
+def _refuse_section(current, value, path):
+    """A section (a config dataclass: the plant, a sensor, an estimator) is not replaced by
+    a scalar or a list from ``--set``: set its fields."""
+    if dataclasses.is_dataclass(current) and not isinstance(value, dict):
+        fields = [f.name for f in dataclasses.fields(current)]
+        raise ConfigError(f"--set {path}: got {value!r}; {path} is a section ({type(current).__name__}): set one of "
+                          f"its fields, e.g. --set {path}.{fields[-1]}=...; fields: {fields}")
 
 
 def _child(obj, key, path):
