@@ -38,7 +38,14 @@ def _cmd_run(args) -> int:
     except (ConfigError, ValueError) as e:
         print(f"drake-att: invalid scenario: {e}", file=sys.stderr)
         return 2
-    out_dir = args.out or os.path.join("out", f"{scenario.name}_seed{scenario.seed}")
+    # The default folder names the scenario and seed, and the overrides too (a short hash of
+    # them): a run with --set never lands in (and replaces) the unmodified run's folder.
+    tag = ""
+    if args.set:
+        import hashlib
+
+        tag = "_" + hashlib.sha1("\n".join(args.set).encode()).hexdigest()[:8]
+    out_dir = args.out or os.path.join("out", f"{scenario.name}_seed{scenario.seed}{tag}")
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
         print(f"drake-att: --out {out_dir}: is an existing file, not a folder; name a folder for the results",
               file=sys.stderr)
@@ -52,8 +59,10 @@ def _cmd_run(args) -> int:
         return 2
     metrics = compute_metrics(run)
     print(format_table(metrics))
+    replaced = os.path.isdir(out_dir)
     files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)
-    print(f"\nWrote {len(files)} files to {out_dir}/: " + ", ".join(os.path.basename(f) for f in files))
+    print(f"\nWrote {len(files)} files to {out_dir}/" + (" (replacing the previous results there)" if replaced else "")
+          + ": " + ", ".join(os.path.basename(f) for f in files))
     return 0
 
 
@@ -111,7 +120,8 @@ def main(argv=None) -> int:
     p_run = sub.add_parser("run", help="run a scenario (default: the project's default scenario)")
     p_run.add_argument("scenario", nargs="?", default=None, help="shipped scenario name or YAML path")
     p_run.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
-    p_run.add_argument("--out", default=None, help="output folder (default out/<scenario>_seed<N>)")
+    p_run.add_argument("--out", default=None, help="output folder (default out/<scenario>_seed<N>, plus a hash of "
+                       "the --set overrides if any); replaced as a whole, atomically")
     p_run.add_argument("--set", action="append", metavar="PATH=VALUE",
                        help="override a config value, e.g. --set duration_s=600 --set sensors.st1.period_s=1")
     p_run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -125,7 +135,11 @@ def main(argv=None) -> int:
     p_list = sub.add_parser("list", help="list the shipped scenarios")
     p_list.set_defaults(func=_cmd_list)
     args = parser.parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("\ndrake-att: interrupted; no result folder was written or changed", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

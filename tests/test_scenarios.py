@@ -352,3 +352,65 @@ def test_out_naming_an_existing_file_is_refused(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 2 and "is an existing file, not a folder" in r.stderr and "Traceback" not in r.stderr
     assert f.read_text() == "keep me"
+
+
+def _cli(*args, cwd=None):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "drake_att.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+SHORT = ["--set", "duration_s=5", "--set", "scoring.score_from_s=1", "--quiet"]
+
+
+def test_rerun_replaces_the_whole_folder_and_says_so(tmp_path):
+    """A run with figures, then one without: no PNG of the first run is left next to the
+    second run's metrics; the CLI says it replaced the folder; no staging folder is left."""
+    out = tmp_path / "r"
+    assert _cli("run", "cubesat_single_star_tracker", *SHORT, "--out", str(out)).returncode == 0
+    assert any(p.suffix == ".png" for p in out.iterdir())
+    r = _cli("run", "cubesat_single_star_tracker", *SHORT, "--no-figures", "--seed", "2", "--out", str(out))
+    assert r.returncode == 0 and "replacing the previous results" in r.stdout
+    assert not any(p.suffix == ".png" for p in out.iterdir())
+    assert "(seed 2)" in (out / "config.yaml").read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_a_failed_write_leaves_the_previous_results_untouched(tmp_path, monkeypatch):
+    """An interruption while writing (here: the log write raises KeyboardInterrupt) leaves
+    the previous folder as it was and no staging folder behind."""
+    from drake_att.analysis import report
+    from drake_att.analysis.metrics import compute_metrics
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.config import apply_overrides
+    from drake_att.scenarios.library import load
+
+    sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"),
+                                         ["duration_s=5", "scoring.score_from_s=1"]))
+    run = sd.simulate(1)
+    out = tmp_path / "r"
+    report.write_results(sd, run, compute_metrics(run), str(out), figures=False)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report.np, "savez_compressed", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        report.write_results(sd, sd.simulate(2), compute_metrics(sd.simulate(2)), str(out), figures=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_default_folder_of_a_modified_run_differs_from_the_unmodified_one(tmp_path):
+    import re
+
+    outs = []
+    for duration in (5, 6):
+        r = _cli("run", "cubesat_single_star_tracker", "--no-figures", "--quiet", "--set", f"duration_s={duration}",
+                 "--set", "scoring.score_from_s=1", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr[-1000:]
+        outs.append(re.search(r"Wrote \d+ files to (\S+)/", r.stdout).group(1))
+    assert outs[0] != outs[1] and all(o.startswith("out/cubesat_single_star_tracker_seed1_") for o in outs)
+    assert all((tmp_path / o / "metrics.json").is_file() for o in outs)

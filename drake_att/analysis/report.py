@@ -147,11 +147,38 @@ def write_metrics_json(metrics: dict, path: str) -> str:
 
 
 def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool = True) -> list[str]:
-    """Write every result file of one run into ``out_dir``; returns the paths.
+    """Write every result file of one run into ``out_dir``, atomically; returns the paths.
 
-    ``log.npz`` holds the signals and the run's metadata, so ``metrics.json`` can be
-    recomputed from ``log.npz`` + ``config.yaml`` alone (``drake-att score``)."""
-    os.makedirs(out_dir, exist_ok=True)
+    The files are written into a fresh sibling folder that then replaces ``out_dir`` in one
+    rename: ``out_dir`` is complete or absent (an interruption or a failure leaves the previous
+    results untouched), never a mix of two runs (a run without figures removes the previous
+    run's PNGs), and two runs into one ``out_dir`` each write their own folder (the last
+    rename wins; neither is corrupt). ``log.npz`` holds the signals and the run's metadata,
+    so ``metrics.json`` can be recomputed from ``log.npz`` + ``config.yaml`` alone
+    (``drake-att score``)."""
+    import shutil
+    import tempfile
+
+    out_dir = os.path.normpath(out_dir)
+    parent = os.path.dirname(os.path.abspath(out_dir))
+    os.makedirs(parent, exist_ok=True)
+    staging = tempfile.mkdtemp(prefix=f".{os.path.basename(out_dir)}.writing-", dir=parent)
+    try:
+        names = [os.path.basename(f) for f in _write_results_into(scenario_diagram, run, metrics, staging, figures)]
+        old = None
+        if os.path.isdir(out_dir):
+            old = tempfile.mkdtemp(prefix=f".{os.path.basename(out_dir)}.replaced-", dir=parent)
+            os.rename(out_dir, os.path.join(old, "previous"))
+        os.rename(staging, out_dir)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return [os.path.join(out_dir, n) for n in names]
+
+
+def _write_results_into(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool) -> list[str]:
     files = [write_metrics_json(metrics, os.path.join(out_dir, "metrics.json"))]
     path = os.path.join(out_dir, "config.yaml")
     with open(path, "w") as f:
