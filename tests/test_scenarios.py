@@ -414,3 +414,15 @@ def test_default_folder_of_a_modified_run_differs_from_the_unmodified_one(tmp_pa
         outs.append(re.search(r"Wrote \d+ files to (\S+)/", r.stdout).group(1))
     assert outs[0] != outs[1] and all(o.startswith("out/cubesat_single_star_tracker_seed1_") for o in outs)
     assert all((tmp_path / o / "metrics.json").is_file() for o in outs)
+
+
+@pytest.mark.parametrize("item, message", [
+    ("!GyroConfig {name: g, bogus: 1}", r"sensors\[0\] \(g, !GyroConfig\): unknown field\(s\) \['bogus'\]; allowed: "
+                                        r"\['name', 'period_s'"),
+    ("!NopeConfig {name: g}", r"sensors\[0\]: unknown type !NopeConfig; registered: \["),
+])
+def test_unknown_field_or_type_in_a_list_item_names_the_item_and_what_is_allowed(item, message):
+    from drake_att.scenarios.config import ConfigError, load_scenario
+
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(text=f"name: x\nsensors:\n- {item}\n")

@@ -137,9 +137,12 @@ class Scenario:
 # --------------------------------------------------------------------------------------
 # Loading, dumping, overrides
 # --------------------------------------------------------------------------------------
-def _declared_plugins(text: str, where: str = "scenario") -> list:
-    """The ``plugins`` list of a scenario's YAML text, read before the typed load (tags of
-    not-yet-imported plug-ins are read as plain mappings here). Also refuses, naming what
+_TAG_KEY = "\x00tag"  # where the pre-parse keeps a mapping's YAML tag (not a valid field name)
+
+
+def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
+    """``(plugins, raw data)`` of a scenario's YAML text, read before the typed load (tags of
+    not-yet-imported plug-ins are read as plain mappings, the tag kept under ``_TAG_KEY``). Also refuses, naming what
     and where, what the typed loader would not say clearly: an empty file, a top level that
     is not a mapping, a duplicate key (the typed loader keeps the last silently) and an
     unknown top-level field (with the allowed ones)."""
@@ -158,7 +161,9 @@ def _declared_plugins(text: str, where: str = "scenario") -> list:
 
     def _untagged(loader, suffix, node):
         if isinstance(node, yaml.MappingNode):
-            return loader.construct_mapping(node, deep=True)
+            mapping = loader.construct_mapping(node, deep=True)
+            mapping[_TAG_KEY] = suffix
+            return mapping
         if isinstance(node, yaml.SequenceNode):
             return loader.construct_sequence(node, deep=True)
         return loader.construct_scalar(node)
@@ -181,7 +186,32 @@ def _declared_plugins(text: str, where: str = "scenario") -> list:
     plugins = data.get("plugins", [])
     if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
         fail("plugins", plugins, "must be a list of module names, e.g. [my_package.my_filter]")
-    return plugins
+    return plugins, data
+
+
+def _unknown_list_fields(data, where: str) -> None:
+    """Name the item, the unknown field(s) and the allowed ones for a ``sensors`` or
+    ``estimators`` item (the typed loader says only which field, not where)."""
+    from drake_att.scenarios import registry
+
+    for section in ("sensors", "estimators"):
+        items = data.get(section) or []
+        if not isinstance(items, list):
+            continue
+        for i, item in enumerate(items):
+            if not isinstance(item, dict) or _TAG_KEY not in item:
+                continue
+            try:
+                config_type = registry.config_type(item[_TAG_KEY])
+            except AttributeError:
+                tags = sorted(registry.plugins(registry.SENSOR if section == "sensors" else registry.ESTIMATOR))
+                raise ConfigError(f"{where}: {section}[{i}]: unknown type !{item[_TAG_KEY]}; registered: "
+                                  f"{['!' + t for t in tags]} (a plug-in module must be listed in plugins:)") from None
+            allowed = [f.name for f in dataclasses.fields(config_type)]
+            unknown = [k for k in item if k != _TAG_KEY and k not in allowed]
+            if unknown:
+                raise ConfigError(f"{where}: {section}[{i}] ({item.get('name', '?')}, !{item[_TAG_KEY]}): unknown "
+                                  f"field(s) {unknown}; allowed: {allowed}")
 
 
 def prepare_schema(plugins=()) -> None:
@@ -203,7 +233,10 @@ def load_scenario(text: str | None = None, filename: str | None = None) -> Scena
                 text = f.read()
         except OSError as e:
             raise ConfigError(f"{filename}: cannot read the scenario: {e.strerror}") from e
-    prepare_schema(_declared_plugins(text, filename or "scenario"))
+    where = filename or "scenario"
+    plugins, raw = _preparse(text, where)
+    prepare_schema(plugins)
+    _unknown_list_fields(raw, where)
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
     except (RuntimeError, TypeError, ValueError) as e:  # Drake reports schema errors as RuntimeError
