@@ -67,6 +67,19 @@ def check_initial_bias(path: str, c) -> None:
     cfg.check_positive(f"{path}.initial_bias_sigma_deg_per_h", c.initial_bias_sigma_deg_per_h)
 
 
+def check_flags(path: str, c, *fields) -> None:
+    """Each of ``fields`` is true or false (not 0/1, not a string)."""
+    for f in fields:
+        if not isinstance(getattr(c, f), bool):
+            cfg.fail(f"{path}.{f}", getattr(c, f), "must be true or false")
+
+
+def check_innovation_gate(path: str, c) -> None:
+    """``innovation_gate_chi2``: None (no gate) or a chi-square threshold > 0."""
+    if c.innovation_gate_chi2 is not None:
+        cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+
+
 def check_integers_at_least_one(path: str, c, *fields) -> None:
     for f in fields:
         validation.check_int(f"{path}.{f}", getattr(c, f), 1, cfg.ConfigError)

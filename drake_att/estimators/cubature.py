@@ -63,10 +63,8 @@ def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
         cfg.fail(f"{path}.grp_a", c.grp_a, "must be in [0, 1]")
     cfg.check_positive(f"{path}.grp_f", c.grp_f)
     cfg.check_nonnegative(f"{path}.zeta_gate_sigmas", c.zeta_gate_sigmas)
-    if not isinstance(c.zeta_state_correlation, bool):
-        cfg.fail(f"{path}.zeta_state_correlation", c.zeta_state_correlation, "must be true or false")
-    if c.innovation_gate_chi2 is not None:
-        cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+    common.check_flags(path, c, "zeta_state_correlation")
+    common.check_innovation_gate(path, c)
     if c.multiplicative_noise:
         source = checks.sensors.get(c.multiplicative_noise)
         if not isinstance(source, ScaleFactorStarNoiseConfig):

@@ -95,8 +95,7 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
     if c.formulation != "consistent" and out.kind == "quaternion":
         cfg.fail(f"{path}.formulation", c.formulation, f"star tracker {c.star_tracker!r} is in quaternion mode: "
                  "the paper's literal update is defined for star vectors only; use 'consistent'")
-    if not isinstance(c.estimate_gyro_bias, bool):
-        cfg.fail(f"{path}.estimate_gyro_bias", c.estimate_gyro_bias, "must be true or false")
+    common.check_flags(path, c, "estimate_gyro_bias")
     if c.estimate_gyro_bias and c.formulation != "consistent":
         cfg.fail(f"{path}.estimate_gyro_bias", c.estimate_gyro_bias,
                  f"the bias state needs formulation 'consistent' (got {c.formulation!r})")
@@ -105,10 +104,8 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
     if c.process_noise_rad2_per_step is not None:
         cfg.check_nonnegative(f"{path}.process_noise_rad2_per_step", c.process_noise_rad2_per_step)
     cfg.check_positive(f"{path}.star_noise_variance_rad2", c.star_noise_variance_rad2)
-    if not isinstance(c.star_noise_from_tracker, bool):
-        cfg.fail(f"{path}.star_noise_from_tracker", c.star_noise_from_tracker, "must be true or false")
-    if c.innovation_gate_chi2 is not None:
-        cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+    common.check_flags(path, c, "star_noise_from_tracker")
+    common.check_innovation_gate(path, c)
     if c.estimate_gyro_bias:
         if c.gyro_arw_deg_per_rt_h is not None:
             cfg.fail(f"{path}.gyro_arw_deg_per_rt_h", c.gyro_arw_deg_per_rt_h,

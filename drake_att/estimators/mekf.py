@@ -57,8 +57,7 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
             cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
     common.check_initial_attitude(path, c)
     common.check_initial_bias(path, c)
-    if c.innovation_gate_chi2 is not None:
-        cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+    common.check_innovation_gate(path, c)
 
 
 @register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf,

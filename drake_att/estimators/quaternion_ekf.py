@@ -50,8 +50,7 @@ def validate_quaternion_ekf(path: str, c: QuaternionEkfConfig, checks) -> None:
     cfg.check_positive(f"{path}.measurement_noise", c.measurement_noise)
     if c.gyro_arw_deg_per_rt_h is not None:
         cfg.check_nonnegative(f"{path}.gyro_arw_deg_per_rt_h", c.gyro_arw_deg_per_rt_h)
-    if c.innovation_gate_chi2 is not None:
-        cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+    common.check_innovation_gate(path, c)
 
 
 @register_estimator(QuaternionEkfConfig, second_quantity=SecondQuantity.BODY_RATE, validate=validate_quaternion_ekf,
