@@ -123,3 +123,26 @@ def test_scenario_validation_names_the_field(over, field):
 
     with pytest.raises(ConfigError, match=field):
         apply_overrides(load_scenario(text=SCENARIO), [over])
+
+
+def test_each_step_draws_its_own_documented_row_of_normals():
+    """(zeta_k, v_k) = model.from_normals(normals(k, 1 + 3m), sigma_v) of the counter stream
+    (seed words, system name): recomputed here for k = 0..5 from the documented rule, so a
+    shifted or repeated counter index (two steps sharing a draw) fails."""
+    from drake_att.systems.randomness import SEED_WORDS, counter_random
+
+    model, m = MultiplicativeNoiseModel.paper(), 2
+    src = ScaleFactorStarNoiseSource("mn", 1.0, model, SIGMA_V, m)
+    ctx = src.CreateDefaultContext()
+    src.GetInputPort("seed_uniform").FixValue(ctx, SEED)
+    src.ExecuteInitializationEvents(ctx)
+    words = ctx.get_discrete_state_vector().value()[:SEED_WORDS].copy()
+    zetas = []
+    for k in range(6):
+        zeta_k, v_k = model.from_normals(counter_random(words, "mn").normals(k, 1 + 3 * m), SIGMA_V)
+        np.testing.assert_array_equal(src.GetOutputPort("vector_noise").Eval(ctx), v_k.ravel())
+        if k > 0:
+            assert src.GetOutputPort("zeta").Eval(ctx)[0] == zetas[-1]  # zeta_{k-1} reported at t_k
+        zetas.append(float(zeta_k))
+        ctx.SetDiscreteState(src.EvalUniquePeriodicDiscreteUpdate(ctx))
+    assert len(set(zetas)) == len(zetas)
