@@ -28,8 +28,8 @@ update of the same instant; the metrics score each estimate at ``t_estimate``).
 normalized innovation squared of the last update (NaN when the core has none).
 
 **Measurements.** :class:`GyroSample`, :class:`QuaternionSample`,
-:class:`VectorObservations` and :class:`CameraCentroids` (reserved for the indoor star
-tracker), each with its time and validity; :func:`is_usable` is the one validity rule
+:class:`VectorObservations` and :class:`CameraCentroids` (the indoor star tracker's
+camera frames), each with its time and validity; :func:`is_usable` is the one validity rule
 (flag true — a NaN flag is not true —, finite time, finite numbers).
 
 **Filter-core protocol** (:class:`FilterCore`): pure functions of an explicit, immutable
@@ -187,12 +187,13 @@ def empty_vector_observations() -> VectorObservations:
 
 @dataclass(frozen=True)
 class CameraCentroids:
-    """Star centroids on a camera's focal plane (reserved for the indoor star tracker, S2).
+    """Star centroids on a camera's focal plane (the indoor star tracker, paper S2).
 
     Attributes:
         time_s: exposure time (s). valid: False if the frame must not be used.
         centroids_m: (m, 2) focal-plane centroids ``(X_c, Y_c)`` (m).
         focal_length_m: focal length (m). sigma_m: centroid noise 1-sigma (m).
+        quantization_m: centroid quantization step (m; 0: none).
     """
 
     time_s: float
@@ -200,6 +201,7 @@ class CameraCentroids:
     centroids_m: np.ndarray
     focal_length_m: float
     sigma_m: float
+    quantization_m: float = 0.0
 
     @property
     def numbers(self) -> np.ndarray:
@@ -226,6 +228,13 @@ def is_usable(measurement) -> bool:
             return False
         if not np.all(np.isfinite(refs)) or np.any(np.linalg.norm(refs, axis=-1) < 1e-9):
             return False  # a reference direction must be a finite, non-zero vector
+    if isinstance(measurement, CameraCentroids):
+        f, sigma, q = (float(measurement.focal_length_m), float(measurement.sigma_m),
+                       float(measurement.quantization_m))
+        if numbers.ndim != 2 or numbers.shape[1] != 2 or not (math.isfinite(f) and f > 0.0):
+            return False
+        if not (math.isfinite(sigma) and sigma >= 0.0 and math.isfinite(q) and q >= 0.0):
+            return False
     if isinstance(measurement, QuaternionSample) and float(numbers @ numbers) < 0.25:
         return False  # |q| < 0.5: not a quaternion
     return True

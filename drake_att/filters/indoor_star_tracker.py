@@ -1,0 +1,517 @@
+"""Paper S2's indoor star tracker solver: angle-matching star identification corrected for
+the camera's offset, iterative TRIAD, particle-swarm initialization (plain numpy, no Drake).
+
+Geometry and notation: :mod:`drake_att.screen_camera` (``A = R_BI``, ``R0_B``, ``h``,
+``alpha_i``). One frame is solved by :meth:`IndoorStarTrackerSolver.solve`:
+
+1. ``A0``: the previous solution while tracking (or a fused filter's prediction, or a given
+   guess); with none, :func:`particle_swarm_search` (below).
+2. ``alpha_i`` from ``A0``; centre-referenced directions ``r_i^B = normalize(R0 + alpha_i b_i)``.
+3. Identification by inter-star angles against the catalogue (:class:`AngleMatcher`).
+4. Attitude from the identified stars: TRIAD (the paper) from the identified pair with the
+   largest separation, the star nearer the optical axis first; or (beyond the paper)
+   ``least_squares``: the SVD solution of Wahba's problem over all identified stars.
+5. Repeat 2-4 from the new attitude until it changes by less than the convergence
+   tolerance or ``max_iterations`` is reached (paper: "until the accuracy requirement is met").
+
+``identification = "naive"`` skips step 2: it matches the raw camera directions ``b_i``
+against the camera's own zero-attitude view, the classic star tracker that assumes the
+camera sits at the rotation centre (it fails once the table tilts: the inter-star angles seen
+from the offset camera change with attitude).
+
+**Angle matching (documented choices; the paper gives none).** Every observed pair whose
+angle is within ``tolerance`` of a catalogue pair's votes for both catalogue stars for both
+observed stars. A star takes the catalogue star with the most votes if it has at least two
+and is unique; a catalogue star claimed twice goes to the observed star with more votes.
+Verification: the identified stars must agree pairwise (every identified pair's angle within
+``tolerance`` of its catalogue pair's), else the star with the most disagreements (fewest
+votes on a tie) is dropped, until they all agree. Fewer than three survivors is a failed
+identification (a single pair cannot be told from its swap by angles alone), so a frame
+with fewer than two identified stars is never solved.
+
+**Covariance.** Direction noise ``sigma_b = sqrt(sigma_c^2 + q^2 / 12) / f`` from the
+frame's centroid noise ``sigma_c`` and quantization step ``q`` (floored at
+``sigma_floor_rad``), scaled to the centre-referenced direction by ``alpha_i / beta_i``;
+TRIAD's covariance is its first-order error map for two such directions, the SVD solution's
+``(sum sigma_i^-2 (I - r_i r_i^T))^-1`` (both in body axes, the project's ``dtheta_B``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.contract import CameraCentroids, SecondQuantity, UpdateInfo
+from drake_att.screen_camera import (
+    ScreenCameraGeometry,
+    camera_to_star_distances,
+    centre_referenced_directions,
+    directions_from_centroids,
+)
+from drake_att.validation import check_int, check_nonnegative, check_positive, fail
+
+IDENTIFICATIONS = ("corrected", "naive")
+ATTITUDE_METHODS = ("triad", "least_squares")
+MIN_IDENTIFIED = 3  # a consistent triangle: the smallest identification angles can confirm
+
+
+def rpy_deg_to_R_BI(rpy_deg) -> np.ndarray:
+    """``A = R_BI`` of roll/pitch/yaw (deg; the project's x-y-z convention of ``q_IB``)."""
+    return rot.quat_to_rotmat(rot.rpy_to_quat(np.radians(np.asarray(rpy_deg, dtype=float)))).T
+
+
+def R_BI_to_rpy_deg(R_BI) -> np.ndarray:
+    """Roll/pitch/yaw (deg) of ``A = R_BI`` (inverse of :func:`rpy_deg_to_R_BI`)."""
+    return np.degrees(rot.quat_to_rpy(rot.rotmat_to_quat(np.asarray(R_BI).T)))
+
+
+def rotation_angle(R_a, R_b) -> float:
+    """The angle (rad) of ``R_a R_b^T``."""
+    c = 0.5 * (np.trace(np.asarray(R_a) @ np.asarray(R_b).T) - 1.0)
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _pair_angles(u, v) -> np.ndarray:
+    return np.arccos(np.clip(np.einsum("ij,ij->i", u, v), -1.0, 1.0))
+
+
+class AngleMatcher:
+    """Star identification by inter-star angles against a catalogue (see module docstring).
+
+    Args:
+        catalogue: (m, 3) catalogue unit directions (m >= 3).
+        tolerance_rad: angle-match tolerance (rad) > 0.
+    """
+
+    def __init__(self, catalogue, tolerance_rad: float):
+        c = np.asarray(catalogue, dtype=float)
+        if c.ndim != 2 or c.shape[1] != 3 or len(c) < MIN_IDENTIFIED or not np.all(np.isfinite(c)):
+            fail("catalogue", f"shape {c.shape}", f"need (m >= {MIN_IDENTIFIED}, 3) finite directions")
+        self.tolerance_rad = check_positive("tolerance_rad", tolerance_rad)
+        self.catalogue = c / np.linalg.norm(c, axis=1, keepdims=True)
+        m = len(c)
+        j, l = np.triu_indices(m, 1)
+        phi = _pair_angles(self.catalogue[j], self.catalogue[l])
+        order = np.argsort(phi, kind="stable")
+        self._phi, self._j, self._l = phi[order], j[order], l[order]
+        self._angles = np.arccos(np.clip(self.catalogue @ self.catalogue.T, -1.0, 1.0))
+
+    def identify(self, directions) -> np.ndarray:
+        """Catalogue index of each observed direction (n, 3), or -1 if not identified."""
+        u = np.asarray(directions, dtype=float)
+        n, m, tol = len(u), len(self.catalogue), self.tolerance_rad
+        ids = np.full(n, -1)
+        if n < MIN_IDENTIFIED:
+            return ids
+        i, k = np.triu_indices(n, 1)
+        theta = _pair_angles(u[i], u[k])
+        lo = np.searchsorted(self._phi, theta - tol, side="left")
+        hi = np.searchsorted(self._phi, theta + tol, side="right")
+        counts = hi - lo
+        total = int(counts.sum())
+        if total == 0:
+            return ids
+        pair = np.repeat(np.arange(len(theta)), counts)
+        cat = np.repeat(lo - (np.cumsum(counts) - counts), counts) + np.arange(total)
+        oi, ok, cj, cl = i[pair], k[pair], self._j[cat], self._l[cat]
+        votes = np.bincount(np.concatenate([oi * m + cj, oi * m + cl, ok * m + cj, ok * m + cl]),
+                            minlength=n * m).reshape(n, m)
+        best = np.argmax(votes, axis=1)
+        top = votes[np.arange(n), best]
+        second = np.partition(votes, m - 2, axis=1)[:, m - 2] if m >= 2 else np.zeros(n)
+        cand = np.flatnonzero((top >= 2) & (top > second))
+        # A catalogue star claimed twice goes to the observed star with more votes (none on a tie).
+        claim_max = np.zeros(m, dtype=votes.dtype)
+        np.maximum.at(claim_max, best[cand], top[cand])
+        at_max = top[cand] == claim_max[best[cand]]
+        n_at_max = np.bincount(best[cand][at_max], minlength=m)
+        cand = cand[at_max & (n_at_max[best[cand]] == 1)]
+        if len(cand) < MIN_IDENTIFIED:
+            return ids
+        observed = np.arccos(np.clip(u[cand] @ u[cand].T, -1.0, 1.0))
+        agree = np.abs(observed - self._angles[np.ix_(best[cand], best[cand])]) <= tol
+        alive = np.ones(len(cand), dtype=bool)
+        while True:
+            sub = agree[np.ix_(alive, alive)]
+            bad = (~sub).sum(axis=1)
+            if bad.max(initial=0) == 0:
+                break
+            idx = np.flatnonzero(alive)
+            worst = np.flatnonzero(bad == bad.max())
+            drop = worst[np.argmin(top[cand[idx[worst]]])]
+            alive[idx[drop]] = False
+        if alive.sum() < MIN_IDENTIFIED:
+            return ids
+        ids[cand[alive]] = best[cand[alive]]
+        return ids
+
+
+def triad(b1, b2, r1, r2) -> np.ndarray:
+    """TRIAD (paper eq.): ``A = M_obs M_ref^T`` with ``b1 = A r1`` exact (``A = R_BI``)."""
+    def frame(v1, v2):
+        t2 = np.cross(v1, v2)
+        t2 = t2 / np.linalg.norm(t2)
+        return np.column_stack([v1, t2, np.cross(v1, t2)])
+
+    return frame(np.asarray(b1), np.asarray(b2)) @ frame(np.asarray(r1), np.asarray(r2)).T
+
+
+def triad_covariance(b1, b2, sigma1: float, sigma2: float) -> np.ndarray:
+    """Covariance (3x3, body axes, rad^2) of TRIAD's attitude error for direction noise
+    ``sigma1``, ``sigma2`` (rad per axis normal to each direction).
+
+    First-order error map (derived in the basis ``e1 = b1``, ``e3 = b1 x b2 / |.|``, ``e2 =
+    e3 x e1``, with ``gamma`` the separation): the first vector fixes the two axes normal to
+    it (variance ``sigma1^2`` each); the rotation about ``b1`` comes from the plane's normal,
+    variance ``(sigma2^2 + cos^2 gamma sigma1^2) / sin^2 gamma``, correlated with the ``e2``
+    error by ``cos gamma sigma1^2 / sin gamma``.
+    """
+    e1 = np.asarray(b1, dtype=float)
+    e3 = np.cross(e1, b2)
+    s = np.linalg.norm(e3)
+    e3 = e3 / s
+    e2 = np.cross(e3, e1)
+    c = float(np.dot(e1, b2))
+    s2, t2 = sigma1**2, sigma2**2
+    P_e = np.array([[(t2 + c * c * s2) / (s * s), c * s2 / s, 0.0], [c * s2 / s, s2, 0.0], [0.0, 0.0, s2]])
+    E = np.column_stack([e1, e2, e3])
+    return E @ P_e @ E.T
+
+
+def svd_attitude(b, r, sigmas) -> tuple[np.ndarray, np.ndarray]:
+    """Wahba's problem by SVD (Markley): ``A = R_BI`` minimizing ``sum |b_i - A r_i|^2 /
+    sigma_i^2``, and its covariance ``(sum sigma_i^-2 (I - b_i b_i^T))^-1`` (body axes)."""
+    b, r = np.asarray(b, dtype=float), np.asarray(r, dtype=float)
+    w = 1.0 / np.asarray(sigmas, dtype=float) ** 2
+    B = (b * w[:, None]).T @ r
+    U, _, Vt = np.linalg.svd(B)
+    d = np.linalg.det(U) * np.linalg.det(Vt)
+    A = U @ np.diag([1.0, 1.0, d]) @ Vt
+    F = np.einsum("i,ij,ik->jk", w, b, b)
+    info = w.sum() * np.eye(3) - F
+    return A, np.linalg.inv(info)
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    """One iteration of :meth:`IndoorStarTrackerSolver.solve`: its attitude and stars identified."""
+
+    R_BI: np.ndarray
+    identified: int
+
+
+@dataclass(frozen=True)
+class Solution:
+    """One frame's result.
+
+    Attributes:
+        solved: an attitude was found (>= 3 stars identified in the last iteration).
+        R_BI: the attitude (the guess when not solved); covariance: (3, 3) body axes (rad^2).
+        star_ids: catalogue index per observed centroid (-1 unidentified), last iteration.
+        iterations: iterations run; history: one :class:`IterationRecord` per iteration.
+    """
+
+    solved: bool
+    R_BI: np.ndarray
+    covariance: np.ndarray
+    star_ids: np.ndarray
+    iterations: int
+    history: tuple = ()
+
+    @property
+    def identified(self) -> int:
+        return int(np.sum(self.star_ids >= 0))
+
+
+@dataclass(frozen=True)
+class SwarmResult:
+    """:func:`particle_swarm_search`'s best attitude, its fitness (minus stars identified)
+    and the generations run."""
+
+    rpy_deg: np.ndarray
+    fitness: float
+    generations: int
+
+
+@dataclass(frozen=True)
+class SwarmSettings:
+    """Particle swarm (paper S2): ``w = 0.8, c1 = 1.3, c2 = 1.7``, ``v_max = 5 deg``,
+    ``G_max = 200``, 5 particles; positions are x-y-z angles (deg) within ``centre +-
+    search_range_deg`` (clamped there), velocities clamped to ``+-v_max``. Stops at
+    ``G_max`` or when the best particle identifies ``max(3, ceil(stop_fraction * n))`` of the
+    ``n`` observed stars."""
+
+    particles: int = 5
+    inertia: float = 0.8
+    c1: float = 1.3
+    c2: float = 1.7
+    v_max_deg: float = 5.0
+    max_generations: int = 200
+    search_range_deg: float = 10.0
+    stop_fraction: float = 0.5
+
+    def __post_init__(self):
+        check_int("pso.particles", self.particles, 1)
+        check_int("pso.max_generations", self.max_generations, 1)
+        for f in ("inertia", "c1", "c2"):
+            check_nonnegative(f"pso.{f}", getattr(self, f))
+        check_positive("pso.v_max_deg", self.v_max_deg)
+        check_positive("pso.search_range_deg", self.search_range_deg)
+        if not 0.0 < self.stop_fraction <= 1.0:
+            fail("pso.stop_fraction", self.stop_fraction, "must be in (0, 1]")
+
+
+def particle_swarm_search(fitness, centre_rpy_deg, settings: SwarmSettings, n_observed: int,
+                          rng: np.random.Generator) -> SwarmResult:
+    """Minimize ``fitness(rpy_deg)`` (minus the stars identified from that ``A0``) by the
+    paper's particle swarm (see :class:`SwarmSettings`)."""
+    s = settings
+    centre = np.asarray(centre_rpy_deg, dtype=float)
+    lo, hi = centre - s.search_range_deg, centre + s.search_range_deg
+    x = centre + rng.uniform(-s.search_range_deg, s.search_range_deg, (s.particles, 3))
+    v = rng.uniform(-s.v_max_deg, s.v_max_deg, (s.particles, 3))
+    f = np.array([fitness(p) for p in x])
+    p_best, f_best = x.copy(), f.copy()
+    g = int(np.argmin(f_best))
+    stop = -max(MIN_IDENTIFIED, math.ceil(s.stop_fraction * n_observed))
+    generation = 0
+    while generation < s.max_generations and f_best[g] > stop:
+        generation += 1
+        r1, r2 = rng.random((s.particles, 3)), rng.random((s.particles, 3))
+        v = s.inertia * v + s.c1 * r1 * (p_best - x) + s.c2 * r2 * (p_best[g] - x)
+        v = np.clip(v, -s.v_max_deg, s.v_max_deg)
+        x = np.clip(x + v, lo, hi)
+        f = np.array([fitness(p) for p in x])
+        better = f < f_best
+        p_best[better], f_best[better] = x[better], f[better]
+        g = int(np.argmin(f_best))
+    return SwarmResult(p_best[g].copy(), float(f_best[g]), generation)
+
+
+@dataclass(frozen=True)
+class IndoorSolverState:
+    """The solver's state between frames.
+
+    Attributes:
+        q_IB: last solution (or the initial guess); covariance: (6, 6) of ``[dtheta_B;
+            w error]``; w_IB_B: body rate from the last two consecutive solutions (rad/s).
+        t_solution: time of the last solution (s; -inf: none yet).
+        tracking: the last solution is usable as ``A0`` (reset after ``max_lost_frames``
+            consecutive failures, which sends the next frame to the swarm search).
+        failures: consecutive failed frames.
+        diagnostics: ``[stars observed, stars identified, iterations, swarm generations,
+            swarm searches so far, solved (1/0)]`` of the last frame.
+    """
+
+    q_IB: np.ndarray
+    covariance: np.ndarray
+    w_IB_B: np.ndarray
+    t_solution: float = -math.inf
+    tracking: bool = False
+    failures: int = 0
+    diagnostics: np.ndarray = field(default_factory=lambda: np.zeros(6))
+
+
+DIAGNOSTIC_NAMES = ("stars_observed", "stars_identified", "iterations", "swarm_generations", "swarm_searches",
+                    "solved")
+_UNKNOWN_RATE_SIGMA = math.radians(10.0)  # rad/s: the rate's 1-sigma before two consecutive solutions
+
+
+class IndoorStarTrackerSolver:
+    """The indoor star tracker as a filter core (:class:`drake_att.contract.FilterCore`):
+    each camera frame (:class:`~drake_att.contract.CameraCentroids`) is solved on its own;
+    ``predict`` holds the attitude. Second quantity: the body rate, differenced from the last
+    two consecutive solutions.
+
+    Args:
+        geometry: the screen and camera the solver assumes (its catalogue is their view at
+            zero attitude).
+        tolerance_deg: angle-match tolerance (deg).
+        identification: "corrected" (the paper) or "naive" (no ``alpha`` correction).
+        attitude_method: "triad" (the paper) or "least_squares".
+        max_iterations: iterations per frame (>= 1); convergence_tolerance_rad: stop when
+            the attitude changes by less (rad, >= 0; 0: always run ``max_iterations``).
+        initialization: "swarm" (the paper's PSO when no ``A0``) or "given" (the initial
+            guess is ``A0`` of the first frame, as in the paper's Tables 1-2).
+        swarm: :class:`SwarmSettings`; max_lost_frames: consecutive failures before the
+            swarm search runs again (>= 1).
+        sigma_floor_rad: floor of the direction noise in the covariance (rad, > 0).
+    """
+
+    second_quantity = SecondQuantity.BODY_RATE
+    uses_gyro = False
+    is_random = True
+    state_size = 4 + 36 + 3 + 3 + len(DIAGNOSTIC_NAMES)
+    diagnostic_names = DIAGNOSTIC_NAMES
+
+    def __init__(self, geometry: ScreenCameraGeometry, tolerance_deg: float = 0.02,
+                 identification: str = "corrected", attitude_method: str = "triad", max_iterations: int = 10,
+                 convergence_tolerance_rad: float = 1e-9, initialization: str = "swarm",
+                 swarm: SwarmSettings = SwarmSettings(), max_lost_frames: int = 5, sigma_floor_rad: float = 1e-9):
+        if identification not in IDENTIFICATIONS:
+            fail("identification", identification, f"allowed: {list(IDENTIFICATIONS)}")
+        if attitude_method not in ATTITUDE_METHODS:
+            fail("attitude_method", attitude_method, f"allowed: {list(ATTITUDE_METHODS)}")
+        if initialization not in ("swarm", "given"):
+            fail("initialization", initialization, "allowed: ['swarm', 'given']")
+        self.geometry = geometry
+        self.identification = identification
+        self.attitude_method = attitude_method
+        self.max_iterations = check_int("max_iterations", max_iterations, 1)
+        self.convergence_tolerance_rad = check_nonnegative("convergence_tolerance_rad", convergence_tolerance_rad)
+        self.initialization = initialization
+        self.swarm = swarm
+        self.max_lost_frames = check_int("max_lost_frames", max_lost_frames, 1)
+        self.sigma_floor_rad = check_positive("sigma_floor_rad", sigma_floor_rad)
+        self.catalogue_ids, r_I, b0 = geometry.catalogue()
+        if len(self.catalogue_ids) < MIN_IDENTIFIED:
+            fail("geometry", f"{len(self.catalogue_ids)} stars in view at zero attitude",
+                 f"the catalogue needs >= {MIN_IDENTIFIED}")
+        self.catalogue_I = b0 if identification == "naive" else r_I
+        self.matcher = AngleMatcher(self.catalogue_I, math.radians(check_positive("tolerance_deg", tolerance_deg)))
+
+    # -- one frame ---------------------------------------------------------------------------
+    def observed_directions(self, b_B, R_BI_guess) -> np.ndarray:
+        """The directions identification compares: ``r_i^B`` from ``A0`` (corrected) or ``b_i`` (naive)."""
+        if self.identification == "naive":
+            return b_B
+        g = self.geometry
+        return centre_referenced_directions(b_B, camera_to_star_distances(R_BI_guess, b_B, g.R0_B, g.h_m), g.R0_B)
+
+    def count_identified(self, b_B, R_BI_guess) -> int:
+        """Stars identified in one pass from the guess ``A0`` (the swarm's fitness is minus this)."""
+        return int(np.sum(self.matcher.identify(self.observed_directions(b_B, R_BI_guess)) >= 0))
+
+    def _attitude(self, u, ids, sigmas, centroids):
+        sel = np.flatnonzero(ids >= 0)
+        b, r, s = u[sel], self.catalogue_I[ids[sel]], sigmas[sel]
+        if self.attitude_method == "least_squares":
+            return svd_attitude(b, r, s)
+        # TRIAD from the identified pair with the largest separation, the star nearer the
+        # optical axis first (it is matched exactly).
+        gram = np.abs(np.clip(b @ b.T, -1.0, 1.0))
+        i, k = np.unravel_index(np.argmin(gram + 2.0 * np.eye(len(b))), gram.shape)
+        radius = np.linalg.norm(np.asarray(centroids)[sel], axis=1)
+        if radius[k] < radius[i]:
+            i, k = k, i
+        return triad(b[i], b[k], r[i], r[k]), triad_covariance(b[i], b[k], s[i], s[k])
+
+    def direction_sigmas(self, frame: CameraCentroids, b_B, R_BI) -> np.ndarray:
+        """Per-star noise (rad) of the compared directions (see module docstring)."""
+        q = float(getattr(frame, "quantization_m", 0.0))
+        sigma = max(math.sqrt(float(frame.sigma_m) ** 2 + q * q / 12.0) / float(frame.focal_length_m),
+                    self.sigma_floor_rad)
+        if self.identification == "naive":
+            return np.full(len(b_B), sigma)
+        g = self.geometry
+        alpha = camera_to_star_distances(R_BI, b_B, g.R0_B, g.h_m)
+        beta = np.linalg.norm(g.R0_B + alpha[:, None] * b_B, axis=1)
+        return sigma * alpha / beta
+
+    def solve(self, frame: CameraCentroids, R_BI_guess) -> Solution:
+        """Iterate identification + attitude from the guess ``A0`` (module docstring)."""
+        b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
+        A = np.asarray(R_BI_guess, dtype=float)
+        history = []
+        ids = np.full(len(b), -1)
+        P = np.full((3, 3), np.nan)
+        for _ in range(self.max_iterations if self.identification == "corrected" else 1):
+            u = self.observed_directions(b, A)
+            ids = self.matcher.identify(u)
+            if np.sum(ids >= 0) < MIN_IDENTIFIED:
+                return Solution(False, A, P, ids, len(history) + 1, tuple(history))
+            A_new, P = self._attitude(u, ids, self.direction_sigmas(frame, b, A), frame.centroids_m)
+            history.append(IterationRecord(A_new, int(np.sum(ids >= 0))))
+            change = rotation_angle(A_new, A)
+            A = A_new
+            if change < self.convergence_tolerance_rad:
+                break
+        return Solution(True, A, P, ids, len(history), tuple(history))
+
+    def acquire(self, frame: CameraCentroids, centre_rpy_deg, rng: np.random.Generator) -> SwarmResult:
+        """The swarm search for an ``A0`` around ``centre_rpy_deg``."""
+        b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
+        return particle_swarm_search(lambda x: -self.count_identified(b, rpy_deg_to_R_BI(x)), centre_rpy_deg,
+                                     self.swarm, len(b), rng)
+
+    # -- the filter-core protocol --------------------------------------------------------------
+    def initial_state(self, q_IB, attitude_sigma_rad: float) -> IndoorSolverState:
+        """The guess before the first frame (``A0`` of the first frame with ``initialization:
+        given``; the swarm's search centre otherwise)."""
+        P = np.zeros((6, 6))
+        P[:3, :3] = np.eye(3) * check_positive("attitude_sigma_rad", attitude_sigma_rad) ** 2
+        P[3:, 3:] = np.eye(3) * _UNKNOWN_RATE_SIGMA**2
+        return IndoorSolverState(rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB, dtype=float))), P,
+                                 np.zeros(3), tracking=self.initialization == "given")
+
+    def predict(self, state: IndoorSolverState, w_meas_B, dt: float, rng=None) -> IndoorSolverState:
+        return state  # no dynamics: the last solution is held between frames
+
+    def update(self, state: IndoorSolverState, measurement, rng=None, guess_q_IB=None
+               ) -> tuple[IndoorSolverState, UpdateInfo]:
+        """Solve one frame: ``A0`` is ``guess_q_IB`` (a fused filter's prediction), else the
+        held solution while tracking, else the swarm search around the held attitude."""
+        if not isinstance(measurement, CameraCentroids):
+            raise TypeError(f"IndoorStarTrackerSolver.update: got a {type(measurement).__name__}; "
+                            "allowed: CameraCentroids")
+        n_obs = len(np.asarray(measurement.centroids_m).reshape(-1, 2))
+        searches = state.diagnostics[4]
+        generations = 0
+        if guess_q_IB is not None:
+            R_guess = rot.quat_to_rotmat(guess_q_IB).T
+        elif state.tracking:
+            R_guess = rot.quat_to_rotmat(state.q_IB).T
+        else:
+            if rng is None:
+                raise ValueError("IndoorStarTrackerSolver.update: the swarm search needs a random generator")
+            found = self.acquire(measurement, np.degrees(rot.quat_to_rpy(state.q_IB)), rng)
+            R_guess, generations, searches = rpy_deg_to_R_BI(found.rpy_deg), found.generations, searches + 1
+        sol = self.solve(measurement, R_guess)
+        diag = np.array([n_obs, sol.identified, sol.iterations, generations, searches, float(sol.solved)])
+        if not sol.solved:
+            failures = state.failures + 1
+            tracking = state.tracking and failures < self.max_lost_frames
+            return (replace(state, failures=failures, tracking=tracking, diagnostics=diag),
+                    UpdateInfo(None, None, float("nan"), False))
+        q = rot.quat_canonical(rot.rotmat_to_quat(sol.R_BI.T))
+        t = float(measurement.time_s)
+        P = np.zeros((6, 6))
+        P[:3, :3] = 0.5 * (sol.covariance + sol.covariance.T)
+        dt = t - state.t_solution
+        if state.failures == 0 and math.isfinite(state.t_solution) and dt > 0:
+            w = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(state.q_IB), q)) / dt
+            P[3:, 3:] = (state.covariance[:3, :3] + P[:3, :3]) / dt**2
+        else:
+            w = np.zeros(3)
+            P[3:, 3:] = np.eye(3) * _UNKNOWN_RATE_SIGMA**2
+        new = IndoorSolverState(q, P, w, t, True, 0, diag)
+        return new, UpdateInfo(None, None, float("nan"), True)
+
+    @staticmethod
+    def estimate(state: IndoorSolverState):
+        return state.q_IB, state.w_IB_B, state.covariance
+
+    @staticmethod
+    def diagnostics(state: IndoorSolverState) -> np.ndarray:
+        return np.asarray(state.diagnostics, dtype=float)
+
+    @staticmethod
+    def to_vector(state: IndoorSolverState) -> np.ndarray:
+        """``[q_IB (4), covariance (36), w_IB_B (3), t_solution, tracking, failures, diagnostics (6)]``."""
+        return np.concatenate([state.q_IB, np.ravel(state.covariance), state.w_IB_B,
+                               [state.t_solution, float(state.tracking), float(state.failures)], state.diagnostics])
+
+    @staticmethod
+    def from_vector(vector) -> IndoorSolverState:
+        v = np.asarray(vector, dtype=float)
+        return IndoorSolverState(v[:4].copy(), v[4:40].reshape(6, 6).copy(), v[40:43].copy(), float(v[43]),
+                                 bool(v[44] > 0.5), int(v[45]), v[46:52].copy())
+
+
+__all__ = ["IDENTIFICATIONS", "ATTITUDE_METHODS", "MIN_IDENTIFIED", "rpy_deg_to_R_BI", "R_BI_to_rpy_deg",
+           "rotation_angle", "AngleMatcher", "triad", "triad_covariance", "svd_attitude", "IterationRecord",
+           "Solution", "SwarmResult", "SwarmSettings", "particle_swarm_search", "IndoorSolverState",
+           "DIAGNOSTIC_NAMES", "IndoorStarTrackerSolver"]
