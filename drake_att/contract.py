@@ -208,6 +208,11 @@ class CameraCentroids:
         return np.asarray(self.centroids_m, dtype=float)
 
 
+def empty_camera_centroids() -> CameraCentroids:
+    """The model value of a camera port (invalid, no stars)."""
+    return CameraCentroids(0.0, False, np.zeros((0, 2)), 1.0, 0.0)
+
+
 def is_usable(measurement) -> bool:
     """The one validity rule: flag true, finite time, at least one number, all finite.
 
@@ -280,7 +285,9 @@ class FilterCore(Protocol):
         uses_gyro: the system feeds ``predict`` the gyro's mean rate (else None).
         is_random: the core draws random numbers; the system passes a generator that is a
             pure function of (diagram seed, system name, step index) and calls
-            ``draw_initial_state`` at initialization.
+            ``draw_initial_state(rng)`` at initialization if the core has one.
+        diagnostic_names (optional): names of ``diagnostics(state)``'s entries, published
+            on the system's ``diagnostics`` port and logged.
         state_size: length of ``to_vector(state)`` (the Context's discrete-state group).
     """
 
@@ -311,6 +318,6 @@ __all__ = [
     "STATUS_T_ESTIMATE", "STATUS_USED", "STATUS_SKIPPED", "STATUS_LAST_NIS",
     "GYRO_MEASUREMENT_SIZE", "QUATERNION_MEASUREMENT_SIZE",
     "SecondQuantity", "Estimate", "pack_estimate", "flag_is_true", "GyroSample", "QuaternionSample",
-    "VectorObservations", "empty_vector_observations", "CameraCentroids", "is_usable", "UpdateInfo",
+    "VectorObservations", "empty_vector_observations", "CameraCentroids", "empty_camera_centroids", "is_usable", "UpdateInfo",
     "FilterCore",
 ]

@@ -13,4 +13,5 @@ from drake_att.estimators import (  # noqa: F401  (registers them, in this order
     lie_group,
     quaternion_ekf,
     cubature,
+    indoor_star_tracker,
 )

@@ -15,7 +15,8 @@ def require_sensor(checks, path: str, field: str, name: str, kind: str):
     out = checks.sensor_output(name)
     if out is None or out.kind != kind:
         have = sorted(n for n in checks.sensors if checks.sensor_output(n).kind == kind)
-        label = {"gyro": "gyro", "vectors": "vector-mode star tracker", "quaternion": "quaternion star tracker"}[kind]
+        label = {"gyro": "gyro", "vectors": "vector-mode star tracker", "quaternion": "quaternion star tracker",
+                 "camera": "camera"}[kind]
         cfg.fail(f"{path}.{field}", name, f"unknown {label}; {label}s listed before: {have}")
     return checks.sensors[name]
 

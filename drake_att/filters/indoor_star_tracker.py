@@ -511,7 +511,68 @@ class IndoorStarTrackerSolver:
                                  bool(v[44] > 0.5), int(v[45]), v[46:52].copy())
 
 
+
+
+@dataclass(frozen=True)
+class IndoorMekfState:
+    """:class:`IndoorStarTrackerMekf`'s state: the MEKF's and the solver's."""
+
+    mekf: object
+    solver: IndoorSolverState
+
+
+class IndoorStarTrackerMekf:
+    """Beyond the paper: the indoor star tracker fused with a table gyro in the MEKF
+    (:class:`drake_att.filters.mekf.MultiplicativeEKF`), as a filter core.
+
+    The gyro drives the MEKF's prediction between frames; each frame is solved by the
+    :class:`IndoorStarTrackerSolver` with ``A0`` = the MEKF's prediction (the paper's "A0 from
+    another sensor on the table") once a first solution exists (before it, or after
+    ``max_lost_frames`` failures, the swarm search), and the solution enters the MEKF as a
+    quaternion measurement with the solver's covariance. A frame the solver cannot solve is
+    skipped (the gyro carries the attitude through it). Second quantity: the gyro bias.
+    """
+
+    second_quantity = SecondQuantity.GYRO_BIAS
+    uses_gyro = True
+    is_random = True
+    diagnostic_names = DIAGNOSTIC_NAMES
+
+    def __init__(self, solver: IndoorStarTrackerSolver, mekf):
+        self.solver, self.mekf = solver, mekf
+        self.state_size = mekf.state_size + solver.state_size
+
+    def initial_state(self, mekf_state, solver_state: IndoorSolverState) -> IndoorMekfState:
+        return IndoorMekfState(mekf_state, replace(solver_state, tracking=self.solver.initialization == "given"))
+
+    def predict(self, state: IndoorMekfState, w_meas_B, dt: float, rng=None) -> IndoorMekfState:
+        return IndoorMekfState(self.mekf.predict(state.mekf, w_meas_B, dt), state.solver)
+
+    def update(self, state: IndoorMekfState, measurement, rng=None) -> tuple[IndoorMekfState, UpdateInfo]:
+        guess = self.mekf.estimate(state.mekf)[0] if state.solver.tracking else None
+        solver_state, info = self.solver.update(state.solver, measurement, rng, guess_q_IB=guess)
+        if not info.accepted:
+            return IndoorMekfState(state.mekf, solver_state), info
+        P = solver_state.covariance[:3, :3]
+        mekf_state, info = self.mekf.update_quaternion(state.mekf, solver_state.q_IB, np.array([1.0, 0.0, 0.0, 0.0]), P)
+        return IndoorMekfState(mekf_state, solver_state), info
+
+    def estimate(self, state: IndoorMekfState):
+        return self.mekf.estimate(state.mekf)
+
+    def diagnostics(self, state: IndoorMekfState) -> np.ndarray:
+        return self.solver.diagnostics(state.solver)
+
+    def to_vector(self, state: IndoorMekfState) -> np.ndarray:
+        return np.concatenate([self.mekf.to_vector(state.mekf), self.solver.to_vector(state.solver)])
+
+    def from_vector(self, vector) -> IndoorMekfState:
+        v = np.asarray(vector, dtype=float)
+        n = self.mekf.state_size
+        return IndoorMekfState(self.mekf.from_vector(v[:n]), self.solver.from_vector(v[n:]))
+
+
 __all__ = ["IDENTIFICATIONS", "ATTITUDE_METHODS", "MIN_IDENTIFIED", "rpy_deg_to_R_BI", "R_BI_to_rpy_deg",
            "rotation_angle", "AngleMatcher", "triad", "triad_covariance", "svd_attitude", "IterationRecord",
            "Solution", "SwarmResult", "SwarmSettings", "particle_swarm_search", "IndoorSolverState",
-           "DIAGNOSTIC_NAMES", "IndoorStarTrackerSolver"]
+           "DIAGNOSTIC_NAMES", "IndoorStarTrackerSolver", "IndoorMekfState", "IndoorStarTrackerMekf"]

@@ -78,6 +78,8 @@ class BuildContext:
             self.connect_sensor(m.name, est, f"q_meas_{m.name}")
         for n in setup.vector_sensors:
             self.connect_sensor(n, est, f"vectors_{n}")
+        for n in setup.camera_sensors:
+            self.connect_sensor(n, est, f"centroids_{n}")
         return est
 
     def connect_sensor(self, name: str, system, input_port: str) -> None:

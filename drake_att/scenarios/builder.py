@@ -297,6 +297,8 @@ class ScenarioDiagram:
             else:
                 for port in ("q_IB_hat", system.second_output_name, "covariance", "status"):
                     log(system, port, self.estimator_period(e.name))
+            if system.HasOutputPort("diagnostics"):
+                log(system, "diagnostics", self.estimator_period(e.name))
         self.diagram = builder.Build()
         self.diagram.set_name(scenario.name)
 

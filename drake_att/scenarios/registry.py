@@ -65,8 +65,9 @@ class SensorOutput:
     """What a sensor delivers to estimators.
 
     Attributes:
-        kind: "gyro" (``[t, valid, w_meas_B]``), "quaternion" (``[t, valid, q_IS_meas]``)
-            or "vectors" (abstract :class:`~drake_att.contract.VectorObservations`).
+        kind: "gyro" (``[t, valid, w_meas_B]``), "quaternion" (``[t, valid, q_IS_meas]``),
+            "vectors" (abstract :class:`~drake_att.contract.VectorObservations`) or "camera"
+            (abstract :class:`~drake_att.contract.CameraCentroids`).
         port: the sensor system's output port name.
         period_s: sample period (s).
     """

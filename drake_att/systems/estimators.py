@@ -26,6 +26,8 @@ Input ports:
     q_meas_<sensor> (6): ``[t, valid, q_IS_meas (4)]`` per quaternion sensor.
     vectors_<sensor> (abstract :class:`~drake_att.contract.VectorObservations`) per vector
         sensor.
+    centroids_<sensor> (abstract :class:`~drake_att.contract.CameraCentroids`) per camera
+        (the indoor star tracker, paper S2).
     seed_uniform (4, random uniform) (cores with ``is_random``).
 Output ports:
     q_IB_hat (4), bias_B_hat or w_IB_B_hat (3, named by the core's ``second_quantity``),
@@ -36,6 +38,8 @@ Output ports:
         (row-major 6x6 each) and the number of steps taken (for track-to-track fusion).
     particle_diagnostics (4) (cores with ``num_particles``): ``[N_eff after the last
         update (before resampling), resamplings so far, degenerate updates so far, N]``.
+    diagnostics (n) (cores with ``diagnostic_names``): ``core.diagnostics(state)``, e.g. the
+        indoor star tracker's stars identified and iterations of the last frame.
 Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
     abstract parameter 0: the :class:`FilterModel` — the core (its tuning), the initial
         state, the quaternion sensor models (mounting, noise) and whether the estimator
@@ -115,6 +119,7 @@ class EstimatorSetup:
         gyro: name of the gyro feeding ``gyro_measurement`` (cores with ``uses_gyro``).
         quaternion_sensors: :class:`QuaternionSensorModel` per attitude-quaternion input.
         vector_sensors: names of the vector-observation sensors.
+        camera_sensors: names of the cameras (focal-plane centroids).
     """
 
     core: Any
@@ -123,6 +128,7 @@ class EstimatorSetup:
     gyro: str | None = None
     quaternion_sensors: tuple = ()
     vector_sensors: tuple = ()
+    camera_sensors: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -145,14 +151,15 @@ class EstimatorSystem(LeafSystem):
         period_s: filter step (s), finite and > 0; for gyro-driven cores it must equal the
             gyro period (the gyro delivers the mean rate over exactly one step).
         core: a :class:`~drake_att.contract.FilterCore`.
-        initial_state: the core's state at t = 0 (for random cores: the default, replaced
-            at initialization by ``core.draw_initial_state(rng)``).
+        initial_state: the core's state at t = 0 (for random cores with a
+            ``draw_initial_state(rng)``: the default, replaced at initialization by a draw).
         quaternion_sensors: :class:`QuaternionSensorModel` per attitude-quaternion input.
         vector_sensors: names of vector-observation inputs.
+        camera_sensors: names of camera (focal-plane centroid) inputs.
     """
 
     def __init__(self, name: str, period_s: float, core, initial_state, quaternion_sensors=(),
-                 vector_sensors=()):
+                 vector_sensors=(), camera_sensors=()):
         LeafSystem.__init__(self)
         self.set_name(name)
         if not isinstance(core, contract.FilterCore):
@@ -175,8 +182,13 @@ class EstimatorSystem(LeafSystem):
         self._vector_ports = [
             self.DeclareAbstractInputPort(f"vectors_{n}", AbstractValue.Make(contract.empty_vector_observations()))
             for n in vector_sensors]
+        self._vector_ports += [
+            self.DeclareAbstractInputPort(f"centroids_{n}", AbstractValue.Make(contract.empty_camera_centroids()))
+            for n in camera_sensors]
         self._seed_port = declare_seed_port(self) if core.is_random else None
         self._vector_names = tuple(vector_sensors)
+        self._camera_names = tuple(camera_sensors)
+        self.diagnostic_names = tuple(getattr(core, "diagnostic_names", ()))
         self._model_index = self.DeclareAbstractParameter(
             AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors))))
 
@@ -209,6 +221,9 @@ class EstimatorSystem(LeafSystem):
         if self.num_particles is not None:
             self.DeclareVectorOutputPort("particle_diagnostics", PARTICLE_DIAGNOSTICS_SIZE, self._calc_diagnostics,
                                          {self.discrete_state_ticket(self._book_group)})
+        if self.diagnostic_names:
+            self.DeclareVectorOutputPort("diagnostics", len(self.diagnostic_names), self._calc_core_diagnostics,
+                                         {self.discrete_state_ticket(self._core_group)})
 
         # -- events ------------------------------------------------------------------------
         if core.is_random:
@@ -219,7 +234,7 @@ class EstimatorSystem(LeafSystem):
     def from_setup(cls, name: str, setup: EstimatorSetup) -> "EstimatorSystem":
         """The system for a plug-in's :class:`EstimatorSetup` (ports unconnected)."""
         return cls(name, setup.period_s, setup.core, setup.initial_state, setup.quaternion_sensors,
-                   setup.vector_sensors)
+                   setup.vector_sensors, setup.camera_sensors)
 
     # -- per-context parameters ---------------------------------------------------------------
     def filter_model(self, context) -> FilterModel:
@@ -263,7 +278,9 @@ class EstimatorSystem(LeafSystem):
                   ("num_particles", self.num_particles, getattr(new, "num_particles", None)),
                   ("quaternion sensors", [s.name for s in self._quat_sensors],
                    [s.name for s in setup.quaternion_sensors]),
-                  ("vector sensors", list(self._vector_names), list(setup.vector_sensors))]
+                  ("vector sensors", list(self._vector_names), list(setup.vector_sensors)),
+                  ("cameras", list(self._camera_names), list(setup.camera_sensors)),
+                  ("diagnostics", list(self.diagnostic_names), list(getattr(new, "diagnostic_names", ())))]
         for what, was, now in checks:
             if was != now:
                 raise ValueError(f"{name}: the new filter setup changes the {what} ({was!r} -> {now!r}); "
@@ -277,6 +294,10 @@ class EstimatorSystem(LeafSystem):
         book = context.get_discrete_state(self._book_group).value()
         output.SetFromVector([book[_ESS], book[_N_RESAMPLES], book[_N_DEGENERATE], float(self.num_particles)])
 
+    def _calc_core_diagnostics(self, context, output: BasicVector):
+        core = self.filter_model(context).core
+        output.SetFromVector(core.diagnostics(core.from_vector(context.get_discrete_state(self._core_group).value())))
+
     def estimate_vector(self, context) -> np.ndarray:
         """The packed estimate (47) in ``context`` (this system's context)."""
         return context.get_discrete_state(self._estimate_group).value()
@@ -287,13 +308,17 @@ class EstimatorSystem(LeafSystem):
 
     # -- events ------------------------------------------------------------------------------
     def _initialize(self, context, discrete_state):
-        """Random cores: keep the seed words, draw the initial state with generator 0."""
+        """Random cores: keep the seed words, draw the initial state with generator 0 (cores
+        without ``draw_initial_state`` start from the model's initial state)."""
         words = read_seed_words(self, context, self._seed_port)
         book = context.get_discrete_state(self._book_group).value().copy()
         book[_SEED] = words
         book[_STEP] = 0.0
-        core = self.filter_model(context).core
-        state = core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
+        model = self.filter_model(context)
+        core = model.core
+        draw = getattr(core, "draw_initial_state", None)
+        state = (draw(counter_random(words, self.get_name()).generator(0)) if draw is not None
+                 else model.initial_state)
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
         discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
         return EventStatus.Succeeded()
