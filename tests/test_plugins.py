@@ -31,7 +31,7 @@ import scipy.linalg as sla
 import yaml
 from scipy.stats import chi2
 
-from drake_att.contract import SecondQuantity, VectorObservations
+from drake_att.contract import CameraCentroids, SecondQuantity, VectorObservations
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
 from drake_att.scenarios.registry import ESTIMATOR, plugins
@@ -222,6 +222,7 @@ sensors:
                       sigma_boresight_arcsec: 50.0}
 - !StarTrackerConfig {name: stv, period_s: 1.0, mode: vectors, references_I: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
                       sigma_vector_urad: 5000.0}
+- !ScreenCameraConfig {name: cam, period_s: 1.0, star_count: 12, centroid_noise_px: 0.1}
 estimators:
 - !MekfConfig {name: mekf, star_trackers: [stq, stv]}
 - !MekfConfig {name: mekf_q, star_trackers: [stq]}
@@ -236,6 +237,8 @@ estimators:
 - !LieGroupConfig {name: lie_group_literal, star_tracker: stv, formulation: paper_literal}
 - !QuaternionEkfConfig {name: quaternion_ekf, star_tracker: stv}
 - !CubatureQuaternionConfig {name: cqe, star_tracker: stv}
+- !IndoorStarTrackerConfig {name: indoor, camera: cam, period_s: 1.0}
+- !IndoorStarTrackerConfig {name: indoor_gyro, camera: cam, gyro: gyro, period_s: 1.0}
 """
 NOT_ON_ESTIMATOR_SYSTEM = {
     "EstimateFusionConfig": "EstimateFusion is not an EstimatorSystem: it averages other estimators' outputs "
@@ -244,6 +247,8 @@ NOT_ON_ESTIMATOR_SYSTEM = {
 # The library's own estimator plug-ins (a plug-in registered by a test or a user is not the
 # library's: the suite cannot know what it is fed).
 LIBRARY_TAGS = sorted(tag for tag, p in plugins(ESTIMATOR).items() if p.module.startswith("drake_att."))
+# Plus the second instance of tags whose config switches the core (``<tag>:<name>``).
+CONTRACT_CASES = LIBRARY_TAGS + ["IndoorStarTrackerConfig:indoor_gyro"]
 REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 SEED_A, SEED_B = np.array([0.11, 0.52, 0.23, 0.94]), np.array([0.61, 0.02, 0.73, 0.34])
@@ -255,7 +260,8 @@ def contract_diagram():
 
 
 def _estimator_system(contract_diagram, tag):
-    names = [e.name for e in contract_diagram.scenario.estimators if type(e).__name__ == tag]
+    tag, _, name = tag.partition(":")
+    names = [e.name for e in contract_diagram.scenario.estimators if type(e).__name__ == tag and name in ("", e.name)]
     assert names, f"{tag}: add an instance to CONTRACT_SCENARIO (every library estimator is covered)"
     system = contract_diagram.estimators[names[0]]
     if tag in NOT_ON_ESTIMATOR_SYSTEM:
@@ -270,9 +276,23 @@ def _gyro_rate(step):
     return 1e-5 * np.array([1.0, -2.0, 3.0]) * (1.0 + 0.37 * step)
 
 
+def _camera_image():
+    """The contract camera's (``cam``) noise-free image at zero attitude, and its focal length."""
+    from drake_att.sensors.screen_camera import ScreenCameraConfig, camera_geometry
+
+    geometry = camera_geometry(ScreenCameraConfig(name="cam", star_count=12))
+    return geometry.project(np.eye(3))[1], geometry.focal_length_m
+
+
+CAMERA_CENTROIDS, CAMERA_FOCAL_LENGTH = _camera_image()
+
+
 def _good(port_name, t):
     if port_name.startswith("q_meas_"):
         return np.array([t, 1.0, *IDENTITY])
+    if port_name.startswith("centroids_"):
+        offset = 1e-7 * np.arange(CAMERA_CENTROIDS.size).reshape(-1, 2)  # 0.02 px: noisy, not exact
+        return CameraCentroids(float(t), True, CAMERA_CENTROIDS + offset, CAMERA_FOCAL_LENGTH, 0.55e-6)
     return VectorObservations(float(t), True, REFS + 1e-4 * np.array([[0.0, 1.0, -1.0], [1.0, 0.0, 2.0]]), REFS.copy(),
                               5000e-6, IDENTITY.copy())
 
@@ -290,6 +310,13 @@ def _corrupt(port_name, t, how):
             0.0 if how == "false_flag" else (np.inf if how == "inf_number" else np.nan)
         return q
     good = _good(port_name, t)
+    if port_name.startswith("centroids_"):
+        xy = good.centroids_m.copy()
+        if how in ("nan_number", "inf_number"):
+            xy[2, 1] = np.nan if how == "nan_number" else -np.inf
+        return CameraCentroids(np.nan if how == "nan_time" else float(t),
+                               {"nan_flag": np.nan, "false_flag": False}.get(how, True), xy, good.focal_length_m,
+                               good.sigma_m)
     dirs = good.directions_S.copy()
     if how in ("nan_number", "inf_number"):
         dirs[1, 2] = np.nan if how == "nan_number" else -np.inf
@@ -317,7 +344,7 @@ class _Driver:
         self.system = system
         self.period = system.period_s
         names = [system.get_input_port(i).get_name() for i in range(system.num_input_ports())]
-        self.measurement_ports = [n for n in names if n.startswith(("q_meas_", "vectors_"))]
+        self.measurement_ports = [n for n in names if n.startswith(("q_meas_", "vectors_", "centroids_"))]
         self.has_gyro = "gyro_measurement" in names and connect_gyro
         if context is not None:
             self.context = context
@@ -405,7 +432,7 @@ def _started_driver(system):
     return d
 
 
-@pytest.mark.parametrize("tag", LIBRARY_TAGS)
+@pytest.mark.parametrize("tag", CONTRACT_CASES)
 def test_contract_unusable_inputs_are_skipped_counted_and_change_nothing_else(contract_diagram, tag):
     """Each unusable input, one per step, is counted in status[2] exactly once and has no
     other effect (see _check_unusable_step). Corruptions: NaN time, NaN flag, false flag,
@@ -458,7 +485,7 @@ def test_contract_a_measurement_the_core_rejects_is_counted_and_changes_only_the
     _assert_finite_outputs(d, t)
 
 
-@pytest.mark.parametrize("tag", LIBRARY_TAGS)
+@pytest.mark.parametrize("tag", CONTRACT_CASES)
 def test_contract_non_finite_reference_directions_are_skipped_and_counted(contract_diagram, tag):
     system = _estimator_system(contract_diagram, tag)
     d = _started_driver(system)
@@ -474,18 +501,23 @@ def test_contract_non_finite_reference_directions_are_skipped_and_counted(contra
                 step, w_last = _check_unusable_step(d, step, w_last, "measurement", port, sample, f"{bad} reference")
 
 
-@pytest.mark.parametrize("tag", LIBRARY_TAGS)
+@pytest.mark.parametrize("tag", CONTRACT_CASES)
 def test_contract_same_seed_repeats_bit_for_bit_and_another_seed_differs(contract_diagram, tag):
     """Fresh Contexts run the same inputs: two with the same seed (seed_uniform) give
     bit-identical estimates and core states at every step. For a random core (is_random, a
     seed_uniform port) another seed changes both the initial draw and the draws of every
     step: a run with the other seed but the first run's initial state still differs. A
-    deterministic core has no seed port and nothing else to differ."""
+    deterministic core has no seed port and nothing else to differ. A core that draws only on
+    demand (no ``draw_initial_state``: the indoor star tracker's swarm search of its first
+    frame) differs from the first step on."""
     system = _estimator_system(contract_diagram, tag)
     runs = [_Driver(system, seed) for seed in (SEED_A, SEED_A, SEED_B)]
     random_core = system.core.is_random
+    on_demand = random_core and not hasattr(system.core, "draw_initial_state")
     assert system.HasInputPort("seed_uniform") == random_core
-    if random_core:
+    if on_demand:
+        np.testing.assert_array_equal(runs[0].core_state(), runs[2].core_state())  # nothing drawn yet
+    elif random_core:
         assert not np.array_equal(runs[0].core_state(), runs[2].core_state())  # the initial draw
         same_start = _Driver(system, SEED_B)
         # discrete-state groups 0 (estimate) and 2 (core state), documented in
@@ -504,6 +536,9 @@ def test_contract_same_seed_repeats_bit_for_bit_and_another_seed_differs(contrac
         histories.append(np.array(history))
     np.testing.assert_array_equal(histories[0], histories[1])
     assert np.all(np.isfinite(histories[0][:, :46]))
+    if on_demand:
+        assert not np.array_equal(histories[0][0], histories[2][0])  # the first frame's search
+        return  # later steps draw nothing while the core tracks: no per-step stream to compare
     if random_core:
         assert not np.array_equal(histories[0][:, :43], histories[2][:, :43])
         assert not np.array_equal(histories[0][:, :43], histories[3][:, :43])  # the steps' draws
