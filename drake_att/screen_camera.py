@@ -122,16 +122,25 @@ class ScreenCameraGeometry:
         ids = ids[order]
         return ids, xy[ids]
 
-    def catalogue(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def catalogue(self, centroids_m=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The navigation catalogue: the camera's noise-free view at zero attitude.
 
+        Args:
+            centroids_m: the zero-attitude photo to convert (k, 2), e.g. taken by a real
+                camera whose offset differs from this geometry's model (calibration error);
+                None: this geometry's own exact view.
         Returns:
             ``(star_ids (m,), r_I (m, 3), b0 (m, 3))``: the ids of the stars seen at zero
             attitude, their centre-referenced unit directions ``r_i = (R0 + alpha_i b_i) /
             beta_i`` (paper) and the camera directions ``b_i`` themselves (the catalogue of
-            the classic, uncorrected angle matching).
+            the classic, uncorrected angle matching). With ``centroids_m`` the ids are
+            positions in that photo.
         """
-        ids, xy = self.project(np.eye(3))
+        if centroids_m is None:
+            ids, xy = self.project(np.eye(3))
+        else:
+            xy = np.asarray(centroids_m, dtype=float).reshape(-1, 2)
+            ids = np.arange(len(xy))
         b = directions_from_centroids(xy, self.focal_length_m)
         alpha = camera_to_star_distances(np.eye(3), b, self.R0_B, self.h_m)
         r = centre_referenced_directions(b, alpha, self.R0_B)

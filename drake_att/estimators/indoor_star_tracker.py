@@ -12,7 +12,9 @@ stars identified, 6 deg: identification fails" over random 7-star screens), TRIA
 widest identified pair, stop when the attitude changes by less than
 ``convergence_tolerance_arcsec`` or after ``max_iterations``; the swarm searches
 ``initial_attitude_rpy_deg +- pso_search_range_deg`` and stops when half the observed stars
-are identified. ``initialization: given`` uses ``initial_attitude_rpy_deg`` as the first
+are identified. ``camera_offset_error_mm`` (beyond the paper) miscalibrates the solver's
+``R0`` (its catalogue is then the real camera's zero-attitude photo converted with the wrong
+offset, as a lab would make it). ``initialization: given`` uses ``initial_attitude_rpy_deg`` as the first
 frame's ``A0`` (the paper's Tables 1-2); ``swarm`` runs the search first (its dynamic test).
 
 Without a gyro the second output is the body rate (differenced from consecutive solutions)
@@ -25,7 +27,7 @@ iterations, swarm generations, swarm searches so far, solved — of the last fra
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import List, Optional
 
 import numpy as np
@@ -69,6 +71,7 @@ class IndoorStarTrackerConfig:
     initial_attitude_sigma_deg: float = 10.0
     max_lost_frames: int = 5
     sigma_floor_urad: float = 0.001
+    camera_offset_error_mm: float = 0.0
     pso_particles: int = 5
     pso_inertia: float = 0.8
     pso_c1: float = 1.3
@@ -117,6 +120,11 @@ def validate_indoor_star_tracker(path: str, c: IndoorStarTrackerConfig, checks) 
     cfg.check_nonnegative(f"{path}.convergence_tolerance_arcsec", c.convergence_tolerance_arcsec)
     common.check_initial_attitude(path, c)
     cfg.check_positive(f"{path}.sigma_floor_urad", c.sigma_floor_urad)
+    cfg.check_finite(f"{path}.camera_offset_error_mm", c.camera_offset_error_mm)
+    offset = camera.h_mm - camera.camera_to_screen_mm + c.camera_offset_error_mm
+    if not 0.0 <= offset < camera.h_mm:
+        cfg.fail(f"{path}.camera_offset_error_mm", c.camera_offset_error_mm,
+                 f"the modelled offset |R0| = {offset} mm must be in [0, h = {camera.h_mm}) mm")
     for f in ("pso_inertia", "pso_c1", "pso_c2"):
         cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
     for f in ("pso_v_max_deg", "pso_search_range_deg"):
@@ -137,19 +145,25 @@ def indoor_second_quantity(c: IndoorStarTrackerConfig, checks) -> SecondQuantity
 
 
 def solver_for(ctx, c: IndoorStarTrackerConfig) -> IndoorStarTrackerSolver:
-    """The solver of a (validated) config, on its camera's geometry."""
+    """The solver of a (validated) config: its camera's geometry, with the offset ``R0``
+    miscalibrated by ``camera_offset_error_mm``; the catalogue is the real camera's
+    noise-free photo at zero attitude converted with that model."""
+    camera = ctx.sensor_configs[c.camera]
+    photo = camera_geometry(camera).project(np.eye(3))[1]
+    model = camera_geometry(replace(camera, camera_to_screen_mm=camera.camera_to_screen_mm - c.camera_offset_error_mm))
     swarm = SwarmSettings(c.pso_particles, c.pso_inertia, c.pso_c1, c.pso_c2, c.pso_v_max_deg, c.pso_max_generations,
                           c.pso_search_range_deg, c.pso_stop_fraction)
-    return IndoorStarTrackerSolver(camera_geometry(ctx.sensor_configs[c.camera]), c.tolerance_deg, c.identification,
-                                   c.attitude_method, c.max_iterations, c.convergence_tolerance_arcsec * ARCSEC,
-                                   c.initialization, swarm, c.max_lost_frames, c.sigma_floor_urad * 1e-6)
+    return IndoorStarTrackerSolver(model, c.tolerance_deg, c.identification, c.attitude_method, c.max_iterations,
+                                   c.convergence_tolerance_arcsec * ARCSEC, c.initialization, swarm, c.max_lost_frames,
+                                   c.sigma_floor_urad * 1e-6, catalogue_centroids_m=photo)
 
 
 @register_estimator(IndoorStarTrackerConfig, second_quantity=indoor_second_quantity,
                     validate=validate_indoor_star_tracker,
                     parameters=("tolerance_deg", "identification", "attitude_method", "max_iterations",
                                 "convergence_tolerance_arcsec", "initialization", "initial_attitude_rpy_deg",
-                                "initial_attitude_sigma_deg", "max_lost_frames", "sigma_floor_urad", "pso_particles",
+                                "initial_attitude_sigma_deg", "max_lost_frames", "sigma_floor_urad",
+                                "camera_offset_error_mm", "pso_particles",
                                 "pso_inertia", "pso_c1", "pso_c2", "pso_v_max_deg", "pso_max_generations",
                                 "pso_search_range_deg", "pso_stop_fraction", "arw_deg_per_rt_h", "rrw_deg_per_h15",
                                 "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h", "innovation_gate_chi2"))

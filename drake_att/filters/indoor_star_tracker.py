@@ -339,6 +339,10 @@ class IndoorStarTrackerSolver:
         swarm: :class:`SwarmSettings`; max_lost_frames: consecutive failures before the
             swarm search runs again (>= 1).
         sigma_floor_rad: floor of the direction noise in the covariance (rad, > 0).
+        catalogue_centroids_m: the photo the catalogue is made from: focal-plane centroids
+            (k, 2) of the real camera at zero attitude, converted with ``geometry`` (the
+            solver's model of the layout). None: ``geometry``'s own noise-free view (a model
+            that is exact). Differs from ``geometry``'s view when the model is miscalibrated.
     """
 
     second_quantity = SecondQuantity.BODY_RATE
@@ -350,7 +354,8 @@ class IndoorStarTrackerSolver:
     def __init__(self, geometry: ScreenCameraGeometry, tolerance_deg: float = 0.02,
                  identification: str = "corrected", attitude_method: str = "triad", max_iterations: int = 10,
                  convergence_tolerance_rad: float = 1e-9, initialization: str = "swarm",
-                 swarm: SwarmSettings = SwarmSettings(), max_lost_frames: int = 5, sigma_floor_rad: float = 1e-9):
+                 swarm: SwarmSettings = SwarmSettings(), max_lost_frames: int = 5, sigma_floor_rad: float = 1e-9,
+                 catalogue_centroids_m=None):
         if identification not in IDENTIFICATIONS:
             fail("identification", identification, f"allowed: {list(IDENTIFICATIONS)}")
         if attitude_method not in ATTITUDE_METHODS:
@@ -366,7 +371,7 @@ class IndoorStarTrackerSolver:
         self.swarm = swarm
         self.max_lost_frames = check_int("max_lost_frames", max_lost_frames, 1)
         self.sigma_floor_rad = check_positive("sigma_floor_rad", sigma_floor_rad)
-        self.catalogue_ids, r_I, b0 = geometry.catalogue()
+        self.catalogue_ids, r_I, b0 = geometry.catalogue(catalogue_centroids_m)
         if len(self.catalogue_ids) < MIN_IDENTIFIED:
             fail("geometry", f"{len(self.catalogue_ids)} stars in view at zero attitude",
                  f"the catalogue needs >= {MIN_IDENTIFIED}")
