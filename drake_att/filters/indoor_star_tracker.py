@@ -299,6 +299,8 @@ class IndoorSolverState:
         q_IB: last solution (or the initial guess); covariance: (6, 6) of ``[dtheta_B;
             w error]``; w_IB_B: body rate from the last two consecutive solutions (rad/s).
         t_solution: time of the last solution (s; -inf: none yet).
+        held_s: time the solution has been held since (s): its attitude covariance grows by
+            ``(w w^T + P_w) held_s^2`` (the table may have turned at the estimated rate).
         tracking: the last solution is usable as ``A0`` (reset after ``max_lost_frames``
             consecutive failures, which sends the next frame to the swarm search).
         failures: consecutive failed frames.
@@ -310,6 +312,7 @@ class IndoorSolverState:
     covariance: np.ndarray
     w_IB_B: np.ndarray
     t_solution: float = -math.inf
+    held_s: float = 0.0
     tracking: bool = False
     failures: int = 0
     diagnostics: np.ndarray = field(default_factory=lambda: np.zeros(6))
@@ -323,7 +326,7 @@ _UNKNOWN_RATE_SIGMA = math.radians(10.0)  # rad/s: the rate's 1-sigma before two
 class IndoorStarTrackerSolver:
     """The indoor star tracker as a filter core (:class:`drake_att.contract.FilterCore`):
     each camera frame (:class:`~drake_att.contract.CameraCentroids`) is solved on its own;
-    ``predict`` holds the attitude. Second quantity: the body rate, differenced from the last
+    ``predict`` holds the attitude (its covariance grows with the estimated rate). Second quantity: the body rate, differenced from the last
     two consecutive solutions.
 
     Args:
@@ -348,7 +351,7 @@ class IndoorStarTrackerSolver:
     second_quantity = SecondQuantity.BODY_RATE
     uses_gyro = False
     is_random = True
-    state_size = 4 + 36 + 3 + 3 + len(DIAGNOSTIC_NAMES)
+    state_size = 4 + 36 + 3 + 4 + len(DIAGNOSTIC_NAMES)
     diagnostic_names = DIAGNOSTIC_NAMES
 
     def __init__(self, geometry: ScreenCameraGeometry, tolerance_deg: float = 0.02,
@@ -453,7 +456,18 @@ class IndoorStarTrackerSolver:
                                  np.zeros(3), tracking=self.initialization == "given")
 
     def predict(self, state: IndoorSolverState, w_meas_B, dt: float, rng=None) -> IndoorSolverState:
-        return state  # no dynamics: the last solution is held between frames
+        """Hold the last solution; its attitude covariance grows as the table may turn at the
+        estimated rate: ``P_att(held) = P_att(solution) + (w w^T + P_w) held^2``."""
+        if not (dt > 0.0 and math.isfinite(state.t_solution)):
+            return state
+        held = state.held_s + dt
+        P = state.covariance.copy()
+        P[:3, :3] += self._turn_covariance(state) * (held * held - state.held_s * state.held_s)
+        return replace(state, covariance=P, held_s=held)
+
+    @staticmethod
+    def _turn_covariance(state: IndoorSolverState) -> np.ndarray:
+        return np.outer(state.w_IB_B, state.w_IB_B) + state.covariance[3:, 3:]
 
     def update(self, state: IndoorSolverState, measurement, rng=None, guess_q_IB=None
                ) -> tuple[IndoorSolverState, UpdateInfo]:
@@ -488,11 +502,12 @@ class IndoorStarTrackerSolver:
         dt = t - state.t_solution
         if state.failures == 0 and math.isfinite(state.t_solution) and dt > 0:
             w = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(state.q_IB), q)) / dt
-            P[3:, 3:] = (state.covariance[:3, :3] + P[:3, :3]) / dt**2
+            P_previous = state.covariance[:3, :3] - self._turn_covariance(state) * state.held_s**2
+            P[3:, 3:] = (P_previous + P[:3, :3]) / dt**2
         else:
             w = np.zeros(3)
             P[3:, 3:] = np.eye(3) * _UNKNOWN_RATE_SIGMA**2
-        new = IndoorSolverState(q, P, w, t, True, 0, diag)
+        new = IndoorSolverState(q, P, w, t_solution=t, held_s=0.0, tracking=True, failures=0, diagnostics=diag)
         return new, UpdateInfo(None, None, float("nan"), True)
 
     @staticmethod
@@ -505,15 +520,18 @@ class IndoorStarTrackerSolver:
 
     @staticmethod
     def to_vector(state: IndoorSolverState) -> np.ndarray:
-        """``[q_IB (4), covariance (36), w_IB_B (3), t_solution, tracking, failures, diagnostics (6)]``."""
+        """``[q_IB (4), covariance (36), w_IB_B (3), t_solution, tracking, failures, held_s,
+        diagnostics (6)]``."""
         return np.concatenate([state.q_IB, np.ravel(state.covariance), state.w_IB_B,
-                               [state.t_solution, float(state.tracking), float(state.failures)], state.diagnostics])
+                               [state.t_solution, float(state.tracking), float(state.failures), state.held_s],
+                               state.diagnostics])
 
     @staticmethod
     def from_vector(vector) -> IndoorSolverState:
         v = np.asarray(vector, dtype=float)
-        return IndoorSolverState(v[:4].copy(), v[4:40].reshape(6, 6).copy(), v[40:43].copy(), float(v[43]),
-                                 bool(v[44] > 0.5), int(v[45]), v[46:52].copy())
+        return IndoorSolverState(v[:4].copy(), v[4:40].reshape(6, 6).copy(), v[40:43].copy(), t_solution=float(v[43]),
+                                 tracking=bool(v[44] > 0.5), failures=int(v[45]), held_s=float(v[46]),
+                                 diagnostics=v[47:53].copy())
 
 
 
