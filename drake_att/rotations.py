@@ -341,11 +341,24 @@ def rpy_to_quat(rpy) -> np.ndarray:
 
 
 def quat_to_rpy(q) -> np.ndarray:
-    """Roll-pitch-yaw angles (rad) of quaternion(s), inverse of :func:`rpy_to_quat`."""
+    """Roll-pitch-yaw angles (rad) of quaternion(s), inverse of :func:`rpy_to_quat`.
+
+    Correct at and near gimbal lock (pitch = +-pi/2): pitch from ``atan2`` (not ``asin``, which
+    loses half the digits there); yaw from the first column, or — when that column has no
+    horizontal part left (|cos pitch| < 1e-12, where only yaw -+ roll is defined) — from the
+    second with roll = 0; roll last, from the rotation with yaw and pitch removed, so the
+    angles always reproduce the rotation (``rpy_to_quat(quat_to_rpy(q)) = +-q`` to round-off).
+    """
     R = quat_to_rotmat(q)
-    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
-    pitch = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
-    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    horizontal = np.hypot(R[..., 0, 0], R[..., 1, 0])  # |cos pitch|
+    pitch = np.arctan2(-R[..., 2, 0], horizontal)
+    locked = horizontal < 1e-12
+    yaw = np.where(locked, np.arctan2(-R[..., 0, 1], R[..., 1, 1]), np.arctan2(R[..., 1, 0], R[..., 0, 0]))
+    sp, cp, sy, cy = np.sin(pitch), np.cos(pitch), np.sin(yaw), np.cos(yaw)
+    # Third row of Ry(pitch)^T Rz(yaw)^T R = Rx(roll): [0, sin roll, cos roll].
+    s_roll = sp * (cy * R[..., 0, 1] + sy * R[..., 1, 1]) + cp * R[..., 2, 1]
+    c_roll = sp * (cy * R[..., 0, 2] + sy * R[..., 1, 2]) + cp * R[..., 2, 2]
+    roll = np.arctan2(s_roll, c_roll)
     return np.stack([roll, pitch, yaw], axis=-1)
 
 

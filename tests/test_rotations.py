@@ -621,6 +621,27 @@ def test_quat_to_rpy_reconstructs_rotation(q):
     np.testing.assert_allclose(RollPitchYaw(rpy).ToRotationMatrix().matrix(), R, atol=1e-10)
 
 
+@pytest.mark.parametrize("pitch", [PI / 2, -PI / 2])
+@pytest.mark.parametrize("offset", [0.0, 1e-15, 1e-12, 1e-9, 1e-6, 1e-3])
+def test_quat_to_rpy_at_and_near_gimbal_lock(pitch, offset):
+    """At pitch = +-90 deg (and within 1e-15 .. 1e-3 rad of it) the angles still reproduce the
+    rotation to 1e-11 rad (the old asin/atan2 form was 5.7 deg off at rpy (0.3, pi/2, 0.2)),
+    pitch is within 2e-8 rad of the truth, and they agree with Drake's RollPitchYaw on the
+    rotation (compared as rotations: at the lock only yaw -+ roll is defined)."""
+    rng = np.random.default_rng(int(offset * 1e15) % 1000 + (pitch > 0))
+    cases = [np.array([0.3, pitch, 0.2])] + [np.array([rng.uniform(-PI, PI), pitch, rng.uniform(-PI, PI)])
+                                              for _ in range(50)]
+    for rpy in cases:
+        rpy[1] -= np.sign(pitch) * offset
+        q = rot.rpy_to_quat(rpy)
+        back = rot.quat_to_rpy(q)
+        assert abs(back[1] - rpy[1]) < 2e-8, (rpy, back)
+        err = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(q), rot.rpy_to_quat(back)))
+        assert np.linalg.norm(err) < 1e-11, (rpy, back, err)
+        R_drake = RollPitchYaw(RotationMatrix(drake_quat(q))).ToRotationMatrix().matrix()
+        np.testing.assert_allclose(RollPitchYaw(back).ToRotationMatrix().matrix(), R_drake, atol=1e-11)
+
+
 @FAST
 @given(rpy_any, vectors(2.0))
 def test_rpy_rates_to_body_rate(rpy, rpy_dot):
