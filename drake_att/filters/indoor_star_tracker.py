@@ -19,6 +19,10 @@ against the camera's own zero-attitude view, the classic star tracker that assum
 camera sits at the rotation centre (it fails once the table tilts: the inter-star angles seen
 from the offset camera change with attitude).
 
+``A0``'s yaw (about the screen normal) does not enter ``alpha_i`` (only ``A0 p`` does): step 2
+is blind to it and identification by angles recovers any yaw, so the swarm's third angle
+only matters through the other two.
+
 **Angle matching (documented choices; the paper gives none).** Every observed pair whose
 angle is within ``tolerance`` of a catalogue pair's votes for both catalogue stars for both
 observed stars. A star takes the catalogue star with the most votes if it has at least two
@@ -69,9 +73,9 @@ def R_BI_to_rpy_deg(R_BI) -> np.ndarray:
 
 
 def rotation_angle(R_a, R_b) -> float:
-    """The angle (rad) of ``R_a R_b^T``."""
-    c = 0.5 * (np.trace(np.asarray(R_a) @ np.asarray(R_b).T) - 1.0)
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+    """The angle (rad) of ``R_a R_b^T``, accurate down to round-off (from the rotation
+    vector, not ``arccos`` of the trace, which reads every angle below ~1e-8 rad as 0)."""
+    return float(np.linalg.norm(rot.rotmat_to_rotvec(np.asarray(R_a) @ np.asarray(R_b).T)))
 
 
 def _pair_angles(u, v) -> np.ndarray:
