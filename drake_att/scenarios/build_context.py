@@ -45,6 +45,9 @@ class BuildContext:
         truth: plant or prescribed motion (output ports ``q_IB``, ``w_IB_B``,
             ``w_IB_B_integral``).
         sensors, sensor_configs, estimators, estimator_configs: name -> system / config.
+        measurement_sources: sensor name -> ``(system, output port)`` that consumers read
+            instead of the sensor's own output (set by a fault-injection entry,
+            :mod:`drake_att.sensors.faults`); :meth:`sensor_output` still describes the sensor.
     """
 
     builder: object
@@ -54,6 +57,7 @@ class BuildContext:
     sensor_configs: dict = field(default_factory=dict)
     estimators: dict = field(default_factory=dict)
     estimator_configs: dict = field(default_factory=dict)
+    measurement_sources: dict = field(default_factory=dict)
 
     def sensor_output(self, name: str) -> SensorOutput:
         """What sensor ``name`` delivers (kind, port, period)."""
@@ -82,7 +86,13 @@ class BuildContext:
             self.connect_sensor(n, est, f"centroids_{n}")
         return est
 
+    def measurement_source(self, name: str):
+        """``(system, output port name)`` consumers of sensor ``name`` read: its own
+        measurement output, or what replaces it (``measurement_sources``)."""
+        return self.measurement_sources.get(name) or (self.sensors[name], self.sensor_output(name).port)
+
     def connect_sensor(self, name: str, system, input_port: str) -> None:
-        """Wire sensor ``name``'s measurement output to ``system``'s ``input_port``."""
-        self.builder.Connect(self.sensors[name].GetOutputPort(self.sensor_output(name).port),
-                             system.GetInputPort(input_port))
+        """Wire sensor ``name``'s measurement (:meth:`measurement_source`) to ``system``'s
+        ``input_port``."""
+        source, port = self.measurement_source(name)
+        self.builder.Connect(source.GetOutputPort(port), system.GetInputPort(input_port))

@@ -286,7 +286,7 @@ class ScenarioDiagram:
         for s in scenario.sensors:
             logged = plugin_for(s).logged_ports
             for port, period in (logged(s) if logged is not None else []):
-                log(self.sensors[s.name], port, period)
+                log(self.sensors[s.name], port, ctx.sensor_output(s.name).period_s if period is None else period)
         self._packed_estimators = {}
         for e in scenario.estimators:
             system = self.estimators[e.name]

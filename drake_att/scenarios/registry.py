@@ -91,7 +91,7 @@ class Plugin:
     # Sensors only:
     output: Callable | None = None  # (config, sensor_configs: dict) -> SensorOutput
     quaternion_model: Callable | None = None  # (ctx, config) -> QuaternionSensorModel
-    logged_ports: Callable | None = None  # (config) -> [(port, period_s), ...]
+    logged_ports: Callable | None = None  # (config) -> [(port, period_s or None: the output's), ...]
     configure: Callable | None = None  # (ctx, config, system, system_context) -> None
     # Config fields a context may change without a new diagram (see the module docstring).
     parameters: tuple = ()
@@ -186,7 +186,8 @@ def register_sensor(config_type: type, *, output: Callable, validate: Callable |
         validate: ``(path, config, checks) -> None``.
         quaternion_model: for "quaternion" outputs, ``(ctx, config) -> QuaternionSensorModel``
             (what a filter assumes about the sensor: mounting and noise covariance).
-        logged_ports: ``(config) -> [(port, period_s), ...]`` logged by the builder.
+        logged_ports: ``(config) -> [(port, period_s), ...]`` logged by the builder
+            (``period_s`` None: the sensor's output period, its ``SensorOutput.period_s``).
         parameters: config fields a context may change; ``configure(ctx, config, system,
             system_context)`` writes them (and anything derived from other sensors) into
             the system's context. Called for every sensor with a ``configure`` whenever a

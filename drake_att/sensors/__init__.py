@@ -3,3 +3,4 @@ sensor's config dataclass (its YAML tag), build, validation and logging, registe
 :func:`~drake_att.scenarios.registry.register_sensor`."""
 
 from drake_att.sensors import gyro, star_tracker, star_tracker_average, scale_factor_star_noise, screen_camera  # noqa: F401,E501  (registers them)
+from drake_att.sensors import faults  # noqa: F401,E402  (registers !SensorFaultsConfig; after the sensors it corrupts)

@@ -1,0 +1,290 @@
+"""Scoring injected faults: what each estimator saw, rejected and accepted, and how it recovered.
+
+Reads only a :class:`~drake_att.scenarios.builder.RunLog`: the fault truth each
+``!SensorFaultsConfig`` entry logs (``<entry>/fault_truth``, see
+:mod:`drake_att.systems.faults`), each estimator's status ``[t_estimate, used, skipped,
+NIS]`` and its errors (:func:`drake_att.analysis.metrics.estimator_errors`).
+
+**Fault events.** :func:`fault_events` groups the faulted samples of one injector: every
+outlier, NaN, inf and bias-jump sample is an event of its own; consecutive samples of a
+stuck, drop-out/outage, saturation or time-tag fault form one event ``[t_start, t_end]``
+(first and last faulted sample).
+
+**Per estimator and event** (:func:`score_fault_events`):
+
+* ``seen``: the estimator reads the faulted sensor (directly, through a virtual sensor such as
+  the averaged tracker, or through the estimators it fuses) and takes a step at one of the
+  event's faulted sample times (a 1 Hz filter never reads a 10 Hz tracker's sample at
+  t = 0.3 s). ``steps``: how many of its steps do.
+* At each such step, against the estimator's usual count increments (the median over steps
+  without any fault on its sensors): ``rejected`` — its skipped count rose more than usual
+  (invalid or non-finite sample, gate rejection, a gyro sample not of this instant);
+  ``accepted`` — not rejected and, for a measurement (not a gyro), its used count rose as
+  usual; ``ignored`` — neither (the sample was not read: a time tag that does not match the
+  filter's instant is not a sample of this step, and the loop passes over it without
+  counting it); ``detected`` — rejected, or accepted with an NIS above
+  :data:`DETECTION_NIS` (the 99.9% point of chi-square with 3 dof: a quaternion update).
+* ``peak_error_deg``: the largest attitude error ``|dtheta|`` from the event's start to the
+  end of its evaluation window (the next event's start, or the end of the run).
+* ``recovery_time_s``: time from the event's last faulted sample until the error is back
+  within the bound ``RECOVERY_FACTOR x`` the RMS of ``|dtheta|`` over the
+  :data:`PRE_FAULT_WINDOW_S` before the event (not reaching back into the previous event)
+  and stays there until the window ends, for at least :data:`MIN_HOLD_S`; 0 if it never
+  left; None if it does not recover within its window.
+* ``nees_after_recovery``: mean 3-dof attitude NEES ``dtheta' P_att^-1 dtheta`` from the
+  recovery to the window's end (3 for a consistent filter).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drake_att.analysis.metrics import estimator_errors
+from drake_att.noise import DEG
+from drake_att.scenarios.registry import plugin_for
+from drake_att.systems import faults as flt
+
+DETECTION_NIS = 16.27  # chi-square 99.9% point, 3 dof
+RECOVERY_FACTOR = 5.0
+PRE_FAULT_WINDOW_S = 60.0
+MIN_HOLD_S = 10.0
+TIME_TOLERANCE_S = 1e-6
+POINT_CODES = (flt.FAULT_OUTLIER, flt.FAULT_NAN, flt.FAULT_INF, flt.FAULT_BIAS_JUMP)
+
+
+@dataclass(frozen=True)
+class FaultEvent:
+    """One injected fault (see the module docstring).
+
+    Attributes:
+        injector: the faults entry's name. sensor: the corrupted sensor. sensor_kind: its
+            output kind ("gyro", "quaternion", "vectors", "camera").
+        code, kind: the fault code and its name (:data:`drake_att.systems.faults.FAULT_NAMES`).
+        t_start, t_end: first and last faulted sample times (s).
+        samples: every faulted sample time (s).
+        magnitude: the largest magnitude of its samples (SI, as ``fault_truth``).
+    """
+
+    injector: str
+    sensor: str
+    sensor_kind: str
+    code: int
+    kind: str
+    t_start: float
+    t_end: float
+    samples: np.ndarray = field(repr=False)
+    magnitude: float
+
+    @property
+    def label(self) -> str:
+        return f"{self.sensor} {self.kind}"
+
+
+def _sensor_configs(scenario) -> dict:
+    return {s.name: s for s in scenario.sensors}
+
+
+def fault_injectors(scenario) -> dict:
+    """The scenario's fault entries: entry name -> ``(sensor, sensor kind, period_s)``."""
+    from drake_att.sensors.faults import SensorFaultsConfig
+
+    sensors = _sensor_configs(scenario)
+    out = {}
+    for s in scenario.sensors:
+        if isinstance(s, SensorFaultsConfig):
+            target = sensors[s.sensor]
+            o = plugin_for(target).output(target, sensors)
+            out[s.name] = (s.sensor, o.kind, o.period_s)
+    return out
+
+
+def fault_events(run) -> list[FaultEvent]:
+    """Every fault event of the run, by start time."""
+    events = []
+    for injector, (sensor, kind, period) in fault_injectors(run.scenario).items():
+        x = run.values(f"{injector}/fault_truth")
+        t, codes, mags = x[:, flt.TRUTH_T_SAMPLE], x[:, flt.TRUTH_CODE].astype(int), x[:, flt.TRUTH_MAGNITUDE]
+        # The logger's first two rows are both sample 0 (initialization and t = 0): keep one per sample.
+        keep = np.r_[True, np.diff(t) > TIME_TOLERANCE_S]
+        t, codes, mags = t[keep], codes[keep], mags[keep]
+        i = 0
+        while i < len(t):
+            c = codes[i]
+            if c == flt.FAULT_NONE:
+                i += 1
+                continue
+            j = i + 1
+            if c not in POINT_CODES:
+                while j < len(t) and codes[j] == c and t[j] - t[j - 1] < 1.5 * period:
+                    j += 1
+            events.append(FaultEvent(injector, sensor, kind, int(c), flt.FAULT_NAMES[int(c)], float(t[i]),
+                                     float(t[j - 1]), t[i:j].copy(), float(np.max(np.abs(mags[i:j])))))
+            i = j
+    return sorted(events, key=lambda e: (e.t_start, e.sensor))
+
+
+def consumed_sensors(scenario, estimator: str) -> set:
+    """The sensors estimator ``estimator`` reads: the sensors and estimators its config names
+    (fields other than ``name``), followed through virtual sensors and fused estimators."""
+    from drake_att.sensors.faults import references
+
+    sensors = _sensor_configs(scenario)
+    estimators = {e.name: e for e in scenario.estimators}
+    found, stack = set(), [estimators[estimator]]
+    while stack:
+        config = stack.pop()
+        for name in list(sensors) + list(estimators):
+            if name in found or name == config.name or not references(config, name):
+                continue
+            if name in sensors:
+                found.add(name)
+                stack.append(sensors[name])
+            else:
+                stack.append(estimators[name])
+    return found
+
+
+def _faulty_times(run, sensors: set) -> np.ndarray:
+    """Sample times at which any of ``sensors`` carries a fault."""
+    times = [np.zeros(0)]
+    for injector, (sensor, _, _) in fault_injectors(run.scenario).items():
+        if sensor in sensors:
+            x = run.values(f"{injector}/fault_truth")
+            times.append(x[x[:, flt.TRUTH_MASK] != 0, flt.TRUTH_T_SAMPLE])
+    return np.unique(np.concatenate(times))
+
+
+def _at(t_steps, times) -> np.ndarray:
+    """Boolean mask of ``t_steps`` that coincide with one of ``times``."""
+    if len(times) == 0:
+        return np.zeros(len(t_steps), dtype=bool)
+    idx = np.clip(np.searchsorted(times, t_steps - TIME_TOLERANCE_S), 0, len(times) - 1)
+    return np.abs(times[idx] - t_steps) < TIME_TOLERANCE_S
+
+
+def attitude_nees(errors: dict) -> np.ndarray:
+    """3-dof attitude NEES ``dtheta' P_att^-1 dtheta`` per estimate (NaN where singular)."""
+    d, P = errors["dtheta"], errors["P"][:, :3, :3]
+    out = np.full(len(d), np.nan)
+    ok = np.all(np.isfinite(P), axis=(1, 2)) & np.all(np.isfinite(d), axis=1)
+    ok[ok] = np.linalg.matrix_rank(P[ok]) == 3
+    if np.any(ok):
+        out[ok] = np.einsum("ni,ni->n", d[ok], np.linalg.solve(P[ok], d[ok][..., None])[..., 0])
+    return out
+
+
+def finite_outputs(run, estimator: str) -> bool:
+    """Every logged output of ``estimator`` (attitude, second vector, covariance) is finite."""
+    keys = run.metadata["estimators"][estimator]["signals"]
+    return all(np.all(np.isfinite(run.values(keys[k]))) for k in ("attitude", "second", "covariance"))
+
+
+def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_FACTOR,
+                       pre_fault_window_s: float = PRE_FAULT_WINDOW_S, min_hold_s: float = MIN_HOLD_S,
+                       detection_nis: float = DETECTION_NIS) -> list[dict]:
+    """One row per (event, estimator) (see the module docstring), events by start time.
+
+    Row keys: ``estimator``, ``sensor``, ``kind``, ``code``, ``t_start``, ``t_end``,
+    ``magnitude`` (SI), ``seen``, ``steps``, ``detected``, ``rejected``, ``accepted``,
+    ``ignored``, ``peak_error_deg``, ``pre_fault_rms_deg``, ``bound_deg``,
+    ``recovery_time_s``, ``nees_after_recovery``, ``window_end``.
+    """
+    events = fault_events(run)
+    names = list(run.metadata["estimators"]) if estimators is None else list(estimators)
+    t_run_end = float(run.scenario.duration_s)
+    starts = np.array([e.t_start for e in events])
+    ends = np.array([e.t_end for e in events])
+    rows = []
+    for name in names:
+        err = estimator_errors(run, name)
+        t = err["t"]
+        angle = np.linalg.norm(err["dtheta"], axis=1)
+        nees = attitude_nees(err)
+        status = err["status"]
+        d_used = np.diff(status[:, 1], prepend=0.0)
+        d_skipped = np.diff(status[:, 2], prepend=0.0)
+        nis = status[:, 3]
+        consumed = consumed_sensors(run.scenario, name)
+        quiet = ~_at(t, _faulty_times(run, consumed))
+        quiet[0] = False
+        base_used = float(np.median(d_used[quiet])) if np.any(quiet) else 0.0
+        base_skipped = float(np.median(d_skipped[quiet])) if np.any(quiet) else 0.0
+        for k, e in enumerate(events):
+            later = starts[starts > e.t_start + TIME_TOLERANCE_S]
+            window_end = float(later.min()) if len(later) else t_run_end
+            row = {"estimator": name, "sensor": e.sensor, "sensor_kind": e.sensor_kind, "kind": e.kind,
+                   "code": e.code, "t_start": e.t_start, "t_end": e.t_end, "magnitude": e.magnitude,
+                   "window_end": window_end, "seen": False, "steps": 0, "detected": 0, "rejected": 0,
+                   "accepted": 0, "ignored": 0, "peak_error_deg": None, "pre_fault_rms_deg": None,
+                   "bound_deg": None, "recovery_time_s": None, "nees_after_recovery": None}
+            hit = _at(t, e.samples) if e.sensor in consumed else np.zeros(len(t), dtype=bool)
+            for i in np.flatnonzero(hit):
+                rejected = d_skipped[i] > base_skipped
+                accepted = not rejected and (e.sensor_kind == "gyro" or d_used[i] >= base_used)
+                row["rejected"] += int(rejected)
+                row["accepted"] += int(accepted)
+                row["ignored"] += int(not rejected and not accepted)
+                row["detected"] += int(rejected or (accepted and np.isfinite(nis[i]) and nis[i] > detection_nis))
+            row["steps"] = int(np.sum(hit))
+            row["seen"] = row["steps"] > 0
+            inside = (t >= e.t_start - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
+            if np.any(inside):
+                row["peak_error_deg"] = float(np.max(angle[inside]) / DEG)
+            earlier_ends = ends[(np.arange(len(events)) != k) & (ends < e.t_start - TIME_TOLERANCE_S)]
+            pre_from = max(e.t_start - pre_fault_window_s, float(earlier_ends.max()) if len(earlier_ends) else -np.inf)
+            pre = (t > pre_from + TIME_TOLERANCE_S) & (t < e.t_start - TIME_TOLERANCE_S)
+            if np.sum(pre) >= 5 and np.any(inside):
+                rms = float(np.sqrt(np.mean(angle[pre] ** 2)))
+                bound = recovery_factor * rms
+                row["pre_fault_rms_deg"], row["bound_deg"] = rms / DEG, bound / DEG
+                after = (t >= e.t_end - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
+                idx = np.flatnonzero(after)
+                if len(idx) and angle[idx[-1]] <= bound:
+                    outside = idx[angle[idx] > bound]
+                    first_ok = idx[0] if len(outside) == 0 else outside[-1] + 1
+                    if window_end - t[first_ok] >= min_hold_s - TIME_TOLERANCE_S:
+                        row["recovery_time_s"] = float(max(t[first_ok] - e.t_end, 0.0))
+                        tail = nees[first_ok:idx[-1] + 1]
+                        tail = tail[np.isfinite(tail)]
+                        row["nees_after_recovery"] = float(np.mean(tail)) if len(tail) else None
+            rows.append(row)
+    return rows
+
+
+def summarize_fault_scores(rows_per_run: list) -> list[dict]:
+    """Aggregate :func:`score_fault_events` rows of several runs (seeds) per (sensor, kind,
+    estimator): sums of steps / detected / rejected / accepted / ignored, the largest peak
+    error and recovery time, the mean NEES after recovery, and ``recovered`` / ``events``
+    (events seen or not; recovered = a recovery time was found)."""
+    groups: dict = {}
+    for rows in rows_per_run:
+        for r in rows:
+            key = (r["sensor"], r["kind"], r["estimator"])
+            g = groups.setdefault(key, {"sensor": r["sensor"], "sensor_kind": r["sensor_kind"], "kind": r["kind"],
+                                        "estimator": r["estimator"], "events": 0, "seen": 0, "steps": 0,
+                                        "detected": 0, "rejected": 0, "accepted": 0, "ignored": 0, "recovered": 0,
+                                        "peak_error_deg": None, "recovery_time_s": None, "_nees": []})
+            g["events"] += 1
+            g["seen"] += int(r["seen"])
+            for k in ("steps", "detected", "rejected", "accepted", "ignored"):
+                g[k] += r[k]
+            if r["peak_error_deg"] is not None:
+                g["peak_error_deg"] = max(g["peak_error_deg"] or 0.0, r["peak_error_deg"])
+            if r["recovery_time_s"] is not None:
+                g["recovered"] += 1
+                g["recovery_time_s"] = max(g["recovery_time_s"] or 0.0, r["recovery_time_s"])
+            if r["nees_after_recovery"] is not None:
+                g["_nees"].append(r["nees_after_recovery"])
+    out = []
+    for g in groups.values():
+        nees = g.pop("_nees")
+        g["nees_after_recovery"] = float(np.mean(nees)) if nees else None
+        out.append(g)
+    return out
+
+
+__all__ = ["FaultEvent", "fault_injectors", "fault_events", "consumed_sensors", "attitude_nees", "finite_outputs",
+           "score_fault_events", "summarize_fault_scores", "DETECTION_NIS", "RECOVERY_FACTOR", "PRE_FAULT_WINDOW_S",
+           "MIN_HOLD_S"]
