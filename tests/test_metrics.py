@@ -670,29 +670,51 @@ def test_compute_metrics_on_tiny_scenario(tiny_metrics):
 
 
 FLOAT = r"[-+]?\d+\.\d+(?:e[-+]\d+)?"
+SIG_DIGITS = 3  # format_table prints RMSE, MAE, bias, rate and NEES to 3 significant digits
+
+
+def _half_unit(token):
+    """Half a unit in the last printed digit of ``token`` ("0.0123" -> 5e-5, "6.1e+28" -> 5e26,
+    "170" -> 0.5): the largest rounding error the printed number can carry."""
+    from decimal import Decimal
+
+    return 0.5 * 10.0 ** Decimal(token).as_tuple().exponent
+
+
+def assert_printed(token, value, sig=SIG_DIGITS):
+    """``token`` is ``value`` printed to ``sig`` significant digits: within half a unit of its
+    last digit, and that unit is no coarser than ``sig`` significant digits of ``value``
+    (relative error <= 0.5 * 10**(1 - sig); "0.0001" for 1.23e-4 fails)."""
+    printed = float(token)
+    assert abs(printed - value) <= _half_unit(token) * (1 + 1e-9), (token, value)
+    assert abs(printed - value) <= 0.5 * 10.0 ** (1 - sig) * abs(value) * (1 + 1e-9), (token, value)
 
 
 def _parse_table(text):
+    """Header groups, rows {name: fields as printed (strings)} and the scored-from time."""
     lines = text.splitlines()
     header = re.fullmatch(rf"scenario (\S+)  seed (\d+)  duration ({FLOAT}|\d+) s  wall ({FLOAT}) s", lines[0])
     assert header, lines[0]
     dash = next(i for i, line in enumerate(lines) if set(line) == {"-"})
+    assert lines[dash - 1].split()[0] == "estimator" and len(lines[dash]) == len(lines[dash - 1])
     rows = {}
     for line in lines[dash + 1:]:
         if line.startswith("(scored"):
             break
         tok = line.split()
-        name, rm, ma, tot = tok[0], list(map(float, tok[1:4])), list(map(float, tok[4:7])), float(tok[7])
+        name, rm, ma, tot = tok[0], tok[1:4], tok[4:7], tok[7]
         if tok[8] in ("b", "w"):
-            second, rest = (tok[8], list(map(float, tok[9:12]))), tok[12:]
+            second, rest = (tok[8], tok[9:12]), tok[12:]
         else:
             assert tok[8] == "-"
             second, rest = None, tok[9:]
         conv, nees, used = rest
+        for t in rm + ma + [tot] + (second[1] if second else []) + ([] if nees == "-" else [nees]):
+            float(t)  # every number parses back
         rows[name] = {"rm": rm, "ma": ma, "tot": tot, "second": second,
-                      "conv": None if conv == "never" else float(conv),
-                      "nees": None if nees == "-" else float(nees),
-                      "used": tuple(int(x) for x in used.split("/"))}
+                      "conv": None if conv == "never" else float(conv), "conv_text": conv,
+                      "nees": None if nees == "-" else nees,
+                      "used": tuple(int(x) for x in used.split("/")), "line": line}
     scored_from = float(re.search(r"scored from t >= (\S+) s", text).group(1))
     return header.groups(), rows, scored_from
 
@@ -704,9 +726,59 @@ def _rec(rm, ma, tot, bias=None, rate=None, conv=None, nees=None, used=(0, 0)):
             "measurements_skipped": used[1]}
 
 
+def _check_rows(rows, est):
+    """Every printed field of every row is the number it was given, to the printed precision."""
+    assert list(rows) == list(est)
+    for name, rec in est.items():
+        r = rows[name]
+        for tokens, values in ((r["rm"], rec["attitude_rmse_deg"]), (r["ma"], rec["attitude_mae_deg"]),
+                               ([r["tot"]], [rec["attitude_rmse_total_deg"]])):
+            for t, v in zip(tokens, values, strict=True):
+                assert_printed(t, v)
+        if rec["bias_rmse_deg_per_h"] is not None:
+            assert r["second"][0] == "b"
+            for t, v in zip(r["second"][1], rec["bias_rmse_deg_per_h"], strict=True):
+                assert_printed(t, v)
+        elif rec["rate_rmse_deg_per_s"] is not None:
+            assert r["second"][0] == "w"
+            for t, v in zip(r["second"][1], rec["rate_rmse_deg_per_s"], strict=True):
+                assert_printed(t, v)
+        else:
+            assert r["second"] is None
+        if rec["convergence_time_s"] is None:
+            assert r["conv"] is None and r["conv_text"] == "never"
+        else:  # .1f: half a unit is 0.05 s
+            assert abs(r["conv"] - rec["convergence_time_s"]) <= 0.0501
+            assert _half_unit(r["conv_text"]) == pytest.approx(0.05)
+        if rec["nees_mean"] is None:
+            assert r["nees"] is None
+        else:
+            assert_printed(r["nees"], rec["nees_mean"])
+        assert r["used"] == (rec["measurements_used"], rec["measurements_skipped"])
+
+
+def _check_aligned(text):
+    """Every row is as wide as the header, and each column's numbers end at the same column
+    on every row (right-aligned; a row with '-' for the bias/rate column has its '-' where
+    the others' last bias/rate number ends)."""
+    lines = text.splitlines()
+    dash = next(i for i, line in enumerate(lines) if set(line) == {"-"})
+    footer = next(i for i, line in enumerate(lines) if line.startswith("(scored"))
+    header, body = lines[dash - 1], lines[dash + 1:footer]
+    assert all(len(ln) == len(header) for ln in body), [len(ln) for ln in [header, *body]]
+    ends = [[m.end() for m in re.finditer(r"\S+", ln)][1:] for ln in body]  # after the name
+    full = [e for e, ln in zip(ends, body) if ln.split()[8] in ("b", "w")]
+    assert full, "the table has a row with bias or rate numbers"
+    assert all(e == full[0] for e in full), full
+    for e in ends:
+        assert set(e) <= set(full[0]), (e, full[0])
+    assert ends[-1][-1] == len(header)  # used/skipped ends the row, under its header
+
+
 def test_format_table_shows_the_numbers_it_was_given():
-    # Distinct values per column (a swapped column fails); formats: RMSE/MAE %.5f (half-unit
-    # 5e-6), bias %.4f (5e-5), rate %.2e (relative 5e-3), conv %.1f (0.05), NEES %.2f (0.005).
+    # Distinct values per column (a swapped column fails); formats: RMSE, MAE, bias, rate
+    # and NEES to 3 significant digits (half a unit of the last printed digit, and a relative
+    # 5e-3 at most), conv %.1f (0.05), wall %.2f (0.005).
     est = {
         "mekf": _rec([0.01234, 0.02345, 0.03456], [0.00987, 0.01876, 0.02765], 0.04567,
                      bias=[0.1234, 2.3456, 34.5678], conv=123.4, nees=6.12, used=(950, 12)),
@@ -715,39 +787,63 @@ def test_format_table_shows_the_numbers_it_was_given():
         "plain": _rec([0.5, 0.25, 0.125], [0.4, 0.2, 0.1], 0.57282, conv=0.0, nees=2.98, used=(3, 4)),
     }
     metrics_in = {"scenario": "tiny", "seed": 11, "duration_s": 3600.0, "wall_time_s": 12.3456, "estimators": est}
-    (scen, seed, dur, wall), rows, scored_from = _parse_table(metrics.format_table(metrics_in))
+    text = metrics.format_table(metrics_in)
+    (scen, seed, dur, wall), rows, scored_from = _parse_table(text)
     assert (scen, int(seed), float(dur)) == ("tiny", 11, 3600.0)
     assert abs(float(wall) - 12.3456) <= 0.005
     assert scored_from == 100.0
-    assert list(rows) == list(est)
-    for name, rec in est.items():
-        r = rows[name]
-        np.testing.assert_allclose(r["rm"], rec["attitude_rmse_deg"], rtol=0, atol=5.01e-6)
-        np.testing.assert_allclose(r["ma"], rec["attitude_mae_deg"], rtol=0, atol=5.01e-6)
-        assert abs(r["tot"] - rec["attitude_rmse_total_deg"]) <= 5.01e-6
-        if rec["bias_rmse_deg_per_h"] is not None:
-            assert r["second"][0] == "b"
-            np.testing.assert_allclose(r["second"][1], rec["bias_rmse_deg_per_h"], rtol=0, atol=5.01e-5)
-        elif rec["rate_rmse_deg_per_s"] is not None:
-            assert r["second"][0] == "w"
-            np.testing.assert_allclose(r["second"][1], rec["rate_rmse_deg_per_s"], rtol=5.01e-3)
-        else:
-            assert r["second"] is None
-        if rec["convergence_time_s"] is None:
-            assert r["conv"] is None
-        else:
-            assert abs(r["conv"] - rec["convergence_time_s"]) <= 0.0501
-        if rec["nees_mean"] is None:
-            assert r["nees"] is None
-        else:
-            assert abs(r["nees"] - rec["nees_mean"]) <= 0.00501
-        assert r["used"] == (rec["measurements_used"], rec["measurements_skipped"])
+    _check_rows(rows, est)
+    _check_aligned(text)
+    assert "NEES dof = 6" in text  # the records carry no nees_dof: the 6-dof default
+
+
+def test_format_table_sizes_to_long_names_and_numbers_spanning_decades():
+    """A 30-character name, a NEES of 6.1e28 (a diverged filter), RMSEs of 1.2e-7 and 170 deg
+    (a -170 deg yaw transient) in one table: each number reads back to its printed precision
+    and every row lines up with the header."""
+    long_name = "large_error_ekf_with_long_name"
+    assert len(long_name) == 30
+    est = {
+        long_name: _rec([170.0, 1.2e-7, 0.00012], [150.0, 9.87e-8, 0.000101], 170.0,
+                        bias=[12345.6, 0.000987, 3.0], conv=None, nees=6.1e28, used=(123456, 7890)),
+        "ekf": _rec([1.2e-7, 170.0, 0.0123], [1e-7, 99.95, 0.01], 1.2e-7,
+                    rate=[6.1e-28, 1.0, 0.0456], conv=4999.9, nees=0.00012, used=(1, 0)),
+        "mekf": _rec([0.5, 0.25, 0.125], [0.4, 0.2, 0.1], 0.57282, conv=12.0, nees=None, used=(3, 4)),
+    }
+    metrics_in = {"scenario": "s", "seed": 0, "duration_s": 5000.0, "wall_time_s": 1.0, "estimators": est}
+    text = metrics.format_table(metrics_in)
+    _, rows, _ = _parse_table(text)
+    _check_rows(rows, est)
+    _check_aligned(text)
+    header = text.splitlines()[1]
+    assert header.index("RMSE x/y/z") > len(long_name)  # the name column holds the long name
+    for line in text.splitlines()[3:6]:
+        assert line[len(long_name)] == " "  # ... followed by a separating space on every row
+
+
+def test_format_table_name_column_is_at_least_nine_wide():
+    text = metrics.format_table({"scenario": "s", "seed": 0, "duration_s": 1.0, "wall_time_s": 1.0,
+                                 "estimators": {"a": _rec([1.0] * 3, [1.0] * 3, 1.0, bias=[1.0] * 3, conv=0.0, nees=1.0)}})
+    _check_aligned(text)
+    assert text.splitlines()[1].startswith("estimator ") and text.splitlines()[3].startswith("a" + " " * 9)
+
+
+def test_format_table_footer_names_each_nees_dof():
+    est = {"mekf": dict(_rec([1.0] * 3, [1.0] * 3, 1.0, nees=6.0), nees_dof=6),
+           "ekf": dict(_rec([1.0] * 3, [1.0] * 3, 1.0, nees=3.0), nees_dof=3)}
+    text = metrics.format_table({"scenario": "s", "seed": 0, "duration_s": 1.0, "wall_time_s": 1.0, "estimators": est})
+    assert "NEES dof: 3 (ekf), 6 (mekf)" in text
 
 
 def test_format_table_of_compute_metrics_output(tiny_metrics):
-    _, rows, scored_from = _parse_table(metrics.format_table(tiny_metrics))
+    text = metrics.format_table(tiny_metrics)
+    _, rows, scored_from = _parse_table(text)
     assert scored_from == 2.0
+    _check_aligned(text)
     for name, rec in tiny_metrics["estimators"].items():
-        np.testing.assert_allclose(rows[name]["rm"], rec["attitude_rmse_deg"], rtol=0, atol=5.01e-6)
+        for t, v in zip(rows[name]["rm"], rec["attitude_rmse_deg"], strict=True):
+            assert_printed(t, v)
+        assert_printed(rows[name]["nees"], rec["nees_mean"])
         assert rows[name]["second"][0] == ("w" if name == "gpf" else "b")
         assert rows[name]["used"] == (50, 5)
+    assert "NEES dof = 6" in text  # every estimator here has its second quantity's truth

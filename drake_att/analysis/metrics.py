@@ -166,29 +166,51 @@ def compute_metrics(run) -> dict:
     return result
 
 
+def _g(value) -> str:
+    """A table number: 3 significant digits, scientific notation where fixed would not fit
+    (``0.0123``, ``170``, ``1.2e-07``, ``6.1e+28``); at most 9 characters up to |exponent| 99."""
+    return "-" if value is None else f"{value:.3g}"
+
+
 def format_table(metrics: dict) -> str:  # pragma: no mutate block (presentation: column text and widths)
-    """Human-readable table of :func:`compute_metrics` output."""
-    lines = [f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
-             f"  wall {metrics['wall_time_s']:.2f} s"]
-    hdr = (f"{'estimator':<16} {'RMSE x/y/z (deg)':>30} {'MAE x/y/z (deg)':>30} {'RMSE tot':>9} "
-           f"{'bias (deg/h) | rate (deg/s) RMSE':>34} {'conv (s)':>8} {'NEES':>7} {'used/skipped':>13}")
+    """Human-readable table of :func:`compute_metrics` output.
+
+    The name column is as wide as the longest estimator name (at least 9); RMSE, MAE, bias,
+    rate and NEES are printed to 3 significant digits (``.3g``: ``0.0123``, ``170``,
+    ``6.1e+28``) right-aligned in 9 characters, so every row lines up and every number parses
+    back with ``float``; convergence time ``.1f`` s or ``never``."""
+    ests = metrics["estimators"]
+    nw = max([9] + [len(name) for name in ests])
+    num, trio = 9, 3 * 9 + 2
+    second_hdr = "bias (deg/h) | rate (deg/s) RMSE"
+    sw = max(len(second_hdr) + 1, trio + 2)
+    lines = [(f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
+              f"  wall {metrics['wall_time_s']:.2f} s")]
+    hdr = (f"{'estimator':<{nw}} {'RMSE x/y/z (deg)':>{trio}} {'MAE x/y/z (deg)':>{trio}} {'RMSE tot':>{num}} "
+           f"{second_hdr:>{sw}} {'conv (s)':>{num}} {'NEES':>{num}} {'used/skipped':>13}")
     lines += [hdr, "-" * len(hdr)]
-    for name, m in metrics["estimators"].items():
-        rm = " ".join(f"{v:9.5f}" for v in m["attitude_rmse_deg"])
-        ma = " ".join(f"{v:9.5f}" for v in m["attitude_mae_deg"])
+    for name, m in ests.items():
+        rm = " ".join(f"{_g(v):>{num}}" for v in m["attitude_rmse_deg"])
+        ma = " ".join(f"{_g(v):>{num}}" for v in m["attitude_mae_deg"])
         if m.get("bias_rmse_deg_per_h") is not None:
-            br = "b " + " ".join(f"{v:9.4f}" for v in m["bias_rmse_deg_per_h"])
+            br = "b " + " ".join(f"{_g(v):>{num}}" for v in m["bias_rmse_deg_per_h"])
         elif m.get("rate_rmse_deg_per_s") is not None:
-            br = "w " + " ".join(f"{v:9.2e}" for v in m["rate_rmse_deg_per_s"])
+            br = "w " + " ".join(f"{_g(v):>{num}}" for v in m["rate_rmse_deg_per_s"])
         else:
             br = "-"
         conv = "never" if m["convergence_time_s"] is None else f"{m['convergence_time_s']:.1f}"
-        nees = "-" if m["nees_mean"] is None else f"{m['nees_mean']:.2f}"
         used = f"{m['measurements_used']}/{m['measurements_skipped']}"
-        lines.append(f"{name:<16} {rm:>30} {ma:>30} {m['attitude_rmse_total_deg']:9.5f} {br:>34} {conv:>8} "
-                     f"{nees:>7} {used:>13}")
-    first = next(iter(metrics["estimators"].values()), {"scored_from_s": 0.0})
+        lines.append(f"{name:<{nw}} {rm:>{trio}} {ma:>{trio}} {_g(m['attitude_rmse_total_deg']):>{num}} {br:>{sw}} "
+                     f"{conv:>{num}} {_g(m['nees_mean']):>{num}} {used:>13}")
+    first = next(iter(ests.values()), {"scored_from_s": 0.0})
+    dofs = {}
+    for name, m in ests.items():
+        dofs.setdefault(m.get("nees_dof", 6), []).append(name)
+    if len(dofs) <= 1:
+        dof_text = f"NEES dof = {next(iter(dofs), 6)}"
+    else:
+        dof_text = "NEES dof: " + ", ".join(f"{d} ({', '.join(names)})" for d, names in sorted(dofs.items()))
     lines.append(f"(scored from t >= {first['scored_from_s']:.0f} s; b = gyro-bias RMSE x/y/z in deg/h, "
-                 "w = body-rate RMSE in deg/s; NEES dof = 6;\n used/skipped = measurement updates applied / "
+                 f"w = body-rate RMSE in deg/s; {dof_text};\n used/skipped = measurement updates applied / "
                  "invalid or rejected measurements skipped)")
     return "\n".join(lines)

@@ -14,34 +14,55 @@ from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios.config import dump_scenario
 
 
-def plot_estimator(run, name, out_dir, score_from_s=0.0) -> list[str]:
-    """Per-axis attitude error with +-3 sigma bounds, and bias/rate error; returns files."""
-    import matplotlib
+def _error_ylim(err, three_sigma, floor):
+    """Symmetric y-limit of an error plot over its whole run: every finite error sample is
+    inside (the initial transient too, never clipped), and the +-3 sigma lines as well unless
+    they exceed 3x the largest error (then they run off the plot, the error stays readable;
+    an error that is exactly zero shows the whole +-3 sigma)."""
+    def peak(x):
+        x = np.abs(np.asarray(x, dtype=float))
+        x = x[np.isfinite(x)]
+        return float(x.max()) if x.size else 0.0
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    e = peak(err)
+    s = peak(three_sigma)
+    return 1.05 * max(e, min(s, 3.0 * e) if e > 0 else s, floor)
+
+
+def estimator_figures(run, name, score_from_s=0.0) -> dict:
+    """The error figures of estimator ``name``: ``{"full": Figure, "stable": Figure}``
+    (``"stable"`` only when ``score_from_s > 0`` and there are samples from then on).
+
+    Each shows the per-axis attitude error with its +-3 sigma bounds (top row) and the bias or
+    rate error (bottom row, when its truth is known), titled with the scenario, the seed and
+    the estimator. The full figure's y-limits hold the whole error trajectory, initial
+    transient included (see :func:`_error_ylim`); the stable figure (t >= ``score_from_s``)
+    is zoomed on the scored stage. Plain matplotlib ``Figure`` objects (no pyplot, no
+    backend switch): save them with ``fig.savefig``."""
+    from matplotlib.figure import Figure
 
     e = met.estimator_errors(run, name)
     is_bias = e["second_kind"] == "gyro_bias"
     t = e["t"]
     sig = np.sqrt(np.maximum(np.einsum("nii->ni", e["P"]), 0.0))
-    files = []
+    figures = {}
     axes_names = ["x (roll)", "y (pitch)", "z (yaw)"]
     for stage, sel in (("full", np.ones_like(t, dtype=bool)), ("stable", t >= score_from_s)):
         if stage == "stable" and (score_from_s <= 0 or not np.any(sel)):
             continue
         nrows = 2 if e["second_err"] is not None else 1
-        fig, ax = plt.subplots(nrows, 3, figsize=(14, 3.4 * nrows), squeeze=False, sharex=True)
+        fig = Figure(figsize=(14, 3.4 * nrows + 0.4), layout="constrained")
+        ax = fig.subplots(nrows, 3, squeeze=False, sharex=True)
         for i in range(3):
             a = ax[0, i]
             a.plot(t[sel], e["dtheta"][sel, i] / DEG, lw=0.7, label="error")
             a.plot(t[sel], 3 * sig[sel, i] / DEG, "r--", lw=0.7, label="±3σ")
             a.plot(t[sel], -3 * sig[sel, i] / DEG, "r--", lw=0.7)
-            a.set_title(f"{name}: attitude error {axes_names[i]}")
+            a.set_title(f"attitude error {axes_names[i]}")
             a.set_ylabel("deg")
             a.grid(True, alpha=0.3)
             if stage == "full":
-                lim = max(6 * np.percentile(np.abs(e["dtheta"][:, i]), 90) / DEG, 1e-6)
+                lim = _error_ylim(e["dtheta"][:, i] / DEG, 3 * sig[:, i] / DEG, 1e-6)
                 a.set_ylim(-lim, lim)
             if e["second_err"] is not None:
                 b = ax[1, i]
@@ -54,15 +75,24 @@ def plot_estimator(run, name, out_dir, score_from_s=0.0) -> list[str]:
                 b.set_ylabel(unit)
                 b.grid(True, alpha=0.3)
                 if stage == "full":
-                    lim = max(6 * np.percentile(np.abs(e["second_err"][:, i]), 90) / scale, 1e-9)
+                    lim = _error_ylim(e["second_err"][:, i] / scale, 3 * sig[:, 3 + i] / scale, 1e-9)
                     b.set_ylim(-lim, lim)
         for a in ax[-1]:
             a.set_xlabel("time (s)")
         ax[0, 0].legend(loc="upper right", fontsize=8)
-        fig.tight_layout()
+        what = "whole run" if stage == "full" else f"stable stage, t >= {score_from_s:g} s"
+        fig.suptitle(f"{run.scenario.name}, seed {run.seed}: estimator {name} ({what})")
+        figures[stage] = fig
+    return figures
+
+
+def plot_estimator(run, name, out_dir, score_from_s=0.0) -> list[str]:
+    """Save :func:`estimator_figures` as ``<name>_errors_{full,stable}.png`` in ``out_dir``;
+    returns the files."""
+    files = []
+    for stage, fig in estimator_figures(run, name, score_from_s).items():
         path = os.path.join(out_dir, f"{name}_errors_{stage}.png")
         fig.savefig(path, dpi=110)
-        plt.close(fig)
         files.append(path)
     return files
 

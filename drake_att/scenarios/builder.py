@@ -23,7 +23,6 @@ not editing this file.
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 from dataclasses import dataclass, field
 
@@ -34,6 +33,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
 
 from drake_att import rotations as rot
+from drake_att.analysis.progress import Progress
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
@@ -443,14 +443,15 @@ class ScenarioDiagram:
         simulator.Initialize()
         duration = scenario.duration_s
         chunks = 20 if progress else 1
-        for k in range(1, chunks + 1):
-            simulator.AdvanceTo(duration * k / chunks)
-            if progress:
-                elapsed = time.perf_counter() - start
-                print(f"\r  [{scenario.name} seed {seed}] t = {duration * k / chunks:8.1f} / {duration:.1f} s"
-                      f"  ({elapsed:6.1f} s wall)", end="", file=sys.stderr, flush=True)
-        if progress:
-            print(file=sys.stderr)
+        bar = Progress(duration, f"{scenario.name} seed {seed}", start=start) if progress else None
+        try:
+            for k in range(1, chunks + 1):
+                simulator.AdvanceTo(duration * k / chunks)
+                if bar:
+                    bar.update(duration * k / chunks)
+        finally:
+            if bar:
+                bar.close()
         wall = time.perf_counter() - start
         signals = {}
         dropped = {self.estimators[e.name].get_name() for e in self.scenario.estimators} - {
