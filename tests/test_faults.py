@@ -11,9 +11,11 @@ every library estimator survives every fault kind.
 * Survival: one small scenario holding an instance of every library estimator, each sensor
   (gyro, quaternion tracker, vector tracker, camera) corrupted by every kind that applies to
   it, kinds 30 s apart; stated bound: every estimator's outputs stay finite and after every
-  fault its attitude error is back within 5x its pre-fault RMS within
-  ``RECOVERY_LIMIT_S`` = 15 s of the fault's end and stays there (reached: at most 9 s, the
-  quaternion EKF after the 20 deg/h bias jump it does not model).
+  fault its attitude error is back within max(5x its pre-fault RMS, 0.05 deg) within
+  ``RECOVERY_LIMIT_S`` = 15 s of the fault's end and stays there for 30 s or until the next
+  fault (reached: at most 9 s). The floor: a filter whose gyro model allows almost no bias
+  change (the indoor star tracker's, 0.1 deg/h^1.5) re-learns a 20 deg/h bias jump slowly,
+  while its error stays below 0.05 deg.
 * Gate: a 99.9% chi-square gate (16.27, 3 dof) rejects every 1 deg outlier of a 5 arcsec
   tracker, and its estimates stay within 0.05 deg of the same run without outliers (reached:
   0.02 deg, the missed updates), while an ungated MEKF accepts them, is pulled off by more
@@ -370,7 +372,7 @@ def test_every_consumer_reads_the_faulted_sample_and_the_truth_is_logged(small):
     t_st1, st1 = run.signals["st1/star_tracker_measurement"]
     assert np.all(np.isfinite(st1)) and np.all(st1[:, 1] == 1.0)
     events = [(e.sensor, e.kind, round(e.t_start, 6), round(e.t_end, 6)) for e in fault_events(run)]
-    assert events == [("st1", "nan", 10.0, 10.0), ("st1", "outlier", 20.0, 20.0), ("st1", "dropout", 30.0, 32.9)]
+    assert events == [("st1", "nan", 10.0, 10.0), ("st1", "outlier", 20.0, 20.0), ("st1", "outage", 30.0, 32.9)]
     truth = run.values("st1_faults/fault_truth")
     assert np.all(truth[(truth[:, 0] > 30.0 - 1e-9) & (truth[:, 0] < 33.0 - 1e-9), flt.TRUTH_VALID_OUT] == 0.0)
     # sensor_output still describes the tracker itself
@@ -392,10 +394,10 @@ def test_every_consumer_reads_the_faulted_sample_and_the_truth_is_logged(small):
         assert skipped_at(name, 10.0) == 1, name
     assert skipped_at("single_st2", 10.0) == 0
     rows = {(r["estimator"], r["kind"]): r for r in score_fault_events(run)}
-    assert rows[("single", "nan")]["rejected"] == 1 and rows[("single", "dropout")]["rejected"] == 3
+    assert rows[("single", "nan")]["rejected"] == 1 and rows[("single", "outage")]["rejected"] == 3
     assert rows[("single", "outlier")]["accepted"] == 1  # 0.01 deg: an ungated MEKF takes it
     assert not rows[("single_st2", "nan")]["seen"]
-    assert rows[("decentralized", "dropout")]["steps"] == 3
+    assert rows[("decentralized", "outage")]["steps"] == 3
 
     # Fault fields are context parameters: cleared on the same diagram, the run is the clean
     # one; what does not read st1 is bit-identical, what does differs.
@@ -510,9 +512,9 @@ def test_every_library_estimator_survives_every_fault_kind():
     library = {tag for tag, p in plugins(ESTIMATOR).items() if p.module.startswith("drake_att.")}
     assert library <= {type(e).__name__ for e in scenario.estimators}, "add the new estimator to SURVIVAL_SCENARIO"
     run = ScenarioDiagram(scenario).simulate(1)
-    rows = score_fault_events(run)
+    rows = score_fault_events(run, bound_floor_deg=0.05)
     kinds = {e.kind for e in fault_events(run)}
-    assert kinds == set(flt.FAULT_NAMES.values())  # every kind was injected (and logged)
+    assert kinds == set(flt.FAULT_NAMES.values()) | {"outage"}  # every kind was injected (and logged)
     for name in run.metadata["estimators"]:
         assert finite_outputs(run, name), name
         mine = [r for r in rows if r["estimator"] == name]
@@ -521,9 +523,32 @@ def test_every_library_estimator_survives_every_fault_kind():
         assert not late, (name, late)
         seen = {r["kind"] for r in mine if r["seen"]}
         reads = consumed_sensors(run.scenario, name)
-        expected = {"outlier", "nan", "inf", "stuck", "dropout", "time_tag"}
+        expected = {"outlier", "nan", "inf", "stuck", "outage", "dropout", "time_tag"}
         if "gyro" in reads:
             expected |= {"saturated", "bias_jump"}
         assert expected <= seen, (name, expected - seen)
     summary = summarize_fault_scores([rows])
     assert all(g["recovered"] == g["events"] for g in summary)
+
+
+# ======================================================================================
+# The campaign script
+# ======================================================================================
+def test_fault_campaign_script_short_run(tmp_path, load_script, diagram_builds):
+    """diagrams/fault_campaign.py on its first two faults (gyro outlier at 300 s, NaN at 450 s):
+    one diagram, strict results.json with the verdicts, the table and the README matrix."""
+    import json
+
+    script = load_script("fault_campaign")
+    assert script.main(["--seeds", "1", "--duration", "560", "--workers", "1", "--no-figure",
+                        "--out", str(tmp_path)]) == 0
+    assert diagram_builds == ["fault_campaign"]
+    with open(tmp_path / "results.json") as f:
+        results = json.load(f, parse_constant=lambda c: pytest.fail(f"results.json holds {c}"))
+    assert [(e["sensor"], e["kind"]) for e in results["per_seed"][0]["events"]] == [("gyro", "outlier"), ("gyro", "nan")]
+    assert all(results["verdicts"]["claims"].values()), results["verdicts"]
+    gates = results["gates"]
+    assert gates["single"] == "none" and gates["single_gated"] == "chi2 16.27" and gates["decentralized"] == "-"
+    matrix = (tmp_path / "table.md").read_text().splitlines()
+    assert matrix[0] == "| fault | " + " | ".join(gates) + " |" and len(matrix) == 4
+    assert matrix[3].startswith("| gyro nan | rej ")

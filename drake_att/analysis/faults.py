@@ -7,8 +7,8 @@ NIS]`` and its errors (:func:`drake_att.analysis.metrics.estimator_errors`).
 
 **Fault events.** :func:`fault_events` groups the faulted samples of one injector: every
 outlier, NaN, inf and bias-jump sample is an event of its own; consecutive samples of a
-stuck, drop-out/outage, saturation or time-tag fault form one event ``[t_start, t_end]``
-(first and last faulted sample).
+stuck, drop-out, saturation or time-tag fault form one event ``[t_start, t_end]`` (first and
+last faulted sample); drop-outs inside an outage window are named "outage".
 
 **Per estimator and event** (:func:`score_fault_events`):
 
@@ -29,10 +29,15 @@ stuck, drop-out/outage, saturation or time-tag fault form one event ``[t_start, 
 * ``recovery_time_s``: time from the event's last faulted sample until the error is back
   within the bound ``RECOVERY_FACTOR x`` the RMS of ``|dtheta|`` over the
   :data:`PRE_FAULT_WINDOW_S` before the event (not reaching back into the previous event)
-  and stays there until the window ends, for at least :data:`MIN_HOLD_S`; 0 if it never
-  left; None if it does not recover within its window.
+  and stays there for :data:`HOLD_S` (or to the end of the window if that is sooner, but at
+  least :data:`MIN_HOLD_S`; a later excursion is not counted against this fault); 0 if it
+  never left; None if it does not recover within its window.
 * ``nees_after_recovery``: mean 3-dof attitude NEES ``dtheta' P_att^-1 dtheta`` from the
   recovery to the window's end (3 for a consistent filter).
+
+A gyro fault can be "rejected" without the gyro sample being refused: the faulted
+prediction can make the gate refuse that step's tracker sample — the counts say what the
+estimator did at the step, not which input it blamed.
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ from drake_att.systems import faults as flt
 DETECTION_NIS = 16.27  # chi-square 99.9% point, 3 dof
 RECOVERY_FACTOR = 5.0
 PRE_FAULT_WINDOW_S = 60.0
+HOLD_S = 30.0
 MIN_HOLD_S = 10.0
 TIME_TOLERANCE_S = 1e-6
 POINT_CODES = (flt.FAULT_OUTLIER, flt.FAULT_NAN, flt.FAULT_INF, flt.FAULT_BIAS_JUMP)
@@ -61,7 +67,8 @@ class FaultEvent:
     Attributes:
         injector: the faults entry's name. sensor: the corrupted sensor. sensor_kind: its
             output kind ("gyro", "quaternion", "vectors", "camera").
-        code, kind: the fault code and its name (:data:`drake_att.systems.faults.FAULT_NAMES`).
+        code, kind: the fault code and its name (:data:`drake_att.systems.faults.FAULT_NAMES`;
+            "outage" for drop-outs in an outage window).
         t_start, t_end: first and last faulted sample times (s).
         samples: every faulted sample time (s).
         magnitude: the largest magnitude of its samples (SI, as ``fault_truth``).
@@ -119,8 +126,11 @@ def fault_events(run) -> list[FaultEvent]:
             if c not in POINT_CODES:
                 while j < len(t) and codes[j] == c and t[j] - t[j - 1] < 1.5 * period:
                     j += 1
-            events.append(FaultEvent(injector, sensor, kind, int(c), flt.FAULT_NAMES[int(c)], float(t[i]),
-                                     float(t[j - 1]), t[i:j].copy(), float(np.max(np.abs(mags[i:j])))))
+            name = flt.FAULT_NAMES[int(c)]
+            if c == flt.FAULT_DROPOUT and np.any(mags[i:j] == 1.0):
+                name = "outage"  # an outage window (magnitude 1), not a single drop-out
+            events.append(FaultEvent(injector, sensor, kind, int(c), name, float(t[i]), float(t[j - 1]),
+                                     t[i:j].copy(), float(np.max(np.abs(mags[i:j])))))
             i = j
     return sorted(events, key=lambda e: (e.t_start, e.sensor))
 
@@ -182,9 +192,11 @@ def finite_outputs(run, estimator: str) -> bool:
 
 
 def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_FACTOR,
-                       pre_fault_window_s: float = PRE_FAULT_WINDOW_S, min_hold_s: float = MIN_HOLD_S,
-                       detection_nis: float = DETECTION_NIS) -> list[dict]:
-    """One row per (event, estimator) (see the module docstring), events by start time.
+                       pre_fault_window_s: float = PRE_FAULT_WINDOW_S, hold_s: float = HOLD_S,
+                       min_hold_s: float = MIN_HOLD_S, detection_nis: float = DETECTION_NIS,
+                       bound_floor_deg: float = 0.0) -> list[dict]:
+    """One row per (event, estimator) (see the module docstring), events by start time;
+    ``bound_floor_deg``: the recovery bound is at least this (deg).
 
     Row keys: ``estimator``, ``sensor``, ``kind``, ``code``, ``t_start``, ``t_end``,
     ``magnitude`` (SI), ``seen``, ``steps``, ``detected``, ``rejected``, ``accepted``,
@@ -237,18 +249,23 @@ def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_F
             pre = (t > pre_from + TIME_TOLERANCE_S) & (t < e.t_start - TIME_TOLERANCE_S)
             if np.sum(pre) >= 5 and np.any(inside):
                 rms = float(np.sqrt(np.mean(angle[pre] ** 2)))
-                bound = recovery_factor * rms
+                bound = max(recovery_factor * rms, bound_floor_deg * DEG)
                 row["pre_fault_rms_deg"], row["bound_deg"] = rms / DEG, bound / DEG
-                after = (t >= e.t_end - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
-                idx = np.flatnonzero(after)
-                if len(idx) and angle[idx[-1]] <= bound:
-                    outside = idx[angle[idx] > bound]
-                    first_ok = idx[0] if len(outside) == 0 else outside[-1] + 1
-                    if window_end - t[first_ok] >= min_hold_s - TIME_TOLERANCE_S:
-                        row["recovery_time_s"] = float(max(t[first_ok] - e.t_end, 0.0))
-                        tail = nees[first_ok:idx[-1] + 1]
+                after = np.flatnonzero((t >= e.t_end - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S))
+                ok = angle[after] <= bound
+                for j, i in enumerate(after):
+                    if not ok[j]:
+                        continue
+                    hold_end = min(t[i] + hold_s, window_end)
+                    if hold_end - t[i] < min_hold_s - TIME_TOLERANCE_S:
+                        break  # too close to the window's end to confirm
+                    span = after[j:][t[after[j:]] < hold_end - TIME_TOLERANCE_S]
+                    if np.all(angle[span] <= bound):
+                        row["recovery_time_s"] = float(max(t[i] - e.t_end, 0.0))
+                        tail = nees[i:after[-1] + 1]
                         tail = tail[np.isfinite(tail)]
                         row["nees_after_recovery"] = float(np.mean(tail)) if len(tail) else None
+                        break
             rows.append(row)
     return rows
 
@@ -256,9 +273,11 @@ def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_F
 def summarize_fault_scores(rows_per_run: list) -> list[dict]:
     """Aggregate :func:`score_fault_events` rows of several runs (seeds) per (sensor, kind,
     estimator): sums of steps / detected / rejected / accepted / ignored, the largest peak
-    error and recovery time, the mean NEES after recovery, and ``recovered`` / ``events``
-    (events seen or not; recovered = a recovery time was found)."""
+    error and recovery time, the mean NEES after recovery, ``recovered`` / ``events``
+    (events seen or not; recovered = a recovery time was found) and ``t_first`` (the first
+    event's start); ordered by fault (first start), then estimator (first appearance)."""
     groups: dict = {}
+    order: dict = {}
     for rows in rows_per_run:
         for r in rows:
             key = (r["sensor"], r["kind"], r["estimator"])
@@ -266,6 +285,8 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
                                         "estimator": r["estimator"], "events": 0, "seen": 0, "steps": 0,
                                         "detected": 0, "rejected": 0, "accepted": 0, "ignored": 0, "recovered": 0,
                                         "peak_error_deg": None, "recovery_time_s": None, "_nees": []})
+            g["t_first"] = min(g.get("t_first", np.inf), r["t_start"])
+            order.setdefault(r["estimator"], len(order))
             g["events"] += 1
             g["seen"] += int(r["seen"])
             for k in ("steps", "detected", "rejected", "accepted", "ignored"):
@@ -282,9 +303,65 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
         nees = g.pop("_nees")
         g["nees_after_recovery"] = float(np.mean(nees)) if nees else None
         out.append(g)
+    return sorted(out, key=lambda g: (g["t_first"], g["sensor"], g["kind"], order[g["estimator"]]))
+
+
+# ----------------------------------------------------------------------------------------
+# A campaign over seeds: one diagram per worker process (as analysis.montecarlo)
+# ----------------------------------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _init_worker(yaml_text: str) -> None:
+    from drake_att.scenarios.builder import diagram_for
+    from drake_att.scenarios.config import load_scenario
+
+    _WORKER["sd"] = diagram_for(load_scenario(text=yaml_text))
+
+
+def _run_seed(args) -> dict:
+    seed, keep_series = args
+    run = _WORKER["sd"].simulate(seed)
+    out = {"seed": int(seed), "wall_time_s": float(run.wall_time_s), "rows": score_fault_events(run),
+           "finite": {n: bool(finite_outputs(run, n)) for n in run.metadata["estimators"]},
+           "events": [{"injector": e.injector, "sensor": e.sensor, "sensor_kind": e.sensor_kind, "kind": e.kind,
+                       "code": e.code, "t_start": e.t_start, "t_end": e.t_end, "magnitude": e.magnitude}
+                      for e in fault_events(run)]}
+    if keep_series:
+        out["series"] = {}
+        for name in run.metadata["estimators"]:
+            err = estimator_errors(run, name)
+            sigma = np.sqrt(np.maximum(np.einsum("nii->n", err["P"][:, :3, :3]), 0.0))
+            out["series"][name] = {"t": err["t"], "error_deg": np.linalg.norm(err["dtheta"], axis=1) / DEG,
+                                   "sigma_deg": sigma / DEG}
     return out
 
 
+def run_fault_campaign(scenario, seeds, workers: int | None = None, keep_series_for=()) -> list[dict]:
+    """Run ``scenario`` for every seed and score its faults; per seed: ``seed``,
+    ``wall_time_s``, ``rows`` (:func:`score_fault_events`), ``finite`` (estimator ->
+    :func:`finite_outputs`), ``events`` (the events as dicts) and, for the seeds in
+    ``keep_series_for``, ``series`` (estimator -> ``t``, ``error_deg`` = ``|dtheta|``,
+    ``sigma_deg`` = the attitude covariance's RMS sigma ``sqrt(trace P_att)``).
+
+    Workers (default: the CPU count, at most one per seed) get the scenario as YAML and
+    build its diagram once (:func:`drake_att.scenarios.builder.diagram_for`)."""
+    import multiprocessing as mp
+    import os
+
+    from drake_att.scenarios.config import dump_scenario
+
+    seeds = [int(s) for s in seeds]
+    yaml_text = dump_scenario(scenario)
+    jobs = [(s, s in set(keep_series_for)) for s in seeds]
+    workers = min(workers or os.cpu_count() or 1, len(seeds))
+    if workers <= 1:
+        _init_worker(yaml_text)
+        return [_run_seed(j) for j in jobs]
+    with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(yaml_text,)) as pool:
+        return pool.map(_run_seed, jobs)
+
+
 __all__ = ["FaultEvent", "fault_injectors", "fault_events", "consumed_sensors", "attitude_nees", "finite_outputs",
-           "score_fault_events", "summarize_fault_scores", "DETECTION_NIS", "RECOVERY_FACTOR", "PRE_FAULT_WINDOW_S",
-           "MIN_HOLD_S"]
+           "score_fault_events", "summarize_fault_scores", "run_fault_campaign", "DETECTION_NIS", "RECOVERY_FACTOR", "PRE_FAULT_WINDOW_S",
+           "HOLD_S", "MIN_HOLD_S"]
