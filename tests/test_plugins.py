@@ -31,6 +31,7 @@ import scipy.linalg as sla
 import yaml
 from scipy.stats import chi2
 
+from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids, SecondQuantity, VectorObservations
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
@@ -211,6 +212,8 @@ def test_tutorial_runs_from_the_cli_and_scores_as_derived(tmp_path):
 # particles), the fusion by two MEKFs. Truth: identity attitude at rest; trackers mounted
 # with the identity, so a perfect quaternion sample is [1, 0, 0, 0] and perfect directions
 # are the references.
+# The synthetic "good" samples below are not drawn from the filters' models: the default
+# innovation gate (99.9%) is switched off except on mekf_gated, whose gate has its own tests.
 CONTRACT_SCENARIO = """
 name: contract
 duration_s: 5.0
@@ -224,21 +227,23 @@ sensors:
                       sigma_vector_urad: 5000.0}
 - !ScreenCameraConfig {name: cam, period_s: 1.0, star_count: 12, centroid_noise_px: 0.1}
 estimators:
-- !MekfConfig {name: mekf, star_trackers: [stq, stv]}
-- !MekfConfig {name: mekf_q, star_trackers: [stq]}
+- !MekfConfig {name: mekf, star_trackers: [stq, stv], innovation_gate_probability: 0.0}
+- !MekfConfig {name: mekf_q, star_trackers: [stq], innovation_gate_probability: 0.0}
 - !MekfConfig {name: mekf_gated, star_trackers: [stq], innovation_gate_chi2: 16.0}
 - !EstimateFusionConfig {name: fusion, sources: [mekf, mekf_q]}
-- !MrpEkfConfig {name: mrp_ekf, star_tracker: stv}
+- !MrpEkfConfig {name: mrp_ekf, star_tracker: stv, innovation_gate_probability: 0.0}
 - !BootstrapPfConfig {name: bootstrap_pf, star_tracker: stv, num_particles: 20,
                       bias_roughening_deg_per_h_per_rt_s: 0.05}
 - !EkpfConfig {name: ekpf, star_tracker: stv, num_particles: 8}
 - !GyrolessPfConfig {name: gyroless_pf, star_tracker: stv, num_particles: 20}
-- !LieGroupConfig {name: lie_group, star_tracker: stv}
-- !LieGroupConfig {name: lie_group_literal, star_tracker: stv, formulation: paper_literal}
-- !QuaternionEkfConfig {name: quaternion_ekf, star_tracker: stv}
-- !CubatureQuaternionConfig {name: cqe, star_tracker: stv}
+- !LieGroupConfig {name: lie_group, star_tracker: stv, innovation_gate_probability: 0.0}
+- !LieGroupConfig {name: lie_group_literal, star_tracker: stv, formulation: paper_literal,
+                   innovation_gate_probability: 0.0}
+- !QuaternionEkfConfig {name: quaternion_ekf, star_tracker: stv, innovation_gate_probability: 0.0}
+- !CubatureQuaternionConfig {name: cqe, star_tracker: stv, innovation_gate_probability: 0.0}
 - !IndoorStarTrackerConfig {name: indoor, camera: cam, period_s: 1.0}
-- !IndoorStarTrackerConfig {name: indoor_gyro, camera: cam, gyro: gyro, period_s: 1.0}
+- !IndoorStarTrackerConfig {name: indoor_gyro, camera: cam, gyro: gyro, period_s: 1.0,
+                           innovation_gate_probability: 0.0}
 """
 NOT_ON_ESTIMATOR_SYSTEM = {
     "EstimateFusionConfig": "EstimateFusion is not an EstimatorSystem: it averages other estimators' outputs "
@@ -482,6 +487,32 @@ def test_contract_a_measurement_the_core_rejects_is_counted_and_changes_only_the
     assert (est[44], est[45]) == (2, 1) and est[46] > 1e3, est[43:47]
     np.testing.assert_array_equal(d.core_state(), twin.core_state())
     np.testing.assert_array_equal(est[:45], ref[:45])  # all but the skip count and the NIS
+    _assert_finite_outputs(d, t)
+
+
+def test_contract_a_gate_never_rejects_forever(contract_diagram):
+    """A real 2 deg attitude jump (a filter that has lost track) seen by the gated MEKF
+    (chi2 = 16, 5"/50" tracker): the first REACQUIRE_AFTER_REJECTIONS - 1 samples are rejected
+    and counted; at the next one the system inflates the attitude covariance and retries it
+    without the gate: it is used, the estimate jumps to within 0.1 deg of the new attitude,
+    and the following samples pass the gate again."""
+    from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
+
+    system = contract_diagram.estimators["mekf_gated"]
+    d = _started_driver(system)
+    jumped = np.array([math.cos(1.0 * DEG), math.sin(1.0 * DEG), 0.0, 0.0])  # 2 deg about x
+    counts = []
+    for k in range(1, REACQUIRE_AFTER_REJECTIONS + 3):
+        t = k * d.period
+        est = d.step(t, [t, 1.0, 0.0, 0.0, 0.0], {"q_meas_stq": np.array([t, 1.0, *jumped])})
+        counts.append((int(est[44]), int(est[45])))
+        if k < REACQUIRE_AFTER_REJECTIONS:
+            assert est[46] > 16.0
+    n = REACQUIRE_AFTER_REJECTIONS
+    assert counts[:n - 1] == [(1, k) for k in range(1, n)], counts
+    assert counts[n - 1] == (2, n - 1) and counts[n] == (3, n - 1) and counts[n + 1] == (4, n - 1), counts
+    err = np.degrees(np.linalg.norm(rot.quat_error_rotvec(est[:4], jumped)))
+    assert err < 0.1 and est[46] < 16.0, (err, est[43:47])
     _assert_finite_outputs(d, t)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from drake_att import validation
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY, InnovationGate
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
@@ -75,10 +76,27 @@ def check_flags(path: str, c, *fields) -> None:
             cfg.fail(f"{path}.{f}", getattr(c, f), "must be true or false")
 
 
+# The gate fields every Kalman-type estimator config has (context parameters).
+GATE_FIELDS = ("innovation_gate_chi2", "innovation_gate_probability")
+
+
 def check_innovation_gate(path: str, c) -> None:
-    """``innovation_gate_chi2``: None (no gate) or a chi-square threshold > 0."""
+    """``innovation_gate_chi2``: None or a chi-square threshold > 0 (it overrides the
+    probability); ``innovation_gate_probability``: in [0, 1), 0 = no gate."""
     if c.innovation_gate_chi2 is not None:
         cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
+    p = cfg.check_finite(f"{path}.innovation_gate_probability", c.innovation_gate_probability)
+    if not 0.0 <= p < 1.0:
+        cfg.fail(f"{path}.innovation_gate_probability", p, "must be in [0, 1) (0: no gate; default "
+                 f"{DEFAULT_GATE_PROBABILITY}: 0.1% of nominal measurements rejected)")
+
+
+def innovation_gate(c) -> InnovationGate:
+    """The config's gate: its chi2 threshold if set, else its probability (0: none)."""
+    if c.innovation_gate_chi2 is not None:
+        return InnovationGate(chi2=float(c.innovation_gate_chi2))
+    p = float(c.innovation_gate_probability)
+    return InnovationGate(probability=p) if p > 0.0 else InnovationGate()
 
 
 def check_integers_at_least_one(path: str, c, *fields) -> None:

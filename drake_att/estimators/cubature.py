@@ -30,6 +30,7 @@ from drake_att.scenarios.registry import register_estimator
 from drake_att.sensors.scale_factor_star_noise import ScaleFactorStarNoiseConfig, noise_model
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import DEG, DEG_PER_H
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass
@@ -54,6 +55,7 @@ class CubatureQuaternionConfig:
     zeta_gate_sigmas: float = 4.0
     zeta_state_correlation: bool = False
     innovation_gate_chi2: Optional[float] = None
+    innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
 
 
 def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
@@ -93,12 +95,12 @@ def _assumed_model(c: CubatureQuaternionConfig, source: ScaleFactorStarNoiseConf
 
 @register_estimator(CubatureQuaternionConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_cubature,
                     parameters=("assumed_correlation", "arw_deg_per_rt_h", "rrw_deg_per_h15", "grp_a", "grp_f",
-                                "update_iterations", "zeta_gate_sigmas", "zeta_state_correlation", "innovation_gate_chi2",
+                                "update_iterations", "zeta_gate_sigmas", "zeta_state_correlation", *common.GATE_FIELDS,
                                 *common.INITIAL_GYRO_MODE_FIELDS))
 def build_cubature(ctx, c: CubatureQuaternionConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise(ctx, c)
     model = _assumed_model(c, ctx.sensor_configs[c.multiplicative_noise]) if c.multiplicative_noise else None
-    core = CubatureQuaternionEstimator(arw, rrw, c.grp_a, c.grp_f, c.innovation_gate_chi2, model,
+    core = CubatureQuaternionEstimator(arw, rrw, c.grp_a, c.grp_f, common.innovation_gate(c), model,
                                        c.zeta_gate_sigmas if c.zeta_gate_sigmas > 0 else None, c.update_iterations,
                                        zeta_state_correlation=c.zeta_state_correlation)
     q0, b0, _ = common.initial_gyro_mode_estimate(ctx, c)

@@ -50,6 +50,7 @@ from drake_att.scenarios.registry import register_estimator
 from drake_att.sensors.screen_camera import camera_geometry
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARCSEC, DEG, DEG_PER_H
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 INITIALIZATIONS = ("swarm", "given")
 
@@ -87,9 +88,10 @@ class IndoorStarTrackerConfig:
     initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
     initial_bias_sigma_deg_per_h: float = 20.0
     innovation_gate_chi2: Optional[float] = None
+    innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
 
 
-_MEKF_FIELDS = ("arw_deg_per_rt_h", "rrw_deg_per_h15", "innovation_gate_chi2")
+_MEKF_FIELDS = ("arw_deg_per_rt_h", "rrw_deg_per_h15", "innovation_gate_chi2")  # None unless fused
 
 
 def validate_indoor_star_tracker(path: str, c: IndoorStarTrackerConfig, checks) -> None:
@@ -167,7 +169,7 @@ def solver_for(ctx, c: IndoorStarTrackerConfig) -> IndoorStarTrackerSolver:
                                 "camera_offset_error_mm", "pso_particles",
                                 "pso_inertia", "pso_c1", "pso_c2", "pso_v_max_deg", "pso_max_generations",
                                 "pso_search_range_deg", "pso_stop_fraction", "arw_deg_per_rt_h", "rrw_deg_per_h15",
-                                "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h", "innovation_gate_chi2"))
+                                "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h", *common.GATE_FIELDS))
 def build_indoor_star_tracker(ctx, c: IndoorStarTrackerConfig) -> EstimatorSetup:
     solver = solver_for(ctx, c)
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
@@ -175,7 +177,7 @@ def build_indoor_star_tracker(ctx, c: IndoorStarTrackerConfig) -> EstimatorSetup
     if c.gyro is None:
         return EstimatorSetup(solver, solver_state, c.period_s, camera_sensors=(c.camera,))
     arw, rrw = common.filter_gyro_noise(ctx, c)
-    mekf = MultiplicativeEKF(arw, rrw, c.innovation_gate_chi2)
+    mekf = MultiplicativeEKF(arw, rrw, common.innovation_gate(c))
     mekf_state = mekf.initial_state(q0, np.asarray(c.initial_bias_deg_per_h, dtype=float) * DEG_PER_H,
                                     c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
     core = IndoorStarTrackerMekf(solver, mekf)

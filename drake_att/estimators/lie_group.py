@@ -31,6 +31,7 @@ from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARW_DEG_PER_RT_H, DEG_PER_H
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 TRACKER_KINDS = ("vectors", "quaternion")
 
@@ -73,6 +74,7 @@ class LieGroupConfig:
     star_noise_from_tracker: bool = False
     gyro_arw_deg_per_rt_h: Optional[float] = None
     innovation_gate_chi2: Optional[float] = None
+    innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
     estimate_gyro_bias: bool = False
     arw_deg_per_rt_h: Optional[float] = None
     rrw_deg_per_h15: Optional[float] = None
@@ -132,7 +134,7 @@ def lie_group_second_quantity(c: LieGroupConfig, checks) -> SecondQuantity:
                     parameters=("formulation", "initial_attitude_rpy_deg", "initial_attitude_variance_rad2",
                                 "process_noise_rad2_per_step", "star_noise_variance_rad2", "star_noise_from_tracker",
                                 "gyro_arw_deg_per_rt_h",
-                                "innovation_gate_chi2", "arw_deg_per_rt_h", "rrw_deg_per_h15",
+                                *common.GATE_FIELDS, "arw_deg_per_rt_h", "rrw_deg_per_h15",
                                 "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h"))
 def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
     if c.estimate_gyro_bias:
@@ -143,7 +145,7 @@ def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
     Q_v = None if c.star_noise_from_tracker else c.star_noise_variance_rad2
     core = LieGroupFilter(Q_w=c.process_noise_rad2_per_step, Q_v=Q_v,
                           formulation=c.formulation, step_s=c.period_s, gyro_arw_rad_per_rt_s=arw,
-                          innovation_gate_chi2=c.innovation_gate_chi2, estimate_gyro_bias=c.estimate_gyro_bias,
+                          innovation_gate_chi2=common.innovation_gate(c), estimate_gyro_bias=c.estimate_gyro_bias,
                           gyro_rrw_rad_per_s15=rrw)
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
     if c.estimate_gyro_bias:

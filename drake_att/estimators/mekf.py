@@ -18,6 +18,7 @@ from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass
@@ -38,6 +39,7 @@ class MekfConfig:
     initial_attitude_sigma_deg: float = 5.0
     initial_bias_sigma_deg_per_h: float = 20.0
     innovation_gate_chi2: Optional[float] = None
+    innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
 
 
 def validate_mekf(path: str, c: MekfConfig, checks) -> None:
@@ -61,11 +63,11 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
 
 
 @register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf,
-                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "innovation_gate_chi2",
+                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", *common.GATE_FIELDS,
                                 *common.INITIAL_GYRO_MODE_FIELDS))
 def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
-    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, c.innovation_gate_chi2)
+    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, common.innovation_gate(c))
     init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
                               np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
                               c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)

@@ -12,6 +12,7 @@ from drake_att.estimators import common
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.filter_setups import mrp_ekf_setup
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass
@@ -31,15 +32,20 @@ class MrpEkfConfig:
     initial_attitude_sigma_deg: float = 1.0
     initial_bias_sigma_deg_per_h: float = 1.0
     update_iterations: int = 1
+    innovation_gate_chi2: Optional[float] = None
+    innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
 
 
 def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
     common.validate_vector_filter(path, c, checks, integer_fields=("update_iterations",), filter_gyro_noise=True)
+    common.check_innovation_gate(path, c)
 
 
 @register_estimator(MrpEkfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mrp_ekf,
-                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "update_iterations", *common.INITIAL_GYRO_MODE_FIELDS))
+                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "update_iterations", *common.GATE_FIELDS,
+                                *common.INITIAL_GYRO_MODE_FIELDS))
 def build_mrp_ekf(ctx, c: MrpEkfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return mrp_ekf_setup(c.period_s, c.star_tracker, q0, b0, P0, arw, rrw, c.update_iterations, gyro=c.gyro)
+    return mrp_ekf_setup(c.period_s, c.star_tracker, q0, b0, P0, arw, rrw, c.update_iterations, gyro=c.gyro,
+                         innovation_gate=common.innovation_gate(c))

@@ -18,6 +18,7 @@ from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARW_DEG_PER_RT_H
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass
@@ -41,6 +42,7 @@ class QuaternionEkfConfig:
     measurement_noise: float = 0.01
     gyro_arw_deg_per_rt_h: Optional[float] = None
     innovation_gate_chi2: Optional[float] = None
+    innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
 
 
 def validate_quaternion_ekf(path: str, c: QuaternionEkfConfig, checks) -> None:
@@ -55,11 +57,11 @@ def validate_quaternion_ekf(path: str, c: QuaternionEkfConfig, checks) -> None:
 
 @register_estimator(QuaternionEkfConfig, second_quantity=SecondQuantity.BODY_RATE, validate=validate_quaternion_ekf,
                     parameters=("initial_attitude_rpy_deg", "initial_quaternion_variance", "process_noise_per_step",
-                                "measurement_noise", "gyro_arw_deg_per_rt_h", "innovation_gate_chi2"))
+                                "measurement_noise", "gyro_arw_deg_per_rt_h", *common.GATE_FIELDS))
 def build_quaternion_ekf(ctx, c: QuaternionEkfConfig) -> EstimatorSetup:
     arw = None if c.gyro_arw_deg_per_rt_h is None else c.gyro_arw_deg_per_rt_h * ARW_DEG_PER_RT_H
     core = AdditiveQuaternionEKF(Q=c.process_noise_per_step, R=c.measurement_noise, step_s=c.period_s,
-                                 gyro_arw_rad_per_rt_s=arw, innovation_gate_chi2=c.innovation_gate_chi2)
+                                 gyro_arw_rad_per_rt_s=arw, innovation_gate_chi2=common.innovation_gate(c))
     init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
                               c.initial_quaternion_variance)
     return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))

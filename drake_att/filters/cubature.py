@@ -103,6 +103,7 @@ from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters.mekf import process_noise
 from drake_att.filters.multiplicative_noise import MultiplicativeNoiseModel
+from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 from drake_att.validation import (
     check_array,
     check_covariance,
@@ -250,9 +251,7 @@ class CubatureQuaternionEstimator:
         if not 0.0 <= self.grp_a <= 1.0:
             fail("grp_a", grp_a, "must be in [0, 1]")
         self.grp_f = check_positive("grp_f", grp_f)
-        if innovation_gate_chi2 is not None:
-            check_positive("innovation_gate_chi2", innovation_gate_chi2)
-        self.gate = innovation_gate_chi2
+        self.gate = InnovationGate.of(innovation_gate_chi2)
         if noise_model is not None and not isinstance(noise_model, MultiplicativeNoiseModel):
             fail("noise_model", noise_model, "must be a MultiplicativeNoiseModel or None")
         self.noise_model = noise_model
@@ -306,6 +305,12 @@ class CubatureQuaternionEstimator:
         return CubatureState(q, np.zeros(3), b.copy(), L)
 
     # -- contract ------------------------------------------------------------------------
+
+    def reacquire(self, state, info):
+        """The state with its covariance inflated after repeated gate rejections (the rule of
+        :mod:`drake_att.filters.gating`, applied by the estimator system)."""
+        return inflated(state, reacquire_factor(self.gate, info), "sqrt_P", square_root=True)
+
     def estimate(self, state: CubatureState):
         """``(q_IB_hat, bias_B_hat, P)``, ``P`` the covariance of ``[dtheta_B; dbias]``."""
         q = rot.quat_canonical(rot.quat_normalize(rot.quat_multiply(state.q_ref, self._to_quat(state.dp))))
@@ -444,7 +449,7 @@ class CubatureQuaternionEstimator:
             elif np.all(np.abs(step) <= tol * np.sqrt(np.sum(Lj * Lj, axis=1))):
                 break
         nis = float(w_nu @ w_nu)
-        if not math.isfinite(nis) or not np.all(np.isfinite(xj)) or (self.gate is not None and nis > self.gate):
+        if not np.all(np.isfinite(xj)) or self.gate.rejects(nis, len(nu)):
             return state, UpdateInfo(nu, Pzz, nis, False)
         q_ref = rot.quat_normalize(rot.quat_multiply(state.q_ref, self._to_quat(xj[:3])))
         M = D = 0.0

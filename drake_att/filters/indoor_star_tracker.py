@@ -584,6 +584,10 @@ class IndoorStarTrackerMekf:
         mekf_state, info = self.mekf.update_quaternion(state.mekf, solver_state.q_IB, np.array([1.0, 0.0, 0.0, 0.0]), P)
         return IndoorMekfState(mekf_state, solver_state), info
 
+    def reacquire(self, state: IndoorMekfState, info) -> IndoorMekfState:
+        """The MEKF's covariance inflated after repeated gate rejections (its own rule)."""
+        return IndoorMekfState(self.mekf.reacquire(state.mekf, info), state.solver)
+
     def estimate(self, state: IndoorMekfState):
         return self.mekf.estimate(state.mekf)
 

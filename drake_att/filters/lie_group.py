@@ -137,6 +137,7 @@ from drake_att import rotations as rot
 from drake_att.validation import check_array, check_nonnegative, check_positive, check_variance_matrix, fail
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf as _mekf
+from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 
 FORMULATIONS = ("consistent", "paper_literal")
 _EYE3 = np.eye(3)
@@ -279,8 +280,6 @@ class LieGroupFilter:
                             ("gyro_rrw_rad_per_s15", gyro_rrw_rad_per_s15)):
             if value is not None:
                 check_nonnegative(name, value)
-        if innovation_gate_chi2 is not None:
-            check_positive("innovation_gate_chi2", innovation_gate_chi2)
         if not isinstance(estimate_gyro_bias, (bool, np.bool_)):
             fail("estimate_gyro_bias", estimate_gyro_bias, "must be True or False")
         if estimate_gyro_bias and formulation != "consistent":
@@ -298,7 +297,7 @@ class LieGroupFilter:
         self.step_s = float(step_s)
         self.arw = None if gyro_arw_rad_per_rt_s is None else float(gyro_arw_rad_per_rt_s)
         self.rrw = None if gyro_rrw_rad_per_s15 is None else float(gyro_rrw_rad_per_s15)
-        self.gate = innovation_gate_chi2
+        self.gate = InnovationGate.of(innovation_gate_chi2)
         if self.estimate_gyro_bias:
             self.second_quantity = SecondQuantity.GYRO_BIAS
             self.state_size = STATE_SIZE_BIAS
@@ -356,6 +355,11 @@ class LieGroupFilter:
             need = "LieGroupBiasState (initial_state with a 6x6 P0)" if self.estimate_gyro_bias else "LieGroupState"
             raise TypeError(f"LieGroupFilter(estimate_gyro_bias={self.estimate_gyro_bias}): got a "
                             f"{type(state).__name__}; need a {need}")
+
+    def reacquire(self, state, info):
+        """The state with its covariance inflated after repeated gate rejections (the rule of
+        :mod:`drake_att.filters.gating`, applied by the estimator system)."""
+        return inflated(state, reacquire_factor(self.gate, info))
 
     def estimate(self, state):
         """``(q_IB_hat, second, 6x6 covariance)``: without a bias state the second vector is
@@ -484,7 +488,7 @@ class LieGroupFilter:
         if sol is None:
             return state, UpdateInfo(z, S, float("nan"), False)
         nis = float(z @ sol[:, n])
-        if not math.isfinite(nis) or (self.gate is not None and nis > self.gate):
+        if self.gate.rejects(nis, len(z)):
             return state, UpdateInfo(z, S, nis, False)
         K = sol[:, :n].T  # P H' S^-1
         dx = K @ z

@@ -36,6 +36,7 @@ import numpy as np
 from drake_att import rotations as rot
 from drake_att.validation import check_nonnegative, check_positive
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
+from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 
 
 @dataclass(frozen=True)
@@ -131,8 +132,10 @@ class MultiplicativeEKF:
     Args:
         arw_rad_per_rt_s: filter's gyro ARW ``sigma_v`` (rad/s^0.5) >= 0.
         rrw_rad_per_s15: filter's gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
-        innovation_gate_chi2: reject a measurement whose NIS exceeds this value (None: no
-            gate).  Rejections are reported in :class:`UpdateInfo`, never silent.
+        innovation_gate_chi2: reject a measurement whose NIS exceeds this value, or an
+            :class:`~drake_att.filters.gating.InnovationGate` (a probability per innovation
+            dimension); None: no gate. Rejections are reported in :class:`UpdateInfo`, never
+            silent; :meth:`reacquire` inflates the covariance after repeated rejections.
     """
 
     second_quantity = SecondQuantity.GYRO_BIAS
@@ -143,9 +146,7 @@ class MultiplicativeEKF:
     def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None):
         self.arw = check_nonnegative("arw", arw_rad_per_rt_s)
         self.rrw = check_nonnegative("rrw", rrw_rad_per_s15)
-        if innovation_gate_chi2 is not None:
-            check_positive("innovation_gate_chi2", innovation_gate_chi2)
-        self.gate = innovation_gate_chi2
+        self.gate = InnovationGate.of(innovation_gate_chi2)
         self._q_cache: dict = {}
         self._model_cache: dict = {}
 
@@ -179,6 +180,11 @@ class MultiplicativeEKF:
                                        measurement.sigma_rad, measurement.q_BS)
         raise TypeError(f"MultiplicativeEKF.update: got a {type(measurement).__name__}; "
                         "allowed: QuaternionSample, VectorObservations")
+
+    def reacquire(self, state, info):
+        """The state with its covariance inflated after repeated gate rejections (the rule of
+        :mod:`drake_att.filters.gating`, applied by the estimator system)."""
+        return inflated(state, reacquire_factor(self.gate, info))
 
     @staticmethod
     def estimate(state: MekfState):
@@ -219,7 +225,7 @@ class MultiplicativeEKF:
         if S_inv is None:
             return state, UpdateInfo(z, S, float("nan"), False)
         nis = float(z @ S_inv @ z)
-        if not np.isfinite(nis) or (self.gate is not None and nis > self.gate):
+        if self.gate.rejects(nis, len(z)):
             return state, UpdateInfo(z, S, nis, False)
         K = PHt @ S_inv
         dx = K @ z

@@ -64,6 +64,7 @@ from drake_att.validation import (
     measurement_or_none,
 )
 from drake_att.contract import SecondQuantity, UpdateInfo
+from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 from drake_att.rotations import (
     mrp_kinematics_matrix,
     mrp_to_quat,
@@ -527,6 +528,8 @@ class MrpEkfCore:
         arw_rad_per_rt_s: gyro ARW ``sigma_v`` (rad/s^0.5) > 0.
         rrw_rad_per_s15: gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
         update_iterations: linearizations per update (1 = the paper's EKF; > 1 iterated).
+        innovation_gate_chi2: a chi-square threshold or an
+            :class:`~drake_att.filters.gating.InnovationGate`; None: no gate (the paper).
     """
 
     second_quantity = SecondQuantity.GYRO_BIAS
@@ -534,7 +537,9 @@ class MrpEkfCore:
     is_random = False
     state_size = 42
 
-    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float = 0.0, update_iterations: int = 1):
+    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float = 0.0, update_iterations: int = 1,
+                 innovation_gate_chi2=None):
+        self.gate = InnovationGate.of(innovation_gate_chi2)
         self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
         self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
         self.update_iterations = check_int("update_iterations", update_iterations, 1)
@@ -564,7 +569,15 @@ class MrpEkfCore:
         if yv is None:
             return state, UpdateInfo(None, None, float("nan"), False)
         x, P, innov, S = ekf_update(state.x, state.P, yv, U, sigma, iterations=self.update_iterations)
-        return MrpEkfState(x, P), UpdateInfo(innov, S, float(innov @ np.linalg.solve(S, innov)), True)
+        nis = float(innov @ np.linalg.solve(S, innov))
+        if self.gate.rejects(nis, len(innov)):
+            return state, UpdateInfo(innov, S, nis, False)
+        return MrpEkfState(x, P), UpdateInfo(innov, S, nis, True)
+
+    def reacquire(self, state, info):
+        """The state with its covariance inflated after repeated gate rejections (the rule of
+        :mod:`drake_att.filters.gating`, applied by the estimator system)."""
+        return inflated(state, reacquire_factor(self.gate, info))
 
     @staticmethod
     def estimate(state: MrpEkfState):

@@ -60,6 +60,7 @@ from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.validation import check_nonnegative, check_positive, check_quaternion, check_variance_matrix
 from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
+from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 
 _EYE4 = np.eye(4)
 COLLINEAR_SINE = 1e-6  # references closer than this (sine of the angle) to collinear: no attitude
@@ -148,9 +149,7 @@ class AdditiveQuaternionEKF:
         self.step_s = check_positive("step_s", step_s)
         self.arw = None if gyro_arw_rad_per_rt_s is None else check_nonnegative("gyro_arw_rad_per_rt_s",
                                                                                   gyro_arw_rad_per_rt_s)
-        if innovation_gate_chi2 is not None:
-            check_positive("innovation_gate_chi2", innovation_gate_chi2)
-        self.gate = innovation_gate_chi2
+        self.gate = InnovationGate.of(innovation_gate_chi2)
 
     @staticmethod
     def initial_state(q_IB=(1.0, 0.0, 0.0, 0.0), P0=1.0,
@@ -173,6 +172,11 @@ class AdditiveQuaternionEKF:
             raise ValueError(f"AdditiveQuaternionEKF state vector: got shape {v.shape}; need (44,)")
         return QuaternionEkfState(v[0:4], v[4:20].reshape(4, 4), v[20:23], v[23:32].reshape(3, 3),
                                   v[32:44].reshape(4, 3))
+
+    def reacquire(self, state, info):
+        """The state with its covariance inflated after repeated gate rejections (the rule of
+        :mod:`drake_att.filters.gating`, applied by the estimator system)."""
+        return inflated(state, reacquire_factor(self.gate, info), n=4)  # P: the quaternion's 4x4
 
     @staticmethod
     def estimate(state: QuaternionEkfState):
@@ -234,7 +238,7 @@ class AdditiveQuaternionEKF:
         if sol is None:
             return state, UpdateInfo(z, S, float("nan"), False)
         nis = float(z @ sol[:, 4])
-        if not math.isfinite(nis) or (self.gate is not None and nis > self.gate):
+        if self.gate.rejects(nis, len(z)):
             return state, UpdateInfo(z, S, nis, False)
         K = sol[:, :4].T  # P S^-1
         I_K = _EYE4 - K

@@ -14,6 +14,12 @@ which owns the loop they all share, once:
   :func:`drake_att.contract.is_usable` (invalid or NaN flag, NaN time, non-finite numbers)
   is skipped and counted; the core's own rejection (innovation gate, singular innovation
   covariance: ``UpdateInfo.accepted`` false) is counted as skipped too;
+* **re-acquisition**: after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
+  consecutive rejections of one input by a core that has ``reacquire(state, info)`` (the
+  Kalman-type cores: covariance inflated so the rejected innovation sits at half the gate),
+  the state is re-acquired and the same measurement retried once without the gate — a gate
+  never rejects forever (a filter that has lost track, or starts far from the truth, takes
+  the measurement back after N rejections); the retry's outcome is what is counted;
 * **randomness** (cores with ``is_random``): the seed comes from the diagram's
   ``RandomGenerator`` through the random input port ``seed_uniform``; the initialization
   event draws the initial state with generator 0 of
@@ -79,6 +85,7 @@ from drake_att.contract import (
     SecondQuantity,
     pack_estimate,
 )
+from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
 from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
 
 TIME_TOLERANCE_S = 1e-6
@@ -91,7 +98,8 @@ _ZERO6 = np.zeros((6, 6))
 _T_LAST, _W_LAST, _STEP = 0, slice(1, 4), 4
 _SEED = slice(5, 5 + SEED_WORDS)
 _N_RESAMPLES, _ESS, _N_DEGENERATE = 5 + SEED_WORDS, 6 + SEED_WORDS, 7 + SEED_WORDS
-_LAST_SAMPLE = 8 + SEED_WORDS  # first per-input "time of last used sample"
+_LAST_SAMPLE = 8 + SEED_WORDS  # first per-input "time of last used sample"; then, per input, the
+# number of consecutive rejections by the core (re-acquisition)
 
 __all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensorModel", "MekfEstimator", "pack_estimate", "ESTIMATE_SIZE",
            "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
@@ -197,10 +205,11 @@ class EstimatorSystem(LeafSystem):
         self._estimate_group = self.DeclareDiscreteState(
             pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
-        book = np.zeros(_LAST_SAMPLE + n_inputs)
+        self._rejections = _LAST_SAMPLE + n_inputs  # first per-input consecutive-rejection count
+        book = np.zeros(_LAST_SAMPLE + 2 * n_inputs)
         book[_T_LAST] = -np.inf
         book[_ESS] = float(self.num_particles) if self.num_particles is not None else np.nan
-        book[_LAST_SAMPLE:] = -np.inf
+        book[_LAST_SAMPLE:self._rejections] = -np.inf
         self._book_group = self.DeclareDiscreteState(book)
         self._core_group = self.DeclareDiscreteState(np.asarray(core.to_vector(initial_state), dtype=float))
         if self._linearizing:
@@ -393,7 +402,15 @@ class EstimatorSystem(LeafSystem):
             if not contract.is_usable(m):
                 n_skipped += 1
                 continue
-            state, info = core.update(state, m, rng)
+            new_state, info = core.update(state, m, rng)
+            if info.accepted:
+                book[self._rejections + i] = 0.0
+            elif info.nis == info.nis and hasattr(core, "reacquire"):  # a gate rejection (finite NIS)
+                book[self._rejections + i] += 1.0
+                if book[self._rejections + i] >= REACQUIRE_AFTER_REJECTIONS:
+                    book[self._rejections + i] = 0.0
+                    new_state, info = _ungated(core).update(core.reacquire(state, info), m, rng)
+            state = new_state
             nis = info.nis
             if info.accepted:
                 n_used += 1
@@ -416,6 +433,21 @@ class EstimatorSystem(LeafSystem):
             discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
                 np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
         return EventStatus.Succeeded()
+
+
+def _ungated(core):
+    """A shallow copy of ``core`` with its innovation gate off (re-acquisition's retry)."""
+    import copy
+
+    from drake_att.filters.gating import InnovationGate
+
+    twin = copy.copy(core)
+    twin.gate = InnovationGate()
+    inner = getattr(core, "mekf", None)  # composite cores gate in their MEKF
+    if inner is not None and hasattr(inner, "gate"):
+        twin.mekf = copy.copy(inner)
+        twin.mekf.gate = InnovationGate()
+    return twin
 
 
 def MekfEstimator(name: str, period_s: float, filter_core, initial_state, quaternion_sensors=(),

@@ -73,9 +73,11 @@ def _covariance0(covariance0) -> np.ndarray:
 
 
 def mrp_ekf_setup(period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
-                  rrw_rad_per_s15: float, update_iterations: int = 1, gyro: str | None = None) -> EstimatorSetup:
-    """The setup of :func:`MrpEkfEstimator` (same arguments; ``gyro``: the gyro's name)."""
-    core = MrpEkfCore(arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations)
+                  rrw_rad_per_s15: float, update_iterations: int = 1, gyro: str | None = None,
+                  innovation_gate=None) -> EstimatorSetup:
+    """The setup of :func:`MrpEkfEstimator` (same arguments; ``gyro``: the gyro's name;
+    ``innovation_gate``: a chi2 threshold or an InnovationGate, None: none)."""
+    core = MrpEkfCore(arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations, innovation_gate)
     return EstimatorSetup(core, core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)), period_s,
                           gyro=gyro, vector_sensors=(star_tracker,))
 
