@@ -403,6 +403,34 @@ def test_a_failed_write_leaves_the_previous_results_untouched(tmp_path, monkeypa
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
 
 
+def test_result_folder_carries_a_manifest_of_its_files(tmp_path):
+    """manifest.json lists every file the run wrote (bytes, SHA-256), is written last, and
+    check_manifest finds a folder complete; it reports a changed, a missing and a foreign file."""
+    from drake_att.analysis import report
+    from drake_att.analysis.metrics import compute_metrics
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.config import apply_overrides
+    from drake_att.scenarios.library import load
+
+    sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"),
+                                         ["duration_s=5", "scoring.score_from_s=1"]))
+    run = sd.simulate(1)
+    out = tmp_path / "r"
+    written = report.write_results(sd, run, compute_metrics(run), str(out), figures=False)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert (manifest["scenario"], manifest["seed"]) == ("cubesat_single_star_tracker", 1)
+    assert sorted(e["file"] for e in manifest["files"]) == sorted(p.name for p in out.iterdir() if p.name != "manifest.json")
+    assert written[-1].endswith("manifest.json")
+    assert report.check_manifest(str(out)) == []
+    (out / "metrics.json").write_text("{}")
+    (out / "config.yaml").unlink()
+    (out / "stray.png").write_bytes(b"x")
+    problems = report.check_manifest(str(out))
+    assert any(p.startswith("metrics.json: changed") for p in problems)
+    assert any(p.startswith("config.yaml: missing") for p in problems)
+    assert any(p.startswith("stray.png: not written") for p in problems)
+
+
 def test_default_folder_of_a_modified_run_differs_from_the_unmodified_one(tmp_path):
     import re
 

@@ -222,4 +222,48 @@ def _write_results_into(scenario_diagram, run, metrics: dict, out_dir: str, figu
         for name in run.metadata["estimators"]:
             files += plot_estimator(run, name, out_dir, run.scenario.scoring.score_from_s)
     files += write_diagram_graph(scenario_diagram.diagram, out_dir)
+    files.append(write_manifest(out_dir, files, run))
     return files
+
+
+MANIFEST = "manifest.json"
+
+
+def write_manifest(out_dir: str, files, run) -> str:
+    """``manifest.json``: every file written (name, bytes, SHA-256), the scenario and seed —
+    written last, so a folder with a manifest that matches its files is a complete result."""
+    import hashlib
+
+    entries = []
+    for path in files:
+        with open(path, "rb") as f:
+            data = f.read()
+        entries.append({"file": os.path.basename(path), "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
+    path = os.path.join(out_dir, MANIFEST)
+    with open(path, "w") as f:
+        json.dump({"scenario": run.scenario.name, "seed": run.seed, "files": entries}, f, indent=1)
+    return path
+
+
+def check_manifest(out_dir: str) -> list[str]:
+    """Problems of a result folder against its manifest (empty: complete and unmodified)."""
+    import hashlib
+
+    path = os.path.join(out_dir, MANIFEST)
+    if not os.path.isfile(path):
+        return [f"{out_dir}: no {MANIFEST} (not a complete result folder)"]
+    with open(path) as f:
+        manifest = json.load(f)
+    problems = []
+    for e in manifest["files"]:
+        p = os.path.join(out_dir, e["file"])
+        if not os.path.isfile(p):
+            problems.append(f"{e['file']}: missing")
+            continue
+        with open(p, "rb") as f:
+            data = f.read()
+        if len(data) != e["bytes"] or hashlib.sha256(data).hexdigest() != e["sha256"]:
+            problems.append(f"{e['file']}: changed since it was written")
+    listed = {e["file"] for e in manifest["files"]} | {MANIFEST}
+    problems += [f"{n}: not written by this run" for n in sorted(set(os.listdir(out_dir)) - listed)]
+    return problems
