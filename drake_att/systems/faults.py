@@ -62,10 +62,11 @@ Output ports:
         the largest clipped excess (rad/s); bias_jump: the step's norm (rad/s); time_tag:
         the offset (s).
 Parameters: abstract parameter 0: the :class:`FaultModel` (:meth:`FaultInjector.set_model`).
-Discrete state (19): ``[seed words (4), sample index k, t_k, mask, outlier vector (3),
+Discrete state (20): ``[seed words (4), sample index k, t_k, mask, outlier vector (3),
     NaN position, inf position, inf sign, bias jump total (3), bias jump onset size,
-    time-tag offset, in outage window]`` — the decisions for sample k, made by the discrete
-    event at ``t_{k-1}`` (the initialization event for k = 0).
+    time-tag offset, in outage window, saturation range (rad/s; inf: none)]`` — the
+    decisions for sample k, made by the discrete event at ``t_{k-1}`` (the initialization
+    event for k = 0); the outputs read only the state and the input.
 Abstract state: the :class:`Hold` (a stuck window's held clean sample), changed by an
     unrestricted event at the sample times (see the constructor).
 """
@@ -117,8 +118,8 @@ _K, _T, _MASK = SEED_WORDS, SEED_WORDS + 1, SEED_WORDS + 2
 _OUTLIER = slice(SEED_WORDS + 3, SEED_WORDS + 6)
 _NAN_AT, _INF_AT, _INF_SIGN = SEED_WORDS + 6, SEED_WORDS + 7, SEED_WORDS + 8
 _JUMP = slice(SEED_WORDS + 9, SEED_WORDS + 12)
-_JUMP_ONSET, _TAG_OFFSET, _IN_OUTAGE = range(SEED_WORDS + 12, SEED_WORDS + 15)
-STATE_SIZE = SEED_WORDS + 15
+_JUMP_ONSET, _TAG_OFFSET, _IN_OUTAGE, _SATURATION = range(SEED_WORDS + 12, SEED_WORDS + 16)
+STATE_SIZE = SEED_WORDS + 16
 
 
 def bit(code: int) -> int:
@@ -356,6 +357,7 @@ class FaultInjector(LeafSystem):
         x_new[_JUMP_ONSET] = np.linalg.norm(onset)
         x_new[_TAG_OFFSET] = m.time_tag_offset_s if mask & bit(FAULT_TIME_TAG) else 0.0
         x_new[_IN_OUTAGE] = float(in_outage)
+        x_new[_SATURATION] = m.saturation_rad_per_s if mask & bit(FAULT_SATURATED) else math.inf
 
     def _clean(self, measurement, x):
         """The sensor's sample with the bias jump applied (what a stuck window holds)."""
@@ -446,8 +448,7 @@ class FaultInjector(LeafSystem):
                 v[2:5] += x[_JUMP]
             if stuck:
                 v[1:] = hold.sample[1:]
-            saturation = self.model(context).saturation_rad_per_s if mask & bit(FAULT_SATURATED) else math.inf
-            v[2:], excess = self._apply_numbers(v[2:], x, mask, saturation)
+            v[2:], excess = self._apply_numbers(v[2:], x, mask, x[_SATURATION])
             v[0] += x[_TAG_OFFSET]
             if mask & bit(FAULT_DROPOUT):
                 v[1] = 0.0
