@@ -50,8 +50,18 @@ def _cmd_run(args) -> int:
         print(f"drake-att: --out {out_dir}: is an existing file, not a folder; name a folder for the results",
               file=sys.stderr)
         return 2
+    from drake_att.scenarios.preflight import preflight_warnings, run_warnings
+
+    for message in preflight_warnings(scenario):
+        print(f"drake-att: warning: {message}", file=sys.stderr)
     print(f"Building {scenario.name} ({path}) ...", file=sys.stderr)
-    sd = ScenarioDiagram(scenario)
+    import warnings
+
+    from drake_att.scenarios.preflight import DegenerateScenarioWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateScenarioWarning)  # printed above, as one line each
+        sd = ScenarioDiagram(scenario)
     try:
         run = sd.simulate(scenario.seed, progress=not args.quiet)
     except NonFiniteRunError as e:
@@ -59,6 +69,8 @@ def _cmd_run(args) -> int:
         return 2
     metrics = compute_metrics(run)
     print(format_table(metrics))
+    for message in run_warnings(metrics):
+        print(f"drake-att: warning: {message}", file=sys.stderr)
     replaced = os.path.isdir(out_dir)
     files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)
     print(f"\nWrote {len(files)} files to {out_dir}/" + (" (replacing the previous results there)" if replaced else "")

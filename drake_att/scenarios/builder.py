@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -245,6 +246,10 @@ class ScenarioDiagram:
 
     def __init__(self, scenario: cfg.Scenario):
         cfg.validate(scenario)
+        from drake_att.scenarios.preflight import DegenerateScenarioWarning, preflight_warnings
+
+        for message in preflight_warnings(scenario):
+            warnings.warn(message, DegenerateScenarioWarning, stacklevel=2)
         self.scenario = scenario
         builder = DiagramBuilder()
         p = scenario.plant
