@@ -44,7 +44,8 @@ sensors:
 - !StarTrackerConfig {name: st, period_s: 1.0, mode: vectors, references_I: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
                       sigma_vector_urad: 100.0}
 estimators:
-- !MrpEkfConfig {name: ekf, initial_attitude_rpy_deg: [1.0, 1.0, 1.0], initial_bias_deg_per_h: [2.0, 2.0, 2.0]}
+- !MrpEkfConfig {name: ekf, initial_attitude_rpy_deg: [1.0, 1.0, 1.0], initial_bias_deg_per_h: [2.0, 2.0, 2.0],
+                innovation_gate_probability: 0.0}  # the paper's EKF (ungated, as the shipped S0)
 - !BootstrapPfConfig {name: bpf, num_particles: 60, attitude_process_noise_deg_per_rt_h: 0.0688,
                       bias_roughening_deg_per_h_per_rt_s: 0.05,
                       initial_attitude_rpy_deg: [1.0, 1.0, 1.0], initial_bias_deg_per_h: [2.0, 2.0, 2.0]}
