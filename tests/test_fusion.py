@@ -470,3 +470,22 @@ def test_architecture_ordering_derived_from_the_filters_covariances(dual_run):
         emp, pred, s = ratios("joint", b)
         assert np.all(pred <= 1 + 1e-3), (b, pred)
         assert np.all(emp <= pred * (1 + 3 * s)), (b, emp, pred, s)
+
+
+def test_decentralized_fusion_leaves_out_a_branch_whose_tracker_never_delivered():
+    """st2 is out for the whole run: its MEKF (single_st2) never uses a measurement and stays
+    near its initial guess. The decentralized fusion leaves it out (weight 0) and equals the
+    live branch (single) bit for bit — estimate and covariance — instead of averaging a
+    predicted-only attitude in (the quaternion average with weights [1, 0] equals the live
+    branch to round-off, the covariance exactly)."""
+    from drake_att.analysis.metrics import estimator_errors
+
+    s = apply_overrides(load("cubesat_dual_star_tracker"),
+                        ["duration_s=60", "scoring.score_from_s=10", "sensors.st2.outage_windows_s=[[-1.0, 1000.0]]"])
+    run = ScenarioDiagram(s).simulate(1)
+    dec, single, dead = (estimator_errors(run, n) for n in ("decentralized", "single", "single_st2"))
+    assert int(dead["status"][-1, 1]) == 0 and int(single["status"][-1, 1]) > 50
+    live = dec["t"] > 0.0
+    np.testing.assert_allclose(dec["dtheta"][live], single["dtheta"][live], rtol=0, atol=1e-14)
+    np.testing.assert_array_equal(dec["P"][live], single["P"][live])
+    assert np.degrees(np.abs(dec["dtheta"][-1])).max() < 0.05

@@ -118,7 +118,9 @@ class EstimateFusion(LeafSystem):
         (109, the MEKF's ``step_linearization``).
     Output ports: the estimator contract (``q_IB_hat``, second vector, ``covariance``,
         ``status`` with ``t_estimate`` = the sources' common estimate time; NaN time when
-        the sources disagree on it).
+        the sources disagree on it). A source that has used no measurement while another has
+        is left out (:meth:`active_weights`): a branch whose tracker never delivered does not
+        drag the fused estimate to its initial guess.
     Discrete state ("tracked" only, 37): ``[P_12 (36), steps applied]``, advanced by a
         periodic event at ``period_s`` (the sources' step).  The output applies the same
         one-step recursion to the inputs it sees, so the reported covariance always refers
@@ -158,11 +160,23 @@ class EstimateFusion(LeafSystem):
     def _eval(self, context, key):
         return [self._in[s][key].Eval(context) for s in self.source_names]
 
+    def active_weights(self, context) -> np.ndarray:
+        """The weights in use: a source that has used no measurement yet while another has
+        (a branch whose sensor never delivered) gets weight 0 and the others are renormalized
+        — its estimate is only its prediction from the initial state. Otherwise the
+        configured weights, unchanged."""
+        used = np.array([self._in[s]["status"].Eval(context)[1] for s in self.source_names])
+        active = used > 0
+        if active.all() or not active.any():
+            return self.weights
+        w = self.weights * active
+        return w / w.sum()
+
     def _calc_q(self, context, output):
-        output.SetFromVector(average_quaternions(np.array(self._eval(context, "q_IB_hat")), self.weights))
+        output.SetFromVector(average_quaternions(np.array(self._eval(context, "q_IB_hat")), self.active_weights(context)))
 
     def _calc_second(self, context, output):
-        output.SetFromVector(np.einsum("i,ij->j", self.weights, np.array(self._eval(context, "second"))))
+        output.SetFromVector(np.einsum("i,ij->j", self.active_weights(context), np.array(self._eval(context, "second"))))
 
     def _cross_covariance(self, context):
         """``P_12`` at the step of the current inputs: the stored one, advanced once if the
@@ -191,6 +205,15 @@ class EstimateFusion(LeafSystem):
 
     def _calc_cov(self, context, output):
         P = np.array(self._eval(context, "covariance"))
+        weights = self.active_weights(context)
+        if weights is not self.weights:  # a dead branch dropped: the live ones' covariance
+            live = weights > 0
+            if live.sum() == 1:
+                output.SetFromVector(P[np.argmax(live)])
+                return
+            c = weights if self.covariance_model == "conservative" else weights**2
+            output.SetFromVector(np.einsum("i,ij->j", c, P))
+            return
         if self.covariance_model == "tracked":
             (w1, w2), (P1, P2) = self.weights, P.reshape(2, 6, 6)
             P12, _ = self._cross_covariance(context)
