@@ -46,7 +46,8 @@ from drake_att.units import DEG
 
 
 class NonFiniteRunError(RuntimeError):
-    """The truth went non-finite during a run (the message names the signal and the time)."""
+    """The truth or an estimate went non-finite during a run (the message names the signal
+    and the time)."""
 
 
 def _check_truth_finite(signals: dict, keys, scenario_name: str, seed: int) -> None:
@@ -60,6 +61,23 @@ def _check_truth_finite(signals: dict, keys, scenario_name: str, seed: int) -> N
                 f"(last finite value {x[i - 1].tolist() if i else 'none'}); the plant's initial conditions, inertia, "
                 "torque or integrator step are out of range for this run (see the scenario's plant and simulation "
                 "settings). Nothing was scored.")
+
+
+def _check_estimates_finite(signals: dict, run_scenario, scenario_name: str, seed: int, second_names: dict) -> None:
+    """Every estimator's attitude, second vector and covariance must stay finite (its status
+    may carry a NaN NIS by design): a core that produces NaN is a failed run, not a result."""
+    for e in run_scenario.estimators:
+        for port in ("q_IB_hat", second_names.get(e.name), "covariance"):
+            key = f"{e.name}/{port}"
+            if port is None or key not in signals:
+                continue
+            t, x = signals[key]
+            bad = ~np.all(np.isfinite(x), axis=1)
+            if np.any(bad):
+                i = int(np.flatnonzero(bad)[0])
+                raise NonFiniteRunError(
+                    f"{scenario_name} seed {seed}: the estimate {key!r} is not finite from t = {t[i]:g} s (its core "
+                    "produced NaN or inf: a bug or a diverged filter, see its tuning and inputs). Nothing was scored.")
 
 
 def _same(a, b) -> bool:
@@ -475,6 +493,8 @@ class ScenarioDiagram:
                 signals[key] = (t, x)
         truth = self.truth.get_name()
         _check_truth_finite(signals, (f"{truth}/q_IB", f"{truth}/w_IB_B"), scenario.name, seed)
+        _check_estimates_finite(signals, scenario, scenario.name, seed,
+                                {name: getattr(system, "second_output_name", None) for name, system in self.estimators.items()})
         return RunLog(scenario, seed, wall, signals, run_metadata(self, seed, wall, signals, scenario))
 
 
