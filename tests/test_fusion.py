@@ -156,9 +156,14 @@ def test_star_tracker_average_output_is_the_weighted_average_of_body_attitudes(n
         assert_same_rotation(out_flipped[2:], out[2:], atol=1e-14)
 
 
-def test_star_tracker_average_is_valid_only_when_all_trackers_are_valid_at_one_instant():
-    """Documented: valid only if EVERY input is flagged valid, finite, and all samples are
-    at the same time (|dt| < 1e-6 s); otherwise flagged invalid."""
+def test_star_tracker_average_uses_the_trackers_that_are_fine_and_says_which():
+    """Documented: every input flagged valid, finite and of this instant (the latest valid
+    time, |dt| < 1e-6 s) -> their weighted average, flag 1; only some of them -> the average of
+    those (weights renormalized; noise-free: still the truth), flag 1 + bit mask of the
+    inputs used; none -> flag 0. The estimator system picks the subset's covariance by the
+    flag (QuaternionSensorModel.covariance_for_flag)."""
+    from drake_att.systems.estimators import QuaternionSensorModel
+
     rng = np.random.default_rng(3)
     names = ["a", "b", "c"]
     q_BS = [random_quaternion(rng) for _ in names]
@@ -173,22 +178,34 @@ def test_star_tracker_average_is_valid_only_when_all_trackers_are_valid_at_one_i
     good = run()
     assert good[1] == 1.0 and good[0] == 5.0
     assert_same_rotation(good[2:], q_IB, atol=1e-12)  # noise-free trackers: the truth
-    for k in range(3):  # any single invalid tracker invalidates the average
+    for k in range(3):  # one tracker out: the other two, flag 1 + mask
         flags = [1.0, 1.0, 1.0]
         flags[k] = 0.0
-        assert run(flags=flags)[1] == 0.0, k
-    assert run(flags=(0.0, 0.0, 1.0))[1] == 0.0
+        out = run(flags=flags)
+        assert out[1] == 1.0 + (7 - (1 << k)), (k, out[1])
+        assert_same_rotation(out[2:], q_IB, atol=1e-12)
+    out = run(flags=(0.0, 0.0, 1.0))
+    assert out[1] == 1.0 + 4 and out[0] == 5.0
+    assert_same_rotation(out[2:], q_IB, atol=1e-12)
     assert run(flags=(0.0, 0.0, 0.0))[1] == 0.0
-    for bad in (np.nan, np.inf):  # flagged valid but non-finite
+    assert run(flags=(np.nan, 1.0, 1.0))[1] == 1.0 + 6  # a NaN flag is not valid
+    for bad in (np.nan, np.inf):  # flagged valid but non-finite: left out
         quats = [q.copy() for q in q_IS]
         quats[1][2] = bad
         out = run(quats=quats)
-        assert out[1] == 0.0 and np.all(np.isfinite(out[2:]))
-    # Different sample instants: invalid; within the 1e-6 s tolerance: valid.
-    assert run(times=(5.0, 5.0, 5.1))[1] == 0.0
-    assert run(times=(5.0, 5.0 + 2e-6, 5.0))[1] == 0.0
+        assert out[1] == 1.0 + 5 and np.all(np.isfinite(out[2:]))
+    # Different sample instants: the latest instant's samples only; within 1e-6 s: all.
+    out = run(times=(5.0, 5.0, 5.1))
+    assert out[1] == 1.0 + 4 and out[0] == 5.1
+    assert run(times=(5.0, 5.0 + 2e-6, 5.0))[1] == 1.0 + 2
     ok = run(times=(5.0, 5.0 + 2e-7, 5.0))
     assert ok[1] == 1.0 and ok[0] == max(5.0, 5.0 + 2e-7)
+    # The covariance the estimator then assumes: the subset's, from its renormalized weights.
+    model = QuaternionSensorModel("avg", np.array([1.0, 0, 0, 0]), sys_.covariance_B, sys_.covariance_by_mask)
+    np.testing.assert_array_equal(model.covariance_for_flag(1.0), sys_.covariance_B)
+    R_c = rotmat(q_BS[2]) @ np.diag([1e-10, 1e-10, 1e-8]) @ rotmat(q_BS[2]).T  # tracker c alone: its own noise
+    np.testing.assert_allclose(model.covariance_for_flag(1.0 + 4), R_c, rtol=1e-12, atol=1e-24)
+    assert model.covariance_for_flag(1.0 + 7) is None and model.covariance_for_flag(0.0) is sys_.covariance_B
 
 
 def test_star_tracker_average_covariance_matches_sampled_errors_unequal_weights():
@@ -489,3 +506,20 @@ def test_decentralized_fusion_leaves_out_a_branch_whose_tracker_never_delivered(
     np.testing.assert_allclose(dec["dtheta"][live], single["dtheta"][live], rtol=0, atol=1e-14)
     np.testing.assert_array_equal(dec["P"][live], single["P"][live])
     assert np.degrees(np.abs(dec["dtheta"][-1])).max() < 0.05
+
+
+def test_centralized_mekf_keeps_updating_with_the_tracker_that_is_fine():
+    """st2 is out for 10-50 s of a 60 s run: the averaged measurement carries st1 alone (flag
+    1 + 1) with st1's own covariance, so the centralized MEKF skips nothing (it used to lose
+    every step of the outage), and its errors stay consistent with its covariance (NEES over
+    the outage within the 99.9% chi-square band of 6 dof times the steps, conservatively)."""
+    s = apply_overrides(load("cubesat_dual_star_tracker"),
+                        ["duration_s=60", "scoring.score_from_s=10", "sensors.st2.outage_windows_s=[[10.0, 50.0]]"])
+    run = ScenarioDiagram(s).simulate(1)
+    cen = estimator_errors(run, "centralized")
+    assert int(cen["status"][-1, 2]) == 0 and int(cen["status"][-1, 1]) == 60  # t = 0..59
+    out = (cen["t"] >= 12.0) & (cen["t"] < 50.0)
+    d = cen["dtheta"][out]
+    P = cen["P"][out][:, :3, :3]
+    nees = np.einsum("ni,ni->n", d, np.linalg.solve(P, d[..., None])[..., 0])
+    assert nees.sum() < stats.chi2.ppf(0.999, 3 * out.sum()), nees.mean()

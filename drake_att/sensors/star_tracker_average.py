@@ -16,7 +16,7 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
 from drake_att.sensors.star_tracker import StarTrackerConfig, star_tracker_mounting, star_tracker_sigmas_S
 from drake_att.systems.estimators import QuaternionSensorModel
-from drake_att.systems.fusion import StarTrackerAverage, average_measurement_covariance_B
+from drake_att.systems.fusion import StarTrackerAverage, average_measurement_covariance_B, subset_covariances
 
 
 @dataclass
@@ -52,8 +52,11 @@ def star_tracker_average_quaternion_model(ctx, c: StarTrackerAverageConfig) -> Q
     """Identity mounting; the covariance derived from the trackers' configs (so it follows a
     context that changes their noise)."""
     trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
-    return QuaternionSensorModel(c.name, np.array([1.0, 0.0, 0.0, 0.0]), average_measurement_covariance_B(
-        [star_tracker_mounting(t) for t in trackers], [star_tracker_sigmas_S(t) for t in trackers], c.weights))
+    mountings, sigmas = [star_tracker_mounting(t) for t in trackers], [star_tracker_sigmas_S(t) for t in trackers]
+    w = np.asarray(c.weights, dtype=float) / np.sum(c.weights)
+    return QuaternionSensorModel(c.name, np.array([1.0, 0.0, 0.0, 0.0]),
+                                 average_measurement_covariance_B(mountings, sigmas, c.weights),
+                                 covariance_by_flag=subset_covariances(mountings, sigmas, w))
 
 
 @register_sensor(StarTrackerAverageConfig, output=star_tracker_average_output,

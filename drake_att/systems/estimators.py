@@ -107,11 +107,25 @@ __all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensor
 
 @dataclass(frozen=True)
 class QuaternionSensorModel:
-    """What the filter assumes about one attitude-quaternion sensor."""
+    """What the filter assumes about one attitude-quaternion sensor.
+
+    ``covariance_by_flag``: for a virtual sensor whose validity flag says which of its
+    inputs formed the sample (the star-tracker average): flag 1 = all of them
+    (``covariance_S``), flag ``1 + mask`` = the inputs in the bit mask only, with
+    ``covariance_by_flag[mask]`` (None where that subset is not allowed: such a sample is
+    skipped and counted)."""
 
     name: str
     q_BS: np.ndarray
     covariance_S: np.ndarray  # (3, 3) rotation-vector noise in the sensor frame (rad^2)
+    covariance_by_flag: tuple = ()
+
+    def covariance_for_flag(self, flag: float):
+        """The covariance of a sample with validity ``flag`` (None: not a usable subset)."""
+        if not self.covariance_by_flag or not flag > 1.5:
+            return self.covariance_S
+        mask = int(round(flag)) - 1
+        return self.covariance_by_flag[mask] if 0 < mask < len(self.covariance_by_flag) else None
 
 
 @dataclass(frozen=True)
@@ -346,8 +360,9 @@ class EstimatorSystem(LeafSystem):
         for i, (sensor, port) in enumerate(zip(quaternion_sensors, self._quat_ports)):
             if port.HasValue(context):
                 m = port.Eval(context)
-                yield i, QuaternionSample(float(m[0]), contract.flag_is_true(m[1]), np.array(m[2:6]),
-                                          sensor.q_BS, sensor.covariance_S)
+                cov = sensor.covariance_for_flag(float(m[1])) if sensor.covariance_by_flag else sensor.covariance_S
+                yield i, QuaternionSample(float(m[0]), contract.flag_is_true(m[1]) and cov is not None,
+                                          np.array(m[2:6]), sensor.q_BS, sensor.covariance_S if cov is None else cov)
         offset = len(self._quat_ports)
         for j, port in enumerate(self._vector_ports):
             if port.HasValue(context):

@@ -56,6 +56,21 @@ def average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights) -> np.nd
     return covariance_B
 
 
+def subset_covariances(q_BS_list, sigmas_S_list, weights) -> tuple:
+    """``[mask] -> covariance_B`` of the average of the trackers in bit mask ``mask`` with
+    their weights renormalized (index 0 and the full mask: None — flag 1 covers all)."""
+    n = len(q_BS_list)
+    w = np.asarray(weights, dtype=float)
+    out = [None] * (1 << n)
+    for mask in range(1, (1 << n) - 1):
+        idx = [i for i in range(n) if mask >> i & 1]
+        if w[idx].sum() <= 0.0:
+            continue
+        out[mask] = average_measurement_covariance_B([q_BS_list[i] for i in idx], [sigmas_S_list[i] for i in idx],
+                                                     w[idx])
+    return tuple(out)
+
+
 class StarTrackerAverage(LeafSystem):
     """Averaged body-attitude measurement from several star trackers.
 
@@ -71,8 +86,11 @@ class StarTrackerAverage(LeafSystem):
     Output ports:
         star_tracker_measurement (6): ``[t, valid, q_IB_meas (4)]`` - a measurement of a
             virtual sensor with ``q_BS = identity`` and covariance :attr:`covariance_B`.
-            Valid only when every input is valid at the same time (otherwise flagged
-            invalid, so the estimator skips and counts it).
+            When every input is valid at the same instant: their weighted average, flag 1.
+            When only some are (a tracker dropped out): the average of those with their
+            weights renormalized, flag ``1 + mask`` (bit i = input i), whose covariance is
+            :attr:`covariance_by_mask` ``[mask]`` — the estimator uses the trackers that are
+            fine instead of losing the step. None valid: flag 0.
     """
 
     def __init__(self, name, tracker_names, q_BS_list, sigmas_S_list, weights):
@@ -84,20 +102,28 @@ class StarTrackerAverage(LeafSystem):
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
         self.q_BS = [rot.quat_normalize(q) for q in q_BS_list]
         self.covariance_B = average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights)
+        self.covariance_by_mask = subset_covariances(q_BS_list, sigmas_S_list, self.weights)
         self._ports = [self.DeclareVectorInputPort(f"q_meas_{t}", QUATERNION_MEASUREMENT_SIZE) for t in tracker_names]
         self.DeclareVectorOutputPort("star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc)
 
     def _calc(self, context, output: BasicVector):
         meas = [p.Eval(context) for p in self._ports]
         times = np.array([m[0] for m in meas])
-        valid = all(m[1] > 0.5 and np.all(np.isfinite(m[2:])) for m in meas) and np.ptp(times) < TIME_TOLERANCE_S
-        if valid:
-            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS)])
-            q_avg = average_quaternions(q_B, self.weights)
-        else:
-            q_avg = np.array([1.0, 0.0, 0.0, 0.0])
+        fine = np.array([m[1] > 0.5 and m[1] == m[1] and np.all(np.isfinite(m)) for m in meas])
+        t_latest = times[fine].max() if fine.any() else times.max()
+        fine &= np.abs(times - t_latest) < TIME_TOLERANCE_S  # this instant's samples only
         out = np.empty(QUATERNION_MEASUREMENT_SIZE)
-        out[0], out[1], out[2:] = times.max(), float(valid), q_avg
+        q_avg, flag = np.array([1.0, 0.0, 0.0, 0.0]), 0.0
+        if fine.all():
+            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS)])
+            q_avg, flag = average_quaternions(q_B, self.weights), 1.0
+        elif fine.any():
+            idx = np.flatnonzero(fine)
+            q_B = np.array([rot.quat_multiply(meas[i][2:], rot.quat_conjugate(self.q_BS[i])) for i in idx])
+            w = self.weights[idx] / self.weights[idx].sum()
+            q_avg = q_B[0] if len(idx) == 1 else average_quaternions(q_B, w)
+            flag = 1.0 + float(sum(1 << int(i) for i in idx))
+        out[0], out[1], out[2:] = t_latest, flag, q_avg
         output.SetFromVector(out)
 
 
