@@ -26,6 +26,11 @@ class MekfConfig:
     """MEKF fed by one gyro and star trackers (names of sensors).
 
     The filter's gyro noise defaults to the gyro's configured ARW/RRW (``None``).
+    ``coning_correction``: propagate with the two-sample coning-corrected rotation (the
+    previous step's gyro increment; :mod:`drake_att.filters.mekf`), for filter steps that
+    are long relative to how fast the rate vector turns (a fast tumble). Structural: it adds
+    the previous increment to the core's state (47 numbers instead of 43), so changing it
+    needs a new diagram (it is not a context parameter). Default off.
     """
 
     name: str = "mekf"
@@ -40,6 +45,7 @@ class MekfConfig:
     initial_bias_sigma_deg_per_h: float = 20.0
     innovation_gate_chi2: Optional[float] = None
     innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
+    coning_correction: bool = False
 
 
 def validate_mekf(path: str, c: MekfConfig, checks) -> None:
@@ -60,6 +66,7 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
     common.check_initial_attitude(path, c)
     common.check_initial_bias(path, c)
     common.check_innovation_gate(path, c)
+    common.check_flags(path, c, "coning_correction")
 
 
 @register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf,
@@ -67,7 +74,8 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
                                 *common.INITIAL_GYRO_MODE_FIELDS))
 def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
-    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, common.innovation_gate(c))
+    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, common.innovation_gate(c),
+                             coning_correction=c.coning_correction)
     init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
                               np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
                               c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)

@@ -24,6 +24,32 @@ Updates (Joseph form):
 
 After each update the error is moved into the reference: ``q <- q ⊗ exp(dtheta)``,
 ``b <- b + dbias`` (reset).
+
+**Coning correction** (opt-in, ``coning_correction=True``).  The gyro delivers interval
+increments ``dtheta_k = w_meas_k dt``; when the body rate vector turns within a step,
+``exp(dtheta_k)`` is not the step's rotation (the error is the coning term
+``1/2 int alpha x w``, O(|w| |dw/dt| dt^3)).  With the correction the step rotates by
+Savage's two-sample rotation vector using the previous interval,
+
+``phi_k = dtheta_k + c dtheta_{k-1} x dtheta_k``, ``c = dt_k^2 / (6 dt_{k-1} (dt_{k-1} + dt_k))``
+
+(``c = 1/12`` for equal steps), both increments bias-corrected with the current bias
+estimate.  It removes the O(dt^3) coning term exactly for a rate linear in time (the
+rotation-vector equation's ``1/12 phi x (phi x w)`` and ``1/2 phi x w`` terms of order dt^4
+cancel); the residual is O(dt^4), led by the rate's curvature, ``dt^4/24 |w x d2w/dt2|``
+(tests/test_mekf.py checks both terms against a finely integrated coning motion).  The
+previous step's measured rate and length live in the state (``MekfState.previous_gyro``,
+4 numbers, appended to the state vector: 47 instead of 43).  No correction on the first step (no
+previous increment) and none around a missing gyro sample: the estimator system then passes
+the last valid rate again, which the core recognizes as a rate equal bit for bit to the
+previous one (a real, noisy gyro never repeats a sample exactly; a noise-free constant rate
+has no coning term anyway); the held step and the step after it are uncorrected (their
+previous increment is not the adjacent interval's).  The transition matrix is the
+closed-form one of the constant rate ``phi_k / dt`` — its attitude block ``exp(-[phi_k x])``
+is exactly the rotation the estimate made, so the error frame follows the corrected
+propagation; neglected (relative size ~|dtheta_k - dtheta_{k-1}| / 12 and |dtheta| / 12):
+the coning term's own dependence on the bias error and its share of the previous step's
+gyro noise.
 """
 
 from __future__ import annotations
@@ -44,11 +70,15 @@ class MekfState:
     """Estimate: attitude ``q_IB`` (4), gyro bias ``bias_B`` (3, rad/s), covariance ``P`` (6x6).
 
     ``P`` is the covariance of ``[dtheta_B (rad), dbias_B (rad/s)]``.
+    ``previous_gyro`` (cores with the coning correction only, else None):
+    ``[w_meas_B of the previous step (3, rad/s), its length dt (s)]``, the length 0 when the
+    previous step gives no usable increment (start, or a held rate).
     """
 
     q_IB: np.ndarray
     bias_B: np.ndarray
     P: np.ndarray
+    previous_gyro: np.ndarray | None = None
 
     def attitude_sigma_rad(self) -> np.ndarray:
         return np.sqrt(np.diag(self.P)[:3])
@@ -103,6 +133,33 @@ def transition_matrix(w_hat_B, dt: float) -> np.ndarray:
     return np.array(rows)
 
 
+PREVIOUS_GYRO_SIZE = 4  # [w_meas_B (3), dt] of the previous step (coning correction)
+
+
+def coning_rotation_vector(previous_gyro, w_meas_B, bias_B, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The step's coning-corrected rotation vector and the new ``previous_gyro`` record.
+
+    ``phi = dtheta + c dtheta_prev x dtheta`` with the bias-corrected increments
+    ``dtheta = (w_meas_B - bias_B) dt``, ``dtheta_prev = (w_prev - bias_B) dt_prev`` and
+    ``c = dt^2 / (6 dt_prev (dt_prev + dt))`` (1/12 for equal steps: Savage's two-sample
+    correction with the previous interval; residual O(dt^4), see the module docstring).
+    No correction without a usable previous increment (``previous_gyro`` None or its length
+    0) or when ``w_meas_B`` repeats the previous rate bit for bit (a held rate: the system's
+    answer to a missing gyro sample); the returned record then has length 0 for a held rate,
+    so the step after it is not corrected either.
+    """
+    w = np.asarray(w_meas_B, dtype=float)
+    dtheta = (w - bias_B) * dt
+    held = previous_gyro is not None and bool(np.array_equal(previous_gyro[:3], w))
+    phi = dtheta
+    if not held and previous_gyro is not None and previous_gyro[3] > 0.0:
+        dt_prev = float(previous_gyro[3])
+        dtheta_prev = (previous_gyro[:3] - bias_B) * dt_prev
+        phi = dtheta + (dt * dt / (6.0 * dt_prev * (dt_prev + dt))) * np.cross(dtheta_prev, dtheta)
+    record = np.array([w[0], w[1], w[2], 0.0 if held else float(dt)])
+    return phi, record
+
+
 def _inverse(S):
     """Inverse of a small symmetric positive-definite matrix (closed form for 3x3), or None
     if it is not positive definite (Sylvester: every leading minor > 0) or not finite."""
@@ -136,17 +193,26 @@ class MultiplicativeEKF:
             :class:`~drake_att.filters.gating.InnovationGate` (a probability per innovation
             dimension); None: no gate. Rejections are reported in :class:`UpdateInfo`, never
             silent; :meth:`reacquire` inflates the covariance after repeated rejections.
+        coning_correction: propagate with the two-sample coning-corrected rotation vector
+            (module docstring); the state vector then carries the previous step's gyro
+            rate and length (``state_size`` 47 instead of 43).
     """
 
     second_quantity = SecondQuantity.GYRO_BIAS
     uses_gyro = True
     is_random = False
-    state_size = 43
+    state_size = 43  # per instance: 47 with the coning correction
 
-    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None):
+    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None,
+                 coning_correction: bool = False):
         self.arw = check_nonnegative("arw", arw_rad_per_rt_s)
         self.rrw = check_nonnegative("rrw", rrw_rad_per_s15)
         self.gate = InnovationGate.of(innovation_gate_chi2)
+        if not isinstance(coning_correction, (bool, np.bool_)):
+            raise TypeError(f"coning_correction: got {coning_correction!r}; must be true or false")
+        self.coning_correction = bool(coning_correction)
+        if self.coning_correction:
+            self.state_size = 43 + PREVIOUS_GYRO_SIZE
         self._q_cache: dict = {}
         self._model_cache: dict = {}
 
@@ -159,12 +225,13 @@ class MultiplicativeEKF:
             Q = self._q_cache[dt] = process_noise(self.arw, self.rrw, dt)
         return Q
 
-    @staticmethod
-    def initial_state(q_IB, bias_B, attitude_sigma_rad, bias_sigma_rad_per_s) -> MekfState:
-        """State with diagonal covariance from per-axis (or scalar) 1-sigmas."""
+    def initial_state(self, q_IB, bias_B, attitude_sigma_rad, bias_sigma_rad_per_s) -> MekfState:
+        """State with diagonal covariance from per-axis (or scalar) 1-sigmas (and, with the
+        coning correction, no previous gyro increment)."""
         P = np.diag(np.concatenate([np.broadcast_to(attitude_sigma_rad, 3) ** 2,
                                     np.broadcast_to(bias_sigma_rad_per_s, 3) ** 2]).astype(float))
-        return MekfState(rot.quat_normalize(q_IB), np.asarray(bias_B, dtype=float).copy(), P)
+        previous = np.zeros(PREVIOUS_GYRO_SIZE) if self.coning_correction else None
+        return MekfState(rot.quat_normalize(q_IB), np.asarray(bias_B, dtype=float).copy(), P, previous)
 
     def predict(self, state: MekfState, w_meas_B, dt: float, rng=None) -> MekfState:
         """Propagate over ``dt`` (s) with the step's mean measured rate ``w_meas_B`` (rad/s)."""
@@ -193,13 +260,23 @@ class MultiplicativeEKF:
 
     @staticmethod
     def to_vector(state: MekfState) -> np.ndarray:
-        """``[q_IB (4, scalar part >= 0), bias_B (3), P (36, row-major)]``."""
-        return np.concatenate([rot.quat_canonical(state.q_IB), state.bias_B, np.asarray(state.P).ravel()])
+        """``[q_IB (4, scalar part >= 0), bias_B (3), P (36, row-major)]``, then
+        ``previous_gyro`` (4) if the state has one (coning correction)."""
+        parts = [rot.quat_canonical(state.q_IB), state.bias_B, np.asarray(state.P).ravel()]
+        if state.previous_gyro is not None:
+            parts.append(state.previous_gyro)
+        return np.concatenate(parts)
 
     @staticmethod
     def from_vector(vector) -> MekfState:
+        """Inverse of :meth:`to_vector` (the length tells whether there is a ``previous_gyro``:
+        43 without, 47 with)."""
         v = np.asarray(vector, dtype=float)  # read-only use: every step returns new arrays
-        return MekfState(v[:4], v[4:7], v[7:43].reshape(6, 6))
+        if v.shape == (43,):
+            return MekfState(v[:4], v[4:7], v[7:43].reshape(6, 6))
+        if v.shape == (43 + PREVIOUS_GYRO_SIZE,):
+            return MekfState(v[:4], v[4:7], v[7:43].reshape(6, 6), v[43:])
+        raise ValueError(f"MEKF state vector: got shape {v.shape}; need (43,) or ({43 + PREVIOUS_GYRO_SIZE},)")
 
     def predict_linearized(self, state: MekfState, w_meas_B, dt: float):
         """:meth:`predict`, also returning the step's ``Phi`` and ``Q`` (6x6 each).
@@ -210,11 +287,17 @@ class MultiplicativeEKF:
         if dt <= 0:
             return state, _EYE6, np.zeros((6, 6))
         w_hat = np.asarray(w_meas_B, dtype=float) - state.bias_B
-        q = rot.quat_normalize(rot.quat_propagate(state.q_IB, w_hat, dt))
+        previous = None
+        if self.coning_correction:
+            phi, previous = coning_rotation_vector(state.previous_gyro, w_meas_B, state.bias_B, dt)
+            w_hat = phi / dt  # the constant rate that makes the corrected rotation
+            q = rot.quat_normalize(rot.quat_multiply(state.q_IB, rot.rotvec_to_quat(phi)))
+        else:
+            q = rot.quat_normalize(rot.quat_propagate(state.q_IB, w_hat, dt))
         Phi = transition_matrix(w_hat, dt)
         Q = self.process_noise(dt)
         P = Phi @ state.P @ Phi.T + Q
-        return MekfState(q, state.bias_B, 0.5 * (P + P.T)), Phi, Q
+        return MekfState(q, state.bias_B, 0.5 * (P + P.T), previous), Phi, Q
 
     def _update(self, state: MekfState, z, H, R):
         P = state.P
@@ -232,7 +315,7 @@ class MultiplicativeEKF:
         I_KH = _EYE6 - K @ H
         P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
         q = rot.quat_normalize(rot.quat_multiply(state.q_IB, rot.rotvec_to_quat(dx[:3])))
-        new = MekfState(q, state.bias_B + dx[3:], 0.5 * (P_new + P_new.T))
+        new = MekfState(q, state.bias_B + dx[3:], 0.5 * (P_new + P_new.T), state.previous_gyro)
         return new, UpdateInfo(z, S, nis, True, I_KH)
 
     def update_quaternion(self, state: MekfState, q_IS_meas, q_BS, noise_S) -> tuple[MekfState, UpdateInfo]:
@@ -324,4 +407,4 @@ def steady_state_covariance(Phi, Q, H, R, max_iterations: int = 100,
 
 
 __all__ = ["MekfState", "UpdateInfo", "MultiplicativeEKF", "process_noise", "transition_matrix",
-           "steady_state_covariance"]
+           "coning_rotation_vector", "steady_state_covariance", "PREVIOUS_GYRO_SIZE"]
