@@ -50,12 +50,17 @@ class NonFiniteRunError(RuntimeError):
     and the time)."""
 
 
+def _first_non_finite(x) -> int | None:
+    """Index of the first sample (row) with a non-finite number, or None."""
+    bad = np.flatnonzero(~np.all(np.isfinite(x), axis=1))
+    return int(bad[0]) if bad.size else None
+
+
 def _check_truth_finite(signals: dict, keys, scenario_name: str, seed: int) -> None:
     for key in keys:
         t, x = signals[key]
-        bad = ~np.all(np.isfinite(x), axis=1)
-        if np.any(bad):
-            i = int(np.flatnonzero(bad)[0])
+        i = _first_non_finite(x)
+        if i is not None:
             raise NonFiniteRunError(
                 f"{scenario_name} seed {seed}: the truth signal {key!r} is not finite from t = {t[i]:g} s "
                 f"(last finite value {x[i - 1].tolist() if i else 'none'}); the plant's initial conditions, inertia, "
@@ -72,9 +77,8 @@ def _check_estimates_finite(signals: dict, run_scenario, scenario_name: str, see
             if port is None or key not in signals:
                 continue
             t, x = signals[key]
-            bad = ~np.all(np.isfinite(x), axis=1)
-            if np.any(bad):
-                i = int(np.flatnonzero(bad)[0])
+            i = _first_non_finite(x)
+            if i is not None:
                 raise NonFiniteRunError(
                     f"{scenario_name} seed {seed}: the estimate {key!r} is not finite from t = {t[i]:g} s (its core "
                     "produced NaN or inf: a bug or a diverged filter, see its tuning and inputs). Nothing was scored.")

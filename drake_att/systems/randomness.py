@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.common import RandomDistribution
+from pydrake.systems.framework import EventStatus
 
 from drake_att.noise import CounterRandom, seed_words_from_uniform, stream_key
 
@@ -50,3 +51,33 @@ def counter_random(seed_words, stream: str) -> CounterRandom:
             _CACHE.clear()
         cr = _CACHE[key] = CounterRandom(stream_key([int(w) for w in words], stream))
     return cr
+
+
+class SampledDrawEvents:
+    """The initialization and per-sample events of a sensor whose discrete state is
+    ``[seed words (SEED_WORDS), sample index, t_sample, valid, draw (n), numbers (k)]`` (the
+    star tracker, the screen camera): the event at ``t`` draws the sample of ``t + period``
+    (a pure function of seed, system name and sample index), so an output at ``t`` reads
+    only the state. The system provides ``period_s``, ``_seed_port``, ``_numbers_start``
+    (index of the numbers), ``noise(context)`` (its abstract parameter),
+    ``_noise_numbers(parameter)`` (the numbers copied into the state at initialization) and
+    ``_draw(context, numbers, seed_words, index, t_sample) -> (draw, valid)``."""
+
+    def _initialize(self, context, discrete_state):
+        words = read_seed_words(self, context, self._seed_port)
+        t = context.get_time()
+        numbers = self._noise_numbers(self.noise(context))
+        draw, valid = self._draw(context, numbers, words, 0, t)
+        discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], draw, numbers]))
+        return EventStatus.Succeeded()
+
+    def _on_sample(self, context, discrete_state):
+        x = context.get_discrete_state_vector().value()
+        index = int(x[SEED_WORDS]) + 1
+        t_next = context.get_time() + self.period_s
+        draw, valid = self._draw(context, x[self._numbers_start:], x[:SEED_WORDS], index, t_next)
+        new = x.copy()
+        new[SEED_WORDS:SEED_WORDS + 3] = [index, t_next, float(valid)]
+        new[SEED_WORDS + 3:self._numbers_start] = draw
+        discrete_state.set_value(new)
+        return EventStatus.Succeeded()

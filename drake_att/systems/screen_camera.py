@@ -29,12 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.framework import BasicVector, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids
 from drake_att.screen_camera import ScreenCameraGeometry
-from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
+from drake_att.systems.randomness import SEED_WORDS, SampledDrawEvents, counter_random, declare_seed_port
 from drake_att.validation import check_nonnegative, check_positive, fail
 
 
@@ -62,7 +62,7 @@ class CameraNoise:
         return cls(float(sigma_m), float(quantization_m), float(dropout_probability), windows)
 
 
-class ScreenCamera(LeafSystem):
+class ScreenCamera(SampledDrawEvents, LeafSystem):
     """The star-screen camera (see the module docstring for ports and state).
 
     Args:
@@ -82,10 +82,10 @@ class ScreenCamera(LeafSystem):
         self._noise_index = self.DeclareAbstractParameter(AbstractValue.Make(noise))
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
         self._seed_port = declare_seed_port(self)
-        self._numbers = SEED_WORDS + 3 + self._n_noise
-        self.DeclareDiscreteState(np.concatenate([np.zeros(self._numbers), self._noise_numbers(noise)]))
+        self._numbers_start = SEED_WORDS + 3 + self._n_noise
+        self.DeclareDiscreteState(np.concatenate([np.zeros(self._numbers_start), self._noise_numbers(noise)]))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_frame)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
         deps = {self.xd_ticket(), self.all_input_ports_ticket()}
         self.DeclareAbstractOutputPort(
             "camera_centroids", lambda: AbstractValue.Make(CameraCentroids(
@@ -115,25 +115,6 @@ class ScreenCamera(LeafSystem):
             valid = False
         return noise, valid
 
-    def _initialize(self, context, discrete_state):
-        words = read_seed_words(self, context, self._seed_port)
-        t = context.get_time()
-        numbers = self._noise_numbers(self.noise(context))
-        noise, valid = self._draw(context, numbers, words, 0, t)
-        discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], noise, numbers]))
-        return EventStatus.Succeeded()
-
-    def _on_frame(self, context, discrete_state):
-        x = context.get_discrete_state_vector().value()
-        index = int(x[SEED_WORDS]) + 1
-        t_next = context.get_time() + self.period_s
-        noise, valid = self._draw(context, x[self._numbers:], x[:SEED_WORDS], index, t_next)
-        new = x.copy()
-        new[SEED_WORDS:SEED_WORDS + 3] = [index, t_next, float(valid)]
-        new[SEED_WORDS + 3:self._numbers] = noise
-        discrete_state.set_value(new)
-        return EventStatus.Succeeded()
-
     # -- outputs --------------------------------------------------------------------------
     def image(self, q_IB, normals, sigma_m: float, quantization_m: float):
         """``(star_ids, centroids_m)`` of one frame: the exact image of :meth:`ScreenCameraGeometry.project`
@@ -146,8 +127,8 @@ class ScreenCamera(LeafSystem):
 
     def _calc_centroids(self, context, output):
         x = context.get_discrete_state_vector().value()
-        sigma, quant = float(x[self._numbers]), float(x[self._numbers + 1])
-        _, xy = self.image(self._q_port.Eval(context), x[SEED_WORDS + 3:self._numbers], sigma, quant)
+        sigma, quant = float(x[self._numbers_start]), float(x[self._numbers_start + 1])
+        _, xy = self.image(self._q_port.Eval(context), x[SEED_WORDS + 3:self._numbers_start], sigma, quant)
         output.set_value(CameraCentroids(float(x[SEED_WORDS + 1]), bool(x[SEED_WORDS + 2] > 0.5), xy,
                                          self.geometry.focal_length_m, sigma, quant))
 

@@ -19,13 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.framework import BasicVector, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
 from drake_att.validation import check_nonnegative
-from drake_att.systems.randomness import (
-    SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
+from drake_att.systems.randomness import SEED_WORDS, SampledDrawEvents, counter_random, declare_seed_port
 
 def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
     """``q_BS`` from paper S3's three mounting angles (its eq. 7).
@@ -80,7 +79,7 @@ class StarTrackerNoise:
                    float(sigma_vector_rad), float(dropout_probability), windows)
 
 
-class StarTracker(LeafSystem):
+class StarTracker(SampledDrawEvents, LeafSystem):
     """Star tracker with quaternion or vector output.
 
     Args:
@@ -147,8 +146,8 @@ class StarTracker(LeafSystem):
         # Vector mode, optional: the additive noise of this sample (3m) from a correlated-noise
         # source (paper S1, drake_att.systems.correlated_noise), used instead of the tracker's own.
         self._noise_port = self.DeclareVectorInputPort("vector_noise", n_noise) if mode == "vectors" else None
-        self._noise_end = SEED_WORDS + 3 + n_noise  # then the noise numbers (_NOISE_NUMBERS)
-        self.DeclareDiscreteState(np.concatenate([np.zeros(self._noise_end), self._noise_numbers(self.default_noise)]))
+        self._numbers_start = SEED_WORDS + 3 + n_noise  # then the noise numbers (_NOISE_NUMBERS)
+        self.DeclareDiscreteState(np.concatenate([np.zeros(self._numbers_start), self._noise_numbers(self.default_noise)]))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
         deps = {self.xd_ticket(), self.all_input_ports_ticket()}
@@ -196,25 +195,6 @@ class StarTracker(LeafSystem):
             valid = False
         return noise, valid
 
-    def _initialize(self, context, discrete_state):
-        words = read_seed_words(self, context, self._seed_port)
-        t = context.get_time()
-        numbers = self._noise_numbers(self.noise(context))
-        noise, valid = self._draw(context, numbers, words, 0, t)
-        discrete_state.set_value(np.concatenate([words, [0.0, t, float(valid)], noise, numbers]))
-        return EventStatus.Succeeded()
-
-    def _on_sample(self, context, discrete_state):
-        x = context.get_discrete_state_vector().value()
-        index = int(x[4]) + 1
-        t_next = context.get_time() + self.period_s
-        noise, valid = self._draw(context, x[self._noise_end:], x[:SEED_WORDS], index, t_next)
-        new = x.copy()
-        new[4:7] = [index, t_next, float(valid)]
-        new[7:self._noise_end] = noise
-        discrete_state.set_value(new)
-        return EventStatus.Succeeded()
-
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
         x = context.get_discrete_state_vector().value()
@@ -228,7 +208,7 @@ class StarTracker(LeafSystem):
         q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
         R_SI = rot.quat_to_rotmat(q_IS).T
         noise = (self._noise_port.Eval(context) if self._noise_port.HasValue(context)
-                 else x[7:self._noise_end])
+                 else x[7:self._numbers_start])
         dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
         output.set_value(VectorObservations(
-            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, float(x[self._noise_end + 3]), self.q_BS))
+            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, float(x[self._numbers_start + 3]), self.q_BS))
