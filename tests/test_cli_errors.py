@@ -57,9 +57,12 @@ def test_bad_input_exits_2_with_a_message_naming_it(tmp_path, case):
 def test_ctrl_c_exits_130_and_leaves_no_result_folder(tmp_path):
     """SIGINT while the simulation runs: exit 130, a message, no traceback, no output folder
     (and no staging folder)."""
+    # A CI runner may start the suite with SIGINT ignored (a background job), and Python then
+    # installs no KeyboardInterrupt handler: give the child the default disposition, as a
+    # terminal user's process has.
     proc = subprocess.Popen([sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r",
                              "--no-figures"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=ENV)
+                            env=ENV, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     err = ""
     while time.monotonic() < deadline:  # wait until the simulation has started
