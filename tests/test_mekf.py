@@ -526,11 +526,10 @@ def test_steady_state_covariance_matches_scipy_dare(name):
 
 
 # -- Drake-level scenarios ---------------------------------------------------------------
-def _scenario_yaml(duration, rate_deg_s, st_period=1.0, dropout=0.0, extra_est=""):
-    return f"""
-name: mekf_test
-duration_s: {duration}
-plant: !RigidBodyConfig
+def _s3_plant_and_sensors_yaml(rate_deg_s, st_period=1.0, dropout=0.0):
+    """Paper S3's CubeSat, MEMS gyro and tracker 1 (the plant and sensors of the Drake-level
+    MEKF scenarios below)."""
+    return f"""plant: !RigidBodyConfig
   inertia_kg_m2: [0.042, 0.042, 0.0067]
   initial_attitude_rpy_deg: [2.0, -2.0, 2.0]
   initial_rate_deg_per_s: {rate_deg_s}
@@ -548,7 +547,14 @@ sensors:
   sigma_cross_boresight_arcsec: 5.0
   sigma_boresight_arcsec: 50.0
   dropout_probability: {dropout}
-estimators:
+"""
+
+
+def _scenario_yaml(duration, rate_deg_s, st_period=1.0, dropout=0.0, extra_est=""):
+    return f"""
+name: mekf_test
+duration_s: {duration}
+{_s3_plant_and_sensors_yaml(rate_deg_s, st_period, dropout)}estimators:
 - !MekfConfig
   name: mekf
   period_s: 1.0
@@ -993,34 +999,22 @@ def test_coning_correction_in_the_estimator_system_around_a_missing_gyro_sample(
     assert est.estimate_vector(ctx)[45] == 1  # the NaN sample, counted
 
 
-TUMBLE_YAML = """
+def _tumble_yaml(duration, r):
+    """Both MEKFs (without and with the coning correction) on S3's CubeSat tumbling at
+    ``r`` deg/s per axis, truth integrated with error control."""
+    return f"""
 name: mekf_tumble
 duration_s: {duration}
 simulation:
   use_error_control: true      # RK5, accuracy 1e-10: the truth is exact at this scale
-plant: !RigidBodyConfig
-  inertia_kg_m2: [0.042, 0.042, 0.0067]
-  initial_attitude_rpy_deg: [2.0, -2.0, 2.0]
-  initial_rate_deg_per_s: [{r}, {r}, {r}]
-sensors:
-- !GyroConfig
-  name: gyro
-  period_s: 1.0
-  arw_deg_per_rt_h: 0.56
-  rrw_deg_per_h15: 123.75
-  initial_bias_deg_per_h: [12.0, 12.0, 12.0]
-- !StarTrackerConfig
-  name: st1
-  period_s: 1.0
-  mounting: !PaperS3Eq7Mounting {{psi_phi_theta_deg: [-90.0, 45.0, -90.0]}}
-  sigma_cross_boresight_arcsec: 5.0
-  sigma_boresight_arcsec: 50.0
-estimators:
+{_s3_plant_and_sensors_yaml([r, r, r])}estimators:
 - !MekfConfig {{name: plain, period_s: 1.0, gyro: gyro, star_trackers: [st1]}}
 - !MekfConfig {{name: coned, period_s: 1.0, gyro: gyro, star_trackers: [st1], coning_correction: true}}
 scoring:
   score_from_s: 100.0
 """
+
+
 TUMBLE_SCORE_FROM_S = 100.0
 
 
@@ -1033,7 +1027,7 @@ def _tumble_statistics(rate_deg_s, seeds, duration=400.0):
     from test_fusion import n_effective
 
     r = rate_deg_s / math.sqrt(3.0)
-    sd = ScenarioDiagram(load_scenario(text=TUMBLE_YAML.format(duration=duration, r=r)))
+    sd = ScenarioDiagram(load_scenario(text=_tumble_yaml(duration, r)))
     out = {"plain": {"nees": [], "bz": []}, "coned": {"nees": [], "bz": []}}
     for seed in seeds:
         run = sd.simulate(seed=seed)
@@ -1113,7 +1107,7 @@ def test_coning_correction_is_opt_in_and_structural():
     assert s3.estimators["single"].core.state_size == 43
     with pytest.raises(ConfigError, match="coning_correction"):
         s3.scenario_for(["estimators.single.coning_correction=true"])
-    tumble = ScenarioDiagram(load_scenario(text=TUMBLE_YAML.format(duration=200.0, r=1.0)))
+    tumble = ScenarioDiagram(load_scenario(text=_tumble_yaml(200.0, 1.0)))
     assert [tumble.estimators[n].core.state_size for n in ("plain", "coned")] == [43, 47]
 
 
