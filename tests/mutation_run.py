@@ -57,6 +57,11 @@ MODULES = {
     "cubature": ("drake_att/filters/cubature.py", ["tests/test_cubature.py"]),
     "multiplicative_noise": ("drake_att/filters/multiplicative_noise.py",
                              ["tests/test_cubature.py", "tests/test_correlated_noise.py"]),
+    # Added with paper S2 and the gate (issues 11, 12).
+    "gating": ("drake_att/filters/gating.py", ["tests/test_gating.py"]),
+    "screen_camera": ("drake_att/screen_camera.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
+    "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",
+                            ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
 }
 
 
