@@ -113,3 +113,16 @@ def test_reacquire_inflation_touches_the_attitude_block_only_keeps_psd_and_is_ca
     info = UpdateInfo(np.zeros(3), None, 1000.0, False)
     assert reacquire_factor(gate, info) == pytest.approx(2.0 * 1000.0 / gate.threshold(3))
     assert reacquire_factor(gate, UpdateInfo(np.zeros(3), None, 10.0, False)) == 2.0
+
+
+def test_quantile_and_gate_errors_name_the_field_and_what_is_allowed():
+    with pytest.raises(ValueError, match=r"^probability: got 1\.0; must be in \(0, 1\)"):
+        chi2_quantile(1.0, 3)
+    with pytest.raises(ValueError, match=r"^dof: got 0; must be an integer >= 1"):
+        chi2_quantile(0.5, 0)
+    with pytest.raises(ValueError, match=r"give a chi2 threshold or a probability, not both"):
+        InnovationGate(chi2=9.0, probability=0.9)
+    with pytest.raises(ValueError, match=r"must be in \(0, 1\) \(0 in a config: no gate\)"):
+        InnovationGate(probability=1.5)
+    # With the gate off there is no threshold to scale to: the fixed factor 2.
+    assert reacquire_factor(InnovationGate(), UpdateInfo(np.zeros(3), None, 1e6, False)) == 2.0
