@@ -1,0 +1,245 @@
+"""Compiled MEKF steps (numba): the per-step arithmetic of :mod:`drake_att.filters.mekf`.
+
+The numpy code in :class:`~drake_att.filters.mekf.MultiplicativeEKF` is the specification
+and the test oracle (``kernel="numpy"``); these kernels compute the same quantities with the
+same formulas, in plain loops over the 6x6 matrices, so one predict + update costs a few
+microseconds instead of ~100 (small numpy calls cost 1-2 us each in call overhead; a step
+makes ~30 of them). ``tests/test_mekf_kernels.py`` asserts both paths agree to round-off
+(matrix products sum in another order than numpy's BLAS: ~1e-16 relative per product).
+
+Compiled on first use with ``cache=True`` (the machine code is kept in ``__pycache__`` next to
+this file, or numba's user-wide cache when that folder is read-only; see
+benchmarks/README.md for the first-compile cost). No ``fastmath``: IEEE semantics, as numpy.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, as rotvec_to_quat
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def _quat_mul(p, q, out):
+    pw, px, py, pz = p[0], p[1], p[2], p[3]
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+    out[0] = pw * qw - px * qx - py * qy - pz * qz
+    out[1] = pw * qx + px * qw + py * qz - pz * qy
+    out[2] = pw * qy - px * qz + py * qw + pz * qx
+    out[3] = pw * qz + px * qy - py * qx + pz * qw
+
+
+@_jit
+def _rotvec_to_quat(x, y, z, out):
+    a = math.sqrt(x * x + y * y + z * z)
+    k = 0.5 - a * a / 48.0 if a < _SMALL_ANGLE else math.sin(0.5 * a) / a
+    out[0] = math.cos(0.5 * a)
+    out[1] = k * x
+    out[2] = k * y
+    out[3] = k * z
+
+
+@_jit
+def _normalize(q):
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for i in range(4):
+        q[i] = q[i] / n
+
+
+@_jit
+def _transition(wx, wy, wz, dt, Phi):
+    """``mekf.transition_matrix`` into ``Phi`` (6x6), the same float formulas."""
+    n2 = wx * wx + wy * wy + wz * wz
+    wn = math.sqrt(n2)
+    a = wn * dt
+    if a < 1e-4:
+        c1 = dt * dt / 2.0 - n2 * dt**4 / 24.0
+        c2 = dt**3 / 6.0 - n2 * dt**5 / 120.0
+        s1 = dt - n2 * dt**3 / 6.0
+        s2 = dt * dt / 2.0 - n2 * dt**4 / 24.0
+    else:
+        c1 = (1.0 - math.cos(a)) / n2
+        c2 = (a - math.sin(a)) / (n2 * wn)
+        s1 = math.sin(a) / wn
+        s2 = c1
+    k = np.empty((3, 3))
+    k[0, 0], k[0, 1], k[0, 2] = 0.0, -wz, wy
+    k[1, 0], k[1, 1], k[1, 2] = wz, 0.0, -wx
+    k[2, 0], k[2, 1], k[2, 2] = -wy, wx, 0.0
+    k2 = np.empty((3, 3))
+    k2[0, 0], k2[0, 1], k2[0, 2] = wx * wx - n2, wx * wy, wx * wz
+    k2[1, 0], k2[1, 1], k2[1, 2] = wy * wx, wy * wy - n2, wy * wz
+    k2[2, 0], k2[2, 1], k2[2, 2] = wz * wx, wz * wy, wz * wz - n2
+    for r in range(6):
+        for c in range(6):
+            Phi[r, c] = 0.0
+    for r in range(3):
+        for c in range(3):
+            eye = 1.0 if r == c else 0.0
+            Phi[r, c] = eye - s1 * k[r, c] + s2 * k2[r, c]
+            Phi[r, 3 + c] = -((dt if r == c else 0.0) - c1 * k[r, c] + c2 * k2[r, c])
+        Phi[3 + r, 3 + r] = 1.0
+
+
+@_jit
+def _symmetric_sandwich(A, P, Q, out):
+    """``out = sym(A P A' + Q)`` for 6x6 matrices (``sym(X) = (X + X')/2``)."""
+    T = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += A[i, k] * P[k, j]
+            T[i, j] = s
+    M = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for k in range(6):
+                s += T[i, k] * A[j, k]
+            M[i, j] = s + Q[i, j]
+    for i in range(6):
+        for j in range(6):
+            out[i, j] = 0.5 * (M[i, j] + M[j, i])
+
+
+@_jit
+def predict(q, P, w_hat, rotation_vector, dt, Q, q_out, P_out, Phi_out):
+    """One MEKF propagation: ``q_out = normalize(q ⊗ exp(rotation_vector))``, ``Phi_out`` the
+    closed-form transition of the constant rate ``w_hat`` over ``dt``, ``P_out = sym(Phi P
+    Phi' + Q)``."""
+    dq = np.empty(4)
+    _rotvec_to_quat(rotation_vector[0], rotation_vector[1], rotation_vector[2], dq)
+    _quat_mul(q, dq, q_out)
+    _normalize(q_out)
+    _transition(w_hat[0], w_hat[1], w_hat[2], dt, Phi_out)
+    _symmetric_sandwich(Phi_out, P, Q, P_out)
+
+
+@_jit
+def _inverse3(S, out):
+    """``mekf._inverse`` of a 3x3 matrix (Sylvester's test, closed form); False if not
+    positive definite or not finite."""
+    a, b, c = S[0, 0], S[0, 1], S[0, 2]
+    d, e, f = S[1, 0], S[1, 1], S[1, 2]
+    g, h, i = S[2, 0], S[2, 1], S[2, 2]
+    A, B, C = e * i - f * h, -(d * i - f * g), d * h - e * g
+    det = a * A + b * B + c * C
+    if not (a > 0.0 and a * e - b * d > 0.0 and det > 0.0) or not math.isfinite(det):
+        return False
+    out[0, 0], out[0, 1], out[0, 2] = A / det, -(b * i - c * h) / det, (b * f - c * e) / det
+    out[1, 0], out[1, 1], out[1, 2] = B / det, (a * i - c * g) / det, -(a * f - c * d) / det
+    out[2, 0], out[2, 1], out[2, 2] = C / det, -(a * h - b * g) / det, (a * e - b * d) / det
+    return True
+
+
+ACCEPTED, REJECTED_BY_GATE, SINGULAR = 0, 1, 2
+
+
+@_jit
+def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P_out, z, S, I_KH):
+    """One MEKF attitude-quaternion update (``MultiplicativeEKF.update_quaternion``).
+
+    Writes the residual ``z`` (sensor frame), its covariance ``S`` and, when accepted, the new
+    ``q_out``, ``b_out``, ``P_out`` and ``I_KH`` (6x6). Returns ``(outcome, nis)``: outcome
+    :data:`ACCEPTED`, :data:`REJECTED_BY_GATE` (NIS not finite or above ``threshold``; inf
+    for no gate) or :data:`SINGULAR` (S not positive definite; NIS NaN)."""
+    # Residual z = log((q ⊗ q_BS)^-1 ⊗ q_meas), as rot.quat_to_rotvec (normalized, canonical).
+    qs = np.empty(4)
+    _quat_mul(q, q_BS, qs)
+    qs[1], qs[2], qs[3] = -qs[1], -qs[2], -qs[3]
+    dq = np.empty(4)
+    _quat_mul(qs, q_meas, dq)
+    _normalize(dq)
+    if dq[0] < 0.0:
+        for i in range(4):
+            dq[i] = -dq[i]
+    s = math.sqrt(dq[1] * dq[1] + dq[2] * dq[2] + dq[3] * dq[3])
+    k = 2.0 / dq[0] if s < 1e-12 else 2.0 * math.atan2(s, dq[0]) / s
+    z[0], z[1], z[2] = k * dq[1], k * dq[2], k * dq[3]
+    # H = [R_SB, 0]: P H' = P[:, :3] R_SB', S = R_SB P[:3, :3] R_SB' + R.
+    PHt = np.empty((6, 3))
+    for i in range(6):
+        for j in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += P[i, m] * R_SB[j, m]
+            PHt[i, j] = acc
+    S0 = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += R_SB[i, m] * PHt[m, j]
+            S0[i, j] = acc + R[i, j]
+    for i in range(3):
+        for j in range(3):
+            S[i, j] = 0.5 * (S0[i, j] + S0[j, i])
+    S_inv = np.empty((3, 3))
+    if not _inverse3(S, S_inv):
+        return SINGULAR, math.nan
+    nis = 0.0
+    for i in range(3):
+        acc = 0.0
+        for j in range(3):
+            acc += S_inv[i, j] * z[j]
+        nis += z[i] * acc
+    if not math.isfinite(nis) or nis > threshold:
+        return REJECTED_BY_GATE, nis
+    K = np.empty((6, 3))
+    for i in range(6):
+        for j in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += PHt[i, m] * S_inv[m, j]
+            K[i, j] = acc
+    dx = np.empty(6)
+    for i in range(6):
+        dx[i] = K[i, 0] * z[0] + K[i, 1] * z[1] + K[i, 2] * z[2]
+    # I - K H with H = [R_SB, 0].
+    for i in range(6):
+        for j in range(6):
+            kh = 0.0
+            if j < 3:
+                for m in range(3):
+                    kh += K[i, m] * R_SB[m, j]
+            I_KH[i, j] = (1.0 if i == j else 0.0) - kh
+    # Joseph form: (I - KH) P (I - KH)' + K R K'.
+    KR = np.empty((6, 3))
+    for i in range(6):
+        for j in range(3):
+            acc = 0.0
+            for m in range(3):
+                acc += K[i, m] * R[m, j]
+            KR[i, j] = acc
+    KRKt = np.empty((6, 6))
+    for i in range(6):
+        for j in range(6):
+            KRKt[i, j] = KR[i, 0] * K[j, 0] + KR[i, 1] * K[j, 1] + KR[i, 2] * K[j, 2]
+    _symmetric_sandwich(I_KH, P, KRKt, P_out)
+    dq2 = np.empty(4)
+    _rotvec_to_quat(dx[0], dx[1], dx[2], dq2)
+    _quat_mul(q, dq2, q_out)
+    _normalize(q_out)
+    for i in range(3):
+        b_out[i] = b[i] + dx[3 + i]
+    return ACCEPTED, nis
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel now, e.g. before timing a run."""
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    P = np.eye(6)
+    out4, out6, out66 = np.empty(4), np.empty(6), np.empty((6, 6))
+    predict(q, P, np.zeros(3), np.zeros(3), 1.0, np.eye(6), out4, out66, np.empty((6, 6)))
+    update_quaternion(q, np.zeros(3), P, q, q, np.eye(3), np.eye(3), math.inf, out4, np.empty(3), out66,
+                      np.empty(3), np.empty((3, 3)), np.empty((6, 6)))
+    del out6
+
+
+__all__ = ["predict", "update_quaternion", "warm_up", "ACCEPTED", "REJECTED_BY_GATE", "SINGULAR"]
