@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from drake_att.analysis.montecarlo import run_monte_carlo, summarize
+from drake_att.analysis.montecarlo import metric_mean_std, run_seeds
 from drake_att.analysis.report import plot_error_grid
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
@@ -51,8 +51,8 @@ def print_tables(results, file=sys.stdout):
     lines += [hdr, "-" * len(hdr)]
     table = {}
     for arch in ARCHITECTURES:
-        rm, rs = summarize(results, "attitude_rmse_deg", arch)
-        mm, ms = summarize(results, "attitude_mae_deg", arch)
+        rm, rs = metric_mean_std(results, "attitude_rmse_deg", arch)
+        mm, ms = metric_mean_std(results, "attitude_mae_deg", arch)
         table[arch] = {"rmse_mean": rm.tolist(), "rmse_std": rs.tolist(), "mae_mean": mm.tolist(), "mae_std": ms.tolist()}
         for i, ax in enumerate(AXES):
             if arch in PAPER_RMSE_DEG:
@@ -65,7 +65,7 @@ def print_tables(results, file=sys.stdout):
     hdr = f"{'architecture':<14} {'axis':<5} {'paper':>8} {'ours':>18} {'ratio':>6}"
     lines += [hdr, "-" * len(hdr)]
     for arch in ARCHITECTURES:
-        bm, bs = summarize(results, "bias_rmse_deg_per_h", arch)
+        bm, bs = metric_mean_std(results, "bias_rmse_deg_per_h", arch)
         bm, bs = bm / 3600.0, bs / 3600.0
         table[arch].update({"bias_rmse_deg_s_mean": bm.tolist(), "bias_rmse_deg_s_std": bs.tolist()})
         for i, ax in enumerate("XYZ"):
@@ -162,7 +162,7 @@ def main(argv=None):
         f.write(dump_scenario(scenario))
     seeds = list(range(1, args.seeds + 1))
     print(f"Running {len(seeds)} seeds x {args.duration:.0f} s (all architectures per seed, one diagram) ...", flush=True)
-    results = run_monte_carlo(scenario, seeds, args.workers, keep_series_for=[1])
+    results = run_seeds(scenario, seeds, args.workers, keep_series_for=[1])
     table, text = print_tables(results)
     print("\nPaper claims:")
     claims = check_ordering(table)

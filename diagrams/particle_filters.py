@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-from drake_att.analysis.montecarlo import run_monte_carlo
+from drake_att.analysis.montecarlo import run_seeds
 from drake_att.analysis.report import plot_error_grid
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder as _builder
@@ -360,7 +360,7 @@ def main(argv=None) -> int:
         with open(os.path.join(args.out, f"config_{name}.yaml"), "w") as f:
             f.write(dump_scenario(s))
         t0 = time.perf_counter()
-        res[key] = run_monte_carlo(s, seeds, workers=args.workers, keep_series_for=seeds)
+        res[key] = run_seeds(s, seeds, workers=args.workers, keep_series_for=seeds)
         total = time.perf_counter() - t0
         per_run = [r["metrics"]["wall_time_s"] for r in res[key]]
         walls[name] = {"per_seed_s": per_run, "mean_s": float(np.mean(per_run)), "monte_carlo_total_s": total,

@@ -216,18 +216,18 @@ def test_kinematic_truth_scenarios_run_end_to_end(plant_yaml):
 
 
 def test_monte_carlo_pool_matches_in_process_runs():
-    """Worker processes rebuild the diagram from the YAML and give the same metrics as an
+    """Dask worker processes rebuild the diagram from the YAML and give the same metrics as an
     in-process run for each seed (the run is a function of config + seed only)."""
-    from drake_att.analysis.montecarlo import run_monte_carlo, summarize
+    from drake_att.analysis.montecarlo import metric_mean_std, run_seeds
 
     s = apply_overrides(load_scenario(text=BASE), ["duration_s=30", "scoring.score_from_s=5"])
-    pooled = run_monte_carlo(s, [1, 2, 3], workers=2, keep_series_for=[2])
-    local = run_monte_carlo(s, [1, 2, 3], workers=1)
+    pooled = run_seeds(s, [1, 2, 3], workers=2, keep_series_for=[2])
+    local = run_seeds(s, [1, 2, 3], workers=1)
     for a, b in zip(pooled, local):
         assert a["metrics"]["seed"] == b["metrics"]["seed"]
         assert a["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] == b["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"]
     assert "series" in pooled[1] and "series" not in pooled[0]
-    mean, std = summarize(pooled, "attitude_rmse_deg", "mekf")
+    mean, std = metric_mean_std(pooled, "attitude_rmse_deg", "mekf")
     per_seed = np.array([r["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] for r in pooled])
     np.testing.assert_allclose(mean, per_seed.mean(axis=0), rtol=1e-12)
     np.testing.assert_allclose(std, per_seed.std(axis=0, ddof=1), rtol=1e-12)

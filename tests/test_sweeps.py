@@ -203,9 +203,9 @@ def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(tmp_pat
 
     built.clear()
     s3 = load_script("cubesat_dual_star_tracker")
-    from drake_att.analysis.montecarlo import run_monte_carlo
+    from drake_att.analysis.montecarlo import run_seeds
 
     scenario = apply_overrides(load("cubesat_dual_star_tracker"), ["duration_s=6", "scoring.score_from_s=2"])
-    run_monte_carlo(scenario, [1], workers=1)
+    run_seeds(scenario, [1], workers=1)
     rows = s3.convergence_vs_p0(scenario, [5.0, 0.01], 1, str(tmp_path), duration_s=6.0)
     assert built == ["cubesat_dual_star_tracker"] and len(rows["convergence_s"]) == 2

@@ -307,27 +307,16 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------------------
-# A campaign over seeds: one diagram per worker process (as analysis.montecarlo)
+# A campaign over seeds: the shared runner (analysis.montecarlo.map_runs)
 # ----------------------------------------------------------------------------------------
-_WORKER: dict = {}
-
-
-def _init_worker(yaml_text: str) -> None:
-    from drake_att.scenarios.builder import diagram_for
-    from drake_att.scenarios.config import load_scenario
-
-    _WORKER["sd"] = diagram_for(load_scenario(text=yaml_text))
-
-
-def _run_seed(args) -> dict:
-    seed, keep_series = args
-    run = _WORKER["sd"].simulate(seed)
-    out = {"seed": int(seed), "wall_time_s": float(run.wall_time_s), "rows": score_fault_events(run),
+def fault_campaign_record(run, keep_series_for=()) -> dict:
+    """What :func:`run_fault_campaign` keeps of one run (computed in the worker)."""
+    out = {"seed": int(run.seed), "wall_time_s": float(run.wall_time_s), "rows": score_fault_events(run),
            "finite": {n: bool(finite_outputs(run, n)) for n in run.metadata["estimators"]},
            "events": [{"injector": e.injector, "sensor": e.sensor, "sensor_kind": e.sensor_kind, "kind": e.kind,
                        "code": e.code, "t_start": e.t_start, "t_end": e.t_end, "magnitude": e.magnitude}
                       for e in fault_events(run)]}
-    if keep_series:
+    if run.seed in keep_series_for:
         out["series"] = {}
         for name in run.metadata["estimators"]:
             err = estimator_errors(run, name)
@@ -337,31 +326,24 @@ def _run_seed(args) -> dict:
     return out
 
 
-def run_fault_campaign(scenario, seeds, workers: int | None = None, keep_series_for=()) -> list[dict]:
+def run_fault_campaign(scenario, seeds, workers: int | None = None, keep_series_for=(), scheduler=None) -> list[dict]:
     """Run ``scenario`` for every seed and score its faults; per seed: ``seed``,
     ``wall_time_s``, ``rows`` (:func:`score_fault_events`), ``finite`` (estimator ->
     :func:`finite_outputs`), ``events`` (the events as dicts) and, for the seeds in
     ``keep_series_for``, ``series`` (estimator -> ``t``, ``error_deg`` = ``|dtheta|``,
     ``sigma_deg`` = the attitude covariance's RMS sigma ``sqrt(trace P_att)``).
 
-    Workers (default: the CPU count, at most one per seed) get the scenario as YAML and
-    build its diagram once (:func:`drake_att.scenarios.builder.diagram_for`)."""
-    import multiprocessing as mp
-    import os
+    Runs on :func:`drake_att.analysis.montecarlo.map_runs` (``workers=1``: in this process;
+    otherwise Dask worker processes, each building the diagram once)."""
+    import functools
 
-    from drake_att.scenarios.config import dump_scenario
+    from drake_att.analysis.montecarlo import map_runs
 
-    seeds = [int(s) for s in seeds]
-    yaml_text = dump_scenario(scenario)
-    jobs = [(s, s in set(keep_series_for)) for s in seeds]
-    workers = min(workers or os.cpu_count() or 1, len(seeds))
-    if workers <= 1:
-        _init_worker(yaml_text)
-        return [_run_seed(j) for j in jobs]
-    with mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(yaml_text,)) as pool:
-        return pool.map(_run_seed, jobs)
+    record = functools.partial(fault_campaign_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
+    return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,
+                    raise_failures=True)
 
 
 __all__ = ["FaultEvent", "fault_injectors", "fault_events", "consumed_sensors", "attitude_nees", "finite_outputs",
-           "score_fault_events", "summarize_fault_scores", "run_fault_campaign", "DETECTION_NIS", "RECOVERY_FACTOR", "PRE_FAULT_WINDOW_S",
+           "score_fault_events", "summarize_fault_scores", "run_fault_campaign", "fault_campaign_record", "DETECTION_NIS", "RECOVERY_FACTOR", "PRE_FAULT_WINDOW_S",
            "HOLD_S", "MIN_HOLD_S"]

@@ -1,67 +1,903 @@
-"""Monte Carlo over seeds: one diagram per worker process, reseeded for every run.
+"""Monte Carlo campaigns over seeds, on Dask (a laptop's cores or a cluster) or serially.
 
-Diagrams and contexts do not pickle, so workers receive the scenario as YAML text plus
-seeds, build the diagram once (pydrake 1.51 does not garbage-collect Python systems) and
-return plain dictionaries.
+One way to run many seeds: :func:`map_runs` ships the scenario as YAML text plus seeds to
+worker processes (diagrams and contexts do not pickle); each worker builds the scenario's
+diagram once (:func:`drake_att.scenarios.builder.diagram_for`; pydrake 1.51 never frees
+a diagram) and reuses it for every seed it gets, turning each run into a small *record*
+(a function of the :class:`~drake_att.scenarios.builder.RunLog`, computed where the run
+is). Where the work runs:
+
+* ``scheduler=None`` (default): a Dask ``LocalCluster`` of ``workers`` processes (default:
+  this machine's CPU count), one thread each (pydrake systems are not thread-safe);
+* ``scheduler="tcp://host:8786"``: an existing Dask cluster (``dask scheduler`` on one
+  machine, ``dask worker tcp://host:8786`` on each machine, drake_att installed on all);
+  a ``distributed.Client`` works too (a notebook's);
+* ``scheduler="serial"`` or ``workers=1``: in this process, one seed after the other (the
+  reference the Dask runs are tested against bit for bit).
+
+:func:`run_campaign` is the campaign on top of it (``drake-att montecarlo``): seeds
+``first_seed .. first_seed + runs - 1``; each finished run is written as it arrives to
+``<out>/runs/seed_<seed>.npz`` (temporary file + ``os.replace``: a file there is always
+complete), so an interrupted campaign ``resume``\\ s without redoing or losing finished
+runs; then ``summary.json`` (the ensemble statistics of
+:mod:`drake_att.analysis.ensemble`), ``report.html`` + PNGs
+(:mod:`drake_att.analysis.campaign_report`) and ``manifest.json``.
+
+:func:`run_comparison` (``drake-att compare``) runs one campaign per scenario with the
+listed estimators and writes the comparison matrix. :func:`run_seeds` is the paper
+scripts' view of the same runner (per-seed metrics and error series).
 """
 
 from __future__ import annotations
 
-import multiprocessing as mp
+import copy
+import dataclasses
+import functools
+import hashlib
+import json
 import os
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
-from drake_att.analysis.metrics import compute_metrics, estimator_errors
-from drake_att.scenarios.config import dump_scenario, load_scenario
+from drake_att.analysis.progress import Progress, format_duration
+from drake_att.scenarios import config as cfg
+from drake_att.validation import SEED_MAX
 
-_WORKER = {}
+SERIAL = "serial"
+RUNS_DIR = "runs"
+CONFIG_FILE = "config.yaml"
+CAMPAIGN_FILE = "campaign.json"
+SUMMARY_FILE = "summary.json"
+MANIFEST_FILE = "manifest.json"
+DEFAULT_CONNECT_TIMEOUT_S = 10.0
 
 
-def _init_worker(yaml_text: str):
-    from drake_att.scenarios.builder import diagram_for
+class CampaignError(ValueError):
+    """Bad campaign input or a folder/cluster that cannot be used; the message names the
+    option (``--runs``, ``--out``, ``--scheduler``, ...) and the value."""
 
-    _WORKER["sd"] = diagram_for(load_scenario(text=yaml_text))
+
+@dataclass(frozen=True)
+class RunFailed:
+    """A run that raised :class:`~drake_att.scenarios.builder.NonFiniteRunError` (its
+    truth or an estimate went non-finite): part of the campaign's result, not a crash."""
+
+    seed: int
+    message: str
 
 
-def _run_seed(args):
-    seed, keep_series = args
-    sd = _WORKER["sd"]
-    run = sd.simulate(seed)
+# ----------------------------------------------------------------------------------------
+# Records: what a worker returns for one run
+# ----------------------------------------------------------------------------------------
+def metrics_record(run) -> dict:
+    """The smallest record: the run's metrics (:func:`compute_metrics`) as a JSON string
+    under ``"metrics_json"``."""
+    from drake_att.analysis.metrics import compute_metrics
+    from drake_att.analysis.report import strict_json
+
+    return {"metrics_json": np.array(json.dumps(strict_json(compute_metrics(run))))}
+
+
+def default_record(run) -> dict:
+    """A campaign's record of one run: :func:`drake_att.analysis.ensemble.per_run_record`."""
+    from drake_att.analysis import ensemble
+
+    return ensemble.per_run_record(run)
+
+
+def record_name(record: Callable) -> str:
+    """``module:qualname`` of a record function (a ``functools.partial`` with its
+    arguments): what a campaign folder remembers, so a resume uses the same one."""
+    if isinstance(record, functools.partial):
+        args = ", ".join([repr(a) for a in record.args] + [f"{k}={v!r}" for k, v in sorted(record.keywords.items())])
+        return f"{record_name(record.func)}({args})"
+    return f"{record.__module__}:{record.__qualname__}"
+
+
+# ----------------------------------------------------------------------------------------
+# The worker side
+# ----------------------------------------------------------------------------------------
+_WORKER_DIAGRAMS: dict = {}
+
+
+def _worker_diagram(yaml_text: str):
+    """This process's diagram of the scenario ``yaml_text`` (built on first use)."""
+    sd = _WORKER_DIAGRAMS.get(yaml_text)
+    if sd is None:
+        from drake_att.scenarios.builder import diagram_for
+        from drake_att.scenarios.preflight import DegenerateScenarioWarning
+
+        with warnings.catch_warnings():
+            # The client prints a scenario's preflight warnings once, not once per worker.
+            warnings.simplefilter("ignore", DegenerateScenarioWarning)
+            sd = _WORKER_DIAGRAMS[yaml_text] = diagram_for(cfg.load_scenario(text=yaml_text))
+    return sd
+
+
+def _run_jobs(yaml_text: str, jobs, record: Callable) -> list:
+    """Run ``jobs`` (``(seed, estimators or None)`` pairs) on this process's diagram of
+    ``yaml_text``; returns ``[(job, record(run) or RunFailed), ...]``. The Dask task and the
+    serial loop both call this, so both compute the very same thing."""
+    from drake_att.scenarios.builder import NonFiniteRunError
+
+    sd = _worker_diagram(yaml_text)
+    out = []
+    for seed, estimators in jobs:
+        try:
+            run = sd.simulate(int(seed), estimators=None if estimators is None else list(estimators))
+        except NonFiniteRunError as e:
+            out.append(((seed, estimators), RunFailed(int(seed), str(e))))
+            continue
+        out.append(((seed, estimators), record(run)))
+    return out
+
+
+def _worker_versions() -> dict:
+    """What a worker runs (checked against the client's before a cluster campaign)."""
+    import drake_att
+    import pydrake
+
+    return {"drake_att": drake_att.__version__, "drake": getattr(pydrake, "__version__", "?"),
+            "numpy": np.__version__, "python": sys.version.split()[0]}
+
+
+# ----------------------------------------------------------------------------------------
+# The one runner
+# ----------------------------------------------------------------------------------------
+def check_scheduler_address(address: str) -> str:
+    """A Dask scheduler address ``[tcp://]host:port`` (CampaignError naming ``--scheduler``)."""
+    text = address.strip()
+    rest = text.split("://", 1)[1] if "://" in text else text
+    host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536 or " " in rest:
+        raise CampaignError(f"--scheduler: got {address!r}; expected a Dask scheduler address tcp://HOST:PORT "
+                            "(e.g. tcp://10.0.0.5:8786, what `dask scheduler` prints), or 'serial'")
+    return text if "://" in text else "tcp://" + text
+
+
+def _connect(workers, scheduler, connect_timeout_s):
+    """``(client, cluster, owned)`` for a Dask run."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+        return Client(cluster), cluster, True
+    if isinstance(scheduler, Client):
+        return scheduler, None, False
+    address = check_scheduler_address(str(scheduler))
+    try:
+        client = Client(address, timeout=f"{connect_timeout_s}s")
+    except (OSError, TimeoutError) as e:
+        raise CampaignError(f"--scheduler {scheduler}: cannot connect within {connect_timeout_s:g} s ({e}); is "
+                            f"`dask scheduler` running there and reachable?") from None
+    try:
+        client.wait_for_workers(1, timeout=connect_timeout_s)
+    except (OSError, TimeoutError):
+        client.close()
+        raise CampaignError(f"--scheduler {scheduler}: no workers connected within {connect_timeout_s:g} s; start "
+                            f"some with `dask worker {address}`") from None
+    mine = _worker_versions()
+    try:
+        theirs = client.run(_worker_versions)
+    except Exception as e:  # noqa: BLE001 - the worker's own error, reported with the address
+        client.close()
+        raise CampaignError(f"--scheduler {scheduler}: a worker cannot run drake_att ({type(e).__name__}: {e}); "
+                            "install the same drake_att on every worker machine") from None
+    for worker, versions in theirs.items():
+        if versions != mine:
+            warnings.warn(f"worker {worker} runs {versions}, this process {mine}: results may differ from a "
+                          "local run of the same seeds", stacklevel=3)
+    return client, None, False
+
+
+def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int | None = None, scheduler=None,
+             chunk_size: int = 1, on_result: Callable | None = None, raise_failures: bool = False,
+             connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> list:
+    """Run ``scenario`` for every job and return the records in job order.
+
+    Args:
+        scenario: a validated :class:`~drake_att.scenarios.config.Scenario`.
+        jobs: seeds, or ``(seed, estimators)`` pairs (``estimators``: the names to run, as
+            :meth:`ScenarioDiagram.simulate`'s; None = all).
+        record: ``RunLog -> object``, a module-level function (or a ``functools.partial`` of
+            one): workers import it by name.
+        workers: processes of the local cluster (default: the CPU count, at most one per
+            task); 1 runs serially in this process.
+        scheduler: None (local cluster), ``"serial"``, a scheduler address or a
+            ``distributed.Client``.
+        chunk_size: jobs per task (1: every run is streamed back as it finishes).
+        on_result: called as ``on_result(index, job, result)`` in this process as each run
+            arrives (in completion order).
+
+    A run whose truth or estimates go non-finite gives a :class:`RunFailed` (with
+    ``raise_failures``: raises its ``NonFiniteRunError``); any other exception stops the map
+    (the results already passed to ``on_result`` stay delivered).
+    """
+    jobs = [(int(j), None) if isinstance(j, (int, np.integer)) else (int(j[0]), None if j[1] is None else tuple(j[1]))
+            for j in jobs]
+    yaml_text = cfg.dump_scenario(scenario)
+    index = {}
+    for i, job in enumerate(jobs):
+        index.setdefault(job, []).append(i)
+    results = [None] * len(jobs)
+
+    def deliver(pairs):
+        for job, result in pairs:
+            if raise_failures and isinstance(result, RunFailed):
+                from drake_att.scenarios.builder import NonFiniteRunError
+
+                raise NonFiniteRunError(result.message)
+            for i in index[job]:
+                results[i] = result
+                if on_result is not None:
+                    on_result(i, job, result)
+
+    unique = list(index)
+    if not unique:
+        return results
+    if workers is not None and workers < 1:
+        raise CampaignError(f"--workers: got {workers}; must be a positive integer")
+    serial = scheduler == SERIAL or (scheduler is None and workers == 1)
+    if serial:
+        for k in range(0, len(unique), max(1, chunk_size)):
+            deliver(_run_jobs(yaml_text, unique[k:k + chunk_size], record))
+        return results
+    chunks = [unique[k:k + chunk_size] for k in range(0, len(unique), max(1, chunk_size))]
+    n_workers = min(workers or os.cpu_count() or 1, len(chunks))
+    from distributed import as_completed
+
+    client, cluster, owned = _connect(n_workers, scheduler, connect_timeout_s)
+    futures = []
+    try:
+        futures = [client.submit(_run_jobs, yaml_text, chunk, record, pure=False) for chunk in chunks]
+        for future in as_completed(futures):
+            deliver(future.result())
+            future.release()
+    finally:
+        _shut_down(client, cluster, owned, futures)
+    return results
+
+
+def _shut_down(client, cluster, owned, futures) -> None:
+    """Cancel what is left and close what this call opened, quietly (also after Ctrl-C)."""
+    import logging
+
+    quiet = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio")]
+    levels = [q.level for q in quiet]
+    for q in quiet:
+        q.setLevel(logging.CRITICAL)
+    try:
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            client.cancel(pending)
+        if owned:
+            client.close()
+            cluster.close()
+    except Exception:  # noqa: BLE001 - shutting down after an error or Ctrl-C: the first error is what matters
+        pass
+    finally:
+        for q, level in zip(quiet, levels):
+            q.setLevel(level)
+
+
+# ----------------------------------------------------------------------------------------
+# The paper scripts' view: per-seed metrics and error series
+# ----------------------------------------------------------------------------------------
+def metrics_and_series_record(run, keep_series_for=()) -> dict:
+    """``{"metrics": compute_metrics(run)}`` plus, for a seed in ``keep_series_for``,
+    ``"series"``: estimator -> ``t``, ``dtheta`` (rad), ``second_err`` (SI or None) and
+    ``sigma`` (the covariance's 6 standard deviations)."""
+    from drake_att.analysis.metrics import compute_metrics, estimator_errors
+
     out = {"metrics": compute_metrics(run)}
-    if keep_series:
+    if run.seed in keep_series_for:
         series = {}
         for name in run.metadata["estimators"]:
             err = estimator_errors(run, name)
             series[name] = {"t": err["t"], "dtheta": err["dtheta"], "second_err": err["second_err"],
-                              "sigma": np.sqrt(np.maximum(np.einsum("nii->ni", err["P"]), 0.0))}
+                            "sigma": np.sqrt(np.maximum(np.einsum("nii->ni", err["P"]), 0.0))}
         out["series"] = series
     return out
 
 
-def run_monte_carlo(scenario, seeds, workers: int | None = None, keep_series_for=()) -> list[dict]:
-    """Run ``scenario`` for every seed; returns per-seed ``{"metrics": ..., "series": ...}``.
-
-    Args:
-        scenario: a validated :class:`~drake_att.scenarios.config.Scenario`.
-        seeds: iterable of ints.
-        workers: processes (default: number of CPUs, at most the number of seeds).
-        keep_series_for: seeds whose error time series are returned (for figures).
-    """
-    seeds = [int(s) for s in seeds]
-    yaml_text = dump_scenario(scenario)
-    workers = min(workers or os.cpu_count() or 1, len(seeds))
-    jobs = [(s, s in set(keep_series_for)) for s in seeds]
-    if workers <= 1:
-        _init_worker(yaml_text)
-        return [_run_seed(j) for j in jobs]
-    ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init_worker, initargs=(yaml_text,)) as pool:
-        return pool.map(_run_seed, jobs)
+def run_seeds(scenario, seeds, workers: int | None = None, keep_series_for=(), scheduler=None) -> list[dict]:
+    """Per-seed ``{"metrics": ..., "series": ...}`` (:func:`metrics_and_series_record`) of
+    ``scenario`` over ``seeds``, through :func:`map_runs` (``workers=1``: in this process).
+    A run that goes non-finite raises its ``NonFiniteRunError``."""
+    record = functools.partial(metrics_and_series_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
+    return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,
+                    raise_failures=True)
 
 
-def summarize(results: list[dict], key: str, estimator: str) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard deviation over seeds of a per-axis metric (None entries dropped)."""
+def metric_mean_std(results: list[dict], key: str, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (ddof 1) over :func:`run_seeds` results of a per-axis
+    metric (None entries dropped)."""
     vals = [r["metrics"]["estimators"][estimator][key] for r in results]
     vals = np.array([v for v in vals if v is not None], dtype=float)
     return vals.mean(axis=0), vals.std(axis=0, ddof=1) if len(vals) > 1 else np.zeros_like(vals[0])
+
+
+# ----------------------------------------------------------------------------------------
+# Campaigns: streamed to disk, resumable, reported
+# ----------------------------------------------------------------------------------------
+@dataclass
+class CampaignResult:
+    """What :func:`run_campaign` returns.
+
+    Attributes:
+        scenario: the resolved scenario that ran (overrides applied, estimators selected).
+        seeds: the campaign's seeds.
+        records: one per seed that did not fail, in seed order.
+        failed: seed -> message of the runs that went non-finite.
+        summary: the ensemble statistics (``summary.json``'s ``statistics``).
+        out: the campaign folder (None: nothing written).
+        ran, reused: runs simulated by this call / found complete on disk (``resume``).
+        wall_time_s: this call's wall time.
+        files: the files written at the top of ``out`` (report, figures, summary, ...).
+    """
+
+    scenario: cfg.Scenario
+    seeds: list
+    records: list
+    failed: dict
+    summary: dict | None
+    out: str | None = None
+    ran: int = 0
+    reused: int = 0
+    wall_time_s: float = 0.0
+    files: list = field(default_factory=list)
+
+
+class CampaignProgress(Progress):
+    """Runs done of a campaign, wall time and ETA (one rewritten line on a terminal; in a
+    log one line per ~5 % of the runs). The ETA extrapolates this session's pace."""
+
+    def __init__(self, total_runs: int, already_done: int = 0, label: str = "", **kwargs):
+        super().__init__(float(total_runs), label, **kwargs)
+        self.total_runs, self.already_done, self.done = int(total_runs), int(already_done), 0
+        self._every = max(1, (total_runs - already_done) // 20)
+
+    def line(self, done: float) -> str:
+        done = int(done)
+        elapsed = self.clock() - self.start
+        total_done = self.already_done + done
+        left = self.total_runs - total_done
+        if left <= 0:
+            eta = "done"
+        elif done > 0:
+            eta = "ETA " + format_duration(elapsed * left / done)
+        else:
+            eta = "ETA unknown"
+        frac = total_done / self.total_runs if self.total_runs else 1.0
+        prefix = f"  [{self.label}] " if self.label else "  "
+        reused = f" ({self.already_done} from before)" if self.already_done else ""
+        return (f"{prefix}{total_done} / {self.total_runs} runs{reused} ({frac:4.0%})  "
+                f"{format_duration(elapsed)} wall  {eta}")
+
+    def run_done(self) -> None:
+        self.done += 1
+        if self.tty or self.done % self._every == 0 or self.already_done + self.done >= self.total_runs:
+            self.update(self.done)
+
+
+def campaign_seeds(runs: int, first_seed: int = 1) -> list[int]:
+    """``first_seed .. first_seed + runs - 1``, checked (CampaignError naming the flag)."""
+    if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 1:
+        raise CampaignError(f"--runs: got {runs!r}; must be a positive integer")
+    if isinstance(first_seed, bool) or not isinstance(first_seed, (int, np.integer)) or not 0 <= first_seed <= SEED_MAX:
+        raise CampaignError(f"--first-seed: got {first_seed!r}; must be an integer in [0, {SEED_MAX}]")
+    if first_seed + runs - 1 > SEED_MAX:
+        raise CampaignError(f"--runs: got {runs} from --first-seed {first_seed}; the last seed "
+                            f"{first_seed + runs - 1} exceeds {SEED_MAX} (Drake's 32-bit seed)")
+    return list(range(int(first_seed), int(first_seed) + int(runs)))
+
+
+def select_estimators(scenario: cfg.Scenario, names) -> cfg.Scenario:
+    """A copy of ``scenario`` with only the estimators ``names`` (in the scenario's order);
+    ConfigError naming ``--estimators`` for an unknown name or a fusion without its sources.
+    Dropping estimators changes no other system's noise (draws are keyed by system name)."""
+    if names is None:
+        return scenario
+    names = list(names)
+    have = [e.name for e in scenario.estimators]
+    unknown = [n for n in names if n not in have]
+    if unknown or not names:
+        raise cfg.ConfigError(f"--estimators: got {names!r}; choose names from {have}")
+    keep = [e for e in scenario.estimators if e.name in names]
+    for e in keep:
+        missing = [s for s in getattr(e, "sources", []) if s not in names]
+        if missing:
+            raise cfg.ConfigError(f"--estimators: {e.name!r} fuses {missing}, which are not selected")
+    out = copy.deepcopy(scenario)
+    out.estimators = copy.deepcopy(keep)
+    return cfg.load_scenario(text=cfg.dump_scenario(out))
+
+
+def resolve_scenario(scenario, overrides=(), estimators=None) -> cfg.Scenario:
+    """The scenario a campaign runs: a Scenario or a shipped name / YAML path, with the
+    ``--set`` overrides applied and the estimators selected (ConfigError naming the field)."""
+    if not isinstance(scenario, cfg.Scenario):
+        from drake_att.scenarios.library import load
+
+        scenario = load(scenario)
+    if overrides:
+        scenario = cfg.apply_overrides(scenario, list(overrides))
+    return select_estimators(scenario, estimators)
+
+
+def _run_path(out: str, seed: int) -> str:
+    return os.path.join(out, RUNS_DIR, f"seed_{seed}.npz")
+
+
+def _failed_path(out: str, seed: int) -> str:
+    return os.path.join(out, RUNS_DIR, f"seed_{seed}.failed.txt")
+
+
+def _atomic_write(path: str, write: Callable) -> None:
+    """``write(file)`` into a temporary sibling, flushed to disk, then renamed to ``path``:
+    ``path`` is complete or absent, never half written."""
+    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def write_text_atomic(path: str, text: str) -> str:
+    _atomic_write(path, lambda f: f.write(text.encode()))
+    return path
+
+
+def _npz_arrays(record, seed: int) -> dict:
+    if not isinstance(record, dict):
+        raise TypeError(f"seed {seed}: a campaign record must be a dict of numpy arrays, got {type(record).__name__}")
+    arrays = {}
+    for key, value in record.items():
+        a = np.asarray(value)
+        if a.dtype == object:
+            raise TypeError(f"seed {seed}: record entry {key!r} is not a plain numpy array (dtype object); "
+                            "records are saved without pickles")
+        arrays[key] = a
+    return arrays
+
+
+def save_record(out: str, seed: int, record) -> str:
+    """``<out>/runs/seed_<seed>.npz``, atomically (``np.savez``, no pickles)."""
+    path = _run_path(out, seed)
+    arrays = _npz_arrays(record, seed)
+    _atomic_write(path, lambda f: np.savez(f, **arrays))
+    return path
+
+
+def load_record(path: str) -> dict:
+    """A saved record (every array read: a damaged file raises here)."""
+    with np.load(path, allow_pickle=False) as npz:
+        return {k: npz[k] for k in npz.files}
+
+
+def _load_existing(out: str, seeds) -> tuple[dict, dict, list]:
+    """Complete runs of ``seeds`` already in ``out/runs``: (records, failed, unreadable)."""
+    import zipfile
+
+    records, failed, bad = {}, {}, []
+    runs = os.path.join(out, RUNS_DIR)
+    for name in os.listdir(runs):
+        if name.startswith(".") and ".tmp-" in name:  # a write that was interrupted
+            os.remove(os.path.join(runs, name))
+    for seed in seeds:
+        path = _run_path(out, seed)
+        if os.path.isfile(path):
+            try:
+                records[seed] = load_record(path)
+                continue
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError):
+                bad.append(path)
+        fpath = _failed_path(out, seed)
+        if os.path.isfile(fpath):
+            with open(fpath) as f:
+                failed[seed] = f.read().strip()
+    return records, failed, bad
+
+
+def _campaign_identity(yaml_text: str, record: Callable) -> dict:
+    return {"config_sha256": hashlib.sha256(yaml_text.encode()).hexdigest(), "record": record_name(record)}
+
+
+def _first_difference(old: str, new: str) -> str:
+    import difflib
+
+    a, b = old.splitlines(), new.splitlines()
+    for tag, i1, i2, j1, j2 in difflib.SequenceMatcher(None, a, b).get_opcodes():
+        if tag != "equal":
+            was = a[i1].strip() if i1 < i2 else "(nothing)"
+            now = b[j1].strip() if j1 < j2 else "(nothing)"
+            return f"line {i1 + 1}: the campaign has '{was}', this request '{now}'"
+    return "(same text)"
+
+
+def _prepare_folder(out: str, yaml_text: str, record: Callable, resume: bool) -> None:
+    """Create ``out`` for a new campaign, or check that it holds this same campaign."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise CampaignError(f"--out {out}: is an existing file, not a folder; name a folder for the campaign")
+    config_path = os.path.join(out, CONFIG_FILE)
+    if os.path.isfile(config_path):
+        if not resume:
+            n = len([f for f in os.listdir(os.path.join(out, RUNS_DIR)) if f.endswith(".npz")]) \
+                if os.path.isdir(os.path.join(out, RUNS_DIR)) else 0
+            raise CampaignError(f"--out {out}: holds a campaign already ({n} runs); add --resume to continue it, or "
+                                "name another folder")
+        with open(config_path) as f:
+            old = f.read()
+        old_yaml = old.split("\n", 1)[1] if old.startswith("#") else old
+        if old_yaml != yaml_text:
+            raise CampaignError(f"--resume {out}: the campaign there ran another configuration "
+                                f"({_first_difference(old_yaml, yaml_text)}); give the same scenario, --set and "
+                                "--estimators, or another --out")
+        cpath = os.path.join(out, CAMPAIGN_FILE)
+        if os.path.isfile(cpath):
+            with open(cpath) as f:
+                previous = json.load(f)
+            if previous.get("record") != record_name(record):
+                raise CampaignError(f"--resume {out}: the campaign there saved records of {previous.get('record')}, "
+                                    f"this request {record_name(record)}")
+    elif os.path.isdir(out) and [n for n in os.listdir(out) if not n.startswith(".")]:
+        raise CampaignError(f"--out {out}: is a folder with other files in it (no {CONFIG_FILE} of a campaign); "
+                            "name a new or empty folder")
+    os.makedirs(os.path.join(out, RUNS_DIR), exist_ok=True)
+    write_text_atomic(config_path, "# Resolved configuration of this Monte Carlo campaign (every run; seed per run).\n"
+                      + yaml_text)
+
+
+def _write_campaign_file(out, scenario, seeds, record, workers, scheduler) -> str:
+    import drake_att
+
+    info = {"scenario": scenario.name, "first_seed": seeds[0], "runs": len(seeds), "seeds": [seeds[0], seeds[-1]],
+            **_campaign_identity(cfg.dump_scenario(scenario), record), "drake_att": drake_att.__version__,
+            "executor": _executor_name(workers, scheduler)}
+    return write_text_atomic(os.path.join(out, CAMPAIGN_FILE), json.dumps(info, indent=1) + "\n")
+
+
+def _executor_name(workers, scheduler) -> str:
+    if scheduler == SERIAL or (scheduler is None and workers == 1):
+        return "serial (this process)"
+    if scheduler is None:
+        return f"Dask LocalCluster, {workers or os.cpu_count()} worker processes"
+    if not isinstance(scheduler, str):  # a distributed.Client
+        return f"Dask cluster at {getattr(getattr(scheduler, 'scheduler', None), 'address', '?')}"
+    return f"Dask cluster at {scheduler}"
+
+
+def write_campaign_manifest(out: str, files, scenario_name: str, seeds) -> str:
+    """``manifest.json`` (as :func:`drake_att.analysis.report.write_manifest`, with paths
+    relative to ``out`` so the runs in ``runs/`` are listed too), written last."""
+    entries = []
+    for path in files:
+        with open(path, "rb") as f:
+            data = f.read()
+        entries.append({"file": os.path.relpath(path, out), "bytes": len(data),
+                        "sha256": hashlib.sha256(data).hexdigest()})
+    text = json.dumps({"scenario": scenario_name, "seeds": [seeds[0], seeds[-1]], "runs": len(seeds),
+                       "files": entries}, indent=1)
+    return write_text_atomic(os.path.join(out, MANIFEST_FILE), text)
+
+
+def check_campaign_manifest(out: str) -> list[str]:
+    """Problems of a campaign folder against its manifest (empty: complete, unmodified)."""
+    path = os.path.join(out, MANIFEST_FILE)
+    if not os.path.isfile(path):
+        return [f"{out}: no {MANIFEST_FILE} (the campaign did not finish)"]
+    with open(path) as f:
+        manifest = json.load(f)
+    problems = []
+    for e in manifest["files"]:
+        p = os.path.join(out, e["file"])
+        if not os.path.isfile(p):
+            problems.append(f"{e['file']}: missing")
+            continue
+        with open(p, "rb") as f:
+            data = f.read()
+        if len(data) != e["bytes"] or hashlib.sha256(data).hexdigest() != e["sha256"]:
+            problems.append(f"{e['file']}: changed since it was written")
+    return problems
+
+
+def default_summarize(records, scenario) -> dict:
+    """The ensemble statistics: :func:`drake_att.analysis.ensemble.summarize`."""
+    from drake_att.analysis import ensemble
+
+    return ensemble.summarize(records, scenario)
+
+
+def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | None = None, scheduler=None,
+                 out: str | None = None, resume: bool = False, overrides=(), estimators=None,
+                 record: Callable | None = None, report: bool = True, progress: bool = True,
+                 connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S, stream=None) -> CampaignResult:
+    """A Monte Carlo campaign: ``runs`` seeds from ``first_seed`` (``drake-att montecarlo``).
+
+    Args:
+        scenario: a Scenario, or a shipped scenario name / YAML path.
+        runs, first_seed: the seeds ``first_seed .. first_seed + runs - 1``.
+        workers, scheduler: where the runs go (:func:`map_runs`).
+        out: the campaign folder (None: nothing is written, the records are returned).
+            ``config.yaml`` (the resolved scenario) and ``campaign.json`` first, then each
+            run as it finishes (``runs/seed_<seed>.npz``, or ``seed_<seed>.failed.txt``
+            for a run that went non-finite), then ``summary.json``, ``report.html`` and its
+            PNGs, and ``manifest.json`` last.
+        resume: continue the campaign in ``out``: seeds with a complete file there are
+            read, not re-run; refused (CampaignError) if that campaign's resolved config
+            differs. Without it an existing campaign in ``out`` is refused too (never
+            overwritten by accident).
+        overrides: ``--set``-style ``path=value`` strings applied to the scenario first.
+        estimators: names of the estimators to run (default: all).
+        record: ``RunLog -> dict of numpy arrays`` (default :func:`default_record`).
+        report: write the summary, report and manifest (with ``out``).
+        progress: a progress line (runs done, wall time, ETA) on ``stream`` (stderr).
+
+    Ctrl-C (KeyboardInterrupt) stops the campaign; every run finished so far is on disk.
+    """
+    record = default_record if record is None else record
+    seeds = campaign_seeds(runs, first_seed)
+    resolved = resolve_scenario(scenario, overrides, estimators)
+    yaml_text = cfg.dump_scenario(resolved)
+    start = time.perf_counter()
+    records, failed, ran = {}, {}, 0
+    if out is not None:
+        out = os.path.normpath(out)
+        _prepare_folder(out, yaml_text, record, resume)
+        _write_campaign_file(out, resolved, seeds, record, workers, scheduler)
+        records, failed, bad = _load_existing(out, seeds)
+        for path in bad:
+            print(f"drake-att: {path} is unreadable; its run is redone", file=stream or sys.stderr)
+    reused = len(records) + len(failed)
+    pending = [s for s in seeds if s not in records and s not in failed]
+    bar = CampaignProgress(len(seeds), reused, f"{resolved.name}", stream=stream) if progress else None
+
+    def on_result(i, job, result):
+        nonlocal ran
+        seed = job[0]
+        if isinstance(result, RunFailed):
+            failed[seed] = result.message
+            if out is not None:
+                write_text_atomic(_failed_path(out, seed), result.message + "\n")
+        else:
+            if out is not None:
+                save_record(out, seed, result)
+            records[seed] = result
+        ran += 1
+        if bar:
+            bar.run_done()
+
+    try:
+        map_runs(resolved, pending, record, workers=workers, scheduler=scheduler, on_result=on_result,
+                 connect_timeout_s=connect_timeout_s)
+    finally:
+        if bar:
+            bar.close()
+    ordered = [records[s] for s in seeds if s in records]
+    result = CampaignResult(resolved, seeds, ordered, {s: failed[s] for s in seeds if s in failed}, None, out, ran,
+                            reused, 0.0)
+    if report:
+        result.summary = default_summarize(ordered, resolved) if ordered else None
+    result.wall_time_s = time.perf_counter() - start
+    if out is not None and report:
+        from drake_att.analysis import campaign_report
+
+        result.files = campaign_report.write_campaign_report(result, executor=_executor_name(workers, scheduler))
+        run_files = [_run_path(out, s) for s in seeds if s in records] + [_failed_path(out, s) for s in result.failed]
+        write_campaign_manifest(out, [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)]
+                                + result.files + run_files, resolved.name, seeds)
+    return result
+
+
+# ----------------------------------------------------------------------------------------
+# The comparison matrix: every listed estimator on every listed scenario
+# ----------------------------------------------------------------------------------------
+@dataclass
+class ComparisonPlan:
+    """What :func:`run_comparison` runs.
+
+    Attributes:
+        scenarios: the resolved scenarios (overrides applied, estimators selected and
+            transplanted), one campaign each.
+        estimators: the matrix's columns (estimator names), in the order listed.
+        cells: ``(scenario name, estimator)`` -> None (runs) or why it does not.
+    """
+
+    scenarios: list
+    estimators: list
+    cells: dict
+
+    @property
+    def skipped(self) -> list[str]:
+        return [f"{s} x {e}: {why}" for (s, e), why in self.cells.items() if why is not None]
+
+
+def _with_estimators(scenario: cfg.Scenario, estimator_configs, plugins=()) -> cfg.Scenario:
+    out = copy.deepcopy(scenario)
+    out.estimators = copy.deepcopy(list(estimator_configs))
+    out.plugins = list(dict.fromkeys(list(scenario.plugins) + list(plugins)))
+    return cfg.load_scenario(text=cfg.dump_scenario(out))
+
+
+def comparison_plan(scenarios, estimators=None, overrides=()) -> ComparisonPlan:
+    """Resolve ``drake-att compare``'s scenarios and ``--estimators`` entries.
+
+    An entry ``NAME`` runs wherever a scenario defines an estimator of that name; an entry
+    ``SOURCE:NAME`` takes estimator NAME's config from scenario SOURCE (a shipped name or a
+    YAML path) and adds it to every listed scenario that lacks it (its sensors must exist
+    there: the cell says why not). A fusion brings its sources along. ``None``: every
+    scenario runs its own estimators. ConfigError names the option for bad input."""
+    from drake_att.scenarios.library import load
+
+    loaded = []
+    for name in scenarios:
+        s = load(name)
+        if overrides:
+            s = cfg.apply_overrides(s, list(overrides))
+        if s.name in [x.name for x in loaded]:
+            raise CampaignError(f"SCENARIO: {name!r} is listed twice (scenario {s.name!r})")
+        loaded.append(s)
+    if not loaded:
+        raise CampaignError("SCENARIO: name at least one scenario")
+    if estimators is None:
+        columns = list(dict.fromkeys(e.name for s in loaded for e in s.estimators))
+        entries = [(None, n) for n in columns]
+    else:
+        if not estimators:
+            raise CampaignError("--estimators: got an empty list; name estimators (NAME or SCENARIO:NAME)")
+        entries = []
+        for item in estimators:
+            source, _, name = item.rpartition(":") if ":" in item else (None, "", item)
+            if not name:
+                raise CampaignError(f"--estimators: got {item!r}; expected NAME or SCENARIO:NAME")
+            entries.append((source, name))
+        columns = list(dict.fromkeys(n for _, n in entries))
+        if len(columns) != len(entries):
+            raise CampaignError(f"--estimators: got {estimators!r}; each estimator name may appear once")
+    transplants = {}
+    for source, name in entries:
+        if source is None:
+            continue
+        src = load(source)
+        configs = {e.name: e for e in src.estimators}
+        if name not in configs:
+            raise CampaignError(f"--estimators {source}:{name}: scenario {src.name!r} has no estimator {name!r}; "
+                                f"it has {list(configs)}")
+        bring = [configs[name]]
+        i = 0
+        while i < len(bring):  # a fusion brings its sources
+            bring += [configs[s] for s in getattr(bring[i], "sources", []) if configs[s] not in bring]
+            i += 1
+        transplants[name] = (bring[::-1], src.plugins)
+    cells, resolved = {}, []
+    for s in loaded:
+        own = {e.name: e for e in s.estimators}
+        keep = set()
+        for _, name in entries:
+            if name in own:
+                stack = [name]
+                while stack:
+                    n = stack.pop()
+                    keep.add(n)
+                    stack += list(getattr(own[n], "sources", []))
+                cells[(s.name, name)] = None
+            elif name not in transplants:
+                cells[(s.name, name)] = "not an estimator of this scenario (SOURCE:NAME adds one from another scenario)"
+        configs = [e for e in s.estimators if e.name in keep]
+        plugins = list(s.plugins)
+        for name, (bring, src_plugins) in transplants.items():
+            if name in own:
+                continue
+            extra = [b for b in bring if b.name not in {c.name for c in configs}]
+            try:
+                _with_estimators(s, configs + extra, plugins + list(src_plugins))
+            except (cfg.ConfigError, ValueError) as e:
+                cells[(s.name, name)] = f"cannot run here: {' '.join(str(e).split())}"
+                continue
+            configs += extra
+            plugins += list(src_plugins)
+            cells[(s.name, name)] = None
+        if configs:
+            resolved.append(_with_estimators(s, configs, plugins))
+    if not any(why is None for why in cells.values()):
+        raise CampaignError("--estimators: no listed estimator runs on any listed scenario: "
+                            + "; ".join(f"{s} x {e}: {why}" for (s, e), why in cells.items()))
+    return ComparisonPlan(resolved, columns, cells)
+
+
+def timing_record(run) -> dict:
+    """Wall time of a run and the steps each of its estimators took (the timing runs of
+    :func:`run_comparison`)."""
+    steps = {}
+    for name, spec in run.metadata["estimators"].items():
+        status = run.values(spec["signals"]["status"])
+        steps[name] = int(len(np.unique(status[np.isfinite(status[:, 0]), 0])))
+    return {"wall_time_s": float(run.wall_time_s), "steps": steps}
+
+
+def _selection_with_sources(scenario: cfg.Scenario, name: str) -> tuple:
+    own = {e.name: e for e in scenario.estimators}
+    keep, stack = set(), [name]
+    while stack:
+        n = stack.pop()
+        keep.add(n)
+        stack += list(getattr(own[n], "sources", []))
+    return tuple(e.name for e in scenario.estimators if e.name in keep)
+
+
+@dataclass
+class ComparisonResult:
+    """What :func:`run_comparison` returns: the plan, each scenario's
+    :class:`CampaignResult`, and per (scenario, estimator) the timing
+    (``{"ms_per_step", "selection", "steps", "wall_s", "baseline_wall_s"}``)."""
+
+    plan: ComparisonPlan
+    campaigns: dict
+    timing: dict
+    out: str | None = None
+    files: list = field(default_factory=list)
+
+
+def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, workers: int | None = None,
+                   scheduler=None, out: str | None = None, resume: bool = False, progress: bool = True,
+                   connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S, record: Callable | None = None,
+                   stream=None) -> ComparisonResult:
+    """Run :func:`comparison_plan`'s scenarios (``drake-att compare``): one campaign each
+    (``<out>/<scenario>/``, resumable), then per scenario one timing run per estimator
+    (seed ``first_seed``, that estimator and its sources alone, minus the sensors-only run)
+    and the matrix (``comparison.{json,md,png,html}``). One Dask cluster serves all."""
+    campaign_seeds(runs, first_seed)
+    owned = None
+    if scheduler is None and workers != 1:
+        from distributed import Client, LocalCluster
+        import logging
+
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+        owned = (Client(cluster), cluster)
+        scheduler = owned[0]
+    campaigns, timing = {}, {}
+    try:
+        for scenario in plan.scenarios:
+            sub = None if out is None else os.path.join(out, scenario.name)
+            if out is not None:
+                os.makedirs(out, exist_ok=True)
+            campaigns[scenario.name] = run_campaign(
+                scenario, runs, first_seed, workers=workers, scheduler=scheduler, out=sub, resume=resume,
+                record=record, progress=progress, connect_timeout_s=connect_timeout_s, stream=stream)
+            names = [e for e in plan.estimators if plan.cells.get((scenario.name, e), "") is None]
+            jobs = [(first_seed, ())] + [(first_seed, _selection_with_sources(scenario, e)) for e in names]
+            walls = map_runs(scenario, jobs, timing_record, workers=workers, scheduler=scheduler,
+                             connect_timeout_s=connect_timeout_s)
+            base = walls[0]["wall_time_s"]
+            for e, job, w in zip(names, jobs[1:], walls[1:]):
+                steps = w["steps"][e]
+                timing[(scenario.name, e)] = {"selection": list(job[1]), "steps": steps, "wall_s": w["wall_time_s"],
+                                              "baseline_wall_s": base,
+                                              "ms_per_step": 1e3 * (w["wall_time_s"] - base) / max(steps, 1)}
+    finally:
+        if owned is not None:
+            _shut_down(owned[0], owned[1], True, [])
+    result = ComparisonResult(plan, campaigns, timing, out)
+    if out is not None:
+        from drake_att.analysis import campaign_report
+
+        result.files = campaign_report.write_comparison(result)
+    return result
