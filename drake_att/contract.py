@@ -224,6 +224,11 @@ def is_usable(measurement) -> bool:
     if not math.isfinite(float(measurement.time_s)):
         return False
     numbers = measurement.numbers
+    if isinstance(measurement, QuaternionSample):  # the per-step case: 4 floats, no numpy reduction
+        values = np.ravel(numbers).tolist()
+        if len(values) != 4 or not all(map(math.isfinite, values)):
+            return False
+        return values[0] ** 2 + values[1] ** 2 + values[2] ** 2 + values[3] ** 2 >= 0.25  # |q| < 0.5: not a quaternion
     if numbers.size == 0 or not np.all(np.isfinite(numbers)):
         return False
     if isinstance(measurement, VectorObservations):
@@ -240,8 +245,6 @@ def is_usable(measurement) -> bool:
             return False
         if not (math.isfinite(sigma) and sigma >= 0.0 and math.isfinite(q) and q >= 0.0):
             return False
-    if isinstance(measurement, QuaternionSample) and float(numbers @ numbers) < 0.25:
-        return False  # |q| < 0.5: not a quaternion
     return True
 
 

@@ -111,7 +111,10 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
     (``{"attitude": key of q_IB, "rate": key of w_IB_B}``) and ``estimators`` (in the
     scenario's order): name -> ``second_kind`` ("gyro_bias" or "body_rate"), ``true_bias``
     (key of the gyro bias it is scored against, or None; a fusion: its first source's gyro)
-    and ``signals`` (``{"attitude", "second", "covariance", "status"}`` -> logged key).
+    and ``signals`` (``{"attitude", "second", "covariance", "status"}`` -> logged key, plus
+    ``"innovations"`` for estimators with measurement inputs, whose names are then listed
+    in ``inputs``: per input ``[time of its last update, NIS, dimension]``, see
+    :class:`~drake_att.systems.estimators.EstimatorSystem`).
     The second-quantity kind comes from the system's ``second_output_name``, here only.
     """
     sd = scenario_diagram
@@ -137,6 +140,9 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
             "true_bias": f"{sd.sensors[gyro].get_name()}/bias_B" if kinds[second] == "gyro_bias" and gyro else None,
             "signals": {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
                         "covariance": f"{name}/covariance", "status": f"{name}/status"}}
+        if f"{name}/innovations" in signal_keys:
+            meta["estimators"][c.name]["signals"]["innovations"] = f"{name}/innovations"
+            meta["estimators"][c.name]["inputs"] = list(system.input_names)
     RunLog.check_metadata(meta)
     return meta
 
@@ -205,7 +211,8 @@ class RunLog:
                 raise ValueError(f"metadata: estimators.{name}.second_kind {e.get('second_kind')!r} is neither "
                                  "'gyro_bias' nor 'body_rate'")
             refs += [(f"estimators.{name}.signals.{k}", e["signals"].get(k))
-                     for k in ("attitude", "second", "covariance", "status")]
+                     for k in ("attitude", "second", "covariance", "status")
+                     + (("innovations",) if "innovations" in e["signals"] else ())]
             if e.get("true_bias") is not None:
                 refs.append((f"estimators.{name}.true_bias", e["true_bias"]))
         for where, key in refs:
@@ -326,6 +333,8 @@ class ScenarioDiagram:
                     log(system, port, self.estimator_period(e.name))
             if system.HasOutputPort("diagnostics"):
                 log(system, "diagnostics", self.estimator_period(e.name))
+            if system.HasOutputPort("innovations"):
+                log(system, "innovations", self.estimator_period(e.name))
         self.diagram = builder.Build()
         self.diagram.set_name(scenario.name)
 

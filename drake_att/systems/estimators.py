@@ -46,6 +46,10 @@ Output ports:
         update (before resampling), resamplings so far, degenerate updates so far, N]``.
     diagnostics (n) (cores with ``diagnostic_names``): ``core.diagnostics(state)``, e.g. the
         indoor star tracker's stars identified and iterations of the last frame.
+    innovations (3 per measurement input, C++-evaluated; estimators with inputs): per input,
+        in :attr:`input_names` order, ``[time of its last update (s; -inf before any), that
+        update's NIS (NaN when the core has none, e.g. particle filters), innovation
+        dimension (0 when none)]`` — rejected updates included (per-sensor NIS statistics).
 Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
     abstract parameter 0: the :class:`FilterModel` — the core (its tuning), the initial
         state, the quaternion sensor models (mounting, noise) and whether the estimator
@@ -58,6 +62,7 @@ Discrete state:
         measurement input ...]``.
     group 2: the core's state vector (``core.to_vector``).
     group 3 (linearizing cores): the step linearization (109).
+    next group (estimators with measurement inputs): the innovations (3 per input).
 """
 
 from __future__ import annotations
@@ -229,6 +234,10 @@ class EstimatorSystem(LeafSystem):
         if self._linearizing:
             self._linearization_group = self.DeclareDiscreteState(
                 np.concatenate([_EYE6.ravel(), _ZERO6.ravel(), _EYE6.ravel(), [0.0]]))
+        self.input_names = tuple(s.name for s in self._quat_sensors) + self._vector_names + self._camera_names
+        self._innovation_group = None
+        if n_inputs:
+            self._innovation_group = self.DeclareDiscreteState(np.tile([-np.inf, np.nan, 0.0], n_inputs))
 
         # -- outputs -----------------------------------------------------------------------
         ticket = {self.discrete_state_ticket(self._estimate_group)}
@@ -241,6 +250,8 @@ class EstimatorSystem(LeafSystem):
         self.DeclareStateOutputPort("estimate_state", self._estimate_group)
         if self._linearizing:
             self.DeclareStateOutputPort("step_linearization", self._linearization_group)
+        if self._innovation_group is not None:
+            self.DeclareStateOutputPort("innovations", self._innovation_group)
         if self.num_particles is not None:
             self.DeclareVectorOutputPort("particle_diagnostics", PARTICLE_DIAGNOSTICS_SIZE, self._calc_diagnostics,
                                          {self.discrete_state_ticket(self._book_group)})
@@ -350,9 +361,10 @@ class EstimatorSystem(LeafSystem):
         """The gyro's mean rate over the interval ending at ``t``, or None if unusable."""
         if not self._gyro_port.HasValue(context):
             return None
-        g = self._gyro_port.Eval(context)  # the GyroSample layout [t, valid, w_meas_B], read in place
-        if abs(g[0] - t) < TIME_TOLERANCE_S and contract.flag_is_true(g[1]) and np.all(np.isfinite(g[2:])):
-            return np.array(g[2:5])
+        t_g, valid, wx, wy, wz = self._gyro_port.Eval(context).tolist()  # the GyroSample layout
+        if (abs(t_g - t) < TIME_TOLERANCE_S and valid > 0.5 and math.isfinite(valid) and math.isfinite(wx)
+                and math.isfinite(wy) and math.isfinite(wz)):
+            return np.array([wx, wy, wz])
         return None
 
     def _measurements(self, context, quaternion_sensors):
@@ -360,9 +372,10 @@ class EstimatorSystem(LeafSystem):
         for i, (sensor, port) in enumerate(zip(quaternion_sensors, self._quat_ports)):
             if port.HasValue(context):
                 m = port.Eval(context)
-                cov = sensor.covariance_for_flag(float(m[1])) if sensor.covariance_by_flag else sensor.covariance_S
-                yield i, QuaternionSample(float(m[0]), contract.flag_is_true(m[1]) and cov is not None,
-                                          np.array(m[2:6]), sensor.q_BS, sensor.covariance_S if cov is None else cov)
+                flag = float(m[1])
+                cov = sensor.covariance_for_flag(flag) if sensor.covariance_by_flag else sensor.covariance_S
+                yield i, QuaternionSample(float(m[0]), flag > 0.5 and math.isfinite(flag) and cov is not None,
+                                          m[2:6].copy(), sensor.q_BS, sensor.covariance_S if cov is None else cov)
         offset = len(self._quat_ports)
         for j, port in enumerate(self._vector_ports):
             if port.HasValue(context):
@@ -406,6 +419,7 @@ class EstimatorSystem(LeafSystem):
         book[_T_LAST] = t
 
         # -- measurement updates at this instant ------------------------------------------------
+        innovations = None
         for i, m in self._measurements(context, model.quaternion_sensors):
             t_meas = float(m.time_s)
             if not math.isfinite(t_meas):
@@ -427,6 +441,9 @@ class EstimatorSystem(LeafSystem):
                     new_state, info = _ungated(core).update(core.reacquire(state, info), m, rng)
             state = new_state
             nis = info.nis
+            if innovations is None:
+                innovations = context.get_discrete_state(self._innovation_group).value().copy()
+            innovations[3 * i:3 * i + 3] = (t, nis, 0 if info.innovation is None else len(info.innovation))
             if info.accepted:
                 n_used += 1
                 if self._linearizing and info.error_transition is not None:
@@ -441,6 +458,8 @@ class EstimatorSystem(LeafSystem):
         q_hat, second, P = core.estimate(state)
         discrete_state.get_mutable_vector(self._estimate_group).SetFromVector(
             pack_estimate(rot.quat_canonical(q_hat), second, P, t, n_used, n_skipped, nis))
+        if innovations is not None:
+            discrete_state.get_mutable_vector(self._innovation_group).SetFromVector(innovations)
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
         discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
         if self._linearizing:
