@@ -136,7 +136,11 @@ def farrenkopf_step_noise(arw: float, rrw: float, dt: float, J=None) -> np.ndarr
     ``G = [[-J, 0], [0, I]]`` with ``J`` the transition's bias block (default ``dt I``, which
     gives exactly :func:`drake_att.filters.mekf.process_noise`)."""
     c = FarrenkopfGyroNoise(arw, rrw, dt).interval_covariance()
-    J = dt * np.eye(3) if J is None else np.asarray(J, dtype=float)
+    return _step_noise(c, dt * np.eye(3) if J is None else np.asarray(J, dtype=float))
+
+
+def _step_noise(c, J):
+    """``G C G'`` for the per-axis (e, db) covariance ``c`` (2x2) and ``G = [[-J, 0], [0, I]]``."""
     Q = np.zeros((6, 6))
     Q[:3, :3] = c[0, 0] * (J @ J.T)
     Q[:3, 3:] = -c[0, 1] * J
@@ -309,10 +313,19 @@ def _sample_index(times, grid):
 
 
 def run_bound(run, name: str, prior_scale: float = 1.0) -> BoundResult:
-    """The bound for estimator ``name`` on ``run`` (a :class:`~drake_att.scenarios.builder.RunLog`).
+    """The bound for estimator ``name`` on ``run`` (a :class:`~drake_att.scenarios.builder.RunLog`),
+    with the prior covariance scaled by ``prior_scale``.
 
-    Raises :class:`NoBound` where none is defined (the reason), ValueError when the log
-    lacks what the bound needs (the truth at the gyro's instants)."""
+    Raises :class:`NoBound` where none is defined (the reason: no gyro, a camera, faults,
+    a log without the gyro's or the trackers' samples or the truth at the gyro's instants)."""
+    model = bound_model(run, name)
+    return BoundResult(model["t"], covariance_recursion(prior_scale * model["P0"], model["transitions"],
+                                                        model["noises"], model["measurements"]), model["info"])
+
+
+def bound_model(run, name: str) -> dict:
+    """The linear model of :func:`run_bound`: ``{"t", "P0", "transitions", "noises",
+    "measurements", "info"}`` (the arguments of :func:`covariance_recursion`)."""
     scenario = run.scenario
     src = bound_sources(scenario, name)
     gyro = src["gyro"]
@@ -341,11 +354,15 @@ def run_bound(run, name: str, prior_scale: float = 1.0) -> BoundResult:
     K = len(grid)
     transitions, noises = [None] * K, [None] * K
     phis = rot.quat_error_rotvec(q_true[:-1], q_true[1:])  # rotation of each interval, in B
+    interval = {}
     for k in range(1, K):
         dt = grid[k] - grid[k - 1]
         Phi = transition_matrix(phis[k - 1] / dt, dt)
         transitions[k] = Phi
-        noises[k] = farrenkopf_step_noise(arw, rrw, dt, -Phi[:3, 3:])
+        c = interval.get(dt)
+        if c is None:
+            c = interval[dt] = FarrenkopfGyroNoise(arw, rrw, dt).interval_covariance()
+        noises[k] = _step_noise(c, -Phi[:3, 3:])
 
     measurements = [[] for _ in range(K)]
     counts = {}
@@ -400,14 +417,14 @@ def run_bound(run, name: str, prior_scale: float = 1.0) -> BoundResult:
                            "samples_invalid": n_invalid}
 
     P0, prior_from = prior_covariance(src)
-    P = covariance_recursion(prior_scale * P0, transitions, noises, measurements)
     info = {
         "gyro": gyro.name, "trackers": [t.name for t in src["trackers"]],
         "grid_period_s": T, "prior": prior_from,
         "gyro_arw_deg_per_rt_h": gyro.arw_deg_per_rt_h, "gyro_rrw_deg_per_h15": gyro.rrw_deg_per_h15,
         "tracker_samples": counts, "notes": list(src["notes"]),
     }
-    return BoundResult(grid, P, info)
+    return {"t": grid, "P0": P0, "transitions": transitions, "noises": noises, "measurements": measurements,
+            "info": info}
 
 
 def _mounting(st):
@@ -431,8 +448,10 @@ def bound_for_estimator(run, name: str, t_est, score_from_s: float, cache: dict 
         if cache is not None and key in cache:
             result, loose = cache[key]
         else:
-            result = run_bound(run, name)
-            loose = run_bound(run, name, prior_scale=PRIOR_SENSITIVITY_FACTOR)
+            model = bound_model(run, name)
+            args = (model["transitions"], model["noises"], model["measurements"])
+            result = BoundResult(model["t"], covariance_recursion(model["P0"], *args), model["info"])
+            loose = BoundResult(model["t"], covariance_recursion(PRIOR_SENSITIVITY_FACTOR * model["P0"], *args))
             if cache is not None:
                 cache[key] = (result, loose)
     except NoBound as e:
