@@ -29,6 +29,13 @@ and counted in ``n_skipped``; for a missing gyro sample the last valid one is he
 Resampling (systematic) happens when ``N_eff = 1 / sum(w^2) < resample_threshold * N``
 (paper: 2/3).
 
+Kernels: the code in this module (with :mod:`drake_att.filters.mrp_ekf`) is the readable
+specification, run with ``kernel="numpy"``. The default ``kernel="numba"`` runs the same
+steps through the compiled loops of :mod:`drake_att.filters.particle_kernels` (imported on
+first use): the same random numbers from the same generator in the same order, the weight
+normalization and resampling here in numpy, results equal to round-off (EKPF with 1000
+particles ~10x faster per step; ``benchmarks/README.md``).
+
 Units: SI and radians (rad, rad/s, ARW rad/s^0.5, RRW / process noise rad/s^1.5).
 """
 
@@ -79,7 +86,24 @@ __all__ = [
     "GyrolessParticleFilter",
     "ParticleSetState",
     "ParticleFilterCore",
+    "KERNELS",
 ]
+
+KERNELS = ("numba", "numpy")
+
+
+def _check_kernel(kernel) -> str:
+    if not (isinstance(kernel, str) and kernel in KERNELS):
+        fail("kernel", kernel, "must be 'numba' (compiled loops, default) or 'numpy' (the reference code)")
+    return kernel
+
+
+def _kernels():
+    """The compiled kernels (:mod:`drake_att.filters.particle_kernels`), imported on first use
+    (importing numba costs ~0.5 s)."""
+    from drake_att.filters import particle_kernels
+
+    return particle_kernels
 
 
 # ----------------------------------------------------------------------------------
@@ -262,8 +286,9 @@ class _ParticleFilterBase:
     """Weights, resampling (a gate and a resampler component), skipped-measurement
     bookkeeping and outputs."""
 
-    def __init__(self, num_particles, resample_threshold, resampler=None):
+    def __init__(self, num_particles, resample_threshold, resampler=None, kernel="numba"):
         self.num_particles = check_int("num_particles", num_particles, 1)
+        self.kernel = _check_kernel(kernel)
         self.resampling_gate = EffectiveSampleSizeGate(resample_threshold)
         self.resampler = SystematicResampler() if resampler is None else resampler
         n = self.num_particles
@@ -344,7 +369,8 @@ class _ParticleFilterBase:
         if checked is None:
             return False
         yv, U, sigma = checked
-        self._reweight(vector_log_likelihood(self.particles[:, :3], yv, U, sigma))
+        log_likelihood = _kernels().vector_log_likelihood if self.kernel == "numba" else vector_log_likelihood
+        self._reweight(log_likelihood(self.particles[:, :3], yv, U, sigma))
         self.n_updates += 1
         self._maybe_resample(rng)
         return True
@@ -430,6 +456,8 @@ class BootstrapParticleFilter(_ParticleFilterBase):
             (:class:`EffectiveSampleSizeGate`).
         resampler: which particles survive (default :class:`SystematicResampler`); any
             object with ``indices(weights, rng) -> (N,) int array``.
+        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code);
+            equal to round-off (module docstring).
 
     Attributes:
         particles: ``(N, 6)`` ``[rho; b]``. weights: ``(N,)`` normalized weights.
@@ -438,8 +466,9 @@ class BootstrapParticleFilter(_ParticleFilterBase):
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                  arw_rad_per_rt_s: float, rng: np.random.Generator, *,
-                 bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0, resampler=None):
-        super().__init__(num_particles, resample_threshold, resampler)
+                 bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0, resampler=None,
+                 kernel: str = "numba"):
+        super().__init__(num_particles, resample_threshold, resampler, kernel)
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
         P0 = check_covariance("covariance0", covariance0, 6)
@@ -472,8 +501,11 @@ class BootstrapParticleFilter(_ParticleFilterBase):
         w = w_meas - self.particles[:, 3:]
         if self.arw_rad_per_rt_s > 0.0:
             w = w - rng.standard_normal((n, 3)) * (self.arw_rad_per_rt_s / np.sqrt(dt))
-        q = quat_multiply(mrp_to_quat(self.particles[:, :3]), rotvec_to_quat(w * dt))
-        self.particles[:, :3] = quat_to_mrp(q)
+        if self.kernel == "numba":
+            self.particles[:, :3] = _kernels().propagate_attitudes(self.particles[:, :3], w, dt)
+        else:
+            q = quat_multiply(mrp_to_quat(self.particles[:, :3]), rotvec_to_quat(w * dt))
+            self.particles[:, :3] = quat_to_mrp(q)
         self.particles[:, 3:] = self.roughening.apply(self.particles[:, 3:], dt, rng)
 
 # ----------------------------------------------------------------------------------
@@ -531,6 +563,9 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
             1 (default) is the paper's EKF proposal; > 1 uses the iterated EKF update
             (Gauss-Newton), a beyond-the-paper option that lets every particle reach the
             measurement's basin from a large initial error (e.g. 170 deg) in one step.
+        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code:
+            :func:`~drake_att.filters.mrp_ekf.ekf_predict`, ``ekf_update`` and the lines of
+            :meth:`update`); equal to round-off (module docstring).
 
     Attributes:
         particles: ``(N, 6)`` ``[rho; b]``. covariances: ``(N, 6, 6)`` (MRP chart).
@@ -539,8 +574,9 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                  arw_rad_per_rt_s: float, rrw_rad_per_s15: float, rng: np.random.Generator, *,
-                 resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1, resampler=None):
-        super().__init__(num_particles, resample_threshold, resampler)
+                 resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1, resampler=None,
+                 kernel: str = "numba"):
+        super().__init__(num_particles, resample_threshold, resampler, kernel)
         self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
@@ -570,7 +606,8 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         if rng is not None:
             _check_rng(rng)
         w_meas = self._gyro(w_meas)
-        self.particles, self.covariances = ekf_predict(
+        predict = _kernels().ekf_predict if self.kernel == "numba" else ekf_predict
+        self.particles, self.covariances = predict(
             self.particles, self.covariances, w_meas, dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
 
     def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
@@ -589,13 +626,27 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         if checked is None:
             return False
         yv, U, sigma = checked
-        n = self.num_particles
+        # The proposal's standard normals (no other draw before the resampler's).
+        eps = rng.standard_normal((self.num_particles, 6))
+        step = None
+        if self.kernel == "numba":  # None if a Cholesky factor needs the repair below
+            step = _kernels().ekpf_update(self.particles, self.covariances, eps, yv, U, sigma,
+                                          iterations=self.proposal_iterations)
+        x, P, log_increment = self._proposal_step(yv, U, sigma, eps) if step is None else step
+        self._reweight(log_increment)
+        self.particles, self.covariances = x, P
+        self.n_updates += 1
+        self._maybe_resample(rng)
+        return True
+
+    def _proposal_step(self, yv, U, sigma, eps):
+        """The reference (numpy) measurement step: ``(x, P, log-weight increment)`` of every
+        particle for the proposal draws ``x = m+ + L+ eps``."""
         m_prior, P_prior = self.particles, self.covariances
         m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False,
-                                        iterations=self.proposal_iterations)
+                                          iterations=self.proposal_iterations)
         # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
         L_post = _robust_cholesky(P_post)
-        eps = rng.standard_normal((n, 6))
         x = m_post + (L_post @ eps[:, :, None])[:, :, 0]
         log_q = -0.5 * np.sum(eps * eps, axis=1) - np.sum(
             np.log(np.diagonal(L_post, axis1=1, axis2=2)), axis=1)
@@ -605,11 +656,8 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         log_pi = -0.5 * np.sum(z * z, axis=1) - np.sum(
             np.log(np.diagonal(L_prior, axis1=1, axis2=2)), axis=1)
         log_lik = vector_log_likelihood(x[:, :3], yv, U, sigma)
-        self._reweight(log_lik + log_pi - log_q)
-        self.particles, self.covariances, _ = switch_to_short_mrp(x, P_post)
-        self.n_updates += 1
-        self._maybe_resample(rng)
-        return True
+        x, P, _ = switch_to_short_mrp(x, P_post)
+        return x, P, log_lik + log_pi - log_q
 
 
 # ----------------------------------------------------------------------------------
@@ -642,6 +690,8 @@ class GyrolessParticleFilter(_ParticleFilterBase):
         num_substeps: RK4 substeps per :meth:`predict`, >= 1 (default 1).
         resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
         resampler: default :class:`SystematicResampler` (see :class:`BootstrapParticleFilter`).
+        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code);
+            equal to round-off (module docstring).
 
     Attributes:
         particles: ``(N, 6)`` ``[rho; w]``. weights, n_skipped, n_updates, n_resamples.
@@ -650,8 +700,8 @@ class GyrolessParticleFilter(_ParticleFilterBase):
     def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
                  rate_process_sigma: float, rng: np.random.Generator, *,
                  attitude_process_sigma: float = 0.0, num_substeps: int = 1,
-                 resample_threshold: float = 2.0 / 3.0, resampler=None):
-        super().__init__(num_particles, resample_threshold, resampler)
+                 resample_threshold: float = 2.0 / 3.0, resampler=None, kernel: str = "numba"):
+        super().__init__(num_particles, resample_threshold, resampler, kernel)
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         w0 = check_array("w_hat0", w_hat0, (3,), " (rad/s)")
         P0 = check_covariance("covariance0", covariance0, 6)
@@ -683,26 +733,35 @@ class GyrolessParticleFilter(_ParticleFilterBase):
         _check_rng(rng)
         T = self.torque if torque is None else check_array("torque", torque, (3,), " (N m)")
         n = self.num_particles
-        q = mrp_to_quat(self.particles[:, :3])
-        w = self.particles[:, 3:].copy()
         h = dt / self.num_substeps
-        for _ in range(self.num_substeps):
-            k1 = self._w_dot(w, T)
-            wa = w + 0.5 * h * k1
-            k2 = self._w_dot(wa, T)
-            wb = w + 0.5 * h * k2
-            k3 = self._w_dot(wb, T)
-            w1 = w + h * k3
-            k4 = self._w_dot(w1, T)
-            w_avg = (w + 2.0 * wa + 2.0 * wb + w1) / 6.0
-            q = quat_multiply(q, rotvec_to_quat(w_avg * h))
-            w = w + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        # Attitude noise (applied after the deterministic step): drawn first, as no other draw
+        # comes between.
+        dtheta = None
         if self.attitude_process_sigma > 0.0:
             dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
-            q = quat_multiply(q, rotvec_to_quat(dtheta))
+        if self.kernel == "numba":
+            rho, w = _kernels().gyroless_propagate(self.particles[:, :3], self.particles[:, 3:], self.inertia,
+                                                   self.inertia_inverse, T, h, self.num_substeps, dtheta)
+        else:
+            q = mrp_to_quat(self.particles[:, :3])
+            w = self.particles[:, 3:].copy()
+            for _ in range(self.num_substeps):
+                k1 = self._w_dot(w, T)
+                wa = w + 0.5 * h * k1
+                k2 = self._w_dot(wa, T)
+                wb = w + 0.5 * h * k2
+                k3 = self._w_dot(wb, T)
+                w1 = w + h * k3
+                k4 = self._w_dot(w1, T)
+                w_avg = (w + 2.0 * wa + 2.0 * wb + w1) / 6.0
+                q = quat_multiply(q, rotvec_to_quat(w_avg * h))
+                w = w + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            if dtheta is not None:
+                q = quat_multiply(q, rotvec_to_quat(dtheta))
+            rho = quat_to_mrp(q)
         if self.rate_process_sigma > 0.0:
             w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
-        self.particles[:, :3] = quat_to_mrp(q)
+        self.particles[:, :3] = rho
         self.particles[:, 3:] = w
 
 

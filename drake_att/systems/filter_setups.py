@@ -122,12 +122,13 @@ _PF_PORTS_DOC = """
 
 def bootstrap_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                        arw_rad_per_rt_s: float, bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0,
-                       gyro: str | None = None) -> EstimatorSetup:
-    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+                       gyro: str | None = None, kernel: str = "numba") -> EstimatorSetup:
+    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name; ``kernel``:
+    ``"numba"`` or ``"numpy"``, see :mod:`drake_att.filters.particle`)."""
     P0 = _covariance0(covariance0)
     return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS, lambda rng: BootstrapParticleFilter(
         num_particles, q_IB_hat0, bias_hat0, P0, arw_rad_per_rt_s, rng, bias_roughening_sigma=bias_roughening_sigma,
-        resample_threshold=resample_threshold))
+        resample_threshold=resample_threshold, kernel=kernel))
 
 
 def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
@@ -156,13 +157,15 @@ BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:c
 
 def ekpf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                arw_rad_per_rt_s: float, rrw_rad_per_s15: float, proposal_iterations: int = 1,
-               resample_threshold: float = 2.0 / 3.0, gyro: str | None = None) -> EstimatorSetup:
-    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+               resample_threshold: float = 2.0 / 3.0, gyro: str | None = None, kernel: str = "numba") -> EstimatorSetup:
+    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name; ``kernel``: ``"numba"``
+    or ``"numpy"``, see :mod:`drake_att.filters.particle`)."""
     P0 = _covariance0(covariance0)
     return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS,
                            lambda rng: ExtendedKalmanParticleFilter(
                                num_particles, q_IB_hat0, bias_hat0, P0, arw_rad_per_rt_s, rrw_rad_per_s15, rng,
-                               proposal_iterations=proposal_iterations, resample_threshold=resample_threshold))
+                               proposal_iterations=proposal_iterations, resample_threshold=resample_threshold,
+                               kernel=kernel))
 
 
 def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
@@ -192,8 +195,9 @@ EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~
 
 def gyroless_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0, covariance0,
                       inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
-                      num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSetup:
-    """The setup of :func:`GyrolessPfEstimator` (same arguments)."""
+                      num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0, kernel: str = "numba") -> EstimatorSetup:
+    """The setup of :func:`GyrolessPfEstimator` (same arguments; ``kernel``: ``"numba"`` or ``"numpy"``, see
+    :mod:`drake_att.filters.particle`)."""
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
         I = np.diag(I)
@@ -202,7 +206,7 @@ def gyroless_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_
                            lambda rng: GyrolessParticleFilter(
                                num_particles, q_IB_hat0, w_hat0, P0, I, torque, rate_process_sigma, rng,
                                attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
-                               resample_threshold=resample_threshold))
+                               resample_threshold=resample_threshold, kernel=kernel))
 
 
 def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0,

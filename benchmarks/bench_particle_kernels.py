@@ -1,0 +1,231 @@
+#!/usr/bin/env python3
+"""A/B of the S0 particle filters' compiled kernels (issue 13): per-step and whole-run CPU
+time of an old checkout (numpy code) against this one with ``kernel="numpy"`` and
+``kernel="numba"``, in one run, as ratios; plus numba's first-compile and cache-load cost.
+
+Usage::
+
+    git worktree add /tmp/wt_pf_base <commit before the kernels>
+    .venv/bin/python benchmarks/bench_particle_kernels.py --old /tmp/wt_pf_base [--rounds 7]
+        [--steps 100] [--particles 1000] [--duration 1000] [--no-scenario] [--no-compile]
+
+**Per step.** Each measurement is a fresh interpreter with ``PYTHONPATH`` at one checkout: it
+builds the filter with ``--particles`` particles on ``bench_particle_filters.py``'s synthetic
+S0 data (1 s steps, two star vectors at 100 urad), runs 5 warm-up steps (numba loads or
+compiles its kernels there), then times ``--steps`` predict + update pairs one by one with
+``time.process_time`` (this process's CPU time: robust to other tenants of a shared VM).
+Reported per filter: the best and the median step over all rounds, and the old / new ratio
+of the bests and the median [range] of the per-round ratios of the median steps (above 1:
+new is faster). The rounds alternate old, new numpy, new numba, so drifting load hits all.
+
+**Whole run.** ``s0_particle_filters_small_error`` with the EKPF only
+(``ScenarioDiagram.simulate(seed, estimators=["ekpf"])``, ``--duration`` s): the CPU time of
+``simulate(seed=2)`` after a 20-s warm-up run in the same process (diagram built once).
+
+**First compile.** Two fresh interpreters with ``NUMBA_CACHE_DIR`` at a new empty directory:
+the first compiles every kernel (cold cache) and writes the cache, the second loads it.
+Reported: the import of numba and of the kernel module, and the first call of the EKPF, the
+bootstrap PF and the gyroless PF (each then compiles or loads its kernels).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+STEP_CHILD = r"""
+import json, sys, time
+import numpy as np
+from drake_att import rotations as rot
+from drake_att.filters.mrp_ekf import vector_measurement_model
+from drake_att.filters.particle import (BootstrapParticleFilter, ExtendedKalmanParticleFilter,
+                                        GyrolessParticleFilter)
+kernel, n, steps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+kw = {} if kernel == "old" else {"kernel": kernel}
+DEG, HOUR = np.pi / 180.0, 3600.0
+SV, SU, SIG = 0.2 * DEG / HOUR, 0.02 * DEG / HOUR / np.sqrt(HOUR), 100e-6
+REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+rng = np.random.default_rng(0)
+w, b, q = np.array([1e-3, -5e-4, 2e-4]), np.full(3, DEG / HOUR), np.array([1.0, 0.0, 0.0, 0.0])
+ys, wms = [], []
+for _ in range(steps + 6):
+    ys.append(vector_measurement_model(rot.quat_to_mrp(q), REFS) + SIG * rng.standard_normal(6))
+    wms.append(w + b + SV * rng.standard_normal(3))
+    b = b + SU * rng.standard_normal(3)
+    q = rot.quat_propagate(q, w, 1.0)
+q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
+b0 = np.full(3, 2 * DEG / HOUR)
+P0 = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
+P0g = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
+out = {}
+for name in ("EKPF", "bootstrap PF", "gyroless PF"):
+    r = np.random.default_rng(3)
+    if name == "EKPF":
+        f = ExtendedKalmanParticleFilter(n, q0, b0, P0, SV, SU, r, **kw)
+        predict = lambda k: f.predict(1.0, wms[k], r)
+    elif name == "bootstrap PF":
+        f = BootstrapParticleFilter(n, q0, b0, P0, 2e-5, r, bias_roughening_sigma=3e-7, **kw)
+        predict = lambda k: f.predict(1.0, wms[k], r)
+    else:
+        f = GyrolessParticleFilter(n, q0, np.full(3, 0.001 * DEG), P0g, np.diag([100.0, 200.0, 200.0]),
+                                   np.full(3, 1e-5), 1e-6, r, attitude_process_sigma=3e-5, **kw)
+        predict = lambda k: f.predict(1.0, r)
+    t0 = time.process_time()
+    f.update(ys[0], REFS, SIG, r)
+    first = time.process_time() - t0
+    for k in range(5):
+        predict(k)
+        f.update(ys[k + 1], REFS, SIG, r)
+    times = []
+    for k in range(5, 5 + steps):
+        t0 = time.process_time()
+        predict(k)
+        f.update(ys[k + 1], REFS, SIG, r)
+        times.append(time.process_time() - t0)
+    out[name] = {"times": times, "first_update_s": first}
+print(json.dumps(out))
+"""
+
+SCENARIO_CHILD = r"""
+import json, sys, time
+from drake_att.scenarios.builder import ScenarioDiagram
+from drake_att.scenarios.config import apply_overrides
+from drake_att.scenarios.library import load
+kernel, duration = sys.argv[1], float(sys.argv[2])
+s = apply_overrides(load("s0_particle_filters_small_error"),
+                    [f"duration_s={duration}", f"scoring.score_from_s={duration / 10}"])
+sd = ScenarioDiagram(s)
+over = [] if kernel == "old" else [f"estimators.ekpf.kernel={kernel}"]
+t0 = time.process_time()
+sd.simulate(1, estimators=["ekpf"], overrides=over + ["duration_s=20"])
+warm = time.process_time() - t0
+t0 = time.process_time()
+sd.simulate(2, estimators=["ekpf"], overrides=over)
+print(json.dumps({"cpu_s": time.process_time() - t0, "warm_up_s": warm}))
+"""
+
+COMPILE_CHILD = r"""
+import json, time
+t0 = time.perf_counter()
+import numba
+t_numba = time.perf_counter() - t0
+t0 = time.perf_counter()
+from drake_att.filters import particle_kernels
+t_module = time.perf_counter() - t0
+import numpy as np
+from drake_att.filters.particle import (BootstrapParticleFilter, ExtendedKalmanParticleFilter,
+                                        GyrolessParticleFilter)
+P0 = np.diag([1e-4] * 3 + [1e-10] * 3)
+y, refs = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0]), np.eye(3)[:2]
+out = {"import numba": t_numba, "import particle_kernels": t_module, "caching": particle_kernels.CACHING}
+r = np.random.default_rng(0)
+for name, make, predict in (
+        ("EKPF", lambda: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0, 1e-6, 1e-9, r),
+         lambda f: f.predict(1.0, np.zeros(3))),
+        ("bootstrap PF", lambda: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0, 1e-6, r),
+         lambda f: f.predict(1.0, np.zeros(3), r)),
+        ("gyroless PF", lambda: GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0, np.eye(3), np.zeros(3),
+                                                       1e-6, r, attitude_process_sigma=1e-6),
+         lambda f: f.predict(1.0, r))):
+    f = make()
+    t0 = time.perf_counter()
+    predict(f)
+    f.update(y, refs, 1e-4, r)
+    out[f"first step, {name}"] = time.perf_counter() - t0
+print(json.dumps(out))
+"""
+
+
+def child(checkout: str, code: str, args, env_extra=None) -> dict:
+    env = dict(os.environ, PYTHONPATH=os.path.abspath(checkout), MPLBACKEND="Agg", **(env_extra or {}))
+    out = subprocess.run([sys.executable, "-c", code, *map(str, args)], env=env, capture_output=True, text=True,
+                         cwd=os.path.abspath(checkout))
+    if out.returncode != 0:
+        raise SystemExit(f"{checkout} {args}: failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def median(v):
+    return statistics.median(v)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--old", required=True, help="checkout of the commit before the kernels (git worktree)")
+    ap.add_argument("--new", default=os.path.join(HERE, os.pardir))
+    ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument("--steps", type=int, default=100, help="timed steps per filter and child")
+    ap.add_argument("--particles", type=int, default=1000)
+    ap.add_argument("--duration", type=float, default=1000.0, help="simulated seconds of the S0 run")
+    ap.add_argument("--no-scenario", action="store_true", help="skip the whole-run A/B")
+    ap.add_argument("--no-compile", action="store_true", help="skip the first-compile measurement")
+    args = ap.parse_args(argv)
+    variants = (("old", args.old, "old"), ("new numpy", args.new, "numpy"), ("new numba", args.new, "numba"))
+    print(f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
+          f"{args.rounds} rounds (old, new numpy, new numba in turn); N = {args.particles}; CPU time "
+          f"(time.process_time); 1-min load average {os.getloadavg()[0]:.2f} at start, {os.cpu_count()} CPUs")
+
+    steps = {v: [] for v, _, _ in variants}  # per round: {filter: times}
+    for _ in range(args.rounds):
+        for v, tree, kernel in variants:
+            steps[v].append(child(tree, STEP_CHILD, [kernel, args.particles, args.steps]))
+    filters = list(steps["old"][0])
+    print(f"\nPer step (predict + update), ms of CPU; {args.steps} steps x {args.rounds} rounds per cell")
+    print("| filter | old best / median | new numpy best / median | new numba best / median "
+          "| old / numba, best/best | old / numba, median of per-round median ratios [range] "
+          "| old / new numpy, same |")
+    print("|---|---|---|---|---|---|---|")
+    for f in filters:
+        cell, med_round = {}, {}
+        for v, _, _ in variants:
+            all_t = [t for r in steps[v] for t in r[f]["times"]]
+            cell[v] = (1e3 * min(all_t), 1e3 * median(all_t))
+            med_round[v] = [median(r[f]["times"]) for r in steps[v]]
+        ratio = sorted(o / n for o, n in zip(med_round["old"], med_round["new numba"]))
+        ratio_np = sorted(o / n for o, n in zip(med_round["old"], med_round["new numpy"]))
+        print(f"| {f} | {cell['old'][0]:.2f} / {cell['old'][1]:.2f} | {cell['new numpy'][0]:.2f} / "
+              f"{cell['new numpy'][1]:.2f} | {cell['new numba'][0]:.3f} / {cell['new numba'][1]:.3f} | "
+              f"{cell['old'][0] / cell['new numba'][0]:.1f} | {median(ratio):.1f} [{ratio[0]:.1f}, {ratio[-1]:.1f}] | "
+              f"{median(ratio_np):.2f} [{ratio_np[0]:.2f}, {ratio_np[-1]:.2f}] |")
+
+    if not args.no_scenario:
+        runs = {v: [] for v, _, _ in variants}
+        for _ in range(args.rounds):
+            for v, tree, kernel in variants:
+                runs[v].append(child(tree, SCENARIO_CHILD, [kernel, args.duration]))
+        print(f"\nWhole run: s0_particle_filters_small_error, EKPF only, {args.duration:.0f} s simulated, "
+              f"CPU s of simulate()")
+        print("| variant | best | median | old / variant, best/best | old / variant, median of per-round ratios "
+              "[range] |")
+        print("|---|---|---|---|---|")
+        for v, _, _ in variants:
+            t = [r["cpu_s"] for r in runs[v]]
+            rr = sorted(o["cpu_s"] / n["cpu_s"] for o, n in zip(runs["old"], runs[v]))
+            print(f"| {v} | {min(t):.2f} | {median(t):.2f} | {min(r['cpu_s'] for r in runs['old']) / min(t):.2f} | "
+                  f"{median(rr):.2f} [{rr[0]:.2f}, {rr[-1]:.2f}] |")
+
+    if not args.no_compile:
+        with tempfile.TemporaryDirectory(prefix="numba_cache_") as cache:
+            env = {"NUMBA_CACHE_DIR": cache}
+            cold = child(args.new, COMPILE_CHILD, [], env)
+            warm = child(args.new, COMPILE_CHILD, [], env)
+            size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(cache) for f in fs)
+        print(f"\nFirst compile (NUMBA_CACHE_DIR = a new empty directory; wall s; cache written: "
+              f"{size / 1e6:.1f} MB)")
+        print("| | cold cache (compiles) | warm cache (loads) |")
+        print("|---|---|---|")
+        for k in cold:
+            if k == "caching":
+                continue
+            print(f"| {k} | {cold[k]:.2f} | {warm[k]:.2f} |")
+
+
+if __name__ == "__main__":
+    main()

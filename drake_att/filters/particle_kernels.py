@@ -1,0 +1,815 @@
+"""Compiled kernels of the S0 particle filters' batched steps (numba ``njit``, cached on disk).
+
+The numpy code is the specification and the test oracle: every public function here
+computes what the reference function it names computes, with explicit loops over the
+particles instead of ~50 batched numpy calls, and agrees with it to round-off
+(``tests/test_particle_kernels.py``). The filters of :mod:`drake_att.filters.particle`
+choose between the two with their ``kernel`` argument (``"numba"``, the default, or
+``"numpy"``); nothing else changes.
+
+==========================================  ====================================================
+here                                         reference
+==========================================  ====================================================
+:func:`propagate_attitudes`                  ``quat_to_mrp(quat_multiply(mrp_to_quat(rho),
+                                             rotvec_to_quat(w dt)))`` (bootstrap PF predict)
+:func:`vector_log_likelihood`                :func:`drake_att.filters.particle.vector_log_likelihood`
+:func:`gyroless_propagate`                   the deterministic part (RK4 + closed-form attitude,
+                                             attitude noise) of ``GyrolessParticleFilter.predict``
+:func:`ekf_predict`                          :func:`drake_att.filters.mrp_ekf.ekf_predict`
+:func:`ekf_update`                           ``ekf_update(..., switch=False)[:2]`` (same module)
+:func:`ekpf_update`                          ``ExtendedKalmanParticleFilter.update`` up to the
+                                             reweighting: EKF update, Cholesky factors, proposal
+                                             draw, the three log densities, shadow switch
+==========================================  ====================================================
+
+**Same numbers, not just the same maths.** No ``fastmath`` (no reassociation, no fused
+multiply-add), and each scalar expression is written in the reference's order of
+operations; what differs is the summation order inside small matrix products (numpy's
+batched ``matmul``/``einsum``/``solve`` use BLAS/LAPACK kernels whose order is their
+own) and the last bit of ``sin``/``cos``/``sqrt``-based library calls, i.e. round-off.
+Only terms that are *exactly* zero in the reference are skipped: the zero rows of the
+dynamics Jacobian ``F = [[J, -B], [0, 0]]`` (so ``Phi = [[Phi_1, Phi_2], [0, I]]``), the
+zero off-diagonal blocks of ``Qg``, and the zero bias columns of the measurement Jacobian
+``H = [H_rho, 0]`` (so ``I - K H`` has identity bias columns). No random numbers are drawn
+here: the filters draw them from their ``numpy.random.Generator`` in the reference's order
+and pass them in, and keep the weight normalization and the systematic-resampling
+cumulative sums in numpy, so a run differs from the reference run by round-off only.
+
+**Cache.** ``cache=True``: the first call of each kernel in a fresh environment compiles it
+(about 10 s for all of them; ``benchmarks/README.md`` has the measured figures) and writes
+the machine code to numba's cache — ``__pycache__`` next to this file, or, where that is
+not writable (a read-only site-packages), the user-wide cache (``~/.cache/numba``, or
+``$NUMBA_CACHE_DIR`` when set); later processes load it in milliseconds. If no cache
+location is writable at all, the kernels are compiled in every process instead (no
+warning, no error): :data:`CACHING` says which.
+
+Shapes: ``rho`` ``(N, 3)`` MRPs; ``x`` ``(N, 6)`` ``[rho; b]``; ``P`` ``(N, 6, 6)`` (MRP chart);
+``y`` ``(3m,)``; ``ref_vectors_I`` ``(m, 3)``. Inputs are converted to C-contiguous float64
+(one compiled specialization per kernel); outputs are new arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = [
+    "CACHING",
+    "propagate_attitudes",
+    "vector_log_likelihood",
+    "gyroless_propagate",
+    "ekf_predict",
+    "ekf_update",
+    "ekpf_update",
+]
+
+_SMALL_ANGLE = 1e-4  # = drake_att.rotations._SMALL_ANGLE (series of sin(a/2)/a below it)
+
+CACHING = True
+
+
+def _jit(func):
+    """``numba.njit(cache=True)``; where numba finds no writable cache directory (it raises
+    RuntimeError at decoration), ``numba.njit`` without the on-disk cache."""
+    global CACHING
+    try:
+        return numba.njit(cache=True)(func)
+    except RuntimeError:
+        CACHING = False
+        return numba.njit(func)
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+# ----------------------------------------------------------------------------------
+# Scalar building blocks (drake_att.rotations, one particle at a time)
+# ----------------------------------------------------------------------------------
+@_jit
+def _mrp_to_quat(r0, r1, r2):
+    """rotations.mrp_to_quat."""
+    n2 = r0 * r0 + r1 * r1 + r2 * r2
+    d = 1.0 + n2
+    return (1.0 - n2) / d, 2.0 * r0 / d, 2.0 * r1 / d, 2.0 * r2 / d
+
+
+@_jit
+def _rotvec_to_quat(x, y, z):
+    """rotations.rotvec_to_quat: exp(phi / 2)."""
+    a = math.sqrt(x * x + y * y + z * z)
+    half = 0.5 * a
+    if a < _SMALL_ANGLE:
+        k = 0.5 - a * a / 48.0
+    else:
+        k = math.sin(half) / a
+    return math.cos(half), k * x, k * y, k * z
+
+
+@_jit
+def _quat_multiply(pw, px, py, pz, qw, qx, qy, qz):
+    """rotations.quat_multiply (Hamilton product p ⊗ q)."""
+    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+
+
+@_jit
+def _quat_to_mrp(w, x, y, z):
+    """rotations.quat_to_mrp: MRP of the normalized, sign-canonical quaternion (|p| <= 1)."""
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    d = 1.0 + w
+    return x / d, y / d, z / d
+
+
+@_jit
+def _mrp_step(r0, r1, r2, w0, w1, w2, dt):
+    """``q(rho) ⊗ exp(w dt / 2)`` as a quaternion (not normalized, sign kept)."""
+    qw, qx, qy, qz = _mrp_to_quat(r0, r1, r2)
+    dw, dx, dy, dz = _rotvec_to_quat(w0 * dt, w1 * dt, w2 * dt)
+    return _quat_multiply(qw, qx, qy, qz, dw, dx, dy, dz)
+
+
+@_jit
+def _propagate_mrp(r0, r1, r2, w0, w1, w2, dt):
+    """mrp_ekf.propagate_mrp: the MRP after a constant-rate step, same chart (sign of q kept)."""
+    qw, qx, qy, qz = _mrp_step(r0, r1, r2, w0, w1, w2, dt)
+    d = 1.0 + qw
+    return qx / d, qy / d, qz / d
+
+
+@_jit
+def _kinematics_matrix(r0, r1, r2, B):
+    """rotations.mrp_kinematics_matrix into ``B`` (3, 3):
+    ``1/4 [(1 - p'p) I + 2 [p x] + 2 p p']``."""
+    n2 = r0 * r0 + r1 * r1 + r2 * r2
+    c = 1.0 - n2
+    B[0, 0] = 0.25 * (c + 2.0 * r0 * r0)
+    B[0, 1] = 0.25 * (2.0 * -r2 + 2.0 * r0 * r1)
+    B[0, 2] = 0.25 * (2.0 * r1 + 2.0 * r0 * r2)
+    B[1, 0] = 0.25 * (2.0 * r2 + 2.0 * r1 * r0)
+    B[1, 1] = 0.25 * (c + 2.0 * r1 * r1)
+    B[1, 2] = 0.25 * (2.0 * -r0 + 2.0 * r1 * r2)
+    B[2, 0] = 0.25 * (2.0 * -r1 + 2.0 * r2 * r0)
+    B[2, 1] = 0.25 * (2.0 * r0 + 2.0 * r2 * r1)
+    B[2, 2] = 0.25 * (c + 2.0 * r2 * r2)
+
+
+@_jit
+def _measurement(r0, r1, r2, U, h):
+    """mrp_ekf.vector_measurement_model into ``h`` (3m,): ``[R_BI u_1; ...]`` with
+    ``R_IB = I + (8 [p x]^2 + 4 (1 - p'p) [p x]) / (1 + p'p)^2`` (rotations.mrp_to_rotmat)."""
+    n2 = r0 * r0 + r1 * r1 + r2 * r2
+    den = (1.0 + n2) * (1.0 + n2)
+    c4 = 4.0 * (1.0 - n2)
+    # [p x]^2 = p p' - n2 I (written as the reference's 3-term matrix product)
+    K00, K01, K02 = 0.0, -r2, r1
+    K10, K11, K12 = r2, 0.0, -r0
+    K20, K21, K22 = -r1, r0, 0.0
+    S00 = K00 * K00 + K01 * K10 + K02 * K20
+    S01 = K00 * K01 + K01 * K11 + K02 * K21
+    S02 = K00 * K02 + K01 * K12 + K02 * K22
+    S10 = K10 * K00 + K11 * K10 + K12 * K20
+    S11 = K10 * K01 + K11 * K11 + K12 * K21
+    S12 = K10 * K02 + K11 * K12 + K12 * K22
+    S20 = K20 * K00 + K21 * K10 + K22 * K20
+    S21 = K20 * K01 + K21 * K11 + K22 * K21
+    S22 = K20 * K02 + K21 * K12 + K22 * K22
+    R00 = 1.0 + (8.0 * S00 + c4 * K00) / den
+    R01 = (8.0 * S01 + c4 * K01) / den
+    R02 = (8.0 * S02 + c4 * K02) / den
+    R10 = (8.0 * S10 + c4 * K10) / den
+    R11 = 1.0 + (8.0 * S11 + c4 * K11) / den
+    R12 = (8.0 * S12 + c4 * K12) / den
+    R20 = (8.0 * S20 + c4 * K20) / den
+    R21 = (8.0 * S21 + c4 * K21) / den
+    R22 = 1.0 + (8.0 * S22 + c4 * K22) / den
+    for m in range(U.shape[0]):
+        u0, u1, u2 = U[m, 0], U[m, 1], U[m, 2]
+        # (R_IB' u)_k = sum_j R_IB[j, k] u_j
+        h[3 * m] = R00 * u0 + R10 * u1 + R20 * u2
+        h[3 * m + 1] = R01 * u0 + R11 * u1 + R21 * u2
+        h[3 * m + 2] = R02 * u0 + R12 * u1 + R22 * u2
+
+
+@_jit
+def _log_likelihood(r0, r1, r2, y, U, sigma2, h):
+    """particle.vector_log_likelihood of one particle (``h``: scratch (3m,))."""
+    _measurement(r0, r1, r2, U, h)
+    s = 0.0
+    for k in range(y.shape[0]):
+        r = y[k] - h[k]
+        s += r * r
+    ll = -0.5 * s / sigma2
+    if not math.isfinite(ll):
+        return -math.inf
+    return ll
+
+
+@_jit
+def _switch_to_short_mrp(x, P, T, TP):
+    """mrp_ekf.switch_to_short_mrp of one particle, in place: if ``|rho| > 1``, ``rho ->
+    -rho / |rho|^2`` and ``P -> sym(T P T')`` with ``T = diag(ds/drho, I)``
+    (``T``, ``TP``: (3, 3) and (6, 6) scratch)."""
+    r0, r1, r2 = x[0], x[1], x[2]
+    n2 = r0 * r0 + r1 * r1 + r2 * r2
+    if not n2 > 1.0:
+        return
+    n4 = n2 * n2
+    for a in range(3):
+        for b in range(3):
+            T[a, b] = (2.0 * x[a] * x[b] - (n2 if a == b else 0.0)) / n4
+    x[0], x[1], x[2] = -r0 / n2, -r1 / n2, -r2 / n2
+    for a in range(6):
+        for c in range(6):
+            if a < 3:
+                TP[a, c] = T[a, 0] * P[0, c] + T[a, 1] * P[1, c] + T[a, 2] * P[2, c]
+            else:
+                TP[a, c] = P[a, c]
+    for a in range(6):
+        for b in range(3):
+            P[a, b] = TP[a, 0] * T[b, 0] + TP[a, 1] * T[b, 1] + TP[a, 2] * T[b, 2]
+        for b in range(3, 6):
+            P[a, b] = TP[a, b]
+    for a in range(6):
+        for b in range(a + 1, 6):
+            s = 0.5 * (P[a, b] + P[b, a])
+            P[a, b] = s
+            P[b, a] = s
+
+
+@_jit
+def _cholesky_factor(A, L, inv):
+    """Lower Cholesky factor of the symmetric ``A`` (lower triangle read) into ``L`` (its upper
+    triangle is not written) and the reciprocals of its diagonal into ``inv`` (LAPACK's dpotf2
+    also scales by the reciprocal pivot); False if ``A`` is not positive definite (a pivot
+    <= 0 or NaN)."""
+    d = A.shape[0]
+    for j in range(d):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return False
+        r = math.sqrt(s)
+        L[j, j] = r
+        inv[j] = 1.0 / r
+        for a in range(j + 1, d):
+            t = A[a, j]
+            for k in range(j):
+                t -= L[a, k] * L[j, k]
+            L[a, j] = t * inv[j]
+    return True
+
+
+@_jit
+def _log_det_factor(L, inv):
+    """``log det L = sum log L_jj`` of a Cholesky factor, as one log of the product (as the sum
+    of logs where the product leaves the normal range)."""
+    prod = 1.0
+    for j in range(L.shape[0]):
+        prod *= L[j, j]
+    if 1e-300 < prod < 1e300:
+        return math.log(prod)
+    s = 0.0
+    for j in range(L.shape[0]):
+        s += math.log(L[j, j])
+    return s
+
+
+@_jit
+def _spd_solve(S, C, inv, B):
+    """``S^-1 B`` in place of ``B`` (n, r) through the Cholesky factor of the symmetric ``S``
+    (``C`` (n, n), ``inv`` (n,): scratch); False (``B`` untouched) if ``S`` is not positive
+    definite."""
+    if not _cholesky_factor(S, C, inv):
+        return False
+    n = S.shape[0]
+    r = B.shape[1]
+    for j in range(n):  # C Z = B
+        d = inv[j]
+        for c in range(r):
+            B[j, c] *= d
+        for a in range(j + 1, n):
+            f = C[a, j]
+            for c in range(r):
+                B[a, c] -= f * B[j, c]
+    for j in range(n - 1, -1, -1):  # C' X = Z
+        d = inv[j]
+        for c in range(r):
+            B[j, c] *= d
+        for a in range(j):
+            f = C[j, a]
+            for c in range(r):
+                B[a, c] -= f * B[j, c]
+    return True
+
+
+@_jit
+def _lu_solve(A, B):
+    """``A^-1 B`` in place of ``B`` (n, r) by Gaussian elimination with partial pivoting (as
+    LAPACK's dgesv behind numpy.linalg.solve); ``A`` (n, n) is overwritten. Returns False for an
+    exactly singular ``A``."""
+    n = A.shape[0]
+    r = B.shape[1]
+    for j in range(n):
+        p = j
+        big = abs(A[j, j])
+        for i in range(j + 1, n):
+            if abs(A[i, j]) > big:
+                big = abs(A[i, j])
+                p = i
+        if big == 0.0:
+            return False
+        if p != j:
+            for c in range(n):
+                A[j, c], A[p, c] = A[p, c], A[j, c]
+            for c in range(r):
+                B[j, c], B[p, c] = B[p, c], B[j, c]
+        for i in range(j + 1, n):
+            f = A[i, j] / A[j, j]
+            if f != 0.0:
+                for c in range(j + 1, n):
+                    A[i, c] -= f * A[j, c]
+                for c in range(r):
+                    B[i, c] -= f * B[j, c]
+    for j in range(n - 1, -1, -1):
+        for c in range(r):
+            s = B[j, c]
+            for k in range(j + 1, n):
+                s -= A[j, k] * B[k, c]
+            B[j, c] = s / A[j, j]
+    return True
+
+
+# ----------------------------------------------------------------------------------
+# Bootstrap and gyroless particle filters
+# ----------------------------------------------------------------------------------
+@_jit
+def _propagate_attitudes(rho, w, dt):
+    n = rho.shape[0]
+    out = np.empty((n, 3))
+    for i in range(n):
+        qw, qx, qy, qz = _mrp_step(rho[i, 0], rho[i, 1], rho[i, 2], w[i, 0], w[i, 1], w[i, 2], dt)
+        out[i, 0], out[i, 1], out[i, 2] = _quat_to_mrp(qw, qx, qy, qz)
+    return out
+
+
+def propagate_attitudes(rho, w, dt: float) -> np.ndarray:
+    """``(N, 3)`` short MRPs (``|rho| <= 1``) of ``q(rho_i) ⊗ exp(w_i dt / 2)``, the bootstrap
+    PF's attitude step (``w``: ``(N, 3)`` rad/s, ``dt`` s)."""
+    return _propagate_attitudes(_f64(rho), _f64(w), float(dt))
+
+
+@_jit
+def _vector_log_likelihood(rho, y, U, sigma2):
+    n = rho.shape[0]
+    out = np.empty(n)
+    h = np.empty(y.shape[0])
+    for i in range(n):
+        out[i] = _log_likelihood(rho[i, 0], rho[i, 1], rho[i, 2], y, U, sigma2, h)
+    return out
+
+
+def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
+    """``(N,)`` ``-|y - h(rho_i)|^2 / (2 sigma^2)``, non-finite entries ``-inf``
+    (:func:`drake_att.filters.particle.vector_log_likelihood`)."""
+    return _vector_log_likelihood(_f64(rho), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2)
+
+
+@_jit
+def _w_dot(w0, w1, w2, I, Iinv, T):
+    """``I^-1 (T - w x (I w))`` (GyrolessParticleFilter._w_dot)."""
+    a0 = w0 * I[0, 0] + w1 * I[0, 1] + w2 * I[0, 2]
+    a1 = w0 * I[1, 0] + w1 * I[1, 1] + w2 * I[1, 2]
+    a2 = w0 * I[2, 0] + w1 * I[2, 1] + w2 * I[2, 2]
+    c0 = T[0] - (w1 * a2 - w2 * a1)
+    c1 = T[1] - (w2 * a0 - w0 * a2)
+    c2 = T[2] - (w0 * a1 - w1 * a0)
+    return (c0 * Iinv[0, 0] + c1 * Iinv[0, 1] + c2 * Iinv[0, 2],
+            c0 * Iinv[1, 0] + c1 * Iinv[1, 1] + c2 * Iinv[1, 2],
+            c0 * Iinv[2, 0] + c1 * Iinv[2, 1] + c2 * Iinv[2, 2])
+
+
+@_jit
+def _gyroless_propagate(rho, w_in, I, Iinv, T, h, num_substeps, dtheta, use_dtheta):
+    n = rho.shape[0]
+    rho_out = np.empty((n, 3))
+    w_out = np.empty((n, 3))
+    hh = 0.5 * h
+    h6 = h / 6.0
+    for i in range(n):
+        qw, qx, qy, qz = _mrp_to_quat(rho[i, 0], rho[i, 1], rho[i, 2])
+        w0, w1, w2 = w_in[i, 0], w_in[i, 1], w_in[i, 2]
+        for _ in range(num_substeps):
+            k10, k11, k12 = _w_dot(w0, w1, w2, I, Iinv, T)
+            a0, a1, a2 = w0 + hh * k10, w1 + hh * k11, w2 + hh * k12
+            k20, k21, k22 = _w_dot(a0, a1, a2, I, Iinv, T)
+            b0, b1, b2 = w0 + hh * k20, w1 + hh * k21, w2 + hh * k22
+            k30, k31, k32 = _w_dot(b0, b1, b2, I, Iinv, T)
+            e0, e1, e2 = w0 + h * k30, w1 + h * k31, w2 + h * k32
+            k40, k41, k42 = _w_dot(e0, e1, e2, I, Iinv, T)
+            v0 = (w0 + 2.0 * a0 + 2.0 * b0 + e0) / 6.0
+            v1 = (w1 + 2.0 * a1 + 2.0 * b1 + e1) / 6.0
+            v2 = (w2 + 2.0 * a2 + 2.0 * b2 + e2) / 6.0
+            dw, dx, dy, dz = _rotvec_to_quat(v0 * h, v1 * h, v2 * h)
+            qw, qx, qy, qz = _quat_multiply(qw, qx, qy, qz, dw, dx, dy, dz)
+            w0 = w0 + h6 * (k10 + 2.0 * k20 + 2.0 * k30 + k40)
+            w1 = w1 + h6 * (k11 + 2.0 * k21 + 2.0 * k31 + k41)
+            w2 = w2 + h6 * (k12 + 2.0 * k22 + 2.0 * k32 + k42)
+        if use_dtheta:
+            dw, dx, dy, dz = _rotvec_to_quat(dtheta[i, 0], dtheta[i, 1], dtheta[i, 2])
+            qw, qx, qy, qz = _quat_multiply(qw, qx, qy, qz, dw, dx, dy, dz)
+        rho_out[i, 0], rho_out[i, 1], rho_out[i, 2] = _quat_to_mrp(qw, qx, qy, qz)
+        w_out[i, 0], w_out[i, 1], w_out[i, 2] = w0, w1, w2
+    return rho_out, w_out
+
+
+def gyroless_propagate(rho, w, inertia, inertia_inverse, torque, h: float, num_substeps: int, dtheta=None):
+    """The deterministic step of ``GyrolessParticleFilter.predict`` (``num_substeps`` RK4
+    substeps of ``h`` s on Euler's equations, attitude by the Simpson-averaged rate), then
+    ``q <- q ⊗ exp(dtheta / 2)`` if ``dtheta`` ``(N, 3)`` is given.
+
+    Returns:
+        ``(rho (N, 3) short MRPs, w (N, 3) rad/s)`` (rate process noise not included).
+    """
+    use = dtheta is not None
+    d = _f64(dtheta) if use else np.zeros((0, 3))
+    return _gyroless_propagate(_f64(rho), _f64(w), _f64(inertia), _f64(inertia_inverse), _f64(torque),
+                               float(h), int(num_substeps), d, use)
+
+
+# ----------------------------------------------------------------------------------
+# EKPF: the per-particle MRP EKF (drake_att.filters.mrp_ekf, batched) and the proposal
+# ----------------------------------------------------------------------------------
+@_jit
+def _ekf_predict(x, P, w_meas, dt, half_dt, c2, c3, sv2, su2):
+    n = x.shape[0]
+    x_out = np.empty((n, 6))
+    P_out = np.empty((n, 6, 6))
+    B = np.empty((3, 3))
+    F = np.zeros((3, 6))  # the rows of F = [[J, -B], [0, 0]] that are not zero
+    A = np.empty((3, 6))
+    A2 = np.empty((3, 6))
+    Phi = np.empty((3, 6))  # the rows of Phi = [[Phi_1, Phi_2], [0, I]] that are not those of I
+    Qg = np.empty((3, 3))  # its rho-rho block (sv2 B B'); the bias block is su2 I
+    FQ = np.empty((3, 6))
+    M = np.empty((6, 6))
+    T = np.empty((3, 3))
+    TP = np.empty((6, 6))
+    for i in range(n):
+        Pi = P[i]
+        Pn = P_out[i]
+        b0, b1, b2 = x[i, 3], x[i, 4], x[i, 5]
+        w0, w1, w2 = w_meas[0] - b0, w_meas[1] - b1, w_meas[2] - b2
+        # F at the half-step mean (mrp_dynamics_jacobian): J = d(B w)/drho =
+        # 1/2 [rho w' - w rho' - [w x] + (rho'w) I]
+        m0, m1, m2 = _propagate_mrp(x[i, 0], x[i, 1], x[i, 2], w0, w1, w2, half_dt)
+        rw = m0 * w0 + m1 * w1 + m2 * w2
+        F[0, 0] = 0.5 * (m0 * w0 - w0 * m0 - 0.0 + rw)
+        F[0, 1] = 0.5 * (m0 * w1 - w0 * m1 - -w2 + 0.0)
+        F[0, 2] = 0.5 * (m0 * w2 - w0 * m2 - w1 + 0.0)
+        F[1, 0] = 0.5 * (m1 * w0 - w1 * m0 - w2 + 0.0)
+        F[1, 1] = 0.5 * (m1 * w1 - w1 * m1 - 0.0 + rw)
+        F[1, 2] = 0.5 * (m1 * w2 - w1 * m2 - -w0 + 0.0)
+        F[2, 0] = 0.5 * (m2 * w0 - w2 * m0 - -w1 + 0.0)
+        F[2, 1] = 0.5 * (m2 * w1 - w2 * m1 - w0 + 0.0)
+        F[2, 2] = 0.5 * (m2 * w2 - w2 * m2 - 0.0 + rw)
+        _kinematics_matrix(m0, m1, m2, B)
+        for a in range(3):
+            for c in range(3):
+                F[a, 3 + c] = -B[a, c]
+        # Phi = I + A + A^2 / 2 + A^3 / 6, A = F dt (discrete_transition_matrix)
+        for a in range(3):
+            for c in range(6):
+                A[a, c] = F[a, c] * dt
+        for a in range(3):
+            for c in range(6):
+                A2[a, c] = A[a, 0] * A[0, c] + A[a, 1] * A[1, c] + A[a, 2] * A[2, c]
+        for a in range(3):
+            for c in range(6):
+                A3 = A2[a, 0] * A[0, c] + A2[a, 1] * A[1, c] + A2[a, 2] * A[2, c]
+                Phi[a, c] = (((1.0 if a == c else 0.0) + A[a, c]) + 0.5 * A2[a, c]) + A3 / 6.0
+        # Qd = Qg dt + (F Qg + Qg F') dt^2 / 2 + F Qg F' dt^3 / 3 with Qg = diag(sv2 B B', su2 I)
+        # (discrete_process_noise); F Qg = [[J sv2 B B', -B su2], [0, 0]]
+        for a in range(3):
+            for c in range(3):
+                Qg[a, c] = sv2 * (B[a, 0] * B[c, 0] + B[a, 1] * B[c, 1] + B[a, 2] * B[c, 2])
+        for a in range(3):
+            for c in range(3):
+                FQ[a, c] = F[a, 0] * Qg[0, c] + F[a, 1] * Qg[1, c] + F[a, 2] * Qg[2, c]
+            for c in range(3, 6):
+                FQ[a, c] = F[a, c] * su2
+        # mean: exact for the constant rate over dt (propagate_mrp); the bias is constant
+        x_out[i, 0], x_out[i, 1], x_out[i, 2] = _propagate_mrp(x[i, 0], x[i, 1], x[i, 2], w0, w1, w2, dt)
+        x_out[i, 3], x_out[i, 4], x_out[i, 5] = b0, b1, b2
+        # P+ = sym(Phi P Phi' + Qd): M = Phi P, then the lower triangle of M Phi' + Qd
+        for a in range(3):
+            for c in range(6):
+                s = 0.0
+                for k in range(6):
+                    s += Phi[a, k] * Pi[k, c]
+                M[a, c] = s
+        for a in range(3, 6):
+            for c in range(6):
+                M[a, c] = Pi[a, c]
+        for a in range(6):
+            for c in range(a + 1):
+                if c < 3:
+                    s = 0.0
+                    for k in range(6):
+                        s += M[a, k] * Phi[c, k]
+                else:
+                    s = M[a, c]
+                if a < 3:  # Qd: the rho-rho block
+                    q = Qg[a, c] * dt + (FQ[a, c] + FQ[c, a]) * c2
+                    f = 0.0
+                    for k in range(6):
+                        f += FQ[a, k] * F[c, k]
+                    q += f * c3
+                elif c < 3:  # the bias-rho block (Qg's is zero)
+                    q = FQ[c, a] * c2
+                else:
+                    q = (su2 if a == c else 0.0) * dt
+                s += q
+                Pn[a, c] = s
+                Pn[c, a] = s
+        _switch_to_short_mrp(x_out[i], Pn, T, TP)
+    return x_out, P_out
+
+
+def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
+    """:func:`drake_att.filters.mrp_ekf.ekf_predict` for ``(N, 6)`` states, ``(N, 6, 6)``
+    covariances and one ``(3,)`` rate: ``(x_pred, P_pred)``, shadow switch applied."""
+    dt = float(dt)
+    return _ekf_predict(_f64(x), _f64(P), _f64(w_meas), dt, 0.5 * dt, 0.5 * dt ** 2, dt ** 3 / 3.0,
+                        float(sigma_v) ** 2, float(sigma_u) ** 2)
+
+
+@_jit
+def _measurement_jacobian(r0, r1, r2, U, h, Hr, B):
+    """mrp_ekf.vector_measurement_jacobian: the rho columns ``Hr`` (3m, 3) (the bias columns
+    are zero) and the model ``h`` (3m,) at ``rho``; ``B``: (3, 3) scratch."""
+    _measurement(r0, r1, r2, U, h)
+    n2 = r0 * r0 + r1 * r1 + r2 * r2
+    f = 16.0 / ((1.0 + n2) * (1.0 + n2))
+    _kinematics_matrix(r0, r1, r2, B)
+    # Binv = f B'; Hrho_m = [hb_m x] Binv
+    for m in range(U.shape[0]):
+        h0, h1, h2 = h[3 * m], h[3 * m + 1], h[3 * m + 2]
+        for c in range(3):
+            bi0, bi1, bi2 = f * B[c, 0], f * B[c, 1], f * B[c, 2]
+            Hr[3 * m, c] = 0.0 * bi0 + -h2 * bi1 + h1 * bi2
+            Hr[3 * m + 1, c] = h2 * bi0 + 0.0 * bi1 + -h0 * bi2
+            Hr[3 * m + 2, c] = -h1 * bi0 + h0 * bi1 + 0.0 * bi2
+
+
+@_jit
+def _ekf_gain(x, x_j, Pi, y, U, sigma2, x_next, Hr, K, w):
+    """One linearization of one particle's (iterated) EKF update (mrp_ekf.ekf_update): at the
+    iterate ``x_j`` (``x_j = x``: the classic EKF), ``Hr`` (3m, 3) = the rho columns of ``H``
+    (its bias columns are zero), ``K`` (6, 3m) = ``P H' S^-1``, ``S = H P H' + sigma^2 I``, and
+    ``x_next = x + K (y - h(x_j) - H (x - x_j))``. ``w``: scratch (:func:`_gain_scratch`).
+    Returns False if ``S`` is exactly singular."""
+    h, B, S, C, inv, Kt, corr = w
+    nm = y.shape[0]
+    _measurement_jacobian(x_j[0], x_j[1], x_j[2], U, h, Hr, B)
+    # (P H')' and the lower triangle of S
+    for l in range(nm):
+        h0, h1, h2 = Hr[l, 0], Hr[l, 1], Hr[l, 2]
+        for a in range(6):
+            Kt[l, a] = Pi[a, 0] * h0 + Pi[a, 1] * h1 + Pi[a, 2] * h2
+    for l in range(nm):
+        h0, h1, h2 = Hr[l, 0], Hr[l, 1], Hr[l, 2]
+        for l2 in range(l + 1):
+            S[l, l2] = h0 * Kt[l2, 0] + h1 * Kt[l2, 1] + h2 * Kt[l2, 2]
+        S[l, l] += sigma2
+    # K' = S^-1 (P H')': by Cholesky (S is symmetric positive definite for sigma > 0); if that
+    # fails, by LU with partial pivoting (numpy.linalg.solve's method)
+    if not _spd_solve(S, C, inv, Kt):
+        for l in range(nm):
+            for l2 in range(l + 1, nm):
+                S[l, l2] = S[l2, l]
+            h0, h1, h2 = Hr[l, 0], Hr[l, 1], Hr[l, 2]
+            for a in range(6):
+                Kt[l, a] = Pi[a, 0] * h0 + Pi[a, 1] * h1 + Pi[a, 2] * h2
+        if not _lu_solve(S, Kt):
+            return False
+    for a in range(6):
+        for l in range(nm):
+            K[a, l] = Kt[l, a]
+    d0, d1, d2 = x[0] - x_j[0], x[1] - x_j[1], x[2] - x_j[2]
+    for l in range(nm):
+        corr[l] = (y[l] - h[l]) - (Hr[l, 0] * d0 + Hr[l, 1] * d1 + Hr[l, 2] * d2)
+    for a in range(6):
+        x_next[a] = 0.0
+    for l in range(nm):
+        cl = corr[l]
+        for a in range(6):
+            x_next[a] += Kt[l, a] * cl
+    for a in range(6):
+        x_next[a] = x[a] + x_next[a]
+    return True
+
+
+@_jit
+def _gain_scratch(nm):
+    return (np.empty(nm), np.empty((3, 3)), np.empty((nm, nm)), np.empty((nm, nm)), np.empty(nm),
+            np.empty((nm, 6)), np.empty(nm))
+
+
+@_jit
+def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
+    """The mean of every particle's (iterated) EKF update (mrp_ekf.ekf_update): the last
+    iterates ``(N, 6)`` and whether every innovation covariance was invertible. The batch
+    stops iterating when no component of any particle moved by more than ``tol``, as the
+    reference. ``Hs`` ``(N, 3m, 3)`` and ``Ks`` ``(N, 6, 3m)`` receive the last linearization."""
+    n = x.shape[0]
+    w = _gain_scratch(y.shape[0])
+    x_j = x.copy()
+    x_next = np.empty(6)
+    for _ in range(iterations):
+        converged = True
+        for i in range(n):
+            if not _ekf_gain(x[i], x_j[i], P[i], y, U, sigma2, x_next, Hs[i], Ks[i], w):
+                return x_j, False
+            for a in range(6):
+                if not abs(x_next[a] - x_j[i, a]) <= tol:  # NaN: not converged (max(...) <= tol)
+                    converged = False
+                x_j[i, a] = x_next[a]
+        if converged:
+            break
+    return x_j, True
+
+
+@_jit
+def _joseph(Pi, Hr, K, sigma2, IKH, M, Pn):
+    """``Pn = sym((I - K H) P (I - K H)' + sigma^2 K K')`` of one particle, ``H = [Hr 0]``
+    (so ``I - K H`` has the bias columns of ``I``); ``IKH`` (6, 3), ``M`` (6, 6): scratch."""
+    nm = Hr.shape[0]
+    for a in range(6):
+        k0 = 0.0
+        k1 = 0.0
+        k2 = 0.0
+        for l in range(nm):
+            kal = K[a, l]
+            k0 += kal * Hr[l, 0]
+            k1 += kal * Hr[l, 1]
+            k2 += kal * Hr[l, 2]
+        IKH[a, 0] = (1.0 if a == 0 else 0.0) - k0
+        IKH[a, 1] = (1.0 if a == 1 else 0.0) - k1
+        IKH[a, 2] = (1.0 if a == 2 else 0.0) - k2
+    for a in range(6):
+        i0, i1, i2 = IKH[a, 0], IKH[a, 1], IKH[a, 2]
+        for c in range(6):
+            M[a, c] = i0 * Pi[0, c] + i1 * Pi[1, c] + i2 * Pi[2, c]
+        if a >= 3:
+            for c in range(6):
+                M[a, c] += Pi[a, c]
+    for a in range(6):
+        for c in range(a + 1):
+            s = M[a, 0] * IKH[c, 0] + M[a, 1] * IKH[c, 1] + M[a, 2] * IKH[c, 2]
+            if c >= 3:
+                s += M[a, c]
+            Pn[a, c] = s
+        for l in range(nm):
+            kal = K[a, l] * sigma2
+            for c in range(a + 1):
+                Pn[a, c] += kal * K[c, l]
+    for a in range(6):
+        for c in range(a):
+            Pn[c, a] = Pn[a, c]
+
+
+@_jit
+def _ekf_update(x, P, y, U, sigma2, iterations, tol):
+    n = x.shape[0]
+    nm = y.shape[0]
+    Hs = np.empty((n, nm, 3))
+    Ks = np.empty((n, 6, nm))
+    x_post, ok = _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks)
+    P_post = np.empty((n, 6, 6))
+    IKH = np.empty((6, 3))
+    M = np.empty((6, 6))
+    if ok:
+        for i in range(n):
+            _joseph(P[i], Hs[i], Ks[i], sigma2, IKH, M, P_post[i])
+    return x_post, P_post, ok
+
+
+def ekf_update(x, P, y, ref_vectors_I, sigma: float, iterations: int = 1, iteration_tolerance: float = 1e-12):
+    """``ekf_update(x, P, y, ref_vectors_I, sigma, switch=False, iterations,
+    iteration_tolerance)[:2]`` of :mod:`drake_att.filters.mrp_ekf` for ``(N, 6)`` states:
+    ``(x_post, P_post)`` (Joseph form; iterated when ``iterations > 1``, stopping when no
+    component of the whole batch moved by more than the tolerance). No shadow switch.
+
+    Raises:
+        numpy.linalg.LinAlgError: an exactly singular innovation covariance.
+    """
+    x_post, P_post, ok = _ekf_update(_f64(x), _f64(P), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2,
+                                     int(iterations), float(iteration_tolerance))
+    if not ok:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x_post, P_post
+
+
+@_jit
+def _ekpf_particle(m_post, m_prior, P_prior, Hr, K, eps, y, U, sigma2, x, P, w):
+    """One particle's proposal step: ``P = P+`` (Joseph), ``x = m+ + L+ eps``, and the shadow
+    switch of ``(x, P)``; returns ``(ok, log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+))``
+    (``ok`` False: ``P+`` or ``P-`` is not positive definite). ``w``: :func:`_particle_scratch`."""
+    IKH, M, L_post, L_prior, inv_post, inv_prior, h, z, T, TP = w
+    _joseph(P_prior, Hr, K, sigma2, IKH, M, P)
+    if not (_cholesky_factor(P, L_post, inv_post) and _cholesky_factor(P_prior, L_prior, inv_prior)):
+        return False, 0.0
+    # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
+    ee = 0.0
+    for a in range(6):
+        s = 0.0
+        for k in range(a + 1):
+            s += L_post[a, k] * eps[k]
+        x[a] = m_post[a] + s
+        ee += eps[a] * eps[a]
+    log_q = -0.5 * ee - _log_det_factor(L_post, inv_post)
+    # log pi(x) = -|L-^-1 (x - m-)|^2 / 2 - log det L-
+    zz = 0.0
+    for a in range(6):
+        s = x[a] - m_prior[a]
+        for k in range(a):
+            s -= L_prior[a, k] * z[k]
+        z[a] = s * inv_prior[a]
+        zz += z[a] * z[a]
+    log_pi = -0.5 * zz - _log_det_factor(L_prior, inv_prior)
+    log_lik = _log_likelihood(x[0], x[1], x[2], y, U, sigma2, h)
+    _switch_to_short_mrp(x, P, T, TP)
+    return True, log_lik + log_pi - log_q
+
+
+@_jit
+def _particle_scratch(nm):
+    return (np.empty((6, 3)), np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)), np.empty(6), np.empty(6),
+            np.empty(nm), np.empty(6), np.empty((3, 3)), np.empty((6, 6)))
+
+
+@_jit
+def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
+    n = m_prior.shape[0]
+    nm = y.shape[0]
+    x_out = np.empty((n, 6))
+    P_out = np.empty((n, 6, 6))
+    log_increment = np.empty(n)
+    wp = _particle_scratch(nm)
+    if iterations == 1:  # one pass: each particle's EKF update, then its proposal step
+        wg = _gain_scratch(nm)
+        m_post = np.empty(6)
+        Hr = np.empty((nm, 3))
+        K = np.empty((6, nm))
+        for i in range(n):
+            if not _ekf_gain(m_prior[i], m_prior[i], P_prior[i], y, U, sigma2, m_post, Hr, K, wg):
+                return x_out, P_out, log_increment, 2
+            ok, li = _ekpf_particle(m_post, m_prior[i], P_prior[i], Hr, K, eps[i], y, U, sigma2, x_out[i], P_out[i],
+                                    wp)
+            log_increment[i] = li
+            if not ok:
+                return x_out, P_out, log_increment, 1
+        return x_out, P_out, log_increment, 0
+    Hs = np.empty((n, nm, 3))
+    Ks = np.empty((n, 6, nm))
+    m_post, ok = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks)
+    if not ok:
+        return x_out, P_out, log_increment, 2
+    for i in range(n):
+        ok, li = _ekpf_particle(m_post[i], m_prior[i], P_prior[i], Hs[i], Ks[i], eps[i], y, U, sigma2, x_out[i],
+                                P_out[i], wp)
+        log_increment[i] = li
+        if not ok:
+            return x_out, P_out, log_increment, 1
+    return x_out, P_out, log_increment, 0
+
+
+def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int = 1,
+                iteration_tolerance: float = 1e-12):
+    """The EKPF's measurement step (``ExtendedKalmanParticleFilter.update`` before the
+    reweighting): every particle's EKF update ``(m+, P+)`` (:func:`ekf_update`), the proposal
+    draw ``x = m+ + L+ eps`` with the given ``(N, 6)`` standard normals, the weight increment
+    ``log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+)`` (up to a common constant; ``L+``,
+    ``L-`` the lower Cholesky factors of ``P+``, ``P-``) and the shadow switch of ``(x, P+)``.
+
+    Returns:
+        ``(x (N, 6), P (N, 6, 6), log_increment (N,))``, or None if some ``P+`` or ``P-`` is
+        not positive definite: the reference then repairs the factors of the whole batch
+        (``particle._robust_cholesky``), which the caller does by running the numpy code.
+
+    Raises:
+        numpy.linalg.LinAlgError: an exactly singular innovation covariance.
+    """
+    x, P, log_increment, status = _ekpf_update(
+        _f64(m_prior), _f64(P_prior), _f64(eps), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2, int(iterations),
+        float(iteration_tolerance))
+    if status == 2:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return None if status == 1 else (x, P, log_increment)
