@@ -857,11 +857,12 @@ class ComparisonResult:
 def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, workers: int | None = None,
                    scheduler=None, out: str | None = None, resume: bool = False, progress: bool = True,
                    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S, record: Callable | None = None,
-                   stream=None) -> ComparisonResult:
+                   timing_repeats: int = 3, stream=None) -> ComparisonResult:
     """Run :func:`comparison_plan`'s scenarios (``drake-att compare``): one campaign each
     (``<out>/<scenario>/``, resumable), then per scenario one timing run per estimator
-    (seed ``first_seed``, that estimator and its sources alone, minus the sensors-only run)
-    and the matrix (``comparison.{json,md,png,html}``). One Dask cluster serves all."""
+    (that estimator and its sources alone, minus the sensors-only run; the fastest of
+    ``timing_repeats`` runs, seeds ``first_seed, first_seed + 1, ...``) and the matrix
+    (``comparison.{json,md,png,html}``). One Dask cluster serves all."""
     campaign_seeds(runs, first_seed)
     owned = None
     if scheduler is None and workers != 1:
@@ -883,14 +884,18 @@ def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, work
                 scenario, runs, first_seed, workers=workers, scheduler=scheduler, out=sub, resume=resume,
                 record=record, progress=progress, connect_timeout_s=connect_timeout_s, stream=stream)
             names = [e for e in plan.estimators if plan.cells.get((scenario.name, e), "") is None]
-            jobs = [(first_seed, ())] + [(first_seed, _selection_with_sources(scenario, e)) for e in names]
+            selections = [()] + [_selection_with_sources(scenario, e) for e in names]
+            seeds = [min(first_seed + k, SEED_MAX) for k in range(timing_repeats)]
+            jobs = [(seed, sel) for sel in selections for seed in seeds]
             walls = map_runs(scenario, jobs, timing_record, workers=workers, scheduler=scheduler,
                              connect_timeout_s=connect_timeout_s)
-            base = walls[0]["wall_time_s"]
-            for e, job, w in zip(names, jobs[1:], walls[1:]):
+            fastest = [min(walls[k * len(seeds):(k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])
+                       for k in range(len(selections))]
+            base = fastest[0]["wall_time_s"]
+            for e, sel, w in zip(names, selections[1:], fastest[1:]):
                 steps = w["steps"][e]
-                timing[(scenario.name, e)] = {"selection": list(job[1]), "steps": steps, "wall_s": w["wall_time_s"],
-                                              "baseline_wall_s": base,
+                timing[(scenario.name, e)] = {"selection": list(sel), "steps": steps, "wall_s": w["wall_time_s"],
+                                              "baseline_wall_s": base, "repeats": len(seeds),
                                               "ms_per_step": 1e3 * (w["wall_time_s"] - base) / max(steps, 1)}
     finally:
         if owned is not None:

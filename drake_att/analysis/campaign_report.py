@@ -1,0 +1,673 @@
+"""The report of a Monte Carlo campaign and of a comparison matrix.
+
+:func:`write_campaign_report` writes into a campaign folder (:func:`drake_att.analysis.montecarlo.run_campaign`):
+
+* ``summary.json``: ``{"campaign": {...}, "statistics": ensemble.summarize(...)}`` - every
+  number of the report (strict JSON: ``null``, never NaN);
+* PNGs (matplotlib, Agg): per estimator ``<E>_errors.png`` (each run's attitude error per
+  axis as a thin line, the filters' mean +-3 sigma, the ensemble's +-3 RMS and, when
+  defined, the Cramer-Rao bound's +-3 sigma; top row the whole run, bottom row the scoring
+  window) and ``<E>_consistency.png`` (ANEES per instant with its 95% band; NIS / dof per
+  input in time bins with each bin's 95% band); ``rmse_vs_bound.png`` (window RMSE per
+  axis with 95% CI next to the bound; RMSE per instant over runs vs the bound);
+* ``report.html``: one self-contained page (the PNGs embedded as ``data:`` URIs, inline
+  CSS, no script, no external address): the campaign, the tables, the figures, the
+  methods, the worst runs with the command that repeats each, the resolved config.
+
+:func:`write_comparison` writes the comparison matrix of ``drake-att compare``
+(``comparison.{json,md,png,html}``). :func:`screenshot` renders a page in headless
+Chromium and fails on any console message (the report has no script: a message means a
+broken page).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+
+import numpy as np
+
+from drake_att.units import DEG, DEG_PER_H
+
+AXES = ["x (roll)", "y (pitch)", "z (yaw)"]
+MAX_RUNS_DRAWN = 50
+NIS_BINS = 60
+
+
+# ----------------------------------------------------------------------------------------
+# Small helpers
+# ----------------------------------------------------------------------------------------
+def _g(x, fmt=".3g") -> str:
+    return "–" if x is None else format(x, fmt)
+
+
+def _ci(ci, fmt=".3g") -> str:
+    return "–" if ci is None or ci[0] is None else f"[{ci[0]:{fmt}}, {ci[1]:{fmt}}]"
+
+
+def _save(fig, path: str) -> str:
+    from drake_att.analysis.montecarlo import _atomic_write
+
+    _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=100))
+    return path
+
+
+def _name(record, key) -> str:
+    return str(np.asarray(record[key]))
+
+
+def _stack(records, key, idx):
+    return np.array([np.asarray(r[key], dtype=float)[i] for r, i in zip(records, idx)])
+
+
+def _common(records, name):
+    from drake_att.analysis.ensemble import _common_times
+
+    return _common_times(records, name)
+
+
+def _moving_mean(x, k: int):
+    """Centered moving mean of ``x`` (n, ...) along axis 0 over ``k`` samples (shorter at
+    the ends)."""
+    x = np.asarray(x, dtype=float)
+    if k <= 1 or len(x) < 2:
+        return x
+    kernel = np.ones(k)
+    flat = x.reshape(len(x), -1)
+    num = np.stack([np.convolve(np.nan_to_num(c), kernel, mode="same") for c in flat.T], axis=1)
+    den = np.convolve(np.ones(len(x)), kernel, mode="same")[:, None]
+    return (num / den).reshape(x.shape)
+
+
+def smoothing_window(n_runs: int, n_samples: int) -> int:
+    """Samples per moving window for ensemble statistics per instant: about 100 squared
+    errors per point (runs x window), at most 2% of the run."""
+    return int(max(1, min(np.ceil(100 / max(n_runs, 1)), max(1, n_samples // 50))))
+
+
+def _y_scale(ax, span_factor: float = 20.0, values=None) -> None:
+    """A log y-axis (ticks 1, 2, 5 x 10^k written as plain numbers) when the plotted data
+    (``values``, default: the axes' lines) span more than ``span_factor`` (a transient NEES
+    of 1e4 next to a steady 6), else linear."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    if values is None:
+        values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()] or [np.zeros(0)])
+    y = np.asarray(values, dtype=float).ravel()
+    y = y[np.isfinite(y) & (y > 0)]
+    if y.size and y.max() / y.min() > span_factor:
+        ax.set_yscale("log")
+        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
+
+
+def _sym_limit(values, floor):
+    v = np.abs(np.asarray(values, dtype=float))
+    v = v[np.isfinite(v)]
+    return 1.08 * max(float(v.max()) if v.size else 0.0, floor)
+
+
+# ----------------------------------------------------------------------------------------
+# Figures
+# ----------------------------------------------------------------------------------------
+def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
+    """Each run's attitude error per axis (deg) with the +-3 sigma envelopes; top row the
+    whole run, bottom row ``t >= score_from_s``."""
+    from matplotlib.figure import Figure
+
+    t, idx = _common(records, name)
+    d = _stack(records, f"{name}__dtheta", idx) / DEG  # (N, n, 3)
+    sig = _stack(records, f"{name}__sigma", idx)[:, :, :3] / DEG
+    filt3 = 3 * np.sqrt(np.mean(sig ** 2, axis=0))  # the filters' RMS sigma over runs
+    k = smoothing_window(len(records), len(t))
+    ens3 = 3 * np.sqrt(_moving_mean(np.mean(d ** 2, axis=0), k))  # the ensemble's RMS error
+    bound3 = None
+    if all(f"{name}__bound_sigma" in r for r in records):
+        b = _stack(records, f"{name}__bound_sigma", idx)[:, :, :3] / DEG
+        bound3 = 3 * np.sqrt(np.mean(b ** 2, axis=0))
+    N = len(records)
+    drawn = min(N, MAX_RUNS_DRAWN)
+    window = t >= score_from_s - 1e-6
+    rows = [("whole run", np.ones_like(t, dtype=bool))] + ([(f"t ≥ {score_from_s:g} s (scored)", window)]
+                                                         if score_from_s > 0 and np.any(window) else [])
+    fig = Figure(figsize=(15, 3.6 * len(rows) + 0.6))
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.08 if len(rows) > 1 else 0.14, top=0.9 if len(rows) > 1 else 0.84,
+                        wspace=0.22, hspace=0.38)
+    ax = fig.subplots(len(rows), 3, squeeze=False)
+    for r, (label, sel) in enumerate(rows):
+        for i in range(3):
+            a = ax[r, i]
+            for k in range(drawn):
+                a.plot(t[sel], d[k, sel, i], lw=0.5, alpha=0.45, color="tab:blue",
+                       label=f"error, {drawn} of {N} runs" if k == 0 else None)
+            for sign in (1, -1):
+                a.plot(t[sel], sign * filt3[sel, i], "r--", lw=1.0, label="filter ±3σ (RMS over runs)" if sign > 0 else None)
+                a.plot(t[sel], sign * ens3[sel, i], color="k", lw=1.0,
+                       label=f"ensemble ±3·RMS error (runs x {k} samples)" if sign > 0 else None)
+                if bound3 is not None:
+                    a.plot(t[sel], sign * bound3[sel, i], color="tab:green", ls=":", lw=1.4,
+                           label="Cramér–Rao bound ±3σ" if sign > 0 else None)
+            lim = _sym_limit(d[:, sel, i], 1e-9)
+            if r > 0 or lim < 1e-3:
+                lim = max(lim, min(_sym_limit(filt3[sel, i], 1e-9), 3 * lim))
+            a.set_ylim(-lim, lim)
+            a.set_title(f"attitude error {AXES[i]} — {label}", fontsize=10)
+            a.set_ylabel("deg")
+            a.set_xlabel("time (s)")
+            a.grid(True, alpha=0.3)
+    ax[0, 0].legend(loc="upper right", fontsize=7)
+    fig.suptitle(title)
+    return fig
+
+
+def _nis_bins(records, name, i, t_end, bins=NIS_BINS):
+    """Mean NIS / dof per time bin over runs and its 95% band per bin."""
+    from drake_att.analysis.ensemble import chi2_q
+
+    t = np.concatenate([np.asarray(r[f"{name}__nis{i}__t"], dtype=float) for r in records])
+    v = np.concatenate([np.asarray(r[f"{name}__nis{i}__value"], dtype=float) for r in records])
+    d = np.concatenate([np.asarray(r[f"{name}__nis{i}__dof"], dtype=float) for r in records])
+    edges = np.linspace(0.0, max(t_end, float(t.max()) if t.size else 1.0) + 1e-9, bins + 1)
+    k = np.clip(np.digitize(t, edges) - 1, 0, bins - 1)
+    centers, mean, lo, hi = [], [], [], []
+    for b in range(bins):
+        m = k == b
+        if not np.any(m):
+            continue
+        D = float(np.sum(d[m]))
+        centers.append(0.5 * (edges[b] + edges[b + 1]))
+        mean.append(float(np.sum(v[m]) / D))
+        lo.append(chi2_q(0.025, D) / D)
+        hi.append(chi2_q(0.975, D) / D)
+    return np.array(centers), np.array(mean), np.array(lo), np.array(hi)
+
+
+def consistency_figure(records, name: str, stats: dict, title: str):
+    """ANEES per instant with its 95% band (top) and NIS / dof per input (bottom)."""
+    from matplotlib.figure import Figure
+
+    h = stats["history"]
+    inputs = [str(x) for x in np.atleast_1d(records[0][f"{name}__inputs"])]
+    nis_inputs = [(i, n) for i, n in enumerate(inputs) if f"{name}__nis{i}__t" in records[0]]
+    nrows = 1 + (1 if nis_inputs else 0)
+    fig = Figure(figsize=(13, 3.6 * nrows + 0.6))
+    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.08 if nrows > 1 else 0.14, top=0.9 if nrows > 1 else 0.84,
+                        hspace=0.38)
+    ax = fig.subplots(nrows, 1, squeeze=False)[:, 0]
+    a = ax[0]
+    t = np.array(h["t"], dtype=float)
+    anees = np.array([np.nan if v is None else v for v in h["anees"]], dtype=float)
+    dof = stats["nees_dof"]
+    band = stats["anees_band_95"]
+    a.plot(t, anees, lw=0.8, label=f"ANEES over {stats['n_runs']} runs (dof {dof})")
+    if band[0] is not None:
+        a.fill_between(t, band[0], band[1], color="tab:green", alpha=0.2,
+                       label=f"95% band at one instant [{band[0]:.3g}, {band[1]:.3g}]")
+    a.axhline(dof, color="k", lw=0.8, ls="--", label=f"consistent: {dof}")
+    if stats.get("anees") is not None:
+        a.axhline(stats["anees"], color="tab:red", lw=0.8, ls=":",
+                  label=f"window ANEES {stats['anees']:.3g}" + (
+                      f", window band [{stats['anees_window_band_95'][0]:.3g}, {stats['anees_window_band_95'][1]:.3g}]"
+                      if stats.get("anees_window_band_95") else ""))
+    a.axvline(float(records[0]["score_from_s"]), color="gray", lw=0.8)
+    a.set_ylabel("ANEES")
+    a.set_xlabel("time (s)")
+    a.set_title("average NEES per instant (the gray line starts the scoring window)", fontsize=10)
+    a.grid(True, which="both", alpha=0.3)
+    _y_scale(a)
+    a.legend(fontsize=7, loc="upper right")
+    if nis_inputs:
+        b = ax[1]
+        t_end = float(records[0]["duration_s"])
+        for i, n in nis_inputs:
+            c, m, lo, hi = _nis_bins(records, name, i, t_end)
+            line = b.plot(c, m, ".-", lw=0.8, ms=3, label=f"{n}: mean NIS / dof per bin")[0]
+            b.fill_between(c, lo, hi, color=line.get_color(), alpha=0.15, label=f"{n}: 95% band per bin")
+        b.axhline(1.0, color="k", lw=0.8, ls="--")
+        b.axvline(float(records[0]["score_from_s"]), color="gray", lw=0.8)
+        b.set_ylabel("NIS / dof")
+        b.set_xlabel("time (s)")
+        b.set_title(f"normalized innovation squared per input ({NIS_BINS} time bins, all runs)", fontsize=10)
+        b.grid(True, which="both", alpha=0.3)
+        _y_scale(b)
+        b.legend(fontsize=7, loc="upper right")
+    fig.suptitle(title)
+    return fig
+
+
+def rmse_vs_bound_figure(summary: dict, title: str):
+    """Window RMSE per axis and total with 95% CI next to the bound (left); RMSE per instant
+    over runs vs the bound (right)."""
+    from matplotlib.figure import Figure
+
+    ests = summary["estimators"]
+    names = list(ests)
+    fig = Figure(figsize=(15, 5.2))
+    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.1, top=0.88, wspace=0.18)
+    a, b = fig.subplots(1, 2, width_ratios=[1.1, 1])
+    groups = AXES + ["total"]
+    width = 0.8 / max(len(names), 1)
+    for j, n in enumerate(names):
+        s = ests[n]
+        vals = list(s["attitude_rmse_deg"]) + [s["attitude_rmse_total_deg"]]
+        cis = list(s["attitude_rmse_ci95_deg"]) + [s["attitude_rmse_total_ci95_deg"]]
+        x = np.arange(4) + (j - (len(names) - 1) / 2) * width
+        v = np.array([np.nan if q is None else q for q in vals])
+        err = np.array([[v[k] - c[0], c[1] - v[k]] if c is not None and c[0] is not None else [0, 0]
+                        for k, c in enumerate(cis)]).T
+        a.bar(x, v, width, yerr=err, capsize=2, label=n)
+        bd = s["bound"]
+        if bd["defined"] and bd["attitude_rmse_bound_deg"] is not None:
+            bv = list(bd["attitude_rmse_bound_deg"]) + [bd["attitude_rmse_total_bound_deg"]]
+            a.scatter(x, bv, marker="D", s=22, facecolor="white", edgecolor="k", zorder=3,
+                      label="Cramér–Rao bound" if j == 0 else None)
+    a.set_xticks(np.arange(4), groups)
+    a.set_ylabel("RMSE over the scoring window (deg)")
+    a.set_title("window RMSE with 95% CI; diamonds: the bound", fontsize=10)
+    a.grid(True, axis="y", alpha=0.3)
+    a.legend(fontsize=7)
+    for n in names:
+        h = ests[n]["history"]
+        t = np.array(h["t"], dtype=float)
+        r = np.array([[np.nan if q is None else q for q in row] for row in h["attitude_rmse_deg"]], dtype=float)
+        k = smoothing_window(ests[n]["n_runs"], len(t))
+        line = b.plot(t, np.sqrt(_moving_mean(np.sum(r ** 2, axis=1), k)), lw=0.9, label=n)[0]
+        if h.get("bound_attitude_sigma_deg") is not None:
+            bs = np.array([[np.nan if q is None else q for q in row] for row in h["bound_attitude_sigma_deg"]], dtype=float)
+            b.plot(t, np.sqrt(np.sum(bs ** 2, axis=1)), lw=1.2, ls=":", color=line.get_color())
+    b.plot([], [], "k:", lw=1.2, label="its bound (dotted, same color)")
+    b.axvline(summary["score_from_s"], color="gray", lw=0.8)
+    b.set_xlabel("time (s)")
+    b.set_ylabel("total attitude error (deg)")
+    b.set_title("RMS of |dθ| over runs (and a moving window of "
+                f"{smoothing_window(summary['n_runs'], len(ests[names[0]]['history']['t']))} points) vs the bound's "
+                "total σ", fontsize=10)
+    b.grid(True, which="both", alpha=0.3)
+    _y_scale(b, 5.0)
+    b.legend(fontsize=7, ncol=2, loc="best")
+    fig.suptitle(title)
+    return fig
+
+
+# ----------------------------------------------------------------------------------------
+# Tables
+# ----------------------------------------------------------------------------------------
+TABLE_COLUMNS = ["estimator", "RMSE x / y / z (deg)", "95% CI total", "RMSE total (deg)", "bias RMSE x/y/z (deg/h)",
+                 "ANEES (dof)", "95% band (window)", "NIS mean / dof per input", "converged", "median conv. (s)",
+                 "bound total (deg)", "RMSE / bound x / y / z", "worst seeds"]
+
+
+def summary_rows(summary: dict) -> list[list[str]]:
+    """One row of strings per estimator (columns :data:`TABLE_COLUMNS`)."""
+    rows = []
+    for n, s in summary["estimators"].items():
+        second = s["bias_rmse_deg_per_h"] if s["second_kind"] == "gyro_bias" else None
+        band = s.get("anees_window_band_95") or s["anees_band_95"]
+        ok = s.get("anees_in_window_band") if s.get("anees_window_band_95") else s.get("anees_in_band")
+        nis = "; ".join(f"{k} {_g(v['mean'])}/{_g(v['mean_dof'], '.0f')}" + ("" if v["in_band"] else " (out of band)")
+                        for k, v in s["nis"].items()) or "–"
+        conv = s["convergence"]
+        bd = s["bound"]
+        rows.append([
+            n, " / ".join(_g(v) for v in s["attitude_rmse_deg"]), _ci(s["attitude_rmse_total_ci95_deg"]),
+            _g(s["attitude_rmse_total_deg"]), "–" if second is None else " / ".join(_g(v) for v in second),
+            f"{_g(s['anees'])} ({s['nees_dof']})", _ci(band) + ("" if ok is None else (" in" if ok else " OUT")), nis,
+            f"{conv['n_converged']}/{s['n_runs']}",
+            "–" if conv["time_s"] is None else _g(conv["time_s"]["median"]),
+            _g(bd["attitude_rmse_total_bound_deg"]) if bd["defined"] else "none",
+            " / ".join(_g(v) for v in bd["ratio"]) if bd["defined"] and bd["ratio"] else "–",
+            ", ".join(str(w["seed"]) for w in s["worst_runs"][:3])])
+    return rows
+
+
+def format_campaign_table(result) -> str:
+    """The campaign's table as text (what ``drake-att montecarlo`` prints)."""
+    head = (f"Monte Carlo {result.scenario.name}: {len(result.records)} runs"
+            + (f" ({len(result.failed)} failed)" if result.failed else "")
+            + f", seeds {result.seeds[0]}..{result.seeds[-1]}")
+    if not result.summary:
+        return head + "\n(no completed run)"
+    keep = [0, 1, 3, 2, 5, 6, 8, 10, 11]
+    table = [[TABLE_COLUMNS[k] for k in keep]] + [[row[k] for k in keep] for row in summary_rows(result.summary)]
+    widths = [max(len(r[c]) for r in table) for c in range(len(keep))]
+    lines = [head, "  ".join(h.ljust(w) for h, w in zip(table[0], widths)),
+             "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in table[1:]]
+    lines.append(f"(window t >= {result.summary['score_from_s']:g} s; ANEES band: 95% of the window average, 'in'/'OUT'; "
+                 "bound: posterior Cramér–Rao, total RMS over the window)")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------
+# HTML
+# ----------------------------------------------------------------------------------------
+CSS = """
+body{font-family:-apple-system,"Segoe UI",Helvetica,Arial,sans-serif;margin:24px auto;max-width:1500px;color:#222;
+line-height:1.4;padding:0 16px}
+h1{font-size:1.6em;margin-bottom:.2em}h2{font-size:1.25em;border-bottom:1px solid #ccc;margin-top:1.6em}
+table{border-collapse:collapse;font-size:.85em;margin:.6em 0}th,td{border:1px solid #ccc;padding:3px 7px;
+text-align:left;vertical-align:top}th{background:#f0f3f7}tr:nth-child(even) td{background:#fafafa}
+td.num{text-align:right;font-variant-numeric:tabular-nums}.out{color:#b00;font-weight:bold}
+img{max-width:100%;border:1px solid #ddd;margin:.4em 0}figure{margin:1em 0}figcaption{font-size:.85em;color:#555}
+pre{background:#f6f8fa;padding:8px;overflow-x:auto;font-size:.8em}code{background:#f6f8fa;padding:0 3px}
+.facts td:first-child{font-weight:bold;background:#f0f3f7}
+"""
+
+
+def _png_uri(path: str) -> str:
+    with open(path, "rb") as f:
+        return "data:image/png;base64," + base64.b64encode(f.read()).decode("ascii")
+
+
+def _table_html(header, rows) -> str:
+    def cell(c):
+        cls = ' class="out"' if " OUT" in c or "out of band" in c else ""
+        return f"<td{cls}>{html.escape(c)}</td>"
+
+    return ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"
+            + "".join("<tr>" + "".join(cell(c) for c in r) + "</tr>" for r in rows) + "</table>")
+
+
+def _figure_html(path: str, caption: str) -> str:
+    return (f'<figure><img src="{_png_uri(path)}" alt="{html.escape(os.path.basename(path))}">'
+            f"<figcaption>{html.escape(os.path.basename(path))}: {html.escape(caption)}</figcaption></figure>")
+
+
+def _page(title: str, body: str) -> str:
+    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+            f"<style>{CSS}</style></head><body>\n{body}\n</body></html>\n")
+
+
+def write_campaign_report(result, executor: str = "") -> list[str]:
+    """``summary.json``, the PNGs and ``report.html`` of a finished campaign in
+    ``result.out``; returns the paths (summary first, report last)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from drake_att.analysis.montecarlo import SUMMARY_FILE, write_text_atomic
+    from drake_att.analysis.report import strict_json
+    from drake_att.scenarios.config import dump_scenario
+
+    out = result.out
+    scenario = result.scenario
+    campaign = {"scenario": scenario.name, "runs": len(result.seeds), "completed": len(result.records),
+                "failed": {str(s): m for s, m in result.failed.items()}, "first_seed": result.seeds[0],
+                "last_seed": result.seeds[-1], "executor": executor, "runs_simulated_by_last_call": result.ran,
+                "runs_reused_from_disk": result.reused, "wall_time_s_of_last_call": round(result.wall_time_s, 3),
+                "duration_s": scenario.duration_s, "config": "config.yaml", "runs_folder": "runs/"}
+    files = [write_text_atomic(os.path.join(out, SUMMARY_FILE), json.dumps(
+        strict_json({"campaign": campaign, "statistics": result.summary}), indent=1, allow_nan=False) + "\n")]
+    figures = []
+    summary, records = result.summary, result.records
+    if summary:
+        sf = summary["score_from_s"]
+        figures.append((_save(rmse_vs_bound_figure(summary, f"{scenario.name}: RMSE vs the Cramér–Rao bound "
+                                                   f"({len(records)} runs)"), os.path.join(out, "rmse_vs_bound.png")),
+                        "window RMSE with 95% CI per axis and total, with the bound; RMSE per instant vs the bound."))
+        for n, s in summary["estimators"].items():
+            figures.append((_save(error_ensemble_figure(records, n, sf, f"{scenario.name}: {n}, attitude error of "
+                                                        f"{len(records)} runs"), os.path.join(out, f"{n}_errors.png")),
+                            f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
+                            "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
+                            "when defined); top: the whole run, bottom: the scoring window."))
+            figures.append((_save(consistency_figure(records, n, s, f"{scenario.name}: {n}, consistency"),
+                                  os.path.join(out, f"{n}_consistency.png")),
+                            f"{n}: ANEES per instant over the runs with its 95% band, and NIS / dof per input."))
+    files += [p for p, _ in figures]
+    page = _campaign_html(result, campaign, figures, dump_scenario(scenario))
+    files.append(write_text_atomic(os.path.join(out, "report.html"), page))
+    return files
+
+
+def _campaign_html(result, campaign, figures, yaml_text) -> str:
+    s = result.summary
+    title = f"Monte Carlo: {result.scenario.name}, {len(result.records)} runs"
+    facts = [("scenario", result.scenario.name), ("description", " ".join(result.scenario.description.split())),
+             ("runs", f"{campaign['completed']} completed of {campaign['runs']} (seeds {campaign['first_seed']}.."
+                      f"{campaign['last_seed']})" + (f", {len(result.failed)} failed" if result.failed else "")),
+             ("simulated time per run", f"{result.scenario.duration_s:g} s"),
+             ("scoring window", f"t ≥ {result.scenario.scoring.score_from_s:g} s"),
+             ("executed on", campaign["executor"] or "–"),
+             ("last call", f"{result.ran} runs simulated, {result.reused} read from runs/, "
+                           f"{result.wall_time_s:.1f} s wall")]
+    body = [f"<h1>{html.escape(title)}</h1>",
+            "<table class='facts'>" + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
+                                              for k, v in facts) + "</table>"]
+    if result.failed:
+        body.append("<h2>Failed runs</h2><ul>" + "".join(
+            f"<li>seed {s_}: {html.escape(m)}</li>" for s_, m in result.failed.items()) + "</ul>")
+    if s:
+        body.append("<h2>Summary</h2>" + _table_html(TABLE_COLUMNS, summary_rows(s)))
+        body.append("<p>RMSE over the scoring window pooled over runs; the 95% CI is for the total. ANEES: mean NEES "
+                    "over runs and window samples, with the 95% band of a window average of a consistent filter "
+                    "(‘OUT’: outside it). NIS: mean NIS per update attempt in the window / its mean dimension. "
+                    "Bound: the posterior Cramér–Rao bound on each run's true trajectory with the true sensor noise; "
+                    "RMSE / bound ≥ 1 for any estimator up to sampling error.</p>")
+        body.append("<h2>Figures</h2>" + "".join(_figure_html(p, c) for p, c in figures))
+        rows = []
+        for n, e in s["estimators"].items():
+            bd = e["bound"]
+            rows.append([n, "yes" if bd["defined"] else f"no: {bd['reason']}",
+                         " / ".join(_g(v) for v in bd["attitude_rmse_bound_deg"]) if bd["attitude_rmse_bound_deg"] else "–",
+                         "; ".join(_ci(c) for c in bd["ratio_ci95"]) if bd["ratio_ci95"] else "–",
+                         " / ".join(_g(v) for v in bd["bias_ratio"]) if bd["bias_ratio"] else "–",
+                         _g(bd["prior_sensitivity"])])
+        body.append("<h2>The Cramér–Rao bound</h2>" + _table_html(
+            ["estimator", "defined", "bound RMS x / y / z (deg)", "RMSE / bound 95% CI x; y; z", "bias RMSE / bound",
+             "prior sensitivity"], rows))
+        rows = [[n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]),
+                 f"drake-att run {os.path.join(result.out, 'config.yaml')} --seed {w['seed']}"]
+                for n, e in s["estimators"].items() for w in e["worst_runs"]]
+        body.append("<h2>Worst runs</h2><p>Largest total attitude RMSE per estimator; the command repeats the run "
+                    "bit for bit (the campaign's resolved config).</p>"
+                    + _table_html(["estimator", "seed", "RMSE total (deg)", "repeat it"], rows))
+        body.append("<h2>Methods</h2><ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
+                                                    for k, v in s["methods"].items()) + "</ul>")
+    body.append("<h2>Files</h2><p><code>summary.json</code> (every number above), <code>config.yaml</code> (the "
+                "resolved configuration), <code>runs/seed_&lt;seed&gt;.npz</code> (one record per run: "
+                "<code>drake_att.analysis.ensemble</code>), the PNGs, <code>manifest.json</code>.</p>")
+    body.append(f"<h2>Resolved configuration</h2><pre>{html.escape(yaml_text)}</pre>")
+    return _page(title, "\n".join(body))
+
+
+# ----------------------------------------------------------------------------------------
+# The comparison matrix
+# ----------------------------------------------------------------------------------------
+def comparison_cells(result) -> list[dict]:
+    """One dict per (scenario, estimator): RMSE (total, CI, per axis), ANEES (band, in),
+    ratio to the bound, ms per step - or ``why`` it did not run."""
+    cells = []
+    names = {sc.name for sc in result.plan.scenarios}
+    for (scen, est), why in result.plan.cells.items():
+        cell = {"scenario": scen, "estimator": est, "ran": why is None and scen in names, "why": why}
+        c = result.campaigns.get(scen)
+        st = c.summary["estimators"].get(est) if c is not None and c.summary and why is None else None
+        if st is not None:
+            bd = st["bound"]
+            band = st.get("anees_window_band_95") or st["anees_band_95"]
+            cell.update({
+                "runs": st["n_runs"], "attitude_rmse_total_deg": st["attitude_rmse_total_deg"],
+                "attitude_rmse_total_ci95_deg": st["attitude_rmse_total_ci95_deg"],
+                "attitude_rmse_deg": st["attitude_rmse_deg"], "anees": st["anees"], "nees_dof": st["nees_dof"],
+                "anees_band_95": band, "anees_in_band": bool(band[0] <= st["anees"] <= band[1])
+                if st["anees"] is not None and band and band[0] is not None else None,
+                "bound_total_deg": bd["attitude_rmse_total_bound_deg"], "ratio_to_bound_total": bd["ratio_total"],
+                "bound_reason": bd["reason"],
+                "converged": f"{st['convergence']['n_converged']}/{st['n_runs']}"})
+        tm = result.timing.get((scen, est))
+        if tm is not None:
+            cell["ms_per_step"] = tm["ms_per_step"]
+            cell["timing"] = tm
+        cells.append(cell)
+    return cells
+
+
+COMPARISON_COLUMNS = ["scenario", "estimator", "runs", "RMSE total (deg)", "95% CI", "RMSE x / y / z (deg)",
+                      "ANEES (dof)", "95% band", "RMSE / bound", "ms / step", "converged", "note"]
+
+
+def comparison_rows(cells) -> list[list[str]]:
+    rows = []
+    for c in cells:
+        if "attitude_rmse_total_deg" not in c:
+            rows.append([c["scenario"], c["estimator"], "–", "n/a", "", "", "", "", "", "", "",
+                         c["why"] or "no completed run"])
+            continue
+        rows.append([c["scenario"], c["estimator"], str(c["runs"]), _g(c["attitude_rmse_total_deg"]),
+                     _ci(c["attitude_rmse_total_ci95_deg"]), " / ".join(_g(v) for v in c["attitude_rmse_deg"]),
+                     f"{_g(c['anees'])} ({c['nees_dof']})",
+                     _ci(c["anees_band_95"]) + ("" if c["anees_in_band"] is None else
+                                                (" in" if c["anees_in_band"] else " OUT")),
+                     _g(c["ratio_to_bound_total"]) if c["ratio_to_bound_total"] is not None else "no bound",
+                     _g(c.get("ms_per_step"), ".3f") if c.get("ms_per_step") is not None else "–", c["converged"],
+                     "" if c["ratio_to_bound_total"] is not None else (c.get("bound_reason") or "")])
+    return rows
+
+
+def format_comparison_table(result) -> str:
+    rows = [COMPARISON_COLUMNS] + comparison_rows(comparison_cells(result))
+    widths = [max(len(r[c]) for r in rows) for c in range(len(COMPARISON_COLUMNS))]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(rows[0], widths)), "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows[1:]]
+    return "\n".join(lines)
+
+
+def comparison_figure(cells, title: str):
+    """RMSE with CI and the bound, ANEES / dof with its band, RMSE / bound and time per step
+    of every cell that ran; bars colored by scenario."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    ran = [c for c in cells if "attitude_rmse_total_deg" in c]
+    x = np.arange(len(ran))
+    fig = Figure(figsize=(max(11, 0.9 * len(ran) + 6), 9))
+    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.1, top=0.85, wspace=0.2, hspace=0.45)
+    ax = fig.subplots(2, 2)
+    scen_colors = {}
+    colors = [f"C{scen_colors.setdefault(c['scenario'], len(scen_colors)) % 10}" for c in ran]
+    a = ax[0, 0]
+    v = np.array([c["attitude_rmse_total_deg"] or np.nan for c in ran])
+    err = np.array([[c["attitude_rmse_total_deg"] - c["attitude_rmse_total_ci95_deg"][0],
+                     c["attitude_rmse_total_ci95_deg"][1] - c["attitude_rmse_total_deg"]]
+                    if c["attitude_rmse_total_ci95_deg"] else [0, 0] for c in ran]).T.reshape(2, -1)
+    a.bar(x, v, yerr=err, capsize=3, color=colors)
+    bound = [c["bound_total_deg"] if c["bound_total_deg"] is not None else np.nan for c in ran]
+    a.scatter(x, bound, marker="D", s=28, facecolor="white", edgecolor="k", zorder=3)
+    _y_scale(a, 10.0, np.r_[v, bound])
+    a.set_ylabel("total attitude RMSE (deg)")
+    a.set_title("RMSE over the scoring window (95% CI); diamonds: the Cramér–Rao bound", fontsize=10)
+    a = ax[0, 1]
+    v = np.array([(c["anees"] if c["anees"] is not None else np.nan) / c["nees_dof"] for c in ran])
+    a.bar(x, v, color=colors)
+    for k, c in enumerate(ran):
+        if c["anees_band_95"] and c["anees_band_95"][0] is not None:
+            a.plot([k - 0.4, k + 0.4], [c["anees_band_95"][0] / c["nees_dof"]] * 2, "k-", lw=0.8)
+            a.plot([k - 0.4, k + 0.4], [c["anees_band_95"][1] / c["nees_dof"]] * 2, "k-", lw=0.8)
+    a.axhline(1.0, color="k", ls="--", lw=0.8)
+    _y_scale(a, 10.0, np.r_[v, 1.0])
+    a.set_ylabel("ANEES / dof")
+    a.set_title("consistency: ANEES / dof (1 = consistent; black lines: 95% band)", fontsize=10)
+    a = ax[1, 0]
+    a.bar(x, [c["ratio_to_bound_total"] if c["ratio_to_bound_total"] is not None else np.nan for c in ran],
+          color=colors)
+    a.axhline(1.0, color="k", ls="--", lw=0.8)
+    a.set_ylabel("RMSE / bound")
+    a.set_title("ratio to the Cramér–Rao bound (1 = efficient; no bar: no bound)", fontsize=10)
+    a = ax[1, 1]
+    a.bar(x, [c.get("ms_per_step") if c.get("ms_per_step") is not None else np.nan for c in ran], color=colors)
+    a.set_ylabel("ms per estimator step")
+    a.set_title("time per step (run with it alone minus the sensors-only run; min of 3)", fontsize=10)
+    for a in ax.ravel():
+        a.set_xticks(x, [c["estimator"] for c in ran], fontsize=8, rotation=20, ha="right")
+        a.grid(True, axis="y", which="both", alpha=0.3)
+    fig.legend(handles=[Patch(color=f"C{i % 10}", label=n) for n, i in scen_colors.items()], loc="upper center",
+               ncol=min(4, len(scen_colors)), fontsize=9, bbox_to_anchor=(0.5, 0.955), title="scenario",
+               title_fontsize=8)
+    fig.suptitle(title, y=0.995)
+    return fig
+
+
+def write_comparison(result) -> list[str]:
+    """``comparison.json``, ``comparison.md``, ``comparison.png`` and ``comparison.html`` in
+    ``result.out``; returns the paths."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    from drake_att.analysis.montecarlo import write_text_atomic
+    from drake_att.analysis.report import strict_json
+
+    out = result.out
+    cells = comparison_cells(result)
+    runs = max((c.summary["n_runs"] for c in result.campaigns.values() if c.summary), default=0)
+    title = f"Comparison: {len(result.plan.scenarios)} scenarios x {len(result.plan.estimators)} estimators, {runs} runs"
+    files = [write_text_atomic(os.path.join(out, "comparison.json"), json.dumps(strict_json(
+        {"scenarios": [s.name for s in result.plan.scenarios], "estimators": result.plan.estimators,
+         "cells": cells, "campaign_folders": {n: n + "/" for n in result.campaigns}}), indent=1, allow_nan=False) + "\n")]
+    rows = comparison_rows(cells)
+    md = ["| " + " | ".join(COMPARISON_COLUMNS) + " |", "|" + "---|" * len(COMPARISON_COLUMNS)]
+    md += ["| " + " | ".join(r) + " |" for r in rows]
+    files.append(write_text_atomic(os.path.join(out, "comparison.md"), f"# {title}\n\n" + "\n".join(md) + "\n"))
+    png = _save(comparison_figure(cells, title), os.path.join(out, "comparison.png"))
+    files.append(png)
+    body = [f"<h1>{html.escape(title)}</h1>",
+            "<p>Every listed estimator on every listed scenario: the estimators of one scenario run in one diagram "
+            "per seed, on the same truth and the same sensor noise. RMSE over each scenario's scoring window, "
+            "pooled over runs (95% CI); ANEES with the 95% band of a window average; RMSE / the posterior "
+            "Cramér–Rao bound; time per estimator step from one run with that estimator alone (and its sources) "
+            "minus the sensors-only run. Each scenario's own report: <code>&lt;scenario&gt;/report.html</code>.</p>",
+            _table_html(COMPARISON_COLUMNS, rows), _figure_html(png, title)]
+    files.append(write_text_atomic(os.path.join(out, "comparison.html"), _page(title, "\n".join(body))))
+    return files
+
+
+# ----------------------------------------------------------------------------------------
+# Headless browser
+# ----------------------------------------------------------------------------------------
+CHROMIUM_CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+
+
+def find_chromium() -> str | None:
+    """A Chromium (or Chrome) executable on PATH, or None."""
+    for name in CHROMIUM_CANDIDATES:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def render_in_browser(html_path: str, png_path: str, width: int = 1400, height: int = 3000, chromium: str | None = None,
+                      timeout_s: float = 120.0) -> list[str]:
+    """Render ``html_path`` in headless Chromium, screenshot it to ``png_path`` and return
+    the page's console messages (Chromium's ``CONSOLE`` log lines: script errors,
+    ``console.*`` calls). RuntimeError when Chromium is missing or fails."""
+    chromium = chromium or find_chromium()
+    if chromium is None:
+        raise RuntimeError("no Chromium found (Debian: apt-get install chromium)")
+    html_path, png_path = os.path.abspath(html_path), os.path.abspath(png_path)
+    with tempfile.TemporaryDirectory(prefix="drake-att-chromium-") as profile:
+        cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update", "--disable-sync",
+               "--hide-scrollbars", f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
+               f"--screenshot={png_path}", f"--window-size={width},{height}", "file://" + html_path]
+        try:
+            p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"Chromium did not finish within {timeout_s:g} s") from None
+    if p.returncode != 0 or not os.path.isfile(png_path):
+        raise RuntimeError(f"Chromium failed (exit {p.returncode}): {p.stderr.strip()[-500:]}")
+    return [line for line in p.stderr.splitlines() if ":CONSOLE" in line]
+
+
+def screenshot(html_path: str, png_path: str, **kwargs) -> str:
+    """:func:`render_in_browser`, failing (RuntimeError) on any console message; returns
+    ``png_path``."""
+    console = render_in_browser(html_path, png_path, **kwargs)
+    if console:
+        raise RuntimeError(f"{html_path}: the page logged {len(console)} console message(s): {console[0][-300:]}")
+    return png_path
