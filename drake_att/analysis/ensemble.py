@@ -90,6 +90,7 @@ and ``estimators``: name ->
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 
@@ -239,6 +240,7 @@ def record_from_npz(npz) -> dict:
 # ---------------------------------------------------------------------------------------------
 # Statistics helpers
 # ---------------------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=256)
 def _normal_quantile(p: float) -> float:
     lo, hi = -40.0, 40.0
     for _ in range(200):
@@ -250,6 +252,7 @@ def _normal_quantile(p: float) -> float:
     return 0.5 * (lo + hi)
 
 
+@functools.lru_cache(maxsize=1024)
 def chi2_q(probability: float, dof: float) -> float:
     """The chi-square quantile for any dof > 0: exact up to 1000 dof
     (:func:`drake_att.filters.gating.chi2_quantile`; a non-integer dof is rounded, at least
