@@ -15,16 +15,17 @@ configured outage window or, with the configured probability, at random (drop-ou
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
 from drake_att.validation import check_nonnegative
-from drake_att.systems.randomness import SEED_WORDS, SampledDrawEvents, counter_random, declare_seed_port
+from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
 
 def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
     """``q_BS`` from paper S3's three mounting angles (its eq. 7).
@@ -79,7 +80,7 @@ class StarTrackerNoise:
                    float(sigma_vector_rad), float(dropout_probability), windows)
 
 
-class StarTracker(SampledDrawEvents, LeafSystem):
+class StarTracker(LeafSystem):
     """Star tracker with quaternion or vector output.
 
     Args:
@@ -103,10 +104,11 @@ class StarTracker(SampledDrawEvents, LeafSystem):
         star_tracker_measurement (6): ``[t_meas (s), valid (1/0), q_IS_meas (4, wxyz)]``.
     Output ports (vector mode):
         vector_observations (abstract :class:`VectorObservations`).
-    Discrete state: ``[seed words (4), sample index, t_sample, valid, noise, noise numbers (6)]``
-        where the noise is ``q_BS ⊗ exp(delta_S)`` (4) in quaternion mode, or the ``3m`` vector
-        errors, and the noise numbers are the parameter's ``[sigmas_S (3), sigma_vector,
-        dropout_probability, has outage windows]`` copied at initialization.
+    Discrete state: the seed words (4, read at initialization); no per-sample event. Sample ``k`` is at ``t_k = k T``; an output evaluated at a time
+        ``t`` in ``(t_(k-1), t_k]`` carries sample ``k`` (stamp ``t_k``, its validity and noise:
+        ``q_BS ⊗ exp(delta_S)`` in quaternion mode, the ``3m`` vector errors in vector mode),
+        drawn as a pure function of (seed, system name, ``k``) — the same numbers whenever and
+        however often it is evaluated, and no Python call per sample unless an output is read.
     """
 
     def __init__(self, name: str, period_s: float, q_BS=(1.0, 0.0, 0.0, 0.0), mode: str = "quaternion",
@@ -146,11 +148,13 @@ class StarTracker(SampledDrawEvents, LeafSystem):
         # Vector mode, optional: the additive noise of this sample (3m) from a correlated-noise
         # source (paper S1, drake_att.systems.correlated_noise), used instead of the tracker's own.
         self._noise_port = self.DeclareVectorInputPort("vector_noise", n_noise) if mode == "vectors" else None
-        self._numbers_start = SEED_WORDS + 3 + n_noise  # then the noise numbers (_NOISE_NUMBERS)
-        self.DeclareDiscreteState(np.concatenate([np.zeros(self._numbers_start), self._noise_numbers(self.default_noise)]))
+        # No per-sample event: sample k (time k T) is a pure function of (seed, name, k), drawn
+        # when an output at a time in ((k-1) T, k T] is evaluated (one Python call per
+        # evaluation instead of a per-sample event plus the evaluation). The state holds only
+        # the seed words, read once at initialization (the seed port's value changes after t = 0).
+        self.DeclareDiscreteState(np.zeros(SEED_WORDS))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
-        deps = {self.xd_ticket(), self.all_input_ports_ticket()}
+        deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
                 "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc_quaternion, deps)
@@ -183,6 +187,22 @@ class StarTracker(SampledDrawEvents, LeafSystem):
         dropout_probability, has outage windows]``."""
         return np.array([*p.sigmas_S, p.sigma_vector, p.dropout_probability, float(bool(p.outage_windows_s))])
 
+    def _initialize(self, context, discrete_state):
+        discrete_state.set_value(read_seed_words(self, context, self._seed_port))
+        return EventStatus.Succeeded()
+
+    def _sample(self, context):
+        """``(t_sample, valid, draw, numbers)`` of the sample an output at this time carries:
+        the pending one, index ``k = ceil(t / T)`` (``t`` on a sample instant: that instant's),
+        stamped as the event-driven tracker did, ``t_k = t_(k-1) + T``."""
+        t, period = context.get_time(), self.period_s
+        index = max(0, math.ceil(t / period - 1e-9))
+        t_sample = (index - 1) * period + period if index else 0.0
+        words = context.get_discrete_state_vector().value()
+        numbers = self._noise_numbers(self.noise(context))
+        draw, valid = self._draw(context, numbers, words, index, t_sample)
+        return t_sample, valid, draw, numbers
+
     def _draw(self, context, numbers, words, index, t_sample):
         cr = counter_random(words, self.get_name())
         if self.mode == "quaternion":
@@ -197,18 +217,18 @@ class StarTracker(SampledDrawEvents, LeafSystem):
 
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
-        x = context.get_discrete_state_vector().value()
-        q_meas = rot.quat_canonical(rot.quat_multiply(self._q_port.Eval(context), x[7:11]))
+        t_sample, valid, noise, _ = self._sample(context)
+        q_meas = rot.quat_canonical(rot.quat_multiply(self._q_port.Eval(context), noise))
         out = np.empty(QUATERNION_MEASUREMENT_SIZE)
-        out[0], out[1], out[2:] = x[5], x[6], q_meas
+        out[0], out[1], out[2:] = t_sample, float(valid), q_meas
         output.SetFromVector(out)
 
     def _calc_vectors(self, context, output):
-        x = context.get_discrete_state_vector().value()
+        t_sample, valid, noise, numbers = self._sample(context)
         q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
         R_SI = rot.quat_to_rotmat(q_IS).T
-        noise = (self._noise_port.Eval(context) if self._noise_port.HasValue(context)
-                 else x[7:self._numbers_start])
+        if self._noise_port.HasValue(context):
+            noise = self._noise_port.Eval(context)
         dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
         output.set_value(VectorObservations(
-            float(x[5]), bool(x[6] > 0.5), dirs, self.references_I, float(x[self._numbers_start + 3]), self.q_BS))
+            float(t_sample), bool(valid), dirs, self.references_I, float(numbers[3]), self.q_BS))
