@@ -155,6 +155,10 @@ def test_convergence_and_worst_runs():
     assert c["time_s_by_seed"] == {"3": 2.0, "4": None, "5": 10.0, "6": None, "7": 0.0}
     assert [w["seed"] for w in out["worst_runs"]] == [4, 6, 5]
     assert out["worst_runs"][0]["command"] == "drake-att run cubesat_single_star_tracker --seed 4"
+    sets = ens.summarize(records, _Scenario("x"), worst=1, scenario_arg="my dir/s.yaml",
+                         overrides=["duration_s=600", "estimators.f.initial_attitude_sigma_deg=1"])
+    assert sets["estimators"]["f"]["worst_runs"][0]["command"] == (
+        "drake-att run 'my dir/s.yaml' --seed 4 --set duration_s=600 --set estimators.f.initial_attitude_sigma_deg=1")
     assert out["worst_runs"][0]["attitude_rmse_total_deg"] == pytest.approx(np.sqrt(3) * 4e-4 / DEG, rel=1e-6)
 
 
