@@ -1,0 +1,324 @@
+"""The compiled particle-filter kernels (drake_att.filters.particle_kernels, ``kernel="numba"``)
+against the numpy reference they replace (``kernel="numpy"``: drake_att.filters.mrp_ekf and the
+lines of drake_att.filters.particle), which stays the specification and the oracle.
+
+Tolerances are round-off, measured in the units that carry meaning: a covariance entry
+relative to ``sqrt(P_ii P_jj)`` (so a bias block 1e-12 below the attitude block is checked
+as tightly as the attitude), a state component relative to ``|x_i| + sqrt(P_ii)``, a
+log-weight increment relative to its size plus the round-off of the likelihood itself
+(``|y - h|^2 / 2 sigma^2`` is computed from ``y`` and ``h`` of norm 1, so its absolute
+round-off is ~``|y - h| eps / sigma^2``). Measured: 1e-15 for states near the measurement,
+1e-11 for states far from it (the innovation covariance's condition number, up to ~1e6,
+multiplies the round-off of the gain); bounds with 100x-1000x margin.
+
+A first run on a machine compiles the kernels (numba, cached on disk; benchmarks/README.md).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from drake_att import rotations as rot
+from drake_att.filters import mrp_ekf
+from drake_att.filters import particle_kernels as pk
+from drake_att.filters.mrp_ekf import attitude_to_mrp_covariance, vector_measurement_model
+from drake_att.filters.particle import (
+    BootstrapParticleFilter,
+    ExtendedKalmanParticleFilter,
+    GyrolessParticleFilter,
+    vector_log_likelihood,
+)
+from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
+
+INERTIA = np.diag([100.0, 200.0, 200.0])
+TORQUE = np.full(3, 1e-5)
+N = 1500
+
+
+def _random_covariances(rng, n, log_sigma_attitude=(-6.0, -1.0), log_sigma_bias=(-10.0, -6.0)):
+    """SPD ``(n, 6, 6)`` of ``[dtheta; b]`` with random correlations and per-particle scales."""
+    sa = 10.0 ** rng.uniform(*log_sigma_attitude, size=n)
+    sb = 10.0 ** rng.uniform(*log_sigma_bias, size=n)
+    A = rng.normal(size=(n, 6, 6))
+    C = A @ A.transpose(0, 2, 1) / 6.0 + 0.05 * np.eye(6)
+    d = np.sqrt(np.einsum("nii->ni", C))
+    s = np.stack([sa, sa, sa, sb, sb, sb], axis=1)
+    return C / d[:, :, None] / d[:, None, :] * s[:, :, None] * s[:, None, :]
+
+
+def _states_near(rng, n, q_true, **kw):
+    """Particles ``(x, P)`` (MRP chart) whose means are draws from their own covariance around
+    ``q_true`` (innovations of a few sigmas: a filter's regime)."""
+    P_att = _random_covariances(rng, n, **kw)
+    e = (np.linalg.cholesky(P_att) @ rng.normal(size=(n, 6, 1)))[:, :, 0]
+    rho = rot.quat_to_mrp(rot.quat_multiply(q_true, rot.rotvec_to_quat(-e[:, :3])))
+    return np.concatenate([rho, 1e-5 + e[:, 3:]], axis=1), attitude_to_mrp_covariance(rho, P_att)
+
+
+def _states_anywhere(rng, n):
+    """Particles at uniformly random attitudes (|rho| <= 1), unrelated to any measurement."""
+    rho = rot.quat_to_mrp(rot.quat_normalize(rng.normal(size=(n, 4))))
+    return np.concatenate([rho, 1e-5 * rng.normal(size=(n, 3))], axis=1), _random_covariances(rng, n)
+
+
+def assert_states_close(x, P, x_ref, P_ref, tol):
+    """``|dx_i| <= tol (|x_i| + sqrt(P_ii))`` and ``|dP_ij| <= tol sqrt(P_ii P_jj)``."""
+    d = np.sqrt(np.einsum("nii->ni", P_ref))
+    assert np.all(d > 0.0)
+    ex = np.abs(x - x_ref) / (np.abs(x_ref) + d)
+    eP = np.abs(P - P_ref) / (d[:, :, None] * d[:, None, :])
+    assert ex.max() <= tol and eP.max() <= tol, (ex.max(), eP.max())
+
+
+def assert_log_weights_close(a, b, sigma):
+    """Round-off of a log-likelihood-based weight: relative 1e-12 plus ``|y - h| eps / sigma^2``
+    with ``|y - h| / sigma <= sqrt(2 |log w|)`` (and ``|y| ~ 1``)."""
+    tol = 1e-12 * np.maximum(1.0, np.abs(b)) + 1e-13 * np.sqrt(2.0 * np.abs(b) + 1.0) / sigma
+    assert np.all(np.abs(a - b) <= tol), np.max(np.abs(a - b) / tol)
+
+
+# --------------------------------------------------------------------------------------
+# Kernel by kernel
+# --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("w, dt", [(np.array([1e-3, -5e-4, 2e-4]), 1.0), (np.array([0.9, -0.6, 0.4]), 2.0)])
+def test_ekf_predict_equals_the_reference(w, dt):
+    """Many random states; the fast rate turns particles by ~2 rad, so many of them cross
+    |rho| = 1 and take the shadow switch (checked: same switch, same chart)."""
+    rng = np.random.default_rng(1)
+    x, P = _states_anywhere(rng, N)
+    x_ref, P_ref = mrp_ekf.ekf_predict(x, P, w, dt, SIGMA_V, SIGMA_U)
+    x_new, P_new = pk.ekf_predict(x, P, w, dt, SIGMA_V, SIGMA_U)
+    assert_states_close(x_new, P_new, x_ref, P_ref, 1e-13)
+    if dt == 2.0:  # the shadow switch happened (|rho| <= 1 both ways) for a good share
+        unswitched = mrp_ekf.propagate_mrp(x[:, :3], w - x[:, 3:], dt)
+        assert np.mean(np.sum(unswitched**2, axis=1) > 1.0) > 0.2
+
+
+@pytest.mark.parametrize("sigma", [1e-4, 1e-2])
+@pytest.mark.parametrize("iterations", [1, 3, 10])
+def test_ekf_update_equals_the_reference(sigma, iterations):
+    """Particles near the truth (a filter's regime), classic and iterated (the batch stops
+    iterating when no component of any particle moves by more than 1e-12, as the reference).
+    Measured 7e-15 (sigma 1e-4), 1e-15 (1e-2)."""
+    rng = np.random.default_rng(2)
+    q_true = rot.quat_normalize(np.array([0.7, -0.2, 0.5, 0.3]))
+    x, P = _states_near(rng, N, q_true, log_sigma_attitude=(-5.0, -2.0))
+    y = vector_measurement_model(rot.quat_to_mrp(q_true), REFS) + sigma * rng.normal(size=6)
+    x_ref, P_ref, _, _ = mrp_ekf.ekf_update(x, P, y, REFS, sigma, switch=False, iterations=iterations)
+    x_new, P_new = pk.ekf_update(x, P, y, REFS, sigma, iterations=iterations)
+    assert_states_close(x_new, P_new, x_ref, P_ref, 1e-12)
+
+
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_ekf_update_far_from_the_measurement_agrees_to_its_conditioning(iterations):
+    """Random attitudes against one measurement (innovations of up to ~100 prior sigmas, an
+    innovation covariance with condition number up to ~1e6): the two solves (numpy's LU, the
+    kernel's Cholesky) differ by round-off times that condition number (measured 1e-11)."""
+    rng = np.random.default_rng(3)
+    x, P = _states_anywhere(rng, N)
+    y = vector_measurement_model(x[0, :3], REFS) + 1e-2 * rng.normal(size=6)
+    x_ref, P_ref, _, _ = mrp_ekf.ekf_update(x, P, y, REFS, 1e-2, switch=False, iterations=iterations)
+    x_new, P_new = pk.ekf_update(x, P, y, REFS, 1e-2, iterations=iterations)
+    assert_states_close(x_new, P_new, x_ref, P_ref, 1e-9)
+
+
+@pytest.mark.parametrize("sigma", [1e-4, 1e-2])
+@pytest.mark.parametrize("iterations", [1, 3])
+def test_ekpf_measurement_step_equals_the_reference(sigma, iterations):
+    """The fused kernel (EKF update, both Cholesky factors, proposal draw with the given normals,
+    log densities, shadow switch) against the numpy lines of ExtendedKalmanParticleFilter.update."""
+    rng = np.random.default_rng(4)
+    q_true = rot.quat_normalize(np.array([0.2, 0.9, -0.3, 0.25]))
+    x, P = _states_near(rng, N, q_true, log_sigma_attitude=(-5.0, -2.0))
+    y = vector_measurement_model(rot.quat_to_mrp(q_true), REFS) + sigma * rng.normal(size=6)
+    eps = rng.normal(size=(N, 6))
+    ref = ExtendedKalmanParticleFilter(N, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U, rng,
+                                       proposal_iterations=iterations, kernel="numpy")
+    ref.particles, ref.covariances = x, P
+    x_ref, P_ref, inc_ref = ref._proposal_step(y, REFS, sigma, eps)
+    x_new, P_new, inc_new = pk.ekpf_update(x, P, eps, y, REFS, sigma, iterations=iterations)
+    assert_states_close(x_new, P_new, x_ref, P_ref, 1e-12)
+    assert_log_weights_close(inc_new, inc_ref, sigma)
+
+
+def test_log_likelihood_and_attitude_step_equal_the_reference():
+    """The bootstrap PF's pieces; a non-finite particle gets -inf in both."""
+    rng = np.random.default_rng(5)
+    x, _ = _states_anywhere(rng, N)
+    rho = x[:, :3].copy()
+    rho[7] = np.nan
+    y = vector_measurement_model(rot.quat_to_mrp(rot.quat_normalize(rng.normal(size=4))), REFS)
+    ll_ref = vector_log_likelihood(rho, y, REFS, SIGMA_STAR)
+    ll = pk.vector_log_likelihood(rho, y, REFS, SIGMA_STAR)
+    assert ll[7] == ll_ref[7] == -np.inf
+    keep = np.arange(N) != 7
+    assert_log_weights_close(ll[keep], ll_ref[keep], SIGMA_STAR)
+    w = rng.normal(size=(N, 3))
+    expected = rot.quat_to_mrp(rot.quat_multiply(rot.mrp_to_quat(x[:, :3]), rot.rotvec_to_quat(w * 0.7)))
+    np.testing.assert_allclose(pk.propagate_attitudes(x[:, :3], w, 0.7), expected, rtol=0, atol=1e-14)
+
+
+# --------------------------------------------------------------------------------------
+# Filters: the same random numbers, the same decisions
+# --------------------------------------------------------------------------------------
+def _twin_filters(make):
+    """A filter per kernel from the same seed (identical initial sets) and a generator each."""
+    return [(make(np.random.default_rng(11), kernel), np.random.default_rng(12)) for kernel in ("numpy", "numba")]
+
+
+def _assert_twins_close(ref, new, sigma=SIGMA_STAR, tol=1e-12):
+    assert (ref.n_resamples, ref.n_updates, ref.n_degenerate) == (new.n_resamples, new.n_updates, new.n_degenerate)
+    P_ref = getattr(ref, "covariances", None)
+    if P_ref is not None:
+        assert_states_close(new.particles, new.covariances, ref.particles, P_ref, tol)
+    else:
+        np.testing.assert_allclose(new.particles, ref.particles, rtol=tol, atol=tol * np.abs(ref.particles).max())
+    assert_log_weights_close(new.log_weights, ref.log_weights, sigma)
+
+
+@pytest.mark.parametrize("kind", ["ekpf", "ekpf iterated, 170 deg", "bootstrap", "gyroless"])
+def test_filters_equal_the_reference_over_a_run(kind):
+    """Each filter with both kernels from the same seed over 25 steps equals the reference to
+    round-off at every step, with the same resamplings (same offspring) and the same random
+    numbers consumed. Measured: the bootstrap and gyroless PFs bit for bit on this machine
+    (their kernels repeat the reference's scalar expressions; a numpy with other sin/cos
+    implementations may differ in the last bit); the EKPF 1e-11 of ``|x| + sqrt(P)`` from its
+    first update on (a 1 deg prior against 100 urad vectors: innovations of ~170 sigmas through an
+    innovation covariance of condition ~3e4, solved by LU in numpy and by Cholesky here), 8e-11
+    for the 170-deg start with the iterated proposal; covariances 3e-15."""
+    _, _, ys, wms = simulate_gyro_truth(25, np.random.default_rng(13))
+    q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
+    b0 = np.full(3, 2 * DEG / HOUR)
+    tol = 1e-13
+    if kind == "ekpf":
+        make = lambda r, k: ExtendedKalmanParticleFilter(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, r, kernel=k)  # noqa: E731
+        tol = 1e-10
+    elif kind.startswith("ekpf iterated"):
+        q_far = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
+        make = lambda r, k: ExtendedKalmanParticleFilter(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, r,  # noqa: E731
+                                                         proposal_iterations=10, kernel=k)
+        tol = 1e-9
+    elif kind == "bootstrap":
+        make = lambda r, k: BootstrapParticleFilter(500, q0, b0, P0_ATT, 2e-5, r, bias_roughening_sigma=1e-7,  # noqa: E731
+                                                    kernel=k)
+    else:
+        P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
+        make = lambda r, k: GyrolessParticleFilter(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6, r,  # noqa: E731
+                                                   attitude_process_sigma=3e-5, num_substeps=2, kernel=k)
+    (ref, rng_ref), (new, rng_new) = _twin_filters(make)
+    for k in range(len(ys)):
+        for pf, rng in ((ref, rng_ref), (new, rng_new)):
+            if k > 0:
+                pf.predict(1.0, rng) if kind == "gyroless" else pf.predict(1.0, wms[k - 1], rng)
+            pf.update(ys[k], REFS, SIGMA_STAR, rng)
+        _assert_twins_close(ref, new, tol=tol)
+        # both consumed the same random numbers
+        assert rng_ref.bit_generator.state == rng_new.bit_generator.state
+    assert ref.n_resamples > 0
+    q_ref, s_ref = ref.mean()
+    q_new, s_new = new.mean()
+    assert np.linalg.norm(rot.quat_error_rotvec(q_ref, q_new)) < 1e-12
+    np.testing.assert_allclose(s_new, s_ref, rtol=1e-9)
+
+
+def test_singular_covariances_take_the_reference_repair_bit_for_bit():
+    """A zero-variance bias block (the case of the strict xfail in test_particle_weights.py) and
+    an indefinite covariance: a Cholesky factor fails, and the compiled EKPF hands the step to the
+    numpy code, whose batch-wide eigenvalue repair it then equals exactly (no worse, no better)."""
+    q0 = rot.quat_normalize(np.array([0.9, 0.2, -0.3, 0.25]))
+    P0 = np.diag([(100e-6) ** 2] * 3 + [(1e-7) ** 2] * 3)
+    y = vector_measurement_model(rot.quat_to_mrp(q0), REFS) + SIGMA_STAR * np.random.default_rng(1).normal(size=6)
+    for damage in ("zero bias block", "indefinite"):
+        out = []
+        for kernel in ("numpy", "numba"):
+            pf = ExtendedKalmanParticleFilter(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, np.random.default_rng(5),
+                                              resample_threshold=0.0, kernel=kernel)
+            if damage == "zero bias block":
+                pf.covariances[:, 3:, :] = 0.0
+                pf.covariances[:, :, 3:] = 0.0
+            else:
+                pf.covariances[3, 5, 5] = -1e-20
+            assert pf.update(y, REFS, SIGMA_STAR, np.random.default_rng(2))
+            out.append((pf.particles, pf.covariances, pf.log_weights))
+        for a, b in zip(*out):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_a_whole_s0_scenario_run_equals_the_reference_run():
+    """The shipped S0 small-error scenario (60 s, 1000 particles) with the EKPF and the roughened
+    bootstrap PF, kernels switched by context parameter on one diagram, same seed: the logged
+    estimates and covariances agree to 1e-10 of each signal's scale (measured ~4e-12: round-off
+    of the per-particle matrix products, carried through the weights into the weighted mean),
+    with the same resamplings."""
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.config import apply_overrides
+    from drake_att.scenarios.library import load
+
+    names = ["ekpf", "bootstrap_pf_roughened"]
+    sd = ScenarioDiagram(apply_overrides(load("s0_particle_filters_small_error"), ["duration_s=60", "scoring.score_from_s=20"]))
+    runs = {k: sd.simulate(3, estimators=names, overrides=[f"estimators.{n}.kernel={k}" for n in names])
+            for k in ("numpy", "numba")}
+    compared = 0
+    for key, (t, ref) in runs["numpy"].signals.items():
+        if key.split("/")[0] not in names or key.endswith(("status", "innovations")):
+            continue
+        new = runs["numba"].values(key)
+        scale = np.max(np.abs(ref), axis=0)
+        if key.endswith("particle_diagnostics"):
+            np.testing.assert_array_equal(new[:, 1:], ref[:, 1:])  # resamplings, degenerate, N
+            scale = np.maximum(scale, 1.0)
+        assert np.all(np.abs(new - ref) <= 1e-10 * scale + 1e-300), key
+        compared += 1
+    assert compared >= 6
+
+
+# --------------------------------------------------------------------------------------
+# Choosing the kernel; numba's cache
+# --------------------------------------------------------------------------------------
+def test_the_kernel_choice_is_validated_naming_the_field():
+    from drake_att.scenarios.config import ConfigError, apply_overrides
+    from drake_att.scenarios.library import load
+
+    with pytest.raises(ValueError, match="kernel: got 'fortran'; must be 'numba'"):
+        BootstrapParticleFilter(5, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, np.random.default_rng(0), kernel="fortran")
+    for scenario, name in (("s0_particle_filters_small_error", "ekpf"), ("s0_particle_filters_small_error", "bootstrap_pf"),
+                           ("s0_gyroless_pf", None)):
+        s = load(scenario)
+        name = name or s.estimators[-1].name
+        with pytest.raises(ConfigError, match=rf"estimators.*{name}.*kernel: got 'numbaa'"):
+            apply_overrides(s, [f"estimators.{name}.kernel=numbaa"])
+
+
+_CHILD = """
+import warnings
+warnings.simplefilter("error")
+import numpy as np
+from drake_att.filters import particle_kernels
+from drake_att.filters.particle import BootstrapParticleFilter
+r = np.random.default_rng(0)
+pf = BootstrapParticleFilter(5, [1, 0, 0, 0], np.zeros(3), np.eye(6) * 1e-6, 1e-6, r)
+assert pf.update(np.array([1.0, 0, 0, 0, 1.0, 0]), np.eye(3)[:2], 1e-3, r)
+print(particle_kernels.CACHING)
+"""
+
+
+@pytest.mark.parametrize("locator, caching", [("UserWideCacheLocator", True), ("IPythonCacheLocator", False)])
+def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, locator, caching):
+    """A read-only package directory (site-packages): numba caches in the user-wide directory
+    (here ``$XDG_CACHE_HOME/numba``); no writable location at all (numba raises at decoration):
+    the kernels compile in every process. Both without a warning (run with warnings as errors).
+    Simulated with numba's ``NUMBA_CACHE_LOCATOR_CLASSES`` (the suite may run as root, which
+    ignores read-only permissions); the IPython locator accepts no file outside IPython."""
+    env = dict(os.environ, NUMBA_CACHE_LOCATOR_CLASSES=locator, XDG_CACHE_HOME=str(tmp_path), HOME=str(tmp_path))
+    env.pop("NUMBA_CACHE_DIR", None)
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(_CHILD)], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split() == [str(caching)] and out.stderr == "", (out.stdout, out.stderr[-2000:])
+    cached = [f for _, _, fs in os.walk(tmp_path) for f in fs if f.endswith((".nbi", ".nbc"))]
+    assert bool(cached) == caching, cached
