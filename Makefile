@@ -15,6 +15,9 @@ $(STAMP): pyproject.toml
 	@command -v dot >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
 	  (apt-get update -qq && apt-get install -y -qq graphviz >/dev/null) || \
 	  echo "note: Graphviz 'dot' not installed; diagram.svg will be skipped (diagram.dot is always written)"; }
+	@command -v chromium >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
+	  (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) || \
+	  echo "note: Chromium not installed; the Monte Carlo report's headless-browser test will be skipped"; }
 	@touch $(STAMP)
 
 run: $(STAMP)

@@ -154,7 +154,12 @@ def _saved_runs(out) -> int:
 
 def _cmd_montecarlo(args) -> int:
     from drake_att.analysis import campaign_report
-    from drake_att.analysis.montecarlo import CampaignError, campaign_seeds, resolve_scenario, run_campaign
+    from drake_att.analysis.montecarlo import (
+        CampaignError,
+        campaign_seeds,
+        resolve_scenario,
+        run_campaign,
+    )
     from drake_att.scenarios.library import scenario_path
     from drake_att.scenarios.preflight import preflight_warnings
 
@@ -220,7 +225,12 @@ def _scheduler_option(args):
 
 def _cmd_compare(args) -> int:
     from drake_att.analysis import campaign_report
-    from drake_att.analysis.montecarlo import CampaignError, campaign_seeds, comparison_plan, run_comparison
+    from drake_att.analysis.montecarlo import (
+        CampaignError,
+        campaign_seeds,
+        comparison_plan,
+        run_comparison,
+    )
 
     def fail(e):
         return _campaign_failed("compare", e)

@@ -32,7 +32,7 @@ import tempfile
 
 import numpy as np
 
-from drake_att.units import DEG, DEG_PER_H
+from drake_att.units import DEG
 
 AXES = ["x (roll)", "y (pitch)", "z (yaw)"]
 MAX_RUNS_DRAWN = 50
@@ -413,9 +413,9 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
         for n, s in summary["estimators"].items():
             figures.append((_save(error_ensemble_figure(records, n, sf, f"{scenario.name}: {n}, attitude error of "
                                                         f"{len(records)} runs"), os.path.join(out, f"{n}_errors.png")),
-                            f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
-                            "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
-                            "when defined); top: the whole run, bottom: the scoring window."))
+                            (f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
+                             "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
+                             "when defined); top: the whole run, bottom: the scoring window.")))
             figures.append((_save(consistency_figure(records, n, s, f"{scenario.name}: {n}, consistency"),
                                   os.path.join(out, f"{n}_consistency.png")),
                             f"{n}: ANEES per instant over the runs with its 95% band, and NIS / dof per input."))
@@ -434,8 +434,8 @@ def _campaign_html(result, campaign, figures, yaml_text) -> str:
              ("simulated time per run", f"{result.scenario.duration_s:g} s"),
              ("scoring window", f"t ≥ {result.scenario.scoring.score_from_s:g} s"),
              ("executed on", campaign["executor"] or "–"),
-             ("last call", f"{result.ran} runs simulated, {result.reused} read from runs/, "
-                           f"{result.wall_time_s:.1f} s wall")]
+             ("last call", (f"{result.ran} runs simulated, {result.reused} read from runs/, "
+                            f"{result.wall_time_s:.1f} s wall"))]
     body = [f"<h1>{html.escape(title)}</h1>",
             "<table class='facts'>" + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
                                               for k, v in facts) + "</table>"]
@@ -616,11 +616,11 @@ def write_comparison(result) -> list[str]:
     png = _save(comparison_figure(cells, title), os.path.join(out, "comparison.png"))
     files.append(png)
     body = [f"<h1>{html.escape(title)}</h1>",
-            "<p>Every listed estimator on every listed scenario: the estimators of one scenario run in one diagram "
-            "per seed, on the same truth and the same sensor noise. RMSE over each scenario's scoring window, "
-            "pooled over runs (95% CI); ANEES with the 95% band of a window average; RMSE / the posterior "
-            "Cramér–Rao bound; time per estimator step from one run with that estimator alone (and its sources) "
-            "minus the sensors-only run. Each scenario's own report: <code>&lt;scenario&gt;/report.html</code>.</p>",
+            ("<p>Every listed estimator on every listed scenario: the estimators of one scenario run in one diagram "
+             "per seed, on the same truth and the same sensor noise. RMSE over each scenario's scoring window, "
+             "pooled over runs (95% CI); ANEES with the 95% band of a window average; RMSE / the posterior "
+             "Cramér–Rao bound; time per estimator step from one run with that estimator alone (and its sources) "
+             "minus the sensors-only run. Each scenario's own report: <code>&lt;scenario&gt;/report.html</code>.</p>"),
             _table_html(COMPARISON_COLUMNS, rows), _figure_html(png, title)]
     files.append(write_text_atomic(os.path.join(out, "comparison.html"), _page(title, "\n".join(body))))
     return files
@@ -656,7 +656,7 @@ def render_in_browser(html_path: str, png_path: str, width: int = 1400, height: 
                "--hide-scrollbars", f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
                f"--screenshot={png_path}", f"--window-size={width},{height}", "file://" + html_path]
         try:
-            p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+            p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
         except subprocess.TimeoutExpired:
             raise RuntimeError(f"Chromium did not finish within {timeout_s:g} s") from None
     if p.returncode != 0 or not os.path.isfile(png_path):

@@ -31,7 +31,6 @@ scripts' view of the same runner (per-seed metrics and error series).
 from __future__ import annotations
 
 import copy
-import dataclasses
 import functools
 import hashlib
 import json
@@ -39,8 +38,8 @@ import os
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -103,6 +102,13 @@ def record_name(record: Callable) -> str:
 # The worker side
 # ----------------------------------------------------------------------------------------
 _WORKER_DIAGRAMS: dict = {}
+_WORKER_STATS = {"diagrams_built": 0, "runs": 0}
+
+
+def worker_stats() -> dict:
+    """This process's pid, diagrams built and runs simulated by :func:`map_runs` (e.g.
+    ``client.run(worker_stats)`` on a Dask cluster: one diagram per worker, many runs)."""
+    return {"pid": os.getpid(), **_WORKER_STATS}
 
 
 def _worker_diagram(yaml_text: str):
@@ -116,6 +122,7 @@ def _worker_diagram(yaml_text: str):
             # The client prints a scenario's preflight warnings once, not once per worker.
             warnings.simplefilter("ignore", DegenerateScenarioWarning)
             sd = _WORKER_DIAGRAMS[yaml_text] = diagram_for(cfg.load_scenario(text=yaml_text))
+        _WORKER_STATS["diagrams_built"] += 1
     return sd
 
 
@@ -128,6 +135,7 @@ def _run_jobs(yaml_text: str, jobs, record: Callable) -> list:
     sd = _worker_diagram(yaml_text)
     out = []
     for seed, estimators in jobs:
+        _WORKER_STATS["runs"] += 1
         try:
             run = sd.simulate(int(seed), estimators=None if estimators is None else list(estimators))
         except NonFiniteRunError as e:
@@ -139,8 +147,9 @@ def _run_jobs(yaml_text: str, jobs, record: Callable) -> list:
 
 def _worker_versions() -> dict:
     """What a worker runs (checked against the client's before a cluster campaign)."""
-    import drake_att
     import pydrake
+
+    import drake_att
 
     return {"drake_att": drake_att.__version__, "drake": getattr(pydrake, "__version__", "?"),
             "numpy": np.__version__, "python": sys.version.split()[0]}
@@ -160,15 +169,33 @@ def check_scheduler_address(address: str) -> str:
     return text if "://" in text else "tcp://" + text
 
 
+def local_cluster(workers: int):
+    """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes (pydrake
+    systems are not thread-safe), no dashboard. Its worker processes ignore SIGINT: a
+    terminal's Ctrl-C reaches the whole process group, and this process (the client) stops
+    the campaign and closes the cluster; the workers would only print tracebacks."""
+    import logging
+    import signal
+    import threading
+
+    from distributed import LocalCluster
+
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None  # inherited by the spawned workers
+    try:
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                            silence_logs=logging.CRITICAL)
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+
+
 def _connect(workers, scheduler, connect_timeout_s):
     """``(client, cluster, owned)`` for a Dask run."""
-    import logging
-
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+        cluster = local_cluster(workers)
         return Client(cluster), cluster, True
     if isinstance(scheduler, Client):
         return scheduler, None, False
@@ -281,7 +308,7 @@ def _shut_down(client, cluster, owned, futures) -> None:
         if owned:
             client.close()
             cluster.close()
-    except Exception:  # noqa: BLE001 - shutting down after an error or Ctrl-C: the first error is what matters
+    except Exception:  # noqa: BLE001, S110 - shutting down after an error or Ctrl-C: the first error matters
         pass
     finally:
         for q, level in zip(quiet, levels):
@@ -364,6 +391,7 @@ class CampaignProgress(Progress):
         super().__init__(float(total_runs), label, **kwargs)
         self.total_runs, self.already_done, self.done = int(total_runs), int(already_done), 0
         self._every = max(1, (total_runs - already_done) // 20)
+        self._first_at = None
 
     def line(self, done: float) -> str:
         done = int(done)
@@ -372,6 +400,10 @@ class CampaignProgress(Progress):
         left = self.total_runs - total_done
         if left <= 0:
             eta = "done"
+        elif done > 1 and self._first_at is not None:
+            # The pace since the first result: the start-up (cluster, imports, first diagram)
+            # is not a cost every run pays again.
+            eta = "ETA " + format_duration((self.clock() - self._first_at) / (done - 1) * left)
         elif done > 0:
             eta = "ETA " + format_duration(elapsed * left / done)
         else:
@@ -384,6 +416,8 @@ class CampaignProgress(Progress):
 
     def run_done(self) -> None:
         self.done += 1
+        if self._first_at is None:
+            self._first_at = self.clock()
         if self.tty or self.done % self._every == 0 or self.already_done + self.done >= self.total_runs:
             self.update(self.done)
 
@@ -827,7 +861,7 @@ def timing_record(run) -> dict:
     steps = {}
     for name, spec in run.metadata["estimators"].items():
         status = run.values(spec["signals"]["status"])
-        steps[name] = int(len(np.unique(status[np.isfinite(status[:, 0]), 0])))
+        steps[name] = len(np.unique(status[np.isfinite(status[:, 0]), 0]))
     return {"wall_time_s": float(run.wall_time_s), "steps": steps}
 
 
@@ -866,12 +900,9 @@ def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, work
     campaign_seeds(runs, first_seed)
     owned = None
     if scheduler is None and workers != 1:
-        from distributed import Client, LocalCluster
-        import logging
+        from distributed import Client
 
-        n = workers or os.cpu_count() or 1
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+        cluster = local_cluster(workers or os.cpu_count() or 1)
         owned = (Client(cluster), cluster)
         scheduler = owned[0]
     campaigns, timing = {}, {}
