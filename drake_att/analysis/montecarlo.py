@@ -36,6 +36,7 @@ import hashlib
 import json
 import os
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -103,6 +104,9 @@ def record_name(record: Callable) -> str:
 # ----------------------------------------------------------------------------------------
 _WORKER_DIAGRAMS: dict = {}
 _WORKER_STATS = {"diagrams_built": 0, "runs": 0}
+# One simulation at a time per process: a Dask worker started with several threads
+# (``dask worker --nthreads 4``) would otherwise run pydrake systems concurrently.
+_WORKER_LOCK = threading.Lock()
 
 
 def worker_stats() -> dict:
@@ -130,6 +134,11 @@ def _run_jobs(yaml_text: str, jobs, record: Callable) -> list:
     """Run ``jobs`` (``(seed, estimators or None)`` pairs) on this process's diagram of
     ``yaml_text``; returns ``[(job, record(run) or RunFailed), ...]``. The Dask task and the
     serial loop both call this, so both compute the very same thing."""
+    with _WORKER_LOCK:
+        return _run_jobs_locked(yaml_text, jobs, record)
+
+
+def _run_jobs_locked(yaml_text: str, jobs, record: Callable) -> list:
     from drake_att.scenarios.builder import NonFiniteRunError
 
     sd = _worker_diagram(yaml_text)
@@ -176,7 +185,6 @@ def local_cluster(workers: int):
     the campaign and closes the cluster; the workers would only print tracebacks."""
     import logging
     import signal
-    import threading
 
     from distributed import LocalCluster
 
