@@ -97,7 +97,9 @@ def _y_scale(ax, span_factor: float = 20.0, values=None) -> None:
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     if values is None:
-        values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()] or [np.zeros(0)])
+        # data lines only (not axhline / axvline, whose coordinates are partly axes fractions)
+        values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()
+                                 if line.get_transform() == ax.transData] or [np.zeros(0)])
     y = np.asarray(values, dtype=float).ravel()
     y = y[np.isfinite(y) & (y > 0)]
     if y.size and y.max() / y.min() > span_factor:
