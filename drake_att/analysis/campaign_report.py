@@ -100,11 +100,13 @@ def _y_scale(ax, span_factor: float = 20.0, values=None) -> None:
         # data lines only (not axhline / axvline, whose coordinates are partly axes fractions)
         values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()
                                  if line.get_transform() == ax.transData] or [np.zeros(0)])
-    y = np.asarray(values, dtype=float).ravel()
+    y = np.array([np.nan if v is None else v for v in np.ravel(np.asarray(values, dtype=object))], dtype=float)
     y = y[np.isfinite(y) & (y > 0)]
     if y.size and y.max() / y.min() > span_factor:
         ax.set_yscale("log")
-        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        decades = np.log10(y.max() / y.min())
+        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0) if decades <= 2.5 else (1.0,),
+                                              numticks=10))
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(NullFormatter())
 
@@ -218,17 +220,19 @@ def consistency_figure(records, name: str, stats: dict, title: str):
                       f", window band [{stats['anees_window_band_95'][0]:.3g}, {stats['anees_window_band_95'][1]:.3g}]"
                       if stats.get("anees_window_band_95") else ""))
     a.axvline(float(records[0]["score_from_s"]), color="gray", lw=0.8)
+    _y_scale(a, 20.0, np.r_[anees, [v for v in band if v is not None], dof])
     a.set_ylabel("ANEES")
     a.set_xlabel("time (s)")
     a.set_title("average NEES per instant (the gray line starts the scoring window)", fontsize=10)
-    a.grid(True, which="both", alpha=0.3)
-    _y_scale(a)
+    a.grid(True, which="major", alpha=0.3)
     a.legend(fontsize=7, loc="upper right")
     if nis_inputs:
         b = ax[1]
         t_end = float(records[0]["duration_s"])
+        spans = [1.0]
         for i, n in nis_inputs:
             c, m, lo, hi = _nis_bins(records, name, i, t_end)
+            spans += [*m, *lo, *hi]
             line = b.plot(c, m, ".-", lw=0.8, ms=3, label=f"{n}: mean NIS / dof per bin")[0]
             b.fill_between(c, lo, hi, color=line.get_color(), alpha=0.15, label=f"{n}: 95% band per bin")
         b.axhline(1.0, color="k", lw=0.8, ls="--")
@@ -236,8 +240,8 @@ def consistency_figure(records, name: str, stats: dict, title: str):
         b.set_ylabel("NIS / dof")
         b.set_xlabel("time (s)")
         b.set_title(f"normalized innovation squared per input ({NIS_BINS} time bins, all runs)", fontsize=10)
-        b.grid(True, which="both", alpha=0.3)
-        _y_scale(b)
+        b.grid(True, which="major", alpha=0.3)
+        _y_scale(b, 20.0, spans)
         b.legend(fontsize=7, loc="upper right")
     fig.suptitle(title)
     return fig
@@ -269,6 +273,9 @@ def rmse_vs_bound_figure(summary: dict, title: str):
             bv = list(bd["attitude_rmse_bound_deg"]) + [bd["attitude_rmse_total_bound_deg"]]
             a.scatter(x, bv, marker="D", s=22, facecolor="white", edgecolor="k", zorder=3,
                       label="Cramér–Rao bound" if j == 0 else None)
+    _y_scale(a, 20.0, [q for n in names for q in list(ests[n]["attitude_rmse_deg"])
+                        + [ests[n]["attitude_rmse_total_deg"]]
+                        + list(ests[n]["bound"]["attitude_rmse_bound_deg"] or [])])
     a.set_xticks(np.arange(4), groups)
     a.set_ylabel("RMSE over the scoring window (deg)")
     a.set_title("window RMSE with 95% CI; diamonds: the bound", fontsize=10)
@@ -290,7 +297,7 @@ def rmse_vs_bound_figure(summary: dict, title: str):
     b.set_title("RMS of |dθ| over runs (and a moving window of "
                 f"{smoothing_window(summary['n_runs'], len(ests[names[0]]['history']['t']))} points) vs the bound's "
                 "total σ", fontsize=10)
-    b.grid(True, which="both", alpha=0.3)
+    b.grid(True, which="major", alpha=0.3)
     _y_scale(b, 5.0)
     b.legend(fontsize=7, ncol=2, loc="best")
     fig.suptitle(title)
