@@ -22,18 +22,24 @@ here                                         reference
                                              draw, the three log densities, shadow switch
 ==========================================  ====================================================
 
-**Same numbers, not just the same maths.** No ``fastmath`` (no reassociation, no fused
-multiply-add), and each scalar expression is written in the reference's order of
-operations; what differs is the summation order inside small matrix products (numpy's
-batched ``matmul``/``einsum``/``solve`` use BLAS/LAPACK kernels whose order is their
-own) and the last bit of ``sin``/``cos``/``sqrt``-based library calls, i.e. round-off.
-Only terms that are *exactly* zero in the reference are skipped: the zero rows of the
-dynamics Jacobian ``F = [[J, -B], [0, 0]]`` (so ``Phi = [[Phi_1, Phi_2], [0, I]]``), the
-zero off-diagonal blocks of ``Qg``, and the zero bias columns of the measurement Jacobian
-``H = [H_rho, 0]`` (so ``I - K H`` has identity bias columns). No random numbers are drawn
-here: the filters draw them from their ``numpy.random.Generator`` in the reference's order
-and pass them in, and keep the weight normalization and the systematic-resampling
-cumulative sums in numpy, so a run differs from the reference run by round-off only.
+**Same maths, equal to round-off.** No ``fastmath`` (no reassociation, no fused multiply-add);
+scalar expressions (quaternion products, rotation-vector exponentials, RK4 stages, the
+likelihood) are written in the reference's order of operations, which makes the bootstrap
+and gyroless steps bit-identical to the numpy code on this machine. The EKPF's matrix
+algebra differs by round-off, in these places only: small matrix products sum in their own
+order (numpy's batched ``matmul``/``einsum`` call BLAS); terms that are *exactly* zero in the
+reference are skipped (the zero rows of the dynamics Jacobian ``F = [[J, -B], [0, 0]]``, so
+``Phi = [[Phi_1, Phi_2], [0, I]]``; the zero blocks of ``Qg``; the zero bias columns of
+``H = [H_rho, 0]``, so ``I - K H`` has identity bias columns); symmetric results (``S``, the
+predicted and the updated covariance) are computed on one triangle and mirrored where the
+reference averages ``(A + A') / 2``; ``S^-1`` is applied by Cholesky (LU with partial
+pivoting, numpy's method, if that fails) and the triangular factors by reciprocal pivots,
+as LAPACK's ``dpotf2``; ``log det L`` is one log of the product of the pivots (the sum of
+logs if that product leaves the normal range). No random numbers are drawn here: the
+filters draw them from their ``numpy.random.Generator`` in the reference's order and pass
+them in, and keep the weight normalization and the systematic-resampling cumulative sums in
+numpy. When a Cholesky factor of some particle's covariance fails, the EKPF hands the whole
+step to the numpy code (whose repair is batch-wide).
 
 **Cache.** ``cache=True``: the first call of each kernel in a fresh environment compiles it
 (about 10 s for all of them; ``benchmarks/README.md`` has the measured figures) and writes
@@ -55,6 +61,8 @@ import math
 import numba
 import numpy as np
 
+from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, as rotvec_to_quat
+
 __all__ = [
     "CACHING",
     "propagate_attitudes",
@@ -65,7 +73,6 @@ __all__ = [
     "ekpf_update",
 ]
 
-_SMALL_ANGLE = 1e-4  # = drake_att.rotations._SMALL_ANGLE (series of sin(a/2)/a below it)
 
 CACHING = True
 
@@ -283,28 +290,27 @@ def _log_det_factor(L, inv):
 
 @_jit
 def _spd_solve(S, C, inv, B):
-    """``S^-1 B`` in place of ``B`` (n, r) through the Cholesky factor of the symmetric ``S``
+    """``S^-1 B`` in place of ``B`` (n, 6) through the Cholesky factor of the symmetric ``S``
     (``C`` (n, n), ``inv`` (n,): scratch); False (``B`` untouched) if ``S`` is not positive
-    definite."""
+    definite. (Six right-hand sides, a constant: the compiler unrolls the row operations.)"""
     if not _cholesky_factor(S, C, inv):
         return False
     n = S.shape[0]
-    r = B.shape[1]
     for j in range(n):  # C Z = B
         d = inv[j]
-        for c in range(r):
+        for c in range(6):
             B[j, c] *= d
         for a in range(j + 1, n):
             f = C[a, j]
-            for c in range(r):
+            for c in range(6):
                 B[a, c] -= f * B[j, c]
     for j in range(n - 1, -1, -1):  # C' X = Z
         d = inv[j]
-        for c in range(r):
+        for c in range(6):
             B[j, c] *= d
         for a in range(j):
             f = C[j, a]
-            for c in range(r):
+            for c in range(6):
                 B[a, c] -= f * B[j, c]
     return True
 
