@@ -687,7 +687,8 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
             overwritten by accident).
         overrides: ``--set``-style ``path=value`` strings applied to the scenario first.
         estimators: names of the estimators to run (default: all).
-        record: ``RunLog -> dict of numpy arrays`` (default :func:`default_record`).
+        record: ``RunLog -> dict of numpy arrays`` (default :func:`default_record`; with
+            another one there are no ensemble statistics, ``summary`` is None).
         report: write the summary, report and manifest (with ``out``).
         progress: a progress line (runs done, wall time, ETA) on ``stream`` (stderr).
 
@@ -735,7 +736,9 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     result = CampaignResult(resolved, seeds, ordered, {s: failed[s] for s in seeds if s in failed}, None, out, ran,
                             reused, 0.0)
     if report:
-        result.summary = default_summarize(ordered, resolved) if ordered else None
+        # The ensemble statistics read the default record; another record gets a report of
+        # the campaign alone (its caller reduces its own records).
+        result.summary = default_summarize(ordered, resolved) if ordered and record is default_record else None
     result.wall_time_s = time.perf_counter() - start
     if out is not None and report:
         from drake_att.analysis import campaign_report
