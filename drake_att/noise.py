@@ -66,6 +66,11 @@ class CounterRandom:
             self._blocks[k] = arr
         return arr
 
+    def normals_block(self, block: int, width: int) -> np.ndarray:
+        """The ``(BLOCK, width)`` standard normals of samples ``block * BLOCK ...`` (row ``r`` is
+        ``normals(block * BLOCK + r, width)``; read-only)."""
+        return self._block(0, width, int(block))
+
     def normals(self, index: int, width: int) -> np.ndarray:
         """``width`` standard normals for sample ``index`` (>= 0)."""
         b, r = divmod(int(index), self.BLOCK)

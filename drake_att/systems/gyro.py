@@ -1,19 +1,26 @@
 """Rate-integrating gyro (Farrenkopf model) delivering the mean rate over its interval.
 
 A real MEMS gyro samples at a high rate (300 Hz in paper S3) and the flight software
-averages the samples over the filter step.  This system reproduces that output with one
-discrete event per output sample: the joint statistics of the interval-mean noise and
-the bias random walk are closed-form (:class:`drake_att.noise.FarrenkopfGyroNoise`), and
-the true mean rate is exact, from the plant's ``w_IB_B_integral`` port.
+averages the samples over the filter step.  This system reproduces that output exactly: the
+joint statistics of the interval-mean noise and the bias random walk are closed-form
+(:class:`drake_att.noise.FarrenkopfGyroNoise`), and the true mean rate is exact, from the
+plant's ``w_IB_B_integral`` port and its value at the previous sample (held by a C++
+``ZeroOrderHold``). No Python code runs per sample unless an output is read: sample ``n``'s
+noise is a pure function of (seed, system name, ``n``), drawn for blocks of
+:attr:`~drake_att.noise.CounterRandom.BLOCK` samples at once (the bias random walk as a
+sequential cumulative sum, the same additions in the same order as one sample at a time).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, EventStatus, LeafSystem
+from pydrake.systems.primitives import ZeroOrderHold
 
 from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B (3)]
 from drake_att.noise import FarrenkopfGyroNoise
@@ -58,7 +65,99 @@ class GyroModel:
         return cls(noise, initial_bias, float(initial_bias_sigma_rad_per_s), np.eye(3) + np.diag(sf) + M)
 
 
-class Gyro(LeafSystem):
+class _GyroOutputs(LeafSystem):
+    """The Python part of :class:`Gyro`: its two outputs, evaluated on demand (no per-sample
+    event). Inputs as :class:`Gyro`'s plus ``w_IB_B_integral_held`` (the integral at the
+    previous sample instant, from the ``ZeroOrderHold``); discrete state: the seed words (4,
+    read at initialization)."""
+
+    def __init__(self, name: str, period_s: float, default_model: GyroModel):
+        LeafSystem.__init__(self)
+        self.set_name(f"{name}_outputs")
+        self.stream = name  # the random stream keeps the gyro's name
+        self.period_s = period_s
+        self._model_index = self.DeclareAbstractParameter(AbstractValue.Make(default_model))
+        self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
+        self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
+        self._held_port = self.DeclareVectorInputPort("w_IB_B_integral_held", 3)
+        self._seed_port = declare_seed_port(self)
+        # Optional: a per-step scale-factor error s_k from a correlated-noise source
+        # (paper S1, drake_att.systems.correlated_noise); unconnected = 0.
+        self._scale_error_port = self.DeclareVectorInputPort("scale_error", 1)
+        self.DeclareDiscreteState(np.zeros(SEED_WORDS))
+        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        deps = {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket()}
+        self.DeclareVectorOutputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE, self._calc_measurement,
+                                     deps | {self.all_input_ports_ticket()})
+        self.DeclareVectorOutputPort("bias_B", 3, self._calc_bias, deps | {self.input_port_ticket(
+            self._seed_port.get_index())})
+        self._draws: dict = {}
+
+    def model(self, context) -> GyroModel:
+        return context.get_abstract_parameter(self._model_index).get_value()
+
+    def _initialize(self, context, discrete_state):
+        discrete_state.set_value(read_seed_words(self, context, self._seed_port))
+        return EventStatus.Succeeded()
+
+    def _sample_index(self, t: float) -> tuple[int, float]:
+        """The sample an output at ``t`` carries: index ``n = ceil(t / T)`` (on a sample
+        instant, that instant's) and its stamp ``t_n = t_(n-1) + T`` (0 for ``n = 0``)."""
+        n = max(0, math.ceil(t / self.period_s - 1e-9))
+        return n, ((n - 1) * self.period_s + self.period_s if n else 0.0)
+
+    def _draw(self, context, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(offset_n, B_n)``: the measurement offset of sample ``n`` (mean bias over its
+        interval plus angle random walk, ``B_(n-1) + e_n``; ``B_0 + e_0`` for ``n = 0``) and
+        the bias ``B_n`` at its instant (``B_0`` = the initial bias, ``B_n = B_(n-1) + db_n``),
+        with ``(e_n, db_n)`` from the Farrenkopf factor of ``normals(n, 9)[:6]``."""
+        words = context.get_discrete_state_vector().value()
+        model = self.model(context)
+        key = (words.tobytes(), id(model))
+        entry = self._draws.get(key)
+        if entry is None or entry[0] is not model:
+            if len(self._draws) > 8:
+                self._draws.clear()
+            entry = self._draws[key] = (model, counter_random(words, self.stream), [])
+        model, cr, blocks = entry
+        b, r = divmod(n, cr.BLOCK)
+        while len(blocks) <= b:  # blocks in order: each starts from the previous block's last bias
+            z = cr.normals_block(len(blocks), 9)
+            e, db = model.noise.from_normals(np.moveaxis(z[:, :6].reshape(-1, 2, 3), 1, 0))
+            if not blocks:
+                start = model.initial_bias + model.initial_bias_sigma * z[0, 6:9]  # B_0
+                bias = np.add.accumulate(np.vstack([start, db[1:]]), axis=0)
+                previous = np.vstack([start, bias[:-1]])  # B_(n-1), with B_0 for n = 0
+            else:
+                last = blocks[-1][1][-1]
+                bias = np.add.accumulate(np.vstack([last, db]), axis=0)[1:]
+                previous = np.vstack([last, bias[:-1]])
+            blocks.append((previous + e, bias))
+        offsets, biases = blocks[b]
+        return offsets[r], biases[r]
+
+    def _calc_measurement(self, context, output: BasicVector):
+        t = context.get_time()
+        n, t_n = self._sample_index(t)
+        offset, _ = self._draw(context, n)
+        elapsed = t - (t_n - self.period_s)
+        if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
+            w_true = (self._integral_port.Eval(context) - self._held_port.Eval(context)) / elapsed
+        else:
+            w_true = self._w_port.Eval(context)
+        w_meas = self.model(context).sensor_matrix @ w_true
+        if self._scale_error_port.HasValue(context):
+            w_meas = w_meas / (1.0 + self._scale_error_port.Eval(context)[0])
+        w_meas = w_meas + offset
+        out = np.empty(GYRO_MEASUREMENT_SIZE)
+        out[0], out[1], out[2:] = t_n, 1.0, w_meas
+        output.SetFromVector(out)
+
+    def _calc_bias(self, context, output: BasicVector):
+        output.SetFromVector(self._draw(context, self._sample_index(context.get_time())[0])[1])
+
+
+class Gyro(Diagram):
     """Three-axis gyro: ``w_meas = (I + S + M) mean(w_IB_B) + mean(b) + e``.
 
     ``S = diag(scale_factor_error)``, ``M`` the misalignment (zero diagonal), the bias
@@ -84,106 +183,53 @@ class Gyro(LeafSystem):
         scale_error (1, optional): the scale-factor error ``s_k`` of the interval ending at the
             sample time (paper S1's multiplicative noise ``kappa zeta_k``); the output is then
             ``(I + S + M) mean(w_IB_B) / (1 + s_k) + mean(b) + e``. Unconnected: 0.
-    Parameters: abstract parameter 0: the :class:`GyroModel` (:meth:`set_model` per context).
-    Output ports:
-        gyro_measurement (5): ``[t_meas (s), valid (1/0), w_meas_B (3, rad/s)]``.
-        bias_B (3): true bias at the sample time (rad/s), for scoring only.
-    Discrete state (25): ``[seed words (4), sample index, t_sample, meas offset (3),
-        bias at sample (3), integral at previous sample (3), has_previous, sensor matrix I + S + M
-        (9, row-major; copied from the parameter at initialization, read by the output)]``.
+    Parameters: the :class:`GyroModel` (:meth:`set_model` per context).
+    Output ports (sample ``n`` at ``t_n = n T``; an output at ``t`` in ``(t_(n-1), t_n]``
+    carries sample ``n``):
+        gyro_measurement (5): ``[t_n (s), valid (1), w_meas_B (3, rad/s)]``.
+        bias_B (3): true bias at ``t_n`` (rad/s), for scoring only.
+    Inside: a ``ZeroOrderHold`` (C++) of ``w_IB_B_integral`` at the sample instants and the
+    Python outputs (no per-sample event; see the module docstring).
     """
 
     def __init__(self, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
                  initial_bias_rad_per_s=(0.0, 0.0, 0.0), initial_bias_sigma_rad_per_s: float = 0.0,
                  scale_factor_error=(0.0, 0.0, 0.0), misalignment=None):
-        LeafSystem.__init__(self)
-        self.set_name(name)
+        Diagram.__init__(self)
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
         self.default_model = GyroModel.make(name, period_s, arw_rad_per_rt_s, rrw_rad_per_s15, initial_bias_rad_per_s,
                                             initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
-        self._model_index = self.DeclareAbstractParameter(AbstractValue.Make(self.default_model))
+        builder = DiagramBuilder()
+        outputs = builder.AddSystem(_GyroOutputs(name, self.period_s, self.default_model))
+        hold = builder.AddNamedSystem(f"{name}_integral_hold", ZeroOrderHold(self.period_s, 3))
+        builder.ExportInput(outputs.GetInputPort("w_IB_B"), "w_IB_B")
+        builder.ExportInput(outputs.GetInputPort("w_IB_B_integral"), "w_IB_B_integral")
+        builder.ConnectInput("w_IB_B_integral", hold.get_input_port())
+        builder.Connect(hold.get_output_port(), outputs.GetInputPort("w_IB_B_integral_held"))
+        builder.ExportInput(outputs.GetInputPort("seed_uniform"), "seed_uniform")
+        builder.ExportInput(outputs.GetInputPort("scale_error"), "scale_error")
+        builder.ExportOutput(outputs.GetOutputPort("gyro_measurement"), "gyro_measurement")
+        builder.ExportOutput(outputs.GetOutputPort("bias_B"), "bias_B")
+        builder.BuildInto(self)
+        self.set_name(name)
+        self._outputs = outputs
 
-        self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
-        self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
-        self._seed_port = declare_seed_port(self)
-        # Optional: a per-step scale-factor error s_k from a correlated-noise source
-        # (paper S1, drake_att.systems.correlated_noise); unconnected = 0.
-        self._scale_error_port = self.DeclareVectorInputPort("scale_error", 1)
-        self._state_index = self.DeclareDiscreteState(np.concatenate([np.zeros(16), self.default_model.sensor_matrix.ravel()]))
-        self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
-        self.DeclareVectorOutputPort(
-            "gyro_measurement", GYRO_MEASUREMENT_SIZE, self._calc_measurement,
-            {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket()})
-        self.DeclareVectorOutputPort("bias_B", 3, self._calc_bias, {self.xd_ticket()})
+    def _outputs_context(self, context):
+        return self.GetSubsystemContext(self._outputs, context)
 
     # -- parameters -----------------------------------------------------------------
     def model(self, context) -> GyroModel:
         """The :class:`GyroModel` in ``context`` (this system's context)."""
-        return context.get_abstract_parameter(self._model_index).get_value()
+        return self._outputs.model(self._outputs_context(context))
 
     def set_model(self, context, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, initial_bias_rad_per_s=(0.0, 0.0, 0.0),
                   initial_bias_sigma_rad_per_s: float = 0.0, scale_factor_error=(0.0, 0.0, 0.0),
                   misalignment=None) -> None:
         """Give ``context`` (this system's) other noise levels and errors (arguments as the
-        constructor's). Takes effect at the next initialization (the first sample's noise
-        is drawn there)."""
+        constructor's)."""
         model = GyroModel.make(self.get_name(), self.period_s, arw_rad_per_rt_s, rrw_rad_per_s15,
                                initial_bias_rad_per_s, initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
-        context.get_mutable_abstract_parameter(self._model_index).set_value(model)
-
-    # -- events -------------------------------------------------------------------
-    def _integral(self, context):
-        if self._integral_port.HasValue(context):
-            return self._integral_port.Eval(context)
-        return None
-
-    def _initialize(self, context, discrete_state):
-        words = read_seed_words(self, context, self._seed_port)
-        m = self.model(context)
-        z = counter_random(words, self.get_name()).normals(0, 9)
-        bias0 = m.initial_bias + m.initial_bias_sigma * z[6:9]
-        e, _ = m.noise.from_normals(z[:6].reshape(2, 3))
-        integral = self._integral(context)
-        x = np.concatenate([words, [0.0, context.get_time()], bias0 + e, bias0,
-                            np.zeros(3) if integral is None else integral, [0.0], m.sensor_matrix.ravel()])
-        discrete_state.set_value(x)
-        return EventStatus.Succeeded()
-
-    def _on_sample(self, context, discrete_state):
-        x = context.get_discrete_state_vector().value()
-        words, index, bias = x[:SEED_WORDS], int(x[4]), x[9:12]
-        z = counter_random(words, self.get_name()).normals(index + 1, 9)
-        e, db = self.model(context).noise.from_normals(z[:6].reshape(2, 3))
-        integral = self._integral(context)
-        new = x.copy()
-        new[4] = index + 1
-        new[5] = context.get_time() + self.period_s
-        new[6:9] = bias + e  # mean bias over the coming interval + ARW
-        new[9:12] = bias + db  # bias at the end of the coming interval
-        if integral is not None:
-            new[12:15] = integral
-            new[15] = 1.0
-        discrete_state.set_value(new)
-        return EventStatus.Succeeded()
-
-    # -- outputs ------------------------------------------------------------------
-    def _calc_measurement(self, context, output: BasicVector):
-        x = context.get_discrete_state_vector().value()
-        t = context.get_time()
-        integral = self._integral(context)
-        elapsed = t - (x[5] - self.period_s)
-        if integral is not None and x[15] > 0 and elapsed > 1e-12:
-            w_true = (integral - x[12:15]) / elapsed
-        else:
-            w_true = self._w_port.Eval(context)
-        w_meas = x[16:25].reshape(3, 3) @ w_true  # the context's sensor matrix, copied at initialization
-        if self._scale_error_port.HasValue(context):
-            w_meas = w_meas / (1.0 + self._scale_error_port.Eval(context)[0])
-        w_meas = w_meas + x[6:9]
-        output.SetFromVector(np.concatenate([[x[5], 1.0], w_meas]))
-
-    def _calc_bias(self, context, output: BasicVector):
-        output.SetFromVector(context.get_discrete_state_vector().value()[9:12])
+        sub = self.GetMutableSubsystemContext(self._outputs, context)
+        sub.get_mutable_abstract_parameter(0).set_value(model)
