@@ -443,11 +443,12 @@ def bound_for_estimator(run, name: str, t_est, score_from_s: float, cache: dict 
     ``window_variance`` is the mean over ``t_est >= score_from_s`` of the bound's variances
     (its square root is the bound on the RMSE over the window); ``info`` has ``reason``
     (None when defined), ``prior_sensitivity`` (max relative change of the window variances
-    with a 100x prior covariance) and :attr:`BoundResult.info`. ``cache`` (a dict) shares
-    the computation between estimators that read the same sensors with the same prior."""
+    with a 100x prior covariance) and :attr:`BoundResult.info`. ``cache`` (a dict, one per
+    run) shares the computation between estimators that read the same sensors with the same
+    prior covariance (the "prior" sentence in ``info`` names the first of them)."""
     try:
         src = bound_sources(run.scenario, name)
-        key = (src["gyro"].name, tuple(t.name for t in src["trackers"]), src["prior_config"].name)
+        key = (src["gyro"].name, tuple(t.name for t in src["trackers"]), prior_covariance(src)[0].tobytes())
         if cache is not None and key in cache:
             result, loose = cache[key]
         else:
