@@ -470,8 +470,7 @@ def _campaign_html(result, campaign, figures, yaml_text) -> str:
         body.append("<h2>The Cramér–Rao bound</h2>" + _table_html(
             ["estimator", "defined", "bound RMS x / y / z (deg)", "RMSE / bound 95% CI x; y; z", "bias RMSE / bound",
              "prior sensitivity"], rows))
-        rows = [[n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]),
-                 f"drake-att run {os.path.join(result.out, 'config.yaml')} --seed {w['seed']}"]
+        rows = [[n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]), w["command"]]
                 for n, e in s["estimators"].items() for w in e["worst_runs"]]
         body.append("<h2>Worst runs</h2><p>Largest total attitude RMSE per estimator; the command repeats the run "
                     "bit for bit (the campaign's resolved config).</p>"

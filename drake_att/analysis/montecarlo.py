@@ -659,11 +659,11 @@ def check_campaign_manifest(out: str) -> list[str]:
     return problems
 
 
-def default_summarize(records, scenario) -> dict:
+def default_summarize(records, scenario, **kwargs) -> dict:
     """The ensemble statistics: :func:`drake_att.analysis.ensemble.summarize`."""
     from drake_att.analysis import ensemble
 
-    return ensemble.summarize(records, scenario)
+    return ensemble.summarize(records, scenario, **kwargs)
 
 
 def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | None = None, scheduler=None,
@@ -738,7 +738,12 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     if report:
         # The ensemble statistics read the default record; another record gets a report of
         # the campaign alone (its caller reduces its own records).
-        result.summary = default_summarize(ordered, resolved) if ordered and record is default_record else None
+        # The worst runs' re-run command: the campaign's resolved config.yaml says everything
+        # (--set, --estimators); without a folder, the scenario and the overrides.
+        where = ({"scenario_arg": os.path.join(out, CONFIG_FILE)} if out is not None else
+                 {"scenario_arg": scenario if isinstance(scenario, str) else None, "overrides": list(overrides)})
+        result.summary = (default_summarize(ordered, resolved, **where)
+                          if ordered and record is default_record else None)
     result.wall_time_s = time.perf_counter() - start
     if out is not None and report:
         from drake_att.analysis import campaign_report
