@@ -73,7 +73,7 @@ def test_dask_local_cluster_equals_serial_bit_for_bit(tmp_path, campaign):
     diagram once) give records identical to the serial in-process run, in memory and on disk."""
     from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as client:
         result = mc.run_campaign(SCENARIO, 4, overrides=SHORT, scheduler=client, out=str(tmp_path / "dask"),
                                  progress=False, report=False)

@@ -180,7 +180,7 @@ def check_scheduler_address(address: str) -> str:
 
 def local_cluster(workers: int):
     """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes (pydrake
-    systems are not thread-safe), no dashboard. Its worker processes ignore SIGINT: a
+    systems are not thread-safe), its dashboard on a free port. Its workers ignore SIGINT: a
     terminal's Ctrl-C reaches the whole process group, and this process (the client) stops
     the campaign and closes the cluster; the workers would only print tracebacks."""
     import logging
@@ -191,7 +191,7 @@ def local_cluster(workers: int):
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None  # inherited by the spawned workers
     try:
-        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                             silence_logs=logging.CRITICAL)
     finally:
         if main:
