@@ -71,6 +71,10 @@ class CounterRandom:
         ``normals(block * BLOCK + r, width)``; read-only)."""
         return self._block(0, width, int(block))
 
+    def uniforms_block(self, block: int, width: int) -> np.ndarray:
+        """The ``(BLOCK, width)`` uniforms of samples ``block * BLOCK ...`` (read-only)."""
+        return self._block(1, width, int(block))
+
     def normals(self, index: int, width: int) -> np.ndarray:
         """``width`` standard normals for sample ``index`` (>= 0)."""
         b, r = divmod(int(index), self.BLOCK)

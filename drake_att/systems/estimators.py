@@ -397,9 +397,9 @@ class EstimatorSystem(LeafSystem):
             rng = counter_random(book[_SEED], self.get_name()).generator(int(book[_STEP]))
 
         # -- time update over (t_last, t] ----------------------------------------------------
-        t_last = book[_T_LAST]
+        t_last = float(book[_T_LAST])
         Phi, Q, A = _EYE6, _ZERO6, _EYE6
-        if np.isfinite(t_last):
+        if math.isfinite(t_last):
             w_meas = None
             if core.uses_gyro:
                 w_meas = self._gyro_rate(context, t)
@@ -447,7 +447,7 @@ class EstimatorSystem(LeafSystem):
             if info.accepted:
                 n_used += 1
                 if self._linearizing and info.error_transition is not None:
-                    A = info.error_transition @ A
+                    A = info.error_transition if A is _EYE6 else info.error_transition @ A
             else:
                 n_skipped += 1
             book[_N_RESAMPLES] += info.resampled

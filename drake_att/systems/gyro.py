@@ -106,13 +106,12 @@ class _GyroOutputs(LeafSystem):
         n = max(0, math.ceil(t / self.period_s - 1e-9))
         return n, ((n - 1) * self.period_s + self.period_s if n else 0.0)
 
-    def _draw(self, context, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def _draw(self, context, n: int, model: GyroModel) -> tuple[np.ndarray, np.ndarray]:
         """``(offset_n, B_n)``: the measurement offset of sample ``n`` (mean bias over its
         interval plus angle random walk, ``B_(n-1) + e_n``; ``B_0 + e_0`` for ``n = 0``) and
         the bias ``B_n`` at its instant (``B_0`` = the initial bias, ``B_n = B_(n-1) + db_n``),
         with ``(e_n, db_n)`` from the Farrenkopf factor of ``normals(n, 9)[:6]``."""
         words = context.get_discrete_state_vector().value()
-        model = self.model(context)
         key = (words.tobytes(), id(model))
         entry = self._draws.get(key)
         if entry is None or entry[0] is not model:
@@ -139,13 +138,14 @@ class _GyroOutputs(LeafSystem):
     def _calc_measurement(self, context, output: BasicVector):
         t = context.get_time()
         n, t_n = self._sample_index(t)
-        offset, _ = self._draw(context, n)
+        model = self.model(context)
+        offset, _ = self._draw(context, n, model)
         elapsed = t - (t_n - self.period_s)
         if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
             w_true = (self._integral_port.Eval(context) - self._held_port.Eval(context)) / elapsed
         else:
             w_true = self._w_port.Eval(context)
-        w_meas = self.model(context).sensor_matrix @ w_true
+        w_meas = model.sensor_matrix @ w_true
         if self._scale_error_port.HasValue(context):
             w_meas = w_meas / (1.0 + self._scale_error_port.Eval(context)[0])
         w_meas = w_meas + offset
@@ -154,7 +154,7 @@ class _GyroOutputs(LeafSystem):
         output.SetFromVector(out)
 
     def _calc_bias(self, context, output: BasicVector):
-        output.SetFromVector(self._draw(context, self._sample_index(context.get_time())[0])[1])
+        output.SetFromVector(self._draw(context, self._sample_index(context.get_time())[0], self.model(context))[1])
 
 
 class Gyro(Diagram):

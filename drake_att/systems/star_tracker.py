@@ -25,6 +25,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
 from drake_att.validation import check_nonnegative
+from drake_att.noise import CounterRandom
 from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
 
 def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
@@ -154,6 +155,7 @@ class StarTracker(LeafSystem):
         # the seed words, read once at initialization (the seed port's value changes after t = 0).
         self.DeclareDiscreteState(np.zeros(SEED_WORDS))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self._blocks: dict = {}
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
@@ -180,40 +182,56 @@ class StarTracker(LeafSystem):
         context.get_mutable_abstract_parameter(self._noise_index).set_value(noise)
 
     # -- noise ----------------------------------------------------------------------
-    @staticmethod
-    def _noise_numbers(p: StarTrackerNoise) -> np.ndarray:
-        """What the sample events read (copied into the state at initialization, so the
-        per-sample events need no parameter read): ``[sigmas_S (3), sigma_vector,
-        dropout_probability, has outage windows]``."""
-        return np.array([*p.sigmas_S, p.sigma_vector, p.dropout_probability, float(bool(p.outage_windows_s))])
-
     def _initialize(self, context, discrete_state):
         discrete_state.set_value(read_seed_words(self, context, self._seed_port))
         return EventStatus.Succeeded()
 
     def _sample(self, context):
-        """``(t_sample, valid, draw, numbers)`` of the sample an output at this time carries:
-        the pending one, index ``k = ceil(t / T)`` (``t`` on a sample instant: that instant's),
-        stamped as the event-driven tracker did, ``t_k = t_(k-1) + T``."""
+        """``(t_sample, valid, draw, noise parameter)`` of the sample an output at this time
+        carries: the pending one, index ``k = ceil(t / T)`` (``t`` on a sample instant: that
+        instant's), stamped ``t_k = t_(k-1) + T`` (as the per-sample events of earlier versions
+        did; 0 for ``k = 0``)."""
         t, period = context.get_time(), self.period_s
         index = max(0, math.ceil(t / period - 1e-9))
         t_sample = (index - 1) * period + period if index else 0.0
-        words = context.get_discrete_state_vector().value()
-        numbers = self._noise_numbers(self.noise(context))
-        draw, valid = self._draw(context, numbers, words, index, t_sample)
-        return t_sample, valid, draw, numbers
+        noise = self.noise(context)
+        draws, valid = self._block(context.get_discrete_state_vector().value(), noise, index // CounterRandom.BLOCK)
+        r = index % CounterRandom.BLOCK
+        return t_sample, bool(valid[r]), draws[r], noise
 
-    def _draw(self, context, numbers, words, index, t_sample):
+    def _block(self, words, p: StarTrackerNoise, block: int):
+        """The draws and validity flags of samples ``block * BLOCK ...`` (``BLOCK`` of each),
+        a pure function of (seed words, this tracker's name, sample index) computed for the
+        whole block at once: quaternion mode ``q_BS ⊗ exp(sigmas_S * normals(k, 3))`` (the
+        noise stored as one quaternion, so the output is one product), vector mode
+        ``sigma_vector * normals(k, 3m)``; sample ``k`` is valid if ``uniforms(k, 1) >=
+        dropout_probability`` and ``t_k`` is in no outage window."""
+        key = (words.tobytes(), id(p), block)
+        hit = self._blocks.get(key)
+        if hit is not None and hit[0] is p:
+            return hit[1], hit[2]
         cr = counter_random(words, self.get_name())
+        n = CounterRandom.BLOCK
         if self.mode == "quaternion":
-            # Stored as the quaternion q_BS ⊗ exp(delta_S) so the output is one product.
-            noise = rot.quat_multiply(self.q_BS, rot.rotvec_to_quat(numbers[0:3] * cr.normals(index, 3)))
+            phi = p.sigmas_S * cr.normals_block(block, 3)
+            x, y, z = phi[:, 0], phi[:, 1], phi[:, 2]
+            a = np.sqrt(x * x + y * y + z * z)  # rot.rotvec_to_quat's scalar formula, per row
+            with np.errstate(invalid="ignore", divide="ignore"):
+                k = np.where(a < rot._SMALL_ANGLE, 0.5 - a * a / 48.0, np.sin(0.5 * a) / a)
+            dq = np.stack([np.cos(0.5 * a), k * x, k * y, k * z], axis=-1)
+            draws = rot.quat_multiply(np.broadcast_to(self.q_BS, dq.shape), dq)
         else:
-            noise = numbers[3] * cr.normals(index, self._n_noise)
-        valid = cr.uniforms(index, 1)[0] >= numbers[4]
-        if numbers[5] and any(a <= t_sample < b for a, b in self.noise(context).outage_windows_s):
-            valid = False
-        return noise, valid
+            draws = p.sigma_vector * cr.normals_block(block, self._n_noise)
+        index = np.arange(block * n, (block + 1) * n)
+        valid = cr.uniforms_block(block, 1)[:, 0] >= p.dropout_probability
+        if p.outage_windows_s:
+            t = np.where(index > 0, (index - 1) * self.period_s + self.period_s, 0.0)
+            for a, b in p.outage_windows_s:
+                valid &= ~((a <= t) & (t < b))
+        if len(self._blocks) > 16:
+            self._blocks.clear()
+        self._blocks[key] = (p, draws, valid)
+        return draws, valid
 
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
@@ -224,11 +242,11 @@ class StarTracker(LeafSystem):
         output.SetFromVector(out)
 
     def _calc_vectors(self, context, output):
-        t_sample, valid, noise, numbers = self._sample(context)
+        t_sample, valid, noise, p = self._sample(context)
         q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
         R_SI = rot.quat_to_rotmat(q_IS).T
         if self._noise_port.HasValue(context):
             noise = self._noise_port.Eval(context)
         dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
         output.set_value(VectorObservations(
-            float(t_sample), bool(valid), dirs, self.references_I, float(numbers[3]), self.q_BS))
+            float(t_sample), bool(valid), dirs, self.references_I, p.sigma_vector, self.q_BS))
