@@ -409,14 +409,20 @@ class _ParticleFilterBase:
         this is the particle approximation of the estimate's error covariance). Same
         weighted set as :meth:`mean`.
         """
+        return self.mean_and_covariance()[2]
+
+    def mean_and_covariance(self):
+        """``(q_IB_hat, s_hat, covariance)``: :meth:`mean` and :meth:`covariance` in one pass
+        (the particles' quaternions and their average computed once; the same numbers)."""
         rho, s, w = self._weighted_set()
         q = mrp_to_quat(rho)
         q_hat = average_quaternions(q, w)
+        s_hat = w @ s
         e = np.empty((rho.shape[0], 6))
         e[:, :3] = quat_error_rotvec(q_hat, q)
-        e[:, 3:] = s - w @ s
+        e[:, 3:] = s - s_hat
         C = (e * w[:, None]).T @ e
-        return 0.5 * (C + C.T)
+        return q_hat, s_hat, 0.5 * (C + C.T)
 
 
 # ----------------------------------------------------------------------------------
@@ -818,13 +824,15 @@ class ParticleFilterCore:
         return ParticleSetState(pf.particles, pf.weights, pf.log_weights, getattr(pf, "covariances", None),
                                 pf._estimate_set)
 
-    def _filter_of(self, state: ParticleSetState):
+    def _filter_of(self, state: ParticleSetState, copy_arrays: bool = True):
+        """The template with the state's arrays (copies, unless the caller only reads them)."""
         pf = copy.copy(self.template)
-        pf.particles = np.array(state.particles)
-        pf.weights = np.array(state.weights)
-        pf.log_weights = np.array(state.log_weights)
+        take = np.array if copy_arrays else np.asarray
+        pf.particles = take(state.particles)
+        pf.weights = take(state.weights)
+        pf.log_weights = take(state.log_weights)
         if self._has_covariances:
-            pf.covariances = np.array(state.covariances)
+            pf.covariances = take(state.covariances)
         pf.n_skipped = pf.n_updates = pf.n_resamples = pf.n_degenerate = 0
         pf._estimate_set = state.estimate_set
         return pf
@@ -862,9 +870,7 @@ class ParticleFilterCore:
         return self._state_of(pf), info
 
     def estimate(self, state):
-        pf = self._filter_of(state)
-        q_hat, second = pf.mean()
-        return q_hat, second, pf.covariance()
+        return self._filter_of(state, copy_arrays=False).mean_and_covariance()
 
     def to_vector(self, state) -> np.ndarray:
         parts = [np.asarray(state.particles).ravel(), state.weights, state.log_weights]
