@@ -575,13 +575,13 @@ def _measurement_jacobian(r0, r1, r2, U, h, Hr, B):
 
 
 @_jit
-def _ekf_gain(x, x_j, Pi, y, U, sigma2, x_next, Hr, K, w):
+def _ekf_gain(x, x_j, Pi, y, U, sigma2, x_next, Hr, Kt, w):
     """One linearization of one particle's (iterated) EKF update (mrp_ekf.ekf_update): at the
     iterate ``x_j`` (``x_j = x``: the classic EKF), ``Hr`` (3m, 3) = the rho columns of ``H``
-    (its bias columns are zero), ``K`` (6, 3m) = ``P H' S^-1``, ``S = H P H' + sigma^2 I``, and
-    ``x_next = x + K (y - h(x_j) - H (x - x_j))``. ``w``: scratch (:func:`_gain_scratch`).
+    (its bias columns are zero), ``Kt`` (3m, 6) = ``K' = S^-1 H P``, ``S = H P H' + sigma^2 I``,
+    and ``x_next = x + K (y - h(x_j) - H (x - x_j))``. ``w``: scratch (:func:`_gain_scratch`).
     Returns False if ``S`` is exactly singular."""
-    h, B, S, C, inv, Kt, corr = w
+    h, B, S, C, inv, corr = w
     nm = y.shape[0]
     _measurement_jacobian(x_j[0], x_j[1], x_j[2], U, h, Hr, B)
     # (P H')' and the lower triangle of S
@@ -605,9 +605,6 @@ def _ekf_gain(x, x_j, Pi, y, U, sigma2, x_next, Hr, K, w):
                 Kt[l, a] = Pi[a, 0] * h0 + Pi[a, 1] * h1 + Pi[a, 2] * h2
         if not _lu_solve(S, Kt):
             return False
-    for a in range(6):
-        for l in range(nm):
-            K[a, l] = Kt[l, a]
     d0, d1, d2 = x[0] - x_j[0], x[1] - x_j[1], x[2] - x_j[2]
     for l in range(nm):
         corr[l] = (y[l] - h[l]) - (Hr[l, 0] * d0 + Hr[l, 1] * d1 + Hr[l, 2] * d2)
@@ -624,8 +621,7 @@ def _ekf_gain(x, x_j, Pi, y, U, sigma2, x_next, Hr, K, w):
 
 @_jit
 def _gain_scratch(nm):
-    return (np.empty(nm), np.empty((3, 3)), np.empty((nm, nm)), np.empty((nm, nm)), np.empty(nm),
-            np.empty((nm, 6)), np.empty(nm))
+    return (np.empty(nm), np.empty((3, 3)), np.empty((nm, nm)), np.empty((nm, nm)), np.empty(nm), np.empty(nm))
 
 
 @_jit
@@ -633,7 +629,8 @@ def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
     """The mean of every particle's (iterated) EKF update (mrp_ekf.ekf_update): the last
     iterates ``(N, 6)`` and whether every innovation covariance was invertible. The batch
     stops iterating when no component of any particle moved by more than ``tol``, as the
-    reference. ``Hs`` ``(N, 3m, 3)`` and ``Ks`` ``(N, 6, 3m)`` receive the last linearization."""
+    reference. ``Hs`` ``(N, 3m, 3)`` and ``Ks`` ``(N, 3m, 6)`` receive the last linearization's
+    ``H_rho`` and ``K'``."""
     n = x.shape[0]
     w = _gain_scratch(y.shape[0])
     x_j = x.copy()
@@ -653,16 +650,16 @@ def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
 
 
 @_jit
-def _joseph(Pi, Hr, K, sigma2, IKH, M, Pn):
-    """``Pn = sym((I - K H) P (I - K H)' + sigma^2 K K')`` of one particle, ``H = [Hr 0]``
-    (so ``I - K H`` has the bias columns of ``I``); ``IKH`` (6, 3), ``M`` (6, 6): scratch."""
+def _joseph(Pi, Hr, Kt, sigma2, IKH, M, Pn):
+    """``Pn = sym((I - K H) P (I - K H)' + sigma^2 K K')`` of one particle, ``H = [Hr 0]`` (so
+    ``I - K H`` has the bias columns of ``I``), ``Kt = K'``; ``IKH`` (6, 3), ``M`` (6, 6): scratch."""
     nm = Hr.shape[0]
     for a in range(6):
         k0 = 0.0
         k1 = 0.0
         k2 = 0.0
         for l in range(nm):
-            kal = K[a, l]
+            kal = Kt[l, a]
             k0 += kal * Hr[l, 0]
             k1 += kal * Hr[l, 1]
             k2 += kal * Hr[l, 2]
@@ -682,10 +679,11 @@ def _joseph(Pi, Hr, K, sigma2, IKH, M, Pn):
             if c >= 3:
                 s += M[a, c]
             Pn[a, c] = s
-        for l in range(nm):
-            kal = K[a, l] * sigma2
+    for l in range(nm):
+        for a in range(6):
+            kal = Kt[l, a] * sigma2
             for c in range(a + 1):
-                Pn[a, c] += kal * K[c, l]
+                Pn[a, c] += kal * Kt[l, c]
     for a in range(6):
         for c in range(a):
             Pn[c, a] = Pn[a, c]
@@ -696,7 +694,7 @@ def _ekf_update(x, P, y, U, sigma2, iterations, tol):
     n = x.shape[0]
     nm = y.shape[0]
     Hs = np.empty((n, nm, 3))
-    Ks = np.empty((n, 6, nm))
+    Ks = np.empty((n, nm, 6))
     x_post, ok = _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks)
     P_post = np.empty((n, 6, 6))
     IKH = np.empty((6, 3))
@@ -724,12 +722,12 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, iterations: int = 1, iterat
 
 
 @_jit
-def _ekpf_particle(m_post, m_prior, P_prior, Hr, K, eps, y, U, sigma2, x, P, w):
+def _ekpf_particle(m_post, m_prior, P_prior, Hr, Kt, eps, y, U, sigma2, x, P, w):
     """One particle's proposal step: ``P = P+`` (Joseph), ``x = m+ + L+ eps``, and the shadow
     switch of ``(x, P)``; returns ``(ok, log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+))``
     (``ok`` False: ``P+`` or ``P-`` is not positive definite). ``w``: :func:`_particle_scratch`."""
     IKH, M, L_post, L_prior, inv_post, inv_prior, h, z, T, TP = w
-    _joseph(P_prior, Hr, K, sigma2, IKH, M, P)
+    _joseph(P_prior, Hr, Kt, sigma2, IKH, M, P)
     if not (_cholesky_factor(P, L_post, inv_post) and _cholesky_factor(P_prior, L_prior, inv_prior)):
         return False, 0.0
     # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
@@ -773,7 +771,7 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
         wg = _gain_scratch(nm)
         m_post = np.empty(6)
         Hr = np.empty((nm, 3))
-        K = np.empty((6, nm))
+        K = np.empty((nm, 6))
         for i in range(n):
             if not _ekf_gain(m_prior[i], m_prior[i], P_prior[i], y, U, sigma2, m_post, Hr, K, wg):
                 return x_out, P_out, log_increment, 2
@@ -784,7 +782,7 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
                 return x_out, P_out, log_increment, 1
         return x_out, P_out, log_increment, 0
     Hs = np.empty((n, nm, 3))
-    Ks = np.empty((n, 6, nm))
+    Ks = np.empty((n, nm, 6))
     m_post, ok = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks)
     if not ok:
         return x_out, P_out, log_increment, 2
