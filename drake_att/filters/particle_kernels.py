@@ -250,72 +250,6 @@ def _switch_to_short_mrp(x, P, T, TP):
 
 
 @_jit
-def _cholesky_factor(A, L, inv):
-    """Lower Cholesky factor of the symmetric ``A`` (lower triangle read) into ``L`` (its upper
-    triangle is not written) and the reciprocals of its diagonal into ``inv`` (LAPACK's dpotf2
-    also scales by the reciprocal pivot); False if ``A`` is not positive definite (a pivot
-    <= 0 or NaN)."""
-    d = A.shape[0]
-    for j in range(d):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return False
-        r = math.sqrt(s)
-        L[j, j] = r
-        inv[j] = 1.0 / r
-        for a in range(j + 1, d):
-            t = A[a, j]
-            for k in range(j):
-                t -= L[a, k] * L[j, k]
-            L[a, j] = t * inv[j]
-    return True
-
-
-@_jit
-def _log_det_factor(L, inv):
-    """``log det L = sum log L_jj`` of a Cholesky factor, as one log of the product (as the sum
-    of logs where the product leaves the normal range)."""
-    prod = 1.0
-    for j in range(L.shape[0]):
-        prod *= L[j, j]
-    if 1e-300 < prod < 1e300:
-        return math.log(prod)
-    s = 0.0
-    for j in range(L.shape[0]):
-        s += math.log(L[j, j])
-    return s
-
-
-@_jit
-def _spd_solve(S, C, inv, B):
-    """``S^-1 B`` in place of ``B`` (n, 6) through the Cholesky factor of the symmetric ``S``
-    (``C`` (n, n), ``inv`` (n,): scratch); False (``B`` untouched) if ``S`` is not positive
-    definite. (Six right-hand sides, a constant: the compiler unrolls the row operations.)"""
-    if not _cholesky_factor(S, C, inv):
-        return False
-    n = S.shape[0]
-    for j in range(n):  # C Z = B
-        d = inv[j]
-        for c in range(6):
-            B[j, c] *= d
-        for a in range(j + 1, n):
-            f = C[a, j]
-            for c in range(6):
-                B[a, c] -= f * B[j, c]
-    for j in range(n - 1, -1, -1):  # C' X = Z
-        d = inv[j]
-        for c in range(6):
-            B[j, c] *= d
-        for a in range(j):
-            f = C[j, a]
-            for c in range(6):
-                B[a, c] -= f * B[j, c]
-    return True
-
-
-@_jit
 def _lu_solve(A, B):
     """``A^-1 B`` in place of ``B`` (n, r) by Gaussian elimination with partial pivoting (as
     LAPACK's dgesv behind numpy.linalg.solve); ``A`` (n, n) is overwritten. Returns False for an
@@ -450,8 +384,76 @@ def gyroless_propagate(rho, w, inertia, inertia_inverse, torque, h: float, num_s
 
 
 # ----------------------------------------------------------------------------------
-# EKPF: the per-particle MRP EKF (drake_att.filters.mrp_ekf, batched) and the proposal
+# EKPF: the per-particle MRP EKF (drake_att.filters.mrp_ekf, batched) and the proposal.
+# The measurement update's matrix algebra runs on blocks of W particles at once, the particle
+# ("lane") as the last axis of every block array: the long dependency chains of one particle
+# (Cholesky pivots, triangular solves) then interleave with those of W - 1 independent others
+# (25% faster than one particle at a time; each lane's arithmetic is exactly the one-particle
+# arithmetic). The time update, mostly per-particle rotations, goes one particle at a time.
 # ----------------------------------------------------------------------------------
+W = 4  # particles per block
+
+
+@_jit
+def _block(i0, n, ix):
+    """Indices ``ix`` (W,) of the block starting at particle ``i0`` (past ``n - 1`` the last
+    particle repeats, computed and not stored) and the number of real particles in it."""
+    for j in range(W):
+        ix[j] = min(i0 + j, n - 1)
+    return min(W, n - i0)
+
+
+@_jit
+def _cholesky_lanes(A, L, inv, d, ok):
+    """Lower Cholesky factors of the symmetric ``A[:d, :d, j]`` (lower triangles read) into ``L``
+    (upper triangles not written) and the reciprocals of their pivots into ``inv`` (LAPACK's
+    dpotf2 also scales by the reciprocal pivot); ``ok[j]`` False where ``A`` is not positive
+    definite (a pivot <= 0 or NaN; that lane's factor is then unusable). Returns all(ok)."""
+    s = np.empty(W)
+    for j in range(W):
+        ok[j] = True
+    for c in range(d):
+        for j in range(W):
+            s[j] = A[c, c, j]
+        for k in range(c):
+            for j in range(W):
+                s[j] -= L[c, k, j] * L[c, k, j]
+        for j in range(W):
+            if not s[j] > 0.0:
+                ok[j] = False
+                s[j] = 1.0
+            r = math.sqrt(s[j])
+            L[c, c, j] = r
+            inv[c, j] = 1.0 / r
+        for a in range(c + 1, d):
+            for j in range(W):
+                s[j] = A[a, c, j]
+            for k in range(c):
+                for j in range(W):
+                    s[j] -= L[a, k, j] * L[c, k, j]
+            for j in range(W):
+                L[a, c, j] = s[j] * inv[c, j]
+    all_ok = True
+    for j in range(W):
+        all_ok = all_ok and ok[j]
+    return all_ok
+
+
+@_jit
+def _log_det(L, j):
+    """``log det L = sum log L_cc`` of lane ``j``'s 6x6 Cholesky factor, as one log of the
+    product of the pivots (the sum of logs where that product leaves the normal range)."""
+    prod = 1.0
+    for c in range(6):
+        prod *= L[c, c, j]
+    if 1e-300 < prod < 1e300:
+        return math.log(prod)
+    s = 0.0
+    for c in range(6):
+        s += math.log(L[c, c, j])
+    return s
+
+
 @_jit
 def _ekf_predict(x, P, w_meas, dt, half_dt, c2, c3, sv2, su2):
     n = x.shape[0]
@@ -575,53 +577,103 @@ def _measurement_jacobian(r0, r1, r2, U, h, Hr, B):
 
 
 @_jit
-def _ekf_gain(x, x_j, Pi, y, U, sigma2, x_next, Hr, Kt, w):
-    """One linearization of one particle's (iterated) EKF update (mrp_ekf.ekf_update): at the
-    iterate ``x_j`` (``x_j = x``: the classic EKF), ``Hr`` (3m, 3) = the rho columns of ``H``
-    (its bias columns are zero), ``Kt`` (3m, 6) = ``K' = S^-1 H P``, ``S = H P H' + sigma^2 I``,
-    and ``x_next = x + K (y - h(x_j) - H (x - x_j))``. ``w``: scratch (:func:`_gain_scratch`).
-    Returns False if ``S`` is exactly singular."""
-    h, B, S, C, inv, corr = w
+def _ekf_gain(x, xj, Pb, y, U, sigma2, x_next, Hr, Kt, w):
+    """One linearization of the (iterated) EKF update (mrp_ekf.ekf_update) of a block: at the
+    iterates ``xj`` (6, W) (``xj = x``: the classic EKF), ``Hr`` (3m, 3, W) = the rho columns of
+    ``H`` (its bias columns are zero), ``Kt`` (3m, 6, W) = ``K' = S^-1 H P`` with
+    ``S = H P H' + sigma^2 I``, and ``x_next = x + K (y - h(x_j) - H (x - x_j))`` (6, W).
+    ``w``: scratch ``(h (3m, W), S, C (3m, 3m, W), inv (3m, W), corr (3m, W), ok (W,), h1 (3m,),
+    Hr1 (3m, 3), B1 (3, 3), S1 (3m, 3m), K1 (3m, 6))``. Returns False if some ``S`` is exactly
+    singular."""
+    h, S, C, inv, corr, ok, h1, Hr1, B1, S1, K1 = w
     nm = y.shape[0]
-    _measurement_jacobian(x_j[0], x_j[1], x_j[2], U, h, Hr, B)
+    for j in range(W):
+        _measurement_jacobian(xj[0, j], xj[1, j], xj[2, j], U, h1, Hr1, B1)
+        for l in range(nm):
+            h[l, j] = h1[l]
+            for c in range(3):
+                Hr[l, c, j] = Hr1[l, c]
     # (P H')' and the lower triangle of S
     for l in range(nm):
-        h0, h1, h2 = Hr[l, 0], Hr[l, 1], Hr[l, 2]
         for a in range(6):
-            Kt[l, a] = Pi[a, 0] * h0 + Pi[a, 1] * h1 + Pi[a, 2] * h2
+            for j in range(W):
+                Kt[l, a, j] = Pb[a, 0, j] * Hr[l, 0, j] + Pb[a, 1, j] * Hr[l, 1, j] + Pb[a, 2, j] * Hr[l, 2, j]
     for l in range(nm):
-        h0, h1, h2 = Hr[l, 0], Hr[l, 1], Hr[l, 2]
         for l2 in range(l + 1):
-            S[l, l2] = h0 * Kt[l2, 0] + h1 * Kt[l2, 1] + h2 * Kt[l2, 2]
-        S[l, l] += sigma2
-    # K' = S^-1 (P H')': by Cholesky (S is symmetric positive definite for sigma > 0); if that
-    # fails, by LU with partial pivoting (numpy.linalg.solve's method)
-    if not _spd_solve(S, C, inv, Kt):
-        for l in range(nm):
-            for l2 in range(l + 1, nm):
-                S[l, l2] = S[l2, l]
-            h0, h1, h2 = Hr[l, 0], Hr[l, 1], Hr[l, 2]
-            for a in range(6):
-                Kt[l, a] = Pi[a, 0] * h0 + Pi[a, 1] * h1 + Pi[a, 2] * h2
-        if not _lu_solve(S, Kt):
-            return False
-    d0, d1, d2 = x[0] - x_j[0], x[1] - x_j[1], x[2] - x_j[2]
+            for j in range(W):
+                S[l, l2, j] = Hr[l, 0, j] * Kt[l2, 0, j] + Hr[l, 1, j] * Kt[l2, 1, j] + Hr[l, 2, j] * Kt[l2, 2, j]
+        for j in range(W):
+            S[l, l, j] += sigma2
+    # K' = S^-1 (P H')': by Cholesky (S is symmetric positive definite for sigma > 0) ...
+    _cholesky_lanes(S, C, inv, nm, ok)
+    for r in range(nm):  # C Z = (P H')'
+        for c in range(6):
+            for j in range(W):
+                Kt[r, c, j] *= inv[r, j]
+        for a in range(r + 1, nm):
+            for c in range(6):
+                for j in range(W):
+                    Kt[a, c, j] -= C[a, r, j] * Kt[r, c, j]
+    for r in range(nm - 1, -1, -1):  # C' K' = Z
+        for c in range(6):
+            for j in range(W):
+                Kt[r, c, j] *= inv[r, j]
+        for a in range(r):
+            for c in range(6):
+                for j in range(W):
+                    Kt[a, c, j] -= C[r, a, j] * Kt[r, c, j]
+    # ... and where a factorization failed, by LU with partial pivoting (numpy.linalg.solve's)
+    for j in range(W):
+        if not ok[j]:
+            for l in range(nm):
+                for l2 in range(nm):
+                    S1[l, l2] = S[max(l, l2), min(l, l2), j]
+                for a in range(6):
+                    K1[l, a] = Pb[a, 0, j] * Hr[l, 0, j] + Pb[a, 1, j] * Hr[l, 1, j] + Pb[a, 2, j] * Hr[l, 2, j]
+            if not _lu_solve(S1, K1):
+                return False
+            for l in range(nm):
+                for a in range(6):
+                    Kt[l, a, j] = K1[l, a]
     for l in range(nm):
-        corr[l] = (y[l] - h[l]) - (Hr[l, 0] * d0 + Hr[l, 1] * d1 + Hr[l, 2] * d2)
+        for j in range(W):
+            d0, d1, d2 = x[0, j] - xj[0, j], x[1, j] - xj[1, j], x[2, j] - xj[2, j]
+            corr[l, j] = (y[l] - h[l, j]) - (Hr[l, 0, j] * d0 + Hr[l, 1, j] * d1 + Hr[l, 2, j] * d2)
     for a in range(6):
-        x_next[a] = 0.0
+        for j in range(W):
+            x_next[a, j] = 0.0
     for l in range(nm):
-        cl = corr[l]
         for a in range(6):
-            x_next[a] += Kt[l, a] * cl
+            for j in range(W):
+                x_next[a, j] += Kt[l, a, j] * corr[l, j]
     for a in range(6):
-        x_next[a] = x[a] + x_next[a]
+        for j in range(W):
+            x_next[a, j] = x[a, j] + x_next[a, j]
     return True
 
 
 @_jit
 def _gain_scratch(nm):
-    return (np.empty(nm), np.empty((3, 3)), np.empty((nm, nm)), np.empty((nm, nm)), np.empty(nm), np.empty(nm))
+    return (np.empty((nm, W)), np.empty((nm, nm, W)), np.empty((nm, nm, W)), np.empty((nm, W)), np.empty((nm, W)),
+            np.empty(W, np.bool_), np.empty(nm), np.empty((nm, 3)), np.empty((3, 3)), np.empty((nm, nm)),
+            np.empty((nm, 6)))
+
+
+@_jit
+def _gather(ix, v, vb):
+    """``vb[a, j] = v[ix[j], a]``: the block's rows of an ``(N, r)`` array."""
+    for j in range(W):
+        for a in range(v.shape[1]):
+            vb[a, j] = v[ix[j], a]
+
+
+@_jit
+def _gather_matrices(ix, v, vb):
+    """``vb[a, c, j] = v[ix[j], a, c]``: the block's matrices of an ``(N, r, c)`` array."""
+    for j in range(W):
+        for a in range(v.shape[1]):
+            for c in range(v.shape[2]):
+                vb[a, c, j] = v[ix[j], a, c]
 
 
 @_jit
@@ -632,61 +684,74 @@ def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
     reference. ``Hs`` ``(N, 3m, 3)`` and ``Ks`` ``(N, 3m, 6)`` receive the last linearization's
     ``H_rho`` and ``K'``."""
     n = x.shape[0]
-    w = _gain_scratch(y.shape[0])
+    nm = y.shape[0]
+    w = _gain_scratch(nm)
+    ix = np.empty(W, np.int64)
+    xb, xjb, x_next = np.empty((6, W)), np.empty((6, W)), np.empty((6, W))
+    Pb = np.empty((6, 6, W))
+    Hr, Kt = np.empty((nm, 3, W)), np.empty((nm, 6, W))
     x_j = x.copy()
-    x_next = np.empty(6)
     for _ in range(iterations):
         converged = True
-        for i in range(n):
-            if not _ekf_gain(x[i], x_j[i], P[i], y, U, sigma2, x_next, Hs[i], Ks[i], w):
+        for i0 in range(0, n, W):
+            count = _block(i0, n, ix)
+            _gather(ix, x, xb)
+            _gather(ix, x_j, xjb)
+            _gather_matrices(ix, P, Pb)
+            if not _ekf_gain(xb, xjb, Pb, y, U, sigma2, x_next, Hr, Kt, w):
                 return x_j, False
-            for a in range(6):
-                if not abs(x_next[a] - x_j[i, a]) <= tol:  # NaN: not converged (max(...) <= tol)
-                    converged = False
-                x_j[i, a] = x_next[a]
+            for j in range(count):
+                i = ix[j]
+                for a in range(6):
+                    if not abs(x_next[a, j] - x_j[i, a]) <= tol:  # NaN: not converged (max(...) <= tol)
+                        converged = False
+                    x_j[i, a] = x_next[a, j]
+                for l in range(nm):
+                    for c in range(3):
+                        Hs[i, l, c] = Hr[l, c, j]
+                    for c in range(6):
+                        Ks[i, l, c] = Kt[l, c, j]
         if converged:
             break
     return x_j, True
 
 
 @_jit
-def _joseph(Pi, Hr, Kt, sigma2, IKH, M, Pn):
-    """``Pn = sym((I - K H) P (I - K H)' + sigma^2 K K')`` of one particle, ``H = [Hr 0]`` (so
-    ``I - K H`` has the bias columns of ``I``), ``Kt = K'``; ``IKH`` (6, 3), ``M`` (6, 6): scratch."""
+def _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn):
+    """Lower triangles of ``(I - K H) P (I - K H)' + sigma^2 K K'`` of a block into ``Pn``
+    (6, 6, W), ``H = [Hr 0]`` (so ``I - K H`` has the bias columns of ``I``), ``Kt = K'``;
+    ``IKH`` (6, 3, W), ``M`` (6, 6, W): scratch. (The reference symmetrizes the full product.)"""
     nm = Hr.shape[0]
+    s = np.empty(W)
     for a in range(6):
-        k0 = 0.0
-        k1 = 0.0
-        k2 = 0.0
-        for l in range(nm):
-            kal = Kt[l, a]
-            k0 += kal * Hr[l, 0]
-            k1 += kal * Hr[l, 1]
-            k2 += kal * Hr[l, 2]
-        IKH[a, 0] = (1.0 if a == 0 else 0.0) - k0
-        IKH[a, 1] = (1.0 if a == 1 else 0.0) - k1
-        IKH[a, 2] = (1.0 if a == 2 else 0.0) - k2
-    for a in range(6):
-        i0, i1, i2 = IKH[a, 0], IKH[a, 1], IKH[a, 2]
+        for c in range(3):
+            for j in range(W):
+                s[j] = 0.0
+            for l in range(nm):
+                for j in range(W):
+                    s[j] += Kt[l, a, j] * Hr[l, c, j]
+            e = 1.0 if a == c else 0.0
+            for j in range(W):
+                IKH[a, c, j] = e - s[j]
+    for a in range(6):  # M = (I - K H) P
         for c in range(6):
-            M[a, c] = i0 * Pi[0, c] + i1 * Pi[1, c] + i2 * Pi[2, c]
-        if a >= 3:
-            for c in range(6):
-                M[a, c] += Pi[a, c]
-    for a in range(6):
+            for j in range(W):
+                M[a, c, j] = IKH[a, 0, j] * Pb[0, c, j] + IKH[a, 1, j] * Pb[1, c, j] + IKH[a, 2, j] * Pb[2, c, j]
+            if a >= 3:
+                for j in range(W):
+                    M[a, c, j] += Pb[a, c, j]
+    for a in range(6):  # M (I - K H)'
         for c in range(a + 1):
-            s = M[a, 0] * IKH[c, 0] + M[a, 1] * IKH[c, 1] + M[a, 2] * IKH[c, 2]
+            for j in range(W):
+                Pn[a, c, j] = M[a, 0, j] * IKH[c, 0, j] + M[a, 1, j] * IKH[c, 1, j] + M[a, 2, j] * IKH[c, 2, j]
             if c >= 3:
-                s += M[a, c]
-            Pn[a, c] = s
+                for j in range(W):
+                    Pn[a, c, j] += M[a, c, j]
     for l in range(nm):
         for a in range(6):
-            kal = Kt[l, a] * sigma2
             for c in range(a + 1):
-                Pn[a, c] += kal * Kt[l, c]
-    for a in range(6):
-        for c in range(a):
-            Pn[c, a] = Pn[a, c]
+                for j in range(W):
+                    Pn[a, c, j] += (Kt[l, a, j] * sigma2) * Kt[l, c, j]
 
 
 @_jit
@@ -697,11 +762,22 @@ def _ekf_update(x, P, y, U, sigma2, iterations, tol):
     Ks = np.empty((n, nm, 6))
     x_post, ok = _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks)
     P_post = np.empty((n, 6, 6))
-    IKH = np.empty((6, 3))
-    M = np.empty((6, 6))
     if ok:
-        for i in range(n):
-            _joseph(P[i], Hs[i], Ks[i], sigma2, IKH, M, P_post[i])
+        ix = np.empty(W, np.int64)
+        Pb, Pn = np.empty((6, 6, W)), np.empty((6, 6, W))
+        Hr, Kt = np.empty((nm, 3, W)), np.empty((nm, 6, W))
+        IKH, M = np.empty((6, 3, W)), np.empty((6, 6, W))
+        for i0 in range(0, n, W):
+            count = _block(i0, n, ix)
+            _gather_matrices(ix, P, Pb)
+            _gather_matrices(ix, Hs, Hr)
+            _gather_matrices(ix, Ks, Kt)
+            _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn)
+            for j in range(count):
+                for a in range(6):
+                    for c in range(a + 1):
+                        P_post[ix[j], a, c] = Pn[a, c, j]
+                        P_post[ix[j], c, a] = Pn[a, c, j]
     return x_post, P_post, ok
 
 
@@ -722,76 +798,86 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, iterations: int = 1, iterat
 
 
 @_jit
-def _ekpf_particle(m_post, m_prior, P_prior, Hr, Kt, eps, y, U, sigma2, x, P, w):
-    """One particle's proposal step: ``P = P+`` (Joseph), ``x = m+ + L+ eps``, and the shadow
-    switch of ``(x, P)``; returns ``(ok, log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+))``
-    (``ok`` False: ``P+`` or ``P-`` is not positive definite). ``w``: :func:`_particle_scratch`."""
-    IKH, M, L_post, L_prior, inv_post, inv_prior, h, z, T, TP = w
-    _joseph(P_prior, Hr, Kt, sigma2, IKH, M, P)
-    if not (_cholesky_factor(P, L_post, inv_post) and _cholesky_factor(P_prior, L_prior, inv_prior)):
-        return False, 0.0
-    # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
-    ee = 0.0
-    for a in range(6):
-        s = 0.0
-        for k in range(a + 1):
-            s += L_post[a, k] * eps[k]
-        x[a] = m_post[a] + s
-        ee += eps[a] * eps[a]
-    log_q = -0.5 * ee - _log_det_factor(L_post, inv_post)
-    # log pi(x) = -|L-^-1 (x - m-)|^2 / 2 - log det L-
-    zz = 0.0
-    for a in range(6):
-        s = x[a] - m_prior[a]
-        for k in range(a):
-            s -= L_prior[a, k] * z[k]
-        z[a] = s * inv_prior[a]
-        zz += z[a] * z[a]
-    log_pi = -0.5 * zz - _log_det_factor(L_prior, inv_prior)
-    log_lik = _log_likelihood(x[0], x[1], x[2], y, U, sigma2, h)
-    _switch_to_short_mrp(x, P, T, TP)
-    return True, log_lik + log_pi - log_q
-
-
-@_jit
-def _particle_scratch(nm):
-    return (np.empty((6, 3)), np.empty((6, 6)), np.empty((6, 6)), np.empty((6, 6)), np.empty(6), np.empty(6),
-            np.empty(nm), np.empty(6), np.empty((3, 3)), np.empty((6, 6)))
-
-
-@_jit
 def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
     n = m_prior.shape[0]
     nm = y.shape[0]
     x_out = np.empty((n, 6))
     P_out = np.empty((n, 6, 6))
     log_increment = np.empty(n)
-    wp = _particle_scratch(nm)
-    if iterations == 1:  # one pass: each particle's EKF update, then its proposal step
-        wg = _gain_scratch(nm)
-        m_post = np.empty(6)
-        Hr = np.empty((nm, 3))
-        K = np.empty((nm, 6))
-        for i in range(n):
-            if not _ekf_gain(m_prior[i], m_prior[i], P_prior[i], y, U, sigma2, m_post, Hr, K, wg):
+    ix = np.empty(W, np.int64)
+    mb, m_post, xb, eb = np.empty((6, W)), np.empty((6, W)), np.empty((6, W)), np.empty((6, W))
+    Pb, Pn = np.empty((6, 6, W)), np.empty((6, 6, W))
+    L_post, L_prior = np.empty((6, 6, W)), np.empty((6, 6, W))
+    inv_post, inv_prior = np.empty((6, W)), np.empty((6, W))
+    ok = np.empty(W, np.bool_)
+    Hr, Kt = np.empty((nm, 3, W)), np.empty((nm, 6, W))
+    IKH, M = np.empty((6, 3, W)), np.empty((6, 6, W))
+    z = np.empty((6, W))
+    s = np.empty(W)
+    h1 = np.empty(nm)
+    T = np.empty((3, 3))
+    TP = np.empty((6, 6))
+    w = _gain_scratch(nm)
+    # Iterated: the batch's iterations first (they stop together); classic: each block's EKF
+    # update right before its proposal step (one pass over the particles).
+    one_pass = iterations == 1
+    Hs = np.empty((0 if one_pass else n, nm, 3))
+    Ks = np.empty((0 if one_pass else n, nm, 6))
+    m_posts = m_prior
+    if not one_pass:
+        m_posts, ok_all = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks)
+        if not ok_all:
+            return x_out, P_out, log_increment, 2
+    for i0 in range(0, n, W):
+        count = _block(i0, n, ix)
+        _gather(ix, m_prior, mb)
+        _gather_matrices(ix, P_prior, Pb)
+        _gather(ix, eps, eb)
+        if one_pass:
+            if not _ekf_gain(mb, mb, Pb, y, U, sigma2, m_post, Hr, Kt, w):
                 return x_out, P_out, log_increment, 2
-            ok, li = _ekpf_particle(m_post, m_prior[i], P_prior[i], Hr, K, eps[i], y, U, sigma2, x_out[i], P_out[i],
-                                    wp)
-            log_increment[i] = li
-            if not ok:
-                return x_out, P_out, log_increment, 1
-        return x_out, P_out, log_increment, 0
-    Hs = np.empty((n, nm, 3))
-    Ks = np.empty((n, nm, 6))
-    m_post, ok = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks)
-    if not ok:
-        return x_out, P_out, log_increment, 2
-    for i in range(n):
-        ok, li = _ekpf_particle(m_post[i], m_prior[i], P_prior[i], Hs[i], Ks[i], eps[i], y, U, sigma2, x_out[i],
-                                P_out[i], wp)
-        log_increment[i] = li
-        if not ok:
+        else:
+            _gather(ix, m_posts, m_post)
+            _gather_matrices(ix, Hs, Hr)
+            _gather_matrices(ix, Ks, Kt)
+        _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn)
+        if not (_cholesky_lanes(Pn, L_post, inv_post, 6, ok) and _cholesky_lanes(Pb, L_prior, inv_prior, 6, ok)):
             return x_out, P_out, log_increment, 1
+        # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
+        for a in range(6):
+            for j in range(W):
+                s[j] = 0.0
+            for k in range(a + 1):
+                for j in range(W):
+                    s[j] += L_post[a, k, j] * eb[k, j]
+            for j in range(W):
+                xb[a, j] = m_post[a, j] + s[j]
+        # log pi(x) = -|L-^-1 (x - m-)|^2 / 2 - log det L-
+        for a in range(6):
+            for j in range(W):
+                s[j] = xb[a, j] - mb[a, j]
+            for k in range(a):
+                for j in range(W):
+                    s[j] -= L_prior[a, k, j] * z[k, j]
+            for j in range(W):
+                z[a, j] = s[j] * inv_prior[a, j]
+        for j in range(count):
+            ee = 0.0
+            zz = 0.0
+            for a in range(6):
+                ee += eb[a, j] * eb[a, j]
+                zz += z[a, j] * z[a, j]
+            log_q = -0.5 * ee - _log_det(L_post, j)
+            log_pi = -0.5 * zz - _log_det(L_prior, j)
+            log_lik = _log_likelihood(xb[0, j], xb[1, j], xb[2, j], y, U, sigma2, h1)
+            i = ix[j]
+            log_increment[i] = log_lik + log_pi - log_q
+            for a in range(6):
+                x_out[i, a] = xb[a, j]
+                for c in range(a + 1):
+                    P_out[i, a, c] = Pn[a, c, j]
+                    P_out[i, c, a] = Pn[a, c, j]
+            _switch_to_short_mrp(x_out[i], P_out[i], T, TP)
     return x_out, P_out, log_increment, 0
 
 
