@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/bench_particle_filters.py [--steps 300] [--particles 1000]
+    python benchmarks/bench_particle_filters.py [--steps 300] [--particles 1000] [--kernel numba|numpy]
 
 Runs each filter on the same synthetic S0 data (constant small body rate, Farrenkopf
 gyro, two star vectors at 100 urad, 1 Hz) and prints a table of the mean and best
@@ -58,7 +58,7 @@ def time_steps(step, num_steps: int):
     times = np.empty(num_steps)
     for k in range(num_steps):
         t0 = time.perf_counter()
-        step(k)
+        step(k + 1)
         times[k] = time.perf_counter() - t0
     return times
 
@@ -67,9 +67,11 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300, help="timed steps per filter")
     parser.add_argument("--particles", type=int, default=1000, help="particles per PF")
+    parser.add_argument("--kernel", choices=("numba", "numpy"), default="numba",
+                        help="the particle filters' kernel (numpy: the reference code)")
     args = parser.parse_args(argv)
     n, num_steps = args.particles, args.steps
-    ys, wms = make_data(num_steps + 1)
+    ys, wms = make_data(num_steps + 2)
     q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
     b0 = np.full(3, 2 * DEG / HOUR)
     P0 = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
@@ -78,7 +80,8 @@ def main(argv=None) -> None:
     rows = []
 
     def bench(name, filt, step, particles):
-        step(-1)  # warm-up: the update at t_0 (and numpy's first-call overheads)
+        step(-1)  # warm-up: the update at t_0 and one step (numpy's first-call overheads,
+        step(0)  # numba's kernels loaded from its cache or compiled)
         t = time_steps(step, num_steps)
         rows.append((name, particles, 1e3 * np.mean(t), 1e3 * np.min(t), 1000 * np.mean(t)))
 
@@ -100,21 +103,21 @@ def main(argv=None) -> None:
     bench("MRP EKF", ekf, ekf_step, 1)
 
     rng = np.random.default_rng(2)
-    bpf = BootstrapParticleFilter(n, q0, b0, P0, 2e-5, rng, bias_roughening_sigma=3e-7)
+    bpf = BootstrapParticleFilter(n, q0, b0, P0, 2e-5, rng, bias_roughening_sigma=3e-7, kernel=args.kernel)
     bench("bootstrap PF (gyro)", bpf, gyro_step(bpf, rng), n)
 
     rng = np.random.default_rng(3)
-    ekpf = ExtendedKalmanParticleFilter(n, q0, b0, P0, SIGMA_V, SIGMA_U, rng)
+    ekpf = ExtendedKalmanParticleFilter(n, q0, b0, P0, SIGMA_V, SIGMA_U, rng, kernel=args.kernel)
     bench("EKPF (gyro)", ekpf, gyro_step(ekpf, rng), n)
 
     rng = np.random.default_rng(4)
     ekpf10 = ExtendedKalmanParticleFilter(n, q0, b0, P0, SIGMA_V, SIGMA_U, rng,
-                                          proposal_iterations=10)
+                                          proposal_iterations=10, kernel=args.kernel)
     bench("EKPF, iterated proposal (<=10)", ekpf10, gyro_step(ekpf10, rng), n)
 
     rng = np.random.default_rng(5)
     gpf = GyrolessParticleFilter(n, q0, np.full(3, 0.001 * DEG), P0_gyroless, INERTIA, TORQUE,
-                                 1e-6, rng, attitude_process_sigma=3e-5)
+                                 1e-6, rng, attitude_process_sigma=3e-5, kernel=args.kernel)
 
     def gyroless_step(k):
         if k >= 0:
@@ -123,7 +126,7 @@ def main(argv=None) -> None:
 
     bench("gyroless PF (RK4, 1 substep)", gpf, gyroless_step, n)
 
-    print(f"S0 filter cores, {num_steps} timed steps (predict + update), "
+    print(f"S0 filter cores, kernel={args.kernel!r}, {num_steps} timed steps (predict + update), "
           f"numpy {np.__version__}, Python {platform.python_version()}, {platform.machine()}")
     header = (f"{'filter':<32} {'N':>6} {'mean ms/step':>13} {'best ms/step':>13} "
               f"{'1000 steps s':>13}")
