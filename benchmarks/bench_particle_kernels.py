@@ -145,8 +145,8 @@ print(json.dumps(out))
 
 def child(checkout: str, code: str, args, env_extra=None) -> dict:
     env = dict(os.environ, PYTHONPATH=os.path.abspath(checkout), MPLBACKEND="Agg", **(env_extra or {}))
-    out = subprocess.run([sys.executable, "-c", code, *map(str, args)], env=env, capture_output=True, text=True,
-                         cwd=os.path.abspath(checkout))
+    out = subprocess.run([sys.executable, "-c", code, *map(str, args)], check=False, env=env, capture_output=True,
+                         text=True, cwd=os.path.abspath(checkout))
     if out.returncode != 0:
         raise SystemExit(f"{checkout} {args}: failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -23,6 +23,7 @@ import textwrap
 
 import numpy as np
 import pytest
+from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
 
 from drake_att import rotations as rot
 from drake_att.filters import mrp_ekf
@@ -34,7 +35,6 @@ from drake_att.filters.particle import (
     GyrolessParticleFilter,
     vector_log_likelihood,
 )
-from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
 
 INERTIA = np.diag([100.0, 200.0, 200.0])
 TORQUE = np.full(3, 1e-5)
@@ -197,19 +197,19 @@ def test_filters_equal_the_reference_over_a_run(kind):
     b0 = np.full(3, 2 * DEG / HOUR)
     tol = 1e-13
     if kind == "ekpf":
-        make = lambda r, k: ExtendedKalmanParticleFilter(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, r, kernel=k)  # noqa: E731
+        make = lambda r, k: ExtendedKalmanParticleFilter(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, r, kernel=k)
         tol = 1e-10
     elif kind.startswith("ekpf iterated"):
         q_far = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
-        make = lambda r, k: ExtendedKalmanParticleFilter(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, r,  # noqa: E731
+        make = lambda r, k: ExtendedKalmanParticleFilter(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, r,
                                                          proposal_iterations=10, kernel=k)
         tol = 1e-9
     elif kind == "bootstrap":
-        make = lambda r, k: BootstrapParticleFilter(500, q0, b0, P0_ATT, 2e-5, r, bias_roughening_sigma=1e-7,  # noqa: E731
+        make = lambda r, k: BootstrapParticleFilter(500, q0, b0, P0_ATT, 2e-5, r, bias_roughening_sigma=1e-7,
                                                     kernel=k)
     else:
         P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
-        make = lambda r, k: GyrolessParticleFilter(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6, r,  # noqa: E731
+        make = lambda r, k: GyrolessParticleFilter(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6, r,
                                                    attitude_process_sigma=3e-5, num_substeps=2, kernel=k)
     (ref, rng_ref), (new, rng_new) = _twin_filters(make)
     for k in range(len(ys)):
@@ -317,7 +317,8 @@ def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, loca
     ignores read-only permissions); the IPython locator accepts no file outside IPython."""
     env = dict(os.environ, NUMBA_CACHE_LOCATOR_CLASSES=locator, XDG_CACHE_HOME=str(tmp_path), HOME=str(tmp_path))
     env.pop("NUMBA_CACHE_DIR", None)
-    out = subprocess.run([sys.executable, "-c", textwrap.dedent(_CHILD)], env=env, capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(_CHILD)], check=False, env=env, capture_output=True,
+                         text=True)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split() == [str(caching)] and out.stderr == "", (out.stdout, out.stderr[-2000:])
     cached = [f for _, _, fs in os.walk(tmp_path) for f in fs if f.endswith((".nbi", ".nbc"))]

@@ -65,12 +65,12 @@ from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, a
 
 __all__ = [
     "CACHING",
-    "propagate_attitudes",
-    "vector_log_likelihood",
-    "gyroless_propagate",
     "ekf_predict",
     "ekf_update",
     "ekpf_update",
+    "gyroless_propagate",
+    "propagate_attitudes",
+    "vector_log_likelihood",
 ]
 
 
