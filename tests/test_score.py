@@ -90,8 +90,12 @@ def test_metadata_names_the_truth_each_kind_and_each_estimators_gyro(result):
     for name, (kind, bias, second) in expected.items():
         e = meta["estimators"][name]
         assert (e["second_kind"], e["true_bias"]) == (kind, bias), name
-        assert e["signals"] == {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
-                                "covariance": f"{name}/covariance", "status": f"{name}/status"}
+        signals = {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
+                   "covariance": f"{name}/covariance", "status": f"{name}/status"}
+        if name != "fusion":  # estimators with measurement inputs also log their innovations
+            signals["innovations"] = f"{name}/innovations"
+            assert e["inputs"] == ["st"], name
+        assert e["signals"] == signals, name
     assert set(meta["signals"]) == set(run.signals)
     # The named bias is the one each MEKF estimates: the gyros' biases differ by 42 deg/h per
     # axis; each MEKF's final bias estimate lies within 3 of its own reported sigmas of its

@@ -7,8 +7,8 @@ microseconds instead of ~100 (small numpy calls cost 1-2 us each in call overhea
 makes ~30 of them). ``tests/test_mekf_kernels.py`` asserts both paths agree to round-off
 (matrix products sum in another order than numpy's BLAS: ~1e-16 relative per product).
 
-Compiled on first use with ``cache=True`` (the machine code is kept in ``__pycache__`` next to
-this file, or numba's user-wide cache when that folder is read-only; see
+Compiled on first use and cached on disk by :func:`drake_att.filters.compiled.jit` (which also
+holds the scalar quaternion helpers shared with the particle-filter kernels; see
 benchmarks/README.md for the first-compile cost). No ``fastmath``: IEEE semantics, as numpy.
 """
 
@@ -16,32 +16,20 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, as rotvec_to_quat
-
-_jit = numba.njit(cache=True, nogil=True)
+from drake_att.filters.compiled import jit as _jit
+from drake_att.filters.compiled import quat_multiply, rotvec_to_quat
 
 
 @_jit
 def _quat_mul(p, q, out):
-    pw, px, py, pz = p[0], p[1], p[2], p[3]
-    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
-    out[0] = pw * qw - px * qx - py * qy - pz * qz
-    out[1] = pw * qx + px * qw + py * qz - pz * qy
-    out[2] = pw * qy - px * qz + py * qw + pz * qx
-    out[3] = pw * qz + px * qy - py * qx + pz * qw
+    out[0], out[1], out[2], out[3] = quat_multiply(p[0], p[1], p[2], p[3], q[0], q[1], q[2], q[3])
 
 
 @_jit
 def _rotvec_to_quat(x, y, z, out):
-    a = math.sqrt(x * x + y * y + z * z)
-    k = 0.5 - a * a / 48.0 if a < _SMALL_ANGLE else math.sin(0.5 * a) / a
-    out[0] = math.cos(0.5 * a)
-    out[1] = k * x
-    out[2] = k * y
-    out[3] = k * z
+    out[0], out[1], out[2], out[3] = rotvec_to_quat(x, y, z)
 
 
 @_jit

@@ -58,10 +58,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, as rotvec_to_quat
+from drake_att.filters import compiled as _compiled
+from drake_att.filters.compiled import jit as _jit
+from drake_att.filters.compiled import quat_multiply as _quat_multiply
+from drake_att.filters.compiled import rotvec_to_quat as _rotvec_to_quat
 
 __all__ = [
     "CACHING",
@@ -72,20 +74,6 @@ __all__ = [
     "propagate_attitudes",
     "vector_log_likelihood",
 ]
-
-
-CACHING = True
-
-
-def _jit(func):
-    """``numba.njit(cache=True)``; where numba finds no writable cache directory (it raises
-    RuntimeError at decoration), ``numba.njit`` without the on-disk cache."""
-    global CACHING
-    try:
-        return numba.njit(cache=True)(func)
-    except RuntimeError:
-        CACHING = False
-        return numba.njit(func)
 
 
 def _f64(a) -> np.ndarray:
@@ -101,25 +89,6 @@ def _mrp_to_quat(r0, r1, r2):
     n2 = r0 * r0 + r1 * r1 + r2 * r2
     d = 1.0 + n2
     return (1.0 - n2) / d, 2.0 * r0 / d, 2.0 * r1 / d, 2.0 * r2 / d
-
-
-@_jit
-def _rotvec_to_quat(x, y, z):
-    """rotations.rotvec_to_quat: exp(phi / 2)."""
-    a = math.sqrt(x * x + y * y + z * z)
-    half = 0.5 * a
-    if a < _SMALL_ANGLE:
-        k = 0.5 - a * a / 48.0
-    else:
-        k = math.sin(half) / a
-    return math.cos(half), k * x, k * y, k * z
-
-
-@_jit
-def _quat_multiply(pw, px, py, pz, qw, qx, qy, qz):
-    """rotations.quat_multiply (Hamilton product p ⊗ q)."""
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
 
 
 @_jit
@@ -903,3 +872,6 @@ def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iteration
     if status == 2:
         raise np.linalg.LinAlgError("Singular matrix")
     return None if status == 1 else (x, P, log_increment)
+
+
+CACHING = _compiled.CACHING  # after every kernel's decoration: False if none could be cached

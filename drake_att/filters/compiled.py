@@ -1,0 +1,57 @@
+"""What the compiled filter kernels share: numba's ``njit`` with its on-disk cache where it can
+have one, and the scalar quaternion building blocks.
+
+:func:`jit` is ``numba.njit(cache=True)``: the first call of a kernel in a fresh environment
+compiles it and writes the machine code to numba's cache (``__pycache__`` next to the module,
+or, where that is not writable, the user-wide cache ``~/.cache/numba`` / ``$NUMBA_CACHE_DIR``);
+later processes load it. Where numba finds no writable cache location at all (it raises
+``RuntimeError`` at decoration), the kernels are compiled in every process instead, with no
+warning and no error: :data:`CACHING` says which. No ``fastmath``: IEEE semantics, as numpy.
+
+The helpers take and return floats (tuples for quaternions, ``w`` first) and repeat
+:mod:`drake_att.rotations`' scalar formulas exactly, so kernels built on them agree with the
+numpy code to round-off.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+
+from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, as rotvec_to_quat
+
+CACHING = True
+
+
+def jit(func):
+    """``numba.njit(cache=True)``, or ``numba.njit`` without the on-disk cache where numba finds
+    no writable cache directory (see the module docstring)."""
+    global CACHING
+    try:
+        return numba.njit(cache=True)(func)
+    except RuntimeError:
+        CACHING = False
+        return numba.njit(func)
+
+
+@jit
+def rotvec_to_quat(x, y, z):
+    """rotations.rotvec_to_quat: ``exp(phi / 2)``."""
+    a = math.sqrt(x * x + y * y + z * z)
+    half = 0.5 * a
+    if a < _SMALL_ANGLE:
+        k = 0.5 - a * a / 48.0
+    else:
+        k = math.sin(half) / a
+    return math.cos(half), k * x, k * y, k * z
+
+
+@jit
+def quat_multiply(pw, px, py, pz, qw, qx, qy, qz):
+    """rotations.quat_multiply (Hamilton product ``p ⊗ q``)."""
+    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+
+
+__all__ = ["CACHING", "jit", "rotvec_to_quat", "quat_multiply"]
