@@ -448,18 +448,9 @@ def select_estimators(scenario: cfg.Scenario, names) -> cfg.Scenario:
     Dropping estimators changes no other system's noise (draws are keyed by system name)."""
     if names is None:
         return scenario
-    names = list(names)
-    have = [e.name for e in scenario.estimators]
-    unknown = [n for n in names if n not in have]
-    if unknown or not names:
-        raise cfg.ConfigError(f"--estimators: got {names!r}; choose names from {have}")
-    keep = [e for e in scenario.estimators if e.name in names]
-    for e in keep:
-        missing = [s for s in getattr(e, "sources", []) if s not in names]
-        if missing:
-            raise cfg.ConfigError(f"--estimators: {e.name!r} fuses {missing}, which are not selected")
-    out = copy.deepcopy(scenario)
-    out.estimators = copy.deepcopy(keep)
+    from drake_att.scenarios.builder import with_estimators
+
+    out = with_estimators(scenario, names, field="--estimators", allow_empty=False)
     return cfg.load_scenario(text=cfg.dump_scenario(out))
 
 
@@ -628,35 +619,23 @@ def _executor_name(workers, scheduler) -> str:
 def write_campaign_manifest(out: str, files, scenario_name: str, seeds) -> str:
     """``manifest.json`` (as :func:`drake_att.analysis.report.write_manifest`, with paths
     relative to ``out`` so the runs in ``runs/`` are listed too), written last."""
-    entries = []
-    for path in files:
-        with open(path, "rb") as f:
-            data = f.read()
-        entries.append({"file": os.path.relpath(path, out), "bytes": len(data),
-                        "sha256": hashlib.sha256(data).hexdigest()})
+    from drake_att.analysis.report import manifest_entries
+
     text = json.dumps({"scenario": scenario_name, "seeds": [seeds[0], seeds[-1]], "runs": len(seeds),
-                       "files": entries}, indent=1)
+                       "files": manifest_entries(out, files)}, indent=1)
     return write_text_atomic(os.path.join(out, MANIFEST_FILE), text)
 
 
 def check_campaign_manifest(out: str) -> list[str]:
     """Problems of a campaign folder against its manifest (empty: complete, unmodified)."""
+    from drake_att.analysis.report import manifest_problems
+
     path = os.path.join(out, MANIFEST_FILE)
     if not os.path.isfile(path):
         return [f"{out}: no {MANIFEST_FILE} (the campaign did not finish)"]
     with open(path) as f:
         manifest = json.load(f)
-    problems = []
-    for e in manifest["files"]:
-        p = os.path.join(out, e["file"])
-        if not os.path.isfile(p):
-            problems.append(f"{e['file']}: missing")
-            continue
-        with open(p, "rb") as f:
-            data = f.read()
-        if len(data) != e["bytes"] or hashlib.sha256(data).hexdigest() != e["sha256"]:
-            problems.append(f"{e['file']}: changed since it was written")
-    return problems
+    return manifest_problems(out, manifest["files"])
 
 
 def default_summarize(records, scenario, **kwargs) -> dict:

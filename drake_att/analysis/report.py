@@ -229,33 +229,26 @@ def _write_results_into(scenario_diagram, run, metrics: dict, out_dir: str, figu
 MANIFEST = "manifest.json"
 
 
-def write_manifest(out_dir: str, files, run) -> str:
-    """``manifest.json``: every file written (name, bytes, SHA-256), the scenario and seed —
-    written last, so a folder with a manifest that matches its files is a complete result."""
+def manifest_entries(out_dir: str, files) -> list[dict]:
+    """``{"file", "bytes", "sha256"}`` of each file, named relative to ``out_dir`` (the one
+    home of the manifest format: run folders and Monte Carlo campaign folders)."""
     import hashlib
 
     entries = []
     for path in files:
         with open(path, "rb") as f:
             data = f.read()
-        entries.append({"file": os.path.basename(path), "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
-    path = os.path.join(out_dir, MANIFEST)
-    with open(path, "w") as f:
-        json.dump({"scenario": run.scenario.name, "seed": run.seed, "files": entries}, f, indent=1)
-    return path
+        entries.append({"file": os.path.relpath(path, out_dir), "bytes": len(data),
+                        "sha256": hashlib.sha256(data).hexdigest()})
+    return entries
 
 
-def check_manifest(out_dir: str) -> list[str]:
-    """Problems of a result folder against its manifest (empty: complete and unmodified)."""
+def manifest_problems(out_dir: str, entries) -> list[str]:
+    """The entries whose file is missing or differs from its recorded size and SHA-256."""
     import hashlib
 
-    path = os.path.join(out_dir, MANIFEST)
-    if not os.path.isfile(path):
-        return [f"{out_dir}: no {MANIFEST} (not a complete result folder)"]
-    with open(path) as f:
-        manifest = json.load(f)
     problems = []
-    for e in manifest["files"]:
+    for e in entries:
         p = os.path.join(out_dir, e["file"])
         if not os.path.isfile(p):
             problems.append(f"{e['file']}: missing")
@@ -264,6 +257,27 @@ def check_manifest(out_dir: str) -> list[str]:
             data = f.read()
         if len(data) != e["bytes"] or hashlib.sha256(data).hexdigest() != e["sha256"]:
             problems.append(f"{e['file']}: changed since it was written")
+    return problems
+
+
+def write_manifest(out_dir: str, files, run) -> str:
+    """``manifest.json``: every file written (name, bytes, SHA-256), the scenario and seed —
+    written last, so a folder with a manifest that matches its files is a complete result."""
+    path = os.path.join(out_dir, MANIFEST)
+    with open(path, "w") as f:
+        json.dump({"scenario": run.scenario.name, "seed": run.seed, "files": manifest_entries(out_dir, files)},
+                  f, indent=1)
+    return path
+
+
+def check_manifest(out_dir: str) -> list[str]:
+    """Problems of a result folder against its manifest (empty: complete and unmodified)."""
+    path = os.path.join(out_dir, MANIFEST)
+    if not os.path.isfile(path):
+        return [f"{out_dir}: no {MANIFEST} (not a complete result folder)"]
+    with open(path) as f:
+        manifest = json.load(f)
+    problems = manifest_problems(out_dir, manifest["files"])
     listed = {e["file"] for e in manifest["files"]} | {MANIFEST}
     problems += [f"{n}: not written by this run" for n in sorted(set(os.listdir(out_dir)) - listed)]
     return problems

@@ -263,6 +263,31 @@ class RunLog:
             return cls.from_npz(npz, scenario)
 
 
+def with_estimators(scenario: cfg.Scenario, names, field: str = "estimators", allow_empty: bool = True) -> cfg.Scenario:
+    """A copy of ``scenario`` with only the estimators ``names`` (in the scenario's order).
+
+    Raises:
+        ConfigError naming ``field``: ``names`` is a string, names an unknown estimator, is
+            empty when ``allow_empty`` is false, or leaves out the source of a selected fusion.
+    """
+    import copy
+
+    have = [e.name for e in scenario.estimators]
+    unknown = [] if isinstance(names, str) else [n for n in names if n not in have]
+    if isinstance(names, str) or unknown or (not allow_empty and not list(names)):
+        raise cfg.ConfigError(f"{field}: got {names!r}; choose a list of names from {have}"
+                              + (" (empty: sensors only)" if allow_empty else ""))
+    names = list(names)
+    keep = [e for e in scenario.estimators if e.name in names]
+    for e in keep:
+        missing = [s for s in getattr(e, "sources", []) if s not in names]
+        if missing:
+            raise cfg.ConfigError(f"{field}: {e.name!r} fuses {missing}, which are not selected")
+    scenario = copy.deepcopy(scenario)
+    scenario.estimators = copy.deepcopy(keep)
+    return scenario
+
+
 class ScenarioDiagram:
     """A scenario's diagram, built once; :meth:`simulate` runs it for any seed.
 
@@ -371,20 +396,7 @@ class ScenarioDiagram:
                 raise cfg.ConfigError("these overrides change the diagram, not just its parameters: "
                                       + "; ".join(structural) + ". Build a new ScenarioDiagram for them.")
         if estimators is not None:
-            import copy
-
-            names = [e.name for e in scenario.estimators]
-            unknown = [n for n in estimators if n not in names]
-            if unknown or isinstance(estimators, str):
-                raise cfg.ConfigError(f"estimators: got {estimators!r}; choose a list of names from {names} "
-                                      "(empty: sensors only)")
-            keep = [e for e in scenario.estimators if e.name in estimators]
-            for e in keep:
-                missing = [s for s in getattr(e, "sources", []) if s not in estimators]
-                if missing:
-                    raise cfg.ConfigError(f"estimators: {e.name!r} fuses {missing}, which are not selected")
-            scenario = copy.deepcopy(scenario)
-            scenario.estimators = copy.deepcopy(keep)
+            scenario = with_estimators(scenario, estimators)
         return scenario
 
     def _normalized_scenario(self) -> cfg.Scenario:
