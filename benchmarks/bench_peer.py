@@ -10,6 +10,11 @@ per axis after 500 s (different random streams: they must agree in class, not in
 
     python benchmarks/bench_peer.py             # 5000 s, best of 2
     python benchmarks/bench_peer.py --quick     # 1000 s, 1 repeat
+    python benchmarks/bench_peer.py --instructions --duration 500   # callgrind counts instead
+
+``--instructions``: each side runs once in its own child under valgrind's callgrind, counting
+only the timed part (the peer's loop; ``simulate`` after a warm-up run) - the same count for
+the same code whatever else the machine does (a shared VM moves CPU times by 2x). ~50x slower.
 """
 
 from __future__ import annotations
@@ -30,16 +35,62 @@ from drake_att.scenarios.library import load  # noqa: E402
 TEN_HZ = ["sensors.gyro.period_s=0.1", "sensors.st1.period_s=0.1", "estimators.single.period_s=0.1"]
 
 
+_CHILD = """
+import os, subprocess, sys
+sys.path.insert(0, {bench_dir!r})
+which, T, seed = sys.argv[1], float(sys.argv[2]), int(sys.argv[3])
+toggle = lambda state: subprocess.run(["callgrind_control", "-i", state, str(os.getpid())], check=True,
+                                      capture_output=True)
+if which == "peer":
+    import peer_numpy_loop
+    peer_numpy_loop.run(min(T, 20.0), seed, 10.0)  # warm-up (imports, first calls)
+    toggle("on"); peer_numpy_loop.run(T, seed, 10.0); toggle("off")
+else:
+    from bench_peer import TEN_HZ
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.config import apply_overrides
+    from drake_att.scenarios.library import load
+    sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"),
+                                         [f"duration_s={{T}}", f"scoring.score_from_s={{T / 10}}"] + TEN_HZ))
+    sd.simulate(seed)
+    toggle("on"); sd.simulate(seed); toggle("off")
+"""
+
+
+def count_instructions(which: str, duration: float, seed: int) -> float:
+    """Callgrind's instruction count of one side's timed part (see the module docstring)."""
+    import subprocess
+
+    code = _CHILD.format(bench_dir=os.path.dirname(os.path.abspath(__file__)))
+    out = subprocess.run(["valgrind", "--tool=callgrind", "--instr-atstart=no", "--callgrind-out-file=/dev/null",
+                          sys.executable, "-c", code, which, str(duration), str(seed)],
+                         capture_output=True, text=True, check=False)
+    counts = [line.split(":")[-1] for line in out.stderr.splitlines() if "Collected :" in line]
+    if out.returncode != 0 or not counts:
+        raise SystemExit(f"{which} under callgrind failed:\n{out.stderr[-2000:]}")
+    return float(counts[-1].replace(",", ""))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--duration", type=float, default=5000.0, help="simulated seconds (default 5000)")
     ap.add_argument("--repeats", type=int, default=2, help="best of N (default 2)")
     ap.add_argument("--quick", action="store_true", help="1000 s, 1 repeat")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--instructions", action="store_true",
+                    help="count instructions under callgrind instead of timing (deterministic; ~50x slower)")
     a = ap.parse_args(argv)
     if a.quick:
         a.duration, a.repeats = 1000.0, 1
     T, seed = a.duration, a.seed
+    if a.instructions:
+        peer_n, lib_n = count_instructions("peer", T, seed), count_instructions("drake_att", T, seed)
+        steps = round(T * 10)
+        print(f"S3 single tracker, gyro/ST/MEKF at 10 Hz, {T:.0f} s ({steps} steps), seed {seed}: instructions "
+              f"(callgrind)\n{'peer':<10} {peer_n / 1e9:8.3f} G  ({peer_n / steps / 1e3:.0f} k per step)\n"
+              f"{'drake_att':<10} {lib_n / 1e9:8.3f} G  ({lib_n / steps / 1e3:.0f} k per step)\n"
+              f"ratio drake_att / peer: {lib_n / peer_n:.2f}")
+        return
     print(f"S3 single tracker, gyro/ST/MEKF at 10 Hz, {T:.0f} s, seed {seed}, best of {a.repeats} (CPU s)")
 
     peer_runs = [peer_numpy_loop.run(T, seed, 10.0) for _ in range(a.repeats)]
