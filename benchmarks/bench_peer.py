@@ -15,6 +15,8 @@ per axis after 500 s (different random streams: they must agree in class, not in
 ``--instructions``: each side runs once in its own child under valgrind's callgrind, counting
 only the timed part (the peer's loop; ``simulate`` after a warm-up run) - the same count for
 the same code whatever else the machine does (a shared VM moves CPU times by 2x). ~50x slower.
+The children import drake_att from the current directory first: to measure another checkout,
+run from it, e.g. ``cd /tmp/old && PYTHONPATH=/tmp/old python /path/to/bench_peer.py --instructions``.
 """
 
 from __future__ import annotations
