@@ -121,3 +121,5 @@ def test_a_long_run_stays_within_round_off_of_the_reference():
 def test_kernel_choice_is_validated():
     with pytest.raises(ValueError, match="kernel: got 'fortran'"):
         MultiplicativeEKF(1e-5, 1e-7, kernel="fortran")
+    with pytest.raises(ValueError, match=r"kernel: got \['numba'\]"):  # an unhashable value: a message, not a TypeError
+        MultiplicativeEKF(1e-5, 1e-7, kernel=["numba"])

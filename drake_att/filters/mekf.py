@@ -63,9 +63,9 @@ from drake_att import rotations as rot
 from drake_att.validation import check_nonnegative, check_positive
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf_kernels as _kernels
+from drake_att.filters.compiled import KERNELS  # MultiplicativeEKF(kernel=...): compiled or the numpy specification
 from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 
-KERNELS = ("numba", "numpy")  # MultiplicativeEKF(kernel=...): compiled steps or the numpy specification
 
 
 @dataclass(frozen=True)
@@ -212,7 +212,7 @@ class MultiplicativeEKF:
 
     def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None,
                  coning_correction: bool = False, kernel: str = "numba"):
-        if kernel not in KERNELS:
+        if not (isinstance(kernel, str) and kernel in KERNELS):
             raise ValueError(f"kernel: got {kernel!r}; allowed: {list(KERNELS)}")
         self.kernel = kernel
         self.arw = check_nonnegative("arw", arw_rad_per_rt_s)

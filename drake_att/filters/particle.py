@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att.contract import SecondQuantity, UpdateInfo
-
+from drake_att.filters.compiled import KERNELS  # one home for the kernel names
 from drake_att.filters.mrp_ekf import (
     valid_rate_or_none,
     attitude_to_mrp_covariance,
@@ -88,8 +88,6 @@ __all__ = [
     "ParticleFilterCore",
     "KERNELS",
 ]
-
-KERNELS = ("numba", "numpy")
 
 
 def _check_kernel(kernel) -> str:
