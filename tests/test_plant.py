@@ -332,6 +332,58 @@ def test_set_inertia_round_trip():
         plant.SetInertia(context, [1.0, 1.0, 3.0])
 
 
+FULL_INERTIA = np.array([[20.0, 1.0, 0.5], [1.0, 20.0, -2.0], [0.5, -2.0, 30.0]])
+
+
+@pytest.mark.parametrize("inertia, principal", [(INERTIA, True), (FULL_INERTIA, False)])
+def test_derivatives_equal_euler_equations_in_both_forms(inertia, principal):
+    """Principal-axes and general forms: the derivatives equal an independent numpy evaluation
+    of ``w_dot = I^-1 (tau - w x I w)``, ``q_dot = 1/2 q ⊗ [0, w] + (1 - |q|^2) q``,
+    ``theta_dot = w`` at random states (not unit quaternions, so the norm term is exercised),
+    to 1e-13 relative; SetInertia changes them per context."""
+    from drake_att.systems.plant import NORM_STABILIZATION_GAIN
+
+    rng = np.random.default_rng(4)
+    plant = RigidBodyAttitudePlant(inertia)
+    assert plant.principal_axes is principal
+    context = plant.CreateDefaultContext()
+    plant.SetDefaultParametersAndState(context)
+    for k in range(20):
+        I = inertia if k < 10 else (np.diag(rng.uniform(5, 9, 3)) if principal else
+                                    FULL_INERTIA + np.diag(rng.uniform(0, 3, 3)))
+        plant.SetInertia(context, I)
+        q, w, tau = rng.normal(size=4), rng.normal(size=3), rng.normal(size=3)
+        sub = plant.GetMutableSubsystemContext(plant._symbolic, context)
+        sub.SetContinuousState(np.concatenate([q, w, rng.normal(size=3)]))
+        plant.GetInputPort("torque_B").FixValue(context, tau)
+        xdot = plant.EvalTimeDerivatives(context).CopyToVector()
+        w_dot = np.linalg.solve(I, tau - np.cross(w, I @ w))
+        q_dot = 0.5 * rot.quat_multiply(q, np.r_[0.0, w]) + NORM_STABILIZATION_GAIN * (1 - q @ q) * q
+        expected = np.concatenate([q_dot, w_dot, w])
+        assert np.allclose(xdot, expected, rtol=1e-13, atol=1e-13 * np.abs(expected).max())
+
+
+def test_principal_axes_plant_takes_only_diagonal_inertias():
+    plant = RigidBodyAttitudePlant(INERTIA)
+    context = plant.CreateDefaultContext()
+    with pytest.raises(ValueError, match=r"inertia: got .*principal axes.*full inertia"):
+        plant.SetInertia(context, FULL_INERTIA)
+    general = RigidBodyAttitudePlant(FULL_INERTIA)
+    general_context = general.CreateDefaultContext()
+    general.SetInertia(general_context, INERTIA)  # the general form takes any inertia
+    assert np.array_equal(general.GetInertia(general_context), INERTIA)
+
+
+def test_full_inertia_torque_free_conserves_energy_and_momentum():
+    """The general form, 2000 s torque-free: energy and inertial angular momentum to 1e-10."""
+    x = run_rigid_body(FULL_INERTIA, Q0, W0, [0.0, 1000.0, 2000.0], accuracy=1e-10)
+    energy = [0.5 * s[4:7] @ FULL_INERTIA @ s[4:7] for s in x]
+    momentum = [rot.quat_to_rotmat(s[:4]) @ (FULL_INERTIA @ s[4:7]) for s in x]
+    assert np.allclose(energy, energy[0], rtol=1e-10, atol=0)
+    assert np.allclose(momentum, momentum[0], rtol=0, atol=1e-10 * np.linalg.norm(momentum[0]))
+    assert angle_between(x[0, :4], x[-1, :4]) > 0.5  # not vacuous: the body turned
+
+
 # ----------------------------------------------------------------------------------
 # Orbit / LVLH frame
 # ----------------------------------------------------------------------------------
