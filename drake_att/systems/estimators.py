@@ -91,6 +91,7 @@ from drake_att.contract import (
     pack_estimate,
 )
 from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
+from drake_att.systems import compiled_step
 from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
 
 TIME_TOLERANCE_S = 1e-6
@@ -105,6 +106,9 @@ _SEED = slice(5, 5 + SEED_WORDS)
 _N_RESAMPLES, _ESS, _N_DEGENERATE = 5 + SEED_WORDS, 6 + SEED_WORDS, 7 + SEED_WORDS
 _LAST_SAMPLE = 8 + SEED_WORDS  # first per-input "time of last used sample"; then, per input, the
 # number of consecutive rejections by the core (re-acquisition)
+assert _T_LAST == 0 and _W_LAST == slice(1, 4)  # the layout drake_att.systems.compiled_step writes
+_NO_GYRO = np.full(GYRO_MEASUREMENT_SIZE, np.nan)
+_NO_INNOVATIONS = np.zeros(0)
 
 __all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensorModel", "MekfEstimator", "pack_estimate", "ESTIMATE_SIZE",
            "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
@@ -129,6 +133,8 @@ class QuaternionSensorModel:
         """The covariance of a sample with validity ``flag`` (None: not a usable subset)."""
         if not self.covariance_by_flag or not flag > 1.5:
             return self.covariance_S
+        if not math.isfinite(flag):
+            return None
         mask = int(round(flag)) - 1
         return self.covariance_by_flag[mask] if 0 < mask < len(self.covariance_by_flag) else None
 
@@ -216,6 +222,7 @@ class EstimatorSystem(LeafSystem):
         self._vector_names = tuple(vector_sensors)
         self._camera_names = tuple(camera_sensors)
         self.diagnostic_names = tuple(getattr(core, "diagnostic_names", ()))
+        self._compiled_models: dict = {}
         self._model_index = self.DeclareAbstractParameter(
             AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors))))
 
@@ -381,10 +388,56 @@ class EstimatorSystem(LeafSystem):
             if port.HasValue(context):
                 yield offset + j, port.Eval(context)
 
+    #: Run eligible steps (an MEKF with compiled kernels, quaternion inputs only) as one
+    #: compiled call (:mod:`drake_att.systems.compiled_step`); False: always this Python loop
+    #: (the specification; the tests compare the two).
+    use_compiled_step = True
+
+    def _compiled_model(self, model: FilterModel):
+        """The :class:`~drake_att.systems.compiled_step.CompiledStepModel` of ``model``, or
+        None if its steps take the Python loop (built once per model)."""
+        hit = self._compiled_models.get(id(model))
+        if hit is not None and hit[0] is model:
+            return hit[1]
+        array_model = None
+        if self._linearizing and compiled_step.eligible(model.core, len(self._vector_ports), model.core.is_random):
+            array_model = compiled_step.CompiledStepModel.of(model.core, model.quaternion_sensors)
+        if len(self._compiled_models) > 8:
+            self._compiled_models.clear()
+        self._compiled_models[id(model)] = (model, array_model)
+        return array_model
+
+    def _on_step_compiled(self, context, discrete_state, m) -> EventStatus:
+        """:meth:`_on_step` by :func:`~drake_att.systems.compiled_step.mekf_step`: the port
+        reads here, the rest in one compiled call writing the state groups in place."""
+        gyro_connected = self._gyro_port.HasValue(context)
+        gyro = self._gyro_port.Eval(context) if gyro_connected else _NO_GYRO
+        n = len(self._quat_ports)
+        meas = np.zeros((n, QUATERNION_MEASUREMENT_SIZE))
+        connected = np.zeros(n, dtype=np.bool_)
+        for i, port in enumerate(self._quat_ports):
+            if port.HasValue(context):
+                meas[i] = port.Eval(context)
+                connected[i] = True
+        group = discrete_state.get_mutable_vector
+        innovations = (group(self._innovation_group).get_mutable_value() if self._innovation_group is not None
+                       else _NO_INNOVATIONS)
+        compiled_step.mekf_step(
+            context.get_time(), TIME_TOLERANCE_S, gyro_connected, gyro, connected, meas, m.q_BS, m.R_SB, m.covariance,
+            m.allowed, m.n_masks, m.threshold, m.arw, m.rrw, float(REACQUIRE_AFTER_REJECTIONS), _LAST_SAMPLE,
+            self._rejections, group(self._estimate_group).get_mutable_value(),
+            group(self._book_group).get_mutable_value(), group(self._core_group).get_mutable_value(),
+            group(self._linearization_group).get_mutable_value(), innovations)
+        return EventStatus.Succeeded()
+
     def _on_step(self, context, discrete_state):
         model = self.filter_model(context)
         if not model.enabled:
             return EventStatus.DidNothing()
+        if self.use_compiled_step:
+            array_model = self._compiled_model(model)
+            if array_model is not None:
+                return self._on_step_compiled(context, discrete_state, array_model)
         core = model.core
         t = context.get_time()
         est = self.estimate_vector(context)
