@@ -13,23 +13,30 @@ sequential cumulative sum, the same additions in the same order as one sample at
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, Diagram, DiagramBuilder, EventStatus, LeafSystem
+from pydrake.systems.framework import (
+    BasicVector,
+    Diagram,
+    DiagramBuilder,
+    EventStatus,
+    LeafSystem,
+    ValueProducer,
+)
 from pydrake.systems.primitives import ZeroOrderHold
 
 from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B (3)]
-from drake_att.noise import FarrenkopfGyroNoise
-from drake_att.validation import check_array, check_nonnegative
+from drake_att.noise import CounterRandom, FarrenkopfGyroNoise
 from drake_att.systems.randomness import (
-    SEED_WORDS, counter_random, declare_seed_port, read_seed_words)
-
-
-
+    SEED_WORDS,
+    counter_random,
+    declare_seed_port,
+    read_seed_words,
+)
+from drake_att.validation import check_array, check_nonnegative
 
 
 @dataclass(frozen=True)
@@ -91,7 +98,13 @@ class _GyroOutputs(LeafSystem):
                                      deps | {self.all_input_ports_ticket()})
         self.DeclareVectorOutputPort("bias_B", 3, self._calc_bias, deps | {self.input_port_ticket(
             self._seed_port.get_index())})
-        self._draws: dict = {}
+        # The context's draws (a _GyroDraws of its seed words and model) as a cache entry: one
+        # lookup per output evaluation instead of reading the parameter and the state and
+        # keying a table with them; recomputed when either changes.
+        self._draws_cache = self.DeclareCacheEntry(
+            "draws", ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc_draws),
+            {self.xd_ticket(), self.all_parameters_ticket()})
+        self._draws_memo: dict = {}  # (seed words bytes, id(model)) -> _GyroDraws
 
     def model(self, context) -> GyroModel:
         return context.get_abstract_parameter(self._model_index).get_value()
@@ -106,21 +119,70 @@ class _GyroOutputs(LeafSystem):
         n = max(0, math.ceil(t / self.period_s - 1e-9))
         return n, ((n - 1) * self.period_s + self.period_s if n else 0.0)
 
-    def _draw(self, context, n: int, model: GyroModel) -> tuple[np.ndarray, np.ndarray]:
-        """``(offset_n, B_n)``: the measurement offset of sample ``n`` (mean bias over its
-        interval plus angle random walk, ``B_(n-1) + e_n``; ``B_0 + e_0`` for ``n = 0``) and
-        the bias ``B_n`` at its instant (``B_0`` = the initial bias, ``B_n = B_(n-1) + db_n``),
-        with ``(e_n, db_n)`` from the Farrenkopf factor of ``normals(n, 9)[:6]``."""
+    def _calc_draws(self, context, value):
         words = context.get_discrete_state_vector().value()
+        model = self.model(context)
         key = (words.tobytes(), id(model))
-        entry = self._draws.get(key)
-        if entry is None or entry[0] is not model:
-            if len(self._draws) > 8:
-                self._draws.clear()
-            entry = self._draws[key] = (model, counter_random(words, self.stream), [])
-        model, cr, blocks = entry
-        b, r = divmod(n, cr.BLOCK)
-        while len(blocks) <= b:  # blocks in order: each starts from the previous block's last bias
+        draws = self._draws_memo.get(key)
+        if draws is None:  # (the memo keeps model alive: its id is not reused)
+            if len(self._draws_memo) > 8:
+                self._draws_memo.clear()
+            draws = self._draws_memo[key] = _GyroDraws(model, counter_random(words, self.stream))
+        value.set_value(draws)
+
+    def _draws(self, context) -> _GyroDraws:
+        """The draws of this context's seed words and model (cached)."""
+        return self._draws_cache.EvalAbstract(context).get_value()
+
+    def _calc_measurement(self, context, output: BasicVector):
+        t = context.get_time()
+        n, t_n = self._sample_index(t)
+        draws = self._draws(context)
+        elapsed = t - (t_n - self.period_s)
+        if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
+            w_true = [(a - b) / elapsed for a, b in zip(self._integral_port.Eval(context).tolist(),
+                                                         self._held_port.Eval(context).tolist())]
+        else:
+            w_true = self._w_port.Eval(context).tolist()
+        # (I + S + M) w; skipped for the identity (the same numbers, up to the sign of a zero).
+        w_meas = w_true if draws.unit_sensor_matrix else (draws.model.sensor_matrix @ w_true).tolist()
+        if self._scale_error_port.HasValue(context):
+            divisor = 1.0 + self._scale_error_port.Eval(context)[0]
+            w_meas = [w / divisor for w in w_meas]
+        ox, oy, oz = draws.offset(n)
+        output.SetFromVector(np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz]))
+
+    def _calc_bias(self, context, output: BasicVector):
+        output.SetFromVector(self._draws(context).draw(self._sample_index(context.get_time())[0])[1])
+
+
+class _GyroDraws:
+    """The noise of one gyro for one (seed words, :class:`GyroModel`): per sample ``n`` the
+    measurement offset (mean bias over its interval plus angle random walk, ``B_(n-1) +
+    e_n``; ``B_0 + e_0`` for ``n = 0``) and the bias ``B_n`` at its instant (``B_0`` = the
+    initial bias, ``B_n = B_(n-1) + db_n``), with ``(e_n, db_n)`` from the Farrenkopf factor
+    of ``normals(n, 9)[:6]``: computed by blocks of ``CounterRandom.BLOCK`` samples, in
+    order (each block starts from the previous block's last bias) and kept.  Immutable in
+    effect (a memo), so a cloned context shares it (``__deepcopy__``).
+
+    Attributes:
+        model: the :class:`GyroModel`.
+        unit_sensor_matrix: whether ``model.sensor_matrix`` is the identity.
+    """
+
+    def __init__(self, model: GyroModel, cr: CounterRandom):
+        self.model = model
+        self.unit_sensor_matrix = bool(np.array_equal(model.sensor_matrix, np.eye(3)))
+        self._cr = cr
+        self._blocks: list = []  # (offsets (BLOCK, 3), biases (BLOCK, 3)) of blocks 0, 1, ...
+        self._offsets_block, self._offsets = -1, None  # the last block read by offset(), as lists
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def _block(self, b: int):
+        blocks, model, cr = self._blocks, self.model, self._cr
+        while len(blocks) <= b:
             z = cr.normals_block(len(blocks), 9)
             e, db = model.noise.from_normals(np.moveaxis(z[:, :6].reshape(-1, 2, 3), 1, 0))
             if not blocks:
@@ -132,29 +194,21 @@ class _GyroOutputs(LeafSystem):
                 bias = np.add.accumulate(np.vstack([last, db]), axis=0)[1:]
                 previous = np.vstack([last, bias[:-1]])
             blocks.append((previous + e, bias))
-        offsets, biases = blocks[b]
+        return blocks[b]
+
+    def draw(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(offset_n, B_n)`` (3 each, rad/s) of sample ``n``."""
+        b, r = divmod(n, CounterRandom.BLOCK)
+        offsets, biases = self._block(b)
         return offsets[r], biases[r]
 
-    def _calc_measurement(self, context, output: BasicVector):
-        t = context.get_time()
-        n, t_n = self._sample_index(t)
-        model = self.model(context)
-        offset, _ = self._draw(context, n, model)
-        elapsed = t - (t_n - self.period_s)
-        if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
-            w_true = (self._integral_port.Eval(context) - self._held_port.Eval(context)) / elapsed
-        else:
-            w_true = self._w_port.Eval(context)
-        w_meas = model.sensor_matrix @ w_true
-        if self._scale_error_port.HasValue(context):
-            w_meas = w_meas / (1.0 + self._scale_error_port.Eval(context)[0])
-        w_meas = w_meas + offset
-        out = np.empty(GYRO_MEASUREMENT_SIZE)
-        out[0], out[1], out[2:] = t_n, 1.0, w_meas
-        output.SetFromVector(out)
-
-    def _calc_bias(self, context, output: BasicVector):
-        output.SetFromVector(self._draw(context, self._sample_index(context.get_time())[0], self.model(context))[1])
+    def offset(self, n: int) -> list:
+        """``offset_n`` as a list of 3 floats (rad/s)."""
+        b, r = divmod(n, CounterRandom.BLOCK)
+        if b != self._offsets_block:
+            self._offsets = self._block(b)[0].tolist()
+            self._offsets_block = b
+        return self._offsets[r]
 
 
 class Gyro(Diagram):

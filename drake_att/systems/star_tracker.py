@@ -20,13 +20,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
-from drake_att.validation import check_nonnegative
 from drake_att.noise import CounterRandom
-from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
+from drake_att.systems.randomness import (
+    SEED_WORDS,
+    counter_random,
+    declare_seed_port,
+    read_seed_words,
+)
+from drake_att.validation import check_nonnegative
+
 
 def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
     """``q_BS`` from paper S3's three mounting angles (its eq. 7).
@@ -155,7 +161,13 @@ class StarTracker(LeafSystem):
         # the seed words, read once at initialization (the seed port's value changes after t = 0).
         self.DeclareDiscreteState(np.zeros(SEED_WORDS))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self._blocks: dict = {}
+        # The context's samples (a _TrackerSamples of its seed words and noise parameter) as a
+        # cache entry: one lookup per output evaluation instead of reading the parameter and
+        # the state and keying a table with them; recomputed when either changes.
+        self._samples_cache = self.DeclareCacheEntry(
+            "samples", ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc_samples),
+            {self.xd_ticket(), self.all_parameters_ticket()})
+        self._samples_memo: dict = {}  # (seed words bytes, id(noise)) -> _TrackerSamples
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
@@ -176,7 +188,7 @@ class StarTracker(LeafSystem):
     def set_noise(self, context, sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
                   sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> None:
         """Give ``context`` (this system's) other noise levels / availability (arguments as
-        the constructor's); takes effect at the next initialization."""
+        the constructor's); outputs evaluated afterwards use them."""
         noise = StarTrackerNoise.make(self.get_name(), sigma_cross_boresight_rad, sigma_boresight_rad,
                                       sigma_vector_rad, dropout_probability, outage_windows_s)
         context.get_mutable_abstract_parameter(self._noise_index).set_value(noise)
@@ -186,60 +198,41 @@ class StarTracker(LeafSystem):
         discrete_state.set_value(read_seed_words(self, context, self._seed_port))
         return EventStatus.Succeeded()
 
+    def _calc_samples(self, context, value):
+        words = context.get_discrete_state_vector().value()
+        noise = self.noise(context)
+        key = (words.tobytes(), id(noise))
+        samples = self._samples_memo.get(key)
+        if samples is None:  # (the memo keeps noise alive: its id is not reused)
+            if len(self._samples_memo) > 8:
+                self._samples_memo.clear()
+            samples = self._samples_memo[key] = _TrackerSamples(self, words, noise)
+        value.set_value(samples)
+
+    def _samples(self, context) -> _TrackerSamples:
+        """The samples of this context's seed words and noise parameter (cached)."""
+        return self._samples_cache.EvalAbstract(context).get_value()
+
+    def _sample_index(self, t: float) -> int:
+        """The index ``k = max(0, ceil(t / T - 1e-9))`` of the sample an output at ``t``
+        carries (``t`` on a sample instant, to round-off: that instant's)."""
+        return max(0, math.ceil(t / self.period_s - 1e-9))
+
     def _sample(self, context):
         """``(t_sample, valid, draw, noise parameter)`` of the sample an output at this time
         carries: the pending one, index ``k = ceil(t / T)`` (``t`` on a sample instant: that
         instant's), stamped ``t_k = t_(k-1) + T`` (as the per-sample events of earlier versions
         did; 0 for ``k = 0``)."""
-        t, period = context.get_time(), self.period_s
-        index = max(0, math.ceil(t / period - 1e-9))
-        t_sample = (index - 1) * period + period if index else 0.0
-        noise = self.noise(context)
-        draws, valid = self._block(context.get_discrete_state_vector().value(), noise, index // CounterRandom.BLOCK)
-        r = index % CounterRandom.BLOCK
-        return t_sample, bool(valid[r]), draws[r], noise
-
-    def _block(self, words, p: StarTrackerNoise, block: int):
-        """The draws and validity flags of samples ``block * BLOCK ...`` (``BLOCK`` of each),
-        a pure function of (seed words, this tracker's name, sample index) computed for the
-        whole block at once: quaternion mode ``q_BS ⊗ exp(sigmas_S * normals(k, 3))`` (the
-        noise stored as one quaternion, so the output is one product), vector mode
-        ``sigma_vector * normals(k, 3m)``; sample ``k`` is valid if ``uniforms(k, 1) >=
-        dropout_probability`` and ``t_k`` is in no outage window."""
-        key = (words.tobytes(), id(p), block)
-        hit = self._blocks.get(key)
-        if hit is not None and hit[0] is p:
-            return hit[1], hit[2]
-        cr = counter_random(words, self.get_name())
-        n = CounterRandom.BLOCK
-        if self.mode == "quaternion":
-            phi = p.sigmas_S * cr.normals_block(block, 3)
-            x, y, z = phi[:, 0], phi[:, 1], phi[:, 2]
-            a = np.sqrt(x * x + y * y + z * z)  # rot.rotvec_to_quat's scalar formula, per row
-            with np.errstate(invalid="ignore", divide="ignore"):
-                k = np.where(a < rot._SMALL_ANGLE, 0.5 - a * a / 48.0, np.sin(0.5 * a) / a)
-            dq = np.stack([np.cos(0.5 * a), k * x, k * y, k * z], axis=-1)
-            draws = rot.quat_multiply(np.broadcast_to(self.q_BS, dq.shape), dq)
-        else:
-            draws = p.sigma_vector * cr.normals_block(block, self._n_noise)
-        index = np.arange(block * n, (block + 1) * n)
-        valid = cr.uniforms_block(block, 1)[:, 0] >= p.dropout_probability
-        if p.outage_windows_s:
-            t = np.where(index > 0, (index - 1) * self.period_s + self.period_s, 0.0)
-            for a, b in p.outage_windows_s:
-                valid &= ~((a <= t) & (t < b))
-        if len(self._blocks) > 16:
-            self._blocks.clear()
-        self._blocks[key] = (p, draws, valid)
-        return draws, valid
+        samples = self._samples(context)
+        block, r = divmod(self._sample_index(context.get_time()), CounterRandom.BLOCK)
+        stamps, valid, draws = samples.block(block)
+        return stamps[r], valid[r], draws[r], samples.noise
 
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
         t_sample, valid, noise, _ = self._sample(context)
-        q_meas = rot.quat_canonical(rot.quat_multiply(self._q_port.Eval(context), noise))
-        out = np.empty(QUATERNION_MEASUREMENT_SIZE)
-        out[0], out[1], out[2:] = t_sample, float(valid), q_meas
-        output.SetFromVector(out)
+        q_meas = _canonical_product(self._q_port.Eval(context).tolist(), noise)
+        output.SetFromVector(np.array([t_sample, 1.0 if valid else 0.0, *q_meas]))
 
     def _calc_vectors(self, context, output):
         t_sample, valid, noise, p = self._sample(context)
@@ -250,3 +243,68 @@ class StarTracker(LeafSystem):
         dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
         output.set_value(VectorObservations(
             float(t_sample), bool(valid), dirs, self.references_I, p.sigma_vector, self.q_BS))
+
+
+def _canonical_product(p, q) -> tuple:
+    """``rot.quat_canonical(rot.quat_multiply(p, q))`` for two 4-sequences of Python floats
+    (wxyz), the same operations in the same order as ``quat_multiply``'s scalar path, so the
+    same bits, without building numpy arrays."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    w = pw * qw - px * qx - py * qy - pz * qz
+    x = pw * qx + px * qw + py * qz - pz * qy
+    y = pw * qy - px * qz + py * qw + pz * qx
+    z = pw * qz + px * qy - py * qx + pz * qw
+    return (-w, -x, -y, -z) if w < 0.0 else (w, x, y, z)
+
+
+class _TrackerSamples:
+    """The samples of one tracker for one (seed words, :class:`StarTrackerNoise`): stamps,
+    validity and draws by blocks of ``CounterRandom.BLOCK`` samples, a pure function of
+    (seed words, the tracker's name, sample index) computed for a whole block at once and
+    kept for the last few blocks.  Immutable in effect (a memo), so a cloned context shares
+    it (``__deepcopy__``)."""
+
+    def __init__(self, tracker: StarTracker, words, noise: StarTrackerNoise):
+        self.noise = noise
+        self._cr = counter_random(words, tracker.get_name())
+        self._period_s = tracker.period_s
+        self._q_BS = tracker.q_BS
+        self._quaternion = tracker.mode == "quaternion"
+        self._n_noise = tracker._n_noise
+        self._blocks: dict = {}
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def block(self, block: int):
+        """``(stamps, valid, draws)`` of samples ``block * BLOCK ...`` (``BLOCK`` of each;
+        row ``r`` is sample ``k = block * BLOCK + r``): ``stamps[r] = t_k = t_(k-1) + T``
+        (0 for ``k = 0``, s) and ``valid[r]`` (bool) as lists; ``draws[r]`` the noise:
+        quaternion mode ``q_BS ⊗ exp(sigmas_S * normals(k, 3))`` as a list of 4 floats (the
+        noise stored as one quaternion, so the output is one product), vector mode the row
+        ``sigma_vector * normals(k, 3m)`` of an array.  Sample ``k`` is valid if
+        ``uniforms(k, 1) >= dropout_probability`` and ``t_k`` is in no outage window."""
+        hit = self._blocks.get(block)
+        if hit is not None:
+            return hit
+        p, cr, n = self.noise, self._cr, CounterRandom.BLOCK
+        if self._quaternion:
+            phi = p.sigmas_S * cr.normals_block(block, 3)
+            x, y, z = phi[:, 0], phi[:, 1], phi[:, 2]
+            a = np.sqrt(x * x + y * y + z * z)  # rot.rotvec_to_quat's scalar formula, per row
+            with np.errstate(invalid="ignore", divide="ignore"):
+                k = np.where(a < rot._SMALL_ANGLE, 0.5 - a * a / 48.0, np.sin(0.5 * a) / a)
+            dq = np.stack([np.cos(0.5 * a), k * x, k * y, k * z], axis=-1)
+            draws = rot.quat_multiply(np.broadcast_to(self._q_BS, dq.shape), dq).tolist()
+        else:
+            draws = p.sigma_vector * cr.normals_block(block, self._n_noise)
+        index = np.arange(block * n, (block + 1) * n)
+        stamps = np.where(index > 0, (index - 1) * self._period_s + self._period_s, 0.0)
+        valid = cr.uniforms_block(block, 1)[:, 0] >= p.dropout_probability
+        for a, b in p.outage_windows_s:
+            valid &= ~((a <= stamps) & (stamps < b))
+        if len(self._blocks) > 8:
+            self._blocks.clear()
+        hit = self._blocks[block] = (stamps.tolist(), valid.tolist(), draws)
+        return hit
