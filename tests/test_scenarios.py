@@ -298,27 +298,45 @@ def test_truth_going_non_finite_fails_loudly_and_writes_nothing(tmp_path):
     assert "Traceback" not in r.stderr and not out.exists()
 
 
-def test_an_estimate_going_non_finite_fails_the_run_naming_it(monkeypatch):
-    """A core that produces NaN (here the MEKF's prediction, patched to return NaN after 5 s)
-    fails the run with NonFiniteRunError naming the estimate signal and the time, instead of
-    writing NaN-derived metrics."""
+@pytest.mark.parametrize("compiled", [False, True])
+def test_an_estimate_going_non_finite_fails_the_run_naming_it(monkeypatch, compiled):
+    """A core that produces NaN (here the MEKF's prediction - or the compiled MEKF step -
+    patched to return NaN after 5 steps) fails the run with NonFiniteRunError naming the
+    estimate signal and the time, instead of writing NaN-derived metrics."""
     from drake_att.filters import mekf
     from drake_att.scenarios.builder import NonFiniteRunError, ScenarioDiagram
+    from drake_att.systems import compiled_step
+    from drake_att.systems.estimators import EstimatorSystem
 
-    original = mekf.MultiplicativeEKF.predict_linearized
+    monkeypatch.setattr(EstimatorSystem, "use_compiled_step", compiled)
+    steps = {"left": 5}
+    if compiled:
+        original_step = compiled_step.mekf_step
 
-    def poisoned(self, state, w, dt):
-        new, Phi, Q = original(self, state, w, dt)
-        if float(new.P[0, 0]) > 0 and self._poison_after_steps <= 0:
-            return mekf.MekfState(new.q_IB * np.nan, new.bias_B, new.P), Phi, Q
-        self._poison_after_steps -= 1
-        return new, Phi, Q
+        def poisoned_step(*args):
+            original_step(*args)
+            est, core = args[-5], args[-3]
+            if steps["left"] <= 0:
+                est[:4] = np.nan
+                core[:4] = np.nan
+            steps["left"] -= 1
 
-    monkeypatch.setattr(mekf.MultiplicativeEKF, "_poison_after_steps", 5, raising=False)
-    monkeypatch.setattr(mekf.MultiplicativeEKF, "predict_linearized", poisoned)
+        monkeypatch.setattr(compiled_step, "mekf_step", poisoned_step)
+    else:
+        original = mekf.MultiplicativeEKF.predict_linearized
+
+        def poisoned(self, state, w, dt):
+            new, Phi, Q = original(self, state, w, dt)
+            if float(new.P[0, 0]) > 0 and steps["left"] <= 0:
+                return mekf.MekfState(new.q_IB * np.nan, new.bias_B, new.P), Phi, Q
+            steps["left"] -= 1
+            return new, Phi, Q
+
+        monkeypatch.setattr(mekf.MultiplicativeEKF, "predict_linearized", poisoned)
     sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=20", "scoring.score_from_s=1"]))
     with pytest.raises(NonFiniteRunError, match=r"the estimate 'single/q_IB_hat' is not finite from t = "):
         sd.simulate(1)
+    assert steps["left"] <= 0  # the poison was reached
 
 
 def test_metrics_json_is_strict_json_with_null_for_non_finite_numbers(tmp_path):
