@@ -340,7 +340,7 @@ def make_gyro_outputs(period, model_name, seed):
 
 
 def check_gyro(outputs, context, oracle, times, rng, integral=True, scale_error=False):
-    meas, bias = outputs.GetOutputPort("gyro_measurement"), outputs.GetOutputPort("bias_B")
+    both = outputs.GetOutputPort("measurement_and_bias")  # gyro_measurement (5), then bias_B (3)
     integral_seen = False
     for t in times:
         w = rng.normal(scale=0.1, size=3)
@@ -352,9 +352,10 @@ def check_gyro(outputs, context, oracle, times, rng, integral=True, scale_error=
         if scale_error:
             outputs.GetInputPort("scale_error").FixValue(context, rng.normal(scale=1e-3, size=1))
         context.SetTime(t)
-        got = meas.Eval(context)
+        value = both.Eval(context)
+        got = value[:5]
         np.testing.assert_array_equal(got, oracle.measurement(context), err_msg=f"t = {t!r}")
-        np.testing.assert_array_equal(bias.Eval(context), oracle.bias(context), err_msg=f"t = {t!r}")
+        np.testing.assert_array_equal(value[5:], oracle.bias(context), err_msg=f"t = {t!r}")
         # Whether the interval mean of the integral was used (else the rate input).
         n = max(0, math.ceil(t / outputs.period_s - 1e-9))
         integral_seen |= integral and n >= 1 and t - (got[0] - outputs.period_s) > 1e-12
@@ -388,7 +389,7 @@ def test_gyro_negative_zero_rate_with_identity_sensor_matrix():
     an equal number); the outputs stay equal."""
     outputs, context = make_gyro_outputs(0.1, "noiseless", 0)
     outputs.GetInputPort("w_IB_B").FixValue(context, np.array([-0.0, 0.0, -0.0]))
-    got = outputs.GetOutputPort("gyro_measurement").Eval(context)
+    got = outputs.GetOutputPort("measurement_and_bias").Eval(context)[:5]
     np.testing.assert_array_equal(got, OldGyroOutputs(outputs).measurement(context))
     np.testing.assert_array_equal(got[2:], 0.0)
     assert outputs._draws(context).unit_sensor_matrix
@@ -406,9 +407,9 @@ def test_gyro_outputs_with_a_period_below_the_elapsed_time_guard(model_name):
     check_gyro(outputs, context, OldGyroOutputs(outputs), times, np.random.default_rng(2))
     # The rate-input branch was taken: its output does not depend on the integral inputs.
     context.SetTime(256 * period + 5e-13)
-    first = outputs.GetOutputPort("gyro_measurement").Eval(context).copy()
+    first = outputs.GetOutputPort("measurement_and_bias").Eval(context).copy()
     outputs.GetInputPort("w_IB_B_integral").FixValue(context, np.array([9.0, 9.0, 9.0]))
-    np.testing.assert_array_equal(outputs.GetOutputPort("gyro_measurement").Eval(context), first)
+    np.testing.assert_array_equal(outputs.GetOutputPort("measurement_and_bias").Eval(context), first)
 
 
 def test_gyro_follows_model_and_seed_changes_and_contexts():

@@ -26,7 +26,7 @@ from pydrake.systems.framework import (
     LeafSystem,
     ValueProducer,
 )
-from pydrake.systems.primitives import ZeroOrderHold
+from pydrake.systems.primitives import Demultiplexer, ZeroOrderHold
 
 from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B (3)]
 from drake_att.noise import CounterRandom, FarrenkopfGyroNoise
@@ -73,8 +73,9 @@ class GyroModel:
 
 
 class _GyroOutputs(LeafSystem):
-    """The Python part of :class:`Gyro`: its two outputs, evaluated on demand (no per-sample
-    event). Inputs as :class:`Gyro`'s plus ``w_IB_B_integral_held`` (the integral at the
+    """The Python part of :class:`Gyro`: its two signals as one output
+    ``measurement_and_bias`` (8: ``gyro_measurement`` (5) then ``bias_B`` (3)), evaluated on
+    demand (no per-sample event). Inputs as :class:`Gyro`'s plus ``w_IB_B_integral_held`` (the integral at the
     previous sample instant, from the ``ZeroOrderHold``); discrete state: the seed words (4,
     read at initialization)."""
 
@@ -94,10 +95,11 @@ class _GyroOutputs(LeafSystem):
         self.DeclareDiscreteState(np.zeros(SEED_WORDS))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         deps = {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket()}
-        self.DeclareVectorOutputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE, self._calc_measurement,
-                                     deps | {self.all_input_ports_ticket()})
-        self.DeclareVectorOutputPort("bias_B", 3, self._calc_bias, deps | {self.input_port_ticket(
-            self._seed_port.get_index())})
+        # One Python output for both signals (the Gyro diagram splits it in C++): a logged
+        # bias costs no Python call of its own.
+        self.DeclareVectorOutputPort("measurement_and_bias", GYRO_MEASUREMENT_SIZE + 3, self._calc_measurement,
+                                     {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket(),
+                                      self.all_input_ports_ticket()})
         # The context's draws (a _GyroDraws of its seed words and model) as a cache entry: one
         # lookup per output evaluation instead of reading the parameter and the state and
         # keying a table with them; recomputed when either changes.
@@ -149,11 +151,8 @@ class _GyroOutputs(LeafSystem):
         if self._scale_error_port.HasValue(context):
             divisor = 1.0 + self._scale_error_port.Eval(context)[0]
             w_meas = [w / divisor for w in w_meas]
-        ox, oy, oz = draws.offset(n)
-        output.SetFromVector(np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz]))
-
-    def _calc_bias(self, context, output: BasicVector):
-        output.SetFromVector(self._draws(context).draw(self._sample_index(context.get_time())[0])[1])
+        (ox, oy, oz), (bx, by, bz) = draws.offset_and_bias(n)
+        output.SetFromVector(np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz]))
 
 
 class _GyroDraws:
@@ -175,7 +174,7 @@ class _GyroDraws:
         self.unit_sensor_matrix = bool(np.array_equal(model.sensor_matrix, np.eye(3)))
         self._cr = cr
         self._blocks: list = []  # (offsets (BLOCK, 3), biases (BLOCK, 3)) of blocks 0, 1, ...
-        self._offsets_block, self._offsets = -1, None  # the last block read by offset(), as lists
+        self._lists_block, self._lists = -1, None  # the last block read by offset_and_bias(), as lists
 
     def __deepcopy__(self, memo):
         return self
@@ -202,13 +201,14 @@ class _GyroDraws:
         offsets, biases = self._block(b)
         return offsets[r], biases[r]
 
-    def offset(self, n: int) -> list:
-        """``offset_n`` as a list of 3 floats (rad/s)."""
+    def offset_and_bias(self, n: int) -> tuple:
+        """``(offset_n, B_n)`` as two lists of 3 floats (rad/s)."""
         b, r = divmod(n, CounterRandom.BLOCK)
-        if b != self._offsets_block:
-            self._offsets = self._block(b)[0].tolist()
-            self._offsets_block = b
-        return self._offsets[r]
+        if b != self._lists_block:
+            offsets, biases = self._block(b)
+            self._lists = (offsets.tolist(), biases.tolist())
+            self._lists_block = b
+        return self._lists[0][r], self._lists[1][r]
 
 
 class Gyro(Diagram):
@@ -242,8 +242,8 @@ class Gyro(Diagram):
     carries sample ``n``):
         gyro_measurement (5): ``[t_n (s), valid (1), w_meas_B (3, rad/s)]``.
         bias_B (3): true bias at ``t_n`` (rad/s), for scoring only.
-    Inside: a ``ZeroOrderHold`` (C++) of ``w_IB_B_integral`` at the sample instants and the
-    Python outputs (no per-sample event; see the module docstring).
+    Inside: a ``ZeroOrderHold`` (C++) of ``w_IB_B_integral`` at the sample instants, the
+    Python output of both signals and a C++ ``Demultiplexer`` splitting it (no per-sample event; see the module docstring).
     """
 
     def __init__(self, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
@@ -264,8 +264,10 @@ class Gyro(Diagram):
         builder.Connect(hold.get_output_port(), outputs.GetInputPort("w_IB_B_integral_held"))
         builder.ExportInput(outputs.GetInputPort("seed_uniform"), "seed_uniform")
         builder.ExportInput(outputs.GetInputPort("scale_error"), "scale_error")
-        builder.ExportOutput(outputs.GetOutputPort("gyro_measurement"), "gyro_measurement")
-        builder.ExportOutput(outputs.GetOutputPort("bias_B"), "bias_B")
+        split = builder.AddNamedSystem(f"{name}_split", Demultiplexer([GYRO_MEASUREMENT_SIZE, 3]))
+        builder.Connect(outputs.GetOutputPort("measurement_and_bias"), split.get_input_port())
+        builder.ExportOutput(split.get_output_port(0), "gyro_measurement")
+        builder.ExportOutput(split.get_output_port(1), "bias_B")
         builder.BuildInto(self)
         self.set_name(name)
         self._outputs = outputs
