@@ -419,15 +419,13 @@ class EstimatorSystem(LeafSystem):
             if port.HasValue(context):
                 meas[i] = port.Eval(context)
                 connected[i] = True
-        group = discrete_state.get_mutable_vector
-        innovations = (group(self._innovation_group).get_mutable_value() if self._innovation_group is not None
-                       else _NO_INNOVATIONS)
+        group = discrete_state.get_mutable_value  # a writable view of a group (one pybind call)
+        innovations = group(self._innovation_group) if self._innovation_group is not None else _NO_INNOVATIONS
         compiled_step.mekf_step(
             context.get_time(), TIME_TOLERANCE_S, gyro_connected, gyro, connected, meas, m.q_BS, m.R_SB, m.covariance,
             m.allowed, m.n_masks, m.threshold, m.arw, m.rrw, float(REACQUIRE_AFTER_REJECTIONS), _LAST_SAMPLE,
-            self._rejections, group(self._estimate_group).get_mutable_value(),
-            group(self._book_group).get_mutable_value(), group(self._core_group).get_mutable_value(),
-            group(self._linearization_group).get_mutable_value(), innovations)
+            self._rejections, group(self._estimate_group), group(self._book_group), group(self._core_group),
+            group(self._linearization_group), innovations)
         return EventStatus.Succeeded()
 
     def _on_step(self, context, discrete_state):
