@@ -27,6 +27,8 @@ Pure numpy; no Drake dependency.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from drake_att.validation import check_array, check_nonnegative, describe, fail
@@ -98,23 +100,40 @@ def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndar
     q2 = _check_quaternion(q2, "q2")
     w1 = _check_weight(w1, "w1")
     w2 = _check_weight(w2, "w2")
-    wmax = max(w1, w2)
-    if not wmax > 0.0:
+    if not max(w1, w2) > 0.0:
         fail("w1 + w2", w1 + w2, "must be > 0 (weights are >= 0)")
+    return np.array(_average_two_unit_quaternions(q1.tolist(), q2.tolist(), w1, w2))
 
+
+def _average_two_unit_quaternions(q1, q2, w1: float, w2: float) -> list:
+    """The closed form of :func:`average_two_quaternions` without input checks, in Python
+    floats (no numpy call: for per-evaluation use in Drake systems).
+
+    Args:
+        q1, q2: unit quaternions ``[w, x, y, z]``, each a sequence of 4 floats (not
+            checked: finite and of norm 1 to round-off).
+        w1, w2: weights (dimensionless), finite, >= 0, ``max(w1, w2) > 0`` (not checked).
+
+    Returns:
+        The unit average as a list of 4 floats, in the hemisphere of ``q1``
+        (``q_avg' q1 >= 0``); ``q1`` itself (a copy) in the degenerate case ``z == 0``.
+    """
     # Only the ratio matters; normalizing keeps every intermediate O(1) (no under/overflow
     # for extreme weights such as 1e-320 or 1e308).
+    wmax = max(w1, w2)
     w1, w2 = w1 / wmax, w2 / wmax
     total = w1 + w2
     w1, w2 = w1 / total, w2 / total
-    d = float(q1 @ q2)
+    a0, a1, a2, a3 = q1
+    b0, b1, b2, b3 = q2
+    d = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3
     sign = -1.0 if d < 0.0 else 1.0
     delta = w1 - w2
     cross = 4.0 * w1 * w2 * d * d
-    z = np.sqrt(delta * delta + cross)
+    z = math.sqrt(delta * delta + cross)
     if z == 0.0:
         # Degenerate: w1 == w2 and q1 _|_ q2; any unit vector in span(q1, q2) maximizes.
-        return q1.copy()
+        return [a0, a1, a2, a3]
     # a_plus = w1 - w2 + z, a_minus = w2 - w1 + z; compute the one that would suffer from
     # cancellation via (z^2 - delta^2) / (z +- delta) = cross / (z +- delta).
     if delta >= 0.0:
@@ -124,10 +143,11 @@ def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndar
         a_minus = z - delta
         a_plus = cross / a_minus
     denom = z * (w1 + w2 + z)
-    c1 = np.sqrt(w1 * a_plus / denom)
-    c2 = np.sqrt(w2 * a_minus / denom)
-    q = c1 * q1 + sign * c2 * q2
-    return q / np.linalg.norm(q)
+    c1 = math.sqrt(w1 * a_plus / denom)
+    c2 = sign * math.sqrt(w2 * a_minus / denom)
+    r0, r1, r2, r3 = c1 * a0 + c2 * b0, c1 * a1 + c2 * b1, c1 * a2 + c2 * b2, c1 * a3 + c2 * b3
+    n = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2 + r3 * r3)
+    return [r0 / n, r1 / n, r2 / n, r3 / n]
 
 
 def average_quaternions(quaternions, weights=None) -> np.ndarray:
@@ -196,6 +216,21 @@ def average_quaternions(quaternions, weights=None) -> np.ndarray:
             fail("weights", np.asarray(weights), "must have a positive sum")
         w = w / total  # keeps M well scaled
 
+    return _average_unit_quaternions(Q, w)
+
+
+def _average_unit_quaternions(Q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The eigenvector step of :func:`average_quaternions` without input checks.
+
+    Args:
+        Q: ``(N, 4)`` array of unit quaternions (rows ``[w, x, y, z]``; not checked).
+        w: ``(N,)`` array of weights, finite, >= 0, summing to 1 (not checked; another
+            positive sum only scales ``M``).
+
+    Returns:
+        The unit dominant eigenvector of ``M = sum_i w_i q_i q_i'``, shape ``(4,)``, with
+        scalar part ``w >= 0``.
+    """
     M = (Q * w[:, None]).T @ Q
     M = 0.5 * (M + M.T)
     _, vecs = np.linalg.eigh(M)

@@ -25,18 +25,91 @@ so they add no sample delay.
       ``(sum w_i e_i)(sum w_i e_i)' <= sum w_i e_i e_i'`` (convexity), so this bounds the
       true covariance whatever the correlation; tight when fully correlated.
     - "independent": ``sum_i w_i^2 P_i`` - ignores the shared gyro (optimistic).
+
+Per-evaluation cost: the outputs are recomputed at every evaluation, so they use Python
+floats and the closed-form average of two quaternions (the eigenvector average for more),
+and do not re-check values the constructors checked.  An input quaternion that is not
+finite, is zero or has an extreme magnitude goes through the checked
+:func:`~drake_att.filters.quaternion_average.average_quaternions` instead (which rejects the
+first two), so the results are those of the general average to round-off (but in the
+degenerate case of two equally weighted rotations 180 deg apart, where every unit
+quaternion in their span is an average: the closed form returns the first).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
-from drake_att.filters.quaternion_average import average_quaternions
+from drake_att.filters.quaternion_average import (
+    _average_two_unit_quaternions,
+    _average_unit_quaternions,
+    average_quaternions,
+)
 from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE
 
 TIME_TOLERANCE_S = 1e-6
+_UNIT_NORM2_RANGE = (1e-100, 1e100)  # |q|^2 normalized directly in floats (no under/overflow)
+
+
+def _quat_multiply(p, q) -> list:
+    """Hamilton product ``p ⊗ q`` of two quaternions given as 4 floats (the operations of
+    :func:`drake_att.rotations.quat_multiply`, in the same order)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return [pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw]
+
+
+def _unit(q):
+    """``q / |q|`` for 4 floats; None when ``|q|^2`` is not in :data:`_UNIT_NORM2_RANGE`
+    (not finite, zero, or extreme)."""
+    a, b, c, d = q
+    n2 = a * a + b * b + c * c + d * d
+    if not _UNIT_NORM2_RANGE[0] < n2 < _UNIT_NORM2_RANGE[1]:
+        return None
+    n = math.sqrt(n2)
+    return [a / n, b / n, c / n, d / n]
+
+
+def _average(quaternions, weights) -> list:
+    """``average_quaternions(quaternions, weights)`` (scalar part >= 0) as 4 floats.
+
+    Args:
+        quaternions: N >= 2 quaternions ``[w, x, y, z]``, each 4 floats (any nonzero norm).
+        weights: N floats (dimensionless), >= 0 and finite.
+
+    Two inputs: the closed form; more: the eigenvector step; both without re-validation.
+    A quaternion outside the float fast path (see :func:`_unit`) or weights without a
+    positive sum go to the checked :func:`average_quaternions`, which rescales extreme
+    magnitudes and raises ``ValueError`` for invalid input.
+    """
+    units = [_unit(q) for q in quaternions]
+    if None in units or not sum(weights) > 0.0:
+        return average_quaternions(np.array(quaternions), np.array(weights)).tolist()
+    if len(units) == 2:
+        q = _average_two_unit_quaternions(units[0], units[1], weights[0], weights[1])
+        return [-x for x in q] if q[0] < 0.0 else q
+    w = np.array(weights)
+    return _average_unit_quaternions(np.array(units), w / w.sum()).tolist()
+
+
+def _weighted_sum(coefficients, vectors):
+    """``sum_i c_i v_i`` (accumulated in input order) of equal-length vectors: numpy arrays
+    (returns an array) or lists of floats (returns a list; cheaper for a few entries)."""
+    c0, v0 = coefficients[0], vectors[0]
+    if isinstance(v0, list):
+        acc = [c0 * x for x in v0]
+        for c, v in zip(coefficients[1:], vectors[1:]):
+            acc = [a + c * x for a, x in zip(acc, v)]
+        return acc
+    acc = c0 * v0
+    for c, v in zip(coefficients[1:], vectors[1:]):
+        acc = acc + c * v
+    return acc
 
 
 def _normalized_weights(weights, n, field):
@@ -101,30 +174,31 @@ class StarTrackerAverage(LeafSystem):
             raise ValueError(f"{name}.star_trackers: got {list(tracker_names)}; need at least 2 trackers")
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
         self.q_BS = [rot.quat_normalize(q) for q in q_BS_list]
+        self._w = self.weights.tolist()
+        self._q_SB = [rot.quat_conjugate(q).tolist() for q in self.q_BS]  # q_BS,i^-1 (unit)
         self.covariance_B = average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights)
         self.covariance_by_mask = subset_covariances(q_BS_list, sigmas_S_list, self.weights)
         self._ports = [self.DeclareVectorInputPort(f"q_meas_{t}", QUATERNION_MEASUREMENT_SIZE) for t in tracker_names]
         self.DeclareVectorOutputPort("star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc)
 
     def _calc(self, context, output: BasicVector):
-        meas = [p.Eval(context) for p in self._ports]
-        times = np.array([m[0] for m in meas])
-        fine = np.array([m[1] > 0.5 and m[1] == m[1] and np.all(np.isfinite(m)) for m in meas])
-        t_latest = times[fine].max() if fine.any() else times.max()
-        fine &= np.abs(times - t_latest) < TIME_TOLERANCE_S  # this instant's samples only
-        out = np.empty(QUATERNION_MEASUREMENT_SIZE)
-        q_avg, flag = np.array([1.0, 0.0, 0.0, 0.0]), 0.0
-        if fine.all():
-            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS)])
-            q_avg, flag = average_quaternions(q_B, self.weights), 1.0
-        elif fine.any():
-            idx = np.flatnonzero(fine)
-            q_B = np.array([rot.quat_multiply(meas[i][2:], rot.quat_conjugate(self.q_BS[i])) for i in idx])
-            w = self.weights[idx] / self.weights[idx].sum()
-            q_avg = q_B[0] if len(idx) == 1 else average_quaternions(q_B, w)
-            flag = 1.0 + float(sum(1 << int(i) for i in idx))
-        out[0], out[1], out[2:] = t_latest, flag, q_avg
-        output.SetFromVector(out)
+        meas = [p.Eval(context).tolist() for p in self._ports]
+        # Fine: flagged valid (a NaN flag is not) and every entry finite.
+        fine = [m[1] > 0.5 and all(map(math.isfinite, m)) for m in meas]
+        if any(fine):
+            t_latest = max(m[0] for m, f in zip(meas, fine) if f)
+        else:
+            times = [m[0] for m in meas]
+            t_latest = math.nan if any(map(math.isnan, times)) else max(times)
+        # This instant's samples only.
+        idx = [i for i, (m, f) in enumerate(zip(meas, fine)) if f and abs(m[0] - t_latest) < TIME_TOLERANCE_S]
+        q_avg, flag = [1.0, 0.0, 0.0, 0.0], 0.0
+        if idx:
+            q_B = [_quat_multiply(meas[i][2:], self._q_SB[i]) for i in idx]
+            flag = 1.0 if len(idx) == len(meas) else 1.0 + float(sum(1 << i for i in idx))
+            # _average renormalizes the weights of the trackers used.
+            q_avg = q_B[0] if len(idx) == 1 else _average(q_B, [self._w[i] for i in idx])
+        output.SetFromVector([t_latest, flag, *q_avg])
 
 
 class EstimateFusion(LeafSystem):
@@ -173,9 +247,18 @@ class EstimateFusion(LeafSystem):
         self._in = {s: {k: self.DeclareVectorInputPort(f"{s}_{k}", size)
                         for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))}
                     for s in source_names}
+        self._w = self.weights.tolist()
+        self._cov_coefficients = self._w if covariance_model == "conservative" else [w * w for w in self._w]
+        if covariance_model == "tracked":  # the coefficients of P_1, P_2 and P_12 + P_12'
+            w1, w2 = self._w
+            self._tracked_coefficients = (w1 * w1, w2 * w2, w1 * w2)
+        self._q_ports, self._second_ports, self._cov_ports, self._status_ports = (
+            [self._in[s][k] for s in source_names] for k in ("q_IB_hat", "second", "covariance", "status"))
         if covariance_model == "tracked":
             self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109) for s in source_names}
+            self._lin_ports = [self._lin[s] for s in source_names]
             self._cross_group = self.DeclareDiscreteState(np.concatenate([np.eye(6).ravel(), [0.0]]))
+            self._cross_index = int(self._cross_group)  # an int selects the group faster
             self.DeclareInitializationDiscreteUpdateEvent(self._initialize_cross)
             self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._advance_cross)
         self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
@@ -183,40 +266,47 @@ class EstimateFusion(LeafSystem):
         self.DeclareVectorOutputPort("covariance", 36, self._calc_cov)
         self.DeclareVectorOutputPort("status", 4, self._calc_status)
 
-    def _eval(self, context, key):
-        return [self._in[s][key].Eval(context) for s in self.source_names]
+    def _weights_in_use(self, context) -> tuple:
+        """``(weights as floats, configured?)``: :meth:`active_weights` as a list, and
+        whether it is the configured weights unchanged."""
+        active = [p.Eval(context)[1] > 0 for p in self._status_ports]
+        if all(active) or not any(active):
+            return self._w, True
+        w = [wi if a else 0.0 for wi, a in zip(self._w, active)]
+        total = sum(w)
+        return ([wi / total for wi in w] if total > 0.0 else [math.nan] * len(w)), False
 
     def active_weights(self, context) -> np.ndarray:
         """The weights in use: a source that has used no measurement yet while another has
         (a branch whose sensor never delivered) gets weight 0 and the others are renormalized
         — its estimate is only its prediction from the initial state. Otherwise the
-        configured weights, unchanged."""
-        used = np.array([self._in[s]["status"].Eval(context)[1] for s in self.source_names])
-        active = used > 0
-        if active.all() or not active.any():
-            return self.weights
-        w = self.weights * active
-        return w / w.sum()
+        configured weights, unchanged (the array :attr:`weights` itself)."""
+        w, configured = self._weights_in_use(context)
+        return self.weights if configured else np.array(w)
 
     def _calc_q(self, context, output):
-        output.SetFromVector(average_quaternions(np.array(self._eval(context, "q_IB_hat")), self.active_weights(context)))
+        w, _ = self._weights_in_use(context)
+        output.SetFromVector(_average([p.Eval(context).tolist() for p in self._q_ports], w))
 
     def _calc_second(self, context, output):
-        output.SetFromVector(np.einsum("i,ij->j", self.active_weights(context), np.array(self._eval(context, "second"))))
+        w, _ = self._weights_in_use(context)
+        output.SetFromVector(_weighted_sum(w, [p.Eval(context).tolist() for p in self._second_ports]))
 
     def _cross_covariance(self, context):
         """``P_12`` at the step of the current inputs: the stored one, advanced once if the
         sources have taken a step since (NaN if the sources disagree on the step)."""
-        x = context.get_discrete_state(self._cross_group).value()
-        P12, applied = x[:36].reshape(6, 6), x[36]
-        l1, l2 = (self._lin[s].Eval(context) for s in self.source_names)
-        if l1[108] != l2[108]:
+        x = context.get_discrete_state(self._cross_index).value()
+        applied = x[36]
+        l1, l2 = (p.Eval(context) for p in self._lin_ports)
+        step = l1[108]
+        if step != l2[108]:
             return np.full((6, 6), np.nan), applied
-        if l1[108] > applied:
-            Phi1, Q, A1 = (l1[k * 36:(k + 1) * 36].reshape(6, 6) for k in range(3))
+        P12 = x[:36].reshape(6, 6)
+        if step > applied:
+            Phi1, Q, A1 = l1[:36].reshape(6, 6), l1[36:72].reshape(6, 6), l1[72:108].reshape(6, 6)
             Phi2, A2 = l2[:36].reshape(6, 6), l2[72:108].reshape(6, 6)
-            P12 = A1 @ (Phi1 @ P12 @ Phi2.T + Q) @ A2.T
-        return P12, l1[108]
+            P12 = A1.dot(Phi1.dot(P12).dot(Phi2.T) + Q).dot(A2.T)  # A1 (Phi1 P12 Phi2' + Q) A2'
+        return P12, step
 
     def _initialize_cross(self, context, discrete_state):
         """``P_12 = P_0``: the first source's covariance at initialization (its initial one)."""
@@ -230,26 +320,29 @@ class EstimateFusion(LeafSystem):
         return EventStatus.Succeeded()
 
     def _calc_cov(self, context, output):
-        P = np.array(self._eval(context, "covariance"))
-        weights = self.active_weights(context)
-        if weights is not self.weights:  # a dead branch dropped: the live ones' covariance
-            live = weights > 0
-            if live.sum() == 1:
-                output.SetFromVector(P[np.argmax(live)])
+        weights, configured = self._weights_in_use(context)
+        P = [p.Eval(context) for p in self._cov_ports]  # (36,) each
+        if not configured:  # a dead branch dropped: the live ones' covariance
+            live = [w > 0.0 for w in weights]
+            if sum(live) == 1:
+                output.SetFromVector(P[live.index(True)])
                 return
-            c = weights if self.covariance_model == "conservative" else weights**2
-            output.SetFromVector(np.einsum("i,ij->j", c, P))
+            c = weights if self.covariance_model == "conservative" else [w * w for w in weights]
+            output.SetFromVector(_weighted_sum(c, P))
             return
         if self.covariance_model == "tracked":
-            (w1, w2), (P1, P2) = self.weights, P.reshape(2, 6, 6)
+            c11, c22, c12 = self._tracked_coefficients  # w1^2, w2^2, w1 w2
             P12, _ = self._cross_covariance(context)
-            Pf = w1**2 * P1 + w2**2 * P2 + w1 * w2 * (P12 + P12.T)
-            output.SetFromVector(Pf.ravel())
+            output.SetFromVector(c11 * P[0] + c22 * P[1] + c12 * (P12 + P12.T).ravel())
             return
-        c = self.weights if self.covariance_model == "conservative" else self.weights**2
-        output.SetFromVector(np.einsum("i,ij->j", c, P))
+        output.SetFromVector(_weighted_sum(self._cov_coefficients, P))
 
     def _calc_status(self, context, output):
-        st = np.array(self._eval(context, "status"))
-        t = st[0, 0] if np.ptp(st[:, 0]) < TIME_TOLERANCE_S else np.nan
-        output.SetFromVector([t, st[:, 1].sum(), st[:, 2].sum(), np.nan])
+        st = [p.Eval(context).tolist() for p in self._status_ports]
+        times = [s[0] for s in st]
+        spread = math.nan if any(map(math.isnan, times)) else max(times) - min(times)
+        t = times[0] if spread < TIME_TOLERANCE_S else math.nan
+        used, skipped = st[0][1], st[0][2]
+        for s in st[1:]:
+            used, skipped = used + s[1], skipped + s[2]
+        output.SetFromVector([t, used, skipped, math.nan])
