@@ -7,6 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import List
 
+from pydrake.systems.primitives import Demultiplexer
+
+from drake_att.contract import COVARIANCE, Q_IB, SECOND, STATUS
 from drake_att.estimators.mekf import MekfConfig
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
@@ -70,10 +73,20 @@ def build_estimate_fusion(ctx, c: EstimateFusionConfig):
     period = min(ctx.estimator_configs[n].period_s for n in c.sources)
     second = sources[0].second_output_name
     fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second, c.covariance_model, period))
+    contract_ports = [("q_IB_hat", "q_IB_hat", Q_IB), (second, "second", SECOND), ("covariance", "covariance", COVARIANCE),
+                      ("status", "status", STATUS)]
     for n, src in zip(c.sources, sources):
-        ports = [("q_IB_hat", "q_IB_hat"), (second, "second"), ("covariance", "covariance"), ("status", "status")]
+        if src.HasOutputPort("estimate_state"):
+            # The packed estimate (a C++ state port) split by a C++ Demultiplexer: no Python
+            # output call per contract port.
+            split = ctx.builder.AddNamedSystem(f"{c.name}_{n}_split", Demultiplexer(
+                [part.stop - part.start for _, _, part in contract_ports]))
+            ctx.builder.Connect(src.GetOutputPort("estimate_state"), split.get_input_port())
+            for k, (_, dst, _) in enumerate(contract_ports):
+                ctx.builder.Connect(split.get_output_port(k), fusion.GetInputPort(f"{n}_{dst}"))
+        else:
+            for port, dst, _ in contract_ports:
+                ctx.builder.Connect(src.GetOutputPort(port), fusion.GetInputPort(f"{n}_{dst}"))
         if c.covariance_model == "tracked":
-            ports.append(("step_linearization", "linearization"))
-        for port, dst in ports:
-            ctx.builder.Connect(src.GetOutputPort(port), fusion.GetInputPort(f"{n}_{dst}"))
+            ctx.builder.Connect(src.GetOutputPort("step_linearization"), fusion.GetInputPort(f"{n}_linearization"))
     return fusion
