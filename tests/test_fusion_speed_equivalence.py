@@ -399,3 +399,34 @@ def test_estimate_fusion_nominal_evaluations_take_the_lean_path(monkeypatch):
                 _fix(new, ctx_new, names, inputs, state)
                 for k in OUTPUTS:
                     _COMPARE[k](new.GetOutputPort(k).Eval(ctx_new), expected[k], f"{model} {trial} {k}")
+
+
+@pytest.mark.parametrize("model", ["tracked", "conservative", "independent"])
+def test_estimate_fusion_packed_output_equals_the_four_contract_ports(model):
+    """``estimate_state`` (what the builder logs) is ``[q_IB_hat, second, covariance, status]``
+    of the same inputs, bit for bit (NaN where they are NaN), over random inputs."""
+    rng = np.random.default_rng(11)
+    names = ["a", "b"]
+    fusion = EstimateFusion("fusion", names, [0.3, 0.7], "bias_B_hat", model, 1.0)
+    context = fusion.CreateDefaultContext()
+    checked = 0
+    for k in range(60):
+        for s in names:
+            q = random_quaternion(rng)
+            status = [float(k), float(rng.integers(0, 3)), float(rng.integers(0, 3)), 1.0]
+            fusion.GetInputPort(f"{s}_q_IB_hat").FixValue(context, q)
+            fusion.GetInputPort(f"{s}_second").FixValue(context, rng.normal(size=3))
+            A = rng.normal(size=(6, 6))
+            fusion.GetInputPort(f"{s}_covariance").FixValue(context, (A @ A.T).ravel())
+            fusion.GetInputPort(f"{s}_status").FixValue(context, status)
+            if model == "tracked":
+                lin = np.r_[np.eye(6).ravel(), 1e-3 * np.eye(6).ravel(), np.eye(6).ravel(), [float(k % 3)]]
+                fusion.GetInputPort(f"{s}_linearization").FixValue(context, lin)
+        try:
+            parts = [fusion.GetOutputPort(p).Eval(context).copy() for p in ("q_IB_hat", "bias_B_hat", "covariance", "status")]
+        except ValueError:
+            continue  # the zero-weight corner (see the fusion tests): both paths raise
+        packed = fusion.GetOutputPort("estimate_state").Eval(context)
+        np.testing.assert_array_equal(packed, np.concatenate(parts))
+        checked += 1
+    assert checked > 40

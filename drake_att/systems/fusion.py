@@ -49,6 +49,7 @@ from drake_att.filters.quaternion_average import (
     _average_unit_quaternions,
     average_quaternions,
 )
+from drake_att.contract import ESTIMATE_SIZE
 from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE
 
 TIME_TOLERANCE_S = 1e-6
@@ -220,7 +221,8 @@ class EstimateFusion(LeafSystem):
         ``status`` with ``t_estimate`` = the sources' common estimate time; NaN time when
         the sources disagree on it). A source that has used no measurement while another has
         is left out (:meth:`active_weights`): a branch whose tracker never delivered does not
-        drag the fused estimate to its initial guess.
+        drag the fused estimate to its initial guess. ``estimate_state`` (47): the four in
+        the contract's packed layout from one evaluation (what the scenario builder logs).
     Discrete state ("tracked" only, 37): ``[P_12 (36), steps applied]``, advanced by a
         periodic event at ``period_s`` (the sources' step).  The output applies the same
         one-step recursion to the inputs it sees, so the reported covariance always refers
@@ -265,6 +267,9 @@ class EstimateFusion(LeafSystem):
         self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
         self.DeclareVectorOutputPort("covariance", 36, self._calc_cov)
         self.DeclareVectorOutputPort("status", 4, self._calc_status)
+        # All four in one evaluation, in the estimator contract's packed layout: what the
+        # scenario builder logs (one Python call per logged sample instead of four).
+        self.DeclareVectorOutputPort("estimate_state", ESTIMATE_SIZE, self._calc_estimate_state)
 
     def _weights_in_use(self, context) -> tuple:
         """``(weights as floats, configured?)``: :meth:`active_weights` as a list, and
@@ -284,13 +289,30 @@ class EstimateFusion(LeafSystem):
         w, configured = self._weights_in_use(context)
         return self.weights if configured else np.array(w)
 
+    def _q(self, context, w):
+        return _average([p.Eval(context).tolist() for p in self._q_ports], w)
+
+    def _second(self, context, w):
+        return _weighted_sum(w, [p.Eval(context).tolist() for p in self._second_ports])
+
     def _calc_q(self, context, output):
-        w, _ = self._weights_in_use(context)
-        output.SetFromVector(_average([p.Eval(context).tolist() for p in self._q_ports], w))
+        output.SetFromVector(self._q(context, self._weights_in_use(context)[0]))
 
     def _calc_second(self, context, output):
-        w, _ = self._weights_in_use(context)
-        output.SetFromVector(_weighted_sum(w, [p.Eval(context).tolist() for p in self._second_ports]))
+        output.SetFromVector(self._second(context, self._weights_in_use(context)[0]))
+
+    def _calc_cov(self, context, output):
+        output.SetFromVector(self._cov(context, *self._weights_in_use(context)))
+
+    def _calc_status(self, context, output):
+        output.SetFromVector(self._status(context))
+
+    def _calc_estimate_state(self, context, output):
+        """``[q_IB_hat (4), second (3), covariance (36), status (4)]`` (the contract's packed
+        estimate), the four outputs' values computed once."""
+        w, configured = self._weights_in_use(context)
+        output.SetFromVector(np.concatenate([self._q(context, w), self._second(context, w),
+                                             self._cov(context, w, configured), self._status(context)]))
 
     def _cross_covariance(self, context):
         """``P_12`` at the step of the current inputs: the stored one, advanced once if the
@@ -319,25 +341,21 @@ class EstimateFusion(LeafSystem):
         discrete_state.get_mutable_vector(self._cross_group).SetFromVector(np.concatenate([P12.ravel(), [steps]]))
         return EventStatus.Succeeded()
 
-    def _calc_cov(self, context, output):
-        weights, configured = self._weights_in_use(context)
+    def _cov(self, context, weights, configured):
         P = [p.Eval(context) for p in self._cov_ports]  # (36,) each
         if not configured:  # a dead branch dropped: the live ones' covariance
             live = [w > 0.0 for w in weights]
             if sum(live) == 1:
-                output.SetFromVector(P[live.index(True)])
-                return
+                return P[live.index(True)]
             c = weights if self.covariance_model == "conservative" else [w * w for w in weights]
-            output.SetFromVector(_weighted_sum(c, P))
-            return
+            return _weighted_sum(c, P)
         if self.covariance_model == "tracked":
             c11, c22, c12 = self._tracked_coefficients  # w1^2, w2^2, w1 w2
             P12, _ = self._cross_covariance(context)
-            output.SetFromVector(c11 * P[0] + c22 * P[1] + c12 * (P12 + P12.T).ravel())
-            return
-        output.SetFromVector(_weighted_sum(self._cov_coefficients, P))
+            return c11 * P[0] + c22 * P[1] + c12 * (P12 + P12.T).ravel()
+        return _weighted_sum(self._cov_coefficients, P)
 
-    def _calc_status(self, context, output):
+    def _status(self, context):
         st = [p.Eval(context).tolist() for p in self._status_ports]
         times = [s[0] for s in st]
         spread = math.nan if any(map(math.isnan, times)) else max(times) - min(times)
@@ -345,4 +363,4 @@ class EstimateFusion(LeafSystem):
         used, skipped = st[0][1], st[0][2]
         for s in st[1:]:
             used, skipped = used + s[1], skipped + s[2]
-        output.SetFromVector([t, used, skipped, math.nan])
+        return [t, used, skipped, math.nan]
