@@ -29,6 +29,7 @@ from drake_att.filters import mekf_kernels as _mekf
 from drake_att.filters.compiled import jit as _jit
 from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
 
+
 @dataclass(frozen=True)
 class CompiledStepModel:
     """Array form of one :class:`~drake_att.systems.estimators.FilterModel` for :func:`mekf_step`.

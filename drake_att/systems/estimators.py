@@ -92,7 +92,12 @@ from drake_att.contract import (
 )
 from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
 from drake_att.systems import compiled_step
-from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
+from drake_att.systems.randomness import (
+    SEED_WORDS,
+    counter_random,
+    declare_seed_port,
+    read_seed_words,
+)
 
 TIME_TOLERANCE_S = 1e-6
 LINEARIZATION_SIZE = 3 * 36 + 1

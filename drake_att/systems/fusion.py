@@ -44,12 +44,12 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
+from drake_att.contract import ESTIMATE_SIZE
 from drake_att.filters.quaternion_average import (
     _average_two_unit_quaternions,
     _average_unit_quaternions,
     average_quaternions,
 )
-from drake_att.contract import ESTIMATE_SIZE
 from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE
 
 TIME_TOLERANCE_S = 1e-6

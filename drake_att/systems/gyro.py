@@ -24,7 +24,6 @@ from pydrake.systems.framework import (
     DiagramBuilder,
     EventStatus,
     LeafSystem,
-    ValueProducer,
 )
 from pydrake.systems.primitives import Demultiplexer, ZeroOrderHold
 
@@ -32,6 +31,7 @@ from drake_att.contract import GYRO_MEASUREMENT_SIZE  # [t_meas, valid, w_meas_B
 from drake_att.noise import CounterRandom, FarrenkopfGyroNoise
 from drake_att.systems.randomness import (
     SEED_WORDS,
+    NoiseCache,
     counter_random,
     declare_seed_port,
     read_seed_words,
@@ -94,19 +94,15 @@ class _GyroOutputs(LeafSystem):
         self._scale_error_port = self.DeclareVectorInputPort("scale_error", 1)
         self.DeclareDiscreteState(np.zeros(SEED_WORDS))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        deps = {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket()}
         # One Python output for both signals (the Gyro diagram splits it in C++): a logged
         # bias costs no Python call of its own.
         self.DeclareVectorOutputPort("measurement_and_bias", GYRO_MEASUREMENT_SIZE + 3, self._calc_measurement,
                                      {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket(),
                                       self.all_input_ports_ticket()})
-        # The context's draws (a _GyroDraws of its seed words and model) as a cache entry: one
-        # lookup per output evaluation instead of reading the parameter and the state and
-        # keying a table with them; recomputed when either changes.
-        self._draws_cache = self.DeclareCacheEntry(
-            "draws", ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc_draws),
-            {self.xd_ticket(), self.all_parameters_ticket()})
-        self._draws_memo: dict = {}  # (seed words bytes, id(model)) -> _GyroDraws
+        # The context's draws (a _GyroDraws of its seed words and model): one cache look-up per
+        # output evaluation.
+        self._draws_cache = NoiseCache(self, "draws", self.model,
+                                       lambda words, model: _GyroDraws(model, counter_random(words, self.stream)))
 
     def model(self, context) -> GyroModel:
         return context.get_abstract_parameter(self._model_index).get_value()
@@ -121,20 +117,9 @@ class _GyroOutputs(LeafSystem):
         n = max(0, math.ceil(t / self.period_s - 1e-9))
         return n, ((n - 1) * self.period_s + self.period_s if n else 0.0)
 
-    def _calc_draws(self, context, value):
-        words = context.get_discrete_state_vector().value()
-        model = self.model(context)
-        key = (words.tobytes(), id(model))
-        draws = self._draws_memo.get(key)
-        if draws is None:  # (the memo keeps model alive: its id is not reused)
-            if len(self._draws_memo) > 8:
-                self._draws_memo.clear()
-            draws = self._draws_memo[key] = _GyroDraws(model, counter_random(words, self.stream))
-        value.set_value(draws)
-
     def _draws(self, context) -> _GyroDraws:
         """The draws of this context's seed words and model (cached)."""
-        return self._draws_cache.EvalAbstract(context).get_value()
+        return self._draws_cache.get(context)
 
     def _calc_measurement(self, context, output: BasicVector):
         t = context.get_time()

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.common import RandomDistribution
-from pydrake.systems.framework import EventStatus
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, ValueProducer
 
 from drake_att.noise import CounterRandom, seed_words_from_uniform, stream_key
 
@@ -39,6 +40,44 @@ def read_seed_words(system, context, port) -> np.ndarray:
 
 
 _CACHE: dict = {}
+
+
+class NoiseCache:
+    """A sensor's noise tables for its context's seed words and noise parameter, as a Drake
+    cache entry: one look-up per output evaluation, recomputed only when the seed words (the
+    system's discrete state) or its parameters change, and memoized across contexts (a Monte
+    Carlo's runs with one seed share them; a few entries are kept).
+
+    Args:
+        system: the sensor (a ``LeafSystem`` whose discrete state is its seed words).
+        name: the cache entry's name.
+        read_parameter: ``context -> parameter`` (the noise model the tables depend on).
+        build: ``(seed words, parameter) -> tables`` (treated as immutable).
+    """
+
+    MEMO_SIZE = 8
+
+    def __init__(self, system, name: str, read_parameter, build):
+        self._read_parameter, self._build = read_parameter, build
+        self._memo: dict = {}  # (seed words bytes, id(parameter)) -> (parameter, tables)
+        self._entry = system.DeclareCacheEntry(
+            name, ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc),
+            {system.xd_ticket(), system.all_parameters_ticket()})
+
+    def _calc(self, context, value):
+        words = context.get_discrete_state_vector().value()
+        parameter = self._read_parameter(context)
+        key = (words.tobytes(), id(parameter))
+        hit = self._memo.get(key)
+        if hit is None or hit[0] is not parameter:  # (the memo keeps parameter alive)
+            if len(self._memo) >= self.MEMO_SIZE:
+                self._memo.clear()
+            hit = self._memo[key] = (parameter, self._build(words.copy(), parameter))
+        value.set_value(hit[1])
+
+    def get(self, context):
+        """The tables of ``context`` (the system's own context)."""
+        return self._entry.EvalAbstract(context).get_value()
 
 
 def counter_random(seed_words, stream: str) -> CounterRandom:

@@ -20,13 +20,14 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem, ValueProducer
+from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
 from drake_att.noise import CounterRandom
 from drake_att.systems.randomness import (
     SEED_WORDS,
+    NoiseCache,
     counter_random,
     declare_seed_port,
     read_seed_words,
@@ -161,13 +162,9 @@ class StarTracker(LeafSystem):
         # the seed words, read once at initialization (the seed port's value changes after t = 0).
         self.DeclareDiscreteState(np.zeros(SEED_WORDS))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        # The context's samples (a _TrackerSamples of its seed words and noise parameter) as a
-        # cache entry: one lookup per output evaluation instead of reading the parameter and
-        # the state and keying a table with them; recomputed when either changes.
-        self._samples_cache = self.DeclareCacheEntry(
-            "samples", ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc_samples),
-            {self.xd_ticket(), self.all_parameters_ticket()})
-        self._samples_memo: dict = {}  # (seed words bytes, id(noise)) -> _TrackerSamples
+        # The context's samples (a _TrackerSamples of its seed words and noise parameter):
+        # one cache look-up per output evaluation.
+        self._samples_cache = NoiseCache(self, "samples", self.noise, lambda words, noise: _TrackerSamples(self, words, noise))
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
@@ -198,20 +195,9 @@ class StarTracker(LeafSystem):
         discrete_state.set_value(read_seed_words(self, context, self._seed_port))
         return EventStatus.Succeeded()
 
-    def _calc_samples(self, context, value):
-        words = context.get_discrete_state_vector().value()
-        noise = self.noise(context)
-        key = (words.tobytes(), id(noise))
-        samples = self._samples_memo.get(key)
-        if samples is None:  # (the memo keeps noise alive: its id is not reused)
-            if len(self._samples_memo) > 8:
-                self._samples_memo.clear()
-            samples = self._samples_memo[key] = _TrackerSamples(self, words, noise)
-        value.set_value(samples)
-
     def _samples(self, context) -> _TrackerSamples:
         """The samples of this context's seed words and noise parameter (cached)."""
-        return self._samples_cache.EvalAbstract(context).get_value()
+        return self._samples_cache.get(context)
 
     def _sample_index(self, t: float) -> int:
         """The index ``k = max(0, ceil(t / T - 1e-9))`` of the sample an output at ``t``
