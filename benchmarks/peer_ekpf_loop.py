@@ -47,11 +47,11 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from peer_default_loop import farrenkopf_factors
+import peer_numpy_loop
 from peer_numpy_loop import (
     ARW_DEG_PER_RT_H,
     DEG,
     DEG_PER_H,
-    NORM_GAIN,
     RRW_DEG_PER_H_15,
     qrot,
     rpy_quat,
@@ -82,24 +82,9 @@ PROPOSAL_ITERATIONS = 1  # estimators.ekpf.proposal_iterations
 SCORE_FROM_S = 500.0  # scoring.score_from_s
 
 
-def rhs(y):
-    """[q (4), w (3), theta (3)] -> derivative (as ``peer_numpy_loop.rhs``, this inertia and torque)."""
-    qw, qx, qy, qz, wx, wy, wz = y[:7].tolist()
-    k = NORM_GAIN * (1.0 - (qw * qw + qx * qx + qy * qy + qz * qz))
-    Ix, Iy, Iz = INERTIA_T
-    tx, ty, tz = TORQUE_T
-    return np.array([0.5 * (-qx * wx - qy * wy - qz * wz) + k * qw, 0.5 * (qw * wx + qy * wz - qz * wy) + k * qx,
-                     0.5 * (qw * wy - qx * wz + qz * wx) + k * qy, 0.5 * (qw * wz + qx * wy - qy * wx) + k * qz,
-                     (tx - (Iz - Iy) * wy * wz) / Ix, (ty - (Ix - Iz) * wz * wx) / Iy, (tz - (Iy - Ix) * wx * wy) / Iz,
-                     wx, wy, wz])
-
-
 def rk3_step(y, h):
-    """Kutta's 3rd-order tableau, as ``peer_numpy_loop.rk3_step``."""
-    k1 = rhs(y)
-    k2 = rhs(y + 0.5 * h * k1)
-    k3 = rhs(y + h * (-k1 + 2.0 * k2))
-    return y + (h / 6.0) * (k1 + 4.0 * k2 + k3)
+    """``peer_numpy_loop.rk3_step`` with this scenario's inertia and torque."""
+    return peer_numpy_loop.rk3_step(y, h, INERTIA_T, TORQUE_T)
 
 
 def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_FROM_S,

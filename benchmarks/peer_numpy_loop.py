@@ -132,12 +132,13 @@ def chi2_3dof_quantile(p):
 
 
 # --- Truth ----------------------------------------------------------------------------------
-def rhs(y):
-    """[q (4), w (3), theta (3)] -> derivative (Euler's equations, kinematics, rate integral)."""
+def rhs(y, inertia=INERTIA_T, torque=TORQUE_T):
+    """[q (4), w (3), theta (3)] -> derivative (Euler's equations, kinematics, rate integral);
+    ``inertia``, ``torque``: principal moments and body torque as Python floats."""
     qw, qx, qy, qz, wx, wy, wz = y[:7].tolist()
     k = NORM_GAIN * (1.0 - (qw * qw + qx * qx + qy * qy + qz * qz))
-    Ix, Iy, Iz = INERTIA_T
-    tx, ty, tz = TORQUE_T
+    Ix, Iy, Iz = inertia
+    tx, ty, tz = torque
     # w x (I w) written out (np.cross costs tens of microseconds on 3-vectors under numpy 2).
     return np.array([0.5 * (-qx * wx - qy * wy - qz * wz) + k * qw, 0.5 * (qw * wx + qy * wz - qz * wy) + k * qx,
                      0.5 * (qw * wy - qx * wz + qz * wx) + k * qy, 0.5 * (qw * wz + qx * wy - qy * wx) + k * qz,
@@ -145,11 +146,11 @@ def rhs(y):
                      wx, wy, wz])
 
 
-def rk3_step(y, h):
+def rk3_step(y, h, inertia=INERTIA_T, torque=TORQUE_T):
     """Kutta's 3rd-order tableau (0; 1/2 1/2; 1 -1 2; b = 1/6 2/3 1/6), as Drake's RK3."""
-    k1 = rhs(y)
-    k2 = rhs(y + 0.5 * h * k1)
-    k3 = rhs(y + h * (-k1 + 2.0 * k2))
+    k1 = rhs(y, inertia, torque)
+    k2 = rhs(y + 0.5 * h * k1, inertia, torque)
+    k3 = rhs(y + h * (-k1 + 2.0 * k2), inertia, torque)
     return y + (h / 6.0) * (k1 + 4.0 * k2 + k3)
 
 
