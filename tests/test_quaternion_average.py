@@ -466,7 +466,10 @@ q_ok = np.array([1.0, 0.0, 0.0, 0.0])
         # A missing value (None, e.g. a null in a parsed log) is a NaN, not a TypeError.
         (lambda: average_quaternions([[1.0, 0, 0, None]]), ["quaternions[0]", "finite", "nan"]),
         (lambda: average_quaternions([[1.0 + 1j, 0, 0, 0]]), ["quaternions", "real", "1j"]),
-        (lambda: average_quaternions(Q_OK, [1.0, -2.0]), ["weights[1]", ">= 0", "-2.0"]),
+        (lambda: average_quaternions([[1.0, 0, 0, 0], [0, 0, np.nan, 1.0]]), ["quaternions[1]", "finite", "nan"]),
+        (lambda: average_quaternions(Q_OK, [1.0, -2.0]), ["weights[1]", ">= 0", "-2.0", "weights=[ 1. -2.]"]),
+        (lambda: average_quaternions(Q_OK, "abc"), ["weights", "real", "abc", "(2,)"]),
+        (lambda: average_quaternions(Q_OK, [1j, 1.0]), ["weights", "real", "1j"]),
         (lambda: average_quaternions(Q_OK, [1.0, np.nan]), ["weights[1]", "finite", "nan"]),
         (lambda: average_quaternions(Q_OK, [np.inf, 1.0]), ["weights[0]", "finite", "inf"]),
         (lambda: average_quaternions(Q_OK, [0.0, 0.0]), ["weights", "positive sum", "0."]),
