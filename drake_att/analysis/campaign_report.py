@@ -32,6 +32,7 @@ import tempfile
 
 import numpy as np
 
+from drake_att.analysis.ensemble import common_times
 from drake_att.units import DEG
 
 AXES = ["x (roll)", "y (pitch)", "z (yaw)"]
@@ -63,12 +64,6 @@ def _name(record, key) -> str:
 
 def _stack(records, key, idx):
     return np.array([np.asarray(r[key], dtype=float)[i] for r, i in zip(records, idx)])
-
-
-def _common(records, name):
-    from drake_att.analysis.ensemble import _common_times
-
-    return _common_times(records, name)
 
 
 def _moving_mean(x, k: int):
@@ -125,7 +120,7 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
     whole run, bottom row ``t >= score_from_s``."""
     from matplotlib.figure import Figure
 
-    t, idx = _common(records, name)
+    t, idx = common_times(records, name)
     d = _stack(records, f"{name}__dtheta", idx) / DEG  # (N, n, 3)
     sig = _stack(records, f"{name}__sigma", idx)[:, :, :3] / DEG
     filt3 = 3 * np.sqrt(np.mean(sig ** 2, axis=0))  # the filters' RMS sigma over runs

@@ -360,7 +360,7 @@ def _nanmean0(x):
         return np.where(n > 0, np.where(ok, x, 0.0).sum(axis=0) / n, np.nan)
 
 
-def _common_times(records, name):
+def common_times(records, name):
     """Indices into each record's times of the times every record has (rounded to 1 us)."""
     keys = [np.round(np.asarray(r[f"{name}__t"], dtype=float) / _TOL).astype(np.int64) for r in records]
     common = keys[0]
@@ -421,7 +421,7 @@ def _estimator_summary(records, command, name, worst, max_history_points):
     band = anees_band(N, dof)
     out["anees_band_95"] = _fl(band)
     out["anees_in_band"] = None if anees is None else bool(band[0] <= anees <= band[1])
-    t_common, idx = _common_times(records, name)
+    t_common, idx = common_times(records, name)
     score_from = float(records[0]["score_from_s"])
     nees = np.array([np.asarray(r[p + "nees"], dtype=float)[i] for r, i in zip(records, idx)])  # (N, n)
     win = t_common >= score_from - _TOL
