@@ -228,7 +228,8 @@ def test_filters_equal_the_reference_over_a_run(kind):
 
 
 def test_singular_covariances_take_the_reference_repair_bit_for_bit():
-    """A zero-variance bias block (the case of the strict xfail in test_particle_weights.py) and
+    """A zero-variance bias block (the case of
+    test_particle_weights.py::test_ekpf_weights_with_a_zero_variance_bias_are_the_predictive_likelihood) and
     an indefinite covariance: a Cholesky factor fails, and the compiled EKPF hands the step to the
     numpy code, whose batch-wide eigenvalue repair it then equals exactly (no worse, no better)."""
     q0 = rot.quat_normalize(np.array([0.9, 0.2, -0.3, 0.25]))

@@ -269,15 +269,25 @@ def _sample_initial_attitudes(num_particles, q0, s0, covariance0, rng):
     return quat_to_mrp(q), s0 + d[:, 3:]
 
 
-def _robust_cholesky(P):
-    """Batched Cholesky; on failure repair by clipping eigenvalues (rarely needed)."""
+def _paired_cholesky(P_prior, P_post):
+    """Batched lower Cholesky factors of the EKPF's prior and proposal covariances.
+
+    If either is not positive definite (rarely: a zero-variance block, e.g. a known bias, or
+    round-off), both are repaired by clipping their eigenvalues at one common floor per
+    particle, ``1e-12`` x the larger of the two largest eigenvalues. A direction where both
+    are singular (their common null space: the EKF update only moves the mean inside the
+    prior's range) then gets the same variance in the prior and in the proposal, so its
+    density terms cancel in the weight ``pi / q`` as the exact degenerate densities' would.
+    Flooring each at its own scale (an earlier version) left ``3/2 log(f+/f-)`` plus a
+    quadratic term per particle: log-weights off the predictive likelihood by up to 1.5."""
     try:
-        return np.linalg.cholesky(P)
+        return np.linalg.cholesky(P_prior), np.linalg.cholesky(P_post)
     except np.linalg.LinAlgError:
-        vals, vecs = np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2)))
-        floor = 1e-12 * np.maximum(np.max(vals, axis=-1, keepdims=True), 1e-300)
-        vals = np.maximum(vals, floor)
-        return np.linalg.cholesky((vecs * vals[..., None, :]) @ np.swapaxes(vecs, -1, -2))
+        pairs = [np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2))) for P in (P_prior, P_post)]
+        largest = np.maximum(pairs[0][0][..., -1:], pairs[1][0][..., -1:])  # eigh: ascending
+        floor = 1e-12 * np.maximum(largest, 1e-300)
+        return tuple(np.linalg.cholesky((vecs * np.maximum(vals, floor)[..., None, :]) @ np.swapaxes(vecs, -1, -2))
+                     for vals, vecs in pairs)
 
 
 class _ParticleFilterBase:
@@ -649,13 +659,12 @@ class ExtendedKalmanParticleFilter(_ParticleFilterBase):
         m_prior, P_prior = self.particles, self.covariances
         m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False,
                                           iterations=self.proposal_iterations)
+        L_prior, L_post = _paired_cholesky(P_prior, P_post)
         # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
-        L_post = _robust_cholesky(P_post)
         x = m_post + (L_post @ eps[:, :, None])[:, :, 0]
         log_q = -0.5 * np.sum(eps * eps, axis=1) - np.sum(
             np.log(np.diagonal(L_post, axis1=1, axis2=2)), axis=1)
         # Prior pi = N(m-, P-) (see the class docstring).
-        L_prior = _robust_cholesky(P_prior)
         z = np.linalg.solve(L_prior, (x - m_prior)[:, :, None])[:, :, 0]
         log_pi = -0.5 * np.sum(z * z, axis=1) - np.sum(
             np.log(np.diagonal(L_prior, axis1=1, axis2=2)), axis=1)

@@ -861,7 +861,7 @@ def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iteration
     Returns:
         ``(x (N, 6), P (N, 6, 6), log_increment (N,))``, or None if some ``P+`` or ``P-`` is
         not positive definite: the reference then repairs the factors of the whole batch
-        (``particle._robust_cholesky``), which the caller does by running the numpy code.
+        (``particle._paired_cholesky``), which the caller does by running the numpy code.
 
     Raises:
         numpy.linalg.LinAlgError: an exactly singular innovation covariance.
