@@ -523,3 +523,31 @@ def test_centralized_mekf_keeps_updating_with_the_tracker_that_is_fine():
     P = cen["P"][out][:, :3, :3]
     nees = np.einsum("ni,ni->n", d, np.linalg.solve(P, d[..., None])[..., 0])
     assert nees.sum() < stats.chi2.ppf(0.999, 3 * out.sum()), nees.mean()
+
+
+@pytest.mark.parametrize("override, field", [
+    ("estimators.single_st2.coning_correction=true", "coning_correction"),
+    ("estimators.single_st2.arw_deg_per_rt_h=0.6", "arw_deg_per_rt_h"),
+    ("estimators.single_st2.rrw_deg_per_h15=100.0", "rrw_deg_per_h15"),
+    ("estimators.single_st2.initial_attitude_sigma_deg=4.0", "initial_attitude_sigma_deg"),
+    ("estimators.single_st2.initial_bias_deg_per_h=[1.0, 0.0, 0.0]", "initial_bias_deg_per_h"),
+])
+def test_tracked_fusion_refuses_sources_that_do_not_propagate_alike(override, field):
+    """The tracked cross-covariance recursion uses the first source's process noise and both
+    sources' transitions: it is the filters' own model of their common error only if both
+    propagate alike. A source with another coning setting, another gyro noise or another
+    initial estimate or sigma is refused, naming the fusion's field and what differs."""
+    from drake_att.scenarios.config import ConfigError
+
+    with pytest.raises(ConfigError) as e:
+        apply_overrides(load("cubesat_dual_star_tracker"), [override])
+    text = str(e.value)
+    assert "(decentralized).covariance_model" in text and "'tracked'" in text and repr([field]) in text, text
+
+
+def test_tracked_fusion_accepts_a_filter_gyro_noise_equal_to_the_gyros():
+    """A source whose ARW/RRW are written out equal to the gyro's (what ``None`` defaults to)
+    propagates like one that leaves them to the gyro: accepted."""
+    s = apply_overrides(load("cubesat_dual_star_tracker"), ["estimators.single_st2.arw_deg_per_rt_h=0.56",
+                                                            "estimators.single_st2.rrw_deg_per_h15=123.75"])
+    assert [e.covariance_model for e in s.estimators if e.name == "decentralized"] == ["tracked"]
