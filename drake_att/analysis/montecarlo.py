@@ -445,7 +445,10 @@ def campaign_seeds(runs: int, first_seed: int = 1) -> list[int]:
 def select_estimators(scenario: cfg.Scenario, names) -> cfg.Scenario:
     """A copy of ``scenario`` with only the estimators ``names`` (in the scenario's order);
     ConfigError naming ``--estimators`` for an unknown name or a fusion without its sources.
-    Dropping estimators changes no other system's noise (draws are keyed by system name)."""
+    Dropping estimators changes no sensor's noise (the sensors' draws are keyed by seed and
+    sensor name). A random estimator's (particle filters, the indoor star tracker) seed words
+    come from the diagram's random sources in subsystem order, so its draws change when a random
+    estimator listed before it is dropped: same statistics, another realization."""
     if names is None:
         return scenario
     from drake_att.scenarios.builder import with_estimators
