@@ -17,7 +17,8 @@ so they add no sample delay.
     - "tracked" (two MEKFs): the cross-covariance is propagated exactly for the linearized
       filters (track-to-track fusion with common process noise, Bar-Shalom 1981):
       ``P_12 <- A_1 (Phi_1 P_12 Phi_2' + Q) A_2'`` from each MEKF's ``step_linearization``
-      (``Q`` is the common gyro noise, measurement noises are independent), starting from
+      (``Q`` is the common gyro noise - the first source's model of it, should the two
+      filters' gyro-noise tunings differ; measurement noises are independent), starting from
       ``P_12 = P_0`` (both start from the same estimate, so their initial errors are equal;
       ``P_0`` is read from the first source's covariance at initialization, so it follows
       a context that changes the sources' initial covariance).
