@@ -807,3 +807,36 @@ def test_plugin_validation_names_the_field(plugin_diagram):
     # The bias state is structural: it changes the state size and the second output.
     with pytest.raises(ConfigError, match="estimate_gyro_bias"):
         plugin_diagram.simulate(1, overrides=["estimators.lg_q.estimate_gyro_bias=false"])
+
+
+def test_bad_arguments_are_refused_naming_the_field_and_the_rule():
+    """Each refusal names its field first and says what is allowed."""
+    cases = [
+        (lambda: LieGroupFilter(estimate_gyro_bias=1), "estimate_gyro_bias: ", "must be True or False"),
+        (lambda: LieGroupFilter(estimate_gyro_bias=True, formulation="paper_literal"), "estimate_gyro_bias: ",
+         "needs formulation='consistent'"),
+        (lambda: LieGroupFilter(gyro_rrw_rad_per_s15=1e-6), "gyro_rrw_rad_per_s15: ",
+         "the rate random walk is modelled only with estimate_gyro_bias=True"),
+        (lambda: LieGroupFilter(formulation="literal"), "formulation: ", "allowed: "),
+        (lambda: LieGroupFilter(step_s=0.0), "step_s: ", "must be > 0"),
+        (lambda: LieGroupFilter(Q_v=-1.0), "Q_v: ", "must be >= 0"),
+    ]
+    for call, field, rule in cases:
+        with pytest.raises(ValueError) as e:
+            call()
+        assert str(e.value).startswith(field) and rule in str(e.value), str(e.value)
+
+
+def test_a_quaternion_sample_with_three_sigmas_is_read_as_their_diagonal_covariance():
+    """``covariance_S`` given as three per-axis sigmas (rad) is the covariance
+    ``diag(sigma^2)``: the update equals the one with the 3x3 matrix, to the last bit."""
+    core = LieGroupFilter()
+    q_true = RollPitchYaw(0.2, -0.1, 0.4).ToQuaternion().wxyz()
+    state = core.initial_state(RollPitchYaw(0.21, -0.1, 0.39).ToQuaternion().wxyz(), 1e-4)
+    sig = np.array([1e-3, 2e-3, 5e-3])
+    a = core.update(state, QuaternionSample(0.0, True, q_true, IDENTITY_Q, sig))
+    b = core.update(state, QuaternionSample(0.0, True, q_true, IDENTITY_Q, np.diag(sig**2)))
+    assert a[1].accepted and b[1].accepted
+    np.testing.assert_array_equal(a[0].R_IB, b[0].R_IB)
+    np.testing.assert_array_equal(a[0].P, b[0].P)
+    np.testing.assert_array_equal(a[1].innovation_covariance, b[1].innovation_covariance)

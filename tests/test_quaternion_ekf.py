@@ -150,6 +150,90 @@ def test_degenerate_star_sets_give_no_quaternion_and_the_update_is_rejected():
         core.update(state, QuaternionSample(0.0, True, state.q_IB, state.q_IB, np.ones(3)))
 
 
+def test_wahba_refuses_one_zero_direction_or_one_zero_reference():
+    """A zero-length body direction (or reference) has no direction: no quaternion, even when
+    every other row is fine."""
+    b = S4_REFS.copy()
+    b[1] = 0.0
+    assert wahba_quaternion(b, S4_REFS) is None
+    assert wahba_quaternion(S4_REFS, b) is None
+    assert wahba_quaternion(S4_REFS, S4_REFS) is not None
+
+
+@pytest.mark.parametrize("angle, solvable", [(1.9e-6, False), (2.1e-6, True), (1e-3, True)])
+def test_wahba_collinearity_threshold_is_on_the_references_singular_values(angle, solvable):
+    """Two references ``angle`` apart: the ratio of their singular values is ``tan(angle / 2)``;
+    at or below ``COLLINEAR_SINE`` (1e-6) they fix no attitude. Noise-free, a solvable pair gives
+    the true attitude."""
+    from drake_att.filters.quaternion_ekf import COLLINEAR_SINE
+
+    assert COLLINEAR_SINE == 1e-6
+    refs = np.array([[1.0, 0.0, 0.0], [math.cos(angle), math.sin(angle), 0.0]])
+    R_IB = RollPitchYaw(0.3, -0.2, 0.9).ToRotationMatrix().matrix()
+    q = wahba_quaternion(refs @ R_IB, refs)
+    assert (q is not None) == solvable
+    if solvable and angle > 1e-4:
+        assert error_angle(rotmat(q), R_IB) < 1e-9
+
+
+def test_initial_state_is_the_given_attitude_and_covariance_and_a_zero_rate_of_the_given_sigma():
+    """``initial_state``: the quaternion normalized, ``P0`` as given (scalar: times I4), the rate
+    0 with covariance ``initial_rate_sigma^2 I3``, no attitude-rate correlation; the published
+    covariance's rate block is that variance, and the state packs into the declared size."""
+    P0 = np.diag([0.3, 0.1, 0.2, 0.05])
+    st = AdditiveQuaternionEKF.initial_state([2.0, 0.0, 0.0, 0.0], P0, initial_rate_sigma=0.02)
+    np.testing.assert_array_equal(st.q_IB, [1.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(st.P, P0)
+    np.testing.assert_array_equal(st.w_B, np.zeros(3))
+    np.testing.assert_allclose(st.P_w, 0.02**2 * np.eye(3), rtol=1e-15)
+    np.testing.assert_array_equal(st.C_q, np.zeros((4, 3)))
+    np.testing.assert_array_equal(AdditiveQuaternionEKF.initial_state(P0=0.5).P, 0.5 * np.eye(4))
+    _, _, P6 = AdditiveQuaternionEKF.estimate(st)
+    np.testing.assert_allclose(P6[3:, 3:], 0.02**2 * np.eye(3), rtol=1e-15)
+    np.testing.assert_array_equal(P6[:3, 3:], np.zeros((3, 3)))
+    assert AdditiveQuaternionEKF.to_vector(st).shape == (AdditiveQuaternionEKF.state_size,)
+
+
+@pytest.mark.parametrize("call, field", [
+    (lambda: AdditiveQuaternionEKF(Q=-1.0), "Q"),
+    (lambda: AdditiveQuaternionEKF(R=np.full((4, 4), np.nan)), "R"),
+    (lambda: AdditiveQuaternionEKF(step_s=0.0), "step_s"),
+    (lambda: AdditiveQuaternionEKF(gyro_arw_rad_per_rt_s=-1e-4), "gyro_arw_rad_per_rt_s"),
+    (lambda: AdditiveQuaternionEKF.initial_state(P0=-1.0), "P0"),
+    (lambda: AdditiveQuaternionEKF.initial_state(initial_rate_sigma=0.0), "initial_rate_sigma"),
+    (lambda: AdditiveQuaternionEKF.initial_state(q_IB=[0.0, 0.0, 0.0, 0.0]), "q_IB"),
+    (lambda: AdditiveQuaternionEKF.from_vector(np.zeros(43)), "state vector"),
+])
+def test_bad_arguments_are_refused_naming_the_field(call, field):
+    with pytest.raises(ValueError) as e:
+        call()
+    assert str(e.value).startswith(field) or f"EKF {field}" in str(e.value), str(e.value)
+
+
+def test_a_rejected_update_reports_what_it_computed():
+    """No Wahba solution: no innovation, NIS NaN (a float). A singular innovation covariance:
+    the innovation ``q_meas - q_hat`` and ``S = P + R`` as computed, NIS NaN. A gate
+    rejection: innovation, ``S`` and the NIS that failed the gate."""
+    q = RollPitchYaw(0.1, 0.2, 0.3).ToQuaternion().wxyz()
+    core = AdditiveQuaternionEKF(R=0.0)
+    state = core.initial_state(q, 0.0)
+    _, info = core.update(state, stars(rotmat(q), S4_REFS[:1]))
+    assert info.innovation is None and info.innovation_covariance is None
+    assert isinstance(info.nis, float) and math.isnan(info.nis)
+    q_meas = RollPitchYaw(0.1, 0.2, 0.31).ToQuaternion().wxyz()
+    _, info = core.update_quaternion(state, q_meas)
+    assert not info.accepted and math.isnan(info.nis)
+    np.testing.assert_array_equal(info.innovation, q_meas - q)
+    np.testing.assert_array_equal(info.innovation_covariance, np.zeros((4, 4)))
+    gated = AdditiveQuaternionEKF(R=1e-6, innovation_gate_chi2=9.0)
+    state = gated.initial_state(q, 1e-6)
+    _, info = gated.update_quaternion(state, q_meas)
+    assert not info.accepted
+    np.testing.assert_array_equal(info.innovation, q_meas - q)
+    np.testing.assert_allclose(info.innovation_covariance, 2e-6 * np.eye(4), rtol=1e-15)
+    assert info.nis == pytest.approx(float((q_meas - q) @ (q_meas - q)) / 2e-6, rel=1e-12) and info.nis > 9.0
+
+
 def test_measured_quaternion_uses_the_mounting_and_is_sign_aligned():
     q_true = RollPitchYaw(0.7, -0.4, 2.9).ToQuaternion().wxyz()
     q_BS = RollPitchYaw(0.0, 0.3, 1.2).ToQuaternion().wxyz()

@@ -63,7 +63,9 @@ from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, 
 from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
 
 _EYE4 = np.eye(4)
-COLLINEAR_SINE = 1e-6  # references closer than this (sine of the angle) to collinear: no attitude
+# References this close to collinear fix no attitude: the ratio of the references' two largest
+# singular values (for two unit references, tan of half the angle between them) at or below it.
+COLLINEAR_SINE = 1e-6
 
 
 @dataclass(frozen=True)
