@@ -367,3 +367,26 @@ def test_rate_block_follows_the_same_rule_as_the_lie_group_filter():
     assert np.allclose(P6[:3, :3], arw**2 * dt * np.eye(3), atol=1e-18)
     assert np.allclose(P6[3:, 3:], arw**2 / dt * np.eye(3))
     assert np.allclose(P6[:3, 3:], arw**2 * np.eye(3))
+
+
+def test_reacquire_inflates_the_whole_quaternion_covariance_by_the_gates_factor():
+    """After gate rejections the estimator system calls ``reacquire``: the 4x4 quaternion
+    covariance (all of it: the attitude block of this core is the quaternion's) is scaled by
+    ``max(2, 2 NIS / threshold)`` — the factor that puts the rejected NIS at half the gate when
+    P dominates S — and nothing else changes."""
+    from drake_att.filters.gating import reacquire_factor
+
+    q = RollPitchYaw(0.1, 0.2, 0.3).ToQuaternion().wxyz()
+    gated = AdditiveQuaternionEKF(R=1e-9, innovation_gate_chi2=9.0)
+    P = np.diag([1.0, 2.0, 3.0, 4.0]) * 1e-6
+    state = gated.initial_state(q, P, initial_rate_sigma=0.01)
+    _, info = gated.update_quaternion(state, RollPitchYaw(0.1, 0.2, 0.32).ToQuaternion().wxyz())
+    assert not info.accepted and info.nis > 9.0
+    factor = reacquire_factor(gated.gate, info)
+    assert factor == pytest.approx(2.0 * info.nis / 9.0) and factor > 2.0
+    new = gated.reacquire(state, info)
+    np.testing.assert_allclose(new.P, factor * P, rtol=1e-15)
+    for field in ("q_IB", "w_B", "P_w", "C_q"):
+        np.testing.assert_array_equal(getattr(new, field), getattr(state, field))
+    S = new.P + gated.R
+    assert float(info.innovation @ np.linalg.solve(S, info.innovation)) == pytest.approx(4.5, rel=1e-3)
