@@ -678,3 +678,119 @@ def test_patent_prediction_is_inconsistent_under_strong_correlation_and_the_corr
     assert results["literal"][1] > 20.0 and results["literal"][0] > results["variance_only"][0]
     assert 4.0 < results["corrected"][1] < 8.0
     assert results["corrected"][0] < 0.85 * results["variance_only"][0]
+
+
+# -- found by the mutation sample of 2026-11-26 (tests/README.md) ----------------------------------
+def test_process_noise_square_root_reproduces_the_scaled_farrenkopf_covariance():
+    """The closed-form square root of ``diag(c I, I) Q diag(c I, I)`` (Q: the Farrenkopf
+    covariance of ``[dtheta; dbias]`` over ``dt``) is lower triangular and multiplies back to
+    it, at the paper's noise and at a noise whose attitude-bias correlation is large."""
+    from drake_att.filters.cubature import _process_noise_sqrt
+    from drake_att.filters.mekf import process_noise
+
+    for arw, rrw, dt, c in ((ARW, RRW, 1.0, 1.0), (1e-4, 1e-4, 10.0, 2.0), (1e-6, 1e-3, 5.0, 0.5)):
+        Q = process_noise(arw, rrw, dt)
+        T = np.diag([c] * 3 + [1.0] * 3)
+        L = _process_noise_sqrt(arw, rrw, dt, c)
+        np.testing.assert_array_equal(L, np.tril(L))
+        np.testing.assert_allclose(L @ L.T, T @ Q @ T, rtol=1e-12, atol=1e-15 * np.max(np.abs(Q)))
+        assert abs(Q[0, 3]) > 1e-3 * math.sqrt(Q[0, 0] * Q[3, 3]) or arw == ARW  # the off-diagonal matters
+
+
+def test_cubature_rule_refuses_sizes_below_one_naming_n():
+    for n in (0, -2, 1.5, True):
+        with pytest.raises(ValueError) as e:
+            cubature_rule(n)
+        assert str(e.value).startswith("n: ") and "must be an integer >= 1" in str(e.value)
+
+
+def test_bad_arguments_are_refused_naming_the_field_and_the_documented_defaults_hold():
+    core = CubatureQuaternionEstimator(ARW, RRW)
+    assert core.update_iterations == 10 and core.iteration_tolerance == 1e-2  # as documented
+    cases = [
+        (lambda: CubatureQuaternionEstimator(ARW, RRW, grp_a=1.5), "grp_a: ", "must be in [0, 1]"),
+        (lambda: CubatureQuaternionEstimator(ARW, RRW, grp_a=math.nan), "grp_a: ", ""),
+        (lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3)), "covariance0: ",
+         "give covariance0 or both attitude and bias sigmas"),
+        (lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), 1e-3, -1e-6), "sigmas: ",
+         "must be finite and > 0"),
+        (lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), covariance0=-np.eye(6)), "covariance0", ""),
+    ]
+    for call, field, rule in cases:
+        with pytest.raises(ValueError) as e:
+            call()
+        assert str(e.value).startswith(field) and rule in str(e.value), str(e.value)
+    with pytest.raises(ValueError) as e:
+        core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), 1e-3, -1e-6)
+    assert "-1.e-06" in str(e.value)  # the value is shown
+
+
+def test_unusable_vector_update_is_rejected_with_a_nan_nis_and_reacquire_inflates_the_attitude():
+    """A malformed star sample is rejected (NIS NaN, a float; no innovation) and leaves the
+    state as it was. ``reacquire`` scales the attitude block of ``P = sqrt_P sqrt_P'`` by the
+    gate's factor and keeps the bias block and the estimate."""
+    from drake_att.contract import UpdateInfo
+    from drake_att.filters.gating import reacquire_factor
+
+    core = CubatureQuaternionEstimator(ARW, RRW, innovation_gate_chi2=9.0)
+    state = core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), 1e-3, 1e-6)
+    new, info = core.update_vectors(state, np.zeros((2, 2)), STARS_I[:2], STAR_SIGMA)
+    assert new is state and not info.accepted and info.innovation is None
+    assert isinstance(info.nis, float) and math.isnan(info.nis)
+    info = UpdateInfo(np.zeros(6), None, 90.0, False)
+    factor = reacquire_factor(core.gate, info)
+    assert factor == pytest.approx(2.0 * 90.0 / 9.0)
+    P = state.sqrt_P @ state.sqrt_P.T
+    re = core.reacquire(state, info)
+    P_re = re.sqrt_P @ re.sqrt_P.T
+    np.testing.assert_allclose(P_re[:3, :3], factor * P[:3, :3], rtol=1e-12)
+    np.testing.assert_allclose(P_re[3:, 3:], P[3:, 3:], rtol=1e-12)
+    np.testing.assert_array_equal(re.q_ref, state.q_ref)
+    np.testing.assert_array_equal(re.bias_B, state.bias_B)
+
+
+def test_increment_matrix_is_the_cqe_mcns_coefficient_on_the_attitude_rows():
+    """The model's ``Phi = c kappa [I_3; 0_3]`` (eq. 3) is what the CQE-MCNS applies to each
+    point's gyro increment: ``c = f / (2 (1 + a))`` of the core's GRP parameters."""
+    model = MultiplicativeNoiseModel.make(0.1, PAPER_CORRELATION, 1e-2)
+    for a, f in ((1.0, 4.0), (0.0, 1.0), (0.5, 3.0)):
+        core = CubatureQuaternionEstimatorMCNS(ARW, RRW, a, f, noise_model=model)
+        Phi = model.increment_matrix(a, f)
+        np.testing.assert_allclose(Phi, np.vstack([core.c * model.scale_per_zeta * np.eye(3), np.zeros((3, 3))]),
+                                   rtol=1e-15)
+
+
+def test_multiplicative_noise_inputs_are_refused_naming_the_field_and_what_is_allowed():
+    model = MultiplicativeNoiseModel.make(0.1, 0.3, 1e-2)  # 3 m rho^2 < 1: m <= 3
+    gyro = FarrenkopfGyroNoise(ARW, RRW, DT)
+    q0 = np.array([1.0, 0.0, 0.0, 0.0])
+    refs = STARS_I[:2]
+    cases = [
+        (lambda: normals_per_step(-1), "num_stars: "),
+        (lambda: MultiplicativeNoiseModel.make(correlation=1.0), "correlation: ", "must be in (-1, 1)"),
+        (lambda: model.joint_covariance(STAR_SIGMA, 4), "num_stars: ", "needs 3 m rho^2 < 1", "m <= 3"),
+        (lambda: reference_step(q0, np.zeros(3), np.zeros(3), DT, np.zeros(12), gyro, model, refs, STAR_SIGMA),
+         "z: ", "must have shape (13,) for m = 2 stars"),
+        (lambda: simulate_reference(np.tile(q0, (3, 1)), np.zeros((2, 3)), DT, np.zeros((2, 12)), gyro, model,
+                                    np.zeros(3), refs, STAR_SIGMA, 1), "normals: "),
+        (lambda: simulate_reference(np.tile(q0, (3, 1)), np.zeros((2, 3)), 2.0, np.zeros((2, 13)), gyro, model,
+                                    np.zeros(3), refs, STAR_SIGMA, 1), "dt: ", "must equal gyro_noise.interval_s = 1.0"),
+        (lambda: simulate_reference(np.tile(q0, (3, 1)), np.zeros((2, 3)), 1.0 + 1e-9, np.zeros((2, 13)), gyro, model,
+                                    np.zeros(3), refs, STAR_SIGMA, 1), "dt: "),
+    ]
+    for call, field, *rules in cases:
+        with pytest.raises(ValueError) as e:
+            call()
+        text = str(e.value)
+        assert text.startswith(field) and all(r in text for r in rules), text
+    assert model.max_stars() == 3 and model.admits(3) and not model.admits(4)
+
+
+def test_multiplicative_noise_without_stars_gives_only_zeta():
+    """``from_normals`` of rows ``[z_0]`` (m = 0): ``zeta = sqrt(Q_zeta) z_0`` and an empty
+    ``(..., 0, 3)`` star noise."""
+    model = MultiplicativeNoiseModel.make(0.1, 0.3, 1e-2)
+    z = np.random.default_rng(3).standard_normal((5, 1))
+    zeta, v = model.from_normals(z, STAR_SIGMA)
+    np.testing.assert_allclose(zeta, math.sqrt(0.1) * z[:, 0], rtol=1e-15)
+    assert v.shape == (5, 0, 3)
