@@ -774,3 +774,45 @@ def test_the_solver_stops_once_the_attitude_no_longer_changes():
         attitudes = [R_true] + [h.R_BI for h in sol.history]
         changes = [error_angle(a, b) for a, b in itertools.pairwise(attitudes)]
         assert all(c >= 1e-9 for c in changes[:-1]), (k, sol.iterations, changes)
+
+
+# -- found by the mutation sample of 2026-11-26 (tests/README.md) ----------------------------------
+def test_catalogue_of_a_photo_numbers_its_centroids_and_equals_the_own_view_for_the_own_photo():
+    """``catalogue(centroids_m)`` (a calibration photo at zero attitude): ids are the photo's
+    row numbers, one per centroid, and for the geometry's own exact photo the directions are
+    the geometry's own catalogue's, row for row."""
+    geom = geometry(50, 1)
+    ids, r, b0 = geom.catalogue()
+    _, photo = geom.project(np.eye(3))
+    pids, pr, pb0 = geom.catalogue(photo)
+    np.testing.assert_array_equal(pids, np.arange(len(photo)))
+    np.testing.assert_allclose(pr, r, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(pb0, b0, rtol=0, atol=1e-15)
+    pids, _, _ = geom.catalogue(photo.ravel())  # a flat list of x, y pairs is read the same way
+    assert len(pids) == len(photo)
+
+
+def test_bad_geometry_inputs_are_refused_naming_the_field_and_the_rule():
+    from drake_att.screen_camera import check_geometry_inputs
+
+    stars = random_star_pattern(5, SCREEN, H, 1)
+    ok = dict(stars_I=stars, h_m=H, R0_B=R0_B, focal_length_m=FOCAL, detector_size_m=(DETECTOR, DETECTOR),
+              pixel_pitch_m=PITCH)
+    cases = [
+        (lambda: random_star_pattern(0, SCREEN, H, 1), "star_count: got 0", "must be an integer >= 1"),
+        (lambda: ScreenCameraGeometry(**{**ok, "stars_I": stars + [0.0, 0.0, 0.01]}), "stars_I: ",
+         "every star must satisfy p . s = h = 2.0 m"),
+        (lambda: ScreenCameraGeometry(**{**ok, "R0_B": [0.0, 0.0]}), "R0_B: ", "need 3 finite numbers (m)"),
+        (lambda: ScreenCameraGeometry(**{**ok, "R0_B": [0.0, 0.0, -2.5]}), "R0_B: ",
+         "the camera must be between the rotation centre plane and the screen"),
+        (lambda: ScreenCameraGeometry(**{**ok, "detector_size_m": (DETECTOR,)}), "detector_size_m: ",
+         "need (width, height) (m)"),
+        (lambda: ScreenCameraGeometry(**{**ok, "pixel_pitch_m": 0.0}), "pixel_pitch_m: ", "must be > 0"),
+        (lambda: check_geometry_inputs("cam", SCREEN, H, 2.5), "cam.camera_to_screen_mm: got 2500",
+         "must be in (0, h = 2000.0] mm"),
+    ]
+    for call, field, rule in cases:
+        with pytest.raises(ValueError) as e:
+            call()
+        text = str(e.value)
+        assert text.startswith(field) and rule in text, text
