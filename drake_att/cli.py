@@ -1,7 +1,12 @@
 """Command line: ``drake-att run [SCENARIO] [--seed N] [--out DIR] [--set path=value ...]``,
 ``drake-att score OUT_DIR [--out FILE]``, ``drake-att list``, ``drake-att montecarlo
 SCENARIO --runs N ...`` (a Monte Carlo campaign on Dask) and ``drake-att compare
-SCENARIO... --runs N ...`` (the estimator x scenario comparison matrix)."""
+SCENARIO... --runs N ...`` (the estimator x scenario comparison matrix) and ``drake-att
+check SCENARIO`` (validate without simulating).
+
+Every refusal of user input (a file, a field, an option, a folder) is one line on stderr
+naming it and exit code 2; an unexpected internal error is one line and exit code 1, with
+the traceback only under ``--debug``; Ctrl-C is exit code 130."""
 
 from __future__ import annotations
 
@@ -10,6 +15,18 @@ import os
 import sys
 
 from drake_att.scenarios.config import ConfigError, apply_overrides, load_scenario
+from drake_att.validation import UserInputError
+
+# No line the CLI prints about an error is longer than this (values are cut, not the rule).
+MAX_MESSAGE_CHARS = 1000
+
+
+def _say(text: str) -> None:
+    """Print one error line on stderr, on one line and at most :data:`MAX_MESSAGE_CHARS`."""
+    line = " ".join(str(text).split())
+    if len(line) > MAX_MESSAGE_CHARS:
+        line = line[: MAX_MESSAGE_CHARS - 3] + "..."
+    print(line, file=sys.stderr)
 
 
 def _cmd_list(args) -> int:
@@ -23,58 +40,87 @@ def _cmd_list(args) -> int:
     return 0
 
 
+def _load_with_overrides(scenario_arg, overrides, seed=None):
+    from drake_att.scenarios.library import scenario_path
+
+    path = scenario_path(scenario_arg)
+    scenario = load_scenario(filename=path)
+    overrides = list(overrides or [])
+    if seed is not None:
+        overrides.append(f"seed={seed}")
+    if overrides:
+        scenario = apply_overrides(scenario, overrides)
+    return path, scenario
+
+
+def _preflight(scenario) -> None:
+    """Refuse what cannot run here (memory), then print the warnings of a valid scenario."""
+    from drake_att.scenarios import preflight
+
+    check_memory = getattr(preflight, "check_memory", None)
+    if check_memory is not None:
+        check_memory(scenario)
+    for message in preflight.preflight_warnings(scenario):
+        _say(f"drake-att: warning: {message}")
+
+
+def _result_bytes(scenario) -> int:
+    from drake_att.scenarios import preflight
+
+    estimate = getattr(preflight, "result_bytes", None)
+    return int(estimate(scenario)) if estimate is not None else 0
+
+
+def _cmd_check(args) -> int:
+    path, scenario = _load_with_overrides(args.scenario, args.set, args.seed)
+    _preflight(scenario)
+    print(f"{path}: valid ({scenario.name}: {len(scenario.sensors)} sensors, {len(scenario.estimators)} "
+          f"estimators, {scenario.duration_s:g} s, seed {scenario.seed})")
+    return 0
+
+
 def _cmd_run(args) -> int:
+    from drake_att import outputs
     from drake_att.analysis.metrics import compute_metrics, format_table
     from drake_att.analysis.report import write_results
     from drake_att.scenarios.builder import NonFiniteRunError, ScenarioDiagram
-    from drake_att.scenarios.library import scenario_path
 
     try:
-        path = scenario_path(args.scenario)
-        scenario = load_scenario(filename=path)
-        overrides = list(args.set or [])
-        if args.seed is not None:
-            overrides.append(f"seed={args.seed}")
-        if overrides:
-            scenario = apply_overrides(scenario, overrides)
-    except (ConfigError, ValueError) as e:
-        print(f"drake-att: invalid scenario: {e}", file=sys.stderr)
+        path, scenario = _load_with_overrides(args.scenario, args.set, args.seed)
+    except ConfigError as e:
+        _say(f"drake-att: invalid scenario: {e}")
         return 2
     # The default folder names the scenario and seed, and the overrides too (a short hash of
     # them): a run with --set never lands in (and replaces) the unmodified run's folder.
-    tag = ""
-    if args.set:
-        import hashlib
+    tag = _override_tag(args.set)
+    out_dir = args.out or os.path.join("out", outputs.safe_component(f"{scenario.name}_seed{scenario.seed}{tag}"))
+    _preflight(scenario)
+    out_dir = outputs.check_target(out_dir, option="--out", need_bytes=_result_bytes(scenario))
+    with outputs.writer_lock(out_dir):
+        print(f"Building {scenario.name} ({path}) ...", file=sys.stderr)
+        import warnings
 
-        tag = "_" + hashlib.sha1("\n".join(args.set).encode()).hexdigest()[:8]
-    out_dir = args.out or os.path.join("out", f"{scenario.name}_seed{scenario.seed}{tag}")
-    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        print(f"drake-att: --out {out_dir}: is an existing file, not a folder; name a folder for the results",
-              file=sys.stderr)
-        return 2
-    from drake_att.scenarios.preflight import preflight_warnings, run_warnings
+        from drake_att.scenarios.preflight import DegenerateScenarioWarning, run_warnings
 
-    for message in preflight_warnings(scenario):
-        print(f"drake-att: warning: {message}", file=sys.stderr)
-    print(f"Building {scenario.name} ({path}) ...", file=sys.stderr)
-    import warnings
-
-    from drake_att.scenarios.preflight import DegenerateScenarioWarning
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DegenerateScenarioWarning)  # printed above, as one line each
-        sd = ScenarioDiagram(scenario)
-    try:
-        run = sd.simulate(scenario.seed, progress=not args.quiet)
-    except NonFiniteRunError as e:
-        print(f"drake-att: the run failed: {e}", file=sys.stderr)
-        return 2
-    metrics = compute_metrics(run)
-    print(format_table(metrics))
-    for message in run_warnings(metrics):
-        print(f"drake-att: warning: {message}", file=sys.stderr)
-    replaced = os.path.isdir(out_dir)
-    files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DegenerateScenarioWarning)  # printed above, as one line each
+            sd = ScenarioDiagram(scenario)
+        try:
+            run = sd.simulate(scenario.seed, progress=not args.quiet)
+        except NonFiniteRunError as e:
+            _say(f"drake-att: the run failed: {e}")
+            return 2
+        metrics = compute_metrics(run)
+        print(format_table(metrics))
+        for message in run_warnings(metrics):
+            _say(f"drake-att: warning: {message}")
+        replaced = os.path.isdir(out_dir)
+        try:
+            files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)
+        except OSError as e:
+            _say(f"drake-att: --out {out_dir}: cannot write the results ({e.strerror or e}); nothing was written "
+                 "or replaced")
+            return 2
     print(f"\nWrote {len(files)} files to {out_dir}/" + (" (replacing the previous results there)" if replaced else "")
           + ": " + ", ".join(os.path.basename(f) for f in files))
     return 0
@@ -83,12 +129,13 @@ def _cmd_run(args) -> int:
 def _cmd_score(args) -> int:
     import zipfile
 
+    from drake_att import outputs
     from drake_att.analysis.metrics import compute_metrics, format_table
     from drake_att.analysis.report import write_metrics_json
     from drake_att.scenarios.builder import RunLog
 
     def fail(msg):
-        print(f"drake-att score: {msg}", file=sys.stderr)
+        _say(f"drake-att score: {msg}")
         return 2
 
     out_dir = args.out_dir
@@ -98,34 +145,53 @@ def _cmd_score(args) -> int:
     for path in (npz_path, config_path):
         if not os.path.isfile(path):
             return fail(f"{path}: missing (a result folder of `drake-att run` holds log.npz and config.yaml)")
+    out = args.out or os.path.join(out_dir, "metrics.json")
+    previous = _previous_metrics(out)
     try:
-        scenario = load_scenario(filename=config_path)
-    except (ConfigError, ValueError, OSError) as e:
+        scenario = load_scenario(filename=config_path, new_plugins=args.allow_plugins)
+    except ConfigError as e:
         return fail(f"{config_path}: not a valid scenario: {e}")
     try:
         run = RunLog.load(npz_path, scenario)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        return fail(f"{npz_path}: cannot be scored: {e}")
+    except (OSError, ValueError, EOFError, KeyError, TypeError, zipfile.BadZipFile) as e:
+        return fail(f"{npz_path}: cannot be scored: {type(e).__name__}: {e}")
     try:
         metrics = compute_metrics(run)
-    except (ValueError, KeyError, IndexError) as e:
-        return fail(f"{npz_path}: cannot be scored: {e}")
+    except (ValueError, KeyError, IndexError, TypeError) as e:
+        return fail(f"{npz_path}: cannot be scored: {type(e).__name__}: {e}")
     print(format_table(metrics))
-    out = args.out or os.path.join(out_dir, "metrics.json")
-    previous = None
-    if os.path.isfile(out):
-        with open(out, "rb") as f:
-            previous = f.read()
     try:
         write_metrics_json(metrics, out)
         with open(out, "rb") as f:
             now = f.read()
     except OSError as e:
-        return fail(f"{out}: cannot write: {e}")
+        return fail(f"{out}: cannot write ({e.strerror or e}); the file is unchanged")
     same = "" if previous is None else (" (identical to the file it replaced)" if previous == now
                                         else " (differs from the file it replaced)")
     print(f"\nWrote {out}{same}")
     return 0
+
+
+def _previous_metrics(path: str):
+    """The bytes of the metrics file ``score`` is about to replace (None: there is none).
+    Only a metrics file of ours is replaced: anything else at ``path`` is refused."""
+    import json
+
+    from drake_att.outputs import OutputError
+
+    if not os.path.lexists(path):
+        return None
+    if os.path.islink(path) or not os.path.isfile(path):
+        raise OutputError(f"--out {path}: is not a regular file; name a new file or a metrics.json of drake-att")
+    with open(path, "rb") as f:
+        data = f.read(2**26)
+    try:
+        ours = isinstance(json.loads(data.decode("utf-8")).get("estimators"), dict)
+    except (ValueError, AttributeError):
+        ours = False
+    if not ours:
+        raise OutputError(f"--out {path}: exists and is not a metrics.json written by drake-att; name a new file")
+    return data
 
 
 def _override_tag(items) -> str:
@@ -135,7 +201,7 @@ def _override_tag(items) -> str:
         return ""
     import hashlib
 
-    return "_" + hashlib.sha1("\n".join(items).encode()).hexdigest()[:8]
+    return "_" + hashlib.sha1("\n".join(items).encode("utf-8", "surrogateescape")).hexdigest()[:8]
 
 
 def _estimator_list(text):
@@ -143,7 +209,7 @@ def _estimator_list(text):
 
 
 def _campaign_failed(command: str, e) -> int:
-    print(f"drake-att {command}: {e}", file=sys.stderr)
+    _say(f"drake-att {command}: {e}")
     return 2
 
 
@@ -160,8 +226,8 @@ def _cmd_montecarlo(args) -> int:
         resolve_scenario,
         run_campaign,
     )
+    from drake_att import outputs
     from drake_att.scenarios.library import scenario_path
-    from drake_att.scenarios.preflight import preflight_warnings
 
     def fail(e):
         return _campaign_failed("montecarlo", e)
@@ -171,12 +237,12 @@ def _cmd_montecarlo(args) -> int:
         campaign_seeds(args.runs, args.first_seed)
         scenario = resolve_scenario(scenario_path(args.scenario), args.set or (), estimators)
         scheduler = _scheduler_option(args)
-    except (CampaignError, ConfigError, ValueError) as e:
+    except UserInputError as e:
         return fail(e)
     tag = _override_tag(list(args.set or []) + ([f"--estimators={args.estimators}"] if args.estimators else []))
-    out = args.out or os.path.join("out", f"{scenario.name}_montecarlo{tag}")
-    for message in preflight_warnings(scenario):
-        print(f"drake-att: warning: {message}", file=sys.stderr)
+    out = args.out or os.path.join("out", outputs.safe_component(f"{scenario.name}_montecarlo{tag}"))
+    _preflight(scenario)
+    out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
     if scheduler == "serial" or (scheduler is None and args.workers == 1):
         where = "serially in this process"
     elif scheduler:
@@ -186,9 +252,11 @@ def _cmd_montecarlo(args) -> int:
     print(f"Monte Carlo: {scenario.name}, {args.runs} runs (seeds {args.first_seed}..{args.first_seed + args.runs - 1}) "
           f"{where} -> {out}/", file=sys.stderr)
     try:
-        result = run_campaign(scenario, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler, out=out,
-                              resume=args.resume, progress=not args.quiet, connect_timeout_s=args.connect_timeout)
-    except (CampaignError, ConfigError) as e:
+        with outputs.writer_lock(out):
+            result = run_campaign(scenario, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler,
+                                  out=out, resume=args.resume, progress=not args.quiet,
+                                  connect_timeout_s=args.connect_timeout)
+    except UserInputError as e:
         return fail(e)
     except KeyboardInterrupt:
         print(f"\ndrake-att montecarlo: interrupted; {_saved_runs(out)} of {args.runs} runs are saved in {out}/runs; "
@@ -211,8 +279,15 @@ def _cmd_montecarlo(args) -> int:
 def _scheduler_option(args):
     from drake_att.analysis.montecarlo import CampaignError, check_scheduler_address
 
-    if args.workers is not None and args.workers < 1:
-        raise CampaignError(f"--workers: got {args.workers}; must be a positive integer")
+    import drake_att.analysis.montecarlo as mc
+
+    if args.workers is not None and not 1 <= args.workers <= 1024:
+        raise CampaignError(f"--workers: got {args.workers}; must be an integer in [1, 1024]")
+    check_timeout = getattr(mc, "check_connect_timeout", None)
+    if check_timeout is not None:
+        args.connect_timeout = check_timeout(args.connect_timeout)
+    elif not 0 < args.connect_timeout <= 3600:  # also refuses nan
+        raise CampaignError(f"--connect-timeout: got {args.connect_timeout}; must be a number of seconds in (0, 3600]")
     if args.scheduler is None:
         return None
     if args.scheduler == "serial":
@@ -232,6 +307,8 @@ def _cmd_compare(args) -> int:
         run_comparison,
     )
 
+    from drake_att import outputs
+
     def fail(e):
         return _campaign_failed("compare", e)
 
@@ -239,16 +316,21 @@ def _cmd_compare(args) -> int:
         campaign_seeds(args.runs, args.first_seed)
         plan = comparison_plan(args.scenarios, _estimator_list(args.estimators), args.set or ())
         scheduler = _scheduler_option(args)
-    except (CampaignError, ConfigError, ValueError) as e:
+    except UserInputError as e:
         return fail(e)
     tag = _override_tag(list(args.scenarios) + list(args.set or []) + [args.estimators or ""])
     out = args.out or os.path.join("out", f"compare{tag}")
+    for scenario in plan.scenarios:
+        _preflight(scenario)
+    out = outputs.check_target(out, option="--out", kinds=("empty", "comparison"))
     for cell in plan.skipped:
         print(f"drake-att compare: note: {cell}", file=sys.stderr)
     try:
-        result = run_comparison(plan, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler, out=out,
-                                resume=args.resume, progress=not args.quiet, connect_timeout_s=args.connect_timeout)
-    except (CampaignError, ConfigError) as e:
+        with outputs.writer_lock(out):
+            result = run_comparison(plan, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler,
+                                    out=out, resume=args.resume, progress=not args.quiet,
+                                    connect_timeout_s=args.connect_timeout)
+    except UserInputError as e:
         return fail(e)
     except KeyboardInterrupt:
         print(f"\ndrake-att compare: interrupted; the finished runs are saved under {out}/; the same command with "
@@ -269,7 +351,7 @@ def _add_campaign_options(p, what: str) -> None:
                    help="run on an existing Dask cluster (tcp://HOST:8786, started with `dask scheduler` and "
                         "`dask worker tcp://HOST:8786`), or 'serial'")
     p.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
-                   help="how long to wait for --scheduler and its first worker (default 10)")
+                   help="deadline for reaching --scheduler, its handshake and its first worker (default 10)")
     p.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
     p.add_argument("--out", default=None, metavar="DIR", help=f"{what} folder")
     p.add_argument("--resume", action="store_true",
@@ -277,27 +359,53 @@ def _add_campaign_options(p, what: str) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="drake-att", description="Attitude-determination scenarios on Drake.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help="run a scenario (default: the project's default scenario)")
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (``drake-att: <message>``, exit 2) instead of a usage
+    block, so every refusal looks alike."""
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
+class _UsageError(UserInputError):
+    pass
+
+
+def _parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true",
+                        help="show the full traceback of an unexpected error (for bug reports)")
+    parser = _Parser(prog="drake-att", description="Attitude-determination scenarios on Drake.", parents=[common])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    p_run = sub.add_parser("run", parents=[common], help="run a scenario (default: the project's default scenario)")
     p_run.add_argument("scenario", nargs="?", default=None, help="shipped scenario name or YAML path")
     p_run.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
     p_run.add_argument("--out", default=None, help="output folder (default out/<scenario>_seed<N>, plus a hash of "
-                       "the --set overrides if any); replaced as a whole, atomically")
+                       "the --set overrides if any); replaced as a whole, atomically, and only if it is empty or "
+                       "a result folder of drake-att")
     p_run.add_argument("--set", action="append", metavar="PATH=VALUE",
                        help="override a config value, e.g. --set duration_s=600 --set sensors.st1.period_s=1")
     p_run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p_run.add_argument("--quiet", action="store_true", help="no progress line")
     p_run.set_defaults(func=_cmd_run)
-    p_score = sub.add_parser("score", help="recompute a result folder's metrics.json from its log.npz + config.yaml")
+    p_check = sub.add_parser("check", parents=[common],
+                             help="validate a scenario (with --set) without simulating: field ranges, memory, warnings")
+    p_check.add_argument("scenario", nargs="?", default=None, help="shipped scenario name or YAML path")
+    p_check.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
+    p_check.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
+    p_check.set_defaults(func=_cmd_check)
+    p_score = sub.add_parser("score", parents=[common],
+                             help="recompute a result folder's metrics.json from its log.npz + config.yaml")
     p_score.add_argument("out_dir", metavar="OUT_DIR", help="result folder written by `drake-att run`")
     p_score.add_argument("--out", default=None, metavar="FILE",
                          help="write the metrics here (default OUT_DIR/metrics.json)")
+    p_score.add_argument("--allow-plugins", action="store_true",
+                         help="import the plug-in modules the folder's config.yaml names (runs their code: only for "
+                              "folders you trust); without it such a folder is refused")
     p_score.set_defaults(func=_cmd_score)
-    p_list = sub.add_parser("list", help="list the shipped scenarios")
+    p_list = sub.add_parser("list", parents=[common], help="list the shipped scenarios")
     p_list.set_defaults(func=_cmd_list)
-    p_mc = sub.add_parser("montecarlo", help="Monte Carlo campaign over seeds (Dask), with report.html")
+    p_mc = sub.add_parser("montecarlo", parents=[common], help="Monte Carlo campaign over seeds (Dask), with report.html")
     p_mc.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
                       help="shipped scenario name or YAML path (default: the project's default scenario)")
     _add_campaign_options(p_mc, "campaign (default out/<scenario>_montecarlo, plus a hash of --set/--estimators)")
@@ -305,19 +413,76 @@ def main(argv=None) -> int:
     p_mc.add_argument("--screenshot", default=None, metavar="PNG",
                       help="also render report.html in headless Chromium into this PNG")
     p_mc.set_defaults(func=_cmd_montecarlo)
-    p_cmp = sub.add_parser("compare", help="every listed estimator on every listed scenario: the comparison matrix")
+    p_cmp = sub.add_parser("compare", parents=[common],
+                           help="every listed estimator on every listed scenario: the comparison matrix")
     p_cmp.add_argument("scenarios", nargs="+", metavar="SCENARIO", help="shipped scenario names or YAML paths")
     p_cmp.add_argument("--estimators", default=None, metavar="A,B,SCENARIO:C",
                        help="estimator names (default: each scenario's own); SCENARIO:NAME takes NAME's config "
                             "from SCENARIO and adds it to every listed scenario that lacks it")
     _add_campaign_options(p_cmp, "comparison (default out/compare_<hash>)")
     p_cmp.set_defaults(func=_cmd_compare)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    """The ``drake-att`` command: returns the exit code (0 done, 2 refused input, 1 an
+    unexpected error, 130 interrupted); never raises, except with ``--debug``."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    debug = "--debug" in argv
+    import signal
+    import threading
+
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
+        args = _parser().parse_args(argv)
         return args.func(args)
+    except _Terminated:
+        print("\ndrake-att: terminated (SIGTERM); no result folder was written or changed", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
+        if debug:
+            raise
         print("\ndrake-att: interrupted; no result folder was written or changed", file=sys.stderr)
         return 130
+    except UserInputError as e:
+        if debug:
+            raise
+        text = str(e)
+        _say(text if text.startswith("drake-att") else f"drake-att: {text}")
+        return 2
+    except SystemExit as e:  # --help, or a library call that exits
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+    except MemoryError:
+        if debug:
+            raise
+        _say("drake-att: out of memory; the run needs more memory than this machine has (fewer particles, a "
+             "shorter duration or longer sensor periods?)")
+        return 1
+    except Exception as e:  # noqa: BLE001 - the one guard: a user sees one line, a developer uses --debug
+        if debug:
+            raise
+        where = ""
+        tb = e.__traceback__
+        while tb is not None:
+            where = f" at {os.path.basename(tb.tb_frame.f_code.co_filename)}:{tb.tb_lineno}"
+            tb = tb.tb_next
+        _say(f"drake-att: internal error: {type(e).__name__}: {e}{where}; please report it with the output of "
+             "the same command with --debug")
+        return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that every ``finally`` runs (staging folders
+    and locks are removed, a Dask cluster is closed) before the process exits 143."""
+
+
+def _terminate(signum, frame):
+    raise _Terminated()
 
 
 if __name__ == "__main__":

@@ -17,20 +17,37 @@ import numbers
 
 import numpy as np
 
-__all__ = ["ConfigError", "describe", "fail", "check_finite", "check_positive", "check_nonnegative", "check_int",
+__all__ = ["UserInputError", "ConfigError", "describe", "fail", "check_finite", "check_positive", "check_nonnegative", "check_int",
            "check_vector", "check_weights", "check_array", "check_quaternion", "check_covariance",
            "check_reference_vectors", "check_variance_matrix", "measurement_or_none", "check_seed", "SEED_MAX"]
 
 
-class ConfigError(ValueError):
+class UserInputError(ValueError):
+    """Something the user gave (a file, a field, an option, a folder) is refused; the message
+    names it, the value and what is allowed. The CLI prints it as one line and exits 2."""
+
+
+class ConfigError(UserInputError):
     """An invalid scenario configuration (the message names the field path)."""
 
 
+# A value in a message is cut to this many characters (a huge string or list must not make a
+# huge message).
+DESCRIBE_LIMIT = 200
+
+
 def describe(value) -> str:
-    """A short rendering of ``value`` for a message (arrays abridged)."""
+    """A short rendering of ``value`` for a message (arrays abridged, at most
+    :data:`DESCRIBE_LIMIT` characters)."""
     if isinstance(value, np.ndarray):
-        return np.array2string(value, precision=10, threshold=12, max_line_width=10**6).replace("\n", "")
-    return repr(value)
+        text = np.array2string(value, precision=10, threshold=12, max_line_width=10**6).replace("\n", "")
+    elif isinstance(value, (str, bytes)) and len(value) > DESCRIBE_LIMIT:
+        text = repr(value[:DESCRIBE_LIMIT])
+    elif isinstance(value, (list, tuple, dict)) and len(value) > 50:
+        text = f"<{type(value).__name__} of {len(value)} items>"
+    else:
+        text = repr(value)
+    return text if len(text) <= DESCRIBE_LIMIT else text[:DESCRIBE_LIMIT] + "..."
 
 
 def fail(field: str, value, allowed: str, error: type = ValueError):

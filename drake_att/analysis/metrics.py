@@ -114,8 +114,9 @@ def estimator_errors(run, name: str) -> dict:
 
 
 def convergence_time(t, dtheta, threshold_rad) -> float | None:
-    """First time after which all axes of ``dtheta`` stay within ``threshold_rad``."""
-    outside = np.any(np.abs(dtheta) > threshold_rad, axis=1)
+    """First time after which all axes of ``dtheta`` stay within ``threshold_rad`` (a
+    non-finite error is outside: an estimate that went NaN never converged)."""
+    outside = ~np.all(np.abs(dtheta) <= threshold_rad, axis=1)
     if outside[-1]:
         return None
     if not np.any(outside):

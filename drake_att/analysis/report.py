@@ -171,41 +171,29 @@ def strict_json(value):
 def write_metrics_json(metrics: dict, path: str) -> str:
     """``metrics.json`` as :func:`write_results` writes it (``drake-att score`` rewrites it
     byte for byte); strict JSON (a non-finite number is written as ``null``)."""
-    with open(path, "w") as f:
-        json.dump(strict_json(metrics), f, indent=2, allow_nan=False)
-    return path
+    from drake_att.outputs import write_file_atomic
+
+    return write_file_atomic(path, json.dumps(strict_json(metrics), indent=2, allow_nan=False).encode())
 
 
 def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool = True) -> list[str]:
     """Write every result file of one run into ``out_dir``, atomically; returns the paths.
 
     The files are written into a fresh sibling folder that then replaces ``out_dir`` in one
-    rename: ``out_dir`` is complete or absent (an interruption or a failure leaves the previous
-    results untouched), never a mix of two runs (a run without figures removes the previous
-    run's PNGs), and two runs into one ``out_dir`` each write their own folder (the last
-    rename wins; neither is corrupt). ``log.npz`` holds the signals and the run's metadata,
-    so ``metrics.json`` can be recomputed from ``log.npz`` + ``config.yaml`` alone
-    (``drake-att score``)."""
-    import shutil
-    import tempfile
+    rename (:func:`drake_att.outputs.replace_folder`): ``out_dir`` is complete or absent (an
+    interruption or a failure leaves the previous results untouched), never a mix of two
+    runs (a run without figures removes the previous run's PNGs). An existing ``out_dir`` is
+    replaced only when it is empty or one of our run folders
+    (:func:`drake_att.outputs.check_target`; :class:`~drake_att.outputs.OutputError`
+    otherwise). ``log.npz`` holds the signals and the run's metadata, so ``metrics.json`` can
+    be recomputed from ``log.npz`` + ``config.yaml`` alone (``drake-att score``)."""
+    from drake_att import outputs
 
-    out_dir = os.path.normpath(out_dir)
-    parent = os.path.dirname(os.path.abspath(out_dir))
-    os.makedirs(parent, exist_ok=True)
-    staging = tempfile.mkdtemp(prefix=f".{os.path.basename(out_dir)}.writing-", dir=parent)
-    try:
-        names = [os.path.basename(f) for f in _write_results_into(scenario_diagram, run, metrics, staging, figures)]
-        old = None
-        if os.path.isdir(out_dir):
-            old = tempfile.mkdtemp(prefix=f".{os.path.basename(out_dir)}.replaced-", dir=parent)
-            os.rename(out_dir, os.path.join(old, "previous"))
-        os.rename(staging, out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    return [os.path.join(out_dir, n) for n in names]
+    if os.path.lexists(out_dir):
+        outputs.check_target(out_dir)
+    return outputs.replace_folder(
+        out_dir, lambda staging: [os.path.basename(f)
+                                  for f in _write_results_into(scenario_diagram, run, metrics, staging, figures)])
 
 
 def _write_results_into(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool) -> list[str]:

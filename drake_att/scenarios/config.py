@@ -139,13 +139,109 @@ class Scenario:
 # --------------------------------------------------------------------------------------
 _TAG_KEY = "\x00tag"  # where the pre-parse keeps a mapping's YAML tag (not a valid field name)
 
+# Loading is bounded: a scenario file is at most this many bytes, and its YAML at most this
+# many nodes once every alias is expanded (a 1 KB "billion laughs" of nested aliases would
+# otherwise expand to gigabytes in the typed loader and in error messages).
+MAX_SCENARIO_BYTES = 2**20
+MAX_YAML_NODES = 200_000
+
+
+def _check_node_graph(root, where: str) -> None:
+    """Refuse a composed YAML node graph whose alias expansion exceeds
+    :data:`MAX_YAML_NODES` nodes or that refers to itself (an alias inside its own anchor).
+    Iterative, memoized per node: a bomb is refused in microseconds per distinct node."""
+    import yaml
+
+    size: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            on_path.discard(key)
+            if isinstance(node, yaml.SequenceNode):
+                children = node.value
+            elif isinstance(node, yaml.MappingNode):
+                children = [n for pair in node.value for n in pair]
+            else:
+                children = []
+            total = 1 + sum(size[id(c)] for c in children)
+            if total > MAX_YAML_NODES:
+                raise ConfigError(f"{where}: its YAML expands to more than {MAX_YAML_NODES} nodes (aliases of "
+                                  "aliases?); a scenario is far smaller - refused")
+            size[key] = total
+            continue
+        if key in size:
+            continue
+        if key in on_path:
+            raise ConfigError(f"{where}: line {node.start_mark.line + 1}: a YAML alias refers to its own anchor "
+                              "(a recursive structure); a scenario cannot hold one")
+        on_path.add(key)
+        stack.append((node, True))
+        if isinstance(node, yaml.SequenceNode):
+            stack.extend((c, False) for c in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            stack.extend((n, False) for pair in node.value for n in pair)
+
+
+def load_yaml_text(text: str, where: str, loader=None):
+    """Parse YAML ``text`` with ``loader`` (default: PyYAML's SafeLoader, which executes no
+    tags) within the loading bounds; every failure is a :class:`ConfigError` naming
+    ``where`` (a file name, or ``--set PATH``)."""
+    import yaml
+
+    base = loader or yaml.SafeLoader
+
+    class _Bounded(base):
+        def get_single_data(self):
+            node = self.get_single_node()
+            if node is None:
+                return None
+            _check_node_graph(node, where)
+            return self.construct_document(node)
+
+    try:
+        return yaml.load(text, Loader=_Bounded)
+    except ConfigError:
+        raise
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{where}: invalid YAML: {_one_line(e)}") from None
+    except RecursionError:
+        raise ConfigError(f"{where}: its YAML is nested too deeply to be a scenario") from None
+
+
+def _one_line(e, limit: int = 300) -> str:
+    text = " ".join(str(e).split())
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def read_scenario_file(filename: str) -> str:
+    """The text of a scenario file: at most :data:`MAX_SCENARIO_BYTES`, UTF-8, no NUL bytes
+    (a binary file); :class:`ConfigError` naming the file otherwise."""
+    try:
+        with open(filename, "rb") as f:
+            data = f.read(MAX_SCENARIO_BYTES + 1)
+    except OSError as e:
+        raise ConfigError(f"{filename}: cannot read the scenario: {e.strerror or e}") from None
+    if len(data) > MAX_SCENARIO_BYTES:
+        raise ConfigError(f"{filename}: larger than {MAX_SCENARIO_BYTES} bytes; a scenario file is a few KB "
+                          "(is this the right file?)")
+    if b"\x00" in data:
+        raise ConfigError(f"{filename}: a binary file (it holds NUL bytes); a scenario is YAML text")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{filename}: not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start}); a "
+                          "scenario is YAML text in UTF-8") from None
+
 
 def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
     """``(plugins, raw data)`` of a scenario's YAML text, read before the typed load (tags of
     not-yet-imported plug-ins are read as plain mappings, the tag kept under ``_TAG_KEY``). Also refuses, naming what
     and where, what the typed loader would not say clearly: an empty file, a top level that
-    is not a mapping, a duplicate key (the typed loader keeps the last silently) and an
-    unknown top-level field (with the allowed ones)."""
+    is not a mapping, a duplicate key (the typed loader keeps the last silently), a tag on
+    anything but a section, and an unknown top-level field (with the allowed ones)."""
     import yaml
 
     class _Loader(yaml.SafeLoader):
@@ -153,6 +249,9 @@ def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
             seen = {}
             for key_node, _ in node.value:
                 key = self.construct_object(key_node, deep=deep)
+                if not isinstance(key, (str, int, float, bool)) and key is not None:
+                    raise ConfigError(f"{where}: line {key_node.start_mark.line + 1}: a mapping key must be a name, "
+                                      f"not a {type(key).__name__}")
                 if key in seen:
                     raise ConfigError(f"{where}: duplicate key {key!r} at line {key_node.start_mark.line + 1} "
                                       f"(first at line {seen[key] + 1}); each key may appear once")
@@ -164,83 +263,187 @@ def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
             mapping = loader.construct_mapping(node, deep=True)
             mapping[_TAG_KEY] = suffix
             return mapping
-        if isinstance(node, yaml.SequenceNode):
-            return loader.construct_sequence(node, deep=True)
-        return loader.construct_scalar(node)
+        raise ConfigError(f"{where}: line {node.start_mark.line + 1}: YAML tag {node.tag!r} on a value; tags only "
+                          "name the type of a section (e.g. !RigidBodyConfig, !MekfConfig {...}) and never run code")
 
     _Loader.add_multi_constructor("!", _untagged)
     _Loader.add_multi_constructor("tag:", _untagged)
-    try:
-        data = yaml.load(text, Loader=_Loader)
-    except yaml.YAMLError as e:
-        raise ConfigError(f"{where}: invalid YAML: {e}") from e
+    data = load_yaml_text(text, where, _Loader)
     if data is None:
         raise ConfigError(f"{where}: the scenario is empty; it needs at least a name and a plant, sensors and "
                           "estimators (see drake_att/scenarios/*.yaml)")
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: got a YAML {type(data).__name__} at the top level; a scenario is a mapping "
                           f"of the fields {[f.name for f in dataclasses.fields(Scenario)]}")
+    tag = data.pop(_TAG_KEY, None)
+    if tag is not None:
+        raise ConfigError(f"{where}: the top level has the tag !{tag}; a scenario's top level has no tag")
     unknown = [k for k in data if k not in {f.name for f in dataclasses.fields(Scenario)}]
     if unknown:
-        raise ConfigError(f"{where}: unknown field(s) {unknown}; allowed: {[f.name for f in dataclasses.fields(Scenario)]}")
+        raise ConfigError(f"{where}: unknown field(s) {_short(unknown)}; allowed: "
+                          f"{[f.name for f in dataclasses.fields(Scenario)]}")
     plugins = data.get("plugins", [])
+    if plugins is None:
+        plugins = []
     if not isinstance(plugins, list) or not all(isinstance(p, str) for p in plugins):
         fail("plugins", plugins, "must be a list of module names, e.g. [my_package.my_filter]")
     return plugins, data
 
 
-def _unknown_list_fields(data, where: str) -> None:
-    """Name the item, the unknown field(s) and the allowed ones for a ``sensors`` or
-    ``estimators`` item (the typed loader says only which field, not where)."""
-    from drake_att.scenarios import registry
+def _short(value, limit: int = 200) -> str:
+    text = validation.describe(value)
+    return text if len(text) <= limit else text[:limit] + "..."
 
-    for section in ("sensors", "estimators"):
-        items = data.get(section) or []
-        if not isinstance(items, list):
-            continue
-        for i, item in enumerate(items):
-            if not isinstance(item, dict) or _TAG_KEY not in item:
+
+def _item_path(section: str, i: int, item) -> str:
+    name = item.get("name") if isinstance(item, dict) else None
+    return f"{section}[{i}]" + (f" ({name[:60]})" if isinstance(name, str) else "")
+
+
+def _check_raw(value, typ, path: str) -> None:
+    """Check the raw YAML ``value`` against the schema type ``typ`` before the typed load, so
+    a wrong type or an unknown key anywhere is refused naming its field path (the typed
+    loader names neither): numbers where numbers belong, lists where lists belong, sections
+    (mappings) with known fields and, for a choice of section types, a registered tag."""
+    import typing as t
+
+    origin, args = t.get_origin(typ), t.get_args(typ)
+    if typ is t.Any:
+        return
+    if origin is Union:
+        options = [a for a in args if a is not type(None)]
+        if value is None:
+            if type(None) in args:
+                return
+            fail(path, value, "must be set")
+        if len(options) == 1:
+            return _check_raw(value, options[0], path)
+        if not isinstance(value, dict):
+            fail(path, value, "must be a section (a mapping), tagged with its type: one of "
+                 f"{['!' + o.__name__ for o in options]}")
+        tag = value.get(_TAG_KEY)
+        chosen = options[0] if tag is None else next((o for o in options if o.__name__ == tag), None)
+        if chosen is None:
+            fail(path, "!" + tag, f"allowed types: {['!' + o.__name__ for o in options]} (a plug-in's type needs "
+                 "its module in plugins:)")
+        return _check_raw(value, chosen, path)
+    if isinstance(typ, type) and dataclasses.is_dataclass(typ):
+        if not isinstance(value, dict):
+            fail(path, value, f"must be a section (a mapping of the fields of {typ.__name__})")
+        names = {f.name: f for f in dataclasses.fields(typ)}
+        unknown = [k for k in value if k != _TAG_KEY and k not in names]
+        if unknown:
+            raise ConfigError(f"{path}: unknown field(s) {_short(unknown)}; allowed: {list(names)}")
+        hints = _field_types(typ)
+        for key, v in value.items():
+            if key != _TAG_KEY:
+                _check_raw(v, hints[key], f"{path}.{key}" if path else key)
+        return
+    if origin in (list, List):
+        if not isinstance(value, list):
+            fail(path, value, "must be a list" + (" (write [] for none)" if value is None else ""))
+        (item_type,) = args or (t.Any,)
+        section = path in ("sensors", "estimators")
+        options = [a for a in t.get_args(item_type) if isinstance(a, type)] if t.get_origin(item_type) is Union \
+            else [item_type]
+        for i, item in enumerate(value):
+            tag = item.get(_TAG_KEY) if section and isinstance(item, dict) else None
+            if tag is None:
+                _check_raw(item, item_type, _item_path(path, i, item) if section else f"{path}[{i}]")
                 continue
+            chosen = next((o for o in options if o.__name__ == tag), None)
+            if chosen is None:
+                raise ConfigError(f"{path}[{i}]: unknown type !{tag[:100]}; registered: "
+                                  f"{['!' + o.__name__ for o in options]} (a plug-in module must be listed in "
+                                  "plugins:)")
+            name = item.get("name")
+            _check_raw(item, chosen, f"{path}[{i}] ({name[:60] if isinstance(name, str) else '?'}, !{tag})")
+        return
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            fail(path, value, "must be a number")
+        if isinstance(value, str):
             try:
-                config_type = registry.config_type(item[_TAG_KEY])
-            except AttributeError:
-                tags = sorted(registry.plugins(registry.SENSOR if section == "sensors" else registry.ESTIMATOR))
-                raise ConfigError(f"{where}: {section}[{i}]: unknown type !{item[_TAG_KEY]}; registered: "
-                                  f"{['!' + t for t in tags]} (a plug-in module must be listed in plugins:)") from None
-            allowed = [f.name for f in dataclasses.fields(config_type)]
-            unknown = [k for k in item if k != _TAG_KEY and k not in allowed]
-            if unknown:
-                raise ConfigError(f"{where}: {section}[{i}] ({item.get('name', '?')}, !{item[_TAG_KEY]}): unknown "
-                                  f"field(s) {unknown}; allowed: {allowed}")
+                float(value)
+            except ValueError:
+                fail(path, value, "must be a number")
+        return
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            fail(path, value, "must be an integer")
+        return
+    if typ is bool:
+        if not isinstance(value, bool):
+            fail(path, value, "must be true or false")
+        return
+    if typ is str:
+        if not isinstance(value, str):
+            fail(path, value, "must be a text string")
+        return
+    if typ is np.ndarray:
+        rows = value if isinstance(value, list) else None
+        flat = [x for r in rows for x in (r if isinstance(r, list) else [r])] if rows is not None else None
+        if flat is None or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in flat):
+            fail(path, value, "must be a list of rows of numbers")
+        return
 
 
-def prepare_schema(plugins=()) -> None:
-    """Import the built-in and the given plug-ins and point the scenario schema at them."""
+def _field_types(typ) -> dict:
+    """Each field's type as the typed loader reads it: ``field.type`` (which
+    :func:`~drake_att.scenarios.registry.refresh_schema` points at the registered plug-ins),
+    resolved from the annotations where it is still a string."""
+    fields = dataclasses.fields(typ)
+    if not any(isinstance(f.type, str) for f in fields):
+        return {f.name: f.type for f in fields}
+    try:
+        hints = typing.get_type_hints(typ)
+    except Exception:  # noqa: BLE001 - unresolvable hints: check nothing below this section
+        hints = {}
+    return {f.name: hints.get(f.name, typing.Any) if isinstance(f.type, str) else f.type for f in fields}
+
+
+def prepare_schema(plugins=(), *, new_plugins: bool = True) -> None:
+    """Import the built-in and the given plug-ins and point the scenario schema at them
+    (``new_plugins=False``: only plug-ins already imported are accepted)."""
     from drake_att.scenarios import registry
 
     try:
-        registry.load_plugins(plugins)
+        registry.load_plugins(plugins, new_modules=new_plugins)
     except registry.PluginError as e:
         raise ConfigError(str(e)) from e
     registry.refresh_schema(Scenario)
 
 
-def load_scenario(text: str | None = None, filename: str | None = None) -> Scenario:
-    """Load and validate a scenario from YAML text or a file (importing its ``plugins``)."""
+def load_scenario(text: str | None = None, filename: str | None = None, *, new_plugins: bool = True) -> Scenario:
+    """Load and validate a scenario from YAML text or a file (importing its ``plugins``).
+
+    Every failure is a :class:`ConfigError` naming the file (when given), the field path, the
+    value and what is allowed: reading (size, encoding), YAML syntax, tags, alias expansion,
+    types, unknown fields, the schema and every value's range.
+
+    Args:
+        new_plugins: False for a configuration the user did not write (a result folder's
+            ``config.yaml``): its ``plugins`` must already be imported; a module that is not
+            is refused rather than imported (importing runs its code).
+    """
     if filename is not None:
-        try:
-            with open(filename) as f:
-                text = f.read()
-        except OSError as e:
-            raise ConfigError(f"{filename}: cannot read the scenario: {e.strerror}") from e
+        text = read_scenario_file(filename)
+    elif not isinstance(text, str):
+        raise ConfigError(f"scenario: got {type(text).__name__}; expected YAML text or a file name")
+    elif len(text.encode("utf-8", "surrogatepass")) > MAX_SCENARIO_BYTES:
+        raise ConfigError(f"scenario: larger than {MAX_SCENARIO_BYTES} bytes; a scenario is a few KB")
     where = filename or "scenario"
     plugins, raw = _preparse(text, where)
-    prepare_schema(plugins)
-    _unknown_list_fields(raw, where)
+    prepare_schema(plugins, new_plugins=new_plugins)
+    prefix = f"{filename}: " if filename else ""
+    try:
+        _check_raw(raw, Scenario, "")
+    except ConfigError as e:
+        raise ConfigError(prefix + str(e)) from None
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text)
-    except (RuntimeError, TypeError, ValueError) as e:  # Drake reports schema errors as RuntimeError
-        raise ConfigError(f"{filename + ': ' if filename else ''}{e}") from e
+    except Exception as e:  # noqa: BLE001 - Drake reports schema errors as RuntimeError, YAML ones as YAMLError
+        raise ConfigError(f"{prefix or 'scenario: '}{_one_line(e)}") from None
     validate(scenario)
     return scenario
 
@@ -264,32 +467,61 @@ def apply_overrides(scenario: Scenario, overrides: typing.Sequence[str]) -> Scen
 
     scenario = copy.deepcopy(scenario)  # never modify the caller's scenario, even on error
     for item in overrides:
-        if "=" not in item:
-            raise ConfigError(f"--set {item!r}: expected PATH=VALUE")
+        if not isinstance(item, str) or "=" not in item:
+            raise ConfigError(f"--set {_short(item)}: expected PATH=VALUE, e.g. --set duration_s=600")
         path, raw = item.split("=", 1)
-        value = yaml.safe_load(raw)
-        parts = path.strip().split(".")
-        target = scenario
-        for depth, key in enumerate(parts[:-1]):
-            target = _child(target, key, ".".join(parts[: depth + 1]))
-        last = parts[-1]
-        if isinstance(target, list):
-            idx = _list_index(target, last, path)
-            _refuse_section(target[idx], value, path)
-            target[idx] = value
-        else:
-            if not dataclasses.is_dataclass(target) or last not in {f.name for f in dataclasses.fields(target)}:
-                allowed = [f.name for f in dataclasses.fields(target)] if dataclasses.is_dataclass(target) else []
-                raise ConfigError(f"--set {path}: unknown field {last!r}; allowed: {allowed}")
-            current = getattr(target, last)
-            _refuse_section(current, value, path)
-            setattr(target, last, _coerce(value, current, path))
+        path = path.strip()
+        if not path or any(not part for part in path.split(".")):
+            raise ConfigError(f"--set {_short(item)}: expected PATH=VALUE with a dotted field path, e.g. "
+                              "sensors.st1.period_s=0.5")
+        value = load_yaml_text(raw, f"--set {_short(path, 100)}")
+        _set_path(scenario, path, value)
     # Round-trip through the typed loader so types and unknown keys are checked again.
     try:
         text = dump_scenario(scenario)
-    except (RuntimeError, TypeError, ValueError) as e:
-        raise ConfigError(f"--set: the overridden scenario is not valid: {e}") from e
+    except Exception as e:  # noqa: BLE001 - any failure of the dump is a value the schema does not take
+        raise ConfigError(f"--set: the overridden scenario is not valid: {_one_line(e)}") from None
     return load_scenario(text=text)
+
+
+def _set_path(root, path: str, value) -> None:
+    """Set the field at dotted ``path`` of ``root`` to ``value`` (a mapping given for a
+    section sets that section's fields one by one, each checked like its own ``--set``)."""
+    parts = path.split(".")
+    target = root
+    for depth, key in enumerate(parts[:-1]):
+        target = _child(target, key, ".".join(parts[: depth + 1]))
+    last = parts[-1]
+    if isinstance(target, list):
+        idx = _list_index(target, last, path)
+        current = target[idx]
+    else:
+        if not dataclasses.is_dataclass(target) or last not in {f.name for f in dataclasses.fields(target)}:
+            allowed = [f.name for f in dataclasses.fields(target)] if dataclasses.is_dataclass(target) else []
+            raise ConfigError(f"--set {path}: unknown field {_short(last, 100)}; allowed: {allowed}")
+        current = getattr(target, last)
+    if dataclasses.is_dataclass(current) and isinstance(value, dict):
+        for key, v in value.items():
+            if not isinstance(key, str):
+                raise ConfigError(f"--set {path}: got the key {_short(key, 60)}; keys are field names of "
+                                  f"{type(current).__name__}")
+            _set_path(root, f"{path}.{key}", v)
+        return
+    if value is None:
+        if isinstance(target, list) or not _optional(_field_types(type(target))[last]):
+            raise ConfigError(f"--set {path}: got null; this field must have a value (null only unsets optional "
+                              "fields such as orbit)")
+        setattr(target, last, None)
+        return
+    _refuse_section(current, value, path)
+    if isinstance(target, list):
+        target[idx] = value
+    else:
+        setattr(target, last, _coerce(value, current, path))
+
+
+def _optional(typ) -> bool:
+    return typing.get_origin(typ) is Union and type(None) in typing.get_args(typ)
 
 
 def _refuse_section(current, value, path):
@@ -297,8 +529,8 @@ def _refuse_section(current, value, path):
     a scalar or a list from ``--set``: set its fields."""
     if dataclasses.is_dataclass(current) and not isinstance(value, dict):
         fields = [f.name for f in dataclasses.fields(current)]
-        raise ConfigError(f"--set {path}: got {value!r}; {path} is a section ({type(current).__name__}): set one of "
-                          f"its fields, e.g. --set {path}.{fields[-1]}=...; fields: {fields}")
+        raise ConfigError(f"--set {path}: got {_short(value)}; {path} is a section ({type(current).__name__}): set "
+                          f"one of its fields, e.g. --set {path}.{fields[-1]}=...; fields: {fields}")
 
 
 def _child(obj, key, path):
@@ -310,7 +542,7 @@ def _child(obj, key, path):
             raise ConfigError(f"--set {path}: field is not set (None) in this scenario")
         return child
     allowed = [f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj) else []
-    raise ConfigError(f"--set {path}: unknown field {key!r}; allowed: {allowed}")
+    raise ConfigError(f"--set {path}: unknown field {_short(key, 100)}; allowed: {allowed}")
 
 
 def _list_index(lst, key, path):
@@ -323,13 +555,13 @@ def _list_index(lst, key, path):
         if getattr(item, "name", None) == key:
             return i
     names = [getattr(x, "name", None) for x in lst]
-    raise ConfigError(f"--set {path}: no element named {key!r}; names: {names}")
+    raise ConfigError(f"--set {path}: no element named {_short(key, 100)}; names: {names}")
 
 
 def _coerce(value, current, path):
     if isinstance(current, bool):
         if not isinstance(value, bool):
-            raise ConfigError(f"--set {path}: got {value!r}; expected true/false")
+            raise ConfigError(f"--set {path}: got {_short(value)}; expected true/false")
         return value
     if isinstance(current, float) or (current is None and isinstance(value, (int, float))):
         if isinstance(value, str):  # YAML 1.1 reads "1e-10" (no dot) as a string
@@ -338,20 +570,24 @@ def _coerce(value, current, path):
             except ValueError:
                 pass
         if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise ConfigError(f"--set {path}: got {value!r}; expected a number")
+            raise ConfigError(f"--set {path}: got {_short(value)}; expected a number")
         return float(value)
     if isinstance(current, int):
         if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"--set {path}: got {value!r}; expected an integer")
+            raise ConfigError(f"--set {path}: got {_short(value)}; expected an integer")
         return value
     if isinstance(current, np.ndarray):
         try:
             arr = np.array(value, dtype=float)
         except (TypeError, ValueError):
-            raise ConfigError(f"--set {path}: got {value!r}; expected a numeric matrix") from None
-        return arr.reshape((-1,) + current.shape[1:]) if current.ndim == 2 and arr.size else arr
+            raise ConfigError(f"--set {path}: got {_short(value)}; expected a numeric matrix") from None
+        if current.ndim == 2 and arr.size:
+            if arr.size % current.shape[1]:
+                raise ConfigError(f"--set {path}: got {_short(value)}; expected rows of {current.shape[1]} numbers")
+            return arr.reshape((-1,) + current.shape[1:])
+        return arr
     if isinstance(current, list) and not isinstance(value, list):
-        raise ConfigError(f"--set {path}: got {value!r}; expected a list")
+        raise ConfigError(f"--set {path}: got {_short(value)}; expected a list")
     if isinstance(current, list):
         return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in value]
     return value
@@ -416,6 +652,11 @@ class ValidationContext:
 
 def validate(s: Scenario) -> None:
     """Check every value of a scenario; raise :class:`ConfigError` on the first bad one."""
+    if not isinstance(s.name, str) or not s.name.strip() or len(s.name) > 200 \
+            or any(ord(c) < 32 for c in s.name):
+        fail("name", s.name, "must be a non-empty text of at most 200 characters without control characters")
+    if not isinstance(s.description, str):
+        fail("description", s.description, "must be a text string")
     check_positive("duration_s", s.duration_s)
     validation.check_seed("seed", s.seed, ConfigError)
     check_positive("simulation.max_step_size_s", s.simulation.max_step_size_s)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import os
 
-from drake_att.scenarios.config import Scenario, load_scenario
+from drake_att.scenarios.config import ConfigError, Scenario, load_scenario
+from drake_att.validation import describe
 
 SCENARIO_DIR = os.path.dirname(os.path.abspath(__file__))
 DEFAULT_SCENARIO = "cubesat_dual_star_tracker"
@@ -28,7 +29,7 @@ def scenario_path(name_or_path: str | None) -> str:
     shipped = available_scenarios()
     if name_or_path in shipped:
         return shipped[name_or_path]
-    raise ValueError(f"scenario: got {name_or_path!r}; not a file and not one of {sorted(shipped)}")
+    raise ConfigError(f"scenario: got {describe(name_or_path)}; not a file and not one of {sorted(shipped)}")
 
 
 def load(name_or_path: str | None = None) -> Scenario:

@@ -213,17 +213,80 @@ def ensure_builtin_plugins() -> None:
         importlib.import_module(package)
 
 
-def load_plugins(module_names) -> None:
-    """Import the built-in plug-ins and ``module_names`` (a scenario's ``plugins``)."""
+def load_plugins(module_names, *, new_modules: bool = True) -> None:
+    """Import the built-in plug-ins and ``module_names`` (a scenario's ``plugins``).
+
+    Importing a module runs its code, so a plug-in is imported only from a place the user
+    chose (:func:`plugin_origin_problem`: the current folder, a ``PYTHONPATH`` folder or the
+    installed packages), and with ``new_modules=False`` (a configuration the user did not
+    write: a result folder read by ``score`` or ``--resume``) only if it is imported already.
+    """
+    import sys
+
     ensure_builtin_plugins()
     for i, name in enumerate(module_names or ()):
-        if not isinstance(name, str) or not name.strip():
-            raise PluginError(f"plugins[{i}]: got {name!r}; expected a module name such as 'my_package.my_filter'")
+        if not isinstance(name, str) or not name.strip() or len(name) > 200 \
+                or not all(part.isidentifier() for part in name.split(".")):
+            raise PluginError(f"plugins[{i}]: got {name!r:.200}; expected a module name such as 'my_package.my_filter'")
+        if name in sys.modules:
+            continue
+        if not new_modules:
+            raise PluginError(f"plugins[{i}]: {name!r} is not imported; a configuration from a result folder names "
+                              "code that importing would run - pass --allow-plugins if you trust that folder and "
+                              "the module")
+        problem = plugin_origin_problem(name)
+        if problem:
+            raise PluginError(f"plugins[{i}]: {name!r}: {problem}")
         try:
             importlib.import_module(name)
         except Exception as e:  # report any import failure as a config error naming the module
-            raise PluginError(f"plugins[{i}]: cannot import {name!r}: {type(e).__name__}: {e} "
+            raise PluginError(f"plugins[{i}]: cannot import {name!r}: {type(e).__name__}: {str(e)[:300]} "
                               "(is its folder on PYTHONPATH?)") from e
+
+
+def _trusted_roots() -> list[str]:
+    """Folders plug-ins may come from: the current folder, ``PYTHONPATH``'s folders and the
+    installed packages (the interpreter's prefixes and site folders)."""
+    import os
+    import site
+    import sys
+    import sysconfig
+
+    roots = [os.getcwd()]
+    roots += [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    roots += [sys.prefix, sys.base_prefix, sys.exec_prefix]
+    roots += [sysconfig.get_paths().get(k) for k in ("purelib", "platlib", "stdlib")]
+    try:
+        roots += site.getsitepackages() + [site.getusersitepackages()]
+    except AttributeError:  # a virtualenv's old site module
+        pass
+    return [os.path.realpath(r) for r in roots if r]
+
+
+def plugin_origin_problem(name: str) -> str | None:
+    """Why module ``name`` may not be imported as a plug-in (None: it may): it must be found
+    (without running it) in :func:`_trusted_roots`, never only through another folder that
+    happens to be on ``sys.path``."""
+    import importlib.util
+    import os
+
+    try:
+        spec = importlib.util.find_spec(name.split(".")[0])
+    except (ImportError, ValueError) as e:
+        return f"cannot be found ({e})"
+    if spec is None:
+        return "no such module (is its folder the current folder or on PYTHONPATH?)"
+    places = [spec.origin] if spec.origin and spec.origin not in ("built-in", "frozen") else []
+    places += list(spec.submodule_search_locations or [])
+    if not places:
+        return None  # a built-in or frozen module
+    roots = _trusted_roots()
+    for place in places:
+        real = os.path.realpath(place)
+        if not any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots):
+            return (f"found in {os.path.dirname(real)}, which is neither the current folder, a PYTHONPATH folder "
+                    "nor the installed packages; plug-ins are imported only from places you chose")
+    return None
 
 
 def plugins(kind: str) -> dict[str, Plugin]:
