@@ -99,7 +99,8 @@ def run_manifest_files(folder: str) -> list[str] | None:
 
 def folder_kind(folder: str) -> str | None:
     """``"empty"``, ``"run"`` (a manifest of ours listing every file in it), ``"campaign"``
-    (this library's ``campaign.json``) or None (somebody else's folder)."""
+    (this library's ``campaign.json``), ``"comparison"`` (campaign folders and
+    ``comparison.*`` files) or None (somebody else's folder)."""
     try:
         entries = os.listdir(folder)
     except OSError:
@@ -111,7 +112,18 @@ def folder_kind(folder: str) -> str | None:
     listed = run_manifest_files(folder)
     if listed is not None and set(entries) <= {n.split("/")[0] for n in listed}:
         return "run"
+    if all(_comparison_entry(folder, e) for e in entries):
+        return "comparison"
     return None
+
+
+def _comparison_entry(folder: str, name: str) -> bool:
+    """``name`` belongs in a comparison folder: its own files, a campaign folder per scenario,
+    or a staging folder or lock of ours."""
+    path = os.path.join(folder, name)
+    if name.startswith("comparison.") or name.endswith(LOCK_SUFFIX) or _staging_owner(name):
+        return not os.path.islink(path)
+    return os.path.isdir(path) and not os.path.islink(path) and folder_kind(path) in ("campaign", "empty")
 
 
 def _is_campaign_file(path: str) -> bool:
@@ -123,11 +135,14 @@ def _is_campaign_file(path: str) -> bool:
     return isinstance(data, dict) and "config_sha256" in data and "record" in data
 
 
-def _listing(folder: str, limit: int = 3) -> str:
+def _foreign(folder: str, limit: int = 3) -> str:
+    """A few names in ``folder`` that are not ours (those a manifest does not list first)."""
     try:
         names = sorted(os.listdir(folder))
     except OSError as e:
         return f"unreadable ({e.strerror})"
+    listed = {n.split("/")[0] for n in run_manifest_files(folder) or ()}
+    names = sorted(names, key=lambda n: (n in listed, n))
     more = f", ... ({len(names)} entries)" if len(names) > limit else ""
     return ", ".join(names[:limit]) + more
 
@@ -171,7 +186,7 @@ def check_target(path: str, *, option: str = "--out", kinds=("empty", "run"), ne
         kind = folder_kind(norm)
         if kind not in kinds:
             what = {"run": "a run's result folder", "campaign": "a Monte Carlo campaign folder"}.get(kind, "a folder")
-            raise OutputError(f"{option} {path}: is {what} with files drake-att did not write ({_listing(norm)}); "
+            raise OutputError(f"{option} {path}: is {what} with files drake-att did not write ({_foreign(norm)}); "
                               "drake-att replaces only empty folders and its own results - name a new folder")
     parent = os.path.dirname(os.path.abspath(norm))
     existing = _first_existing(parent)

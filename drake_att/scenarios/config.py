@@ -144,6 +144,7 @@ _TAG_KEY = "\x00tag"  # where the pre-parse keeps a mapping's YAML tag (not a va
 # otherwise expand to gigabytes in the typed loader and in error messages).
 MAX_SCENARIO_BYTES = 2**20
 MAX_YAML_NODES = 200_000
+MAX_YAML_DEPTH = 64
 
 
 def _check_node_graph(root, where: str) -> None:
@@ -194,6 +195,18 @@ def load_yaml_text(text: str, where: str, loader=None):
     base = loader or yaml.SafeLoader
 
     class _Bounded(base):
+        depth = 0
+
+        def compose_node(self, parent, index):
+            self.depth += 1
+            try:
+                if self.depth > MAX_YAML_DEPTH:
+                    raise ConfigError(f"{where}: its YAML is nested more than {MAX_YAML_DEPTH} levels deep; a "
+                                      "scenario is far flatter - refused")
+                return super().compose_node(parent, index)
+            finally:
+                self.depth -= 1
+
         def get_single_data(self):
             node = self.get_single_node()
             if node is None:
@@ -207,7 +220,7 @@ def load_yaml_text(text: str, where: str, loader=None):
         raise
     except yaml.YAMLError as e:
         raise ConfigError(f"{where}: invalid YAML: {_one_line(e)}") from None
-    except RecursionError:
+    except RecursionError:  # a bound above not reached first (a very low recursion limit)
         raise ConfigError(f"{where}: its YAML is nested too deeply to be a scenario") from None
 
 
