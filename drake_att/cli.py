@@ -93,7 +93,8 @@ def _cmd_run(args) -> int:
     # The default folder names the scenario and seed, and the overrides too (a short hash of
     # them): a run with --set never lands in (and replaces) the unmodified run's folder.
     tag = _override_tag(args.set)
-    out_dir = args.out or os.path.join("out", outputs.safe_component(f"{scenario.name}_seed{scenario.seed}{tag}"))
+    out_dir = args.out if args.out is not None else \
+        os.path.join("out", outputs.safe_component(f"{scenario.name}_seed{scenario.seed}{tag}"))
     _preflight(scenario)
     out_dir = outputs.check_target(out_dir, option="--out", need_bytes=_result_bytes(scenario))
     with outputs.writer_lock(out_dir):
@@ -145,7 +146,9 @@ def _cmd_score(args) -> int:
     for path in (npz_path, config_path):
         if not os.path.isfile(path):
             return fail(f"{path}: missing (a result folder of `drake-att run` holds log.npz and config.yaml)")
-    out = args.out or os.path.join(out_dir, "metrics.json")
+    out = args.out if args.out is not None else os.path.join(out_dir, "metrics.json")
+    if not out.strip():
+        return fail(f"--out: got {out!r}; name a file for the metrics")
     previous = _previous_metrics(out)
     try:
         scenario = load_scenario(filename=config_path, new_plugins=args.allow_plugins)
@@ -205,7 +208,14 @@ def _override_tag(items) -> str:
 
 
 def _estimator_list(text):
-    return None if text is None else [n.strip() for n in text.split(",") if n.strip()]
+    """``--estimators A,B``: the names, each once (None: all)."""
+    if text is None:
+        return None
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names or len(set(names)) != len(names):
+        raise UserInputError(f"--estimators: got {text[:200]!r}; a comma-separated list of estimator names, each "
+                             "listed once")
+    return names
 
 
 def _campaign_failed(command: str, e) -> int:
@@ -240,7 +250,8 @@ def _cmd_montecarlo(args) -> int:
     except UserInputError as e:
         return fail(e)
     tag = _override_tag(list(args.set or []) + ([f"--estimators={args.estimators}"] if args.estimators else []))
-    out = args.out or os.path.join("out", outputs.safe_component(f"{scenario.name}_montecarlo{tag}"))
+    out = args.out if args.out is not None else \
+        os.path.join("out", outputs.safe_component(f"{scenario.name}_montecarlo{tag}"))
     _preflight(scenario)
     out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
     if scheduler == "serial" or (scheduler is None and args.workers == 1):
@@ -264,7 +275,7 @@ def _cmd_montecarlo(args) -> int:
         return 130
     print(campaign_report.format_campaign_table(result))
     for seed, message in result.failed.items():
-        print(f"drake-att: warning: seed {seed} failed: {message}", file=sys.stderr)
+        _say(f"drake-att: warning: seed {seed} failed: {message}")
     print(f"\n{result.ran} runs simulated, {result.reused} found complete in {out}/runs; {result.wall_time_s:.1f} s wall. "
           f"Wrote {out}/report.html, summary.json and {len([f for f in result.files if f.endswith('.png')])} figures")
     if args.screenshot:
@@ -319,7 +330,7 @@ def _cmd_compare(args) -> int:
     except UserInputError as e:
         return fail(e)
     tag = _override_tag(list(args.scenarios) + list(args.set or []) + [args.estimators or ""])
-    out = args.out or os.path.join("out", f"compare{tag}")
+    out = args.out if args.out is not None else os.path.join("out", f"compare{tag}")
     for scenario in plan.scenarios:
         _preflight(scenario)
     out = outputs.check_target(out, option="--out", kinds=("empty", "comparison"))
@@ -442,13 +453,9 @@ def main(argv=None) -> int:
         print("\ndrake-att: terminated (SIGTERM); no result folder was written or changed", file=sys.stderr)
         return 143
     except KeyboardInterrupt:
-        if debug:
-            raise
         print("\ndrake-att: interrupted; no result folder was written or changed", file=sys.stderr)
         return 130
-    except UserInputError as e:
-        if debug:
-            raise
+    except UserInputError as e:  # the user's input, not a bug: one line also under --debug
         text = str(e)
         _say(text if text.startswith("drake-att") else f"drake-att: {text}")
         return 2

@@ -44,6 +44,9 @@ STAGING_MARKS = (".writing-", ".replaced-")
 # Kept free on the target's file system beyond the estimated result size.
 FREE_SPACE_MARGIN_BYTES = 16 * 2**20
 MAX_COMPONENT = 120
+# A file name's limit on Linux file systems (ext4, xfs, tmpfs): the staging folder
+# ``.<name>.writing-XXXXXXXX`` beside a result folder must fit in it too.
+NAME_MAX = 255
 
 
 class OutputError(UserInputError):
@@ -188,6 +191,12 @@ def check_target(path: str, *, option: str = "--out", kinds=("empty", "run"), ne
             what = {"run": "a run's result folder", "campaign": "a Monte Carlo campaign folder"}.get(kind, "a folder")
             raise OutputError(f"{option} {path}: is {what} with files drake-att did not write ({_foreign(norm)}); "
                               "drake-att replaces only empty folders and its own results - name a new folder")
+    longest = max(len(os.path.basename(real).encode("utf-8", "surrogateescape")) + len(".writing-XXXXXXXX") + 1,
+                  max(len(c.encode("utf-8", "surrogateescape")) for c in norm.split(os.sep) if c) if norm.strip(os.sep)
+                  else 0)
+    if longest > NAME_MAX:
+        raise OutputError(f"{option} {path[:100]}...: a folder name is too long for the file system (at most "
+                          f"{NAME_MAX - len('.writing-XXXXXXXX') - 1} bytes for the result folder itself)")
     parent = os.path.dirname(os.path.abspath(norm))
     existing = _first_existing(parent)
     if not os.path.isdir(existing):

@@ -290,7 +290,7 @@ def test_truth_going_non_finite_fails_loudly_and_writes_nothing(tmp_path):
 
     out = tmp_path / "nan"
     r = subprocess.run([sys.executable, "-m", "drake_att.cli", "run", "cubesat_single_star_tracker", "--set",
-                        "plant.initial_rate_deg_per_s=[1e9,0,0]", "--set", "duration_s=20", "--set",
+                        "plant.initial_rate_deg_per_s=[5000,1000,0]", "--set", "duration_s=20", "--set",
                         "scoring.score_from_s=5", "--quiet", "--no-figures", "--out", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 2

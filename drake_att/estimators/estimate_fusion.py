@@ -40,6 +40,7 @@ def fusion_second_quantity(c: EstimateFusionConfig, checks):
 def validate_estimate_fusion(path: str, c: EstimateFusionConfig, checks) -> None:
     if len(c.sources) < 2:
         cfg.fail(f"{path}.sources", c.sources, "needs at least 2 estimators")
+    cfg.check_listed_once(path, "sources", c.sources, "estimator")
     for src in c.sources:
         if src not in checks.estimators:
             cfg.fail(f"{path}.sources", src, f"must name an estimator listed before it; have {sorted(checks.estimators)}")

@@ -54,6 +54,7 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
     common.check_gyro_period(path, c.period_s, gyro)
     if not c.star_trackers:
         cfg.fail(f"{path}.star_trackers", c.star_trackers, "needs at least one star tracker")
+    cfg.check_listed_once(path, "star_trackers", c.star_trackers)
     trackers = sorted(n for n in checks.sensors if checks.sensor_output(n).kind in ("quaternion", "vectors"))
     for st in c.star_trackers:
         out = checks.sensor_output(st)

@@ -259,8 +259,43 @@ class RunLog:
             scenario = cfg.load_scenario(filename=os.path.join(os.path.dirname(npz_path), "config.yaml"))
         if not zipfile.is_zipfile(npz_path):
             raise ValueError("not an .npz archive (as written by numpy.savez)")
+        check_npz_arrays(npz_path)
         with np.load(npz_path, allow_pickle=False) as npz:
             return cls.from_npz(npz, scenario)
+
+
+def check_npz_arrays(npz_path: str, available_bytes: float | None = None) -> int:
+    """Check an ``.npz`` archive before reading any array, from the array headers alone: each
+    member is a numpy array whose header claims no more data than the member holds (a forged
+    header would make numpy allocate what it claims), and all of them together fit in half the
+    memory available. Returns the bytes the arrays take; ValueError naming the member
+    otherwise."""
+    import zipfile
+
+    from numpy.lib import format as npy
+
+    from drake_att.scenarios.preflight import available_memory_bytes
+
+    total = 0
+    with zipfile.ZipFile(npz_path) as z:
+        for info in z.infolist():
+            with z.open(info) as f:
+                try:
+                    version = npy.read_magic(f)
+                    reader = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+                    shape, _, dtype = reader(f, max_header_size=10000)
+                except (ValueError, EOFError, TypeError) as e:
+                    raise ValueError(f"{info.filename} is not a numpy array ({e})") from None
+            claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if claimed > info.file_size:
+                raise ValueError(f"{info.filename} claims {claimed} bytes of data but holds {info.file_size}; the "
+                                 "file is damaged or forged")
+            total += claimed
+    available = available_memory_bytes() if available_bytes is None else available_bytes
+    if available and total > 0.5 * available:
+        raise ValueError(f"its arrays take {total / 2**30:.1f} GiB, more than half of the {available / 2**30:.1f} GiB "
+                         "of memory available")
+    return total
 
 
 def with_estimators(scenario: cfg.Scenario, names, field: str = "estimators", allow_empty: bool = True) -> cfg.Scenario:

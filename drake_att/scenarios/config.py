@@ -220,6 +220,8 @@ def load_yaml_text(text: str, where: str, loader=None):
         raise
     except yaml.YAMLError as e:
         raise ConfigError(f"{where}: invalid YAML: {_one_line(e)}") from None
+    except (ValueError, TypeError, OverflowError) as e:  # a scalar PyYAML cannot convert (e.g. 5000 digits)
+        raise ConfigError(f"{where}: a value cannot be read: {_one_line(e)}") from None
     except RecursionError:  # a bound above not reached first (a very low recursion limit)
         raise ConfigError(f"{where}: its YAML is nested too deeply to be a scenario") from None
 
@@ -279,6 +281,13 @@ def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
         raise ConfigError(f"{where}: line {node.start_mark.line + 1}: YAML tag {node.tag!r} on a value; tags only "
                           "name the type of a section (e.g. !RigidBodyConfig, !MekfConfig {...}) and never run code")
 
+    def _int_or_text(loader, node):
+        try:
+            return yaml.SafeLoader.construct_yaml_int(loader, node)
+        except ValueError:  # more digits than Python converts: kept as text, refused by its field's check
+            return loader.construct_scalar(node)
+
+    _Loader.add_constructor("tag:yaml.org,2002:int", _int_or_text)
     _Loader.add_multi_constructor("!", _untagged)
     _Loader.add_multi_constructor("tag:", _untagged)
     data = load_yaml_text(text, where, _Loader)
@@ -377,9 +386,11 @@ def _check_raw(value, typ, path: str) -> None:
             fail(path, value, "must be a number")
         if isinstance(value, str):
             try:
-                float(value)
+                number = float(value)
             except ValueError:
                 fail(path, value, "must be a number")
+            if not np.isfinite(number):
+                fail(path, value, "must be a finite number")
         return
     if typ is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -602,7 +613,13 @@ def _coerce(value, current, path):
     if isinstance(current, list) and not isinstance(value, list):
         raise ConfigError(f"--set {path}: got {_short(value)}; expected a list")
     if isinstance(current, list):
+        numeric = bool(current) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in current)
+        for i, v in enumerate(value):
+            if numeric and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise ConfigError(f"--set {path}[{i}]: got {_short(v)}; expected a number")
         return [float(v) if isinstance(v, int) and not isinstance(v, bool) else v for v in value]
+    if isinstance(current, str) and not isinstance(value, str):
+        raise ConfigError(f"--set {path}: got {_short(value)}; expected a text string")
     return value
 
 
@@ -636,6 +653,13 @@ def check_vector(path: str, value, n: int) -> list:
 
 def check_weights(path: str, value, n: int) -> list:
     return validation.check_weights(path, value, n, ConfigError)
+
+
+def check_listed_once(path: str, field: str, names, what: str = "sensor") -> None:
+    """Each name of the list field ``field`` at most once (a repeated name would wire the same
+    input twice: Drake refuses a second port of that name deep in the build)."""
+    if len(set(names)) != len(names):
+        fail(f"{path}.{field}", list(names), f"each {what} may be listed once")
 
 
 @dataclass
@@ -732,6 +756,9 @@ def validate(s: Scenario) -> None:
     if s.scoring.score_from_s >= s.duration_s:
         fail("scoring.score_from_s", s.scoring.score_from_s, f"must be < duration_s ({s.duration_s})")
     check_positive("scoring.convergence_threshold_deg", s.scoring.convergence_threshold_deg)
+    from drake_att.scenarios.ranges import check_ranges
+
+    check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
 
 
 def __getattr__(name):

@@ -13,13 +13,24 @@ starts (:func:`preflight_warnings`) and after it (:func:`run_warnings`).
 * **Starved estimators** (after the run): an estimator that used no measurement at all
   published only its prediction from the initial state.
 
+And one refusal, :func:`check_memory`: a run whose estimated peak memory (particles and
+logs, :func:`memory_estimate`) exceeds the memory available raises ``ConfigError`` naming
+the field that dominates (``estimators[0] (bpf).num_particles: got 1000000000; needs ~1,000
+GB ...``) in milliseconds, before a diagram allocates it.
+
 The CLI prints these as ``drake-att: warning: ...``; :class:`ScenarioDiagram` raises them as
 Python warnings (:class:`DegenerateScenarioWarning`) for notebook and script users.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import os
+
 import numpy as np
+
+from drake_att.contract import ESTIMATE_SIZE, GYRO_MEASUREMENT_SIZE, QUATERNION_MEASUREMENT_SIZE
 
 SECONDS_PER_EVENT = 60e-6
 EXPENSIVE_WALL_S = 600.0
@@ -105,3 +116,217 @@ def run_warnings(metrics: dict) -> list[str]:
     return [f"estimator {name!r} used no measurement in the whole run ({m['measurements_skipped']} skipped): its "
             "estimate is the prediction from its initial state"
             for name, m in metrics["estimators"].items() if m.get("measurements_used", 1) == 0]
+
+
+# --------------------------------------------------------------------------------------
+# Memory
+# --------------------------------------------------------------------------------------
+# Peak memory per particle of the shipped particle filters (bytes), for a whole run: the
+# template filter and its initial set, the core state in the diagram's context, the
+# simulator's discrete-update copy and each step's numpy temporaries. Measured as the slope
+# of the process's peak RSS (``ru_maxrss``, one fresh process per point) over
+# ``ScenarioDiagram(...)`` + ``simulate()`` of a gyro + vector tracker + one filter at N = 1e5
+# and 3e5 (and 1e6 bootstrap, 6e5 EKPF to check linearity), 5 s at 1 Hz (the peak is
+# the same after 60 s: nothing accumulates per step), rounded up:
+#   bootstrap PF  numba 950,  numpy 960      gyroless PF  numba 950, numpy 1100
+#   EKPF          numba 4200, numpy 6400 (its per-particle 6x6 covariances and their temporaries)
+# tests/test_ranges.py re-measures one of them against this estimate.
+PARTICLE_BYTES = {
+    ("BootstrapPfConfig", "numba"): 1000, ("BootstrapPfConfig", "numpy"): 1000,
+    ("GyrolessPfConfig", "numba"): 1000, ("GyrolessPfConfig", "numpy"): 1100,
+    ("EkpfConfig", "numba"): 4200, ("EkpfConfig", "numpy"): 6400,
+}
+DEFAULT_PARTICLE_BYTES = 6400  # a plug-in's particle filter: the largest measured
+
+# Logged signals: every logger keeps its times and samples as float64. Drake's VectorLog
+# grows its buffer by doubling (up to 2x the samples) and simulate() copies it into numpy
+# (1x): peak ~3x the raw samples (measured 2.4x-3.0x on 20k- and 400k-sample sensor logs).
+LOG_COPIES = 3
+# Widths of the logged sensor ports (drake_att.contract, drake_att.systems.faults); a
+# plug-in's port not listed here counts DEFAULT_PORT_WIDTH numbers.
+PORT_WIDTHS = {"gyro_measurement": GYRO_MEASUREMENT_SIZE, "bias_B": 3,
+               "star_tracker_measurement": QUATERNION_MEASUREMENT_SIZE, "fault_truth": 9,  # faults.FAULT_TRUTH_SIZE
+               "stars_in_view": 1}
+DEFAULT_PORT_WIDTH = 16
+# An estimator logs its packed estimate (47: attitude, second vector, covariance, status),
+# its innovations (3 per measurement input) and its diagnostics (at most ~8 numbers).
+ESTIMATE_WIDTH, INNOVATION_WIDTH, DIAGNOSTICS_WIDTH = ESTIMATE_SIZE, 3, 8
+TRUTH_WIDTHS = (4, 3)  # q_IB and w_IB_B, at the smallest period of the scenario
+
+
+@dataclasses.dataclass
+class MemoryPart:
+    """One contribution to a run's peak memory: the field that sets it, its value, bytes."""
+
+    path: str
+    value: object
+    bytes: float
+    what: str
+
+
+@dataclasses.dataclass
+class MemoryEstimate:
+    total_bytes: float
+    parts: list
+
+    def dominant(self) -> MemoryPart | None:
+        return max(self.parts, key=lambda p: p.bytes, default=None)
+
+
+def _human_bytes(b: float) -> str:
+    if b >= 1e11:
+        return f"{b / 1e9:,.0f} GB"
+    if b >= 1e9:
+        return f"{b / 1e9:.3g} GB"
+    return f"{b / 1e6:.3g} MB"
+
+
+def available_memory_bytes() -> float | None:
+    """This machine's available memory: ``MemAvailable`` of /proc/meminfo, else
+    ``os.sysconf`` free pages; None if neither is known."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def _loggers(scenario) -> list:
+    """``[(path of the period field, period_s, numbers per sample, what)]`` of every logger
+    the builder adds (:class:`~drake_att.scenarios.builder.ScenarioDiagram`)."""
+    from drake_att.scenarios.registry import plugin_for
+
+    sensors = {s.name: s for s in scenario.sensors}
+    by_name = {e.name: e for e in scenario.estimators}
+    items = []  # (path, period, item)
+
+    def sensor_period(s):
+        try:
+            return float(plugin_for(s).output(s, sensors).period_s)
+        except Exception:  # a plug-in that cannot say: its period field, if any
+            return float(getattr(s, "period_s", math.inf))
+
+    def estimator_period(e, depth=0):
+        if isinstance(getattr(e, "period_s", None), (int, float)):
+            return float(e.period_s)
+        sources = [by_name[n] for n in getattr(e, "sources", []) if n in by_name]
+        return min((estimator_period(x, depth + 1) for x in sources if depth < 10), default=math.inf)
+
+    for i, s in enumerate(scenario.sensors):
+        items.append((f"sensors[{i}] ({s.name})", sensor_period(s), s))
+    for i, e in enumerate(scenario.estimators):
+        items.append((f"estimators[{i}] ({e.name})", estimator_period(e), e))
+
+    def period_field(path, period, item):
+        """The field that sets ``period``: the item's own period_s, else the first item with it."""
+        if getattr(item, "period_s", None) == period:
+            return f"{path}.period_s"
+        for p, q, x in items:
+            if getattr(x, "period_s", None) == period:
+                return f"{p}.period_s"
+        return "duration_s"
+
+    out = []
+    finite = [(p, q, x) for p, q, x in items if math.isfinite(q) and q > 0]
+    if finite:
+        path, period, item = min(finite, key=lambda x: x[1])
+        truth_path = period_field(path, period, item)
+    else:
+        truth_path, period = "duration_s", 1.0
+    out += [(truth_path, period, w, "the truth's attitude and rate") for w in TRUTH_WIDTHS]
+    for (path, period, item), s in zip(items, scenario.sensors):
+        logged = plugin_for(s).logged_ports
+        for port, p in (logged(s) if logged is not None else []):
+            q = period if p is None else float(p)
+            out.append((period_field(path, q, item), q, PORT_WIDTHS.get(port, DEFAULT_PORT_WIDTH), f"{s.name}/{port}"))
+    for path, period, e in items[len(scenario.sensors):]:
+        inputs = set()
+        for f in dataclasses.fields(e):
+            v = getattr(e, f.name)
+            names = [v] if isinstance(v, str) else [x for x in v if isinstance(x, str)] if isinstance(v, list) else []
+            inputs.update(n for n in names if f.name != "name" and n in sensors)
+        width = ESTIMATE_WIDTH + INNOVATION_WIDTH * len(inputs) + DIAGNOSTICS_WIDTH
+        out.append((period_field(path, period, e), period, width, f"{e.name}'s estimate"))
+    return out
+
+
+def log_bytes(scenario) -> float:
+    """The raw bytes of a run's logs (float64 times and samples of every logger, one copy)."""
+    return sum((math.floor(scenario.duration_s / q) + 1) * (w + 1) * 8.0
+               for _, q, w, _ in _loggers(scenario) if math.isfinite(q) and q > 0)
+
+
+def result_bytes(scenario) -> int:
+    """An upper bound of a run's result folder: its logs uncompressed (the packed estimates
+    are split into four signals, each with its times), plus ~1 MB of figures and tables per
+    estimator and 1 MB more."""
+    return int(log_bytes(scenario) + 8.0 * 3 * sum(
+        math.floor(scenario.duration_s / q) + 1 for _, q, _, what in _loggers(scenario)
+        if what.endswith("'s estimate") and math.isfinite(q) and q > 0) + 1e6 * (len(scenario.estimators) + 1))
+
+
+def memory_estimate(scenario) -> MemoryEstimate:
+    """The peak memory one run of a validated ``scenario`` needs beyond the process's own:
+    every particle filter's ``num_particles`` x its measured bytes per particle
+    (:data:`PARTICLE_BYTES`) and every logger's samples x (width + 1) x 8 bytes x
+    :data:`LOG_COPIES`, grouped by the period field that sets them."""
+    parts = []
+    for i, e in enumerate(scenario.estimators):
+        n = getattr(e, "num_particles", None)
+        if isinstance(n, (int, np.integer)) and not isinstance(n, bool):
+            per = PARTICLE_BYTES.get((type(e).__name__, getattr(e, "kernel", "numba")), DEFAULT_PARTICLE_BYTES)
+            parts.append(MemoryPart(f"estimators[{i}] ({e.name}).num_particles", int(n), float(n) * per,
+                                    f"~{per} bytes per particle"))
+    logs = {}
+    for path, q, w, _ in _loggers(scenario):
+        if math.isfinite(q) and q > 0:
+            samples = math.floor(scenario.duration_s / q) + 1
+            value, b, n = logs.get(path, (q, 0.0, 0))
+            logs[path] = (value, b + samples * (w + 1) * 8.0 * LOG_COPIES, n + samples)
+    for path, (value, b, samples) in logs.items():
+        parts.append(MemoryPart(path, value, b, f"logs of ~{samples:.3g} samples over duration_s = "
+                                f"{scenario.duration_s:g}"))
+    return MemoryEstimate(sum(p.bytes for p in parts), parts)
+
+
+def check_memory(scenario, available_bytes: float | None = None, processes: int = 1) -> MemoryEstimate:
+    """Refuse a run that would not fit in memory, before anything is allocated.
+
+    Args:
+        scenario: a validated scenario.
+        available_bytes: the memory the run may use (default: :func:`available_memory_bytes`,
+            this machine's MemAvailable); None and unknown: nothing is checked.
+        processes: runs at once (parallel Monte Carlo workers), each needing the estimate.
+
+    Returns:
+        The :class:`MemoryEstimate` (one run).
+
+    Raises:
+        ConfigError: naming the field that dominates the estimate, its value, the memory
+            needed and the memory available.
+    """
+    from drake_att.validation import ConfigError, fail
+
+    estimate = memory_estimate(scenario)
+    measured = available_bytes is None
+    available = available_memory_bytes() if measured else float(available_bytes)
+    need = estimate.total_bytes * max(1, int(processes))
+    if available is None or need <= available:
+        return estimate
+    part = estimate.dominant()
+    where = "this machine's" if measured else "the"
+    runs = f" for {processes} runs at once" if processes > 1 else ""
+    if part.path.endswith(".num_particles"):
+        per = part.bytes / part.value
+        others = (estimate.total_bytes - part.bytes) * max(1, int(processes))
+        fit = max(0, int((available - others) / max(1, int(processes)) / per))
+        fail(part.path, part.value, f"needs ~{_human_bytes(need)}{runs} ({part.what}), more than {where} "
+             f"{_human_bytes(available)} available; at most ~{fit:,} particles fit", ConfigError)
+    fail(part.path, part.value, f"the run needs ~{_human_bytes(need)}{runs}, mostly {part.what} at this period, more "
+         f"than {where} {_human_bytes(available)} available; use a longer period or a shorter duration_s", ConfigError)

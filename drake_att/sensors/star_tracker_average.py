@@ -33,6 +33,7 @@ class StarTrackerAverageConfig:
 def validate_star_tracker_average(path: str, c: StarTrackerAverageConfig, checks) -> None:
     if len(c.star_trackers) < 2:
         cfg.fail(f"{path}.star_trackers", c.star_trackers, "needs at least 2 star trackers")
+    cfg.check_listed_once(path, "star_trackers", c.star_trackers)
     trackers = {n: s for n, s in checks.sensors.items() if isinstance(s, StarTrackerConfig)}
     for st in c.star_trackers:
         if st not in trackers or trackers[st].mode != "quaternion":
