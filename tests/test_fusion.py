@@ -305,6 +305,20 @@ def test_estimate_fusion_three_sources_unequal_weights(model):
     assert np.isnan(st[0]) and st[1] == 22.0 and st[2] == 3.0
 
 
+def test_estimate_fusion_of_a_non_finite_source_is_non_finite_not_an_exception():
+    """A source whose estimate went NaN (a diverged filter): the fused attitude is NaN too, so
+    the run ends in the builder's clean non-finite failure instead of an exception from the
+    quaternion average in the middle of the simulation."""
+    rng = np.random.default_rng(3)
+    names = ["e1", "e2"]
+    sys_ = EstimateFusion("fusion", names, [1.0, 1.0], "bias_B_hat", "conservative")
+    ctx = sys_.CreateDefaultContext()
+    q, second, P, status = _random_sources(rng, 2)
+    q[1] = np.full(4, np.nan)
+    _fix_sources(sys_, ctx, names, q, second, P, status)
+    assert np.all(np.isnan(sys_.GetOutputPort("q_IB_hat").Eval(ctx)))
+
+
 def _lin(Phi, Q, A, steps):
     return np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]])
 

@@ -291,7 +291,12 @@ class EstimateFusion(LeafSystem):
         return self.weights if configured else np.array(w)
 
     def _q(self, context, w):
-        return _average([p.Eval(context).tolist() for p in self._q_ports], w)
+        quaternions = [p.Eval(context).tolist() for p in self._q_ports]
+        if not all(math.isfinite(x) for q in quaternions for x in q):
+            # A source went non-finite: so does the fused estimate, and the run fails naming it
+            # (the builder's finite check) instead of the average refusing NaN mid-simulation.
+            return [math.nan] * 4
+        return _average(quaternions, w)
 
     def _second(self, context, w):
         return _weighted_sum(w, [p.Eval(context).tolist() for p in self._second_ports])
