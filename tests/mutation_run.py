@@ -62,6 +62,9 @@ MODULES = {
     "screen_camera": ("drake_att/screen_camera.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
     "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",
                             ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
+    # The edges: output folders and physical ranges.
+    "outputs": ("drake_att/outputs.py", ["tests/test_outputs.py"]),
+    "ranges": ("drake_att/scenarios/ranges.py", ["tests/test_ranges.py"]),
 }
 
 
