@@ -270,13 +270,17 @@ def _cmd_montecarlo(args) -> int:
     except UserInputError as e:
         return fail(e)
     except KeyboardInterrupt:
-        print(f"\ndrake-att montecarlo: interrupted; {_saved_runs(out)} of {args.runs} runs are saved in {out}/runs; "
-              "the same command with --resume continues the campaign", file=sys.stderr)
+        saved = _saved_runs(out)
+        print("\ndrake-att montecarlo: interrupted; " + (
+            f"{saved} of {args.runs} runs are saved in {out}/runs; the same command with --resume continues the "
+            "campaign" if saved else "no run had finished, so nothing was kept"), file=sys.stderr)
         return 130
     print(campaign_report.format_campaign_table(result))
     for seed, message in result.failed.items():
         _say(f"drake-att: warning: seed {seed} failed: {message}")
-    print(f"\n{result.ran} runs simulated, {result.reused} found complete in {out}/runs; {result.wall_time_s:.1f} s wall. "
+    failed = f", {len(result.failed)} failed" if result.failed else ""
+    print(f"\n{result.ran} runs simulated, {result.reused} found complete in {out}/runs{failed}; "
+          f"{result.wall_time_s:.1f} s wall. "
           f"Wrote {out}/report.html, summary.json and {len([f for f in result.files if f.endswith('.png')])} figures")
     if args.screenshot:
         try:
@@ -294,11 +298,7 @@ def _scheduler_option(args):
 
     if args.workers is not None and not 1 <= args.workers <= 1024:
         raise CampaignError(f"--workers: got {args.workers}; must be an integer in [1, 1024]")
-    check_timeout = getattr(mc, "check_connect_timeout", None)
-    if check_timeout is not None:
-        args.connect_timeout = check_timeout(args.connect_timeout)
-    elif not 0 < args.connect_timeout <= 3600:  # also refuses nan
-        raise CampaignError(f"--connect-timeout: got {args.connect_timeout}; must be a number of seconds in (0, 3600]")
+    args.connect_timeout = mc.check_connect_timeout(args.connect_timeout)
     if args.scheduler is None:
         return None
     if args.scheduler == "serial":
@@ -362,7 +362,8 @@ def _add_campaign_options(p, what: str) -> None:
                    help="run on an existing Dask cluster (tcp://HOST:8786, started with `dask scheduler` and "
                         "`dask worker tcp://HOST:8786`), or 'serial'")
     p.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
-                   help="deadline for reaching --scheduler, its handshake and its first worker (default 10)")
+                   help="deadline in seconds (> 0, at most 3600) for reaching --scheduler: the connection, Dask's "
+                        "handshake, the first worker and its version check, plus a few seconds (default 10)")
     p.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
     p.add_argument("--out", default=None, metavar="DIR", help=f"{what} folder")
     p.add_argument("--resume", action="store_true",

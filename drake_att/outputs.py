@@ -102,7 +102,9 @@ def run_manifest_files(folder: str) -> list[str] | None:
 
 def folder_kind(folder: str) -> str | None:
     """``"empty"``, ``"run"`` (a manifest of ours listing every file in it), ``"campaign"``
-    (this library's ``campaign.json``), ``"comparison"`` (campaign folders and
+    (a ``campaign.json``, or a ``config.yaml`` with a campaign's header; a campaign is only
+    ever resumed, and :func:`~drake_att.analysis.montecarlo.run_campaign` checks that its
+    files are this library's), ``"comparison"`` (campaign folders and
     ``comparison.*`` files) or None (somebody else's folder)."""
     try:
         entries = os.listdir(folder)
@@ -110,8 +112,8 @@ def folder_kind(folder: str) -> str | None:
         return None
     if not entries:
         return "empty"
-    if CAMPAIGN_FILE in entries and _is_campaign_file(os.path.join(folder, CAMPAIGN_FILE)):
-        return "campaign"
+    if CAMPAIGN_FILE in entries or _has_campaign_config(folder):
+        return "campaign"  # never replaced, only resumed: run_campaign judges its files
     listed = run_manifest_files(folder)
     if listed is not None and set(entries) <= {n.split("/")[0] for n in listed}:
         return "run"
@@ -129,13 +131,15 @@ def _comparison_entry(folder: str, name: str) -> bool:
     return os.path.isdir(path) and not os.path.islink(path) and folder_kind(path) in ("campaign", "empty")
 
 
-def _is_campaign_file(path: str) -> bool:
+CAMPAIGN_CONFIG_HEADER = b"# Resolved configuration of this Monte Carlo campaign"
+
+
+def _has_campaign_config(folder: str) -> bool:
     try:
-        with open(path, "rb") as f:
-            data = json.loads(f.read(2**20).decode("utf-8"))
-    except (OSError, ValueError):
+        with open(os.path.join(folder, "config.yaml"), "rb") as f:
+            return f.read(len(CAMPAIGN_CONFIG_HEADER)) == CAMPAIGN_CONFIG_HEADER
+    except OSError:
         return False
-    return isinstance(data, dict) and "config_sha256" in data and "record" in data
 
 
 def _foreign(folder: str, limit: int = 3) -> str:
@@ -262,6 +266,7 @@ def writer_lock(target: str, option: str = "--out"):
         OutputError: another live process holds it (named by PID and host).
     """
     path = lock_path(target)
+    created = _missing_folders(os.path.dirname(path))
     os.makedirs(os.path.dirname(path), exist_ok=True)
     me = f"{os.getpid()} {socket.gethostname()}\n"
     for _ in range(3):
@@ -287,6 +292,22 @@ def writer_lock(target: str, option: str = "--out"):
         with contextlib.suppress(OSError):
             if _lock_holder(path) == (os.getpid(), socket.gethostname()):
                 os.remove(path)
+        for folder in created:  # parents made for the lock, left empty by a failed start
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)
+
+
+def _missing_folders(path: str) -> list[str]:
+    """The folders ``os.makedirs(path)`` would create, deepest first."""
+    missing = []
+    path = os.path.abspath(path)
+    while not os.path.lexists(path):
+        missing.append(path)
+        parent = os.path.dirname(path)
+        if parent == path:
+            break
+        path = parent
+    return missing
 
 
 def _staging_owner(name: str) -> str | None:

@@ -164,8 +164,11 @@ def _write_campaign_folder(path, overrides):
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
 
+    from drake_att.analysis.montecarlo import CONFIG_HEADER
+
     os.makedirs(path / "runs")
-    (path / "config.yaml").write_text("# x\n" + dump_scenario(apply_overrides(load(SCENARIO), overrides)))
+    (path / "config.yaml").write_text(CONFIG_HEADER + dump_scenario(apply_overrides(load(SCENARIO), overrides)))
+    (path / "runs" / "seed_1.failed.txt").write_text("went non-finite\n")  # one saved run: not an empty campaign
 
 
 BAD = {

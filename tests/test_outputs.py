@@ -59,12 +59,14 @@ def test_folder_kinds(tmp_path):
     (tmp_path / "fake" / "manifest.json").write_text('["not", "ours"]')
     (tmp_path / "camp").mkdir()
     (tmp_path / "camp" / "campaign.json").write_text('{"config_sha256": "ab", "record": "x"}')
-    (tmp_path / "camp_fake").mkdir()
-    (tmp_path / "camp_fake" / "campaign.json").write_text('{"mine": 1}')
+    (tmp_path / "camp_cfg").mkdir()
+    (tmp_path / "camp_cfg" / "config.yaml").write_text("# Resolved configuration of this Monte Carlo campaign\n")
+    (tmp_path / "user_cfg").mkdir()
+    (tmp_path / "user_cfg" / "config.yaml").write_text("# my notes\n")
     kinds = {name: outputs.folder_kind(str(tmp_path / name))
-             for name in ("empty", "run", "run_plus", "user", "fake", "camp", "camp_fake")}
+             for name in ("empty", "run", "run_plus", "user", "fake", "camp", "camp_cfg", "user_cfg")}
     assert kinds == {"empty": "empty", "run": "run", "run_plus": None, "user": None, "fake": None,
-                     "camp": "campaign", "camp_fake": None}
+                     "camp": "campaign", "camp_cfg": "campaign", "user_cfg": None}
 
 
 def test_a_comparison_folder_holds_only_campaigns_and_its_own_files(tmp_path):
@@ -173,6 +175,16 @@ def test_a_second_writer_fails_fast_naming_the_first(tmp_path):
     with outputs.writer_lock(target) as path:
         assert open(path).read().split()[0] == str(os.getpid())
     assert not os.path.exists(outputs.lock_path(target))
+
+
+def test_the_lock_removes_the_parents_it_made_when_nothing_was_written(tmp_path):
+    target = tmp_path / "deep" / "er" / "res"
+    with outputs.writer_lock(str(target)):
+        assert (tmp_path / "deep" / "er").is_dir()
+    assert os.listdir(tmp_path) == []
+    with outputs.writer_lock(str(target)):
+        target.mkdir()
+    assert os.listdir(target.parent) == ["res"]
 
 
 def test_the_lock_is_exclusive_within_one_process_too(tmp_path):

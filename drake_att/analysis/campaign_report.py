@@ -402,7 +402,7 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
     scenario = result.scenario
     campaign = {"scenario": scenario.name, "runs": len(result.seeds), "completed": len(result.records),
                 "failed": {str(s): m for s, m in result.failed.items()}, "first_seed": result.seeds[0],
-                "last_seed": result.seeds[-1], "executor": executor, "runs_simulated_by_last_call": result.ran,
+                "last_seed": result.seeds[-1], "executor": executor, "runs_simulated_by_last_call": result.simulated,
                 "runs_reused_from_disk": result.reused, "wall_time_s_of_last_call": round(result.wall_time_s, 3),
                 "duration_s": scenario.duration_s, "config": "config.yaml", "runs_folder": "runs/"}
     files = [write_text_atomic(os.path.join(out, SUMMARY_FILE), json.dumps(
@@ -438,7 +438,8 @@ def _campaign_html(result, campaign, figures, yaml_text) -> str:
              ("simulated time per run", f"{result.scenario.duration_s:g} s"),
              ("scoring window", f"t ≥ {result.scenario.scoring.score_from_s:g} s"),
              ("executed on", campaign["executor"] or "–"),
-             ("last call", (f"{result.ran} runs simulated, {result.reused} read from runs/, "
+             ("last call", (f"{result.simulated} runs simulated, {result.reused + result.failed_reused} read from "
+                            "runs/, "
                             f"{result.wall_time_s:.1f} s wall"))]
     body = [f"<h1>{html.escape(title)}</h1>",
             "<table class='facts'>" + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
