@@ -22,6 +22,7 @@ import time
 import numpy as np
 import pytest
 
+from drake_att.analysis import campaign_records, dask_connection
 from drake_att.analysis import montecarlo as mc
 from drake_att.cli import main as cli_main
 
@@ -172,7 +173,7 @@ def test_a_program_that_is_not_a_dask_scheduler_fails_within_the_timeout(hostile
 def test_the_client_start_has_a_deadline_too(hostile_servers, monkeypatch):
     """The second line of defence: without the probe, the Client's own start (connection,
     handshake) is cancelled at the deadline."""
-    monkeypatch.setattr(mc, "_probe_scheduler", lambda *args: None)
+    monkeypatch.setattr(dask_connection, "_probe_scheduler", lambda *args: None)
     text, elapsed = _connect_fails(hostile_servers["silent"])
     assert elapsed < UPPER_BOUND_S and "cannot connect within 2 s" in text, (elapsed, text)
 
@@ -367,7 +368,7 @@ def test_an_unreadable_run_file_is_reported_and_redone(base_campaign, tmp_path, 
     elif content == "pickle":
         np.savez(str(path), x=np.array([{"a": 1}], dtype=object))
     elif content == "bomb":  # a few KB that expand past the limit (lowered here: the real one is 1 GiB)
-        monkeypatch.setattr(mc, "MAX_RECORD_BYTES", 8 * 2**20)
+        monkeypatch.setattr(campaign_records, "MAX_RECORD_BYTES", 8 * 2**20)
         assert max(os.path.getsize(out / "runs" / f"seed_{s}.npz") for s in (1, 2)) < 2**20
         np.savez_compressed(str(path), x=np.zeros(2**21))
         assert os.path.getsize(path) < 2**16

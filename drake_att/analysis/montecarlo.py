@@ -27,6 +27,11 @@ runs; then ``summary.json`` (the ensemble statistics of
 :func:`run_comparison` (``drake-att compare``) runs one campaign per scenario with the
 listed estimators and writes the comparison matrix. :func:`run_seeds` is the paper
 scripts' view of the same runner (per-seed metrics and error series).
+
+Reaching Dask (the ``--scheduler`` / ``--connect-timeout`` checks, the local cluster, the
+connection with deadlines) is :mod:`drake_att.analysis.dask_connection`; what a saved run
+is and how it is written, read and checked is :mod:`drake_att.analysis.campaign_records`.
+Their public names are importable from here too.
 """
 
 from __future__ import annotations
@@ -36,7 +41,6 @@ import functools
 import hashlib
 import json
 import os
-import re
 import sys
 import threading
 import time
@@ -46,28 +50,49 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drake_att.analysis.campaign_records import (  # noqa: F401  (MAX_RECORD_BYTES, _atomic_write: re-exported)
+    MAX_RECORD_BYTES,
+    RUNS_DIR,
+    _atomic_write,
+    _failed_path,
+    _layout_problem,
+    _run_path,
+    _saved_run_files,
+    _valid_layout,
+    default_record_problem,
+    load_record,
+    record_layout,
+    save_record,
+    write_text_atomic,
+)
+from drake_att.analysis.dask_connection import (  # noqa: F401  (the public names are re-exported)
+    CONNECT_STEP_MIN_S,
+    DEFAULT_CONNECT_TIMEOUT_S,
+    MAX_CONNECT_TIMEOUT_S,
+    CampaignError,
+    _connect,
+    _error_text,
+    _one_line,
+    _shown,
+    _shut_down,
+    check_connect_timeout,
+    check_scheduler_address,
+    connect_scheduler,
+    local_cluster,
+)
 from drake_att.analysis.progress import Progress, format_duration
 from drake_att.outputs import safe_component
 from drake_att.scenarios import config as cfg
-from drake_att.validation import SEED_MAX, UserInputError, describe
+from drake_att.validation import SEED_MAX, describe
 
 SERIAL = "serial"
-RUNS_DIR = "runs"
 CONFIG_FILE = "config.yaml"
 CAMPAIGN_FILE = "campaign.json"
 SUMMARY_FILE = "summary.json"
 MANIFEST_FILE = "manifest.json"
-DEFAULT_CONNECT_TIMEOUT_S = 10.0
-MAX_CONNECT_TIMEOUT_S = 3600.0
-# Reading a campaign folder is bounded: a saved record expands to at most this many bytes
-# (a 5000-s, 1-Hz run is ~0.5 MB per estimator), the campaign's small files to the other.
-MAX_RECORD_BYTES = 2**30
+# Reading a campaign's small files (config.yaml, campaign.json, a failed run's message) is
+# bounded too (saved records: MAX_RECORD_BYTES).
 MAX_SIDE_FILE_BYTES = 2**20
-
-
-class CampaignError(UserInputError):
-    """Bad campaign input or a folder/cluster that cannot be used; the message names the
-    option (``--runs``, ``--out``, ``--scheduler``, ...) and the value."""
 
 
 @dataclass(frozen=True)
@@ -96,6 +121,9 @@ def default_record(run) -> dict:
     from drake_att.analysis import ensemble
 
     return ensemble.per_run_record(run)
+
+
+default_record.optional_key_suffixes = ("__bound_sigma", "__bound_window_var")
 
 
 def record_name(record: Callable) -> str:
@@ -162,307 +190,9 @@ def _run_jobs_locked(yaml_text: str, jobs, record: Callable) -> list:
     return out
 
 
-def _worker_versions() -> dict:
-    """What a worker runs (checked against the client's before a cluster campaign)."""
-    import pydrake
-
-    import drake_att
-
-    return {"drake_att": drake_att.__version__, "drake": getattr(pydrake, "__version__", "?"),
-            "numpy": np.__version__, "python": sys.version.split()[0]}
-
-
 # ----------------------------------------------------------------------------------------
 # The one runner
 # ----------------------------------------------------------------------------------------
-def _one_line(text, limit: int = 300) -> str:
-    """``text`` on one line (whitespace runs folded), at most ``limit`` characters: foreign
-    text (an exception's message, a line of a file) inside a one-line message."""
-    line = " ".join(str(text).split())
-    return line if len(line) <= limit else line[:limit] + "..."
-
-
-def _shown(path) -> str:
-    """A path or address as a message shows it: as is when printable, else its repr (a name
-    with a newline must not break the one-line message)."""
-    text = str(path)
-    return text if text.isprintable() and len(text) <= 300 else repr(text[:300])
-
-
-def _error_text(e: BaseException) -> str:
-    return _one_line(f"{type(e).__name__}: {e}" if str(e) else type(e).__name__, 200)
-
-
-def check_connect_timeout(value) -> float:
-    """``--connect-timeout`` in seconds: a finite number > 0, at most
-    :data:`MAX_CONNECT_TIMEOUT_S` (CampaignError naming the option otherwise)."""
-    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
-    seconds = float(value) if number else float("nan")
-    if not (np.isfinite(seconds) and 0.0 < seconds <= MAX_CONNECT_TIMEOUT_S):
-        raise CampaignError(f"--connect-timeout: got {describe(value)}; must be a finite number of seconds > 0 and at "
-                            f"most {MAX_CONNECT_TIMEOUT_S:g}")
-    return seconds
-
-
-_SCHEDULER_ALLOWED = ("expected a Dask scheduler address tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786, what "
-                      "`dask scheduler` prints), or 'serial'")
-_HOST_NAME = re.compile(r"[A-Za-z0-9_](?:[A-Za-z0-9_.-]{0,252})|\[[0-9A-Fa-f:.]{2,45}\]")
-
-
-def check_scheduler_address(address: str) -> str:
-    """A Dask scheduler address ``[tcp://]HOST:PORT``, returned as ``tcp://HOST:PORT``
-    (CampaignError naming ``--scheduler`` otherwise).
-
-    Only ``tcp://``: Dask's other schemes are refused with the value and what is allowed
-    (``tls://`` needs a CA, a certificate and a key in Dask's configuration, which drake-att
-    has no options for and does not test; ``ws://``, ``ucx://``, ``inproc://`` are not for a
-    campaign's cluster; ``http://`` is the dashboard, not the scheduler)."""
-    if not isinstance(address, str):
-        raise CampaignError(f"--scheduler: got {describe(address)}; {_SCHEDULER_ALLOWED}")
-    text = address.strip()
-    scheme, sep, rest = text.partition("://")
-    if not sep:
-        scheme, rest = "tcp", text
-    if scheme.lower() != "tcp":
-        hint = (" (tls:// needs certificates drake-att has no options for: reach a remote scheduler through an SSH "
-                "tunnel to tcp://localhost:8786)" if scheme.lower() == "tls" else
-                " (http:// is the scheduler's dashboard, not the scheduler)" if scheme.lower() in ("http", "https")
-                else "")
-        raise CampaignError(f"--scheduler: got {describe(address)}; the scheme {_shown(scheme)}:// is not supported: "
-                            f"{_SCHEDULER_ALLOWED}{hint}")
-    host, _, port = rest.rpartition(":")
-    if not _HOST_NAME.fullmatch(host) or not re.fullmatch(r"[0-9]{1,5}", port) or not 0 < int(port) < 65536:
-        raise CampaignError(f"--scheduler: got {describe(address)}; {_SCHEDULER_ALLOWED}")
-    return f"tcp://{host}:{int(port)}"
-
-
-def local_cluster(workers: int):
-    """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes (pydrake
-    systems are not thread-safe), its dashboard on a free port. Its workers ignore SIGINT: a
-    terminal's Ctrl-C reaches the whole process group, and this process (the client) stops
-    the campaign and closes the cluster; the workers would only print tracebacks."""
-    import logging
-    import signal
-
-    from distributed import LocalCluster
-
-    main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None  # inherited by the spawned workers
-    try:
-        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                            silence_logs=logging.CRITICAL)
-    finally:
-        if main:
-            signal.signal(signal.SIGINT, previous)
-
-
-# Connecting to a scheduler: every wait has a deadline. distributed's own connect() bounds
-# the TCP connection but not Dask's handshake after it: a program that accepts the
-# connection and never answers like a scheduler (an HTTP server, a port forwarder to
-# nothing) holds a plain ``Client(address, timeout=...)`` forever. So the address is first
-# probed on an event loop of its own, in a daemon thread the caller stops waiting for at
-# the deadline; then the Client's start, the wait for a worker and the version check each
-# get what is left of the same deadline (at least CONNECT_STEP_MIN_S).
-CONNECT_STEP_MIN_S = 1.0
-
-
-def _host_port(address: str) -> tuple[str, int]:
-    host, _, port = address.split("://", 1)[1].rpartition(":")
-    return host.strip("[]"), int(port)
-
-
-async def _dask_identity(address: str, timeout_s: float):
-    """Dask's handshake with ``address`` and the reply of its ``identity`` handler."""
-    from distributed.comm import connect
-
-    comm = await connect(address, timeout=timeout_s)
-    try:
-        await comm.write({"op": "identity", "reply": True})
-        return await comm.read()
-    finally:
-        comm.abort()
-
-
-def _probe_scheduler(address: str, timeout_s: float, shown: str) -> None:
-    """Within ``timeout_s`` (plus a fraction of a second): ``address`` (``tcp://HOST:PORT``)
-    accepts a TCP connection, speaks Dask's protocol and its ``identity`` says it is a Dask
-    *scheduler*; CampaignError naming ``--scheduler`` and the address otherwise. Nothing is
-    left waiting: the probe's event loop, in a daemon thread, cancels itself at the deadline."""
-    import asyncio
-    import socket
-
-    box = {"stage": "tcp"}
-    start = time.monotonic()
-
-    def left() -> float:
-        return max(0.05, timeout_s - (time.monotonic() - start))
-
-    def probe() -> None:
-        try:
-            host, port = _host_port(address)
-            with socket.create_connection((host, port), timeout=left()) as sock:
-                peer = sock.getpeername()[0]
-            box["stage"] = "dask"
-            peer_address = f"tcp://[{peer}]:{port}" if ":" in peer else f"tcp://{peer}:{port}"
-            box["reply"] = asyncio.run(asyncio.wait_for(_dask_identity(peer_address, left()), left()))
-        except BaseException as e:  # noqa: BLE001 - reported by the caller, with the stage it happened in
-            box["error"] = e
-
-    thread = threading.Thread(target=probe, name="drake-att-scheduler-probe", daemon=True)
-    thread.start()
-    thread.join(timeout_s + 0.5)
-    where = f"--scheduler {shown}"
-    advice = "is `dask scheduler` running there and reachable?"
-    stage, error = box["stage"], box.get("error")
-    if thread.is_alive():
-        what = ("no TCP connection (the host name did not resolve, or no answer)" if stage == "tcp" else
-                "something accepted the connection but no Dask scheduler answered")
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s ({what}); {advice}")
-    if error is None:
-        reply = box.get("reply")
-        kind = reply.get("type") if isinstance(reply, dict) else None
-        if kind == "Scheduler":
-            return
-        if isinstance(kind, str) and kind:
-            raise CampaignError(f"{where}: is a Dask {_one_line(kind, 40)}, not a scheduler; give the address "
-                                "`dask scheduler` prints")
-        raise CampaignError(f"{where}: answers, but not as a Dask scheduler; give the address `dask scheduler` prints")
-    if stage == "tcp" and isinstance(error, socket.gaierror):
-        raise CampaignError(f"{where}: cannot connect: unknown host ({_error_text(error)}); {advice}")
-    if stage == "tcp" and isinstance(error, ConnectionRefusedError):
-        raise CampaignError(f"{where}: cannot connect: nothing listens there (connection refused); {advice}")
-    if stage == "tcp" and isinstance(error, (TimeoutError, socket.timeout)):
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s (no answer: host down, wrong address "
-                            f"or a firewall?); {advice}")
-    if stage == "tcp":
-        raise CampaignError(f"{where}: cannot connect ({_error_text(error)}); {advice}")
-    if isinstance(error, (TimeoutError, asyncio.TimeoutError)):
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s: something accepts connections there "
-                            "but no Dask scheduler answered (another program on that port?); give the address "
-                            "`dask scheduler` prints")
-    raise CampaignError(f"{where}: cannot connect: something accepts connections there but does not speak Dask's "
-                        f"protocol ({_error_text(error)}); give the address `dask scheduler` prints")
-
-
-@functools.cache
-def _deadline_client_class():
-    """``distributed.Client`` whose start (connection, handshake, registration) is cancelled
-    at its ``timeout`` (``Client.start`` passes ``callback_timeout`` to
-    ``distributed.utils.sync``); a start that timed out closes the half-made client."""
-    from distributed import Client
-
-    class DeadlineClient(Client):
-        def start(self, **kwargs):
-            timeout = kwargs.get("timeout")
-            if isinstance(timeout, (int, float)):
-                kwargs.setdefault("callback_timeout", timeout)
-            try:
-                return super().start(**kwargs)
-            except BaseException:
-                _close_quietly(self)
-                raise
-
-    return DeadlineClient
-
-
-def _close_quietly(client, timeout_s: float = 5.0) -> None:
-    import logging
-
-    quiet = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio")]
-    levels = [q.level for q in quiet]
-    for q in quiet:
-        q.setLevel(logging.CRITICAL)
-    try:
-        client.close(timeout=timeout_s)
-    except Exception:  # noqa: BLE001, S110 - closing after a failure: the failure is what is reported
-        pass
-    finally:
-        for q, level in zip(quiet, levels):
-            q.setLevel(level)
-
-
-def connect_scheduler(address: str, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S):
-    """A ``distributed.Client`` of the Dask scheduler at ``address`` with at least one worker
-    that runs this drake_att, within ``connect_timeout_s`` plus at most ~5 s: the TCP
-    connection, Dask's handshake, the first worker and the version check. Every failure is a
-    one-line CampaignError naming ``--scheduler`` and the address (a port where nothing
-    listens fails at once; a program there that is not a Dask scheduler within the timeout).
-    The caller closes the client."""
-    timeout_s = check_connect_timeout(connect_timeout_s)
-    shown = _shown(address)
-    address = check_scheduler_address(address)
-    deadline = time.monotonic() + timeout_s
-    _probe_scheduler(address, timeout_s, shown)
-
-    def left() -> float:
-        return max(CONNECT_STEP_MIN_S, deadline - time.monotonic())
-
-    where = f"--scheduler {shown}"
-    try:
-        client = _deadline_client_class()(address, timeout=left(), set_as_default=False)
-    except TimeoutError:
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s (no answer from the scheduler); is "
-                            "`dask scheduler` running there and reachable?") from None
-    except OSError as e:
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s ({_error_text(e)}); is `dask scheduler` "
-                            "running there and reachable?") from None
-    except Exception as e:  # noqa: BLE001 - e.g. the scheduler refused this client (versions): reported, one line
-        raise CampaignError(f"{where}: the scheduler refused the connection ({_error_text(e)})") from None
-    # What follows talks to a scheduler that answered; a watchdog still closes the client
-    # (which ends any wait on it) if it stops answering.
-    fired = threading.Event()
-
-    def stop() -> None:
-        fired.set()
-        _close_quietly(client, 2.0)
-
-    watchdog = threading.Timer(left() + CONNECT_STEP_MIN_S, stop)
-    watchdog.daemon = True
-    watchdog.start()
-    try:
-        try:
-            client.wait_for_workers(1, timeout=left())
-        except Exception:  # noqa: BLE001 - TimeoutError, or the watchdog closed the client
-            raise CampaignError(f"{where}: no workers connected within {timeout_s:g} s; start some with "
-                                f"`dask worker {address}`") from None
-        mine = _worker_versions()
-        try:
-            theirs = client.run(_worker_versions)
-        except Exception as e:  # noqa: BLE001 - the worker's own error, reported with the address
-            if fired.is_set():
-                raise CampaignError(f"{where}: the workers did not answer the version check within {timeout_s:g} s"
-                                    ) from None
-            raise CampaignError(f"{where}: a worker cannot run drake_att ({_error_text(e)}); install the same "
-                                "drake_att on every worker machine") from None
-        if fired.is_set():
-            raise CampaignError(f"{where}: the scheduler stopped answering within {timeout_s:g} s")
-    except BaseException:
-        watchdog.cancel()
-        _close_quietly(client, 2.0)
-        raise
-    watchdog.cancel()
-    if fired.is_set():
-        raise CampaignError(f"{where}: the scheduler stopped answering within {timeout_s:g} s")
-    for worker, versions in theirs.items():
-        if versions != mine:
-            warnings.warn(f"worker {worker} runs {versions}, this process {mine}: results may differ from a "
-                          "local run of the same seeds", stacklevel=3)
-    return client
-
-
-def _connect(workers, scheduler, connect_timeout_s):
-    """``(client, cluster, owned)`` for a Dask run (``owned``: this call opened the client,
-    and the cluster when not None, so its caller closes them)."""
-    from distributed import Client
-
-    if scheduler is None:
-        cluster = local_cluster(workers)
-        return Client(cluster), cluster, True
-    if isinstance(scheduler, Client):
-        return scheduler, None, False
-    return connect_scheduler(scheduler, connect_timeout_s), None, True
-
-
 def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int | None = None, scheduler=None,
              chunk_size: int = 1, on_result: Callable | None = None, raise_failures: bool = False,
              connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> list:
@@ -531,28 +261,6 @@ def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int 
     finally:
         _shut_down(client, cluster, owned, futures)
     return results
-
-
-def _shut_down(client, cluster, owned, futures) -> None:
-    """Cancel what is left and close what this call opened, quietly (also after Ctrl-C)."""
-    import logging
-
-    quiet = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio")]
-    levels = [q.level for q in quiet]
-    for q in quiet:
-        q.setLevel(logging.CRITICAL)
-    try:
-        for step in ([lambda: client.cancel([f for f in futures if not f.done()])]
-                     + ([client.close] if owned else [])
-                     + ([cluster.close] if owned and cluster is not None else [])):
-            try:
-                step()
-            except Exception:  # noqa: BLE001, S110 - shutting down after an error or Ctrl-C: the first error matters
-                pass
-    finally:
-        for q, level in zip(quiet, levels):
-            q.setLevel(level)
-
 
 # ----------------------------------------------------------------------------------------
 # The paper scripts' view: per-seed metrics and error series
@@ -711,254 +419,9 @@ def resolve_scenario(scenario, overrides=(), estimators=None) -> cfg.Scenario:
     return select_estimators(scenario, estimators)
 
 
-def _run_path(out: str, seed: int) -> str:
-    return os.path.join(out, RUNS_DIR, f"seed_{seed}.npz")
-
-
-def _failed_path(out: str, seed: int) -> str:
-    return os.path.join(out, RUNS_DIR, f"seed_{seed}.failed.txt")
-
-
-def _atomic_write(path: str, write: Callable) -> None:
-    """``write(file)`` into a temporary sibling, flushed to disk, then renamed to ``path``:
-    ``path`` is complete or absent, never half written."""
-    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.remove(tmp)
-        except OSError:
-            pass
-        raise
-
-
-def write_text_atomic(path: str, text: str) -> str:
-    _atomic_write(path, lambda f: f.write(text.encode()))
-    return path
-
-
-def _npz_arrays(record, seed: int) -> dict:
-    if not isinstance(record, dict):
-        raise TypeError(f"seed {seed}: a campaign record must be a dict of numpy arrays, got {type(record).__name__}")
-    arrays = {}
-    for key, value in record.items():
-        a = np.asarray(value)
-        if a.dtype == object:
-            raise TypeError(f"seed {seed}: record entry {key!r} is not a plain numpy array (dtype object); "
-                            "records are saved without pickles")
-        arrays[key] = a
-    return arrays
-
-
-def save_record(out: str, seed: int, record) -> str:
-    """``<out>/runs/seed_<seed>.npz``, atomically (``np.savez``, no pickles)."""
-    path = _run_path(out, seed)
-    arrays = _npz_arrays(record, seed)
-    _atomic_write(path, lambda f: np.savez(f, **arrays))
-    return path
-
-
-def load_record(path: str) -> dict:
-    """A saved record: ``np.load`` without pickles, every array read (a damaged file raises
-    here). ValueError for a file that is not an ``.npz`` archive, an entry that is not a
-    numpy array or an archive that expands beyond :data:`MAX_RECORD_BYTES`."""
-    loaded = np.load(path, allow_pickle=False)
-    if not isinstance(loaded, np.lib.npyio.NpzFile):
-        raise ValueError("a single .npy array, not an .npz archive of a record")
-    with loaded as npz:
-        size = sum(info.file_size for info in npz.zip.infolist())
-        if size > MAX_RECORD_BYTES:
-            raise ValueError(f"expands to {size} bytes, more than {MAX_RECORD_BYTES} (a record is a few MB)")
-        record = {}
-        for key in npz.files:
-            value = npz[key]
-            if not isinstance(value, np.ndarray):
-                raise ValueError(f"entry {_one_line(repr(key), 80)} is not a numpy array")
-            record[key] = value
-    return record
-
-
 # ----------------------------------------------------------------------------------------
-# Is a saved record one of this campaign's? (checked before a resume reuses it)
+# Reading a campaign folder back (--resume): its records' checks, its small files, its runs
 # ----------------------------------------------------------------------------------------
-# Two checks, so that a file edited by hand (or by another program) is redone rather than
-# reused and crashing the summary later:
-#
-# * the *layout* every record of the campaign shares: its keys and, per key, the dtype kind,
-#   the number of dimensions and every dimension but the first (the first is the number of
-#   samples, which may differ from seed to seed). campaign.json keeps the layout of the
-#   campaign's first fresh record ("record_layout"); a record function may declare keys
-#   that some runs lack (``optional_key_suffixes``: the default record's bound arrays,
-#   absent when a run has no bound). A record computed later with another layout replaces
-#   it (records just computed are the reference, never a file);
-# * for the default record, its documented structure (drake_att.analysis.ensemble),
-#   derived from the scenario without a simulation: the keys of each estimator, shapes
-#   consistent within the record (n estimate samples in t, dtheta, sigma, ...), the seed,
-#   scenario and estimators it names, its JSON texts.
-_KIND_NAMES = {"f": "float", "i": "int", "u": "unsigned int", "U": "str", "S": "bytes", "b": "bool", "c": "complex"}
-
-
-def record_layout(record, optional_suffixes=()) -> dict:
-    """``{key: [dtype kind, ndim, [every dimension but the first]]}`` of a record's arrays
-    (keys ending in one of ``optional_suffixes`` left out)."""
-    out = {}
-    for key in sorted(record):
-        if optional_suffixes and key.endswith(tuple(optional_suffixes)):
-            continue
-        a = np.asarray(record[key])
-        out[key] = [a.dtype.kind, a.ndim, [int(d) for d in a.shape[1:]]]
-    return out
-
-
-def _valid_layout(value) -> dict | None:
-    """A layout read from campaign.json, or None when it is absent or malformed (then the
-    next fresh record sets it again)."""
-    if not isinstance(value, dict) or not value:
-        return None
-    for key, entry in value.items():
-        if not (isinstance(key, str) and isinstance(entry, list) and len(entry) == 3 and isinstance(entry[0], str)
-                and isinstance(entry[1], int) and not isinstance(entry[1], bool) and 0 <= entry[1] <= 32
-                and isinstance(entry[2], list) and len(entry[2]) == max(entry[1] - 1, 0)
-                and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in entry[2])):
-            return None
-    return value
-
-
-def _layout_text(entry) -> str:
-    kind, ndim, rest = entry
-    name = _KIND_NAMES.get(kind, f"dtype kind {kind!r}")
-    return f"{name} scalar" if ndim == 0 else f"{name} array of shape ({', '.join(['n'] + [str(d) for d in rest])})"
-
-
-def _layout_problem(record: dict, layout: dict, optional_suffixes=()) -> str | None:
-    mine = record_layout(record, optional_suffixes)
-    missing, extra = sorted(set(layout) - set(mine)), sorted(set(mine) - set(layout))
-    more = lambda keys: f" (and {len(keys) - 1} more)" if len(keys) > 1 else ""  # noqa: E731
-    if missing:
-        return f"key {_one_line(repr(missing[0]), 80)} is missing{more(missing)}"
-    if extra:
-        return f"unexpected key {_one_line(repr(extra[0]), 80)}{more(extra)}"
-    for key, entry in layout.items():
-        if mine[key] != entry:
-            return f"{key!r}: got a {_layout_text(mine[key])}; the campaign's records hold a {_layout_text(entry)}"
-    return None
-
-
-def _is_kind(a, kinds: str, ndim: int) -> bool:
-    return isinstance(a, np.ndarray) and a.dtype.kind in kinds and a.ndim == ndim
-
-
-def default_record_problem(record: dict, scenario: cfg.Scenario, seed: int) -> str | None:
-    """Why ``record`` is not :func:`default_record` of run ``seed`` of ``scenario`` (None:
-    it has the documented structure, :mod:`drake_att.analysis.ensemble`). Checks keys,
-    dtype kinds and shapes, shapes consistent within the record, the seed, scenario,
-    estimators and scoring it names, and that its JSON texts are JSON objects; derived from
-    the scenario, no simulation needed."""
-    from drake_att.analysis.ensemble import RECORD_SCHEMA
-
-    FLOAT, INT, STR = "f", "iu", "U"
-
-    def text(key):
-        return str(record[key])
-
-    def json_object(key):
-        try:
-            return isinstance(json.loads(text(key)), dict)
-        except ValueError:
-            return False
-
-    names = [e.name for e in scenario.estimators]
-    scalars = {"schema": INT, "scenario": STR, "seed": INT, "duration_s": FLOAT, "score_from_s": FLOAT,
-               "convergence_threshold_deg": FLOAT, "metrics_json": STR}
-    expected = set(scalars) | {"estimators"}
-    for key, kinds in scalars.items():
-        if key not in record:
-            return f"key {key!r} is missing"
-        if not _is_kind(record[key], kinds, 0):
-            return f"{key!r}: got {_layout_text(record_layout({key: record[key]})[key])}; expected a scalar"
-    if int(record["schema"]) != RECORD_SCHEMA:
-        return f"record schema {int(record['schema'])}, this drake_att writes {RECORD_SCHEMA}"
-    if int(record["seed"]) != seed:
-        return f"it holds seed {int(record['seed'])}, not {seed}"
-    if text("scenario") != scenario.name:
-        return f"it holds scenario {_one_line(repr(text('scenario')), 80)}, not {scenario.name!r}"
-    for key, value in (("duration_s", scenario.duration_s), ("score_from_s", scenario.scoring.score_from_s),
-                       ("convergence_threshold_deg", scenario.scoring.convergence_threshold_deg)):
-        if not abs(float(record[key]) - float(value)) <= 1e-9 * max(1.0, abs(float(value))):
-            return f"{key} {float(record[key])!r}, the campaign's configuration has {float(value)!r}"
-    if not json_object("metrics_json"):
-        return "'metrics_json' is not a JSON object"
-    if "estimators" not in record or not _is_kind(record["estimators"], STR, 1):
-        return "'estimators' is missing or not an array of names"
-    if [str(x) for x in record["estimators"]] != names:
-        return f"it holds estimators {_one_line([str(x) for x in record['estimators']], 120)}, not {names}"
-    per = {"t": (FLOAT, 1, None), "dtheta": (FLOAT, 2, 3), "sigma": (FLOAT, 2, 6), "nees": (FLOAT, 1, None),
-           "second_kind": (STR, 0, None), "nees_dof": (INT, 0, None), "window_n": (INT, 0, None),
-           "window_ms": (FLOAT, 1, None), "window_ms_second": (FLOAT, 1, None), "window_nees_sum": (FLOAT, 0, None),
-           "window_nees_n": (INT, 0, None), "convergence_time_s": (FLOAT, 0, None), "inputs": (STR, 1, None),
-           "nis_source": (STR, 0, None), "bound_json": (STR, 0, None)}
-    optional = {"second_err": (FLOAT, 2, 3), "bound_sigma": (FLOAT, 2, 6), "bound_window_var": (FLOAT, 1, None)}
-    for name in names:
-        p = f"{name}__"
-        for suffix, (kinds, ndim, cols) in list(per.items()) + list(optional.items()):
-            key = p + suffix
-            if key not in record:
-                if suffix in optional:
-                    continue
-                return f"key {key!r} is missing"
-            a = record[key]
-            if not _is_kind(a, kinds, ndim) or (cols is not None and a.shape[1] != cols):
-                want = ("str" if kinds == STR else "int" if kinds == INT else "float")
-                want += " scalar" if ndim == 0 else f" array of shape (n{', ' + str(cols) if cols else ''})"
-                return f"{key!r}: got a {_layout_text(record_layout({key: a})[key])}; expected a {want}"
-            expected.add(key)
-        t = record[p + "t"]
-        n = len(t)
-        for suffix in ("dtheta", "sigma", "nees", "second_err", "bound_sigma"):
-            if p + suffix in record and len(record[p + suffix]) != n:
-                return f"'{p}{suffix}' has {len(record[p + suffix])} samples, '{p}t' {n}"
-        for suffix, size in (("window_ms", 3), ("window_ms_second", 3), ("bound_window_var", 6)):
-            if p + suffix in record and record[p + suffix].shape != (size,):
-                return f"'{p}{suffix}': got shape {record[p + suffix].shape}; expected ({size},)"
-        if not (np.all(np.isfinite(t)) and np.all(np.diff(t) >= 0)):
-            return f"'{p}t' is not a finite, increasing time series"
-        if text(p + "second_kind") not in ("gyro_bias", "body_rate"):
-            return f"'{p}second_kind' is {_one_line(repr(text(p + 'second_kind')), 60)}, not gyro_bias or body_rate"
-        if int(record[p + "nees_dof"]) < 1:
-            return f"'{p}nees_dof' is {int(record[p + 'nees_dof'])}; a NEES has at least 1 degree of freedom"
-        source = text(p + "nis_source")
-        if source not in ("innovations", "status", "none"):
-            return f"'{p}nis_source' is {_one_line(repr(source), 60)}, not innovations, status or none"
-        if not json_object(p + "bound_json"):
-            return f"'{p}bound_json' is not a JSON object"
-        # NIS samples: one (t, value, dof) triple per input, of equal lengths (none: "none")
-        inputs = 0 if source == "none" else len(record[p + "inputs"])
-        for i in range(inputs):
-            keys = [f"{p}nis{i}__{k}" for k in ("t", "value", "dof")]
-            for key, kinds in zip(keys, (FLOAT, FLOAT, INT)):
-                if key not in record:
-                    return f"key {key!r} is missing"
-                if not _is_kind(record[key], kinds, 1):
-                    got = _layout_text(record_layout({key: record[key]})[key])
-                    return f"{key!r}: got a {got}; expected a 1-d array"
-                expected.add(key)
-            if len({len(record[k]) for k in keys}) != 1:
-                return f"'{p}nis{i}__t', '__value' and '__dof' differ in length"
-    extra = sorted(set(record) - expected)
-    if extra:
-        return f"unexpected key {_one_line(repr(extra[0]), 80)}" + (f" (and {len(extra) - 1} more)" if len(extra) > 1
-                                                                   else "")
-    return None
-
-
-default_record.optional_key_suffixes = ("__bound_sigma", "__bound_window_var")
-
-
 def _record_check(record_fn: Callable, scenario: cfg.Scenario, layout: dict | None):
     """``check(record, seed) -> why not, or None`` for the records of a campaign."""
     optional = getattr(record_fn, "optional_key_suffixes", ())
@@ -1014,15 +477,6 @@ def _read_campaign_file(path: str) -> dict:
     if not isinstance(info, dict):
         raise CampaignError(f"{_shown(path)}: got a JSON {type(info).__name__}; {what}")
     return info
-
-
-def _saved_run_files(runs: str) -> list[str]:
-    """The run files (``seed_<n>.npz``, ``seed_<n>.failed.txt``) in ``runs``."""
-    try:
-        names = os.listdir(runs)
-    except OSError:
-        return []
-    return [n for n in names if re.fullmatch(r"seed_[0-9]+\.(npz|failed\.txt)", n)]
 
 
 def _load_existing(out: str, seeds, check: Callable | None = None) -> tuple[dict, dict, list]:
