@@ -272,3 +272,68 @@ def test_write_file_atomic_leaves_the_old_file_when_the_write_fails(tmp_path):
     assert path.read_text() == '{"old": true}' and os.listdir(tmp_path) == ["metrics.json"]
     outputs.write_file_atomic(str(path), b"new")
     assert path.read_bytes() == b"new" and os.listdir(tmp_path) == ["metrics.json"]
+
+
+# --------------------------------------------------------------------------------------
+# Details the mutation sample found untested
+# --------------------------------------------------------------------------------------
+def test_a_refusal_names_the_files_that_are_not_ours_first_and_counts_the_rest(tmp_path):
+    folder = tmp_path / "camp"
+    (folder / "runs").mkdir(parents=True)
+    (folder / "runs" / "seed_1.npz").write_bytes(b"x")
+    names = ["config.yaml", "summary.json", "report.html"]
+    for n in names:
+        (folder / n).write_text(n)
+    entries = [{"file": n} for n in names] + [{"file": "runs/seed_1.npz"}]
+    (folder / "manifest.json").write_text(json.dumps({"files": entries}))
+    (folder / "zz_thesis.txt").write_text("precious")
+    with pytest.raises(OutputError) as e:
+        outputs.check_target(str(folder))
+    # Sorted, the user's file would come last of 6 and be cut; not ours, it comes first.
+    listing = str(e.value).split("did not write (")[1].split(")")[0]
+    assert listing.startswith("zz_thesis.txt, ") and "(6 entries" in str(e.value)
+
+
+def test_a_process_of_another_user_counts_as_alive(monkeypatch):
+    def denied(pid, sig):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(outputs.os, "kill", denied)
+    assert outputs._pid_alive(12345)
+
+
+def test_a_folder_that_cannot_be_written_is_refused_before_any_work():
+    """/proc refuses new entries even to root (chmod would not: we run as root)."""
+    with pytest.raises(OutputError, match="cannot write in /proc"):
+        outputs.check_target("/proc/drake_att_results")
+
+
+def test_free_space_is_checked_at_its_boundary(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    need = 5 * 2**20
+    usage = outputs.shutil.disk_usage(str(tmp_path))
+    for free, ok in ((need + outputs.FREE_SPACE_MARGIN_BYTES, True), (need + outputs.FREE_SPACE_MARGIN_BYTES - 1, False)):
+        monkeypatch.setattr(outputs.shutil, "disk_usage", lambda p, f=free: usage._replace(free=f))
+        if ok:
+            outputs.check_target("r", need_bytes=need)
+        else:
+            with pytest.raises(OutputError, match="MiB free"):
+                outputs.check_target("r", need_bytes=need)
+
+
+def test_the_replacement_recheck_names_the_option(tmp_path):
+    target = tmp_path / "res"
+    target.mkdir()
+    (target / "thesis.txt").write_text("precious")
+    with pytest.raises(OutputError, match=r"^--out .*thesis\.txt"):
+        outputs.replace_folder(str(target), lambda staging: [])
+
+
+def test_write_file_atomic_stages_a_hidden_sibling(tmp_path, monkeypatch):
+    """The temporary is beside the file (one file system: the rename is atomic) and hidden."""
+    seen = []
+    real = os.replace
+    monkeypatch.setattr(outputs.os, "replace", lambda src, dst: (seen.append(src), real(src, dst)))
+    outputs.write_file_atomic(str(tmp_path / "metrics.json"), b"{}")
+    (src,) = seen
+    assert os.path.dirname(src) == str(tmp_path) and os.path.basename(src).startswith(".metrics.json.tmp-")
