@@ -53,22 +53,28 @@ def _load_with_overrides(scenario_arg, overrides, seed=None):
     return path, scenario
 
 
-def _preflight(scenario) -> None:
-    """Refuse what cannot run here (memory), then print the warnings of a valid scenario."""
+def _preflight(scenario, processes: int = 1) -> None:
+    """Refuse what cannot run here (memory, with ``processes`` runs at once on this
+    machine), then print the warnings of a valid scenario."""
     from drake_att.scenarios import preflight
 
-    check_memory = getattr(preflight, "check_memory", None)
-    if check_memory is not None:
-        check_memory(scenario)
+    preflight.check_memory(scenario, processes=processes)
     for message in preflight.preflight_warnings(scenario):
         _say(f"drake-att: warning: {message}")
 
 
-def _result_bytes(scenario) -> int:
-    from drake_att.scenarios import preflight
+def _local_processes(args) -> int:
+    """Runs at once on this machine for a campaign's options (a remote cluster's memory is
+    its own: one, for the client's check)."""
+    if args.scheduler is not None:
+        return 1
+    return max(1, min(args.workers or os.cpu_count() or 1, args.runs))
 
-    estimate = getattr(preflight, "result_bytes", None)
-    return int(estimate(scenario)) if estimate is not None else 0
+
+def _result_bytes(scenario) -> int:
+    from drake_att.scenarios.preflight import result_bytes
+
+    return int(result_bytes(scenario))
 
 
 def _cmd_check(args) -> int:
@@ -252,7 +258,7 @@ def _cmd_montecarlo(args) -> int:
     tag = _override_tag(list(args.set or []) + ([f"--estimators={args.estimators}"] if args.estimators else []))
     out = args.out if args.out is not None else \
         os.path.join("out", outputs.safe_component(f"{scenario.name}_montecarlo{tag}"))
-    _preflight(scenario)
+    _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
     if scheduler == "serial" or (scheduler is None and args.workers == 1):
         where = "serially in this process"
@@ -332,7 +338,7 @@ def _cmd_compare(args) -> int:
     tag = _override_tag(list(args.scenarios) + list(args.set or []) + [args.estimators or ""])
     out = args.out if args.out is not None else os.path.join("out", f"compare{tag}")
     for scenario in plan.scenarios:
-        _preflight(scenario)
+        _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "comparison"))
     for cell in plan.skipped:
         print(f"drake-att compare: note: {cell}", file=sys.stderr)

@@ -264,3 +264,22 @@ def test_sigterm_exits_143_and_leaves_no_folder(tmp_path):
     assert proc.returncode == 143, err[-2000:]
     assert "Traceback" not in err and "terminated" in err
     assert sorted(os.listdir(tmp_path)) == []  # no result, no staging folder, no lock
+
+
+def test_a_campaign_counts_the_memory_of_every_local_worker(tmp_path, monkeypatch, capsys):
+    """A run that fits once but not twice: `check` passes, a campaign of 2 local workers is
+    refused naming the dominant field, and one of a single worker is not refused for it."""
+    from drake_att.scenarios import preflight
+    from drake_att.scenarios.library import load
+
+    scenario = apply_overrides(load("s0_particle_filters_small_error"), ["estimators.1.num_particles=200000"])
+    one_run = preflight.memory_estimate(scenario).total_bytes
+    monkeypatch.setattr(preflight, "available_memory_bytes", lambda: 1.5 * one_run)
+    monkeypatch.chdir(tmp_path)
+    args = ["s0_particle_filters_small_error", "--set", "estimators.1.num_particles=200000"]
+    assert cli.main(["check", *args]) == 0
+    capsys.readouterr()
+    assert cli.main(["montecarlo", *args, "--runs", "4", "--workers", "2", "--out", "c"]) == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "num_particles" in last and "2 runs at once" in last
+    assert os.listdir(tmp_path) == []
