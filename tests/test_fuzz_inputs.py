@@ -29,7 +29,7 @@ import tempfile
 import pytest
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
-from test_hostile_inputs import BOMB, MAX_LINE, S, call_cli, snapshot
+from test_hostile_inputs import BOMB, S, call_cli, message_problems, snapshot
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -118,25 +118,10 @@ _FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.function_scop
 
 
 def _problems(call, folder, before) -> list[str]:
+    """The hostile suite's contract for a call (exit 0 or 2, no traceback, short lines, a last
+    `drake-att` line, no write outside, no simulation), and no file of the folder changed."""
     event(f"exit {call.code}")  # --hypothesis-show-statistics: how many examples pass / are refused
-    problems = []
-    if call.raised is not None:
-        problems.append("main() raised")
-    elif call.code not in (0, 2):
-        problems.append(f"exit code {call.code!r}, expected 0 or 2")
-    if "Traceback" in call.err or "Traceback" in call.out:
-        problems.append("a traceback reached the user")
-    long = [len(line) for line in call.err.splitlines() if len(line) > MAX_LINE]
-    if long:
-        problems.append(f"stderr lines of {long[:5]} characters")
-    if call.code == 2:
-        lines = [line for line in call.err.splitlines() if line.strip()]
-        if not lines or not lines[-1].startswith("drake-att"):
-            problems.append("exit 2 without a last 'drake-att ...' line")
-    if call.escapes:
-        problems.append(f"writes outside the example's folder: {call.escapes[:5]}")
-    if call.simulated:
-        problems.append("check started a simulation")
+    problems = message_problems(call, (0, 2))
     after = snapshot(folder)
     if after != before:
         problems.append(f"check changed files: {sorted(set(after) ^ set(before)) or 'contents'}")

@@ -438,23 +438,8 @@ def _record_check(record_fn: Callable, scenario: cfg.Scenario, layout: dict | No
 
 def _small_file_text(path: str, limit: int = MAX_SIDE_FILE_BYTES) -> str:
     """The UTF-8 text of one of the campaign's own small files (config.yaml, campaign.json,
-    a failed run's message), at most ``limit`` bytes; ValueError saying why not (not a
-    file, unreadable, too large, binary, not UTF-8), without the path."""
-    if not os.path.isfile(path):
-        raise ValueError("is not a regular file")
-    try:
-        with open(path, "rb") as f:
-            data = f.read(limit + 1)
-    except OSError as e:
-        raise ValueError(f"cannot be read ({_one_line(e.strerror or e, 80)})") from None
-    if len(data) > limit:
-        raise ValueError(f"larger than {limit} bytes")
-    if b"\x00" in data:
-        raise ValueError("a binary file (it holds NUL bytes)")
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise ValueError(f"not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start})") from None
+    a failed run's message): :func:`drake_att.scenarios.config.read_text_bounded`."""
+    return cfg.read_text_bounded(path, limit)
 
 
 def _read_small_file(path: str, what: str, limit: int = MAX_SIDE_FILE_BYTES) -> str:

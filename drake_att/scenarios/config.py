@@ -21,6 +21,7 @@ axes).
 
 
 import dataclasses
+import os
 import typing
 from dataclasses import dataclass, field
 from typing import List, Optional, Union
@@ -231,24 +232,35 @@ def _one_line(e, limit: int = 300) -> str:
     return text if len(text) <= limit else text[:limit] + "..."
 
 
-def read_scenario_file(filename: str) -> str:
-    """The text of a scenario file: at most :data:`MAX_SCENARIO_BYTES`, UTF-8, no NUL bytes
-    (a binary file); :class:`ConfigError` naming the file otherwise."""
+def read_text_bounded(path: str, limit: int) -> str:
+    """The UTF-8 text of a small file the user gives (a scenario, a result folder's own
+    files), at most ``limit`` bytes; ValueError saying why not - not a regular file (a FIFO
+    or a device would block or never end), unreadable, too large, binary, not UTF-8 -
+    without the path (the caller names it)."""
+    if not os.path.isfile(path):
+        raise ValueError("is not a regular file")
     try:
-        with open(filename, "rb") as f:
-            data = f.read(MAX_SCENARIO_BYTES + 1)
+        with open(path, "rb") as f:
+            data = f.read(limit + 1)
     except OSError as e:
-        raise ConfigError(f"{filename}: cannot read the scenario: {e.strerror or e}") from None
-    if len(data) > MAX_SCENARIO_BYTES:
-        raise ConfigError(f"{filename}: larger than {MAX_SCENARIO_BYTES} bytes; a scenario file is a few KB "
-                          "(is this the right file?)")
+        raise ValueError(f"cannot be read ({_one_line(e.strerror or e, 80)})") from None
+    if len(data) > limit:
+        raise ValueError(f"larger than {limit} bytes")
     if b"\x00" in data:
-        raise ConfigError(f"{filename}: a binary file (it holds NUL bytes); a scenario is YAML text")
+        raise ValueError("a binary file (it holds NUL bytes)")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise ConfigError(f"{filename}: not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start}); a "
-                          "scenario is YAML text in UTF-8") from None
+        raise ValueError(f"not UTF-8 text (byte 0x{data[e.start]:02x} at offset {e.start})") from None
+
+
+def read_scenario_file(filename: str) -> str:
+    """The text of a scenario file (:func:`read_text_bounded` to
+    :data:`MAX_SCENARIO_BYTES`); :class:`ConfigError` naming the file otherwise."""
+    try:
+        return read_text_bounded(filename, MAX_SCENARIO_BYTES)
+    except ValueError as e:
+        raise ConfigError(f"{filename}: {e}; a scenario is a YAML text file in UTF-8 of a few KB") from None
 
 
 def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
