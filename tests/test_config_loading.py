@@ -283,3 +283,11 @@ def test_a_campaign_counts_the_memory_of_every_local_worker(tmp_path, monkeypatc
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert "num_particles" in last and "2 runs at once" in last
     assert os.listdir(tmp_path) == []
+
+
+def test_a_prescribed_rpy_truth_with_an_orbit_is_refused():
+    """Its breakpoints are relative to inertial while estimates start relative to the orbit
+    frame: on S2's dynamic scenario with an orbit, a start at the truth's own rpy would be
+    90 deg off. Refused naming orbit."""
+    text = Path(scenario_path("s2_indoor_dynamic")).read_text()
+    refused(text + "orbit: {altitude_km: 500.0}\n", "orbit: got 'set'")

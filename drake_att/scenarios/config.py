@@ -737,6 +737,10 @@ def validate(s: Scenario) -> None:
                   "frequency_rad_per_s", "phase_deg"):
             check_vector(f"plant.{f}", getattr(p, f), 3)
     elif isinstance(p, PrescribedRpyConfig):
+        if s.orbit is not None:
+            fail("orbit", "set", "a PrescribedRpyConfig truth is roll/pitch/yaw relative to the inertial frame, while "
+                 "with an orbit every estimate starts relative to the orbit frame; remove orbit (or use another "
+                 "plant)")
         if len(p.times_s) < 2 or np.ndim(p.rpy_deg) != 2 or len(p.rpy_deg) != len(p.times_s):
             fail("plant.times_s", p.times_s, "need >= 2 breakpoints and one rpy_deg row per time")
         for i in range(1, len(p.times_s)):
