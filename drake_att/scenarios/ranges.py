@@ -57,6 +57,11 @@ class Range:
     unit: str
     why: str
 
+    def __post_init__(self):
+        if not (np.isfinite(self.lo) and np.isfinite(self.hi) and self.lo <= self.hi):
+            raise ValueError(f"Range: got [{self.lo}, {self.hi}]; bounds must be finite with lo <= hi (a range is "
+                             "what a real sensor or mission can have)")
+
     def allowed(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
         return f"must be in [{_num(self.lo)}, {_num(self.hi)}]{unit} ({self.why})"
