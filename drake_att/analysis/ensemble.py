@@ -263,7 +263,7 @@ def chi2_q(probability: float, dof: float) -> float:
 
 def t_q(probability: float, dof: int) -> float:
     """Student's t quantile: exact for 1 and 2 dof, the Cornish-Fisher expansion (4 terms)
-    from 3 dof (relative error < 1.3e-3 at 3 dof, < 1e-5 from 6)."""
+    from 3 dof (relative error < 1.3e-3 at 3 dof, < 5e-5 from 6, < 1e-5 from 9)."""
     if dof == 1:
         return math.tan(math.pi * (probability - 0.5))
     if dof == 2:
@@ -424,7 +424,9 @@ def _estimator_summary(records, command, name, worst, max_history_points):
     t_common, idx = common_times(records, name)
     score_from = float(records[0]["score_from_s"])
     nees = np.array([np.asarray(r[p + "nees"], dtype=float)[i] for r, i in zip(records, idx)])  # (N, n)
-    win = t_common >= score_from - _TOL
+    # the window on the times themselves (t_common is rounded to 1 us), as per_run_record and
+    # metrics.json have it: a sample at score_from - _TOL is in
+    win = np.asarray(records[0][p + "t"], dtype=float)[idx[0]] >= score_from - _TOL
     tau = integrated_autocorrelation_time(nees[:, win]) if np.sum(win) >= 4 else None
     out["nees_correlation_time_samples"] = _f(tau)
     if tau is not None and anees is not None:
