@@ -98,9 +98,7 @@ def _cmd_run(args) -> int:
         return 2
     # The default folder names the scenario and seed, and the overrides too (a short hash of
     # them): a run with --set never lands in (and replaces) the unmodified run's folder.
-    tag = _override_tag(args.set)
-    out_dir = args.out if args.out is not None else \
-        os.path.join("out", outputs.safe_component(f"{scenario.name}_seed{scenario.seed}{tag}"))
+    out_dir = args.out if args.out is not None else default_out("run", scenario, args.set)
     _preflight(scenario)
     out_dir = outputs.check_target(out_dir, option="--out", need_bytes=_result_bytes(scenario))
     with outputs.writer_lock(out_dir):
@@ -203,6 +201,29 @@ def _previous_metrics(path: str):
     return data
 
 
+def default_out(command: str, scenario, overrides=None, estimators=None, scenarios=()) -> str:
+    """The default output folder of ``command`` (one safe path component under ``out/``):
+
+    * ``run``: ``<name>_seed<seed>`` plus ``_<hash of the --set strings>`` when there are any;
+    * ``montecarlo``: ``<name>_montecarlo`` plus the hash of the ``--set`` strings and
+      ``--estimators=<list>`` when given (the seeds are not in it: a campaign grows by
+      ``--resume``);
+    * ``compare``: ``compare`` plus the hash of the scenario arguments, the ``--set`` strings
+      and the ``--estimators`` text.
+
+    A modified run never lands in (and replaces) the unmodified one's folder."""
+    from drake_att import outputs
+
+    sets = list(overrides or [])
+    if command == "run":
+        name = f"{scenario.name}_seed{scenario.seed}{_override_tag(sets)}"
+    elif command == "montecarlo":
+        name = f"{scenario.name}_montecarlo{_override_tag(sets + ([f'--estimators={estimators}'] if estimators else []))}"
+    else:
+        name = f"compare{_override_tag(list(scenarios) + sets + [estimators or ''])}"
+    return os.path.join("out", outputs.safe_component(name))
+
+
 def _override_tag(items) -> str:
     """A short hash of ``--set``-like strings (empty for none): default folders of modified
     runs never land in (and replace) the unmodified ones."""
@@ -255,9 +276,7 @@ def _cmd_montecarlo(args) -> int:
         scheduler = _scheduler_option(args)
     except UserInputError as e:
         return fail(e)
-    tag = _override_tag(list(args.set or []) + ([f"--estimators={args.estimators}"] if args.estimators else []))
-    out = args.out if args.out is not None else \
-        os.path.join("out", outputs.safe_component(f"{scenario.name}_montecarlo{tag}"))
+    out = args.out if args.out is not None else default_out("montecarlo", scenario, args.set, args.estimators)
     _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
     if scheduler == "serial" or (scheduler is None and args.workers == 1):
@@ -335,8 +354,7 @@ def _cmd_compare(args) -> int:
         scheduler = _scheduler_option(args)
     except UserInputError as e:
         return fail(e)
-    tag = _override_tag(list(args.scenarios) + list(args.set or []) + [args.estimators or ""])
-    out = args.out if args.out is not None else os.path.join("out", f"compare{tag}")
+    out = args.out if args.out is not None else default_out("compare", None, args.set, args.estimators, args.scenarios)
     for scenario in plan.scenarios:
         _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "comparison"))
