@@ -64,6 +64,8 @@ MODULES = {
                             ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
     # The edges: output folders and physical ranges.
     "outputs": ("drake_att/outputs.py", ["tests/test_outputs.py"]),
+    "config": ("drake_att/scenarios/config.py",
+               ["tests/test_config_loading.py", "-k", "not sigterm and not downloaded_folder"]),
     "ranges": ("drake_att/scenarios/ranges.py",
                ["tests/test_ranges.py", "-k",  # docs/ is not copied; the peak is measured in a child process
                 "not config_reference_is_the_rendered_table and not measured_peak"]),
