@@ -291,3 +291,50 @@ def test_a_prescribed_rpy_truth_with_an_orbit_is_refused():
     90 deg off. Refused naming orbit."""
     text = Path(scenario_path("s2_indoor_dynamic")).read_text()
     refused(text + "orbit: {altitude_km: 500.0}\n", "orbit: got 'set'")
+
+
+# --------------------------------------------------------------------------------------
+# What config's mutation sample found untested
+# --------------------------------------------------------------------------------------
+def test_plugin_config_classes_resolve_as_attributes_of_config():
+    from drake_att.estimators.mekf import MekfConfig
+
+    assert cfg.MekfConfig is MekfConfig
+    with pytest.raises(AttributeError):
+        cfg.NoSuchConfig  # noqa: B018
+
+
+def test_set_by_name_lists_the_names_and_sets_a_whole_list_item_from_a_mapping():
+    s = load_scenario(text=SHIPPED)
+    with pytest.raises(ConfigError, match=r"names: \['gyro', 'st1'\]"):
+        apply_overrides(s, ["sensors.nope.period_s=1"])
+    t = apply_overrides(s, ["estimators.single={initial_attitude_sigma_deg: 1.5}"])
+    assert t.estimators[0].initial_attitude_sigma_deg == 1.5 and t.estimators[0].period_s == 1.0
+
+
+def test_long_values_and_paths_are_cut_in_messages():
+    s = load_scenario(text=SHIPPED)
+    with pytest.raises(ConfigError) as e:
+        apply_overrides(s, ["plant=[" + ", ".join(["x" * 20] * 40) + "]"])  # 40 items: rendered, then cut
+    assert "...; plant is a section" in str(e.value) and len(str(e.value)) < 1000
+    long_path = "a" * 150
+    with pytest.raises(ConfigError) as e:
+        apply_overrides(s, [f"{long_path}=["])
+    assert str(e.value).startswith(f"--set '{'a' * 100}...': invalid YAML")
+
+
+def test_a_sensor_listed_twice_is_refused_with_the_rule():
+    with pytest.raises(ConfigError, match=r"star_trackers: got \['st1', 'st1'\]; each sensor may be listed once"):
+        load_scenario(text=SHIPPED.replace("star_trackers: [st1]", "star_trackers: [st1, st1]"))
+
+
+def test_weights_and_second_quantities_through_the_validation_context():
+    from drake_att.contract import SecondQuantity
+
+    assert cfg.check_weights("w", [1, 3], 2) == [1.0, 3.0]
+    for bad in ([1, -1], [0, 0]):
+        with pytest.raises(ConfigError, match=r"^w: got .*weights must be >= 0 with a positive sum"):
+            cfg.check_weights("w", bad, 2)
+    s = load_scenario(text=SHIPPED)
+    checks = cfg.ValidationContext(s, {c.name: c for c in s.sensors}, {c.name: c for c in s.estimators})
+    assert checks.second_quantity("single") == SecondQuantity.GYRO_BIAS
