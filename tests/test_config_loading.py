@@ -339,3 +339,7 @@ def test_weights_and_second_quantities_through_the_validation_context():
     s = load_scenario(text=SHIPPED)
     checks = cfg.ValidationContext(s, {c.name: c for c in s.sensors}, {c.name: c for c in s.estimators})
     assert checks.second_quantity("single") == SecondQuantity.GYRO_BIAS
+    # A fusion's second quantity is a function of its config (its sources' common one).
+    dual = load_scenario(filename=scenario_path("cubesat_dual_star_tracker"))
+    checks = cfg.ValidationContext(dual, {c.name: c for c in dual.sensors}, {c.name: c for c in dual.estimators})
+    assert checks.second_quantity("decentralized") == SecondQuantity.GYRO_BIAS
