@@ -209,6 +209,19 @@ def test_convergence_time_sample_exactly_at_threshold_counts_as_within():
     assert metrics.convergence_time(t, d, thr) is None
 
 
+def test_convergence_time_counts_a_non_finite_error_as_outside():
+    """An estimate that went NaN never converged: a NaN (or inf) sample is outside the bound,
+    like a large error (a NaN compares False with everything, so "> thr" alone would call it
+    inside and report convergence at t[0])."""
+    t = np.arange(6.0)
+    d = np.zeros((6, 3))
+    d[2, 1] = np.nan
+    assert metrics.convergence_time(t, d, 0.1) == 3.0
+    d[-1, 0] = np.inf
+    assert metrics.convergence_time(t, d, 0.1) is None
+    assert metrics.convergence_time(t, np.full((6, 3), np.nan), 0.1) is None
+
+
 def test_convergence_time_is_per_axis():
     t = np.arange(8.0)
     thr = 0.1
