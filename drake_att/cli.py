@@ -134,7 +134,6 @@ def _cmd_run(args) -> int:
 def _cmd_score(args) -> int:
     import zipfile
 
-    from drake_att import outputs
     from drake_att.analysis.metrics import compute_metrics, format_table
     from drake_att.analysis.report import write_metrics_json
     from drake_att.scenarios.builder import RunLog
@@ -258,7 +257,6 @@ def _saved_runs(out) -> int:
 def _cmd_montecarlo(args) -> int:
     from drake_att.analysis import campaign_report
     from drake_att.analysis.montecarlo import (
-        CampaignError,
         campaign_seeds,
         resolve_scenario,
         run_campaign,
@@ -337,7 +335,6 @@ def _scheduler_option(args):
 def _cmd_compare(args) -> int:
     from drake_att.analysis import campaign_report
     from drake_att.analysis.montecarlo import (
-        CampaignError,
         campaign_seeds,
         comparison_plan,
         run_comparison,

@@ -52,7 +52,7 @@ def _ci(ci, fmt=".3g") -> str:
 
 
 def _save(fig, path: str) -> str:
-    from drake_att.analysis.montecarlo import _atomic_write
+    from drake_att.analysis.campaign_records import _atomic_write
 
     _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=100))
     return path

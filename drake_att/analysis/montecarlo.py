@@ -50,10 +50,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drake_att.analysis.campaign_records import (  # noqa: F401  (MAX_RECORD_BYTES, _atomic_write: re-exported)
+from drake_att.analysis.campaign_records import (  # noqa: F401  (MAX_RECORD_BYTES: re-exported)
     MAX_RECORD_BYTES,
     RUNS_DIR,
-    _atomic_write,
     _failed_path,
     _layout_problem,
     _run_path,

@@ -499,8 +499,6 @@ def apply_overrides(scenario: Scenario, overrides: typing.Sequence[str]) -> Scen
     """
     import copy
 
-    import yaml
-
     scenario = copy.deepcopy(scenario)  # never modify the caller's scenario, even on error
     for item in overrides:
         if not isinstance(item, str) or "=" not in item:
