@@ -333,6 +333,20 @@ def test_estimate_time_without_truth_sample_raises_naming_it():
     np.testing.assert_allclose(errs["dtheta"], 0.0, atol=1e-12)
 
 
+def test_samples_without_an_estimate_time_are_not_scored():
+    """A status row whose estimate time is NaN (no estimate yet), infinite or negative is left
+    out by its time column, whatever its counters say (they are finite from the start)."""
+    t_log = np.arange(5.0)
+    t_est = np.array([np.nan, -1.0, 2.0, 3.0, np.inf])
+    status = [[te, 1, 0, 0.5] for te in t_est]
+    q_hat = [q_true_at(max(te, 0.0)) if np.isfinite(te) else np.full(4, np.nan) for te in t_est]
+    sig = estimator_signals("mekf", t_log, status, q_hat, np.zeros((5, 3)), [np.eye(6)] * 5)
+    sig.update(truth_signals(t_log))
+    errs = errors_of(make_run(sig), "mekf", "bias_B_hat", None)
+    np.testing.assert_array_equal(errs["t"], [2.0, 3.0])
+    np.testing.assert_allclose(errs["dtheta"], 0.0, atol=1e-12)
+
+
 @pytest.mark.parametrize("t_truth, missing", [
     (np.arange(4.0), r"4\."),        # truth stops at 3 s, an estimate at 4 s (after the last sample)
     (np.arange(1.0, 6.0), r"0\."),   # truth starts at 1 s, an estimate at 0 s (before the first)
