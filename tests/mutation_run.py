@@ -64,6 +64,8 @@ MODULES = {
                             ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
     # The edges: output folders and physical ranges.
     "outputs": ("drake_att/outputs.py", ["tests/test_outputs.py"]),
+    "campaign_records": ("drake_att/analysis/campaign_records.py",
+                         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"]),
     "config": ("drake_att/scenarios/config.py",
                ["tests/test_config_loading.py", "-k", "not sigterm and not downloaded_folder"]),
     "ranges": ("drake_att/scenarios/ranges.py",
