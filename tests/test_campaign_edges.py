@@ -331,6 +331,7 @@ EDITS = {
     "scalar_for_vector": _set("single__t", np.array(1.0)),
     "vector_for_scalar": _set("single__window_n", np.arange(3)),
     "wrong_columns": lambda r: r.__setitem__("single__sigma", r["single__sigma"][:, :4]),
+    "second_window_size": lambda r: r.__setitem__("single__window_ms_second", r["single__window_ms_second"][:2]),
     "fewer_samples": lambda r: r.__setitem__("single__dtheta", r["single__dtheta"][:-1]),
     "unsorted_times": lambda r: r.__setitem__("single__t", r["single__t"][::-1].copy()),
     "bytes_for_text": _set("single__bound_json", np.array(b"{}")),
@@ -339,6 +340,20 @@ EDITS = {
     "another_scenario": _set("scenario", np.array("other")),
     "estimators_differ": _set("estimators", np.array(["single", "ghost"])),
 }
+
+
+def test_a_record_of_each_nis_source_is_accepted(base_campaign):
+    """'status' is a valid NIS source as much as 'innovations' (the check accepts exactly the
+    three sources a record can carry); anything else is a problem naming the key."""
+    from drake_att.analysis.montecarlo import resolve_scenario
+
+    scenario = resolve_scenario(SCENARIO, SHORT)
+    record = mc.load_record(str(base_campaign / "runs" / "seed_2.npz"))
+    assert mc.default_record_problem(record, scenario, 2) is None
+    record["single__nis_source"] = np.array("status")
+    assert mc.default_record_problem(record, scenario, 2) is None
+    record["single__nis_source"] = np.array("guess")
+    assert "nis_source" in mc.default_record_problem(record, scenario, 2)
 
 
 @pytest.mark.parametrize("case", sorted(EDITS))
