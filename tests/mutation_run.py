@@ -68,6 +68,17 @@ MODULES = {
                          ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"]),
     "config": ("drake_att/scenarios/config.py",
                ["tests/test_config_loading.py", "-k", "not sigterm and not downloaded_folder"]),
+    # The outer layers users read their conclusions from (statistics, campaigns, faults, frames, CLI).
+    "ensemble": ("drake_att/analysis/ensemble.py",
+                 ["tests/test_ensemble.py", "tests/test_ensemble_definitions.py", "tests/test_bound.py"]),
+    "bound": ("drake_att/analysis/bound.py", ["tests/test_bound.py", "tests/test_ensemble_definitions.py"]),
+    "report": ("drake_att/analysis/report.py",
+               ["tests/test_report.py", "tests/test_campaign_bookkeeping.py", "tests/test_ensemble.py"]),
+    "analysis_faults": ("drake_att/analysis/faults.py", ["tests/test_fault_joint.py", "tests/test_faults.py"]),
+    "systems_faults": ("drake_att/systems/faults.py", ["tests/test_faults.py", "tests/test_fault_joint.py"]),
+    "fusion": ("drake_att/systems/fusion.py", ["tests/test_fusion.py", "tests/test_fusion_speed_equivalence.py"]),
+    "build_context": ("drake_att/scenarios/build_context.py",
+                      ["tests/test_initial_frames.py", "tests/test_faults.py", "tests/test_fusion.py"]),
     "ranges": ("drake_att/scenarios/ranges.py",
                ["tests/test_ranges.py", "-k",  # docs/ is not copied; the peak is measured in a child process
                 "not config_reference_is_the_rendered_table and not measured_peak"]),
