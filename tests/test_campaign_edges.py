@@ -516,3 +516,28 @@ def test_a_run_file_that_is_a_folder_or_a_fifo_is_not_read(base_campaign, tmp_pa
     with pytest.raises(mc.CampaignError) as e:
         mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False)
     assert "seed_3.npz is a folder, not a run file" in one_line(e.value)
+
+
+@pytest.mark.parametrize("entry, valid", [
+    (["f", 0, []], True),
+    (["f", 1, []], True),
+    (["f", 2, [3]], True),
+    (["f", 2, [0]], True),                 # a zero-size dimension is a shape numpy can hold
+    (["f", 32, [1] * 31], True),           # the most dimensions a stored layout may name
+    (["f", 33, [1] * 32], False),
+    (["f", -1, []], False),
+    (["f", 2, [-1]], False),
+    (["f", 2, []], False),                 # rest must list every dimension but the first
+    (["f", 1, [3]], False),
+    (["f", True, []], False),
+    (["f", 2, [True]], False),
+    (["f", 2, [3.0]], False),
+    ([1, 0, []], False),
+    (["f", 0], False),
+])
+def test_a_stored_layout_entry_at_its_bounds(entry, valid):
+    """A layout read back from campaign.json: dimensions 0..32, each size a non-negative int,
+    one size per dimension after the first; anything else is dropped (None), not trusted."""
+    layout = {"a": entry}
+    assert (campaign_records._valid_layout(layout) == layout) is valid
+    assert (campaign_records._valid_layout({"ok": ["f", 0, []], **layout}) is not None) is valid
