@@ -79,6 +79,14 @@ MODULES = {
     "fusion": ("drake_att/systems/fusion.py", ["tests/test_fusion.py", "tests/test_fusion_speed_equivalence.py"]),
     "build_context": ("drake_att/scenarios/build_context.py",
                       ["tests/test_initial_frames.py", "tests/test_faults.py", "tests/test_fusion.py"]),
+    "montecarlo": ("drake_att/analysis/montecarlo.py",
+                   ["tests/test_campaign_bookkeeping.py", "tests/test_campaign_edges.py", "tests/test_montecarlo.py",
+                    "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
+                    "not deadline and not http_server and not silent and not probe and not chromium"
+                    " and not ctrl_c"]),
+    "cli": ("drake_att/cli.py",
+            ["tests/test_cli_errors.py", "tests/test_campaign_bookkeeping.py", "tests/test_hostile_inputs.py",
+             "tests/test_config_loading.py", "tests/test_scenarios.py", "-k", "not sigterm and not downloaded_folder"]),
     "ranges": ("drake_att/scenarios/ranges.py",
                ["tests/test_ranges.py", "-k",  # docs/ is not copied; the peak is measured in a child process
                 "not config_reference_is_the_rendered_table and not measured_peak"]),
