@@ -86,7 +86,7 @@ MODULES = {
                     " and not ctrl_c"]),
     "cli": ("drake_att/cli.py",
             ["tests/test_cli_errors.py", "tests/test_campaign_bookkeeping.py", "tests/test_hostile_inputs.py",
-             "tests/test_config_loading.py", "tests/test_scenarios.py", "-k", "not sigterm and not downloaded_folder"]),
+             "tests/test_config_loading.py", "tests/test_score.py", "-k", "not sigterm and not downloaded_folder"]),
     "ranges": ("drake_att/scenarios/ranges.py",
                ["tests/test_ranges.py", "-k",  # docs/ is not copied; the peak is measured in a child process
                 "not config_reference_is_the_rendered_table and not measured_peak"]),
