@@ -171,3 +171,158 @@ def test_mekf_is_efficient_and_a_mistuned_one_is_not():
     print("mistuned: ratio", ratio, "se", se)
     assert np.all(ratio[:2] >= 1.25) and np.all(ratio[:2] - 1 > 5 * se[:2]), (ratio, se)
     assert b["ratio_total"] >= 1.2
+
+
+# ---------------------------------------------------------------------------------------------
+# BoundResult, the prior fallback, the sample index and bound_model on small synthetic logs
+# ---------------------------------------------------------------------------------------------
+def test_bound_sigma_is_the_root_of_the_diagonal_with_round_off_negatives_at_zero():
+    P = np.zeros((2, 6, 6))
+    P[0] = np.diag([4.0, 9.0, 16.0, 1e-12, 2.5e-13, 1.0])
+    P[1] = np.diag([1.0, -1e-30, 0.25, 0.0, 1e-14, 4.0])  # a round-off negative variance
+    s = bd.BoundResult(np.array([0.0, 1.0]), P).sigma()
+    np.testing.assert_array_equal(s, [[2.0, 3.0, 4.0, 1e-6, 5e-7, 1.0], [1.0, 0.0, 0.5, 0.0, 1e-7, 2.0]])
+
+
+def test_bound_at_accepts_float32_times_within_a_microsecond_of_the_gyro_instants():
+    """Estimate times read from a float32 log: every one within 1 us of a gyro instant
+    (including those rounded up by float32 above 32 s) gives the bound of that instant."""
+    t = np.arange(400) * 0.1
+    P = np.arange(400, dtype=float)[:, None, None] * np.ones((1, 6, 6))
+    res = bd.BoundResult(t, P)
+    t32 = t.astype(np.float32)
+    near = np.flatnonzero(np.abs(t32.astype(float) - t) <= 1e-6)
+    assert np.any(t32[near].astype(float) > t[near] + 5e-7)  # some are rounded up by > 0.5 us
+    np.testing.assert_array_equal(res.at(t32[near])[:, 0, 0], near)
+
+
+def test_step_noise_of_a_float32_bias_block_is_computed_in_double_precision():
+    """``J`` given in float32 gives the ``Q`` of its (exact) float64 values: ``C00 J J'``,
+    ``-C01 J``, ``C11 I`` with the Farrenkopf interval covariance
+    ``[[sv^2/T + su^2 T/3, su^2 T/2], [su^2 T/2, su^2 T]]``."""
+    dt = 1.0
+    J = (-transition_matrix(np.array([0.3, -0.2, 0.25]), dt)[:3, 3:]).astype(np.float32)
+    J64 = J.astype(float)
+    c00, c01, c11 = ARW**2 / dt + RRW**2 * dt / 3, RRW**2 * dt / 2, RRW**2 * dt
+    expect = np.zeros((6, 6))
+    expect[:3, :3] = c00 * (J64 @ J64.T)
+    expect[:3, 3:] = -c01 * J64
+    expect[3:, :3] = -c01 * J64.T
+    expect[3:, 3:] = c11 * np.eye(3)
+    Q = bd.farrenkopf_step_noise(ARW, RRW, dt, J)
+    assert Q.dtype == np.float64
+    np.testing.assert_allclose(Q, expect, rtol=1e-13, atol=0)
+
+
+@pytest.mark.parametrize("b0, sigma_b0, expect_deg_per_h", [([1.0, -3.0, 2.0], 0.0, 3.0), ([1.0, 1.0, 1.0], 5.0, 5.0),
+                                                           ([0.0, 0.2, -0.1], 0.5, 1.0)])
+def test_prior_without_initial_sigmas_uses_1_rad_and_the_largest_of_b0_sigma_b0_and_1_deg_per_h(
+        b0, sigma_b0, expect_deg_per_h):
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    gyro = next(s for s in load("cubesat_single_star_tracker").sensors if s.name == "gyro")
+    gyro = replace(gyro, initial_bias_deg_per_h=b0, initial_bias_sigma_deg_per_h=sigma_b0)
+    P0, where = bd.prior_covariance({"prior_config": SimpleNamespace(name="bare"), "gyro": gyro})
+    np.testing.assert_allclose(P0, np.diag([1.0] * 3 + [(expect_deg_per_h * DEG_PER_H) ** 2] * 3), rtol=1e-15)
+    assert "bare" in where and "attitude" in where and "bias" in where
+
+
+def test_sample_index_finds_the_sample_within_a_microsecond_or_minus_one():
+    times = np.array([0.0, 1.0, 2.0])
+    grid = np.array([-1.0, 0.0, 1.5, 2.0 + 5e-7, 3.0, 10.0])
+    np.testing.assert_array_equal(bd._sample_index(times, grid), [-1, 0, -1, 2, -1, -1])
+    # a single sample: found at its own time only, grid points after it are -1
+    np.testing.assert_array_equal(bd._sample_index(np.array([1.0]), np.array([0.0, 1.0 - 5e-7, 2.0, 3.0])),
+                                  [-1, 0, -1, -1])
+    np.testing.assert_array_equal(bd._sample_index(np.array([]), np.array([0.0, 1.0])), [-1, -1])
+
+
+_W_TRUE = np.array([0.01, -0.02, 0.03])  # rad/s
+_Q0 = rot.rpy_to_quat(np.array([0.3, -0.2, 1.0]))
+
+
+def _synthetic_run(scenario, K=6, T=1.0, gyro_edit=None, signals=()):
+    """A RunLog of ``K`` gyro samples (period ``T``) on a constant-rate truth starting at
+    ``_Q0``, plus the extra ``signals``."""
+    from drake_att.scenarios.builder import RunLog
+
+    t = np.arange(K) * T
+    q = np.array([rot.quat_propagate(_Q0, _W_TRUE, tk) for tk in t])
+    g = np.column_stack([t, np.ones(K), np.tile(_W_TRUE, (K, 1))])
+    if gyro_edit:
+        gyro_edit(g)
+    sig = {"gyro/gyro_measurement": (t, g), "truth/q_IB": (t, q), **dict(signals)}
+    return RunLog(scenario=scenario, seed=1, wall_time_s=0.0, signals=sig,
+                  metadata={"truth": {"attitude": "truth/q_IB"}})
+
+
+def _single_with_tracker_log():
+    ts = np.arange(51) * 0.1  # 10 Hz over the gyro's 0..5 s
+    x = np.column_stack([ts, np.ones(51), np.tile([1.0, 0.0, 0.0, 0.0], (51, 1))])
+    return load("cubesat_single_star_tracker"), {"st1/star_tracker_measurement": (ts, x)}
+
+
+def test_quaternion_tracker_bound_model_uses_the_samples_at_gyro_instants_and_reports_them():
+    sc, sig = _single_with_tracker_log()
+    model = bd.bound_model(_synthetic_run(sc, signals=sig), "single")
+    info = model["info"]
+    assert info["gyro"] == "gyro" and info["trackers"] == ["st1"] and info["grid_period_s"] == 1.0
+    assert info["tracker_samples"] == {"st1": {"samples_used": 6, "samples_between_gyro_samples": 45,
+                                               "samples_invalid": 0}}
+    st = next(s for s in sc.sensors if s.name == "st1")
+    R_SB = rot.quat_to_rotmat(star_tracker_mounting(st)).T
+    for meas in model["measurements"]:
+        assert len(meas) == 1
+        H, R = meas[0]
+        np.testing.assert_allclose(H, np.hstack([R_SB, np.zeros((3, 3))]), atol=1e-15)
+        np.testing.assert_allclose(R, np.diag(SIGMAS_S**2), rtol=1e-15)
+
+
+def test_a_flagged_invalid_gyro_sample_has_no_bound():
+    sc, sig = _single_with_tracker_log()
+
+    def invalid(g):
+        g[3, 1] = 0.0  # time right, flagged invalid
+
+    with pytest.raises(bd.NoBound, match="unusable"):
+        bd.bound_model(_synthetic_run(sc, gyro_edit=invalid, signals=sig), "single")
+
+
+def test_the_gyro_sample_at_t0_is_not_used_so_a_nan_there_keeps_the_bound():
+    """No interval ends at t = 0: the first gyro sample is not read (a NaN there is fine)."""
+    sc, sig = _single_with_tracker_log()
+
+    def nan_first(g):
+        g[0, 2:] = np.nan
+
+    model = bd.bound_model(_synthetic_run(sc, gyro_edit=nan_first, signals=sig), "single")
+    assert len(model["t"]) == 6 and all(np.all(np.isfinite(Phi)) for Phi in model["transitions"][1:])
+
+
+def test_vector_tracker_information_is_sum_of_projections_off_each_true_direction():
+    """A vector tracker (S0's ``ekf``; 0.5 s period, an outage over [2, 3) s, non-unit
+    references): at each gyro instant outside the outage its directions add
+    ``sum_i (I - b_i b_i') / s^2`` to the attitude information (``b_i = R_BI r_i / |r_i|`` at the
+    TRUE attitude; ``[b x]' R_SB' R_SB [b x] = I - b b'``) and nothing to the bias."""
+    from dataclasses import replace
+
+    sc = load("s0_particle_filters_small_error")
+    refs = np.array([[2.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.3, -0.4, 1.2]])
+    sensors = [replace(s, period_s=0.5, outage_windows_s=np.array([[2.0, 3.0]]), references_I=refs,
+                       sigma_vector_urad=100.0) if s.name == "st" else s for s in sc.sensors]
+    run = _synthetic_run(replace(sc, sensors=sensors))
+    model = bd.bound_model(run, "ekf")
+    s = 100e-6
+    for k, tk in enumerate(model["t"]):
+        info = sum((H.T @ np.linalg.solve(R, H) for H, R in model["measurements"][k]), np.zeros((6, 6)))
+        expect = np.zeros((6, 6))
+        if not 2.0 <= tk < 3.0:
+            R_BI = rot.quat_to_rotmat(rot.quat_propagate(_Q0, _W_TRUE, tk)).T
+            for r in refs:
+                b = R_BI @ (r / np.linalg.norm(r))
+                expect[:3, :3] += (np.eye(3) - np.outer(b, b)) / s**2
+        np.testing.assert_allclose(info, expect, rtol=1e-9, atol=1e-9 / s**2, err_msg=f"t = {tk}")
+    # 11 samples over 0..5 s: 2 in the outage, 5 at gyro instants, 4 between
+    assert model["info"]["tracker_samples"] == {"st": {"samples_used": 5, "samples_between_gyro_samples": 4,
+                                                       "samples_invalid": 2}}
