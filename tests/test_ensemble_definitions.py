@@ -638,3 +638,230 @@ def test_bound_of_an_off_axis_tracker_is_the_brute_force_information(rate_deg_pe
                                    err_msg=f"t = {grid[k]} s")
     counts = result.info["tracker_samples"]["st1"]
     assert counts == {"samples_used": 12, "samples_between_gyro_samples": 11, "samples_invalid": 2}
+
+
+# ---------------------------------------------------------------------------------------------
+# 6. What a record and a summary say in the corner cases
+# ---------------------------------------------------------------------------------------------
+def _relog(run, name="single", signals=None, roles=None, **spec):
+    """``run`` (of :func:`_fake_run`) logged again: its estimator ``"single"`` named ``name``,
+    ``signals`` (key -> (t, values)) added or replaced, the estimator's signal ``roles``
+    (role -> key, or None: not logged) and other metadata entries (``spec``) replaced."""
+    import copy
+
+    from drake_att.scenarios.builder import RunLog
+
+    meta = copy.deepcopy(run.metadata)
+    e = meta["estimators"].pop("single")
+    for role, key in (roles or {}).items():
+        if key is None:
+            del e["signals"][role]
+        else:
+            e["signals"][role] = key
+    e.update(spec)
+    meta["estimators"][name] = e
+    sig = {**run.signals, **(signals or {})}
+    meta["signals"] = list(sig)
+    RunLog.check_metadata(meta)
+    return RunLog(scenario=run.scenario, seed=run.seed, wall_time_s=0.0, signals=sig, metadata=meta)
+
+
+def _scenario_40s(name="cubesat_single_star_tracker"):
+    from drake_att.scenarios import config as cfg
+    from drake_att.scenarios.library import load
+
+    return cfg.apply_overrides(load(name), ["duration_s=40", "scoring.score_from_s=10"])
+
+
+def test_an_input_never_updated_has_empty_nis_arrays_and_no_summary_entry():
+    """An innovations log whose second input ("cam") never attempted an update (time -inf,
+    dimension 0 on every row): the record still holds its NIS arrays, empty 1-d arrays of
+    the documented dtypes; the first input's are its attempts; the summary lists only the
+    input that has attempts in the window."""
+    scenario = _scenario_40s()
+    t_est = np.arange(41.0)
+    records, knowns = [], []
+    for seed in (1, 2):
+        run, known = _fake_run(scenario, seed, t_est)
+        innov = run.values("single/innovations").copy()
+        innov[:, 3], innov[:, 4], innov[:, 5] = -np.inf, np.nan, 0.0
+        rec = ens.per_run_record(_relog(run, signals={"single/innovations": (run.times("single/innovations"),
+                                                                               innov)}))
+        assert str(rec["single__nis_source"]) == "innovations"
+        assert [str(x) for x in rec["single__inputs"]] == ["st1", "cam"]
+        for part, dtype in (("t", np.float64), ("value", np.float64), ("dof", np.int32)):
+            a = rec[f"single__nis1__{part}"]
+            assert a.shape == (0,) and a.dtype == dtype
+        np.testing.assert_array_equal(rec["single__nis0__t"], known["nis"][0][0])
+        np.testing.assert_allclose(rec["single__nis0__value"], known["nis"][0][1], rtol=1e-12)
+        records.append(rec)
+        knowns.append(known)
+    out = ens.summarize(records, scenario)["estimators"]["single"]["nis"]
+    assert list(out) == ["st1"]
+    v = np.concatenate([k["nis"][0][1][in_window(t_est, 10.0)] for k in knowns])
+    assert out["st1"]["count"] == v.size and out["st1"]["mean"] == pytest.approx(v.mean(), rel=1e-12)
+
+
+def test_status_fallback_takes_the_nis_only_where_the_used_count_rose():
+    """No innovations log, one quaternion tracker: the NIS samples are the status NIS at the
+    estimates whose used-update count rose. The count rises at every other estimate (between
+    attempts the status holds the last NIS), so the samples are the even estimates' NIS, each
+    once, of dimension 3 (``nis_source`` "status")."""
+    scenario = _scenario_40s()
+    t_est = np.arange(41.0)
+    n = len(t_est)
+    records, expected = [], []
+    for seed in (1, 2):
+        run, known = _fake_run(scenario, seed, t_est)
+        nis = known["nis"][0][1]
+        k = np.arange(n)
+        status = run.values("single/status").copy()
+        status[1:, 1] = k // 2 + 1  # 1, 1, 2, 2, ...: an update at every even estimate
+        status[1:, 3] = nis[k - k % 2]  # held between updates
+        rec = ens.per_run_record(_relog(run, signals={"single/status": (run.times("single/status"), status)},
+                                        roles={"innovations": None}))
+        assert str(rec["single__nis_source"]) == "status"
+        assert [str(x) for x in rec["single__inputs"]] == ["st1"]
+        np.testing.assert_array_equal(rec["single__nis0__t"], t_est[::2])
+        np.testing.assert_allclose(rec["single__nis0__value"], nis[::2], rtol=1e-12)
+        np.testing.assert_array_equal(rec["single__nis0__dof"], np.full(len(t_est[::2]), 3))
+        assert "single__nis1__t" not in rec
+        records.append(rec)
+        expected.append(nis[::2][in_window(t_est[::2], 10.0)])
+    out = ens.summarize(records, scenario)["estimators"]["single"]["nis"]
+    v = np.concatenate(expected)
+    assert out["st1"]["source"] == "status"
+    assert out["st1"]["count"] == v.size and out["st1"]["mean"] == pytest.approx(v.mean(), rel=1e-12)
+
+
+def test_two_input_estimator_without_innovations_log_has_nis_source_none():
+    """An estimator of two trackers ("joint": st1 and st2) that logs no innovations: the
+    status NIS cannot be split between its inputs, so the record says ``nis_source`` "none",
+    lists both inputs and holds no NIS arrays; the summary's ``nis`` is empty."""
+    scenario = _scenario_40s("cubesat_dual_star_tracker")
+    run, _ = _fake_run(scenario, 1, np.arange(41.0))
+    st = run.signals["st1/star_tracker_measurement"]
+    rec = ens.per_run_record(_relog(run, name="joint", signals={"st2/star_tracker_measurement": st},
+                                    roles={"innovations": None}))
+    assert str(rec["joint__nis_source"]) == "none"
+    assert [str(x) for x in rec["joint__inputs"]] == ["st1", "st2"]
+    assert not [k for k in rec if k.startswith("joint__nis") and k != "joint__nis_source"]
+    assert ens.summarize([rec], scenario)["estimators"]["joint"]["nis"] == {}
+
+
+@pytest.mark.parametrize("kind", ["gyro_bias", "body_rate"])
+def test_record_and_summary_name_the_second_quantity_and_its_bound(kind):
+    """The record's ``second_kind`` and the summary's are the estimator's (from the run's
+    metadata), and the second error's RMSE is reported in its unit: bias (deg/h) or body rate
+    (deg/s), from the known errors over the window. A body-rate (gyroless) estimator has no
+    gyro-driven bound: no bound arrays in the record, its ``bound_json`` and the summary's
+    ``bound.reason`` say it estimates the body rate."""
+    scenario = _scenario_40s()
+    t_est = np.arange(41.0)
+    W = in_window(t_est, 10.0)
+    records, ms2 = [], []
+    for seed in (1, 2, 3):
+        run, known = _fake_run(scenario, seed, t_est)
+        if kind == "body_rate":
+            rate_err = 1e-4 * np.random.default_rng(seed).standard_normal((len(t_est), 3))
+            w = run.values("plant/w_IB_B")[0]
+            w_hat = np.r_[[w], w - rate_err]  # row 0: the initial estimate
+            run = _relog(run, signals={"single/w_B_hat": (run.times("single/status"), w_hat)},
+                         roles={"second": "single/w_B_hat"}, second_kind="body_rate")
+            err = rate_err
+        else:
+            err = known["second_err"]
+        rec = ens.per_run_record(run)
+        assert str(rec["single__second_kind"]) == kind
+        np.testing.assert_allclose(rec["single__second_err"], err, rtol=1e-6, atol=1e-12)
+        info = json.loads(str(rec["single__bound_json"]))
+        if kind == "body_rate":
+            assert "single__bound_sigma" not in rec and "single__bound_window_var" not in rec
+            assert "single" in info["reason"] and "body rate" in info["reason"]
+        else:
+            assert rec["single__bound_sigma"].shape == (len(t_est), 6) and info["reason"] is None
+        records.append(rec)
+        ms2.append(np.mean(err[W] ** 2, axis=0))
+    out = ens.summarize(records, scenario)["estimators"]["single"]
+    assert out["second_kind"] == kind
+    rms = np.sqrt(np.mean(ms2, axis=0))
+    if kind == "body_rate":
+        np.testing.assert_allclose(out["rate_rmse_deg_per_s"], rms / DEG, rtol=1e-6)
+        assert out["bias_rmse_deg_per_h"] is None
+        assert out["bound"]["defined"] is False and out["bound"]["reason"] == info["reason"]
+        assert out["history"]["bound_attitude_sigma_deg"] is None
+    else:
+        np.testing.assert_allclose(out["bias_rmse_deg_per_h"], rms / DEG_PER_H, rtol=1e-6)
+        assert out["rate_rmse_deg_per_s"] is None
+        assert out["bound"]["defined"] is True and out["bound"]["reason"] is None
+
+
+def test_anees_is_undefined_when_no_window_nees_is_finite():
+    """Every NEES sample in the window NaN (a singular covariance): the record's window NEES
+    count is 0, so ``anees`` is None and so are ``anees_in_band`` and the window band; the
+    one-instant band ``chi2(N dof)/N`` is still given."""
+    t = np.arange(50.0)
+    records = []
+    for seed in range(4):
+        nees = np.r_[np.full(20, 6.0), np.full(30, np.nan)]
+        rec = _record(seed, 20.0, {"f": {"t": t, "dtheta": 1e-4 * np.ones((50, 3)), "nees": nees, "dof": 6}})
+        rec["f__window_nees_sum"], rec["f__window_nees_n"] = np.array(0.0), np.array(0)  # the finite ones
+        records.append(rec)
+    out = ens.summarize(records, _scenario(20.0))["estimators"]["f"]
+    assert out["anees"] is None
+    assert out["anees_in_band"] is None
+    assert out["anees_window_band_95"] is None and out["anees_in_window_band"] is None
+    np.testing.assert_allclose(out["anees_band_95"], chi2_band(4 * 6, 4), rtol=1e-9)
+
+
+def test_summary_bound_block_from_the_records_bound_variances():
+    """Six runs whose records carry a bound (1-sigmas at the estimate times, float32, and the
+    window's mean variances): ``attitude_rmse_bound_deg`` = sqrt(mean over runs of each
+    axis' window variance), ``attitude_rmse_total_bound_deg`` = sqrt(mean over runs of
+    their sum), ``ratio`` / ``ratio_total`` / ``ratio_ci95`` the RMSEs (and CI ends) over
+    them, the bias bound and ratio likewise, ``prior_sensitivity`` the largest run's,
+    ``info`` the first run's facts; the history's ``bound_attitude_sigma_deg`` is the RMS over
+    runs of the stored 1-sigmas at each instant (computed in float64 from the stored values)."""
+    rng = np.random.default_rng(11)
+    t = np.arange(50.0)
+    W = in_window(t, 20.0)
+    N = 6
+    records, ms, ms2, bv, bs, sens = [], [], [], [], [], []
+    for seed in range(N):
+        d = np.array([1e-4, 3e-4, 2e-5]) * rng.standard_normal((50, 3))
+        b = 1e-6 * rng.standard_normal((50, 3))
+        rec = _record(seed, 20.0, {"f": {"t": t, "dtheta": d, "nees": np.full(50, 6.0), "dof": 6, "second_err": b}})
+        sigma = (np.r_[[1e-4, 2e-4, 3e-5], [1e-6, 2e-6, 5e-7]] * rng.uniform(0.5, 2.0, (50, 6))).astype(np.float32)
+        var = np.mean(sigma[W].astype(float) ** 2, axis=0)
+        ps = float(rng.uniform(0.0, 0.1))
+        rec["f__bound_sigma"], rec["f__bound_window_var"] = sigma, var
+        rec["f__bound_json"] = np.array(json.dumps({"gyro": "gyro", "trackers": ["st1"], "seed_note": seed,
+                                                    "reason": None, "prior_sensitivity": ps}))
+        records.append(rec)
+        ms.append(np.mean(d[W] ** 2, axis=0))
+        ms2.append(np.mean(b[W] ** 2, axis=0))
+        bv.append(var)
+        bs.append(sigma.astype(float))
+        sens.append(ps)
+    out = ens.summarize(records, _scenario(20.0))["estimators"]["f"]
+    bound = out["bound"]
+    ms, ms2, bv, bs = np.array(ms), np.array(ms2), np.array(bv), np.array(bs)
+    b_att = np.sqrt(bv[:, :3].mean(axis=0))
+    b_tot = np.sqrt(bv[:, :3].sum(axis=1).mean())
+    b_bias = np.sqrt(bv[:, 3:].mean(axis=0))
+    assert bound["defined"] is True and bound["reason"] is None
+    np.testing.assert_allclose(bound["attitude_rmse_bound_deg"], b_att / DEG, rtol=1e-12)
+    assert bound["attitude_rmse_total_bound_deg"] == pytest.approx(b_tot / DEG, rel=1e-12)
+    np.testing.assert_allclose(bound["ratio"], np.sqrt(ms.mean(axis=0)) / b_att, rtol=1e-9)
+    assert bound["ratio_total"] == pytest.approx(np.sqrt(ms.sum(axis=1).mean()) / b_tot, rel=1e-9)
+    for j in range(3):
+        lo, hi = np.array(out["attitude_rmse_ci95_deg"][j]) * DEG
+        np.testing.assert_allclose(bound["ratio_ci95"][j], [lo / b_att[j], hi / b_att[j]], rtol=1e-12)
+    np.testing.assert_allclose(bound["bias_rmse_bound_deg_per_h"], b_bias / DEG_PER_H, rtol=1e-12)
+    np.testing.assert_allclose(bound["bias_ratio"], np.sqrt(ms2.mean(axis=0)) / b_bias, rtol=1e-9)
+    assert bound["prior_sensitivity"] == pytest.approx(max(sens), rel=1e-15)
+    assert bound["info"] == {"gyro": "gyro", "trackers": ["st1"], "seed_note": 0}
+    hist = out["history"]
+    np.testing.assert_allclose(hist["t"], t)
+    np.testing.assert_allclose(hist["bound_attitude_sigma_deg"], np.sqrt(np.mean(bs[:, :, :3] ** 2, axis=0)) / DEG,
+                               rtol=1e-12)
