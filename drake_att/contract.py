@@ -43,7 +43,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
@@ -279,19 +279,22 @@ class UpdateInfo:
     degenerate: bool = False
 
 
+StateT = TypeVar("StateT")
+
+
 @runtime_checkable
-class FilterCore(Protocol):
-    """What the estimator system needs from a filter core (all plain numpy).
+class FilterCore(Protocol[StateT]):
+    """What the estimator system needs from every filter core (all plain numpy), generic in
+    the core's frozen state type.
 
     Attributes:
         second_quantity: what the second 3-vector of the estimate is.
         uses_gyro: the system feeds ``predict`` the gyro's mean rate (else None).
         is_random: the core draws random numbers; the system passes a generator that is a
-            pure function of (diagram seed, system name, step index) and calls
-            ``draw_initial_state(rng)`` at initialization if the core has one.
-        diagnostic_names (optional): names of ``diagnostics(state)``'s entries, published
-            on the system's ``diagnostics`` port and logged.
+            pure function of (diagram seed, system name, step index).
         state_size: length of ``to_vector(state)`` (the Context's discrete-state group).
+
+    Optional capabilities are the protocols below; :class:`CoreCapabilities` reads them.
     """
 
     second_quantity: SecondQuantity
@@ -299,21 +302,108 @@ class FilterCore(Protocol):
     is_random: bool
     state_size: int
 
-    def predict(self, state: Any, w_meas_B: np.ndarray | None, dt: float,
-                rng: np.random.Generator | None) -> Any:
+    def predict(self, state: StateT, w_meas_B: np.ndarray | None, dt: float,
+                rng: np.random.Generator | None) -> StateT:
         """The state propagated over ``dt`` (s) (``w_meas_B``: mean gyro rate, rad/s)."""
 
-    def update(self, state: Any, measurement, rng: np.random.Generator | None) -> tuple[Any, UpdateInfo]:
+    def update(self, state: StateT, measurement, rng: np.random.Generator | None) -> tuple[StateT, UpdateInfo]:
         """The state updated with one usable measurement, and what happened."""
 
-    def estimate(self, state: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def estimate(self, state: StateT) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(q_IB_hat (4), second (3), covariance (6, 6))`` of the state."""
 
-    def to_vector(self, state: Any) -> np.ndarray:
+    def to_vector(self, state: StateT) -> np.ndarray:
         """The state as a flat vector (stored in the Context)."""
 
-    def from_vector(self, vector: np.ndarray) -> Any:
+    def from_vector(self, vector: np.ndarray) -> StateT:
         """Inverse of :meth:`to_vector`."""
+
+
+@runtime_checkable
+class LinearizedPrediction(Protocol[StateT]):
+    """A core that publishes its step linearization (``step_linearization``, used by the
+    tracked decentralized fusion). Its updates report ``UpdateInfo.error_transition``."""
+
+    def predict_linearized(self, state: StateT, w_meas_B: np.ndarray | None,
+                           dt: float) -> tuple[StateT, np.ndarray, np.ndarray]:
+        """``(predicted state, Phi (6, 6), Q (6, 6))``: the prediction and its error map."""
+
+
+@runtime_checkable
+class Reacquisition(Protocol[StateT]):
+    """A gated core the system re-acquires after repeated gate rejections: it calls
+    ``reacquire`` and retries the measurement once with ``ungated()``."""
+
+    def reacquire(self, state: StateT, info: UpdateInfo) -> StateT:
+        """The state with its attitude covariance inflated for the rejected innovation."""
+
+    def ungated(self) -> FilterCore[StateT]:
+        """The same core with its innovation gate off."""
+
+
+@runtime_checkable
+class RandomInitialState(Protocol[StateT]):
+    """A random core whose initial state is drawn at initialization with generator 0."""
+
+    def draw_initial_state(self, rng: np.random.Generator) -> StateT:
+        """A draw of the initial state (e.g. a particle set)."""
+
+
+@runtime_checkable
+class ParticleSet(Protocol):
+    """A particle core: the system publishes ``particle_diagnostics`` (``N_eff``,
+    resamplings, degenerate updates, ``N``) from its ``UpdateInfo``."""
+
+    num_particles: int
+
+
+@runtime_checkable
+class CoreDiagnostics(Protocol[StateT]):
+    """A core with named diagnostics, published on ``diagnostics`` and logged."""
+
+    diagnostic_names: tuple[str, ...]
+
+    def diagnostics(self, state: StateT) -> np.ndarray:
+        """One number per name of ``diagnostic_names``."""
+
+
+@dataclass(frozen=True)
+class CoreCapabilities:
+    """Which optional capabilities a core has (read once, when its system is built).
+
+    Attributes:
+        linearized_prediction: :class:`LinearizedPrediction`.
+        reacquisition: :class:`Reacquisition`.
+        random_initial_state: :class:`RandomInitialState` (only read for ``is_random`` cores).
+        num_particles: :class:`ParticleSet`'s ``N`` (None: not a particle core).
+        diagnostic_names: :class:`CoreDiagnostics`' names (empty: none).
+    """
+
+    linearized_prediction: bool = False
+    reacquisition: bool = False
+    random_initial_state: bool = False
+    num_particles: int | None = None
+    diagnostic_names: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, core) -> CoreCapabilities:
+        """The capabilities of ``core``.
+
+        Raises:
+            TypeError: a core with half a capability (``reacquire`` without ``ungated``,
+                ``diagnostic_names`` without ``diagnostics``), naming what is missing.
+        """
+        name = type(core).__name__
+        for half, whole, protocol in (("reacquire", "ungated", Reacquisition),
+                                      ("diagnostic_names", "diagnostics", CoreDiagnostics)):
+            if hasattr(core, half) and not isinstance(core, protocol):
+                raise TypeError(f"core {name} has {half!r} but not {whole!r}: drake_att.contract."
+                                f"{protocol.__name__} needs both")
+        return cls(linearized_prediction=isinstance(core, LinearizedPrediction),
+                   reacquisition=isinstance(core, Reacquisition),
+                   random_initial_state=isinstance(core, RandomInitialState),
+                   num_particles=core.num_particles if isinstance(core, ParticleSet) else None,
+                   diagnostic_names=tuple(core.diagnostic_names) if isinstance(core, CoreDiagnostics) else ())
 
 
 __all__ = [
@@ -322,5 +412,6 @@ __all__ = [
     "GYRO_MEASUREMENT_SIZE", "QUATERNION_MEASUREMENT_SIZE",
     "SecondQuantity", "Estimate", "pack_estimate", "flag_is_true", "GyroSample", "QuaternionSample",
     "VectorObservations", "empty_vector_observations", "CameraCentroids", "empty_camera_centroids", "is_usable", "UpdateInfo",
-    "FilterCore",
+    "FilterCore", "LinearizedPrediction", "Reacquisition", "RandomInitialState", "ParticleSet", "CoreDiagnostics",
+    "CoreCapabilities",
 ]

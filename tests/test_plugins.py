@@ -31,6 +31,7 @@ import scipy.linalg as sla
 import yaml
 from scipy.stats import chi2
 
+from drake_att import contract as c
 from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids, SecondQuantity, VectorObservations
 from drake_att.scenarios.builder import ScenarioDiagram
@@ -647,3 +648,77 @@ def test_registry_refuses_optional_fields_whose_default_is_not_none():
     with pytest.raises(PluginError, match=r"_LossyConfig.gain: an Optional field must default to None"):
         register_estimator(_LossyConfig, second_quantity=SecondQuantity.GYRO_BIAS)(lambda ctx, c: None)
     assert "_LossyConfig" not in plugins(ESTIMATOR)
+
+
+@pytest.mark.parametrize("tag", CONTRACT_CASES)
+def test_contract_capabilities_are_declared_and_match_the_ports(contract_diagram, tag):
+    """Every optional capability a library core has is one of the contract's protocols, and the
+    system's ports follow from them: a linearization port exactly for LinearizedPrediction,
+    particle diagnostics exactly for ParticleSet, a core diagnostics port for CoreDiagnostics;
+    a Reacquisition core's ``ungated()`` is the same core class with a gate that rejects nothing
+    and the same tuning otherwise."""
+    import copy
+
+    system = _estimator_system(contract_diagram, tag)
+    core = system.core
+    caps = c.CoreCapabilities.of(core)
+    ports = {system.get_output_port(i).get_name() for i in range(system.num_output_ports())}
+    assert caps.linearized_prediction == ("step_linearization" in ports) == hasattr(core, "predict_linearized")
+    assert (caps.num_particles is not None) == ("particle_diagnostics" in ports) == hasattr(core, "num_particles")
+    assert bool(caps.diagnostic_names) == ("diagnostics" in ports)
+    assert caps.reacquisition == hasattr(core, "reacquire")
+    if core.is_random and hasattr(core, "draw_initial_state"):
+        assert caps.random_initial_state
+    if caps.reacquisition:
+        original = getattr(core, "mekf", core)  # the indoor tracker gates in its MEKF
+        gate_before = original.gate
+        twin = core.ungated()
+        assert type(twin) is type(core) and twin is not core
+        gated = getattr(twin, "mekf", twin)
+        assert not gated.gate.rejects(1e300, 3) and not gated.gate.rejects(1e300, 6)
+        assert original.gate is gate_before  # the original is untouched
+        kept = {k: v for k, v in vars(gated).items() if k != "gate"}
+        assert kept.keys() == {k for k in vars(original) if k != "gate"}
+        for k, v in kept.items():
+            assert v is vars(original)[k] or copy.copy(v) == v, k
+
+
+def test_a_core_with_half_a_capability_is_refused_naming_what_is_missing():
+    class HalfReacquire:
+        second_quantity = c.SecondQuantity.GYRO_BIAS
+        uses_gyro, is_random, state_size = True, False, 1
+
+        def predict(self, state, w, dt, rng):
+            return state
+
+        def update(self, state, m, rng):
+            return state, c.UpdateInfo(None, None, float("nan"), True)
+
+        def estimate(self, state):
+            return np.array([1.0, 0, 0, 0]), np.zeros(3), np.eye(6)
+
+        def to_vector(self, state):
+            return np.zeros(1)
+
+        def from_vector(self, v):
+            return v
+
+        def reacquire(self, state, info):
+            return state
+
+    assert isinstance(HalfReacquire(), c.FilterCore)
+    with pytest.raises(TypeError, match=r"HalfReacquire has 'reacquire' but not 'ungated'.*Reacquisition"):
+        c.CoreCapabilities.of(HalfReacquire())
+    with pytest.raises(TypeError, match="'reacquire' but not 'ungated'"):
+        EstimatorSystem("half", 0.1, HalfReacquire(), None)
+
+    class HalfDiagnostics(HalfReacquire):
+        diagnostic_names = ("a",)
+
+        def ungated(self):
+            return self
+
+    with pytest.raises(TypeError, match="'diagnostic_names' but not 'diagnostics'"):
+        c.CoreCapabilities.of(HalfDiagnostics())
+    caps = c.CoreCapabilities.of(type("Whole", (HalfDiagnostics,), {"diagnostics": lambda self, s: np.zeros(1)})())
+    assert caps.reacquisition and caps.diagnostic_names == ("a",) and not caps.linearized_prediction

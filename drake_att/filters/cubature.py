@@ -103,7 +103,7 @@ from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters.mekf import process_noise
 from drake_att.filters.multiplicative_noise import MultiplicativeNoiseModel
-from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 from drake_att.validation import (
     check_array,
     check_covariance,
@@ -213,7 +213,7 @@ def _process_noise_sqrt(arw: float, rrw: float, dt: float, c: float) -> np.ndarr
     return L
 
 
-class CubatureQuaternionEstimator:
+class CubatureQuaternionEstimator(GatedCore):
     """Cubature quaternion estimator (CQE); with ``noise_model`` the CQE-MCNS.
 
     Implements :class:`drake_att.contract.FilterCore` (state vector

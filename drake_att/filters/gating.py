@@ -17,6 +17,7 @@ innovation would sit at about half the gate), capped at a pi-radian sigma.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 
@@ -177,3 +178,17 @@ def inflated(state, factor: float, field: str = "P", square_root: bool = False, 
 
 __all__ = ["DEFAULT_GATE_PROBABILITY", "REACQUIRE_AFTER_REJECTIONS", "chi2_cdf", "chi2_quantile", "InnovationGate",
            "reacquire_factor", "inflated"]
+
+
+class GatedCore:
+    """Mixin of the cores that gate their updates with an :class:`InnovationGate` held in
+    ``self.gate``: :meth:`ungated` is the core re-acquisition retries with
+    (:class:`drake_att.contract.Reacquisition`)."""
+
+    gate: InnovationGate
+
+    def ungated(self):
+        """A shallow copy of this core whose gate rejects nothing (the tuning is shared)."""
+        twin = copy.copy(self)
+        twin.gate = InnovationGate()
+        return twin

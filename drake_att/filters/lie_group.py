@@ -137,7 +137,7 @@ from drake_att import rotations as rot
 from drake_att.validation import check_array, check_nonnegative, check_positive, check_variance_matrix, fail
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf as _mekf
-from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 
 FORMULATIONS = ("consistent", "paper_literal")
 _EYE3 = np.eye(3)
@@ -238,7 +238,7 @@ def _sensor_directions(measurement: VectorObservations) -> tuple[np.ndarray, np.
     return np.atleast_2d(np.asarray(measurement.directions_S, dtype=float)), rot.quat_to_rotmat(measurement.q_BS).T
 
 
-class LieGroupFilter:
+class LieGroupFilter(GatedCore):
     """Lie-group filter core (paper S4); implements :class:`drake_att.contract.FilterCore`.
 
     Without a bias state (default): state vector ``[R_IB (9, row-major), P (9), w_B (3),

@@ -64,7 +64,7 @@ from drake_att.validation import check_nonnegative, check_positive
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf_kernels as _kernels
 from drake_att.filters.compiled import KERNELS  # MultiplicativeEKF(kernel=...): compiled or the numpy specification
-from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 
 
 
@@ -182,7 +182,7 @@ def _inverse(S):
         return None
 
 
-class MultiplicativeEKF:
+class MultiplicativeEKF(GatedCore):
     """MEKF core: :meth:`predict`, :meth:`update_quaternion`, :meth:`update_vectors`.
 
     Implements :class:`drake_att.contract.FilterCore` (:meth:`update` dispatches on the

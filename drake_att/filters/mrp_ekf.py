@@ -64,7 +64,7 @@ from drake_att.validation import (
     measurement_or_none,
 )
 from drake_att.contract import SecondQuantity, UpdateInfo
-from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 from drake_att.rotations import (
     mrp_kinematics_matrix,
     mrp_to_quat,
@@ -516,7 +516,7 @@ class MrpEkfState:
     P: np.ndarray
 
 
-class MrpEkfCore:
+class MrpEkfCore(GatedCore):
     """Paper S0's additive EKF on ``[rho; b]`` as a :class:`drake_att.contract.FilterCore`.
 
     The same math as :class:`MrpEkf` (:func:`ekf_predict`, :func:`ekf_update`) on an explicit

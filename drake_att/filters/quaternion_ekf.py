@@ -60,7 +60,7 @@ from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.validation import check_nonnegative, check_positive, check_quaternion, check_variance_matrix
 from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
-from drake_att.filters.gating import InnovationGate, inflated, reacquire_factor
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 
 _EYE4 = np.eye(4)
 # References this close to collinear fix no attitude: the ratio of the references' two largest
@@ -124,7 +124,7 @@ def wahba_quaternion(directions_B, references_I) -> np.ndarray | None:
     return rot.rotmat_to_quat(R_BI.T)
 
 
-class AdditiveQuaternionEKF:
+class AdditiveQuaternionEKF(GatedCore):
     """Additive quaternion EKF core (paper S4's baseline); a
     :class:`drake_att.contract.FilterCore`.
 

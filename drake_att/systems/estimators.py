@@ -15,9 +15,9 @@ which owns the loop they all share, once:
   is skipped and counted; the core's own rejection (innovation gate, singular innovation
   covariance: ``UpdateInfo.accepted`` false) is counted as skipped too;
 * **re-acquisition**: after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
-  consecutive rejections of one input by a core that has ``reacquire(state, info)`` (the
-  Kalman-type cores: covariance inflated so the rejected innovation sits at half the gate),
-  the state is re-acquired and the same measurement retried once without the gate — a gate
+  consecutive rejections of one input by a :class:`~drake_att.contract.Reacquisition` core
+  (the Kalman-type cores: covariance inflated so the rejected innovation sits at half the
+  gate), the state is re-acquired and the same measurement retried once with ``ungated()`` — a gate
   never rejects forever (a filter that has lost track, or starts far from the truth, takes
   the measurement back after N rejections); the retry's outcome is what is counted;
 * **randomness** (cores with ``is_random``): the seed comes from the diagram's
@@ -39,12 +39,12 @@ Output ports:
     q_IB_hat (4), bias_B_hat or w_IB_B_hat (3, named by the core's ``second_quantity``),
     covariance (36), status (4): the contract (see :mod:`drake_att.contract`).
     estimate_state (47): the packed estimate (C++-evaluated; what the builder logs).
-    step_linearization (109) (cores with ``predict_linearized``, e.g. the MEKF): the last
+    step_linearization (109) (:class:`~drake_att.contract.LinearizedPrediction` cores, e.g. the MEKF): the last
         step's linearized error map ``e+ = A (Phi e + w)`` as ``[Phi, Q = cov(w), A]``
         (row-major 6x6 each) and the number of steps taken (for track-to-track fusion).
-    particle_diagnostics (4) (cores with ``num_particles``): ``[N_eff after the last
+    particle_diagnostics (4) (:class:`~drake_att.contract.ParticleSet` cores): ``[N_eff after the last
         update (before resampling), resamplings so far, degenerate updates so far, N]``.
-    diagnostics (n) (cores with ``diagnostic_names``): ``core.diagnostics(state)``, e.g. the
+    diagnostics (n) (:class:`~drake_att.contract.CoreDiagnostics` cores): ``core.diagnostics(state)``, e.g. the
         indoor star tracker's stars identified and iterations of the last frame.
     innovations (3 per measurement input, C++-evaluated; estimators with inputs): per input,
         in :attr:`input_names` order, ``[time of its last update (s; -inf before any), that
@@ -57,9 +57,7 @@ Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
         structure (state size, ports, period) cannot change.
 Discrete state:
     group 0: the packed estimate (47).
-    group 1: bookkeeping ``[t_last, last valid gyro rate (3), step index, seed words (4),
-        resamplings, last N_eff, degenerate updates, time of the last used sample per
-        measurement input ...]``.
+    group 1: the runner's counters and times, laid out by :class:`Bookkeeping`.
     group 2: the core's state vector (``core.to_vector``).
     group 3 (linearizing cores): the step linearization (109).
     next group (estimators with measurement inputs): the innovations (3 per input).
@@ -68,8 +66,8 @@ Discrete state:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -85,6 +83,10 @@ from drake_att.contract import (
     QUATERNION_MEASUREMENT_SIZE,
     SECOND,
     STATUS,
+    STATUS_LAST_NIS,
+    STATUS_SKIPPED,
+    STATUS_USED,
+    CoreCapabilities,
     GyroSample,
     QuaternionSample,
     SecondQuantity,
@@ -105,13 +107,46 @@ PARTICLE_DIAGNOSTICS_SIZE = 4
 _EYE6 = np.eye(6)
 _ZERO6 = np.zeros((6, 6))
 
-# Bookkeeping group layout.
-_T_LAST, _W_LAST, _STEP = 0, slice(1, 4), 4
-_SEED = slice(5, 5 + SEED_WORDS)
-_N_RESAMPLES, _ESS, _N_DEGENERATE = 5 + SEED_WORDS, 6 + SEED_WORDS, 7 + SEED_WORDS
-_LAST_SAMPLE = 8 + SEED_WORDS  # first per-input "time of last used sample"; then, per input, the
-# number of consecutive rejections by the core (re-acquisition)
-assert _T_LAST == 0 and _W_LAST == slice(1, 4)  # the layout drake_att.systems.compiled_step writes
+
+
+@dataclass(frozen=True)
+class Bookkeeping:
+    """The layout of the bookkeeping group (discrete-state group 1) of a system with
+    ``n_inputs`` measurement inputs: what the runner counts, by name (the cores count
+    nothing). :mod:`drake_att.systems.compiled_step` writes the same layout."""
+
+    n_inputs: int
+    T_LAST: ClassVar[int] = 0                              # time of the last step (-inf before any)
+    W_LAST: ClassVar[slice] = slice(1, 4)                  # last valid gyro rate (the hold)
+    STEP: ClassVar[int] = 4                                # step index (random cores' generator)
+    SEED: ClassVar[slice] = slice(5, 5 + SEED_WORDS)       # the diagram seed's words
+    N_RESAMPLES: ClassVar[int] = 5 + SEED_WORDS            # particle resamplings so far
+    ESS: ClassVar[int] = 6 + SEED_WORDS                    # N_eff after the last update
+    N_DEGENERATE: ClassVar[int] = 7 + SEED_WORDS           # degenerate particle updates so far
+    LAST_SAMPLE: ClassVar[int] = 8 + SEED_WORDS            # per input: time of its last used sample
+
+    @property
+    def rejections(self) -> int:
+        """First per-input count of consecutive gate rejections (re-acquisition)."""
+        return self.LAST_SAMPLE + self.n_inputs
+
+    @property
+    def size(self) -> int:
+        return self.LAST_SAMPLE + 2 * self.n_inputs
+
+    def initial(self, num_particles: int | None) -> np.ndarray:
+        book = np.zeros(self.size)
+        book[self.T_LAST] = -np.inf
+        book[self.ESS] = float(num_particles) if num_particles is not None else np.nan
+        book[self.LAST_SAMPLE:self.rejections] = -np.inf
+        return book
+
+
+_T_LAST, _W_LAST, _STEP, _SEED = Bookkeeping.T_LAST, Bookkeeping.W_LAST, Bookkeeping.STEP, Bookkeeping.SEED
+_N_RESAMPLES, _ESS, _N_DEGENERATE = Bookkeeping.N_RESAMPLES, Bookkeeping.ESS, Bookkeeping.N_DEGENERATE
+_LAST_SAMPLE = Bookkeeping.LAST_SAMPLE
+# The status entries of the packed estimate the runner counts in.
+_USED, _SKIPPED, _LAST_NIS = (STATUS.start + i for i in (STATUS_USED, STATUS_SKIPPED, STATUS_LAST_NIS))
 _NO_GYRO = np.full(GYRO_MEASUREMENT_SIZE, np.nan)
 _NO_INNOVATIONS = np.zeros(0)
 
@@ -179,6 +214,10 @@ class FilterModel:
     initial_state: Any
     quaternion_sensors: tuple
     enabled: bool = True
+    capabilities: CoreCapabilities = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "capabilities", CoreCapabilities.of(self.core))
 
 
 class EstimatorSystem(LeafSystem):
@@ -208,8 +247,9 @@ class EstimatorSystem(LeafSystem):
         self.core = core  # the default core (a context may carry another: FilterModel)
         self.second_quantity: SecondQuantity = core.second_quantity
         self.second_output_name = core.second_quantity.port_name
-        self._linearizing = hasattr(core, "predict_linearized")
-        self.num_particles = getattr(core, "num_particles", None)
+        self.capabilities = CoreCapabilities.of(core)
+        self._linearizing = self.capabilities.linearized_prediction
+        self.num_particles = self.capabilities.num_particles
 
         # -- inputs (order matters for the diagram's random streams: keep it stable) ------
         self._gyro_port = (self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE)
@@ -226,7 +266,7 @@ class EstimatorSystem(LeafSystem):
         self._seed_port = declare_seed_port(self) if core.is_random else None
         self._vector_names = tuple(vector_sensors)
         self._camera_names = tuple(camera_sensors)
-        self.diagnostic_names = tuple(getattr(core, "diagnostic_names", ()))
+        self.diagnostic_names = self.capabilities.diagnostic_names
         self._compiled_models: dict = {}
         self._model_index = self.DeclareAbstractParameter(
             AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors))))
@@ -236,12 +276,9 @@ class EstimatorSystem(LeafSystem):
         self._estimate_group = self.DeclareDiscreteState(
             pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
-        self._rejections = _LAST_SAMPLE + n_inputs  # first per-input consecutive-rejection count
-        book = np.zeros(_LAST_SAMPLE + 2 * n_inputs)
-        book[_T_LAST] = -np.inf
-        book[_ESS] = float(self.num_particles) if self.num_particles is not None else np.nan
-        book[_LAST_SAMPLE:self._rejections] = -np.inf
-        self._book_group = self.DeclareDiscreteState(book)
+        self.bookkeeping = Bookkeeping(n_inputs)
+        self._rejections = self.bookkeeping.rejections
+        self._book_group = self.DeclareDiscreteState(self.bookkeeping.initial(self.num_particles))
         self._core_group = self.DeclareDiscreteState(np.asarray(core.to_vector(initial_state), dtype=float))
         if self._linearizing:
             self._linearization_group = self.DeclareDiscreteState(
@@ -315,18 +352,19 @@ class EstimatorSystem(LeafSystem):
         name, old, new = self.get_name(), self.core, setup.core
         if not isinstance(new, contract.FilterCore):
             raise TypeError(f"{name}: core {type(new).__name__} does not implement drake_att.contract.FilterCore")
+        caps = CoreCapabilities.of(new)
         checks = [("period_s", self.period_s, float(setup.period_s)),
                   ("state size", old.state_size, new.state_size),
                   ("uses_gyro", old.uses_gyro, new.uses_gyro),
                   ("is_random", old.is_random, new.is_random),
                   ("second quantity", old.second_quantity, new.second_quantity),
-                  ("linearizing", self._linearizing, hasattr(new, "predict_linearized")),
-                  ("num_particles", self.num_particles, getattr(new, "num_particles", None)),
+                  ("linearizing", self._linearizing, caps.linearized_prediction),
+                  ("num_particles", self.num_particles, caps.num_particles),
                   ("quaternion sensors", [s.name for s in self._quat_sensors],
                    [s.name for s in setup.quaternion_sensors]),
                   ("vector sensors", list(self._vector_names), list(setup.vector_sensors)),
                   ("cameras", list(self._camera_names), list(setup.camera_sensors)),
-                  ("diagnostics", list(self.diagnostic_names), list(getattr(new, "diagnostic_names", ())))]
+                  ("diagnostics", list(self.diagnostic_names), list(caps.diagnostic_names))]
         for what, was, now in checks:
             if was != now:
                 raise ValueError(f"{name}: the new filter setup changes the {what} ({was!r} -> {now!r}); "
@@ -362,9 +400,8 @@ class EstimatorSystem(LeafSystem):
         book[_STEP] = 0.0
         model = self.filter_model(context)
         core = model.core
-        draw = getattr(core, "draw_initial_state", None)
-        state = (draw(counter_random(words, self.get_name()).generator(0)) if draw is not None
-                 else model.initial_state)
+        state = (core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
+                 if model.capabilities.random_initial_state else model.initial_state)
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
         discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
         return EventStatus.Succeeded()
@@ -442,11 +479,12 @@ class EstimatorSystem(LeafSystem):
             if array_model is not None:
                 return self._on_step_compiled(context, discrete_state, array_model)
         core = model.core
+        reacquires = model.capabilities.reacquisition
         t = context.get_time()
         est = self.estimate_vector(context)
         book = context.get_discrete_state(self._book_group).value().copy()
         state = core.from_vector(context.get_discrete_state(self._core_group).value())
-        n_used, n_skipped, nis = est[44], est[45], est[46]
+        n_used, n_skipped, nis = est[_USED], est[_SKIPPED], est[_LAST_NIS]
         rng = None
         if core.is_random:
             book[_STEP] += 1.0
@@ -490,11 +528,11 @@ class EstimatorSystem(LeafSystem):
             new_state, info = core.update(state, m, rng)
             if info.accepted:
                 book[self._rejections + i] = 0.0
-            elif info.nis == info.nis and hasattr(core, "reacquire"):  # a gate rejection (finite NIS)
+            elif info.nis == info.nis and reacquires:  # a gate rejection (finite NIS)
                 book[self._rejections + i] += 1.0
                 if book[self._rejections + i] >= REACQUIRE_AFTER_REJECTIONS:
                     book[self._rejections + i] = 0.0
-                    new_state, info = _ungated(core).update(core.reacquire(state, info), m, rng)
+                    new_state, info = core.ungated().update(core.reacquire(state, info), m, rng)
             state = new_state
             nis = info.nis
             if innovations is None:
@@ -523,21 +561,6 @@ class EstimatorSystem(LeafSystem):
             discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
                 np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
         return EventStatus.Succeeded()
-
-
-def _ungated(core):
-    """A shallow copy of ``core`` with its innovation gate off (re-acquisition's retry)."""
-    import copy
-
-    from drake_att.filters.gating import InnovationGate
-
-    twin = copy.copy(core)
-    twin.gate = InnovationGate()
-    inner = getattr(core, "mekf", None)  # composite cores gate in their MEKF
-    if inner is not None and hasattr(inner, "gate"):
-        twin.mekf = copy.copy(inner)
-        twin.mekf.gate = InnovationGate()
-    return twin
 
 
 def MekfEstimator(name: str, period_s: float, filter_core, initial_state, quaternion_sensors=(),
