@@ -1,7 +1,7 @@
 """Paper S1's cores (:mod:`drake_att.filters.cubature`) and the multiplicative-noise model
 they assume (:mod:`drake_att.filters.multiplicative_noise`).
 
-The S1 case (SPEC S1; module docstrings): LEO circular orbit, 500 km, inclination 97.4 deg,
+The S1 case (SPEC S1; docs/derivations/cubature_and_mcns.md): LEO circular orbit, 500 km, inclination 97.4 deg,
 body aligned with the orbit frame (``q_IB = q_IO``, body rate ``[0, -n, 0]``, n = orbit
 rate); gyro at 1 Hz with the classic CQE/USQUE noise ``sigma_v = sqrt(10)e-7 rad/s^0.5``,
 ``sigma_u = sqrt(10)e-10 rad/s^1.5``, true bias 0.1 deg/h per axis; star sensor every 10 s,

@@ -8,7 +8,7 @@ Independent reference model (written here, never from the library's helpers):
   matrix exponential by its Taylor series (not Rodrigues) over 10 sub-steps per second, each
   with the exact mean of the prescribed rate ``w = 1e-4 [cos 0.1t, cos 0.08t, cos 0.06t]``
   (closed-form integral; the neglected commutator terms are ~1e-10 rad);
-* frame sense (SPEC S4, module docstring): the truth matrix is ``R_IB`` with
+* frame sense (SPEC S4, docs/derivations/lie_group.md): the truth matrix is ``R_IB`` with
   ``R_IB_dot = R_IB [w x]`` and stars ``b_B = R_IB' r_I``; eq 34's matrix is ``R_BI(0)``
   (it maps eq 33's references onto eq 35's measured vectors, checked below);
 * the error of the project, ``R_err = R_IB_hat' R_IB``, its angle from pydrake.
@@ -672,7 +672,7 @@ def test_bias_converges_and_six_dof_nees_is_chi_square_over_a_monte_carlo():
 
 
 def test_bias_mode_equals_the_mekf_to_round_off():
-    """The finding (module docstring): with a bias state and Q_w = 0 the Lie-group filter is
+    """The finding (docs/derivations/lie_group.md): with a bias state and Q_w = 0 the Lie-group filter is
     the MEKF (same right error, Phi, Q, vector model, quaternion model up to the rotation
     R_BS of z/H/R, same reset). 2000 steps with a 12 deg/h bias, a fast-turning body and
     alternating mounted-quaternion and vector updates: attitude, bias, covariance and NIS

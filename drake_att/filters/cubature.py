@@ -1,95 +1,23 @@
 """Paper S1's filter cores: the cubature quaternion estimator (CQE, Wei & Song 2013) and
-CQE-MCNS (the patent's modified Gaussian filter for a multiplicative noise ``zeta``
-correlated with the star-sensor noise).
+CQE-MCNS (the patent's filter for the multiplicative noise ``zeta`` correlated with the
+star-sensor noise, :mod:`drake_att.filters.multiplicative_noise`).  Plain numpy (no Drake).
 
-Plain numpy (no Drake). Both implement :class:`drake_att.contract.FilterCore`: gyro-driven
-(``predict`` takes the step's mean gyro rate), star vectors
-(:class:`~drake_att.contract.VectorObservations`, tracker mounted by ``q_BS`` as in
-:mod:`drake_att.filters.mekf`), second quantity the gyro bias.
+State ``x = [dp; beta]``: ``dp`` the generalized Rodrigues parameters (GRP; default ``a = 1,
+f = 4``, USQUE) of the attitude error, truth ``q_IB = q_ref ⊗ dq(dp)``; ``beta`` the gyro bias
+(rad/s); a lower-triangular square root of the 6x6 covariance (GRP units).  Published:
+``q_IB_hat`` (wxyz Hamilton), ``beta_hat`` and the covariance of ``[dtheta_B (rad); dbias
+(rad/s)]``, ``q_IB = q_IB_hat ⊗ exp(dtheta_B)`` (first order, ``dtheta = 2 (1 + a) dp / f``).
 
-**Cubature rule** (third-degree spherical-radial, Arasaratnam & Haykin 2009): ``2n`` points
-``xi = sqrt(n) [I_n, -I_n]``, weights ``1 / (2n)``; ``E[g(x)]`` for ``x ~ N(m, L L')`` is
-approximated by ``mean_i g(m + L xi_i)``, exact for polynomials of degree <= 3
-(:func:`cubature_rule`).
+* :class:`CubatureQuaternionEstimator`: the :class:`drake_att.contract.FilterCore` (gyro-driven,
+  star vectors of a tracker mounted by ``q_BS``, second quantity the gyro bias); given a
+  ``noise_model`` it is the CQE-MCNS, :class:`CubatureQuaternionEstimatorMCNS` requires one.
+  An update that cannot be made (singular ``P_zz``, bad numbers or shapes) is rejected
+  (``accepted=False``, state unchanged), not raised.
+* :class:`CubatureState`; :func:`cubature_rule`, :func:`cubature_points`, :func:`triangularize`.
+* Beyond the paper, each switchable: iterated update (``update_iterations=1``: the paper), a
+  gate on ``M`` (``zeta_gate_sigmas=None``), the ``Cov(x, zeta)`` term (``zeta_state_correlation``).
 
-**State and conventions.** ``x = [dp; beta]``: ``dp`` the generalized Rodrigues parameters
-(GRP, :func:`drake_att.rotations.quat_to_grp`) of the attitude error, ``dp = f dq_vec / (a + dq_w)``,
-defaults ``a = 1, f = 4`` (the USQUE convention of Crassidis & Markley 2003, ``|dp|`` ~ the
-error angle; the patent names ``0 <= a <= 1`` and a scale ``b`` = our ``f``); ``beta`` the gyro
-bias (rad/s). The error is the project's: the truth is ``q_IB = q_ref ⊗ dq(dp)`` (the patent's
-``q_i = dq_i ⊗ q_hat`` in its inertial-to-body product is this body-frame right error). The
-core keeps a reference quaternion ``q_ref``, the mean ``dp_hat`` relative to it (zero after
-every update: the USQUE reset), ``beta_hat`` and a lower-triangular square root ``L`` of
-the 6x6 covariance of ``[dp; beta]`` (GRP units). The published estimate is
-``q_IB_hat = q_ref ⊗ dq(dp_hat)``, ``beta_hat`` and the covariance of
-``[dtheta_B (rad); dbias (rad/s)]`` with ``q_IB = q_IB_hat ⊗ exp(dtheta_B)``, mapped from GRP to
-rotation vector to first order: ``dtheta = dp / c``, ``c = f / (2 (1 + a))`` (``c = 1`` for the
-USQUE convention), ``P_theta = J L L' J'``, ``J = diag(I_3 / c, I_3)``.
-
-**Predict** over ``dt`` with the mean gyro rate ``w``: cubature points ``X_i`` of
-``([dp_hat; beta_hat], L)``; sigma-quaternions ``q_i = q_ref ⊗ dq(dp_i)`` propagated with the
-closed-form transition ``q_i ⊗ exp((w - beta_i) dt)`` (:func:`drake_att.rotations.quat_propagate`,
-exact for a constant rate); the cubature rule has no central point, so the new reference is
-the mean quaternion propagated with ``w - beta_hat``; each point back to GRP relative to it:
-``f_i = [dp_i^+; beta_i]``. With the multiplicative-noise terms (CQE-MCNS,
-:mod:`drake_att.filters.multiplicative_noise`): ``g_i = Phi u_i``, ``u_i = (w - beta_i) dt``,
-``Phi = c kappa [I_3; 0]``, and the conditional moments ``(M, U)`` of ``zeta``::
-
-    x^- = mean_i f_i + M mean_i g_i
-    P^- = mean_i (f_i + M g_i - x^-)(...)' + U mean_i g_i g_i' + Q
-
-(the patent's ``(I + M Phi) F (I + M Phi)' + U Phi F Phi' + Q - x x'``). Computed in square-root
-form: ``L^- = tria([(f_i + M g_i - x^-) / sqrt(2n), sqrt(U / 2n) g_i, L_Q])`` (QR), so ``P^-``
-is positive semi-definite by construction. ``Q`` is the Farrenkopf process noise of
-:func:`drake_att.filters.mekf.process_noise` (exact for the interval-mean gyro, rotation of
-the error frame within a step neglected), scaled to GRP units by ``diag(c I_3, I_3)``. The
-CQE is the same with ``M = U = 0``.
-
-**Update** with ``m`` directions ``d_i`` (sensor frame) of references ``r_i``, noise
-``sigma`` per component: fresh cubature points from ``(x^-, L^-)``;
-``Z_i = R_SB R(q_ref ⊗ dq(dp_i))' r`` (3m); ``P_zz = cov(Z) + sigma^2 I``, ``P_xz``,
-``K = P_xz P_zz^-1``, ``x^+ = x^- + K (y - mean Z)``; square-root Joseph form
-``L^+ = tria([(X_i - x^-) - K (Z_i - z^-)] / sqrt(2n), sigma K)`` (= ``P - K P_zz K'``, PSD by
-construction); then ``q_ref <- q_ref ⊗ dq(dp^+)``, ``dp_hat <- 0``. This is the paper's update
-and the first iteration of the one used here (next paragraph). CQE-MCNS also stores
-``M = S' P_zz^-1 nu``, ``S' P_zz^-1 S`` (``U = Q_zeta - S' P_zz^-1 S``) and ``-K S`` in the state for
-the next predict, which resets them (a predict not preceded by an update uses ``M = 0``,
-``U = Q_zeta``). A singular or non-positive-definite ``P_zz``, non-finite numbers, mismatched
-shapes, a negative sigma, or (MCNS) more stars than the noise model admits give
-``UpdateInfo(accepted=False)`` and the state unchanged; never a raise.
-
-**Deviations from the paper** (each measured in ``tests/test_cubature.py``; the paper's
-behaviour stays available):
-
-* *Iterated update* (``update_iterations``, default 10; 1 = the paper). From the paper's
-  [-45, 45, 155] deg initial error (a 175 deg rotation) with 2 arcsec stars, one cubature
-  update leaves the estimate ~167 deg off yet explains the measurement by
-  a linear fit over the +-98 deg points almost exactly: the attitude sigma collapses to
-  ~2 arcsec while the mean moves ~10 deg; the filter then slews its bias to ~1e4 deg/h and
-  stays beyond 0.01 deg until ~6800 s (bias RMS over orbits 2-3: 0.3 deg/h). Here the
-  update is iterated (iterated posterior linearization, Garcia-Fernandez et al. 2015):
-  relinearize ``h`` about the current posterior
-  ``N(x_j, L_j L_j')`` (``H = A L_j^-1``, ``A = Zc' xi / sqrt(2n)``, residual
-  ``Omega = Zr' Zr``), redo the update of the prior with that linear model, until the mean moves
-  less than ``iteration_tolerance`` posterior sigmas. The first iteration is the paper's
-  update; if its linearization residual is below ``tol^2 3m sigma^2`` (``h`` linear over the
-  prior: every nominal update) it is the only one. Both cores are within arcseconds after the
-  first update.
-* *Gate on M* (``zeta_gate_sigmas``, default 4; None = the paper). Under the model
-  ``M ~ N(0, S' P_zz^-1 S)``; an innovation that puts ``|M|`` beyond 4 of its sigmas is not the
-  model's (e.g. a transient) and Lemma 1's ``M`` would be absurd (1e4 at the first update
-  above): then ``M = 0, U = Q_zeta``.
-* *Optional correction* (``zeta_state_correlation``, default False = the paper). The patent's
-  prediction treats ``x_k`` and ``zeta_k`` as independent given the data, but the update used
-  ``v_k``: ``Cov(x_k, zeta_k | D_k) = -K S``. With it, ``zeta``'s conditional mean at each cubature
-  point is ``M + b' xi_i`` (``b = L^-1 (-K S)``) and its variance ``U - b'b``. Negligible at the
-  paper's numbers; with a star sample every step and ``rho = 0.33`` the literal filter's NEES
-  is ~200 and the corrected one's ~6.
-
-One implementation: :class:`CubatureQuaternionEstimator` is the core;
-:class:`CubatureQuaternionEstimatorMCNS` is the same class given a
-:class:`~drake_att.filters.multiplicative_noise.MultiplicativeNoiseModel` (the ``zeta`` terms
-are that component; without it they are absent).
+Derivation and paper notes: docs/derivations/cubature_and_mcns.md
 """
 
 from __future__ import annotations
@@ -173,7 +101,7 @@ _ZERO6.flags.writeable = False
 
 @dataclass(frozen=True)
 class CubatureState:
-    """State of the cubature cores (module docstring).
+    """State of the cubature cores (docs/derivations/cubature_and_mcns.md).
 
     Attributes:
         q_ref: reference quaternion ``q_IB`` (4). dp: mean GRP error relative to it (3),
@@ -468,8 +396,8 @@ class CubatureQuaternionEstimator(GatedCore):
 
 
 class CubatureQuaternionEstimatorMCNS(CubatureQuaternionEstimator):
-    """CQE-MCNS: the CQE with the multiplicative-noise terms of ``noise_model`` (module
-    docstring; model in :mod:`drake_att.filters.multiplicative_noise`).
+    """CQE-MCNS: the CQE with the multiplicative-noise terms of ``noise_model``
+    (docs/derivations/cubature_and_mcns.md; model in :mod:`drake_att.filters.multiplicative_noise`).
 
     Args: as :class:`CubatureQuaternionEstimator`; ``noise_model`` is required (default:
     :meth:`MultiplicativeNoiseModel.paper`).

@@ -2,42 +2,21 @@
 the camera's offset, iterative TRIAD, particle-swarm initialization (plain numpy, no Drake).
 
 Geometry and notation: :mod:`drake_att.screen_camera` (``A = R_BI``, ``R0_B``, ``h``,
-``alpha_i``). One frame is solved by :meth:`IndoorStarTrackerSolver.solve`:
+``alpha_i``).  Each frame (:class:`~drake_att.contract.CameraCentroids`) is solved from a guess
+``A0``: centre-referenced directions from ``A0``, identification by inter-star angles, attitude,
+repeated from the new attitude until it converges (or ``max_iterations``).
 
-1. ``A0``: the previous solution while tracking (or a fused filter's prediction, or a given
-   guess); with none, :func:`particle_swarm_search` (below).
-2. ``alpha_i`` from ``A0``; centre-referenced directions ``r_i^B = normalize(R0 + alpha_i b_i)``.
-3. Identification by inter-star angles against the catalogue (:class:`AngleMatcher`).
-4. Attitude from the identified stars: TRIAD (the paper) from the identified pair with the
-   largest separation, the star nearer the optical axis first; or (beyond the paper)
-   ``least_squares``: the SVD solution of Wahba's problem over all identified stars.
-5. Repeat 2-4 from the new attitude until it changes by less than the convergence
-   tolerance or ``max_iterations`` is reached (paper: "until the accuracy requirement is met").
+* :class:`IndoorStarTrackerSolver`: the solver as a :class:`drake_att.contract.FilterCore`
+  (second quantity the body rate); :meth:`~IndoorStarTrackerSolver.solve` solves one frame.
+* :class:`IndoorStarTrackerMekf`: beyond the paper, the solver fused with a table gyro in the MEKF.
+* The steps: :class:`AngleMatcher`, :func:`triad`, :func:`triad_covariance`, :func:`svd_attitude`,
+  :func:`particle_swarm_search` (:class:`SwarmSettings`).
 
-``identification = "naive"`` skips step 2: it matches the raw camera directions ``b_i``
-against the camera's own zero-attitude view, the classic star tracker that assumes the
-camera sits at the rotation centre (it fails once the table tilts: the inter-star angles seen
-from the offset camera change with attitude).
+Conventions: attitudes are ``A = R_BI`` (the paper's) in the solver and ``q_IB`` (wxyz Hamilton)
+in the state; roll/pitch/yaw in deg (x-y-z, as ``q_IB``); covariances in body axes (rad^2), the
+project's ``dtheta_B``.
 
-``A0``'s yaw (about the screen normal) does not enter ``alpha_i`` (only ``A0 p`` does): step 2
-is blind to it and identification by angles recovers any yaw, so the swarm's third angle
-only matters through the other two.
-
-**Angle matching (documented choices; the paper gives none).** Every observed pair whose
-angle is within ``tolerance`` of a catalogue pair's votes for both catalogue stars for both
-observed stars. A star takes the catalogue star with the most votes if it has at least two
-and is unique; a catalogue star claimed twice goes to the observed star with more votes.
-Verification: the identified stars must agree pairwise (every identified pair's angle within
-``tolerance`` of its catalogue pair's), else the star with the most disagreements (fewest
-votes on a tie) is dropped, until they all agree. Fewer than three survivors is a failed
-identification (a single pair cannot be told from its swap by angles alone), so a frame
-with fewer than two identified stars is never solved.
-
-**Covariance.** Direction noise ``sigma_b = sqrt(sigma_c^2 + q^2 / 12) / f`` from the
-frame's centroid noise ``sigma_c`` and quantization step ``q`` (floored at
-``sigma_floor_rad``), scaled to the centre-referenced direction by ``alpha_i / beta_i``;
-TRIAD's covariance is its first-order error map for two such directions, the SVD solution's
-``(sum sigma_i^-2 (I - r_i r_i^T))^-1`` (both in body axes, the project's ``dtheta_B``).
+Derivation and paper notes: docs/derivations/indoor_star_tracker.md
 """
 
 from __future__ import annotations
@@ -83,7 +62,8 @@ def _pair_angles(u, v) -> np.ndarray:
 
 
 class AngleMatcher:
-    """Star identification by inter-star angles against a catalogue (see module docstring).
+    """Star identification by inter-star angles against a catalogue
+    (docs/derivations/indoor_star_tracker.md).
 
     Args:
         catalogue: (m, 3) catalogue unit directions (m >= 3).
@@ -412,7 +392,8 @@ class IndoorStarTrackerSolver:
         return triad(b[i], b[k], r[i], r[k]), triad_covariance(b[i], b[k], s[i], s[k])
 
     def direction_sigmas(self, frame: CameraCentroids, b_B, R_BI) -> np.ndarray:
-        """Per-star noise (rad) of the compared directions (see module docstring)."""
+        """Per-star noise (rad) of the compared directions
+        (docs/derivations/indoor_star_tracker.md)."""
         q = float(getattr(frame, "quantization_m", 0.0))
         sigma = max(math.sqrt(float(frame.sigma_m) ** 2 + q * q / 12.0) / float(frame.focal_length_m),
                     self.sigma_floor_rad)
@@ -424,7 +405,8 @@ class IndoorStarTrackerSolver:
         return sigma * alpha / beta
 
     def solve(self, frame: CameraCentroids, R_BI_guess) -> Solution:
-        """Iterate identification + attitude from the guess ``A0`` (module docstring)."""
+        """Iterate identification + attitude from the guess ``A0``
+        (docs/derivations/indoor_star_tracker.md)."""
         b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
         A = np.asarray(R_BI_guess, dtype=float)
         history = []

@@ -1,129 +1,23 @@
-"""Lie-group (SO(3)) Kalman filter of paper S4 (Xu, Pei & Jiang 2020), gyro + star vectors,
-with an optional gyro-bias state and a quaternion (star-tracker attitude) update.
+"""Lie-group (SO(3)) Kalman filter of paper S4 (Xu, Pei & Jiang 2020): gyro + star vectors.
 
-Plain numpy (no Drake).  The attitude is a rotation matrix, the error a 3-vector of the
-Lie algebra, the covariance 3x3; by default there is no gyro-bias state (as in the paper).
-``estimate_gyro_bias=True`` extends the error state to SO(3) x R^3 (below).
+Plain numpy (no Drake).  State: the attitude ``R_IB`` (body B in inertial I, ``v_I = R_IB v_B``;
+published as ``q_IB``, wxyz Hamilton) and the 3x3 covariance ``P`` (rad^2) of the body-frame
+error ``dtheta_B``, ``R_IB = R_IB_hat exp([dtheta_B x])``.  Second quantity: the gyro's mean
+body rate of the last predict (rad/s, not estimated) with its honest error covariance; with
+``estimate_gyro_bias=True`` (beyond the paper) the gyro bias (rad/s), error state SO(3) x R^3.
 
-**Frame sense.**  The paper's eq 2 calls its ``X`` inertial-to-body (``l = X r``) while its
-kinematics ``X_dot = X [w x]`` (eq 8, 10) is the body-to-inertial form.  This core takes
-the kinematics as the physics: the state matrix is ``R_IB`` (body B in inertial I,
-``v_I = R_IB v_B``) propagated with the body-frame gyro rate ``w_IB_B``, and the paper's
-measurement ``l = X r`` is read with ``X = R_BI = R_IB'`` (star direction in the body frame
-``b_B = R_IB' r_I``).  Eq 34's matrix is therefore ``R_BI(0)`` (it maps the references of
-eq 33 onto the measured vectors of eq 35); ``R_IB(0)`` is its transpose.  The published
-``q_IB_hat`` is the quaternion of the state matrix.
+* :class:`LieGroupFilter`: the :class:`drake_att.contract.FilterCore`, updated with star
+  vectors (:class:`~drake_att.contract.VectorObservations`) or a star-tracker attitude
+  (:class:`~drake_att.contract.QuaternionSample`); ``formulation="consistent"`` (default) or
+  ``"paper_literal"`` (eqs 26-32 as printed: not consistent, star vectors only).
+* :class:`LieGroupState`, :class:`LieGroupBiasState`: its states; :func:`rate_error_model`: the
+  rate block; :func:`orthonormalize`: keeps ``R_IB`` a rotation.
 
-**Error convention** (the project's, one for the whole filter): the truth is
-``R_IB = R_IB_hat exp([dtheta_B x])`` (``R_err = R_IB_hat' R_IB``), ``P = cov(dtheta_B)``
-(rad^2).  In the paper's ``X = R_BI`` this is ``X = exp(-[dtheta_B x]) X_hat``, i.e. the
-paper's *left* error ``eta = X X_hat'`` of eqs 22-23 with ``eta = exp(-[dtheta_B x])``.
+Conventions: the paper's ``X`` is read as ``R_BI = R_IB'``; gyro rate ``w_IB_B`` (rad/s, body);
+star directions in the sensor frame of a tracker mounted by ``q_BS``; ``Q_w``, ``Q_v`` in rad^2.
+With a bias state and ``Q_w = 0`` this filter is the MEKF (:mod:`drake_att.filters.mekf`).
 
-**Consistent formulation** (``formulation="consistent"``, default).  With the star
-tracker mounted by ``q_BS`` (``R_SB = R(q_BS)'``) and ``m >= 1`` stars:
-
-* predict over ``dt`` with the step's mean gyro rate ``w``: ``A = exp([w dt x])``
-  (Rodrigues), ``R_IB_hat <- R_IB_hat A`` (the paper's ``X_hat A_k``, exact for a constant
-  rate), ``P <- A' P A + Q`` (the body-frame error is seen from the new body axes; the
-  paper's ``A P A' + Q`` differs by ``O(|w| dt)``, negligible for S4's ``|w dt| < 2e-4``);
-* predicted directions ``b_i = R_IB_hat' r_i`` (body), measured ``d_i`` (sensor frame);
-  innovation ``z_i = d_i - R_SB b_i`` (sensor frame), ``H_i = R_SB [b_i x]`` (from
-  ``R_IB' r = exp(-[dtheta x]) b = b + [b x] dtheta``), ``R = Q_v I_3m``;
-* ``S = H P H' + R``, ``K = P H' S^-1``, ``dtheta = K z``,
-  ``R_IB_hat <- R_IB_hat exp([dtheta x])`` (right update of ``R_IB``), Joseph form
-  ``P <- (I - K H) P (I - K H)' + K R K'`` (= eq 32's ``(I - K H) P`` for the optimal gain;
-  eq 29 adds the 6x6 ``Q_v`` to a 3x3 matrix and is not used).
-
-In the paper's ``X = R_BI`` this is SPEC's pairing (c): left update
-``X_hat <- exp(-[K z x]) X_hat`` with ``H = -[(X_hat r) x]`` (up to the sign of ``dtheta``).
-
-**Literal formulation** (``formulation="paper_literal"``): eqs 26-32 exactly as printed on
-the paper's ``X_hat = R_IB_hat'``: body-frame innovation ``eps_i = l_i - X_hat r_i``
-(``l_i = R_BS d_i``), ``H_i = -[r_i x]`` (no ``X_hat`` in it), right update
-``X_hat <- X_hat exp([K eps x])`` and ``P <- A P A' + Q``.  The predict of the mean is the
-same kinematic one as above (so only the update pairing differs).  This pairing is not
-consistent: run noise-free from ``X_0 = I`` with the paper's tuning it is still 22.4 deg off
-after 400 updates (tests/test_lie_group.py), where the consistent form reached 0.005 deg at
-update 147 (the paper: ~150; SPEC: 140-150) and keeps converging.  Its ``P`` is reported as if it were ``cov(dtheta_B)``
-(the paper's eq 22 reading, ``eta = exp(-[dtheta x])``); it is not a consistent covariance.
-
-**Process noise.**  ``Q_w`` (rad^2, scalar or 3x3) is the attitude-error covariance added
-per step of length ``step_s`` (the paper: ``5e-5 I3`` per 1 s step); a predict over ``dt``
-adds ``Q_w dt / step_s`` (random walk), plus ``arw^2 dt I`` if a gyro noise figure
-``gyro_arw_rad_per_rt_s`` is given.  ``Q_v`` (rad^2) is the per-component variance of the
-star directions (the paper: ``0.125^2``); None uses each measurement's ``sigma_rad^2``.
-
-**Second quantity: the body rate** (:attr:`SecondQuantity.BODY_RATE`).  The filter does not
-estimate the rate: the published ``w_IB_B_hat`` is the gyro's mean rate of the last predict
-(zero before the first).  Its error ``e_w = w_true - w_hat`` enters the attitude error as
-``dtheta <- A' dtheta + e_w dt``, so the 6x6 covariance is the honest joint covariance of
-``[dtheta_B; e_w]`` (see :func:`rate_error_model`):
-
-* with a gyro noise figure (ARW ``N``): ``cov(e_w) = N^2 / dt I`` (white rate noise
-  averaged over the step), cross ``cov(dtheta, e_w) = N^2 I`` right after the predict;
-* without one (default): the whole per-step process noise is attributed to the gyro,
-  ``cov(e_w) = Q / dt^2`` and cross ``Q / dt`` (the paper's ``W_k`` read as the integrated
-  rate error of the step).  With S4's tuning that is ``5e-5 (rad/s)^2``.
-* before the first predict: ``cov(e_w) = initial_rate_sigma^2 I`` (:meth:`initial_state`,
-  default 1 rad/s: no rate information yet), cross 0.
-
-Updates correct the attitude only: ``cov(e_w)`` is unchanged and the cross block becomes
-``(I - K H) C``.  A gyro bias or the change of the true rate within the step is not in the
-rate block (this filter has no bias model, as in the paper).
-
-**Large initial errors.**  This is a first-order EKF: from ``X_0 = I`` (120 deg off) its first
-update shrinks ``P`` to about ``Q_v`` however large the error still is.  With the paper's
-loose ``Q_v = 0.125^2`` that is harmless (the gain stays high); with a tuning that matches
-a precise tracker (e.g. ``Q_v = (100 urad)^2``, ``P0 = 5``) the filter becomes
-overconfident after one update (error ~1.4 rad, sigma ~1e-4 rad) and then creeps (error
-~1/k).  Start such runs from a TRIAD/Wahba attitude or keep ``Q_v`` loose until converged.
-
-``innovation_gate_chi2``: reject an update whose NIS exceeds it (``accepted=False``); a
-singular or non-positive-definite ``S`` is rejected the same way.
-
-**Quaternion measurement** (:class:`~drake_att.contract.QuaternionSample`, consistent
-formulation, with or without a bias state; beyond the paper).  A star tracker that outputs
-its attitude ``q_IS_meas`` (mounting ``q_BS``, rotation-vector noise ``covariance_S`` in the
-sensor frame) is a measurement on the group: ``q_IB_meas = q_IS_meas ⊗ q_BS^-1``,
-innovation ``z = log(q_IB_hat^-1 ⊗ q_IB_meas)`` (body frame, shortest rotation: the sign of
-``q_IS_meas`` does not matter), ``H = [I_3, 0]`` and ``R = R_BS covariance_S R_BS'``.  It
-follows from ``q_IS_meas = q_IB ⊗ q_BS ⊗ exp(delta_S)``: ``q_IB_meas = q_IB ⊗
-exp(R_BS delta_S)`` and ``q_IB_hat^-1 ⊗ q_IB_meas = exp(dtheta_B) ⊗ exp(R_BS delta_S)``
-(= ``dtheta_B + R_BS delta_S`` to first order; exact without noise).  The paper's literal
-formulation has no quaternion update (TypeError).
-
-**Gyro-bias extension** (``estimate_gyro_bias=True``, consistent formulation only; beyond
-the paper).  Error state ``x = [dtheta_B; dbias_B]`` on SO(3) x R^3 with the project's
-convention ``R_IB = R_IB_hat exp([dtheta_B x])``, ``b = b_hat + dbias`` and the Farrenkopf
-gyro ``w_meas = w + b + v`` (ARW ``N``, RRW ``K``); the second quantity is
-:attr:`SecondQuantity.GYRO_BIAS` and ``P`` is 6x6 (state :class:`LieGroupBiasState`).
-
-* predict: ``w_hat = w_meas - b_hat``, ``R_IB_hat <- R_IB_hat exp([w_hat dt x])``,
-  ``P <- Phi P Phi' + Q`` with ``Phi`` = :func:`drake_att.filters.mekf.transition_matrix`
-  (the exact transition of ``d/dt x = [[-[w_hat x], -I], [0, 0]] x + noise``, whose
-  attitude block ``exp(-[w_hat dt x]) = A'`` is the no-bias form's ``A' P A``) and ``Q`` =
-  :func:`drake_att.filters.mekf.process_noise` (closed-form Farrenkopf covariance) plus
-  ``Q_w dt / step_s`` on the attitude block (``Q_w`` defaults to 0 here);
-* updates: the consistent vector model (same ``z``, ``H`` as without bias, three zero bias
-  columns) or the quaternion model above; Joseph form; reset
-  ``R_IB_hat <- R_IB_hat exp([dx_1:3 x])``, ``b_hat <- b_hat + dx_4:6``.
-
-**Relation to the MEKF** (:mod:`drake_att.filters.mekf`).  With a bias state (and
-``Q_w = 0``) this filter *is* the MEKF, in another representation of the same estimate: both
-use the body-frame (right) error on SO(3), the same ``Phi`` and ``Q``, the same vector model,
-and the same reset (the error is moved into the reference; no reset Jacobian in either).
-The quaternion innovation here is the MEKF's sensor-frame residual rotated into B,
-``z_B = R_BS z_S`` exactly (conjugating a rotation by ``q_BS`` rotates its rotation
-vector), with ``H`` and ``R`` transformed by the same invertible ``R_BS``; so ``K z``, the
-NIS and the posterior covariance are the same.  What differs is numerical only: a rotation
-matrix kept orthonormal by a Newton step of the polar decomposition vs a normalized
-quaternion, and the gain from an LU solve vs the MEKF's explicit inverse.  Over 3000 steps
-of mixed vector and mounted-quaternion updates they agree to ~1e-12 rad (attitude) and
-~1e-13 rad/s (bias) (tests/test_lie_group.py); in the S3 Drake diagram the logged errors
-agree to ~1e-15 rad.  They would differ only through choices they do not share here: an
-invariant (inertial/left) error, a reset Jacobian, or the paper's ``A P A'`` propagation.
-The no-bias filter is the bias filter with ``dbias`` pinned at 0: a real bias enters it as
-an unmodelled drift ``b dt`` per step that only ``Q_w`` (or the ARW term) can absorb.
+Derivation and paper notes: docs/derivations/lie_group.md
 """
 
 from __future__ import annotations
@@ -254,14 +148,15 @@ class LieGroupFilter(GatedCore):
         Q_v: per-component star-direction variance (rad^2) or None to use each
             measurement's ``sigma_rad^2``.  Paper: ``0.125**2``.  Not used by quaternion
             measurements (they carry their covariance).
-        formulation: "consistent" (default) or "paper_literal" (see the module docstring);
+        formulation: "consistent" (default) or "paper_literal" (see docs/derivations/lie_group.md);
             the bias state and quaternion measurements need "consistent".
         step_s: the step length ``Q_w`` refers to (s), default 1.
         gyro_arw_rad_per_rt_s: gyro angle random walk (rad/s^0.5) or None; adds
             ``arw^2 dt I`` to the process noise (without a bias state it also sets the rate
-            block, module docstring).
+            block, docs/derivations/lie_group.md).
         innovation_gate_chi2: reject updates whose NIS exceeds this value (None: no gate).
-        estimate_gyro_bias: add the gyro-bias error state (SO(3) x R^3, module docstring).
+        estimate_gyro_bias: add the gyro-bias error state (SO(3) x R^3,
+            docs/derivations/lie_group.md).
         gyro_rrw_rad_per_s15: gyro rate random walk (rad/s^1.5), bias state only (None: 0).
     """
 
@@ -429,8 +324,8 @@ class LieGroupFilter(GatedCore):
         """``(z, H, R)`` of one measurement: innovation, Jacobian w.r.t. the error state
         (3 or 6 columns) and noise covariance, as :meth:`update` uses them.
 
-        * :class:`~drake_att.contract.VectorObservations`: module docstring (consistent or
-          literal); with a bias state ``H`` has three zero bias columns.
+        * :class:`~drake_att.contract.VectorObservations`: consistent or literal
+          (docs/derivations/lie_group.md); with a bias state ``H`` has three zero bias columns.
         * :class:`~drake_att.contract.QuaternionSample` (consistent only): ``q_IB_meas =
           q_IS_meas ⊗ q_BS^-1``, ``z = log(q_IB_hat^-1 ⊗ q_IB_meas)`` (body frame),
           ``H = [I, 0]``, ``R = R_BS covariance_S R_BS'`` (``covariance_S`` 3x3, or per-axis

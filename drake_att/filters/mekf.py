@@ -1,55 +1,21 @@
-"""Multiplicative extended Kalman filter (MEKF) for gyro + star-tracker attitude.
+"""Multiplicative extended Kalman filter (MEKF) for gyro + star-tracker attitude
+(Markley & Crassidis 2014, sec. 6.2).  Plain numpy (no Drake); the propagation and the
+quaternion update also run as compiled kernels (:mod:`drake_att.filters.mekf_kernels`).
 
-Plain numpy (no Drake).  Conventions: ``q_IB`` wxyz Hamilton; the 6-state error is
-``x = [dtheta_B; dbias_B]`` with the truth ``q_IB = q_IB_hat ⊗ exp(dtheta_B)`` (the
-project's attitude-error definition) and ``b = b_hat + dbias``.  The gyro measurement is
-the mean body rate over the step, ``w_meas = w + b + noise`` (Farrenkopf model, ARW
-``sigma_v`` rad/s^0.5, RRW ``sigma_u`` rad/s^1.5).
+State: ``q_IB`` (wxyz Hamilton), gyro bias ``bias_B`` (rad/s) and the 6x6 covariance ``P`` of
+``x = [dtheta_B (rad); dbias_B (rad/s)]``, truth ``q_IB = q_IB_hat ⊗ exp(dtheta_B)`` (the
+project's attitude-error definition) and ``b = b_hat + dbias``.  Gyro: the mean body rate over
+the step, ``w_meas = w + b + noise`` (Farrenkopf model, ARW ``sigma_v`` rad/s^0.5, RRW
+``sigma_u`` rad/s^1.5).
 
-Propagation (Markley & Crassidis 2014, sec. 6.2): ``q <- q ⊗ exp((w_meas - b) dt)``
-(closed form, exact for a constant rate), ``P <- Phi P Phi' + Q`` with the closed-form
-``Phi`` of ``F = [[-[w x], -I], [0, 0]]`` and
+* :class:`MultiplicativeEKF`: the :class:`drake_att.contract.FilterCore`; updates with a mounted
+  star-tracker attitude (residual in the sensor frame) or unit vectors, Joseph form, error reset
+  into the reference; opt-in two-sample coning correction (``coning_correction``).
+* :class:`MekfState`; :func:`process_noise`, :func:`transition_matrix` (closed-form ``Q`` and
+  ``Phi``, also used by other cores), :func:`coning_rotation_vector`,
+  :func:`steady_state_covariance` (steady-state Riccati solution).
 
-``Q = [[sv^2 dt + su^2 dt^3/3, -su^2 dt^2/2], [-su^2 dt^2/2, su^2 dt]]`` (per axis),
-
-which is exactly the covariance of the integrated Farrenkopf noise over ``dt`` (the
-rotation of the error frame within one step is neglected, O(|w| dt)).
-
-Updates (Joseph form):
-
-* attitude quaternion of a sensor mounted by ``q_BS``: residual
-  ``z = log((q_IB_hat ⊗ q_BS)^-1 ⊗ q_IS_meas)`` (sensor frame) ``= R_SB dtheta + delta``,
-  ``H = [R_SB, 0]``, ``R = diag(sigma_S^2)`` - anisotropic noise handled exactly;
-* unit-vector observations ``b_S = R_SB R_BI r_I + v``: ``H_i = [R_SB [b_B_hat x], 0]``.
-
-After each update the error is moved into the reference: ``q <- q ⊗ exp(dtheta)``,
-``b <- b + dbias`` (reset).
-
-**Coning correction** (opt-in, ``coning_correction=True``).  The gyro delivers interval
-increments ``dtheta_k = w_meas_k dt``; when the body rate vector turns within a step,
-``exp(dtheta_k)`` is not the step's rotation (the error is the coning term
-``1/2 int alpha x w``, O(|w| |dw/dt| dt^3)).  With the correction the step rotates by
-Savage's two-sample rotation vector using the previous interval,
-
-``phi_k = dtheta_k + c dtheta_{k-1} x dtheta_k``, ``c = dt_k^2 / (6 dt_{k-1} (dt_{k-1} + dt_k))``
-
-(``c = 1/12`` for equal steps), both increments bias-corrected with the current bias
-estimate.  It removes the O(dt^3) coning term exactly for a rate linear in time (the
-rotation-vector equation's ``1/12 phi x (phi x w)`` and ``1/2 phi x w`` terms of order dt^4
-cancel); the residual is O(dt^4), led by the rate's curvature, ``dt^4/24 |w x d2w/dt2|``
-(tests/test_mekf.py checks both terms against a finely integrated coning motion).  The
-previous step's measured rate and length live in the state (``MekfState.previous_gyro``,
-4 numbers, appended to the state vector: 47 instead of 43).  No correction on the first step (no
-previous increment) and none around a missing gyro sample: the estimator system then passes
-the last valid rate again, which the core recognizes as a rate equal bit for bit to the
-previous one (a real, noisy gyro never repeats a sample exactly; a noise-free constant rate
-has no coning term anyway); the held step and the step after it are uncorrected (their
-previous increment is not the adjacent interval's).  The transition matrix is the
-closed-form one of the constant rate ``phi_k / dt`` — its attitude block ``exp(-[phi_k x])``
-is exactly the rotation the estimate made, so the error frame follows the corrected
-propagation; neglected (relative size ~|dtheta_k - dtheta_{k-1}| / 12 and |dtheta| / 12):
-the coning term's own dependence on the bias error and its share of the previous step's
-gyro noise.
+Derivation and paper notes: docs/derivations/mekf.md
 """
 
 from __future__ import annotations
@@ -145,7 +111,7 @@ def coning_rotation_vector(previous_gyro, w_meas_B, bias_B, dt: float) -> tuple[
     ``phi = dtheta + c dtheta_prev x dtheta`` with the bias-corrected increments
     ``dtheta = (w_meas_B - bias_B) dt``, ``dtheta_prev = (w_prev - bias_B) dt_prev`` and
     ``c = dt^2 / (6 dt_prev (dt_prev + dt))`` (1/12 for equal steps: Savage's two-sample
-    correction with the previous interval; residual O(dt^4), see the module docstring).
+    correction with the previous interval; residual O(dt^4), see docs/derivations/mekf.md).
     No correction without a usable previous increment (``previous_gyro`` None or its length
     0) or when ``w_meas_B`` repeats the previous rate bit for bit (a held rate: the system's
     answer to a missing gyro sample); the returned record then has length 0 for a held rate,
@@ -197,7 +163,7 @@ class MultiplicativeEKF(GatedCore):
             dimension); None: no gate. Rejections are reported in :class:`UpdateInfo`, never
             silent; :meth:`reacquire` inflates the covariance after repeated rejections.
         coning_correction: propagate with the two-sample coning-corrected rotation vector
-            (module docstring); the state vector then carries the previous step's gyro
+            (docs/derivations/mekf.md); the state vector then carries the previous step's gyro
             rate and length (``state_size`` 47 instead of 43).
         kernel: ``"numba"`` (default): the propagation and the quaternion update run as
             compiled kernels (:mod:`drake_att.filters.mekf_kernels`, ~20x faster per step);

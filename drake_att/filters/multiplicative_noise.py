@@ -1,124 +1,24 @@
 """Paper S1's multiplicative noise ``zeta_k`` and its correlation with the star-sensor noise:
-the one model the CQE-MCNS filter assumes and the truth simulation draws from.
+the one model the CQE-MCNS filter (:mod:`drake_att.filters.cubature`) assumes and the truth
+simulation draws from.  Plain numpy (no Drake).
 
-Plain numpy (no Drake). Frames and conventions as :mod:`drake_att.rotations` (``q_IB`` wxyz,
-Hamilton, ``v_I = R(q_IB) v_B``); the star tracker is mounted by ``q_BS`` (``R_SB = R(q_BS)'``).
+``zeta_k ~ N(0, Q_zeta)`` (dimensionless, white) is a per-step gyro scale-factor error: over
+step ``k`` (``[t_k, t_k + dt]``) the gyro reads ``w_meas_k = w_true_mean_k / (1 + kappa zeta_k)
++ b_k + e_k`` (rad/s).  It is correlated with each component of the star noise ``v_k`` of a
+sample at ``t_k``, ``Cov(zeta_k, v_k) = rho sqrt(Q_zeta) sigma_v 1_{3m}`` (the joint covariance
+is positive definite iff ``3 m rho^2 < 1``); the patent's ``S = 0.05`` is read as ``rho = 0.158``.
 
-**What ``zeta_k`` is: a random per-step gyro scale-factor error.** Step ``k`` is the gyro
-interval ``[t_k, t_k + dt]``. The body's true rotation over it is ``(1 + kappa zeta_k)``
-times the rotation the gyro reports once bias and noise are removed::
+* :class:`MultiplicativeNoiseModel`: ``(Q_zeta, rho, kappa)``; the joint covariance, ``(zeta, v)``
+  from standard normals, Lemma 1's conditional moments ``(M, U)``, the patent's ``Phi``.
+* :func:`reference_step`, :func:`simulate_reference` (:class:`ReferenceStep`,
+  :class:`ReferenceRun`): the reference truth a Drake gyro / star tracker must reproduce bit
+  for bit, from one row of ``7 + 3m`` standard normals per gyro step (:func:`normals_per_step`);
+  :func:`star_directions`: the noise-free tracker directions.
 
-    w_true_mean_k = (1 + kappa zeta_k) (w_meas_k - b_k - e_k)                      (1)
+Conventions: :mod:`drake_att.rotations` (``q_IB`` wxyz, Hamilton, ``v_I = R(q_IB) v_B``); the
+tracker is mounted by ``q_BS`` (``R_SB = R(q_BS)'``): ``d_i = R_SB R(q_k)' r_i + v_i``.
 
-(``w_true_mean_k``: the body's mean rate over the step, rad/s; ``b_k``: the gyro bias at
-``t_k``; ``e_k``: the interval's Farrenkopf noise, :class:`drake_att.noise.FarrenkopfGyroNoise`).
-Equivalently, the gyro's scale factor on step ``k`` is ``1 / (1 + kappa zeta_k)``: it reads::
-
-    w_meas_k = w_true_mean_k / (1 + kappa zeta_k) + b_k + e_k                       (2)
-
-``zeta_k ~ N(0, Q_zeta)`` is white (independent between steps). ``kappa`` (> 0,
-dimensionless) is the scale-factor error per unit ``zeta`` (the magnitude of the patent's
-matrix ``Phi``, which the patent does not give); ``kappa sqrt(Q_zeta)`` is the 1-sigma
-per-step scale-factor error. The model needs ``1 + kappa zeta_k > 0``: with the default
-``kappa sqrt(Q_zeta) = 3.16e-3`` that fails beyond 316 sigma (never).
-
-**Why this reading (SPEC S1, Interpretation).** The patent's system is
-``x_{k+1} = (I + zeta_k Phi) f(x_k) + w_k`` with ``x = [dp; beta]`` the *error* state
-relative to the estimate; scaling the error itself is not a property of the spacecraft (the
-truth cannot depend on the estimate). Scaling the one-step attitude increment is physical
-(a gyro scale-factor disturbance) and gives the patent's structure exactly: each cubature
-point propagated with ``(1 + kappa zeta)(w_meas - beta_i) dt`` is, because ``exp((1 + s) u) =
-exp(u) exp(s u)`` for parallel rotation vectors, the zeta-free point followed by the extra
-rotation ``kappa zeta u_i``, ``u_i = (w_meas - beta_i) dt``. In the GRP error coordinates
-(``dp = f dq_vec / (a + dq_w)``, first-order factor ``c = f / (2 (1 + a))``) that is, to first
-order in the filter's error,
-
-    x_{k+1} = f(x_k) + zeta_k Phi u(x_k) + w_k,   Phi = c kappa [I_3; 0_3]  (6 x 3)     (3)
-
-``Phi`` selects the attitude part. This is the patent's ``(I + zeta Phi_a) f_a`` on the
-augmented propagation ``f_a = [f(x); u(x)]`` with ``Phi_a = [[0, Phi], [0, 0]]``; the
-prediction moments below are the top-left block of the patent's formula for that system.
-The one term the patent's derivation drops, ``Cov(x_k, zeta_k | D_k) = -K_k S_k`` (the
-update uses ``v_k``, which ``zeta_k`` is correlated with), is kept optional in the filter
-(``zeta_state_correlation``): at the default numbers it is ~40% of the zeta variance term on
-the step after an update (one step in ten) and changes the 3-orbit errors by < 1% (attitude)
-and ~4% (bias) over 5 seeds; with strong correlation it is essential (tests/test_cubature.py).
-
-**Correlation with the star noise.** At every star sample (time ``t_k``) the tracker reports
-``m`` directions ``d_i = R_SB R_BI(q_k) r_i + v_{k,i}`` (``v`` additive, not re-normalized,
-:class:`drake_att.systems.star_tracker.StarTracker`'s vector mode), ``v_k`` (the ``3m``
-components, row-major by star) white with per-component variance ``sigma_v^2``. ``zeta_k`` -
-the scale-factor error of the gyro interval that *starts* at ``t_k`` - is correlated with each
-component of ``v_k`` with the same coefficient ``rho`` (a common-mode disturbance: whatever
-perturbs the gyro on that interval also shifts every star image), so
-
-    Cov(zeta_k, v_k) = S_k = rho sqrt(Q_zeta) sigma_v 1_{3m}                            (4)
-
-and the joint covariance ``[[Q_zeta, S'], [S, sigma_v^2 I_3m]]`` is positive definite iff
-``3 m rho^2 < 1``. ``zeta`` of a gyro step without a star sample is independent of all star
-noise. The patent's numbers are ``Q_zeta = 0.1`` and a cross-covariance ``S = 0.05``; a literal
-``S`` is impossible with arcsecond noise (``|S_j| <= sqrt(Q_zeta) sigma_v ~ 3e-6``). We read
-``0.05`` as the covariance of ``zeta`` with the *standardized* star noise ``v / sigma_v`` (the
-only way a dimensionless number fits an unnamed noise level), giving
-``rho = 0.05 / sqrt(0.1 * 1) = 0.158``; the other reading in SPEC, ``rho = S / Q_zeta = 0.5``,
-makes the joint covariance indefinite for any ``m >= 2`` (``3 m rho^2 >= 1.5``). With
-``rho = 0.158`` up to ``m = 13`` stars are admissible.
-
-**The filter's conditional moments** (patent's Lemma 1, SPEC S1). After an update with
-innovation ``nu_k = y_k - y_hat_{k|k-1}`` and innovation covariance ``P_yy``:
-``M_k = E[zeta_k | D_k] = S_k' P_yy^-1 nu_k`` and ``U_k = Var[zeta_k | D_k] = Q_zeta - S_k' P_yy^-1 S_k``
-(:meth:`MultiplicativeNoiseModel.conditional_moments`); ``U_k >= Q_zeta (1 - 3 m rho^2) > 0``
-because ``P_yy >= sigma_v^2 I``. A gyro step with no update at its start has ``M = 0``,
-``U = Q_zeta``. The prediction over step ``k`` then uses, with ``g = Phi u``:
-
-    mean  x_{k+1|k} = E[f] + M E[g]
-    cov   P_{k+1|k} = E[(f + M g)(f + M g)'] + U E[g g'] + Q - x_{k+1|k} x_{k+1|k}'
-
-(``= (I + M Phi) F (I + M Phi)' + U Phi F Phi' + Q - x x'`` in the patent's notation).
-
-**Reference step (what a Drake gyro / star tracker must reproduce bit for bit).** Per gyro
-step ``k`` (``k = 0, 1, ...``; ``t_k = k dt``) one row of standard normals
-``z_k`` of length ``7 + 3 m`` is drawn (e.g. ``CounterRandom.normals(k, 7 + 3 m)``), in this
-order::
-
-    z_k[0:6]       gyro: (e_k, db_k) = FarrenkopfGyroNoise(arw, rrw, dt).from_normals(z_k[0:6].reshape(2, 3))
-    z_k[6]         zeta_k = sqrt(Q_zeta) z_k[6]
-    z_k[7:7+3m]    star noise of the sample at t_k (used only if there is one):
-                   v_j = sigma_v (z_k[7+j] + c_m sum_l z_k[7+l] + rho z_k[6]),  j = 0..3m-1,
-                   c_m = (sqrt(1 - 3 m rho^2) - 1) / (3 m)
-
-(``v`` reshaped ``(m, 3)``, star-major). The ``c_m`` term is the symmetric square root of
-``I - rho^2 1 1'``: the result has exactly the covariance (4) (:meth:`MultiplicativeNoiseModel.from_normals`).
-Then, with the true attitude ``q_k`` at ``t_k``, the true bias ``b_k`` and the body's mean
-rate ``w_k`` over the step:
-
-* star sample at ``t_k`` (if any): ``d_i = R_SB R(q_k)' r_i + v_i`` (time stamp ``t_k``);
-* gyro output for the step (time stamp ``t_{k+1}``): ``w_meas_k = w_k / (1 + kappa zeta_k) + b_k + e_k``;
-* ``b_{k+1} = b_k + db_k``; the body moves independently of the sensors (in the S1 case
-  ``q_{k+1} = q_k ⊗ exp(w_k dt)`` with the constant orbit rate).
-
-The filter sequence this serves: at ``t_k`` the update with ``d`` (sets ``M_k, U_k``), then
-the predict over ``[t_k, t_{k+1}]`` with ``w_meas_k`` (uses them) - the order of
-:class:`drake_att.systems.estimators.EstimatorSystem` (predict over ``(t_last, t]``, then
-the updates at ``t``). In Drake this needs one source of ``z_k[6:]`` shared by the gyro (its
-sensor matrix on step ``k`` is ``I / (1 + kappa zeta_k)``) and the star tracker.
-:func:`reference_step` is one step; :func:`simulate_reference` a whole run (same numbers).
-
-**Default scale and the paper's levels.** The patent gives no ``Phi``; ``kappa = 0.01``
-(:data:`DEFAULT_SCALE_PER_ZETA`) makes the zeta-driven attitude noise over one 10 s star
-interval (``kappa sqrt(Q_zeta) n dt sqrt(10)`` ~ 2.3 arcsec at the 500 km orbit rate ``n``)
-comparable to the 2 arcsec star noise. On the S1 case of ``tests/test_cubature.py`` (500 km
-circular orbit, body aligned with the orbit frame, gyro 1 Hz with ``sigma_v = sqrt(10)e-7``,
-``sigma_u = sqrt(10)e-10``, true bias 0.1 deg/h per axis, three reference stars along the
-inertial axes every 10 s at 2 arcsec, 3 orbits from the ``[-45, 45, 155] deg`` error), over
-orbits 2-3 and 5 seeds: CQE-MCNS 5.8e-4 deg / 5.3e-3 deg/h (the paper: ~5e-4 deg,
-~5e-3 deg/h), CQE 1.2e-3 deg / 1.7e-2 deg/h (the paper: ~2e-3 deg, ~1e-2 deg/h). Almost all
-of the gain comes from modelling zeta's variance: the correlation (``M``) adds ~1% at these
-numbers (``S' P_yy^-1 S <= 3 m rho^2 Q_zeta = 0.22 Q_zeta``, on one step in ten).
-
-**Second-order effects the filter ignores** (all < 1e-5 relative at the default numbers):
-``(1 + kappa zeta)`` also scales the gyro noise ``e_k`` in (1); the GRP composition in (3)
-is first order in the error.
+Derivation and paper notes: docs/derivations/cubature_and_mcns.md
 """
 
 from __future__ import annotations
@@ -142,7 +42,8 @@ from drake_att.validation import (
 # The seed's (patent's) numbers: variance of zeta and its "cross-covariance" with the star noise.
 PAPER_ZETA_VARIANCE = 0.1
 PAPER_CROSS_COVARIANCE = 0.05
-# rho = S / sqrt(Q_zeta * 1): S read as Cov(zeta, v / sigma_v) (module docstring).
+# rho = S / sqrt(Q_zeta * 1): S read as Cov(zeta, v / sigma_v)
+# (docs/derivations/cubature_and_mcns.md).
 PAPER_CORRELATION = PAPER_CROSS_COVARIANCE / math.sqrt(PAPER_ZETA_VARIANCE)
 # kappa: the patent gives no Phi. 1e-2 makes the zeta-driven attitude noise over one 10 s star
 # interval (kappa sqrt(Q_zeta) n dt sqrt(10) ~ 2.3 arcsec at the orbit rate n) comparable to the
@@ -163,7 +64,7 @@ def normals_per_step(num_stars: int) -> int:
 class MultiplicativeNoiseModel:
     """``zeta_k`` (a per-step gyro scale-factor error) and its correlation with the star noise.
 
-    See the module docstring for the equations. Build with :meth:`make` (checked) or
+    The equations: docs/derivations/cubature_and_mcns.md. Build with :meth:`make` (checked) or
     :meth:`paper` (the seed's numbers).
 
     Attributes:
@@ -238,7 +139,8 @@ class MultiplicativeNoiseModel:
     def from_normals(self, z, star_sigma_rad: float) -> tuple[np.ndarray, np.ndarray]:
         """``(zeta, v)`` from standard normals ``z`` of shape ``(..., 1 + 3m)``.
 
-        ``z[..., 0]`` gives ``zeta``, ``z[..., 1:]`` the star noise (module docstring):
+        ``z[..., 0]`` gives ``zeta``, ``z[..., 1:]`` the star noise
+        (docs/derivations/cubature_and_mcns.md):
         ``v_j = sigma_v (z_j + c_m sum_l z_l + rho z_0)``. Returns ``zeta`` of shape ``(...)``
         and ``v`` of shape ``(..., m, 3)``. ``m = 0`` (``z`` of length 1) gives only ``zeta``.
         """
@@ -275,7 +177,7 @@ class MultiplicativeNoiseModel:
 
 @dataclass(frozen=True)
 class ReferenceStep:
-    """One gyro step of the reference truth (module docstring).
+    """One gyro step of the reference truth (docs/derivations/cubature_and_mcns.md).
 
     Attributes:
         w_meas_B: gyro output for the step (3, rad/s), time stamp ``t_k + dt``.
@@ -305,7 +207,7 @@ def reference_step(q_IB, bias_B, w_mean_B, dt: float, z, gyro_noise: FarrenkopfG
     Args:
         q_IB, bias_B: truth at ``t_k``. w_mean_B: the body's mean rate over the step (rad/s).
         dt: step (s); must equal ``gyro_noise.interval_s``.
-        z: standard normals, ordered as in the module docstring.
+        z: standard normals, ordered as in docs/derivations/cubature_and_mcns.md.
         references_I: (m, 3) unit reference directions; star_sigma_rad: ``sigma_v`` (rad);
         q_BS: tracker mounting; star_sample: a star sample is taken at ``t_k``.
     """

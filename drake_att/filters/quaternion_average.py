@@ -1,28 +1,20 @@
-"""Weighted quaternion averaging (Markley, Cheng, Crassidis, Oshman 2007).
+"""Weighted quaternion averaging (Markley, Cheng, Crassidis & Oshman, "Averaging Quaternions",
+Journal of Guidance, Control, and Dynamics 30(4), 2007).  Pure numpy; no Drake dependency.
 
-Reference: F. L. Markley, Y. Cheng, J. L. Crassidis, Y. Oshman, "Averaging
-Quaternions", Journal of Guidance, Control, and Dynamics 30(4), 2007.
+The weighted average of unit quaternions ``q_i`` with weights ``w_i >= 0`` is the unit
+eigenvector of ``M = sum_i w_i q_i q_i'`` with the largest eigenvalue (it maximizes
+``sum_i w_i (q_i' q)^2``); the sign of each ``q_i`` does not matter.
 
-The weighted average of unit quaternions ``q_i`` with weights ``w_i >= 0`` is defined
-as the unit quaternion maximizing
-
-    ``sum_i w_i (q_i' q)^2 = q' M q``,  ``M = sum_i w_i q_i q_i'``,
-
-i.e. the eigenvector of ``M`` belonging to its largest eigenvalue. This equals the
-minimizer of the weighted sum of squared Frobenius distances between the attitude
-matrices, ``sum_i w_i |R(q) - R(q_i)|_F^2``. The objective depends only on
-``(q_i' q)^2``, so replacing any ``q_i`` by ``-q_i`` (the same rotation) does not change
-the result.
+* :func:`average_quaternions`: N quaternions, eigenvector method; result with ``w >= 0``.
+* :func:`average_two_quaternions`: two quaternions, closed form; result in ``q1``'s hemisphere.
 
 Conventions: quaternions are ``[w, x, y, z]`` (scalar first, Hamilton, as in
-:mod:`drake_att.rotations` and Drake). The averages are invariant under left and right
-multiplication: ``avg(p ⊗ q_i ⊗ r) = p ⊗ avg(q_i) ⊗ r`` (up to sign), so the frame
-convention of the inputs (``q_IB`` vs ``q_BI``) does not matter as long as all inputs use
-the same one. Weights are dimensionless and only their ratios matter; for small,
-independent, isotropic attitude errors with standard deviations ``sigma_i`` (rad),
-``w_i = 1 / sigma_i^2`` gives the minimum-variance combination (to first order).
+:mod:`drake_att.rotations` and Drake).  The average commutes with a common left or right
+factor, so ``q_IB`` or ``q_BI`` inputs both work if all use the same one.  Weights are
+dimensionless (only ratios matter); ``w_i = 1 / sigma_i^2`` (small, independent, isotropic
+errors of ``sigma_i`` rad) is the minimum-variance combination to first order.
 
-Pure numpy; no Drake dependency.
+Derivation and paper notes: docs/derivations/quaternion_average.md
 """
 
 from __future__ import annotations
@@ -55,46 +47,24 @@ def _check_weight(w, name: str) -> float:
 def average_two_quaternions(q1, q2, w1: float = 0.5, w2: float = 0.5) -> np.ndarray:
     """Weighted average of two quaternions, closed form (Markley et al. 2007).
 
-    With ``d = q1' q2`` (after normalizing both inputs) and
-    ``z = sqrt((w1 - w2)^2 + 4 w1 w2 d^2)``::
-
-        q_avg = sqrt(w1 (w1 - w2 + z) / (z (w1 + w2 + z))) q1
-              + sign(d) sqrt(w2 (w2 - w1 + z) / (z (w1 + w2 + z))) q2
-
-    which is the dominant eigenvector of ``w1 q1 q1' + w2 q2 q2'`` (same result as
-    :func:`average_quaternions`). ``sign(0)`` is taken as ``+1``. The factors
-    ``w1 - w2 + z`` and ``w2 - w1 + z`` are evaluated without cancellation.
-
-    Edge cases (no NaN is ever produced for valid input):
-
-    * ``w2 == 0`` returns ``q1``; ``w1 == 0`` returns ``±q2`` (in q1's hemisphere).
-    * ``q2 == ±q1`` returns ``q1``.
-    * ``w1 == w2`` and ``q1' q2 == 0`` (the two rotations differ by 180 deg) is
-      degenerate: ``z == 0`` and every unit quaternion in ``span(q1, q2)`` is an
-      average. ``q1`` is returned. Near this case the average is ill-conditioned
-      (it moves by O(1) for O(z) changes in the inputs), as for any averaging method.
+    The dominant eigenvector of ``w1 q1 q1' + w2 q2 q2'`` (the same result as
+    :func:`average_quaternions`) without an eigen-decomposition; never NaN for valid input.
+    In the degenerate case ``w1 == w2``, ``q1' q2 == 0`` (rotations 180 deg apart) it returns
+    ``q1``.  Formula, edge cases and sign rules: docs/derivations/quaternion_average.md.
 
     Args:
-        q1: First quaternion ``[w, x, y, z]``, shape ``(4,)``. Must be finite and non-zero;
-            it is normalized before use.
-        q2: Second quaternion ``[w, x, y, z]``, shape ``(4,)``, same frame convention as
-            ``q1``. Must be finite and non-zero; it is normalized before use.
-        w1: Weight of ``q1`` (dimensionless, finite, >= 0). Default 0.5.
-        w2: Weight of ``q2`` (dimensionless, finite, >= 0). ``w1 + w2`` must be > 0.
-            Default 0.5.
+        q1, q2: quaternions ``[w, x, y, z]``, shape ``(4,)``, finite and non-zero, in the same
+            frame convention; each is normalized before use.
+        w1, w2: weights (dimensionless, finite, >= 0, ``w1 + w2 > 0``); default 0.5 each.
 
     Returns:
-        Unit quaternion ``[w, x, y, z]``, shape ``(4,)``. Its sign is chosen so that
-        ``q_avg' q1 >= 0`` (it is in the hemisphere of ``q1``, which keeps it continuous
-        with ``q1`` when used inside a filter); it is *not* forced to have ``w >= 0``.
-        Use :func:`drake_att.rotations.quat_canonical` if that is wanted. Replacing ``q2``
-        by ``-q2`` returns the identical result, except when ``q1' q2 == 0`` exactly, where
-        the result can flip sign (same rotation).
+        Unit quaternion ``[w, x, y, z]``, shape ``(4,)``, in the hemisphere of ``q1``
+        (``q_avg' q1 >= 0``); not forced to ``w >= 0`` (see
+        :func:`drake_att.rotations.quat_canonical`).
 
     Raises:
-        ValueError: If a quaternion is not shape ``(4,)``, not finite or zero, or a weight
-            is negative / not finite, or ``w1 + w2 == 0``. The message names the argument
-            and the offending value.
+        ValueError: naming the argument and the offending value, if a quaternion is not shape
+            ``(4,)``, not finite or zero, a weight is negative or not finite, or ``w1 + w2 == 0``.
     """
     q1 = _check_quaternion(q1, "q1")
     q2 = _check_quaternion(q2, "q2")

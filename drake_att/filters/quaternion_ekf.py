@@ -1,52 +1,21 @@
 """Additive quaternion EKF: the baseline of paper S4 (Xu, Pei & Jiang 2020), gyro + stars.
 
 Plain numpy (no Drake).  State: the 4 components of ``q_IB`` (wxyz, Hamilton; body B in
-inertial I, ``v_I = R(q_IB) v_B``) with a 4x4 covariance ``P_q`` of the *additive* error
-``dq = q_true - q_hat``; no gyro-bias state.  Paper defaults: ``q0 = [1, 0, 0, 0]``,
-``P0 = I4``, ``Q = 1e-5 I4`` (per 1 s step), ``R = 0.01 I4``.
+inertial I, ``v_I = R(q_IB) v_B``) with the 4x4 covariance ``P_q`` of the *additive* error
+``q_true - q_hat``; no gyro-bias state.  Second quantity: the gyro's mean body rate of the last
+predict (rad/s) with its error covariance.  Paper defaults: ``q0 = [1, 0, 0, 0]``, ``P0 = I4``,
+``Q = 1e-5 I4`` (per 1 s step), ``R = 0.01 I4`` (a quaternion-noise figure).
 
-* **Predict** over ``dt`` with the gyro's mean body rate ``w`` (rad/s):
-  ``q <- Phi q`` with ``Phi = [dq]_R`` the right-multiplication matrix of
-  ``dq = exp(w dt / 2) = [cos(|w| dt/2), sin(|w| dt/2) w/|w|]`` (``q ⊗ dq = Phi q``; the
-  closed-form transition of ``q_dot = 1/2 q ⊗ [0, w]`` for a constant rate, orthogonal, so
-  ``|q|`` is kept).  The model is linear in ``q``: its Jacobian is ``Phi`` itself and
-  ``P <- Phi P Phi' + Q dt/step_s`` (plus ``1/4 N^2 dt Xi Xi'`` for a gyro ARW ``N``,
-  ``Xi`` below).
-* **Measurement**: a quaternion computed from the star directions (the paper's ``R = 0.01 I4``
-  is a quaternion-noise figure, SPEC S4).  Body directions ``b_i = R_BS d_i`` (mounting
-  ``q_BS``) and references ``r_i`` (both normalized, equal weights) give Wahba's problem
-  ``min sum |b_i - R_BI r_i|^2``, solved by the SVD of ``B = sum b_i r_i'`` (Markley 1988;
-  the same optimum as Davenport's q-method / QUEST); ``q_meas`` is the quaternion of
-  ``R_IB = R_BI'``, its sign chosen so that ``q_meas . q_hat >= 0``.  Needs ``m >= 2``
-  non-collinear references; otherwise the update is rejected (``accepted=False``).
-* **Update** with ``H = I4``: ``z = q_meas - q_hat``, ``S = P + R``, ``K = P S^-1``,
-  ``q <- q + K z``, Joseph form ``P <- (I - K) P (I - K)' + K R K'``, then ``q <- q / |q|``
-  (the common textbook variant: the covariance is not corrected for the normalization).
+* :class:`AdditiveQuaternionEKF`: the :class:`drake_att.contract.FilterCore`: closed-form
+  quaternion predict; update with the quaternion of the Wahba solution of ``m >= 2`` star
+  directions (``H = I4``, Joseph form), then ``q / |q|``.
+* :class:`QuaternionEkfState`; :func:`wahba_quaternion`, :func:`transition_matrix`,
+  :func:`right_matrix`, :func:`xi_matrix`.
 
-**Published covariance.**  The project's attitude error ``dtheta_B``
-(``q_IB = q_hat ⊗ exp(dtheta_B)``) relates to the additive error to first order by
-``dtheta = 2 [q_hat^-1 ⊗ dq]_vec = 2 G dq`` with ``G = Xi(q_hat)'`` (3x4), ``Xi(q)`` the
-last three columns of the left-multiplication matrix of ``q`` (``q ⊗ [0, v] = Xi(q) v``).
-So ``P_theta = 4 G P_q G'``; the component of ``P_q`` along ``q_hat`` (the norm direction)
-is dropped.
+The published covariance is that of ``[dtheta_B; w_true - w_hat]`` with the project's error
+``q_IB = q_hat ⊗ exp(dtheta_B)``, mapped to first order (``P_theta = 4 G P_q G'``).
 
-**Second quantity: the body rate** (:attr:`SecondQuantity.BODY_RATE`), the gyro's mean rate
-of the last predict, with the same honest rate block as
-:mod:`drake_att.filters.lie_group` (:func:`~drake_att.filters.lie_group.rate_error_model`):
-``cov(e_w) = N^2/dt I`` with a gyro ARW ``N``, else ``Q_theta/dt^2`` with
-``Q_theta = 4 G Q G'`` the attitude-equivalent process noise of the step (``4e-5 (rad/s)^2``
-for the paper's tuning), and before the first predict ``initial_rate_sigma^2 I``.  The cross
-covariance is kept in quaternion form, ``C_q = cov(dq, e_w)``: ``1/2 Xi(q_hat) cov(e_w) dt``
-after a predict (``dq`` gains ``1/2 q_hat ⊗ [0, e_w dt]``), ``(I - K) C_q`` after an
-update; published as ``2 G C_q``.
-
-**On S4** (noise-free truth, perfect gyro, paper defaults) the exact quaternion measurement
-makes it converge geometrically (gain ~ ``sqrt(Q/R)``): 1 deg after the first update, 0.005 deg
-at update 81, monotone on every axis; the paper's growing x-axis error (its Fig 4) is not
-reproduced by this filter on that truth.
-
-``innovation_gate_chi2``: reject an update whose NIS (4 dof) exceeds it; a singular ``S`` is
-rejected the same way.
+Derivation and paper notes: docs/derivations/quaternion_ekf.md
 """
 
 from __future__ import annotations
@@ -135,7 +104,8 @@ class AdditiveQuaternionEKF(GatedCore):
             Paper: ``1e-5``.
         R: quaternion measurement noise (scalar variance or 4x4).  Paper: ``0.01``.
         step_s: the step length ``Q`` refers to (s), default 1.
-        gyro_arw_rad_per_rt_s: gyro angle random walk (rad/s^0.5) or None (module docstring).
+        gyro_arw_rad_per_rt_s: gyro angle random walk (rad/s^0.5) or None
+            (docs/derivations/quaternion_ekf.md).
         innovation_gate_chi2: reject updates whose NIS exceeds this value (None: no gate).
     """
 
@@ -183,7 +153,7 @@ class AdditiveQuaternionEKF(GatedCore):
     @staticmethod
     def estimate(state: QuaternionEkfState):
         """``(q_IB_hat, w_IB_B_hat, 6x6 covariance of [dtheta_B; w_true - w_hat])`` with
-        ``P_theta = 4 G P_q G'`` and cross ``2 G C_q`` (module docstring)."""
+        ``P_theta = 4 G P_q G'`` and cross ``2 G C_q`` (docs/derivations/quaternion_ekf.md)."""
         q = rot.quat_normalize(state.q_IB)
         G = xi_matrix(q).T
         P6 = np.empty((6, 6))
