@@ -101,3 +101,20 @@ def test_a_manifest_catches_a_same_size_edit_of_any_file(tmp_path, check):
     assert check(str(tmp_path)) == []
     (tmp_path / "config.yaml").unlink()
     assert any(p.startswith("config.yaml") and "missing" in p for p in check(str(tmp_path)))
+
+
+def test_the_montecarlo_command_writes_an_estimator_selection_to_its_own_default_folder(tmp_path, monkeypatch):
+    """Through the CLI, not only ``default_out``: a campaign of one estimator and the full
+    campaign land in two folders, each named from its definition (a call site that dropped
+    ``--estimators`` would make the second refuse the first's folder)."""
+    from drake_att.cli import main as cli_main
+
+    monkeypatch.chdir(tmp_path)
+    short = ["duration_s=60", "scoring.score_from_s=20"]
+    base = ["montecarlo", SCEN.name, "--runs", "1", "--workers", "1", "--quiet", "--set", short[0], "--set", short[1]]
+    assert cli_main(base + ["--estimators", "single"]) == 0
+    assert cli_main(base) == 0
+    want_sel = f"{SCEN.name}_montecarlo" + _tag(short + ["--estimators=single"])
+    want_all = f"{SCEN.name}_montecarlo" + _tag(short)
+    assert sorted(os.listdir(tmp_path / "out")) == sorted([want_sel, want_all])
+    assert check_campaign_manifest(str(tmp_path / "out" / want_sel)) == []

@@ -541,3 +541,25 @@ def test_a_stored_layout_entry_at_its_bounds(entry, valid):
     layout = {"a": entry}
     assert (campaign_records._valid_layout(layout) == layout) is valid
     assert (campaign_records._valid_layout({"ok": ["f", 0, []], **layout}) is not None) is valid
+
+
+PER_SAMPLE = ["t", "dtheta", "sigma", "nees", "second_err", "bound_sigma"]
+
+
+@pytest.mark.parametrize("suffix", PER_SAMPLE)
+def test_a_record_with_one_truncated_per_sample_array_is_redone(base_campaign, tmp_path, suffix):
+    """Each per-sample array of a record (``(n, ...)`` in the record schema) cut by one sample
+    in turn: the resume reports the file and redoes its run, and the summary of the result
+    holds (a length check that skips one array lets the summary fail on every later resume)."""
+    out = _copy(base_campaign, tmp_path)
+    path = out / "runs" / "seed_2.npz"
+    record = mc.load_record(str(path))
+    key = f"single__{suffix}"
+    assert key in record and len(record[key]) == len(record["single__t"]) > 1
+    _edit(path, lambda r: r.__setitem__(key, r[key][:-1]))
+    err = io.StringIO()
+    result = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
+                             report=False, stream=err)
+    assert "seed_2.npz: not a record of this campaign" in err.getvalue(), err.getvalue()
+    assert (result.ran, result.reused, len(result.failed)) == (1, 2, 0)
+    mc.default_summarize(result.records, result.scenario)

@@ -343,3 +343,15 @@ def test_weights_and_second_quantities_through_the_validation_context():
     dual = load_scenario(filename=scenario_path("cubesat_dual_star_tracker"))
     checks = cfg.ValidationContext(dual, {c.name: c for c in dual.sensors}, {c.name: c for c in dual.estimators})
     assert checks.second_quantity("decentralized") == SecondQuantity.GYRO_BIAS
+
+
+@pytest.mark.parametrize("score_from", ["60", "60.0", "61"])
+def test_a_scoring_window_starting_at_or_after_the_end_is_refused(score_from):
+    """``scoring.score_from_s`` < ``duration_s`` is exclusive: a window from the last instant
+    on holds no sample to score."""
+    from drake_att.scenarios.library import load
+
+    with pytest.raises(ConfigError, match=r"^scoring\.score_from_s: got .*; must be < duration_s \(60"):
+        apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=60", f"scoring.score_from_s={score_from}"])
+    s = apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=60", "scoring.score_from_s=59.999"])
+    assert s.scoring.score_from_s == 59.999
