@@ -79,7 +79,7 @@ from drake_att.analysis.dask_connection import (  # noqa: F401  (the public name
     connect_scheduler,
     local_cluster,
 )
-from drake_att.analysis.progress import Progress, format_duration
+from drake_att.progress import Progress, format_duration
 from drake_att.outputs import safe_component
 from drake_att.scenarios import config as cfg
 from drake_att.validation import SEED_MAX, describe

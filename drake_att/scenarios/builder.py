@@ -34,7 +34,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
 
 from drake_att import rotations as rot
-from drake_att.analysis.progress import Progress
+from drake_att.progress import Progress
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
