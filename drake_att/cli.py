@@ -257,6 +257,7 @@ def _saved_runs(out) -> int:
 def _cmd_montecarlo(args) -> int:
     from drake_att.analysis import campaign_report
     from drake_att.analysis.campaign import campaign_seeds, resolve_scenario, run_campaign
+    from drake_att.analysis.executor import executor_phrase
     from drake_att import outputs
     from drake_att.scenarios.library import scenario_path
 
@@ -273,12 +274,7 @@ def _cmd_montecarlo(args) -> int:
     out = args.out if args.out is not None else default_out("montecarlo", scenario, args.set, args.estimators)
     _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
-    if scheduler == "serial" or (scheduler is None and args.workers == 1):
-        where = "serially in this process"
-    elif scheduler:
-        where = f"on the Dask cluster at {scheduler}"
-    else:
-        where = f"on a local Dask cluster of {min(args.workers or os.cpu_count() or 1, args.runs)} worker processes"
+    where = executor_phrase(args.workers, scheduler, args.runs)
     print(f"Monte Carlo: {scenario.name}, {args.runs} runs (seeds {args.first_seed}..{args.first_seed + args.runs - 1}) "
           f"{where} -> {out}/", file=sys.stderr)
     try:

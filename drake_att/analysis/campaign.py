@@ -47,7 +47,7 @@ from drake_att.analysis.dask_connection import (
     _shut_down,
     check_connect_timeout,
 )
-from drake_att.analysis.executor import RunFailed, _check_workers, _executor_name, _is_serial, map_runs
+from drake_att.analysis.executor import RunFailed, _check_workers, _is_serial, executor_name, map_runs
 from drake_att.analysis.run_records import default_record
 from drake_att.progress import Progress, format_duration
 from drake_att.scenarios import config as cfg
@@ -225,6 +225,7 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     start = time.perf_counter()
     records, failed, layout, mode, ran = {}, {}, None, "new", 0
     optional = getattr(record, "optional_key_suffixes", ())
+    executor_text = executor_name(workers, scheduler)  # campaign.json's and the report's
     if out is not None:
         out = os.path.normpath(out)
         mode, info = _inspect_folder(out, yaml_text, record, resume)
@@ -244,7 +245,7 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     try:
         if out is not None:
             created = _create_folder(out, yaml_text)
-            _write_campaign_file(out, resolved, seeds, record, workers, scheduler, layout)
+            _write_campaign_file(out, resolved, seeds, record, executor_text, layout)
 
         def on_result(i, job, result):
             nonlocal ran, layout
@@ -259,7 +260,7 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
                     fresh = record_layout(result, optional)
                     if fresh != layout:  # the first record (or a stale layout): the campaign's layout now
                         layout = fresh
-                        _write_campaign_file(out, resolved, seeds, record, workers, scheduler, layout)
+                        _write_campaign_file(out, resolved, seeds, record, executor_text, layout)
                 records[seed] = result
                 ran += 1
             if bar:
@@ -297,7 +298,7 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     if out is not None and report:
         from drake_att.analysis import campaign_report
 
-        result.files = campaign_report.write_campaign_report(result, executor=_executor_name(workers, scheduler))
+        result.files = campaign_report.write_campaign_report(result, executor=executor_text)
         run_files = [_run_path(out, s) for s in seeds if s in records] + [_failed_path(out, s) for s in result.failed]
         write_campaign_manifest(out, [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)]
                                 + result.files + run_files, resolved.name, seeds)

@@ -25,7 +25,6 @@ from drake_att.analysis.campaign_records import (
     write_text_atomic,
 )
 from drake_att.analysis.dask_connection import CampaignError, _error_text, _one_line, _shown
-from drake_att.analysis.executor import _executor_name
 from drake_att.analysis.run_records import default_record, record_name
 from drake_att.scenarios import config as cfg
 
@@ -240,12 +239,12 @@ def _remove_created(out: str, created: list[str]) -> None:
             pass
 
 
-def _write_campaign_file(out, scenario, seeds, record, workers, scheduler, layout=None) -> str:
+def _write_campaign_file(out, scenario, seeds, record, executor: str, layout=None) -> str:
     import drake_att
 
     info = {"scenario": scenario.name, "first_seed": seeds[0], "runs": len(seeds), "seeds": [seeds[0], seeds[-1]],
             **_campaign_identity(cfg.dump_scenario(scenario), record), "drake_att": drake_att.__version__,
-            "executor": _executor_name(workers, scheduler)}
+            "executor": executor}
     if layout is not None:
         info["record_layout"] = layout
     return write_text_atomic(os.path.join(out, CAMPAIGN_FILE), json.dumps(info, indent=1) + "\n")

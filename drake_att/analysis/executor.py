@@ -153,8 +153,7 @@ def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int 
         return results
     if workers is not None and workers < 1:
         raise CampaignError(f"--workers: got {workers}; must be a positive integer")
-    serial = scheduler == SERIAL or (scheduler is None and workers == 1)
-    if serial:
+    if _is_serial(workers, scheduler):
         for k in range(0, len(unique), max(1, chunk_size)):
             deliver(_run_jobs(yaml_text, unique[k:k + chunk_size], record))
         return results
@@ -201,11 +200,35 @@ def _check_workers(workers) -> None:
         raise CampaignError(f"--workers: got {describe(workers)}; must be a positive integer")
 
 
-def _executor_name(workers, scheduler) -> str:
-    if scheduler == SERIAL or (scheduler is None and workers == 1):
-        return "serial (this process)"
+def where_runs_go(workers, scheduler, tasks: int | None = None) -> tuple[str, object]:
+    """Where :func:`map_runs` runs with these arguments: ``("serial", None)``,
+    ``("local", worker processes)`` (for ``tasks`` tasks: at most one each; None: as many as
+    asked for) or ``("cluster", scheduler address)``."""
+    if _is_serial(workers, scheduler):
+        return "serial", None
     if scheduler is None:
-        return f"Dask LocalCluster, {workers or os.cpu_count()} worker processes"
+        n = workers or os.cpu_count()
+        return "local", n if tasks is None else min(n or 1, tasks)
     if not isinstance(scheduler, str):  # a distributed.Client
-        return f"Dask cluster at {getattr(getattr(scheduler, 'scheduler', None), 'address', '?')}"
-    return f"Dask cluster at {scheduler}"
+        return "cluster", getattr(getattr(scheduler, "scheduler", None), "address", "?")
+    return "cluster", scheduler
+
+
+def executor_name(workers, scheduler) -> str:
+    """Where the runs go, as ``campaign.json`` and the campaign's report name it."""
+    kind, detail = where_runs_go(workers, scheduler)
+    if kind == "serial":
+        return "serial (this process)"
+    if kind == "local":
+        return f"Dask LocalCluster, {detail} worker processes"
+    return f"Dask cluster at {detail}"
+
+
+def executor_phrase(workers, scheduler, runs: int) -> str:
+    """Where ``runs`` runs go, as ``drake-att montecarlo`` announces them."""
+    kind, detail = where_runs_go(workers, scheduler, runs)
+    if kind == "serial":
+        return "serially in this process"
+    if kind == "local":
+        return f"on a local Dask cluster of {detail} worker processes"
+    return f"on the Dask cluster at {detail}"
