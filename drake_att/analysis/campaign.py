@@ -51,6 +51,7 @@ from drake_att.analysis.executor import RunFailed, _check_workers, _is_serial, e
 from drake_att.analysis.run_records import default_record
 from drake_att.progress import Progress, format_duration
 from drake_att.scenarios import config as cfg
+from drake_att.scenarios.selection import with_estimators
 from drake_att.validation import SEED_MAX
 
 
@@ -153,8 +154,6 @@ def select_estimators(scenario: cfg.Scenario, names) -> cfg.Scenario:
     estimator listed before it is dropped: same statistics, another realization."""
     if names is None:
         return scenario
-    from drake_att.scenarios.builder import with_estimators
-
     out = with_estimators(scenario, names, field="--estimators", allow_empty=False)
     return cfg.load_scenario(text=cfg.dump_scenario(out))
 

@@ -26,6 +26,7 @@ from drake_att.analysis.executor import _check_workers, _is_serial, map_runs
 from drake_att.analysis.run_records import timing_record
 from drake_att.outputs import safe_component
 from drake_att.scenarios import config as cfg
+from drake_att.scenarios.selection import with_fused_sources
 from drake_att.validation import SEED_MAX
 
 
@@ -100,11 +101,7 @@ def comparison_plan(scenarios, estimators=None, overrides=()) -> ComparisonPlan:
         if name not in configs:
             raise CampaignError(f"--estimators {source}:{name}: scenario {src.name!r} has no estimator {name!r}; "
                                 f"it has {list(configs)}")
-        bring = [configs[name]]
-        i = 0
-        while i < len(bring):  # a fusion brings its sources
-            bring += [configs[s] for s in getattr(bring[i], "sources", []) if configs[s] not in bring]
-            i += 1
+        bring = [configs[n] for n in with_fused_sources(configs, [name])]  # a fusion brings its sources
         transplants[name] = (bring[::-1], src.plugins)
     cells, resolved = {}, []
     for s in loaded:
@@ -112,11 +109,7 @@ def comparison_plan(scenarios, estimators=None, overrides=()) -> ComparisonPlan:
         keep = set()
         for _, name in entries:
             if name in own:
-                stack = [name]
-                while stack:
-                    n = stack.pop()
-                    keep.add(n)
-                    stack += list(getattr(own[n], "sources", []))
+                keep.update(with_fused_sources(own, [name]))
                 cells[(s.name, name)] = None
             elif name not in transplants:
                 cells[(s.name, name)] = "not an estimator of this scenario (SOURCE:NAME adds one from another scenario)"
@@ -143,12 +136,8 @@ def comparison_plan(scenarios, estimators=None, overrides=()) -> ComparisonPlan:
 
 
 def _selection_with_sources(scenario: cfg.Scenario, name: str) -> tuple:
-    own = {e.name: e for e in scenario.estimators}
-    keep, stack = set(), [name]
-    while stack:
-        n = stack.pop()
-        keep.add(n)
-        stack += list(getattr(own[n], "sources", []))
+    """Estimator ``name`` and the estimators it fuses, in the scenario's order."""
+    keep = set(with_fused_sources({e.name: e for e in scenario.estimators}, [name]))
     return tuple(e.name for e in scenario.estimators if e.name in keep)
 
 
