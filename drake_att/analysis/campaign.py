@@ -200,8 +200,9 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
             differs. Without it an existing campaign in ``out`` is refused too (never
             overwritten by accident). A saved record is checked before it is reused (its
             layout against the campaign's, and the default record's documented structure,
-            :func:`default_record_problem`); one that fails, or cannot be read, is reported
-            in one line on ``stream`` and its run redone.
+            :func:`~drake_att.analysis.campaign_records.default_record_problem`); one that
+            fails, or cannot be read, is reported in one line on ``stream`` and its run
+            redone.
         overrides: ``--set``-style ``path=value`` strings applied to the scenario first.
         estimators: names of the estimators to run (default: all).
         record: ``RunLog -> dict of numpy arrays`` (default :func:`default_record`; with
@@ -211,7 +212,7 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
         report: write the summary, report and manifest (with ``out``).
         progress: a progress line (runs done, wall time, ETA) on ``stream`` (stderr).
         connect_timeout_s: the deadline of the connection to ``scheduler``
-            (:func:`connect_scheduler`).
+            (:func:`~drake_att.analysis.dask_connection.connect_scheduler`).
 
     Ctrl-C (KeyboardInterrupt) stops the campaign; every run finished so far is on disk.
     """

@@ -163,7 +163,8 @@ def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, work
     (that estimator and its sources alone, minus the sensors-only run; the fastest of
     ``timing_repeats`` runs, seeds ``first_seed, first_seed + 1, ...``) and the matrix
     (``comparison.{json,md,png,html}``). One Dask cluster serves all: a local one, or the
-    scheduler's, connected to before anything is written (:func:`connect_scheduler`); a
+    scheduler's, connected to before anything is written
+    (:func:`~drake_att.analysis.dask_connection.connect_scheduler`); a
     comparison that fails before any campaign saved a run leaves no folder behind."""
     campaign_seeds(runs, first_seed)
     connect_timeout_s = check_connect_timeout(connect_timeout_s)

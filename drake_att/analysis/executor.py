@@ -126,7 +126,8 @@ def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int 
     A run whose truth or estimates go non-finite gives a :class:`RunFailed` (with
     ``raise_failures``: raises its ``NonFiniteRunError``); any other exception stops the map
     (the results already passed to ``on_result`` stay delivered). A scheduler address is
-    connected to within ``connect_timeout_s`` (:func:`connect_scheduler`).
+    connected to within ``connect_timeout_s``
+    (:func:`~drake_att.analysis.dask_connection.connect_scheduler`).
     """
     connect_timeout_s = check_connect_timeout(connect_timeout_s)
     jobs = [(int(j), None) if isinstance(j, (int, np.integer)) else (int(j[0]), None if j[1] is None else tuple(j[1]))
@@ -174,8 +175,9 @@ def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int 
 
 
 def run_seeds(scenario, seeds, workers: int | None = None, keep_series_for=(), scheduler=None) -> list[dict]:
-    """Per-seed ``{"metrics": ..., "series": ...}`` (:func:`metrics_and_series_record`) of
-    ``scenario`` over ``seeds``, through :func:`map_runs` (``workers=1``: in this process).
+    """Per-seed ``{"metrics": ..., "series": ...}``
+    (:func:`~drake_att.analysis.run_records.metrics_and_series_record`) of ``scenario`` over
+    ``seeds``, through :func:`map_runs` (``workers=1``: in this process).
     A run that goes non-finite raises its ``NonFiniteRunError``."""
     record = functools.partial(metrics_and_series_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
     return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,

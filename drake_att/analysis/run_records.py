@@ -16,7 +16,7 @@ PUBLIC_MODULE = "drake_att.analysis.montecarlo"
 
 
 def metrics_record(run) -> dict:
-    """The smallest record: the run's metrics (:func:`compute_metrics`) as a JSON string
+    """The smallest record: the run's metrics (:func:`~drake_att.analysis.metrics.compute_metrics`) as a JSON string
     under ``"metrics_json"``."""
     from drake_att.analysis.metrics import compute_metrics
     from drake_att.analysis.report import strict_json
