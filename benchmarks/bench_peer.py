@@ -100,7 +100,7 @@ def run_peer(case: str, duration: float, seed: int) -> dict:
 
 def drake_scenario(case: str, duration: float, ekpf_kernel: str = "numba"):
     """The drake_att scenario of a case, ``duration`` long, scored from :func:`score_from`."""
-    from drake_att.scenarios.builder import with_estimators
+    from drake_att.scenarios.selection import with_estimators
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
 

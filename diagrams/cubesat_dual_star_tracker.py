@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from drake_att.analysis.montecarlo import metric_mean_std, run_seeds
+from drake_att.analysis.executor import metric_mean_std, run_seeds
 from drake_att.analysis.report import plot_error_grid
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load

@@ -12,7 +12,7 @@ of its filters see the same truth and the same gyro and star-sensor noise realiz
   iterated linearization buys;
 * ``s0_gyroless_pf``: bootstrap PF with Euler's equations instead of a gyro.
 
-The Monte Carlo repeats each scenario over seeds (``drake_att.analysis.montecarlo``).  The
+The Monte Carlo repeats each scenario over seeds (``drake_att.analysis.executor``).  The
 script prints the paper's four claims with our numbers next to each and a verdict computed
 from the runs, the wall time of every 1000-s scenario, the time per step of each filter in
 its own diagram, and an EKF-only sweep over the initial yaw error.  Usage::
@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-from drake_att.analysis.montecarlo import run_seeds
+from drake_att.analysis.executor import run_seeds
 from drake_att.analysis.report import plot_error_grid
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder as _builder

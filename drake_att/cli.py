@@ -256,11 +256,8 @@ def _saved_runs(out) -> int:
 
 def _cmd_montecarlo(args) -> int:
     from drake_att.analysis import campaign_report
-    from drake_att.analysis.montecarlo import (
-        campaign_seeds,
-        resolve_scenario,
-        run_campaign,
-    )
+    from drake_att.analysis.campaign import campaign_seeds, resolve_scenario, run_campaign
+    from drake_att.analysis.executor import executor_phrase
     from drake_att import outputs
     from drake_att.scenarios.library import scenario_path
 
@@ -277,12 +274,7 @@ def _cmd_montecarlo(args) -> int:
     out = args.out if args.out is not None else default_out("montecarlo", scenario, args.set, args.estimators)
     _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
-    if scheduler == "serial" or (scheduler is None and args.workers == 1):
-        where = "serially in this process"
-    elif scheduler:
-        where = f"on the Dask cluster at {scheduler}"
-    else:
-        where = f"on a local Dask cluster of {min(args.workers or os.cpu_count() or 1, args.runs)} worker processes"
+    where = executor_phrase(args.workers, scheduler, args.runs)
     print(f"Monte Carlo: {scenario.name}, {args.runs} runs (seeds {args.first_seed}..{args.first_seed + args.runs - 1}) "
           f"{where} -> {out}/", file=sys.stderr)
     try:
@@ -315,13 +307,11 @@ def _cmd_montecarlo(args) -> int:
 
 
 def _scheduler_option(args):
-    from drake_att.analysis.montecarlo import CampaignError, check_scheduler_address
-
-    import drake_att.analysis.montecarlo as mc
+    from drake_att.analysis.dask_connection import CampaignError, check_connect_timeout, check_scheduler_address
 
     if args.workers is not None and not 1 <= args.workers <= 1024:
         raise CampaignError(f"--workers: got {args.workers}; must be an integer in [1, 1024]")
-    args.connect_timeout = mc.check_connect_timeout(args.connect_timeout)
+    args.connect_timeout = check_connect_timeout(args.connect_timeout)
     if args.scheduler is None:
         return None
     if args.scheduler == "serial":
@@ -334,11 +324,8 @@ def _scheduler_option(args):
 
 def _cmd_compare(args) -> int:
     from drake_att.analysis import campaign_report
-    from drake_att.analysis.montecarlo import (
-        campaign_seeds,
-        comparison_plan,
-        run_comparison,
-    )
+    from drake_att.analysis.campaign import campaign_seeds
+    from drake_att.analysis.comparison import comparison_plan, run_comparison
 
     from drake_att import outputs
 

@@ -103,7 +103,7 @@ def run_manifest_files(folder: str) -> list[str] | None:
 def folder_kind(folder: str) -> str | None:
     """``"empty"``, ``"run"`` (a manifest of ours listing every file in it), ``"campaign"``
     (a ``campaign.json``, or a ``config.yaml`` with a campaign's header; a campaign is only
-    ever resumed, and :func:`~drake_att.analysis.montecarlo.run_campaign` checks that its
+    ever resumed, and :func:`~drake_att.analysis.campaign.run_campaign` checks that its
     files are this library's), ``"comparison"`` (campaign folders and
     ``comparison.*`` files) or None (somebody else's folder)."""
     try:

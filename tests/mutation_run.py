@@ -35,6 +35,11 @@ REPO = os.path.dirname(HERE)
 MUTMUT = os.path.join(os.path.dirname(sys.executable), "mutmut")
 DEFAULT_WORK = "/tmp/drake_att_mutation"
 
+_CAMPAIGN_TESTS = ["tests/test_campaign_bookkeeping.py", "tests/test_campaign_edges.py", "tests/test_montecarlo.py",
+                   "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
+                   "not deadline and not http_server and not silent and not probe and not chromium"
+                   " and not ctrl_c"]
+
 # module key -> (file mutated, the unit tests that exercise it)
 MODULES = {
     "rotations": ("drake_att/rotations.py",
@@ -79,11 +84,9 @@ MODULES = {
     "fusion": ("drake_att/systems/fusion.py", ["tests/test_fusion.py", "tests/test_fusion_speed_equivalence.py"]),
     "build_context": ("drake_att/scenarios/build_context.py",
                       ["tests/test_initial_frames.py", "tests/test_faults.py", "tests/test_fusion.py"]),
-    "montecarlo": ("drake_att/analysis/montecarlo.py",
-                   ["tests/test_campaign_bookkeeping.py", "tests/test_campaign_edges.py", "tests/test_montecarlo.py",
-                    "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
-                    "not deadline and not http_server and not silent and not probe and not chromium"
-                    " and not ctrl_c"]),
+    # The Monte Carlo modules (analysis/montecarlo.py only re-exports them), one selection.
+    **{key: (f"drake_att/analysis/{key}.py", _CAMPAIGN_TESTS)
+       for key in ("executor", "run_records", "campaign", "campaign_folder", "comparison")},
     "cli": ("drake_att/cli.py",
             ["tests/test_cli_errors.py", "tests/test_campaign_bookkeeping.py", "tests/test_hostile_inputs.py",
              "tests/test_config_loading.py", "tests/test_score.py", "-k", "not sigterm and not downloaded_folder"]),

@@ -22,7 +22,7 @@ import time
 import numpy as np
 import pytest
 
-from drake_att.analysis import campaign_records, dask_connection
+from drake_att.analysis import campaign, campaign_records, dask_connection
 from drake_att.analysis import montecarlo as mc
 from drake_att.cli import main as cli_main
 
@@ -258,18 +258,29 @@ def _fake_map_runs(saved: int, error: BaseException):
 def test_a_start_that_fails_before_its_first_run_takes_back_what_it_created(tmp_path, monkeypatch, error):
     keep = tmp_path / "existing"
     keep.mkdir()
-    monkeypatch.setattr(mc, "map_runs", _fake_map_runs(0, error))
+    monkeypatch.setattr(campaign, "map_runs", _fake_map_runs(0, error))  # the runner run_campaign calls
     for out in (tmp_path / "new" / "c", keep):
         with pytest.raises(type(error)):
             mc.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(out), progress=False)
     assert sorted(os.listdir(tmp_path)) == ["existing"] and os.listdir(keep) == []  # the folder that was there stays
     # ...but a campaign that saved a run keeps everything (it resumes)
-    monkeypatch.setattr(mc, "map_runs", _fake_map_runs(1, error))
+    monkeypatch.setattr(campaign, "map_runs", _fake_map_runs(1, error))
     with pytest.raises(type(error)):
         mc.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(keep), progress=False,
                         record=mc.metrics_record)
     assert sorted(os.listdir(keep)) == ["campaign.json", "config.yaml", "runs"]
     assert os.listdir(keep / "runs") == ["seed_1.npz"]
+
+
+def test_campaign_json_names_the_library_records_by_their_public_module():
+    """campaign.json's ``record`` is what a resume compares: the library's record functions
+    keep the names ``drake_att.analysis.montecarlo:<name>`` whichever module defines them;
+    any other function is named by its own module."""
+    import functools
+
+    assert mc.record_name(mc.default_record) == "drake_att.analysis.montecarlo:default_record"
+    assert mc.record_name(functools.partial(mc.metrics_record)) == "drake_att.analysis.montecarlo:metrics_record()"
+    assert mc.record_name(one_line) == f"{one_line.__module__}:one_line"
 
 
 def test_an_empty_campaign_of_ours_does_not_block_a_new_start(tmp_path):

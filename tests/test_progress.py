@@ -1,4 +1,4 @@
-"""Simulation progress for people (drake_att.analysis.progress): newline-separated updates
+"""Simulation progress for people (drake_att.progress): newline-separated updates
 with the elapsed wall time and an ETA when the stream is not a terminal (logs, CI), one
 rewritten line on a terminal."""
 
@@ -6,7 +6,7 @@ import io
 import itertools
 import re
 
-from drake_att.analysis.progress import Progress, format_duration
+from drake_att.progress import Progress, format_duration
 
 
 class FakeClock:

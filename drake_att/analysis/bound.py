@@ -213,6 +213,7 @@ def bound_sources(scenario, name: str) -> dict:
     """The raw sensors estimator ``name`` reads and the config that gives its prior:
     ``{"gyro": GyroConfig, "trackers": [StarTrackerConfig, ...], "prior_config": config,
     "notes": [...]}``. Raises :class:`NoBound` (the reason) where no bound is defined."""
+    from drake_att.scenarios.selection import fused_sources
     from drake_att.sensors.faults import SensorFaultsConfig
     from drake_att.sensors.gyro import GyroConfig
     from drake_att.sensors.scale_factor_star_noise import ScaleFactorStarNoiseConfig
@@ -225,11 +226,11 @@ def bound_sources(scenario, name: str) -> dict:
 
     def leaves(n, seen=()):
         c = estimators[n]
-        if hasattr(c, "sources"):
+        if fused_sources(c):
             if n in seen:
                 raise NoBound(f"{n}: a fusion cycle")
             out = []
-            for s in c.sources:
+            for s in fused_sources(c):
                 out += leaves(s, seen + (n,))
             return out
         return [c]

@@ -8,7 +8,8 @@ then ``os.replace``), so a file there is always complete; reading one is bounded
 saved record it is checked against the campaign's record layout and, for the default
 record, against its documented structure (:func:`default_record_problem`), so a damaged or
 foreign file is redone rather than reused. The folder logic that uses this is
-:func:`drake_att.analysis.montecarlo.run_campaign`; nothing here imports it.
+:mod:`drake_att.analysis.campaign_folder` and :mod:`drake_att.analysis.campaign`; nothing
+here imports them.
 """
 
 from __future__ import annotations
@@ -184,7 +185,7 @@ def _is_kind(a, kinds: str, ndim: int) -> bool:
 
 
 def default_record_problem(record: dict, scenario: cfg.Scenario, seed: int) -> str | None:
-    """Why ``record`` is not :func:`~drake_att.analysis.montecarlo.default_record` of run
+    """Why ``record`` is not :func:`~drake_att.analysis.run_records.default_record` of run
     ``seed`` of ``scenario`` (None: it has the documented structure,
     :mod:`drake_att.analysis.ensemble`). Checks keys, dtype kinds and shapes, shapes
     consistent within the record, the seed, scenario, estimators and scoring it names, and

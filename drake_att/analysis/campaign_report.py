@@ -1,6 +1,6 @@
 """The report of a Monte Carlo campaign and of a comparison matrix.
 
-:func:`write_campaign_report` writes into a campaign folder (:func:`drake_att.analysis.montecarlo.run_campaign`):
+:func:`write_campaign_report` writes into a campaign folder (:func:`drake_att.analysis.campaign.run_campaign`):
 
 * ``summary.json``: ``{"campaign": {...}, "statistics": ensemble.summarize(...)}`` - every
   number of the report (strict JSON: ``null``, never NaN);
@@ -394,7 +394,8 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
-    from drake_att.analysis.montecarlo import SUMMARY_FILE, write_text_atomic
+    from drake_att.analysis.campaign_folder import SUMMARY_FILE
+    from drake_att.analysis.campaign_records import write_text_atomic
     from drake_att.analysis.report import strict_json
     from drake_att.scenarios.config import dump_scenario
 
@@ -603,7 +604,7 @@ def write_comparison(result) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
-    from drake_att.analysis.montecarlo import write_text_atomic
+    from drake_att.analysis.campaign_records import write_text_atomic
     from drake_att.analysis.report import strict_json
 
     out = result.out

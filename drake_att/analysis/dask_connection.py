@@ -4,7 +4,7 @@ connection to an existing scheduler in which every network wait has a deadline.
 
 A campaign must neither hang on an address that is not a Dask scheduler nor leave a cluster
 behind, and a user's mistake is a one-line :class:`CampaignError` naming the option. The
-runner (:func:`drake_att.analysis.montecarlo.map_runs`) and the campaigns on top of it get
+runner (:func:`drake_att.analysis.executor.map_runs`) and the campaigns on top of it get
 their client here (:func:`_connect`) and close it here (:func:`_shut_down`); nothing here
 imports the runner.
 """

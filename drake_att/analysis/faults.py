@@ -307,7 +307,7 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------------------
-# A campaign over seeds: the shared runner (analysis.montecarlo.map_runs)
+# A campaign over seeds: the shared runner (analysis.executor.map_runs)
 # ----------------------------------------------------------------------------------------
 def fault_campaign_record(run, keep_series_for=()) -> dict:
     """What :func:`run_fault_campaign` keeps of one run (computed in the worker)."""
@@ -333,11 +333,11 @@ def run_fault_campaign(scenario, seeds, workers: int | None = None, keep_series_
     ``keep_series_for``, ``series`` (estimator -> ``t``, ``error_deg`` = ``|dtheta|``,
     ``sigma_deg`` = the attitude covariance's RMS sigma ``sqrt(trace P_att)``).
 
-    Runs on :func:`drake_att.analysis.montecarlo.map_runs` (``workers=1``: in this process;
+    Runs on :func:`drake_att.analysis.executor.map_runs` (``workers=1``: in this process;
     otherwise Dask worker processes, each building the diagram once)."""
     import functools
 
-    from drake_att.analysis.montecarlo import map_runs
+    from drake_att.analysis.executor import map_runs
 
     record = functools.partial(fault_campaign_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
     return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,

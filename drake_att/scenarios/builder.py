@@ -34,10 +34,11 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
 
 from drake_att import rotations as rot
-from drake_att.analysis.progress import Progress
+from drake_att.progress import Progress
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
+from drake_att.scenarios.selection import fused_sources, with_estimators
 from drake_att.validation import check_seed
 from drake_att.systems.estimators import EstimatorSetup, EstimatorSystem
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
@@ -131,8 +132,8 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
         if second not in kinds:
             raise ValueError(f"{c.name}: second output {second!r} is none of {sorted(kinds)}")
         gyro_config = c
-        while isinstance(gyro_config, cfg.EstimateFusionConfig):
-            gyro_config = configs[gyro_config.sources[0]]
+        while fused_sources(gyro_config):
+            gyro_config = configs[fused_sources(gyro_config)[0]]
         gyro = getattr(gyro_config, "gyro", None)
         name = system.get_name()
         meta["estimators"][c.name] = {
@@ -296,31 +297,6 @@ def check_npz_arrays(npz_path: str, available_bytes: float | None = None) -> int
         raise ValueError(f"its arrays take {total / 2**30:.1f} GiB, more than half of the {available / 2**30:.1f} GiB "
                          "of memory available")
     return total
-
-
-def with_estimators(scenario: cfg.Scenario, names, field: str = "estimators", allow_empty: bool = True) -> cfg.Scenario:
-    """A copy of ``scenario`` with only the estimators ``names`` (in the scenario's order).
-
-    Raises:
-        ConfigError naming ``field``: ``names`` is a string, names an unknown estimator, is
-            empty when ``allow_empty`` is false, or leaves out the source of a selected fusion.
-    """
-    import copy
-
-    have = [e.name for e in scenario.estimators]
-    unknown = [] if isinstance(names, str) else [n for n in names if n not in have]
-    if isinstance(names, str) or unknown or (not allow_empty and not list(names)):
-        raise cfg.ConfigError(f"{field}: got {names!r}; choose a list of names from {have}"
-                              + (" (empty: sensors only)" if allow_empty else ""))
-    names = list(names)
-    keep = [e for e in scenario.estimators if e.name in names]
-    for e in keep:
-        missing = [s for s in getattr(e, "sources", []) if s not in names]
-        if missing:
-            raise cfg.ConfigError(f"{field}: {e.name!r} fuses {missing}, which are not selected")
-    scenario = copy.deepcopy(scenario)
-    scenario.estimators = copy.deepcopy(keep)
-    return scenario
 
 
 class ScenarioDiagram:

@@ -201,6 +201,7 @@ def _loggers(scenario) -> list:
     """``[(path of the period field, period_s, numbers per sample, what)]`` of every logger
     the builder adds (:class:`~drake_att.scenarios.builder.ScenarioDiagram`)."""
     from drake_att.scenarios.registry import plugin_for
+    from drake_att.scenarios.selection import fused_sources
 
     sensors = {s.name: s for s in scenario.sensors}
     by_name = {e.name: e for e in scenario.estimators}
@@ -215,7 +216,7 @@ def _loggers(scenario) -> list:
     def estimator_period(e, depth=0):
         if isinstance(getattr(e, "period_s", None), (int, float)):
             return float(e.period_s)
-        sources = [by_name[n] for n in getattr(e, "sources", []) if n in by_name]
+        sources = [by_name[n] for n in fused_sources(e) if n in by_name]
         return min((estimator_period(x, depth + 1) for x in sources if depth < 10), default=math.inf)
 
     for i, s in enumerate(scenario.sensors):

@@ -1,0 +1,236 @@
+"""Where runs execute: :func:`map_runs`, the one runner over seeds, and the worker side.
+
+:func:`map_runs` ships the scenario as YAML text plus seeds to worker processes (diagrams
+and contexts do not pickle); each worker builds the scenario's diagram once
+(:func:`drake_att.scenarios.builder.diagram_for`; pydrake 1.51 never frees a diagram) and
+reuses it for every seed it gets, returning a *record* of each run
+(:mod:`drake_att.analysis.run_records`). Where the work runs:
+
+* ``scheduler=None`` (default): a Dask ``LocalCluster`` of ``workers`` processes (default:
+  this machine's CPU count), one thread each (pydrake systems are not thread-safe);
+* ``scheduler="tcp://host:8786"``: an existing Dask cluster, connected to within
+  ``connect_timeout_s`` (:mod:`drake_att.analysis.dask_connection`); a
+  ``distributed.Client`` works too (a notebook's);
+* ``scheduler="serial"`` or ``workers=1``: in this process, one seed after the other (the
+  reference the Dask runs are tested against bit for bit).
+
+:func:`run_seeds` is the paper scripts' view of the same runner (per-seed metrics and error
+series).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from drake_att.analysis.dask_connection import (
+    DEFAULT_CONNECT_TIMEOUT_S,
+    CampaignError,
+    _connect,
+    _shut_down,
+    check_connect_timeout,
+)
+from drake_att.analysis.run_records import metrics_and_series_record, metrics_record
+from drake_att.scenarios import config as cfg
+from drake_att.validation import describe
+
+SERIAL = "serial"
+
+
+@dataclass(frozen=True)
+class RunFailed:
+    """A run that raised :class:`~drake_att.scenarios.builder.NonFiniteRunError` (its
+    truth or an estimate went non-finite): part of the campaign's result, not a crash."""
+
+    seed: int
+    message: str
+
+
+_WORKER_DIAGRAMS: dict = {}
+_WORKER_STATS = {"diagrams_built": 0, "runs": 0}
+# One simulation at a time per process: a Dask worker started with several threads
+# (``dask worker --nthreads 4``) would otherwise run pydrake systems concurrently.
+_WORKER_LOCK = threading.Lock()
+
+
+def worker_stats() -> dict:
+    """This process's pid, diagrams built and runs simulated by :func:`map_runs` (e.g.
+    ``client.run(worker_stats)`` on a Dask cluster: one diagram per worker, many runs)."""
+    return {"pid": os.getpid(), **_WORKER_STATS}
+
+
+def _worker_diagram(yaml_text: str):
+    """This process's diagram of the scenario ``yaml_text`` (built on first use)."""
+    sd = _WORKER_DIAGRAMS.get(yaml_text)
+    if sd is None:
+        from drake_att.scenarios.builder import diagram_for
+        from drake_att.scenarios.preflight import DegenerateScenarioWarning
+
+        with warnings.catch_warnings():
+            # The client prints a scenario's preflight warnings once, not once per worker.
+            warnings.simplefilter("ignore", DegenerateScenarioWarning)
+            sd = _WORKER_DIAGRAMS[yaml_text] = diagram_for(cfg.load_scenario(text=yaml_text))
+        _WORKER_STATS["diagrams_built"] += 1
+    return sd
+
+
+def _run_jobs(yaml_text: str, jobs, record: Callable) -> list:
+    """Run ``jobs`` (``(seed, estimators or None)`` pairs) on this process's diagram of
+    ``yaml_text``; returns ``[(job, record(run) or RunFailed), ...]``. The Dask task and the
+    serial loop both call this, so both compute the very same thing."""
+    with _WORKER_LOCK:
+        return _run_jobs_locked(yaml_text, jobs, record)
+
+
+def _run_jobs_locked(yaml_text: str, jobs, record: Callable) -> list:
+    from drake_att.scenarios.builder import NonFiniteRunError
+
+    sd = _worker_diagram(yaml_text)
+    out = []
+    for seed, estimators in jobs:
+        _WORKER_STATS["runs"] += 1
+        try:
+            run = sd.simulate(int(seed), estimators=None if estimators is None else list(estimators))
+        except NonFiniteRunError as e:
+            out.append(((seed, estimators), RunFailed(int(seed), str(e))))
+            continue
+        out.append(((seed, estimators), record(run)))
+    return out
+
+
+def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int | None = None, scheduler=None,
+             chunk_size: int = 1, on_result: Callable | None = None, raise_failures: bool = False,
+             connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> list:
+    """Run ``scenario`` for every job and return the records in job order.
+
+    Args:
+        scenario: a validated :class:`~drake_att.scenarios.config.Scenario`.
+        jobs: seeds, or ``(seed, estimators)`` pairs (``estimators``: the names to run, as
+            :meth:`ScenarioDiagram.simulate`'s; None = all).
+        record: ``RunLog -> object``, a module-level function (or a ``functools.partial`` of
+            one): workers import it by name.
+        workers: processes of the local cluster (default: the CPU count, at most one per
+            task); 1 runs serially in this process.
+        scheduler: None (local cluster), ``"serial"``, a scheduler address or a
+            ``distributed.Client``.
+        chunk_size: jobs per task (1: every run is streamed back as it finishes).
+        on_result: called as ``on_result(index, job, result)`` in this process as each run
+            arrives (in completion order).
+
+    A run whose truth or estimates go non-finite gives a :class:`RunFailed` (with
+    ``raise_failures``: raises its ``NonFiniteRunError``); any other exception stops the map
+    (the results already passed to ``on_result`` stay delivered). A scheduler address is
+    connected to within ``connect_timeout_s``
+    (:func:`~drake_att.analysis.dask_connection.connect_scheduler`).
+    """
+    connect_timeout_s = check_connect_timeout(connect_timeout_s)
+    jobs = [(int(j), None) if isinstance(j, (int, np.integer)) else (int(j[0]), None if j[1] is None else tuple(j[1]))
+            for j in jobs]
+    yaml_text = cfg.dump_scenario(scenario)
+    index = {}
+    for i, job in enumerate(jobs):
+        index.setdefault(job, []).append(i)
+    results = [None] * len(jobs)
+
+    def deliver(pairs):
+        for job, result in pairs:
+            if raise_failures and isinstance(result, RunFailed):
+                from drake_att.scenarios.builder import NonFiniteRunError
+
+                raise NonFiniteRunError(result.message)
+            for i in index[job]:
+                results[i] = result
+                if on_result is not None:
+                    on_result(i, job, result)
+
+    unique = list(index)
+    if not unique:
+        return results
+    if workers is not None and workers < 1:
+        raise CampaignError(f"--workers: got {workers}; must be a positive integer")
+    if _is_serial(workers, scheduler):
+        for k in range(0, len(unique), max(1, chunk_size)):
+            deliver(_run_jobs(yaml_text, unique[k:k + chunk_size], record))
+        return results
+    chunks = [unique[k:k + chunk_size] for k in range(0, len(unique), max(1, chunk_size))]
+    n_workers = min(workers or os.cpu_count() or 1, len(chunks))
+    from distributed import as_completed
+
+    client, cluster, owned = _connect(n_workers, scheduler, connect_timeout_s)
+    futures = []
+    try:
+        futures = [client.submit(_run_jobs, yaml_text, chunk, record, pure=False) for chunk in chunks]
+        for future in as_completed(futures):
+            deliver(future.result())
+            future.release()
+    finally:
+        _shut_down(client, cluster, owned, futures)
+    return results
+
+
+def run_seeds(scenario, seeds, workers: int | None = None, keep_series_for=(), scheduler=None) -> list[dict]:
+    """Per-seed ``{"metrics": ..., "series": ...}``
+    (:func:`~drake_att.analysis.run_records.metrics_and_series_record`) of ``scenario`` over
+    ``seeds``, through :func:`map_runs` (``workers=1``: in this process).
+    A run that goes non-finite raises its ``NonFiniteRunError``."""
+    record = functools.partial(metrics_and_series_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
+    return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,
+                    raise_failures=True)
+
+
+def metric_mean_std(results: list[dict], key: str, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (ddof 1) over :func:`run_seeds` results of a per-axis
+    metric (None entries dropped)."""
+    vals = [r["metrics"]["estimators"][estimator][key] for r in results]
+    vals = np.array([v for v in vals if v is not None], dtype=float)
+    return vals.mean(axis=0), vals.std(axis=0, ddof=1) if len(vals) > 1 else np.zeros_like(vals[0])
+
+
+def _is_serial(workers, scheduler) -> bool:
+    return (isinstance(scheduler, str) and scheduler == SERIAL) or (scheduler is None and workers == 1)
+
+
+def _check_workers(workers) -> None:
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
+                                or workers < 1):
+        raise CampaignError(f"--workers: got {describe(workers)}; must be a positive integer")
+
+
+def where_runs_go(workers, scheduler, tasks: int | None = None) -> tuple[str, object]:
+    """Where :func:`map_runs` runs with these arguments: ``("serial", None)``,
+    ``("local", worker processes)`` (for ``tasks`` tasks: at most one each; None: as many as
+    asked for) or ``("cluster", scheduler address)``."""
+    if _is_serial(workers, scheduler):
+        return "serial", None
+    if scheduler is None:
+        n = workers or os.cpu_count()
+        return "local", n if tasks is None else min(n or 1, tasks)
+    if not isinstance(scheduler, str):  # a distributed.Client
+        return "cluster", getattr(getattr(scheduler, "scheduler", None), "address", "?")
+    return "cluster", scheduler
+
+
+def executor_name(workers, scheduler) -> str:
+    """Where the runs go, as ``campaign.json`` and the campaign's report name it."""
+    kind, detail = where_runs_go(workers, scheduler)
+    if kind == "serial":
+        return "serial (this process)"
+    if kind == "local":
+        return f"Dask LocalCluster, {detail} worker processes"
+    return f"Dask cluster at {detail}"
+
+
+def executor_phrase(workers, scheduler, runs: int) -> str:
+    """Where ``runs`` runs go, as ``drake-att montecarlo`` announces them."""
+    kind, detail = where_runs_go(workers, scheduler, runs)
+    if kind == "serial":
+        return "serially in this process"
+    if kind == "local":
+        return f"on a local Dask cluster of {detail} worker processes"
+    return f"on the Dask cluster at {detail}"
