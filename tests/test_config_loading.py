@@ -24,11 +24,14 @@ SHIPPED = Path(scenario_path("cubesat_single_star_tracker")).read_text()
 REPO = Path(__file__).resolve().parents[1]
 
 
-def refused(text, needle, seconds=1.0):
-    start = time.perf_counter()
+def refused(text, needle, seconds=3.0):
+    """Refused naming ``needle``, one line, within ``seconds`` of this process's CPU time (a
+    hang guard: an unbounded parse of these inputs runs for minutes; CPU time, not wall time,
+    so that a loaded machine does not fail it)."""
+    start = time.process_time()
     with pytest.raises(ConfigError) as e:
         load_scenario(text=text)
-    elapsed = time.perf_counter() - start
+    elapsed = time.process_time() - start
     assert needle in str(e.value), str(e.value)
     assert elapsed < seconds, elapsed
     assert "\n" not in str(e.value) and len(str(e.value)) < 1000
@@ -48,7 +51,7 @@ def _laughs(levels, width=9, where="plugins"):
 def test_an_alias_bomb_is_refused_in_milliseconds():
     text = _laughs(10)  # 9^10 = 3.5e9 strings once expanded, from ~1 KB
     assert len(text) < 1200
-    refused(text, "expands to more than", seconds=0.2)
+    refused(text, "expands to more than", seconds=0.5)
 
 
 def test_the_expansion_limit_is_the_expanded_node_count():
