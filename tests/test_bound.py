@@ -127,6 +127,7 @@ def test_which_estimators_have_a_bound():
         assert bd.bound_sources(s0, e.name)["trackers"][0].mode == "vectors"
 
 
+@pytest.mark.slow
 def test_mekf_is_efficient_and_a_mistuned_one_is_not():
     """(c) Paper S3 single tracker, shortened to 350 s (scored from 50 s), 12 seeds.
 

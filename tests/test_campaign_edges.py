@@ -209,6 +209,7 @@ def test_no_probe_outlives_its_deadline_and_distributed_still_works(hostile_serv
         assert "is a Dask Worker, not a scheduler" in text, text
 
 
+@pytest.mark.slow
 def test_cli_against_an_http_server_exits_2_within_the_timeout_and_writes_nothing(tmp_path, hostile_servers):
     start = time.monotonic()
     r = subprocess.run([sys.executable, "-m", "drake_att.cli", "montecarlo", SCENARIO, "--runs", "2", "--scheduler",
@@ -459,6 +460,7 @@ def test_a_hostile_config_yaml_is_one_line_naming_the_file(base_campaign, tmp_pa
     assert (out / "config.yaml").read_bytes() == content
 
 
+@pytest.mark.slow
 def test_counts_add_up_after_resume(base_campaign, tmp_path):
     """ran + reused + failed == seeds, printed and stored: seed 3 failed before (not redone:
     it would fail again), seed 2's file is damaged (redone), seeds 4 and 5 are new."""

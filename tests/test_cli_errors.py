@@ -54,6 +54,7 @@ def test_bad_input_exits_2_with_a_message_naming_it(tmp_path, case):
     assert message and needle in message[-1], (case, r.stderr[-2000:])
 
 
+@pytest.mark.slow
 def test_ctrl_c_exits_130_and_leaves_no_result_folder(tmp_path):
     """SIGINT while the simulation runs: exit 130, a message, no traceback, no output folder
     (and no staging folder)."""

@@ -84,6 +84,7 @@ def test_compiled_step_is_used_for_an_eligible_mekf_and_not_otherwise():
     assert system._compiled_model(system.filter_model(context)) is not None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_compiled_step_equals_python_loop_on_fuzzed_inputs(seed):
     rng = np.random.default_rng(seed)

@@ -253,6 +253,7 @@ def test_check_validates_without_simulating(capsys):
     assert "duration_s" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_sigterm_exits_143_and_leaves_no_folder(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r",
                              "--no-figures"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -527,6 +527,7 @@ NEES_SEEDS = 20
 NEES_STEPS = 1000
 
 
+@pytest.mark.slow
 def test_cqe_time_averaged_nees_in_its_chi_square_band_over_20_seeds():
     """Nominal case (zeta-free truth from the model), 20 seeds x 1000 s; initial errors drawn
     from P0 = diag((20 arcsec)^2, (0.1 deg/h)^2) so the filter starts consistent. The
@@ -650,6 +651,7 @@ def test_single_iteration_update_collapses_at_a_large_initial_error():
             assert err < 10 * ARCSEC
 
 
+@pytest.mark.slow
 def test_patent_prediction_is_inconsistent_under_strong_correlation_and_the_correction_is_not():
     """The patent's prediction drops ``Cov(x_k, zeta_k | D_k) = -K S`` (the update used
     ``v_k``, which ``zeta_k`` is correlated with). At the paper's numbers that is harmless; with

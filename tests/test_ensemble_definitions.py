@@ -500,6 +500,7 @@ def test_rmse_confidence_intervals_from_the_definition():
             assert all(ci[0] > 0 for ci in out["bias"]["attitude_rmse_ci95_deg"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n_runs", [3, 10])
 def test_rmse_confidence_interval_covers_the_true_rms_95_percent(n_runs):
     """2000 synthetic campaigns of N runs, each run 100 white Gaussian errors per axis with

@@ -504,6 +504,7 @@ estimators:
 """
 
 
+@pytest.mark.slow
 def test_every_library_estimator_survives_every_fault_kind():
     scenario = load_scenario(text=SURVIVAL_SCENARIO)
     library = {tag for tag, p in plugins(ESTIMATOR).items() if p.module.startswith("drake_att.")}
@@ -531,6 +532,7 @@ def test_every_library_estimator_survives_every_fault_kind():
 # ======================================================================================
 # The campaign script
 # ======================================================================================
+@pytest.mark.slow
 def test_fault_campaign_script_short_run(tmp_path, load_script, diagram_builds):
     """diagrams/fault_campaign.py on its first two faults (gyro outlier at 300 s, NaN at 450 s):
     one diagram, strict results.json with the verdicts, the table and the README matrix."""

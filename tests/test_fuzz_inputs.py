@@ -146,6 +146,7 @@ def _in_fresh_folder(tmp_path, files: dict):
     return folder, previous
 
 
+@pytest.mark.slow
 @settings(_FUZZ, max_examples=120)
 @given(mutated=mutated_yaml())
 # Pinned examples (always run, also under the derandomized profile): mutations found by the

@@ -1674,6 +1674,7 @@ def _file_size_limit(nbytes: int):
     return limit
 
 
+@pytest.mark.slow
 def test_full_disk_while_writing_a_run_leaves_the_previous_results(tmp_path, result_folders):
     """A disk that fills while the results are written (``RLIMIT_FSIZE``: writes beyond 4 KiB
     fail with EFBIG): exit 2 naming the folder, no traceback, the previous results of ours at
@@ -1725,6 +1726,7 @@ def _start_run_and_wait_for_the_simulation(root: str) -> subprocess.Popen:
     return proc
 
 
+@pytest.mark.slow
 def test_sigterm_during_a_run_leaves_no_folder_lock_or_traceback(tmp_path):
     """SIGTERM (a scheduler's or systemd's stop) while simulating: a non-zero exit, no
     traceback, and nothing left on disk - no result folder, no staging folder, no lock."""
@@ -1745,6 +1747,7 @@ def test_sigterm_during_a_run_leaves_no_folder_lock_or_traceback(tmp_path):
     assert not problems, "\n  - ".join(problems) + f"\nexit {proc.returncode}\n" + err[-2500:]
 
 
+@pytest.mark.slow
 def test_a_killed_writer_is_cleaned_up_by_the_next_run(tmp_path, capfd, monkeypatch):
     """SIGKILL (no handler can run) while simulating leaves at most a dead writer's lock and
     staging folder; the next run into the same folder takes them over and succeeds, and

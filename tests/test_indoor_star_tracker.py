@@ -211,6 +211,7 @@ def test_exact_guess_and_noise_free_frame_give_the_true_attitude(method):
         assert error_angle(sol.R_BI, R_BI) < 1e-9
 
 
+@pytest.mark.slow
 def test_iteration_contracts_by_a_large_factor_per_iteration_down_to_round_off():
     """Truth at zero attitude, ``A0`` offset by +-2 and +-3 deg on all three axes (the paper's
     Tables 1-2), 7- and 50-star screens (12 patterns each), TRIAD and SVD, no stop rule,
@@ -248,6 +249,7 @@ def test_iteration_contracts_by_a_large_factor_per_iteration_down_to_round_off()
 
 
 # -- 5: the particle swarm ----------------------------------------------------------------------
+@pytest.mark.slow
 def test_particle_swarm_finds_the_capture_region_from_random_starts():
     """The dynamic test's start (SPEC S2): truth roll/pitch/yaw 2/3/0.5 deg, 50 stars, the
     paper's swarm (5 particles, w 0.8, c1 1.3, c2 1.7, v_max 5 deg, 200 generations) over
@@ -399,6 +401,7 @@ def test_solver_state_survives_the_round_trip_through_the_diagrams_state_vector(
             np.testing.assert_array_equal(getattr(back, f.name), getattr(st, f.name), err_msg=f.name)
 
 
+@pytest.mark.slow
 def test_garbage_and_far_frames_are_rejected_or_solved_exactly_never_a_silent_wrong_attitude():
     """300 frames of 3-80 uniform garbage centroids: all rejected. 300 frames of a random
     subset of the real stars (2/3/0.5 deg, 50 stars) mixed with 1-60 garbage centroids, ``A0``
@@ -538,6 +541,7 @@ def assert_whitened_identity(samples, P):
     assert np.all(np.abs(mean) < 5), mean
 
 
+@pytest.mark.slow
 def test_triad_is_exact_and_its_covariance_matches_monte_carlo():
     """Exact vectors: TRIAD returns the pydrake attitude to 1e-14 for random pairs. Noisy
     ``b1, b2`` (sigma 2e-5 and 5e-5 rad per axis normal to each, 50 deg apart), 20000 draws:
@@ -564,6 +568,7 @@ def test_triad_is_exact_and_its_covariance_matches_monte_carlo():
     assert_whitened_identity(error_vectors(A_hats, A), triad_covariance(b1, b2, s1, s2))
 
 
+@pytest.mark.slow
 def test_svd_attitude_and_its_covariance_match_monte_carlo():
     """Four directions with sigmas 1, 3, 2, 6 (x 1e-5 rad) in a 50 deg cone: exact vectors give
     the attitude to 1e-14; 20000 noisy draws (noise normal to each direction) have the
@@ -583,6 +588,7 @@ def test_svd_attitude_and_its_covariance_match_monte_carlo():
     assert_whitened_identity(error_vectors(A_hats, A), P)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["triad", "least_squares"])
 def test_solver_covariance_bounds_its_error_under_centroid_noise(method):
     """0.1 px centroid noise (the dynamic scenario's), 50 stars at 2/3/0.5 deg, exact ``A0``,
@@ -711,6 +717,7 @@ def test_camera_dropout_rate_and_outage_windows():
 
 
 # -- 10: identification never wrong -----------------------------------------------------------------
+@pytest.mark.slow
 def test_angle_matching_never_misidentifies_at_guess_errors_up_to_6_deg():
     """100 random cases per screen size (7, 20, 50 stars): truth within +-8 deg, ``A0`` off by
     0-6 deg about a random axis, noise-free. Every star the matcher identifies (one pass and

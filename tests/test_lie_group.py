@@ -360,6 +360,7 @@ def assert_nees_sums_in_band(nees3, nees6, n_runs):
         assert np.all((lo <= sums) & (sums <= hi)), (dof, sums / n_runs, lo / n_runs, hi / n_runs)
 
 
+@pytest.mark.slow
 def test_nees_is_chi_square_over_a_monte_carlo_with_truth_matching_the_tuning():
     """The paper's tuning taken as truth (SPEC S4, "tuning-as-truth"): stars l = R_BI r + v,
     v ~ N(0, 0.125^2 I3), and a gyro whose mean-rate error over the 1 s step is
@@ -652,6 +653,7 @@ def simulate_farrenkopf_run(rng, core, n_steps, checks, P0, dt=1.0, substeps=10,
     return np.array(nees), b - state.bias_B, np.sqrt(np.diag(state.P)[3:])
 
 
+@pytest.mark.slow
 def test_bias_converges_and_six_dof_nees_is_chi_square_over_a_monte_carlo():
     """30 runs, 300 s: the estimated bias converges from a 20 deg/h prior to well under
     1 deg/h, and the summed 6-dof NEES lies in the chi-square band at 30, 100 and 300 s."""
@@ -671,6 +673,7 @@ def test_bias_converges_and_six_dof_nees_is_chi_square_over_a_monte_carlo():
     assert np.all(final_sigma < 0.5 * DEG_H), final_sigma / DEG_H
 
 
+@pytest.mark.slow
 def test_bias_mode_equals_the_mekf_to_round_off():
     """The finding (docs/derivations/lie_group.md): with a bias state and Q_w = 0 the Lie-group filter is
     the MEKF (same right error, Phi, Q, vector model, quaternion model up to the rotation
@@ -751,6 +754,7 @@ def plugin_diagram():
     return ScenarioDiagram(load_scenario(text=PLUGIN_SCENARIO))
 
 
+@pytest.mark.slow
 def test_plugin_bias_mode_on_quaternion_and_vector_trackers_equals_the_mekf_plugin(plugin_diagram):
     from drake_att.analysis.metrics import estimator_errors
 

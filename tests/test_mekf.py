@@ -801,6 +801,7 @@ scoring:
 VECTOR_RUNS = 12
 
 
+@pytest.mark.slow
 def test_mekf_with_mounted_vector_tracker_is_consistent():
     """System level: two reference directions from a mounted vector-mode tracker (S = B
     rotated by roll/pitch/yaw (0, 90, 20) deg), the paper-S3 gyro (short bias correlation,
@@ -1056,6 +1057,7 @@ def _coning_bias_drift_deg_h(rate_deg_s, T=1.0):
     return -T**2 / 12.0 * k * w * (2.0 * w * w) / DEG_PER_H
 
 
+@pytest.mark.slow
 def test_coning_correction_restores_mekf_consistency_in_a_fast_tumble():
     """S3's gyro (MEMS, ARW 0.56 deg/rt-h, RRW 123.75 deg/h^1.5) and a 5"/50" quaternion
     tracker at 1 Hz, MEKF at 1 s, a torque-free tumble of S3's CubeSat (inertia
@@ -1111,6 +1113,7 @@ def test_coning_correction_is_opt_in_and_structural():
     assert [tumble.estimators[n].core.state_size for n in ("plain", "coned")] == [43, 47]
 
 
+@pytest.mark.slow
 def test_tracked_fusion_of_coning_corrected_mekfs_stays_consistent_in_a_fast_tumble():
     """The decentralized fusion's "tracked" cross-covariance reads each MEKF's
     ``step_linearization``; with the correction its Phi is that of the corrected rotation and

@@ -68,6 +68,7 @@ def campaign(tmp_path_factory):
     return result
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_equals_serial_bit_for_bit(tmp_path, campaign):
     """The same seeds on a 2-worker Dask LocalCluster (separate processes, each building the
     diagram once) give records identical to the serial in-process run, in memory and on disk."""
@@ -114,6 +115,7 @@ def test_interrupted_campaign_resumes_to_exactly_n_runs(tmp_path, campaign):
     assert (again.reused, again.ran) == (4, 0)
 
 
+@pytest.mark.slow
 def test_ctrl_c_keeps_finished_runs_and_resume_completes(tmp_path):
     """SIGINT to the whole process group (as a terminal's Ctrl-C) of a Dask campaign: exit
     130, a message, no traceback, no worker left behind, only complete run files; the same
@@ -286,6 +288,7 @@ def test_report_renders_in_headless_chromium_without_console_messages(campaign, 
         campaign_report.screenshot(str(broken), str(tmp_path / "broken.png"))
 
 
+@pytest.mark.slow
 def test_compare_runs_every_listed_estimator_on_every_listed_scenario(tmp_path, capsys):
     """Two scenarios sharing the plant and sensors; `single` in both, `joint` transplanted from
     the dual-tracker scenario (it cannot run on one tracker: the cell says why). The shared

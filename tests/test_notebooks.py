@@ -11,6 +11,7 @@ NOTEBOOK_DIR = os.path.join(os.path.dirname(__file__), os.pardir, "notebooks")
 NOTEBOOKS = sorted(glob.glob(os.path.join(NOTEBOOK_DIR, "*.ipynb")))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[os.path.basename(p) for p in NOTEBOOKS])
 def test_notebook_executes(path, monkeypatch):
     monkeypatch.setenv("DRAKE_ATT_NOTEBOOK_TEST", "1")

@@ -100,6 +100,7 @@ def test_ekf_predict_equals_the_reference(w, dt):
         assert np.mean(np.sum(unswitched**2, axis=1) > 1.0) > 0.2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sigma", [1e-4, 1e-2])
 @pytest.mark.parametrize("iterations", [1, 3, 10])
 def test_ekf_update_equals_the_reference(sigma, iterations):
@@ -309,6 +310,7 @@ print(particle_kernels.CACHING)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("locator, caching", [("UserWideCacheLocator", True), ("IPythonCacheLocator", False)])
 def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, locator, caching):
     """A read-only package directory (site-packages): numba caches in the user-wide directory

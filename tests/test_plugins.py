@@ -613,6 +613,7 @@ def _package_modules(package_dir: Path, prefix: str) -> list[str]:
     return found
 
 
+@pytest.mark.slow
 def test_every_module_imports_alone_in_a_fresh_interpreter():
     """``python -c "import <module>"``, one fresh interpreter per module (two at a time): a
     module that only imports after some other module was imported first (a circular import

@@ -840,6 +840,7 @@ _MEASURE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux /proc peak-RSS reset")
 def test_the_estimate_is_within_a_factor_2_of_the_measured_peak():
     """A fresh process builds and runs (after a warm-up of the same shapes) a log-heavy run

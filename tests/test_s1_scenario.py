@@ -48,6 +48,7 @@ def test_mcns_equals_cqe_without_multiplicative_noise(s1):
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.max(np.abs(a)))
 
 
+@pytest.mark.slow
 def test_three_orbits_converge_keep_p_positive_definite_and_mcns_is_consistent_where_cqe_is_not(s1):
     """Seed 1, the full 3-orbit case: both cubature filters converge from [-45, 45, 155] deg
     (every axis within 0.01 deg, then for good); P stays symmetric positive definite at every
@@ -66,6 +67,7 @@ def test_three_orbits_converge_keep_p_positive_definite_and_mcns_is_consistent_w
     assert m["cqe"]["nees_mean"] > 20.0
 
 
+@pytest.mark.slow
 def test_cli_lists_and_runs_s1(tmp_path, drake_att_cli):
     listed = drake_att_cli("list")
     assert listed.returncode == 0 and "s1_cqe" in listed.stdout
@@ -77,6 +79,7 @@ def test_cli_lists_and_runs_s1(tmp_path, drake_att_cli):
     assert set(metrics["estimators"]) == {"cqe", "cqe_mcns", "mekf"}
 
 
+@pytest.mark.slow
 def test_reproduction_script_on_one_diagram(tmp_path, diagram_builds, load_script):
     """diagrams/cubature_quaternion_estimator.py (1 seed, 1.5 orbits, no sweeps): one diagram,
     the claims computed from the runs (both converge), figures written."""

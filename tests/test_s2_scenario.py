@@ -142,6 +142,7 @@ def test_fused_estimator_learns_the_gyro_bias(dynamic_run):
     assert np.all(np.abs(np.degrees(bias_hat - true) * 3600.0) < 3.0), (bias_hat, true)
 
 
+@pytest.mark.slow
 def test_reproduction_script_short_mode(load_script, tmp_path, diagram_builds):
     """The script, shortened (its dynamic verdicts need the full 140 s): Table 1, the screens
     statistics, Table 2's sources, naive vs corrected; one diagram per scenario."""

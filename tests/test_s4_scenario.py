@@ -56,6 +56,7 @@ def test_noise_free_claims_on_the_diagram(s4):
         assert m[name]["measurements_used"] == 600 and m[name]["measurements_skipped"] == 0
 
 
+@pytest.mark.slow
 def test_consistent_filter_nees_in_band_over_20_seeds_when_truth_matches_its_model(s4):
     """Truth = the paper's tuning (SPEC.md's literal reading): gyro ARW sqrt(5e-5) rad/s^0.5
     (the per-step Q_w) and 0.125 rad star-vector noise (Q_v). The average 3-dof attitude
@@ -78,6 +79,7 @@ def test_consistent_filter_nees_in_band_over_20_seeds_when_truth_matches_its_mod
     assert np.all((lo < anees) & (anees < hi)), f"ANEES {anees} outside [{lo:.2f}, {hi:.2f}]"
 
 
+@pytest.mark.slow
 def test_cli_lists_and_runs_s4(tmp_path, drake_att_cli):
     listed = drake_att_cli("list")
     assert listed.returncode == 0 and "s4_lie_group" in listed.stdout
@@ -90,6 +92,7 @@ def test_cli_lists_and_runs_s4(tmp_path, drake_att_cli):
     assert metrics["estimators"]["lie_group"]["convergence_time_s"] <= 160.0
 
 
+@pytest.mark.slow
 def test_reproduction_script_runs_all_cases_on_one_diagram(tmp_path, diagram_builds, load_script):
     """diagrams/lie_group_filter.py: three truth-noise cases x seeds in one diagram; claims
     (a) and (c) hold, (b) does not (our quaternion EKF does not drift), computed."""
@@ -104,6 +107,7 @@ def test_reproduction_script_runs_all_cases_on_one_diagram(tmp_path, diagram_bui
     assert all((tmp_path / f"fig_errors_{c}.png").stat().st_size > 10_000 for c in script.CASES)
 
 
+@pytest.mark.slow
 def test_consistent_filter_converges_from_120_deg_in_any_direction_and_the_literal_one_does_not(s4):
     """Noise-free truth, five random error axes at 120 deg (filter initial attitude
     q_true(0) ⊗ exp(120 deg * axis), a context override of the one diagram): the consistent

@@ -131,6 +131,7 @@ def _read_metrics(out):
         return json.load(f, parse_constant=_reject_constant)
 
 
+@pytest.mark.slow
 def test_cli_run_writes_results_and_seeds_reproduce(tmp_path, capsys):
     args = ["run", "--set", "duration_s=60", "--set", "scoring.score_from_s=10", "--quiet"]
     out1, out1b, out2 = (str(tmp_path / n) for n in ("s1", "s1b", "s2"))
@@ -215,6 +216,7 @@ def test_kinematic_truth_scenarios_run_end_to_end(plant_yaml):
     assert moved_deg > 2.0, moved_deg  # the truth really moves (3 deg and 4.5 deg here)
 
 
+@pytest.mark.slow
 def test_monte_carlo_pool_matches_in_process_runs():
     """Dask worker processes rebuild the diagram from the YAML and give the same metrics as an
     in-process run for each seed (the run is a function of config + seed only)."""
@@ -405,6 +407,7 @@ def _cli(*args, cwd=None):
 SHORT = ["--set", "duration_s=5", "--set", "scoring.score_from_s=1", "--quiet"]
 
 
+@pytest.mark.slow
 def test_rerun_replaces_the_whole_folder_and_says_so(tmp_path):
     """A run with figures, then one without: no PNG of the first run is left next to the
     second run's metrics; the CLI says it replaced the folder; no staging folder is left."""
@@ -472,6 +475,7 @@ def test_result_folder_carries_a_manifest_of_its_files(tmp_path):
     assert any(p.startswith("stray.png: not written") for p in problems)
 
 
+@pytest.mark.slow
 def test_default_folder_of_a_modified_run_differs_from_the_unmodified_one(tmp_path):
     import re
 

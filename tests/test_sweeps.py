@@ -189,6 +189,7 @@ def test_set_filter_refuses_a_structural_change(s3):
                                                   quaternion_sensors=model.quaternion_sensors))
 
 
+@pytest.mark.slow
 def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(tmp_path, monkeypatch, diagram_builds,
                                                                           load_script):
     """The S0 script (three scenarios: Monte Carlo, EKF initial-error sweep, per-filter
