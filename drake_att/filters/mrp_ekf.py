@@ -91,6 +91,8 @@ __all__ = [
     "discrete_process_noise",
     "ekf_predict",
     "ekf_update",
+    "body_frame_vectors",
+    "gyro_rate",
     "switch_to_short_mrp",
     "attitude_to_mrp_covariance",
     "mrp_to_attitude_covariance",
@@ -101,6 +103,29 @@ def measurement_is_valid(y, m: int) -> np.ndarray | None:
     """``y`` as a ``(3m,)`` float array, or None if missing / non-finite (skipped by the
     caller); a wrong shape raises ValueError (:func:`drake_att.validation.measurement_or_none`)."""
     return measurement_or_none("y", y, (3 * m,), f" (3 components per reference vector, {m} vectors)")
+
+
+def body_frame_vectors(observations) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """The vectors of a :class:`~drake_att.contract.VectorObservations` sample in the body frame.
+
+    Returns ``(y_B (3m,) or None, references_I (m, 3), sigma (rad))``: ``y_B = R_BS y_S``
+    stacked (exact for the isotropic vector noise of the vector-mode tracker); None when
+    a direction is missing or not finite (the caller declines the update). A wrong shape,
+    bad references or a sigma <= 0 raise ValueError naming the field.
+    """
+    U = check_reference_vectors("ref_vectors_I", observations.references_I)
+    sigma = check_positive("sigma", observations.sigma_rad)
+    y_S = measurement_or_none("directions_S", observations.directions_S, (U.shape[0], 3),
+                              " (one direction per reference vector)")
+    if y_S is None:
+        return None, U, sigma
+    q_BS = np.asarray(observations.q_BS, dtype=float)
+    if q_BS.tolist() == _IDENTITY:  # a body-mounted sensor: R_BS = I (the product is exact)
+        return y_S.ravel(), U, sigma
+    return (y_S @ quat_to_rotmat(q_BS).T).ravel(), U, sigma
+
+
+_IDENTITY = [1.0, 0.0, 0.0, 0.0]
 
 
 # ----------------------------------------------------------------------------------
@@ -517,17 +542,22 @@ class MrpEkfState:
 
 
 class MrpEkfCore(GatedCore):
-    """Paper S0's additive EKF on ``[rho; b]`` as a :class:`drake_att.contract.FilterCore`.
+    """Paper S0's additive EKF on ``x = [rho; b]`` (gyro mode) as a
+    :class:`drake_att.contract.FilterCore`: :func:`ekf_predict` and :func:`ekf_update` on an
+    immutable :class:`MrpEkfState`.
 
-    The same math as :class:`MrpEkf` (:func:`ekf_predict`, :func:`ekf_update`) on an explicit
-    immutable state; vector observations are rotated into the body frame
-    (``y_B = R_BS y_S``: exact for the isotropic vector noise of the vector-mode tracker).
-    State vector: ``[x (6), P (36, MRP chart, row-major)]``.
+    ``predict`` takes the step's mean gyro rate (rad/s, held over the step); ``update`` a
+    :class:`~drake_att.contract.VectorObservations` sample, rotated into the body frame
+    (:func:`body_frame_vectors`); a sample with a missing or non-finite direction, or one
+    the innovation gate rejects, is declined (``UpdateInfo.accepted`` false, state
+    unchanged). State vector: ``[x (6), P (36, MRP chart, row-major)]``.
 
     Args:
-        arw_rad_per_rt_s: gyro ARW ``sigma_v`` (rad/s^0.5) > 0.
+        arw_rad_per_rt_s: gyro ARW ``sigma_v`` (rad/s^0.5) > 0 (a white-noise std ``s`` per
+            sample of period ``T`` is ``s sqrt(T)``).
         rrw_rad_per_s15: gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
-        update_iterations: linearizations per update (1 = the paper's EKF; > 1 iterated).
+        update_iterations: linearizations per update, >= 1: 1 is the paper's EKF, > 1 the
+            iterated EKF (:func:`ekf_update`), which converges from large initial errors.
         innovation_gate_chi2: a chi-square threshold or an
             :class:`~drake_att.filters.gating.InnovationGate`; None: no gate (the paper).
     """
@@ -546,7 +576,10 @@ class MrpEkfCore(GatedCore):
 
     @staticmethod
     def initial_state(q_IB_hat0, bias_hat0, covariance0) -> MrpEkfState:
-        """State from an attitude, a bias (rad/s) and the (6, 6) covariance of ``[dtheta_B; b]``."""
+        """The state of an attitude ``q_IB_hat0`` (wxyz, normalized), a bias (3, rad/s) and
+        the (6, 6) covariance of ``[dtheta_B (rad); b (rad/s)]`` (``q_IB = q_IB_hat ⊗
+        exp(dtheta_B / 2)``), mapped to the MRP chart with ``B(rho0)``
+        (:func:`attitude_to_mrp_covariance`)."""
         q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
         b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
         P_att = check_covariance("covariance0", covariance0, 6)
@@ -554,21 +587,18 @@ class MrpEkfCore(GatedCore):
         return MrpEkfState(np.concatenate([rho0, b0]), attitude_to_mrp_covariance(rho0, P_att))
 
     def predict(self, state: MrpEkfState, w_meas_B, dt: float, rng=None) -> MrpEkfState:
+        """The state propagated over ``dt`` (s) > 0 with the mean measured rate ``w_meas_B``."""
         dt = check_positive("dt", dt)
-        x, P = ekf_predict(state.x, state.P, np.asarray(w_meas_B, dtype=float), dt, self.arw_rad_per_rt_s,
-                           self.rrw_rad_per_s15)
+        x, P = ekf_predict(state.x, state.P, gyro_rate(w_meas_B), dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
         return MrpEkfState(x, P)
 
     def update(self, state: MrpEkfState, observations, rng=None) -> tuple[MrpEkfState, UpdateInfo]:
-        """Update with a :class:`~drake_att.contract.VectorObservations` sample."""
-        R_BS = quat_to_rotmat(np.asarray(observations.q_BS, dtype=float))
-        y_B = (np.asarray(observations.directions_S, dtype=float) @ R_BS.T).ravel()
-        U = check_reference_vectors("ref_vectors_I", observations.references_I)
-        sigma = check_positive("sigma", observations.sigma_rad)
-        yv = measurement_is_valid(y_B, U.shape[0])
-        if yv is None:
+        """Update with a :class:`~drake_att.contract.VectorObservations` sample; the
+        ``UpdateInfo`` carries the innovation ``y - h(x^-)``, its covariance and the NIS."""
+        y_B, U, sigma = body_frame_vectors(observations)
+        if y_B is None:
             return state, UpdateInfo(None, None, float("nan"), False)
-        x, P, innov, S = ekf_update(state.x, state.P, yv, U, sigma, iterations=self.update_iterations)
+        x, P, innov, S = ekf_update(state.x, state.P, y_B, U, sigma, iterations=self.update_iterations)
         nis = float(innov @ np.linalg.solve(S, innov))
         if self.gate.rejects(nis, len(innov)):
             return state, UpdateInfo(innov, S, nis, False)
@@ -581,7 +611,7 @@ class MrpEkfCore(GatedCore):
 
     @staticmethod
     def estimate(state: MrpEkfState):
-        """``(q_IB_hat, bias_hat, covariance of [dtheta_B; b])``."""
+        """``(q_IB_hat (scalar part >= 0), bias_hat (rad/s), covariance of [dtheta_B; b])``."""
         return mrp_to_quat(state.x[:3]), state.x[3:].copy(), mrp_to_attitude_covariance(state.x[:3], state.P)
 
     @staticmethod
@@ -592,6 +622,14 @@ class MrpEkfCore(GatedCore):
     def from_vector(vector) -> MrpEkfState:
         v = np.array(vector, dtype=float)
         return MrpEkfState(v[:6], v[6:42].reshape(6, 6))
+
+
+def gyro_rate(w_meas_B) -> np.ndarray:
+    """The step's mean gyro rate as a finite ``(3,)`` float array (rad/s).
+
+    A core never sees a missing sample (the estimator system holds the last valid rate);
+    anything else raises ValueError naming ``w_meas_B``."""
+    return check_array("w_meas_B", w_meas_B, (3,), " (rad/s)")
 
 
 def valid_rate_or_none(w_meas):
