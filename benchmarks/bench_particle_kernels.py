@@ -13,7 +13,10 @@ Usage::
 builds the filter with ``--particles`` particles on ``bench_particle_filters.py``'s synthetic
 S0 data (1 s steps, two star vectors at 100 urad), runs 5 warm-up steps (numba loads or
 compiles its kernels there), then times ``--steps`` predict + update pairs one by one with
-``time.process_time`` (this process's CPU time: robust to other tenants of a shared VM).
+``time.process_time`` (this process's CPU time: robust to other tenants of a shared VM). A
+checkout with the pure cores (``drake_att.filters.particle.EkpfCore``) is driven through them
+(``predict``/``update`` on a state, the tracker sample built before the timing); an older one
+through its mutable filter objects; both draw the same random numbers in the same order.
 Reported per filter: the best and the median step over all rounds, and the old / new ratio
 of the bests and the median [range] of the per-round ratios of the median steps (above 1:
 new is faster). The rounds alternate old, new numpy, new numba, so drifting load hits all.
@@ -40,18 +43,84 @@ import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
-STEP_CHILD = r"""
-import json, sys, time
+# The filters of a checkout, as ``make(name, n, q0, s0, P0, rng, kw) -> stepper`` with
+# ``stepper.predict(w_meas)`` and ``stepper.update(y)`` (y: (6,) body-frame vectors of REFS):
+# the pure cores where the checkout has them, else its mutable filter objects.
+FILTERS = r"""
 import numpy as np
+from drake_att.filters import particle as _particle
+REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+PURE_CORES = hasattr(_particle, "EkpfCore")
+if PURE_CORES:
+    from drake_att.contract import VectorObservations
+    from drake_att.filters.particle import BootstrapPfCore, EkpfCore, GyrolessPfCore, RandomWalkRoughening
+
+    class Stepper:
+        def __init__(self, core, rng, sigma):
+            self.core, self.rng, self.sigma = core, rng, sigma
+            self.state = core.draw_initial_state(rng)
+
+        def observation(self, y):
+            return VectorObservations(0.0, True, np.reshape(y, (2, 3)), REFS, self.sigma, np.array([1.0, 0, 0, 0]))
+
+        def predict(self, w):
+            self.state = self.core.predict(self.state, w, 1.0, self.rng)
+
+        def update_with(self, observation):
+            self.state = self.core.update(self.state, observation, self.rng)[0]
+
+        def update(self, y):
+            self.update_with(self.observation(y))
+
+    def make(name, n, q0, s0, P0, r, kw, sv=None, su=None, sigma=1e-4, extra=None):
+        if name == "EKPF":
+            core = EkpfCore(n, q0, s0, P0, sv, su, **kw)
+        elif name == "bootstrap PF":
+            core = BootstrapPfCore(n, q0, s0, P0, 2e-5, bias_roughening=RandomWalkRoughening(3e-7), **kw)
+        else:
+            inertia, torque, rate_sigma, attitude_sigma = extra
+            core = GyrolessPfCore(n, q0, s0, P0, inertia, torque, rate_sigma, attitude_process_sigma=attitude_sigma,
+                                  **kw)
+        return Stepper(core, r, sigma)
+else:
+    from drake_att.filters.particle import (BootstrapParticleFilter, ExtendedKalmanParticleFilter,
+                                            GyrolessParticleFilter)
+
+    class Stepper:
+        def __init__(self, pf, rng, sigma, gyroless):
+            self.pf, self.rng, self.sigma, self.gyroless = pf, rng, sigma, gyroless
+
+        def observation(self, y):
+            return y
+
+        def predict(self, w):
+            self.pf.predict(1.0, self.rng) if self.gyroless else self.pf.predict(1.0, w, self.rng)
+
+        def update_with(self, y):
+            self.pf.update(y, REFS, self.sigma, self.rng)
+
+        def update(self, y):
+            self.update_with(y)
+
+    def make(name, n, q0, s0, P0, r, kw, sv=None, su=None, sigma=1e-4, extra=None):
+        if name == "EKPF":
+            return Stepper(ExtendedKalmanParticleFilter(n, q0, s0, P0, sv, su, r, **kw), r, sigma, False)
+        if name == "bootstrap PF":
+            return Stepper(BootstrapParticleFilter(n, q0, s0, P0, 2e-5, r, bias_roughening_sigma=3e-7, **kw), r,
+                           sigma, False)
+        inertia, torque, rate_sigma, attitude_sigma = extra
+        return Stepper(GyrolessParticleFilter(n, q0, s0, P0, inertia, torque, rate_sigma, r,
+                                              attitude_process_sigma=attitude_sigma, **kw), r, sigma, True)
+"""
+
+STEP_CHILD = FILTERS + r"""
+import json, sys, time
 from drake_att import rotations as rot
 from drake_att.filters.mrp_ekf import vector_measurement_model
-from drake_att.filters.particle import (BootstrapParticleFilter, ExtendedKalmanParticleFilter,
-                                        GyrolessParticleFilter)
 kernel, n, steps = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 kw = {} if kernel == "old" else {"kernel": kernel}
 DEG, HOUR = np.pi / 180.0, 3600.0
 SV, SU, SIG = 0.2 * DEG / HOUR, 0.02 * DEG / HOUR / np.sqrt(HOUR), 100e-6
-REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 rng = np.random.default_rng(0)
 w, b, q = np.array([1e-3, -5e-4, 2e-4]), np.full(3, DEG / HOUR), np.array([1.0, 0.0, 0.0, 0.0])
 ys, wms = [], []
@@ -67,27 +136,23 @@ P0g = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
 out = {}
 for name in ("EKPF", "bootstrap PF", "gyroless PF"):
     r = np.random.default_rng(3)
-    if name == "EKPF":
-        f = ExtendedKalmanParticleFilter(n, q0, b0, P0, SV, SU, r, **kw)
-        predict = lambda k: f.predict(1.0, wms[k], r)
-    elif name == "bootstrap PF":
-        f = BootstrapParticleFilter(n, q0, b0, P0, 2e-5, r, bias_roughening_sigma=3e-7, **kw)
-        predict = lambda k: f.predict(1.0, wms[k], r)
+    if name == "gyroless PF":
+        f = make(name, n, q0, np.full(3, 0.001 * DEG), P0g, r, kw, sigma=SIG,
+                 extra=(np.diag([100.0, 200.0, 200.0]), np.full(3, 1e-5), 1e-6, 3e-5))
     else:
-        f = GyrolessParticleFilter(n, q0, np.full(3, 0.001 * DEG), P0g, np.diag([100.0, 200.0, 200.0]),
-                                   np.full(3, 1e-5), 1e-6, r, attitude_process_sigma=3e-5, **kw)
-        predict = lambda k: f.predict(1.0, r)
+        f = make(name, n, q0, b0, P0, r, kw, SV, SU, sigma=SIG)
+    obs = [f.observation(y) for y in ys]
     t0 = time.process_time()
-    f.update(ys[0], REFS, SIG, r)
+    f.update_with(obs[0])
     first = time.process_time() - t0
     for k in range(5):
-        predict(k)
-        f.update(ys[k + 1], REFS, SIG, r)
+        f.predict(wms[k])
+        f.update_with(obs[k + 1])
     times = []
     for k in range(5, 5 + steps):
         t0 = time.process_time()
-        predict(k)
-        f.update(ys[k + 1], REFS, SIG, r)
+        f.predict(wms[k])
+        f.update_with(obs[k + 1])
         times.append(time.process_time() - t0)
     out[name] = {"times": times, "first_update_s": first}
 print(json.dumps(out))
@@ -119,25 +184,17 @@ t_numba = time.perf_counter() - t0
 t0 = time.perf_counter()
 from drake_att.filters import particle_kernels
 t_module = time.perf_counter() - t0
-import numpy as np
-from drake_att.filters.particle import (BootstrapParticleFilter, ExtendedKalmanParticleFilter,
-                                        GyrolessParticleFilter)
+""" + FILTERS + r"""
 P0 = np.diag([1e-4] * 3 + [1e-10] * 3)
-y, refs = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0]), np.eye(3)[:2]
+y = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
 out = {"import numba": t_numba, "import particle_kernels": t_module, "caching": particle_kernels.CACHING}
 r = np.random.default_rng(0)
-for name, make, predict in (
-        ("EKPF", lambda: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0, 1e-6, 1e-9, r),
-         lambda f: f.predict(1.0, np.zeros(3))),
-        ("bootstrap PF", lambda: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0, 1e-6, r),
-         lambda f: f.predict(1.0, np.zeros(3), r)),
-        ("gyroless PF", lambda: GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0, np.eye(3), np.zeros(3),
-                                                       1e-6, r, attitude_process_sigma=1e-6),
-         lambda f: f.predict(1.0, r))):
-    f = make()
+for name in ("EKPF", "bootstrap PF", "gyroless PF"):
+    f = make(name, 10, [1, 0, 0, 0], np.zeros(3), P0, r, {}, 1e-6, 1e-9, 1e-4,
+             extra=(np.eye(3), np.zeros(3), 1e-6, 1e-6))
     t0 = time.perf_counter()
-    predict(f)
-    f.update(y, refs, 1e-4, r)
+    f.predict(np.zeros(3))
+    f.update(y)
     out[f"first step, {name}"] = time.perf_counter() - t0
 print(json.dumps(out))
 """

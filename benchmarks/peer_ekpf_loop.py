@@ -17,13 +17,13 @@ restricted to its ``ekpf`` estimator, to benchmark the library against (``benchm
   ``r = (1, 0, 0), (0, 1, 0)``, ``v_i ~ N(0, (100 urad)^2 I3)``, not re-normalized
   (``drake_att/systems/star_tracker.py``);
 * the EKPF: drake_att's own plain-numpy core,
-  ``drake_att.filters.particle.ExtendedKalmanParticleFilter(..., kernel="numpy")`` (the
-  reference code: batched MRP-EKF predict and update per particle, proposal draw, weights,
-  systematic resampling below N_eff = 2/3 N) with the scenario's numbers: N = 1000, initial
-  estimate [1, 1, 1] deg and [2, 2, 2] deg/h with sigmas 1 deg and 1 deg/h, the gyro's ARW
-  and RRW, one linearization per particle. Per step: predict with the gyro sample (not at
-  t = 0), update with the tracker sample, then the estimate and its covariance
-  (``mean_and_covariance``: what drake_att publishes every step).
+  ``drake_att.filters.particle.EkpfCore(..., kernel="numpy")`` (the reference code: batched
+  MRP-EKF predict and update per particle, proposal draw, weights, systematic resampling
+  below N_eff = 2/3 N) with the scenario's numbers: N = 1000, initial estimate [1, 1, 1] deg
+  and [2, 2, 2] deg/h with sigmas 1 deg and 1 deg/h, the gyro's ARW and RRW, one
+  linearization per particle. Per step: predict with the gyro sample (not at t = 0), update
+  with the tracker sample, then the estimate and its covariance (``estimate``: what
+  drake_att publishes every step).
 
 The loop keeps the records drake_att's ``RunLog`` holds (truth, gyro, estimates at 1 Hz) in
 preallocated arrays; the attitude RMSE is computed from them after the timed part, as
@@ -59,7 +59,8 @@ from peer_numpy_loop import (
 
 # drake_att's plain-numpy pieces (no Drake): the EKPF core, and the attitude error of the
 # scoring (after the timed loop).
-from drake_att.filters.particle import ExtendedKalmanParticleFilter
+from drake_att.contract import VectorObservations
+from drake_att.filters.particle import EffectiveSampleSizeGate, EkpfCore
 from drake_att.rotations import quat_error_rotvec
 
 # --- Numbers from drake_att/scenarios/s0_particle_filters_small_error.yaml (hard-coded) ------
@@ -105,10 +106,12 @@ def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_F
     l11, l21, l22 = farrenkopf_factors(ARW, RRW, T)
     bias = GYRO_BIAS0.copy()
     P0 = np.diag([P0_ATT_SIGMA**2] * 3 + [P0_BIAS_SIGMA**2] * 3)
-    pf = ExtendedKalmanParticleFilter(num_particles, rpy_quat(EST_RPY_DEG * DEG), EST_BIAS0, P0, ARW, RRW, pf_rng,
-                                      resample_threshold=RESAMPLE_THRESHOLD,
-                                      proposal_iterations=PROPOSAL_ITERATIONS, kernel=kernel)
-    n_noise = REFERENCES_I.size
+    core = EkpfCore(num_particles, rpy_quat(EST_RPY_DEG * DEG), EST_BIAS0, P0, ARW, RRW,
+                    proposal_iterations=PROPOSAL_ITERATIONS,
+                    resampling_gate=EffectiveSampleSizeGate(RESAMPLE_THRESHOLD), kernel=kernel)
+    pf = core.draw_initial_state(pf_rng)
+    q_BS = np.array([1.0, 0.0, 0.0, 0.0])
+    resamplings = 0
     # Records: truth [q, w], gyro [w_meas, bias], estimates [q, b, P].
     truth_log = np.empty((steps + 1, 7))
     gyro_log = np.full((steps + 1, 6), np.nan)
@@ -123,20 +126,21 @@ def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_F
             w_meas = (y[7:10] - theta_prev) / T + bias + e
             bias = bias + db
             gyro_log[k, :3], gyro_log[k, 3:] = w_meas, bias
-            pf.predict(T, w_meas, pf_rng)
+            pf = core.predict(pf, w_meas, T, pf_rng)
         q_IB = y[:4] / math.sqrt(y[:4] @ y[:4])
         truth_log[k, :4], truth_log[k, 4:] = q_IB, y[4:7]
         # Tracker sample at t_k: b_i = R_BI r_i + v_i (body = sensor frame).
-        meas = (REFERENCES_I @ qrot(q_IB)).ravel() + SIGMA_VECTOR * rng.standard_normal(n_noise)
-        pf.update(meas, REFERENCES_I, SIGMA_VECTOR, pf_rng)
-        q_hat, b_hat, P = pf.mean_and_covariance()
+        meas = REFERENCES_I @ qrot(q_IB) + SIGMA_VECTOR * rng.standard_normal(REFERENCES_I.shape)
+        pf, info = core.update(pf, VectorObservations(k * T, True, meas, REFERENCES_I, SIGMA_VECTOR, q_BS), pf_rng)
+        resamplings += info.resampled
+        q_hat, b_hat, P = core.estimate(pf)
         row = est_log[k]
         row[:4], row[4:7], row[7:] = q_hat, b_hat, P.ravel()
     cpu = time.process_time() - c0
     scored = np.arange(steps + 1) * T >= score_from_s - 1e-6
     d = quat_error_rotvec(est_log[scored, :4], truth_log[scored, :4]) / DEG
     rmse = np.sqrt(np.mean(d * d, axis=0)).tolist() if len(d) else [math.nan] * 3
-    return {"cpu_s": cpu, "rmse_deg": {"ekpf": rmse}, "steps": steps, "resamplings": pf.n_resamples,
+    return {"cpu_s": cpu, "rmse_deg": {"ekpf": rmse}, "steps": steps, "resamplings": resamplings,
             "samples_scored": int(np.sum(scored))}
 
 

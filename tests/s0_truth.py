@@ -1,9 +1,10 @@
-"""Paper-S0 parameters and the small numpy truth simulation shared by the MRP-EKF and
-particle-filter core tests (independent of the Drake plant and sensors)."""
+"""Paper-S0 parameters, the small numpy truth simulation and the star-sensor sample shared by
+the MRP-EKF and particle-filter core tests (independent of the Drake plant and sensors)."""
 
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.contract import VectorObservations
 from drake_att.filters.mrp_ekf import vector_measurement_model
 
 DEG = np.pi / 180.0
@@ -13,6 +14,13 @@ SIGMA_U = 0.02 * DEG / HOUR / np.sqrt(HOUR)  # RRW, rad/s^1.5
 SIGMA_STAR = 100e-6  # star-sensor noise per component, rad
 REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 P0_ATT = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
+BODY = np.array([1.0, 0.0, 0.0, 0.0])  # a star sensor mounted with the body axes (q_BS)
+
+
+def observation(y, refs=REFS, sigma=SIGMA_STAR, t=0.0):
+    """The sample of stacked body-frame vectors ``y`` (3m,) of ``refs`` from a body-mounted
+    sensor (None entries: missing components)."""
+    return VectorObservations(t, True, np.reshape(y, (-1, 3)), refs, sigma, BODY)
 
 
 def simulate_gyro_truth(num_steps, rng, q0=(1.0, 0.0, 0.0, 0.0), w=(1e-3, -5e-4, 2e-4),

@@ -3,24 +3,27 @@ the paper's bias-impoverishment finding, EKPF convergence, gyroless mode, reprod
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from scipy.stats import chi2
 
 from drake_att import rotations as rot
-from drake_att.filters.mrp_ekf import MrpEkf, vector_measurement_model
-from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
+from drake_att.filters.mrp_ekf import MrpEkfCore, vector_measurement_model
+from s0_truth import (BODY, DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation,
+                      simulate_gyro_truth)
 
-from drake_att.contract import SecondQuantity
+from drake_att.contract import FilterCore, ParticleSet, RandomInitialState, SecondQuantity, VectorObservations
 from drake_att.filters.particle import (
+    BootstrapPfCore,
     EffectiveSampleSizeGate,
+    EkpfCore,
+    GyrolessPfCore,
+    ParticleSetState,
     RandomWalkRoughening,
     SystematicResampler,
-    BootstrapParticleFilter,
-    ExtendedKalmanParticleFilter,
-    GyrolessParticleFilter,
-    ParticleFilterCore,
     effective_sample_size,
     normalize_log_weights,
     systematic_resample,
@@ -57,17 +60,37 @@ def simulate_euler_truth(num_steps, rng, dt=1.0, substeps=10):
     return np.array(qs), np.array(ws), np.array(ys)
 
 
-def run_gyro_filter(pf, ys, wms, rng, dt=1.0, check=None):
-    """Update at t_0, then predict + update; returns per-step (q_hat, b_hat)."""
-    out = []
+def run_filter(core, state, ys, rng, wms=None, dt=1.0, check=None):
+    """Fold the core over the data: update at t_0, then predict (with ``wms[k - 1]``, or no
+    rate for a gyroless core) + update. ``check(core, state)`` after each update. Returns the
+    last state, the per-step estimates ``(q_hat, s_hat)`` and the UpdateInfos."""
+    out, infos = [], []
     for k in range(len(ys)):
         if k > 0:
-            pf.predict(dt, wms[k - 1], rng)
-        pf.update(ys[k], REFS, SIGMA_STAR, rng)
+            state = core.predict(state, None if wms is None else wms[k - 1], dt, rng)
+        state, info = core.update(state, observation(ys[k]), rng)
+        infos.append(info)
         if check is not None:
-            check(pf)
-        out.append(pf.mean())
-    return out
+            check(core, state)
+        out.append(core.estimate(state)[:2])
+    return state, out, infos
+
+
+def run_gyro_filter(core, ys, wms, rng, dt=1.0, check=None):
+    """:func:`run_filter` from a fresh initial draw (``rng``); returns per-step (q_hat, b_hat)."""
+    return run_filter(core, core.draw_initial_state(rng), ys, rng, wms, dt, check)[1]
+
+
+def run_ekf(ys, wms, q0, b0, P0=P0_ATT, dt=1.0, sigma=SIGMA_STAR):
+    """The MRP EKF over the data (update at t_0, then predict + update); its final
+    ``(q_hat, b_hat, covariance)``."""
+    core = MrpEkfCore(SIGMA_V, SIGMA_U)
+    state = core.initial_state(q0, b0, P0)
+    for k in range(len(ys)):
+        if k > 0:
+            state = core.predict(state, wms[k - 1], dt)
+        state, _ = core.update(state, observation(ys[k], sigma=sigma))
+    return core.estimate(state)
 
 
 def att_err(q_hat, q_true):
@@ -110,12 +133,12 @@ def mean_square_normalized(errors, sd):
     return float(np.mean((np.asarray(errors) / sd) ** 2))
 
 
-def assert_weights_ok(pf):
-    w = pf.weights
-    assert w.shape == (pf.num_particles,)
+def assert_weights_ok(core, state):
+    w = state.weights
+    assert w.shape == (core.num_particles,)
     assert np.all(np.isfinite(w)) and np.all(w >= 0.0)
     assert abs(np.sum(w) - 1.0) < 1e-12
-    assert np.all(np.isfinite(pf.particles))
+    assert np.all(np.isfinite(state.particles))
 
 
 # --------------------------------------------------------------------------------------
@@ -181,20 +204,26 @@ def test_random_walk_roughening_statistics_and_zero_sigma():
 
 
 def test_filters_take_their_resampler():
-    """A filter resamples with the resampler it is given (here one that always keeps
-    particle 0), so resampling schemes are swappable components."""
+    """A core resamples with the resampler it is given (here one that always keeps
+    particle 0), when the gate it is given says so, so resampling schemes are swappable
+    components; something that is not one is refused naming the argument."""
     class KeepFirst:
         def indices(self, weights, rng):
             return np.zeros(len(weights), dtype=np.int64)
 
     rng = np.random.default_rng(3)
-    pf = BootstrapParticleFilter(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, rng, resample_threshold=1.0,
-                                 resampler=KeepFirst())
-    first = pf.particles[0].copy()
-    pf.update(vector_measurement_model(np.zeros(3), REFS), REFS, SIGMA_STAR, rng)
-    assert pf.n_resamples == 1 and np.all(pf.particles == first)
-    default = BootstrapParticleFilter(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, rng)
-    assert isinstance(default.resampler, SystematicResampler) and default.resample_threshold == 2.0 / 3.0
+    core = BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, resampling_gate=EffectiveSampleSizeGate(1.0),
+                           resampler=KeepFirst())
+    state = core.draw_initial_state(rng)
+    first = state.particles[0].copy()
+    state, info = core.update(state, observation(vector_measurement_model(np.zeros(3), REFS)), rng)
+    assert info.resampled and np.all(state.particles == first)
+    default = BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6)
+    assert isinstance(default.resampler, SystematicResampler) and default.resampling_gate.threshold == 2.0 / 3.0
+    assert default.bias_roughening.sigma == 0.0
+    for field in ("resampler", "resampling_gate", "bias_roughening"):
+        with pytest.raises(TypeError, match=rf"^{field}: got 0.5; must have a method"):
+            BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, **{field: 0.5})
 
 
 def test_systematic_resample_degenerate_weights():
@@ -228,21 +257,22 @@ def test_weights_stay_finite_and_normalized_over_many_steps():
     ys[20, 2] = np.inf
     q0 = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
     b0 = np.full(3, 2 * DEG / HOUR)
-    filters = [
-        BootstrapParticleFilter(300, q0, b0, P0_ATT, 2e-5, rng, bias_roughening_sigma=1e-7),
-        ExtendedKalmanParticleFilter(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng),
-    ]
-    for pf in filters:
-        run_gyro_filter(pf, ys, wms, rng, check=assert_weights_ok)
-        assert pf.n_skipped == 2 and pf.n_updates == 148
-        C = pf.covariance()
+    cores = [BootstrapPfCore(300, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7)),
+             EkpfCore(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U)]
+    initial = [core.draw_initial_state(rng) for core in cores]
+    for core, state in zip(cores, initial):
+        state, _, infos = run_filter(core, state, ys, rng, wms, check=assert_weights_ok)
+        assert [k for k, info in enumerate(infos) if not info.accepted] == [10, 20]  # declined
+        C = core.estimate(state)[2]
         assert np.all(np.isfinite(C)) and np.allclose(C, C.T)
-    gpf = GyrolessParticleFilter(300, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, rng)
+    gpf = GyrolessPfCore(300, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6)
+    state, declined = gpf.draw_initial_state(rng), []
     for k in range(60):
-        gpf.predict(1.0, rng)
-        gpf.update(ys[k] if k != 5 else None, REFS, SIGMA_STAR, rng)
-        assert_weights_ok(gpf)
-    assert gpf.n_skipped == 3  # k = 5 (None), 10 (NaN), 20 (inf)
+        state = gpf.predict(state, None, 1.0, rng)
+        state, info = gpf.update(state, observation(ys[k] if k != 5 else [None] * 6), rng)
+        assert_weights_ok(gpf, state)
+        declined += [] if info.accepted else [k]
+    assert declined == [5, 10, 20]  # missing, NaN, inf
 
 
 def _run_all_filters(seed):
@@ -252,20 +282,21 @@ def _run_all_filters(seed):
     b0 = np.full(3, 2 * DEG / HOUR)
     out = []
     rng = np.random.default_rng(seed)
-    bpf = BootstrapParticleFilter(200, q0, b0, P0_ATT, 2e-5, rng, bias_roughening_sigma=1e-7)
-    run_gyro_filter(bpf, ys, wms, rng)
-    out += [bpf.particles, bpf.weights, *bpf.mean(), bpf.covariance()]
+    bpf = BootstrapPfCore(200, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7))
+    state = run_filter(bpf, bpf.draw_initial_state(rng), ys, rng, wms)[0]
+    out += [state.particles, state.weights, *bpf.estimate(state)]
     rng = np.random.default_rng(seed)
-    ekpf = ExtendedKalmanParticleFilter(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng)
-    run_gyro_filter(ekpf, ys, wms, rng)
-    out += [ekpf.particles, ekpf.covariances, ekpf.weights, *ekpf.mean()]
+    ekpf = EkpfCore(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
+    state = run_filter(ekpf, ekpf.draw_initial_state(rng), ys, rng, wms)[0]
+    out += [state.particles, state.covariances, state.weights, *ekpf.estimate(state)[:2]]
     rng = np.random.default_rng(seed)
-    gpf = GyrolessParticleFilter(200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, rng,
-                                 attitude_process_sigma=1e-6, num_substeps=2)
+    gpf = GyrolessPfCore(200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, attitude_process_sigma=1e-6,
+                         num_substeps=2)
+    state = gpf.draw_initial_state(rng)
     for y in ys:
-        gpf.predict(1.0, rng)
-        gpf.update(y, REFS, SIGMA_STAR, rng)
-    out += [gpf.particles, gpf.weights, *gpf.mean()]
+        state = gpf.predict(state, None, 1.0, rng)
+        state, _ = gpf.update(state, observation(y), rng)
+    out += [state.particles, state.weights, *gpf.estimate(state)[:2]]
     return out
 
 
@@ -276,57 +307,51 @@ def test_same_seed_reproduces_exactly_and_other_seed_differs():
     assert not np.array_equal(a[0], c[0])
 
 
-def test_missing_inputs_are_skipped_and_counted():
+def test_missing_inputs_are_declined_or_refused():
+    """A sample with missing or NaN directions is declined (UpdateInfo.accepted false, the
+    same state, no random number drawn: the system counts it as skipped). A missing gyro
+    sample never reaches a core (the system holds the last valid rate,
+    tests/test_particle_systems.py); a gyro core refuses one, naming the field."""
     rng = np.random.default_rng(8)
-    pf = BootstrapParticleFilter(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, rng)
-    before = pf.particles.copy(), pf.weights.copy()
-    assert pf.update(None, REFS, SIGMA_STAR, rng) is False
-    assert pf.update([np.nan] * 6, REFS, SIGMA_STAR, rng) is False
-    np.testing.assert_array_equal(pf.particles, before[0])
-    np.testing.assert_array_equal(pf.weights, before[1])
-    pf.predict(1.0, None, rng)  # missing gyro sample: last valid (zero) rate held
-    assert pf.n_skipped == 3 and pf.n_updates == 0
-    ekpf = ExtendedKalmanParticleFilter(20, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V,
-                                        SIGMA_U, rng)
-    ekpf.predict(1.0, [np.nan, 0.0, 0.0])
-    assert ekpf.update(None, REFS, SIGMA_STAR, rng) is False
-    assert ekpf.n_skipped == 2
+    for core in (BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V),
+                 EkpfCore(20, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U)):
+        state = core.draw_initial_state(rng)
+        before = rng.bit_generator.state
+        for y in ([None] * 6, [np.nan] * 6):
+            new, info = core.update(state, observation(y), rng)
+            assert new is state and not info.accepted and np.isnan(info.effective_sample_size)
+            assert not info.resampled and not info.degenerate
+        assert rng.bit_generator.state == before
+        for w in (None, [np.nan, 0.0, 0.0]):
+            with pytest.raises(ValueError, match=r"^w_meas_B: got"):
+                core.predict(state, w, 1.0, rng)
 
 
 @pytest.mark.parametrize(
     "make, field",
     [
-        (lambda r: BootstrapParticleFilter(0, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r),
-         "num_particles"),
-        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, -1.0, r),
-         "arw_rad_per_rt_s"),
-        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r,
-                                           resample_threshold=1.5), "resample_threshold"),
-        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r,
-                                           bias_roughening_sigma=np.nan),
-         "bias_roughening_sigma"),
-        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, None),
-         "rng"),
-        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6, r),
-         "covariance0"),
-        (lambda r: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 0.0,
-                                                1e-9, r), "arw_rad_per_rt_s"),
-        (lambda r: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6,
-                                                1e-9, r, proposal_iterations=0),
+        (lambda r: BootstrapPfCore(0, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6), "num_particles"),
+        (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, -1.0), "arw_rad_per_rt_s"),
+        # The components name their own fields (the setups pass them the same names).
+        (lambda r: EffectiveSampleSizeGate(1.5), "resample_threshold"),
+        (lambda r: RandomWalkRoughening(np.nan), "roughening sigma"),
+        (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6).draw_initial_state(None), "rng"),
+        (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6), "covariance0"),
+        (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 0.0, 1e-9), "arw_rad_per_rt_s"),
+        (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, 1e-9, proposal_iterations=0),
          "proposal_iterations"),
-        (lambda r: GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT,
-                                          -np.eye(3), TORQUE, 1e-6, r), "inertia"),
-        (lambda r: GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA,
-                                          [1.0, 2.0], 1e-6, r), "torque"),
-        (lambda r: GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA,
-                                          TORQUE, 1e-6, r, num_substeps=0), "num_substeps"),
-        (lambda r: BootstrapParticleFilter(10, [0, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r),
-         "q_IB_hat0"),
+        (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, -np.eye(3), TORQUE, 1e-6), "inertia"),
+        (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, [1.0, 2.0], 1e-6), "torque"),
+        (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, num_substeps=0),
+         "num_substeps"),
+        (lambda r: BootstrapPfCore(10, [0, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6), "q_IB_hat0"),
         # The unit of a wrong-shape array is part of the message.
-        (lambda r: BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, 1e-6, r),
+        (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, 1e-6),
          r"bias_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)"),
-        (lambda r: ExtendedKalmanParticleFilter(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6,
-                                                1e-9, r), "covariance0"),
+        (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, INERTIA, TORQUE, 1e-6),
+         r"w_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)"),
+        (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6, 1e-9), "covariance0"),
+        (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, 1e-9, kernel="fortran"), "kernel"),
     ],
 )
 def test_constructor_validation_names_the_field(make, field):
@@ -337,20 +362,24 @@ def test_constructor_validation_names_the_field(make, field):
 
 def test_call_validation_names_the_field():
     rng = np.random.default_rng(0)
-    pf = BootstrapParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, rng)
+    core = BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6)
+    state = core.draw_initial_state(rng)
     with pytest.raises(ValueError, match="dt"):
-        pf.predict(-1.0, np.zeros(3), rng)
+        core.predict(state, np.zeros(3), -1.0, rng)
     with pytest.raises(ValueError, match="rng"):
-        pf.predict(1.0, np.zeros(3), 42)
+        core.predict(state, np.zeros(3), 1.0, 42)
+    with pytest.raises(ValueError, match=r"^w_meas_B: got .*; must have shape \(3,\)"):
+        core.predict(state, np.zeros(4), 1.0, rng)
     with pytest.raises(ValueError, match=r"(?<!\w)sigma(?!\w)"):
-        pf.update(REFS.ravel(), REFS, 0.0, rng)
-    with pytest.raises(ValueError, match=r"^y: got .*; must have shape"):
-        pf.update(np.zeros(3), REFS, SIGMA_STAR, rng)
-    gpf = GyrolessParticleFilter(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 0.0, rng)
+        core.update(state, observation(REFS.ravel(), sigma=0.0), rng)
+    with pytest.raises(ValueError, match=r"^directions_S: got .*; must have shape"):
+        core.update(state, observation(np.zeros(3)), rng)
+    gpf = GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 0.0)
+    state = gpf.draw_initial_state(rng)
     with pytest.raises(ValueError, match=r"(?<!\w)dt(?!\w)"):
-        gpf.predict(0.0, rng)
-    with pytest.raises(ValueError, match=r"^torque: got \[1. 2.\]; must have shape \(3,\) \(N m\)"):
-        gpf.predict(1.0, rng, torque=[1.0, 2.0])
+        gpf.predict(state, None, 0.0, rng)
+    with pytest.raises(ValueError, match=r"(?<!\w)rng(?!\w)"):
+        gpf.update(state, observation(REFS.ravel()), np.random.RandomState(0))
 
 
 # --------------------------------------------------------------------------------------
@@ -363,14 +392,13 @@ def test_mean_and_covariance_are_rotation_group_statistics_near_180_deg():
     rng = np.random.default_rng(12)
     n, s = 4000, 0.05
     q_c = rot.rotvec_to_quat(np.array([0.0, 0.0, np.pi]))
-    pf = BootstrapParticleFilter(n, q_c, np.zeros(3), np.diag([s**2] * 3 + [1e-12] * 3),
-                                 1e-6, rng)
-    rho = pf.particles[:, :3]
+    core = BootstrapPfCore(n, q_c, np.zeros(3), np.diag([s**2] * 3 + [1e-12] * 3), 1e-6)
+    state = core.draw_initial_state(rng)
+    rho = state.particles[:, :3]
     assert np.all(np.linalg.norm(rho, axis=1) <= 1.0)
     assert np.any(rho[:, 2] > 0.5) and np.any(rho[:, 2] < -0.5)  # both hemispheres
-    q_hat, b_hat = pf.mean()
+    q_hat, b_hat, C = core.estimate(state)
     assert att_err(q_hat, q_c) < 4 * s / np.sqrt(n) * np.sqrt(3)
-    C = pf.covariance()
     np.testing.assert_allclose(np.diag(C)[:3], s**2, rtol=0.1)
     assert np.all(np.abs(C[:3, :3] - np.diag(np.diag(C[:3, :3]))) < 0.1 * s**2)
     assert C.shape == (6, 6) and np.allclose(C, C.T)
@@ -387,17 +415,16 @@ def test_bootstrap_posterior_matches_ekf_in_linear_regime():
     q0 = rot.rpy_to_quat(np.array([20.0, -30.0, 40.0]) * DEG)
     q_true = rot.quat_multiply(q0, rot.rotvec_to_quat(rng.normal(0.0, s, 3)))
     y = vector_measurement_model(rot.quat_to_mrp(q_true), REFS) + s * rng.standard_normal(6)
-    ekf = MrpEkf(q0, np.zeros(3), P0, SIGMA_V, SIGMA_U)
-    ekf.update(y, REFS, s)
-    pf = BootstrapParticleFilter(20000, q0, np.zeros(3), P0, SIGMA_V, rng,
-                                 resample_threshold=0.0)
-    pf.update(y, REFS, s, rng)
-    assert pf.n_resamples == 0
-    C_ekf = ekf.covariance()[:3, :3]
-    C_pf = pf.covariance()[:3, :3]
-    n_eff = pf.effective_sample_size()
-    assert n_eff > 2000
-    d = rot.quat_error_rotvec(ekf.q_IB_hat, pf.mean()[0])
+    q_ekf, _, C_ekf = run_ekf([y], [], q0, np.zeros(3), P0, sigma=s)
+    core = BootstrapPfCore(20000, q0, np.zeros(3), P0, SIGMA_V, resampling_gate=EffectiveSampleSizeGate(0.0))
+    state, info = core.update(core.draw_initial_state(rng), observation(y, sigma=s), rng)
+    assert not info.resampled
+    C_ekf = C_ekf[:3, :3]
+    q_pf, _, C_pf = core.estimate(state)
+    C_pf = C_pf[:3, :3]
+    n_eff = info.effective_sample_size
+    assert n_eff == effective_sample_size(state.weights) and n_eff > 2000
+    d = rot.quat_error_rotvec(q_ekf, q_pf)
     # Difference of the means: Monte Carlo error of the weighted mean only.
     assert np.all(np.abs(d) < 4.0 * np.sqrt(np.diag(C_ekf) / n_eff))
     # Weighted sample variances of N_eff effective samples: relative standard error
@@ -425,11 +452,10 @@ def test_bootstrap_bias_does_not_converge_without_roughening():
     results = {}
     for rough in (0.0, 3e-7):
         rng = np.random.default_rng(32)
-        pf = BootstrapParticleFilter(1000, q0, b0, P0_ATT, 2e-5, rng,
-                                     bias_roughening_sigma=rough)
+        core = BootstrapPfCore(1000, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(rough))
         spreads = []
-        out = run_gyro_filter(pf, ys, wms, rng,
-                              check=lambda f: spreads.append(np.std(f.particles[:, 3:], 0)))
+        out = run_gyro_filter(core, ys, wms, rng,
+                              check=lambda c, state: spreads.append(np.std(state.particles[:, 3:], 0)))
         b_err = np.array([b - bt for (_, b), bt in zip(out, b_true)])
         results[rough] = (out, b_err, np.array(spreads))
     msn_bound = chi2.ppf(0.999, 30) / 30
@@ -478,17 +504,14 @@ def test_ekpf_attitude_is_consistent_and_near_the_ekf_optimum_over_monte_carlo()
         q_true0 = rot.quat_multiply(q_hat0, rot.rotvec_to_quat(d[:3]))
         q_true, _, ys, wms = simulate_gyro_truth(num_steps, rng, q0=q_true0,
                                                  bias0=b_hat0 + d[3:])
-        ekpf = ExtendedKalmanParticleFilter(40, q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U, rng)
-        q_hat = run_gyro_filter(ekpf, ys, wms, rng)[-1][0]
-        ekf = MrpEkf(q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U)
-        for k in range(num_steps):
-            if k > 0:
-                ekf.predict(1.0, wms[k - 1])
-            ekf.update(ys[k], REFS, SIGMA_STAR)
-        C_ekf = ekf.covariance()[:3, :3]
+        ekpf = EkpfCore(40, q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U)
+        state = run_filter(ekpf, ekpf.draw_initial_state(rng), ys, rng, wms)[0]
+        q_hat, _, C_own = ekpf.estimate(state)
+        q_ekf, _, C_ekf = run_ekf(ys, wms, q_hat0, b_hat0)
+        C_ekf = C_ekf[:3, :3]
         e = rot.quat_error_rotvec(q_hat, q_true[-1])
-        e_ekf = rot.quat_error_rotvec(ekf.q_IB_hat, q_true[-1])
-        nees_own += e @ np.linalg.solve(ekpf.covariance()[:3, :3], e)
+        e_ekf = rot.quat_error_rotvec(q_ekf, q_true[-1])
+        nees_own += e @ np.linalg.solve(C_own[:3, :3], e)
         nees_vs_ekf += e @ np.linalg.solve(C_ekf, e)
         nees_ekf += e_ekf @ np.linalg.solve(C_ekf, e_ekf)
     dof = 3 * num_runs
@@ -496,7 +519,7 @@ def test_ekpf_attitude_is_consistent_and_near_the_ekf_optimum_over_monte_carlo()
     assert lo < nees_ekf < hi  # the reference covariance is a valid yardstick
     assert nees_own < hi, nees_own / dof
     assert lo < nees_vs_ekf < 3.0 * hi, nees_vs_ekf / dof
-    assert np.all(np.linalg.norm(ekpf.particles[:, :3], axis=1) <= 1.0)
+    assert np.all(np.linalg.norm(state.particles[:, :3], axis=1) <= 1.0)
 
 
 def test_ekpf_from_large_initial_error():
@@ -518,10 +541,9 @@ def test_ekpf_from_large_initial_error():
     q0 = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
     b0 = np.full(3, 2 * DEG / HOUR)
     rng = np.random.default_rng(52)
-    ekpf = ExtendedKalmanParticleFilter(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng,
-                                        proposal_iterations=10)
+    ekpf = EkpfCore(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, proposal_iterations=10)
     covs = []
-    out = run_gyro_filter(ekpf, ys, wms, rng, check=lambda f: covs.append(f.covariance()))
+    out = run_gyro_filter(ekpf, ys, wms, rng, check=lambda core, state: covs.append(core.estimate(state)[2]))
     errs = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out, q_true)]
     assert np.linalg.norm(errs[0]) < 0.05 * DEG
     nees = np.array([e @ np.linalg.solve(C[:3, :3], e) for e, C in zip(errs, covs)])
@@ -532,7 +554,7 @@ def test_ekpf_from_large_initial_error():
     assert b_err @ np.linalg.solve(covs[-1][3:, 3:], b_err) < chi2.ppf(0.999, 3)
     assert np.linalg.norm(b_err) < 0.5 * DEG / HOUR
     rng = np.random.default_rng(52)
-    plain = ExtendedKalmanParticleFilter(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, rng)
+    plain = EkpfCore(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
     out = run_gyro_filter(plain, ys[:60], wms, rng)
     assert att_err(out[-1][0], q_true[59]) > 5.0 * DEG
 
@@ -563,16 +585,10 @@ def test_gyroless_particle_filter_tracks_attitude_and_rate():
     w0 = np.full(3, 0.001 * DEG)
     P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
     rng = np.random.default_rng(62)
-    gpf = GyrolessParticleFilter(1000, q0, w0, P0, INERTIA, TORQUE, 1e-6, rng,
-                                 attitude_process_sigma=3e-5)
-    q_err, w_err = [], []
-    for k, y in enumerate(ys):
-        if k > 0:
-            gpf.predict(1.0, rng)
-        gpf.update(y, REFS, SIGMA_STAR, rng)
-        q_hat, w_hat = gpf.mean()
-        q_err.append(rot.quat_error_rotvec(q_hat, q_true[k]))
-        w_err.append(w_hat - w_true[k])
+    gpf = GyrolessPfCore(1000, q0, w0, P0, INERTIA, TORQUE, 1e-6, attitude_process_sigma=3e-5)
+    out = run_filter(gpf, gpf.draw_initial_state(rng), ys, rng)[1]
+    q_err = [rot.quat_error_rotvec(q_hat, q) for (q_hat, _), q in zip(out, q_true)]
+    w_err = [w_hat - w for (_, w_hat), w in zip(out, w_true)]
     sd = steady_state_sd(3e-5, 1e-6, truth_without_noise=True)
     assert mean_square_normalized(q_err[-100:], sd[0]) < chi2.ppf(0.999, 30) / 30
     assert mean_square_normalized(w_err[-100:], sd[1]) < chi2.ppf(0.999, 6) / 6
@@ -584,8 +600,8 @@ def test_gyroless_propagation_matches_euler_truth_without_noise():
     """With zero process noise and a point-mass prior every particle follows the truth."""
     rng = np.random.default_rng(0)
     w0 = np.array([1e-3, -2e-3, 3e-3])
-    gpf = GyrolessParticleFilter(5, [1, 0, 0, 0], w0, np.eye(6) * 1e-30, INERTIA, TORQUE,
-                                 0.0, rng, num_substeps=4)
+    gpf = GyrolessPfCore(5, [1, 0, 0, 0], w0, np.eye(6) * 1e-30, INERTIA, TORQUE, 0.0, num_substeps=4)
+    state = gpf.draw_initial_state(rng)
     # Reference: the same body from w0, integrated with a 20x finer RK4 step.
     Iinv = np.linalg.inv(INERTIA)
 
@@ -602,11 +618,11 @@ def test_gyroless_propagation_matches_euler_truth_without_noise():
             w_next = w + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
             q = rot.quat_propagate(q, 0.5 * (w + w_next), h)
             w = w_next
-        gpf.predict(1.0, rng)
-    q_hat, w_hat = gpf.mean()
+        state = gpf.predict(state, None, 1.0, rng)
+    q_hat, w_hat, _ = gpf.estimate(state)
     assert att_err(q_hat, q) < 1e-8  # rad, after a 0.2 rad rotation
     np.testing.assert_allclose(w_hat, w, atol=1e-12)
-    assert np.ptp(gpf.particles, axis=0).max() < 1e-12
+    assert np.ptp(state.particles, axis=0).max() < 1e-12
 
 
 # --------------------------------------------------------------------------------------
@@ -618,12 +634,13 @@ def test_a_single_particle_is_a_valid_filter():
     assert effective_sample_size([3.0]) == 1.0
     np.testing.assert_array_equal(systematic_resample([2.0], np.random.default_rng(0)), [0])
     rng = np.random.default_rng(4)
-    pf = BootstrapParticleFilter(1, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, rng)
+    core = BootstrapPfCore(1, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V)
     y = vector_measurement_model(np.array([0.01, 0.0, 0.0]), REFS)
-    assert pf.update(y, REFS, SIGMA_STAR, rng)
-    np.testing.assert_array_equal(pf.weights, [1.0])
-    assert pf.effective_sample_size() == 1.0 and pf.n_resamples == 0
-    np.testing.assert_allclose(pf.mean()[0], pf.particle_quaternions()[0], rtol=0, atol=1e-15)
+    state, info = core.update(core.draw_initial_state(rng), observation(y), rng)
+    assert info.accepted
+    np.testing.assert_array_equal(state.weights, [1.0])
+    assert info.effective_sample_size == 1.0 and not info.resampled
+    np.testing.assert_allclose(core.estimate(state)[0], rot.mrp_to_quat(state.particles[0, :3]), rtol=0, atol=1e-15)
 
 
 def _quat_mul(p, q):
@@ -640,80 +657,80 @@ def _rotvec_of(q):
 
 def test_mean_and_covariance_are_weighted_statistics_of_the_set():
     """Two clusters of particles (5 deg apart) with weights 0.8 / 0.2 spread over them at
-    random: mean() must be Markley's WEIGHTED average (largest eigenvector of
-    sum w_i q_i q_i', computed here with eigh) and covariance() the weighted second moment
+    random: the estimate's attitude must be Markley's WEIGHTED average (largest eigenvector of
+    sum w_i q_i q_i', computed here with eigh) and its covariance the weighted second moment
     of [log(q_hat^-1 q_i); b_i - b_hat] (written out here). Round-off only (1e-12); the
-    unweighted average would be ~1 deg off (0.5 vs 0.8 of the 5 deg). particle_quaternions
-    are the particles' MRPs as quaternions, q = [1 - |rho|^2, 2 rho] / (1 + |rho|^2)."""
+    unweighted average would be ~1 deg off (0.5 vs 0.8 of the 5 deg). The particles' MRPs
+    are compared as quaternions, q = [1 - |rho|^2, 2 rho] / (1 + |rho|^2)."""
     rng = np.random.default_rng(7)
     n = 40
-    pf = BootstrapParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, rng)
+    core = BootstrapPfCore(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V)
+    drawn = core.draw_initial_state(rng)  # replaced below (drawn to keep this test's random numbers)
     centers = [rot.rpy_to_quat(np.array([10.0, -20.0, 30.0]) * DEG),
                rot.rpy_to_quat(np.array([10.0, -20.0, 35.0]) * DEG)]
     q = np.array([_quat_mul(centers[i % 2], rot.rotvec_to_quat(0.01 * rng.standard_normal(3)))
                   for i in range(n)])
-    pf.particles[:, :3] = rot.quat_to_mrp(q)
-    pf.particles[:, 3:] = 1e-5 * rng.standard_normal((n, 3))
+    particles = np.concatenate([rot.quat_to_mrp(q), 1e-5 * rng.standard_normal((n, 3))], axis=1)
     w = np.where(np.arange(n) % 2 == 0, 0.8, 0.2) * rng.uniform(0.5, 1.5, n)
-    pf.weights = w / w.sum()
-    pf.log_weights = np.log(pf.weights)
-    w = pf.weights
-    n2 = np.sum(pf.particles[:, :3] ** 2, axis=1, keepdims=True)
-    q_set = np.concatenate([1.0 - n2, 2.0 * pf.particles[:, :3]], axis=1) / (1.0 + n2)
-    np.testing.assert_allclose(pf.particle_quaternions(), q_set, rtol=0, atol=1e-15)
+    w = w / w.sum()
+    state = replace(drawn, particles=particles, weights=w, log_weights=np.log(w))
+    n2 = np.sum(particles[:, :3] ** 2, axis=1, keepdims=True)
+    q_set = np.concatenate([1.0 - n2, 2.0 * particles[:, :3]], axis=1) / (1.0 + n2)
+    np.testing.assert_allclose(rot.mrp_to_quat(particles[:, :3]), q_set, rtol=0, atol=1e-15)
     vals, vecs = np.linalg.eigh((q_set * w[:, None]).T @ q_set)
     q_hat = vecs[:, -1] * np.sign(vecs[0, -1])
-    b_hat = w @ pf.particles[:, 3:]
-    q_mean, b_mean = pf.mean()
+    b_hat = w @ particles[:, 3:]
+    q_mean, b_mean, C_core = core.estimate(state)
     np.testing.assert_allclose(q_mean * np.sign(q_mean[0]), q_hat, rtol=0, atol=1e-12)
     np.testing.assert_allclose(b_mean, b_hat, rtol=1e-12, atol=0)
     q_hat_conj = q_hat * np.array([1.0, -1.0, -1.0, -1.0])
     e = np.array([np.concatenate([_rotvec_of(_quat_mul(q_hat_conj, qi)), bi - b_hat])
-                  for qi, bi in zip(q_set, pf.particles[:, 3:])])
+                  for qi, bi in zip(q_set, particles[:, 3:])])
     C = (e * w[:, None]).T @ e
-    np.testing.assert_allclose(pf.covariance(), C, rtol=1e-9, atol=1e-12 * np.max(np.abs(C)))
+    np.testing.assert_allclose(C_core, C, rtol=1e-9, atol=1e-12 * np.max(np.abs(C)))
     # The weights matter here: the unweighted average is far from the weighted one.
     vals_u, vecs_u = np.linalg.eigh(q_set.T @ q_set)
     assert att_err(vecs_u[:, -1], q_hat) > 0.5 * DEG
 
 
-def test_gyroless_process_noise_has_the_documented_variances_and_torque_override():
+def test_gyroless_process_noise_has_the_documented_variances_and_the_cores_torque():
     """Point-mass prior, isotropic inertia (w x I w = 0): one predict over dt adds rate noise
     N(0, s_w^2 dt I) and body-frame attitude noise N(0, s_a^2 dt I) after the deterministic
     step (module docstring). Sample variances of N = 4000 particles per axis: (N-1) s^2 /
     sigma^2 ~ chi-square(N-1), checked at the 99.9 % two-sided level Bonferroni-corrected
     for the 6 axes (a missing or mis-scaled noise, e.g. sqrt(dt) -> dt with dt = 2, fails).
 
-    Torque override (noise-free): with J = j I and w0 = 0 the rate is w = T dt / j and the
-    attitude turns by T dt^2 / (2 j) about T, exactly (RK4 and the Simpson rate average are
-    exact for a rate linear in t); the next predict uses the constructor's torque (zero)."""
+    Torque (noise-free): a step of a core with torque T, J = j I and w0 = 0 gives the rate
+    w = T dt / j and turns the attitude by T dt^2 / (2 j) about T, exactly (RK4 and the
+    Simpson rate average are exact for a rate linear in t); the next step, by the same
+    state's zero-torque core, holds the rate (each step uses its core's torque)."""
     n, dt, s_w, s_a = 4000, 2.0, 3e-5, 2e-4
     rng = np.random.default_rng(13)
     J = 150.0 * np.eye(3)
     q0 = rot.rpy_to_quat(np.array([5.0, 10.0, -15.0]) * DEG)
     w0 = np.array([1e-3, -2e-3, 0.5e-3])
-    gpf = GyrolessParticleFilter(n, q0, w0, np.eye(6) * 1e-30, J, np.zeros(3), s_w, rng,
-                                 attitude_process_sigma=s_a)
-    gpf.predict(dt, rng)
+    gpf = GyrolessPfCore(n, q0, w0, np.eye(6) * 1e-30, J, np.zeros(3), s_w, attitude_process_sigma=s_a)
+    state = gpf.predict(gpf.draw_initial_state(rng), None, dt, rng)
     q_det = _quat_mul(q0, rot.rotvec_to_quat(w0 * dt))
     q_det_conj = q_det * np.array([1.0, -1.0, -1.0, -1.0])
-    dtheta = np.array([_rotvec_of(_quat_mul(q_det_conj, qi)) for qi in gpf.particle_quaternions()])
+    dtheta = np.array([_rotvec_of(_quat_mul(q_det_conj, qi)) for qi in rot.mrp_to_quat(state.particles[:, :3])])
     lo, hi = chi2.ppf([0.001 / 12, 1 - 0.001 / 12], n - 1) / (n - 1)
-    var_w = np.var(gpf.particles[:, 3:] - w0, axis=0, ddof=1) / (s_w**2 * dt)
+    var_w = np.var(state.particles[:, 3:] - w0, axis=0, ddof=1) / (s_w**2 * dt)
     var_a = np.var(dtheta, axis=0, ddof=1) / (s_a**2 * dt)
     assert np.all((lo < var_w) & (var_w < hi)), var_w
     assert np.all((lo < var_a) & (var_a < hi)), var_a
 
     T = np.array([2e-3, -1e-3, 3e-3])
-    quiet = GyrolessParticleFilter(3, q0, np.zeros(3), np.eye(6) * 1e-30, J, np.zeros(3), 0.0, rng)
-    quiet.predict(dt, rng, torque=T)
+    quiet = GyrolessPfCore(3, q0, np.zeros(3), np.eye(6) * 1e-30, J, np.zeros(3), 0.0)
+    pushed = GyrolessPfCore(3, q0, np.zeros(3), np.eye(6) * 1e-30, J, T, 0.0)
+    state = pushed.predict(quiet.draw_initial_state(rng), None, dt, rng)
     # atol: the point-mass prior still has sigma 1e-15 per component (covariance 1e-30).
-    np.testing.assert_allclose(quiet.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
+    np.testing.assert_allclose(state.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
                                rtol=0, atol=1e-14)
     q_expected = _quat_mul(q0, rot.rotvec_to_quat(T * dt**2 / 300.0))
-    assert max(att_err(qi, q_expected) for qi in quiet.particle_quaternions()) < 1e-13
-    quiet.predict(dt, rng)  # constructor torque (zero): the rate is held
-    np.testing.assert_allclose(quiet.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
+    assert max(att_err(qi, q_expected) for qi in rot.mrp_to_quat(state.particles[:, :3])) < 1e-13
+    state = quiet.predict(state, None, dt, rng)  # the zero-torque core: the rate is held
+    np.testing.assert_allclose(state.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
                                rtol=0, atol=1e-14)
 
 
@@ -722,13 +739,14 @@ def _ekpf_with_known_bias():
     RRW): singular, so every Cholesky factor goes through the eigenvalue repair."""
     q0 = rot.quat_normalize(np.array([0.9, 0.2, -0.3, 0.25]))
     P0 = np.diag([(100e-6) ** 2] * 3 + [(1e-7) ** 2] * 3)
-    pf = ExtendedKalmanParticleFilter(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U,
-                                      np.random.default_rng(5), resample_threshold=0.0)
-    pf.covariances[:, 3:, :] = 0.0
-    pf.covariances[:, :, 3:] = 0.0
+    core = EkpfCore(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, resampling_gate=EffectiveSampleSizeGate(0.0))
+    state = core.draw_initial_state(np.random.default_rng(5))
+    covariances = state.covariances.copy()
+    covariances[:, 3:, :] = 0.0
+    covariances[:, :, 3:] = 0.0
     y = (vector_measurement_model(rot.quat_to_mrp(q0), REFS)
          + SIGMA_STAR * np.random.default_rng(1).standard_normal(6))
-    return pf, y
+    return core, replace(state, covariances=covariances), y
 
 
 def test_ekpf_update_with_a_singular_covariance_keeps_zero_variance_states():
@@ -736,30 +754,32 @@ def test_ekpf_update_with_a_singular_covariance_keeps_zero_variance_states():
     factor must not move a zero-variance state beyond round-off of the covariance scale.
     Bound: |db| < 1e-4 sqrt(lambda_max(P+)) (a repair that injects at most 1e-8 of the
     largest variance; measured 2.4e-6 of it). Weights stay finite and normalized."""
-    pf, y = _ekpf_with_known_bias()
-    b_before = pf.particles[:, 3:].copy()
-    assert pf.update(y, REFS, SIGMA_STAR, np.random.default_rng(2))
-    scale = np.sqrt(np.max(np.linalg.eigvalsh(pf.covariances), axis=1))
-    assert np.all(np.abs(pf.particles[:, 3:] - b_before) < 1e-4 * scale[:, None])
-    assert_weights_ok(pf)
+    core, state, y = _ekpf_with_known_bias()
+    new, info = core.update(state, observation(y), np.random.default_rng(2))
+    assert info.accepted
+    scale = np.sqrt(np.max(np.linalg.eigvalsh(new.covariances), axis=1))
+    assert np.all(np.abs(new.particles[:, 3:] - state.particles[:, 3:]) < 1e-4 * scale[:, None])
+    assert_weights_ok(core, new)
 
 
 @pytest.mark.parametrize("kind", ["bootstrap", "ekpf", "gyroless"])
 def test_particle_core_state_size_is_the_length_of_its_state_vector(kind):
     """The FilterCore contract: state_size is len(to_vector(state)) (the Context's
     discrete-state group: N x (6 + 1 + 1) numbers, + 36 per particle for the EKPF's
-    covariances), and from_vector inverts to_vector exactly."""
+    covariances), and from_vector inverts to_vector exactly. Each core declares what it is
+    (second quantity, gyro use, randomness, particle count, random initial state)."""
     n = 7
-    make = {
-        "bootstrap": lambda r: BootstrapParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, r),
-        "ekpf": lambda r: ExtendedKalmanParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6,
-                                                       1e-9, r),
-        "gyroless": lambda r: GyrolessParticleFilter(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA,
-                                                     TORQUE, 1e-6, r),
-    }[kind]
+    core = {
+        "bootstrap": lambda: BootstrapPfCore(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6),
+        "ekpf": lambda: EkpfCore(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, 1e-9),
+        "gyroless": lambda: GyrolessPfCore(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6),
+    }[kind]()
     second = SecondQuantity.BODY_RATE if kind == "gyroless" else SecondQuantity.GYRO_BIAS
-    core = ParticleFilterCore(make, second)
+    assert (core.second_quantity, core.uses_gyro, core.is_random) == (second, kind != "gyroless", True)
+    assert isinstance(core, FilterCore) and isinstance(core, RandomInitialState) and isinstance(core, ParticleSet)
+    assert core.num_particles == n
     state = core.draw_initial_state(np.random.default_rng(3))
+    assert isinstance(state, ParticleSetState) and (state.covariances is not None) == (kind == "ekpf")
     vector = core.to_vector(state)
     assert core.state_size == vector.size == n * (8 + (36 if kind == "ekpf" else 0))
     back = core.from_vector(vector)
@@ -768,3 +788,44 @@ def test_particle_core_state_size_is_the_length_of_its_state_vector(kind):
     np.testing.assert_array_equal(back.log_weights, state.log_weights)
     if kind == "ekpf":
         np.testing.assert_array_equal(back.covariances, state.covariances)
+
+
+@pytest.mark.parametrize("kind", ["bootstrap", "ekpf", "gyroless"])
+def test_update_reports_its_particle_diagnostics_and_estimates_from_the_weighted_set(kind):
+    """What the cores report instead of counting: UpdateInfo's N_eff is 1 / sum(w^2) of the
+    updated weights before resampling; ``resampled`` exactly when the gate says N_eff < 2/3 N,
+    and then the state carries uniform weights, resampled particles (covariances with them)
+    and the weighted set of before, which the estimate of that step uses (and to_vector
+    drops); ``degenerate`` when every likelihood underflows (sigma^2 = 1e-320), the weights
+    then reset to uniform. The state given to update is never modified."""
+    rng = np.random.default_rng(14)
+    q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
+    _, _, ys, wms = simulate_gyro_truth(2, np.random.default_rng(15))
+    core = {"bootstrap": lambda: BootstrapPfCore(200, q0, np.zeros(3), P0_ATT, 2e-5),
+            "ekpf": lambda: EkpfCore(200, q0, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U),
+            "gyroless": lambda: GyrolessPfCore(200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6)}[kind]()
+    state = core.draw_initial_state(rng)
+    copies = [np.copy(a) for a in (state.particles, state.weights, state.log_weights)]
+    new, info = core.update(state, observation(ys[0]), rng)
+    for a, b in zip(copies, (state.particles, state.weights, state.log_weights)):
+        np.testing.assert_array_equal(a, b)
+    assert info.accepted and info.resampled and not info.degenerate  # 1 deg prior, 100 urad: N_eff ~ 1
+    particles, weights = new.estimate_set
+    assert info.effective_sample_size == pytest.approx(1.0 / np.sum(weights**2), rel=1e-12)
+    assert info.effective_sample_size < 2.0 / 3.0 * core.num_particles
+    np.testing.assert_array_equal(new.weights, np.full(200, 1 / 200))
+    q, s, C = core.estimate(new)
+    q_set, s_set, C_set = core.estimate(replace(new, particles=particles, weights=weights, estimate_set=None))
+    np.testing.assert_array_equal(q, q_set)
+    np.testing.assert_array_equal(C, C_set)
+    assert core.from_vector(core.to_vector(new)).estimate_set is None
+    # After a predict, the estimate is the current set's.
+    predicted = core.predict(new, wms[0], 1.0, rng)
+    assert predicted.estimate_set is None
+    # Every likelihood underflows: degenerate, uniform weights, N_eff = N, no resampling.
+    if kind != "ekpf":  # (the EKPF's own EKF update cannot take such a sigma)
+        tiny = VectorObservations(0.0, True, ys[1].reshape(2, 3), REFS, 1e-160, BODY)
+        out, info = core.update(predicted, tiny, rng)
+        assert info.degenerate and info.accepted and not info.resampled
+        assert info.effective_sample_size == pytest.approx(200)
+        np.testing.assert_array_equal(out.weights, np.full(200, 1 / 200))

@@ -20,19 +20,23 @@ import os
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 
 import numpy as np
 import pytest
-from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, simulate_gyro_truth
+from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation, simulate_gyro_truth
 
 from drake_att import rotations as rot
 from drake_att.filters import mrp_ekf
 from drake_att.filters import particle_kernels as pk
 from drake_att.filters.mrp_ekf import attitude_to_mrp_covariance, vector_measurement_model
 from drake_att.filters.particle import (
-    BootstrapParticleFilter,
-    ExtendedKalmanParticleFilter,
-    GyrolessParticleFilter,
+    BootstrapPfCore,
+    EffectiveSampleSizeGate,
+    EkpfCore,
+    GyrolessPfCore,
+    RandomWalkRoughening,
+    ekpf_proposal_step,
     vector_log_likelihood,
 )
 
@@ -133,16 +137,13 @@ def test_ekf_update_far_from_the_measurement_agrees_to_its_conditioning(iteratio
 @pytest.mark.parametrize("iterations", [1, 3])
 def test_ekpf_measurement_step_equals_the_reference(sigma, iterations):
     """The fused kernel (EKF update, both Cholesky factors, proposal draw with the given normals,
-    log densities, shadow switch) against the numpy lines of ExtendedKalmanParticleFilter.update."""
+    log densities, shadow switch) against the numpy reference, particle.ekpf_proposal_step."""
     rng = np.random.default_rng(4)
     q_true = rot.quat_normalize(np.array([0.2, 0.9, -0.3, 0.25]))
     x, P = _states_near(rng, N, q_true, log_sigma_attitude=(-5.0, -2.0))
     y = vector_measurement_model(rot.quat_to_mrp(q_true), REFS) + sigma * rng.normal(size=6)
     eps = rng.normal(size=(N, 6))
-    ref = ExtendedKalmanParticleFilter(N, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U, rng,
-                                       proposal_iterations=iterations, kernel="numpy")
-    ref.particles, ref.covariances = x, P
-    x_ref, P_ref, inc_ref = ref._proposal_step(y, REFS, sigma, eps)
+    x_ref, P_ref, inc_ref = ekpf_proposal_step(x, P, y, REFS, sigma, eps, iterations)
     x_new, P_new, inc_new = pk.ekpf_update(x, P, eps, y, REFS, sigma, iterations=iterations)
     assert_states_close(x_new, P_new, x_ref, P_ref, 1e-12)
     assert_log_weights_close(inc_new, inc_ref, sigma)
@@ -166,18 +167,25 @@ def test_log_likelihood_and_attitude_step_equal_the_reference():
 
 
 # --------------------------------------------------------------------------------------
-# Filters: the same random numbers, the same decisions
+# Cores: the same random numbers, the same decisions
 # --------------------------------------------------------------------------------------
 def _twin_filters(make):
-    """A filter per kernel from the same seed (identical initial sets) and a generator each."""
-    return [(make(np.random.default_rng(11), kernel), np.random.default_rng(12)) for kernel in ("numpy", "numba")]
+    """A core per kernel, its initial set drawn from the same seed (identical sets) and a
+    generator each: ``[core, state, rng]`` for numpy, then numba."""
+    twins = []
+    for kernel in ("numpy", "numba"):
+        core = make(kernel)
+        twins.append([core, core.draw_initial_state(np.random.default_rng(11)), np.random.default_rng(12)])
+    return twins
+
+
+def _info_tuple(info):
+    return info.accepted, info.resampled, info.degenerate
 
 
 def _assert_twins_close(ref, new, sigma=SIGMA_STAR, tol=1e-12):
-    assert (ref.n_resamples, ref.n_updates, ref.n_degenerate) == (new.n_resamples, new.n_updates, new.n_degenerate)
-    P_ref = getattr(ref, "covariances", None)
-    if P_ref is not None:
-        assert_states_close(new.particles, new.covariances, ref.particles, P_ref, tol)
+    if ref.covariances is not None:
+        assert_states_close(new.particles, new.covariances, ref.particles, ref.covariances, tol)
     else:
         np.testing.assert_allclose(new.particles, ref.particles, rtol=tol, atol=tol * np.abs(ref.particles).max())
     assert_log_weights_close(new.log_weights, ref.log_weights, sigma)
@@ -198,32 +206,38 @@ def test_filters_equal_the_reference_over_a_run(kind):
     b0 = np.full(3, 2 * DEG / HOUR)
     tol = 1e-13
     if kind == "ekpf":
-        make = lambda r, k: ExtendedKalmanParticleFilter(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, r, kernel=k)
+        make = lambda k: EkpfCore(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, kernel=k)
         tol = 1e-10
     elif kind.startswith("ekpf iterated"):
         q_far = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
-        make = lambda r, k: ExtendedKalmanParticleFilter(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, r,
-                                                         proposal_iterations=10, kernel=k)
+        make = lambda k: EkpfCore(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, proposal_iterations=10, kernel=k)
         tol = 1e-9
     elif kind == "bootstrap":
-        make = lambda r, k: BootstrapParticleFilter(500, q0, b0, P0_ATT, 2e-5, r, bias_roughening_sigma=1e-7,
-                                                    kernel=k)
+        make = lambda k: BootstrapPfCore(500, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7),
+                                         kernel=k)
     else:
         P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
-        make = lambda r, k: GyrolessParticleFilter(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6, r,
-                                                   attitude_process_sigma=3e-5, num_substeps=2, kernel=k)
-    (ref, rng_ref), (new, rng_new) = _twin_filters(make)
+        make = lambda k: GyrolessPfCore(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6,
+                                        attitude_process_sigma=3e-5, num_substeps=2, kernel=k)
+    twins = _twin_filters(make)
+    resamplings = 0
     for k in range(len(ys)):
-        for pf, rng in ((ref, rng_ref), (new, rng_new)):
+        infos = []
+        for twin in twins:
+            core, state, rng = twin
             if k > 0:
-                pf.predict(1.0, rng) if kind == "gyroless" else pf.predict(1.0, wms[k - 1], rng)
-            pf.update(ys[k], REFS, SIGMA_STAR, rng)
+                state = core.predict(state, None if kind == "gyroless" else wms[k - 1], 1.0, rng)
+            twin[1], info = core.update(state, observation(ys[k]), rng)
+            infos.append(_info_tuple(info))
+        (ref_core, ref, rng_ref), (new_core, new, rng_new) = twins
+        assert infos[0] == infos[1]  # the same decisions: accepted, resampled, degenerate
+        resamplings += infos[0][1]
         _assert_twins_close(ref, new, tol=tol)
         # both consumed the same random numbers
         assert rng_ref.bit_generator.state == rng_new.bit_generator.state
-    assert ref.n_resamples > 0
-    q_ref, s_ref = ref.mean()
-    q_new, s_new = new.mean()
+    assert resamplings > 0
+    q_ref, s_ref, _ = ref_core.estimate(ref)
+    q_new, s_new, _ = new_core.estimate(new)
     assert np.linalg.norm(rot.quat_error_rotvec(q_ref, q_new)) < 1e-12
     np.testing.assert_allclose(s_new, s_ref, rtol=1e-9)
 
@@ -239,15 +253,18 @@ def test_singular_covariances_take_the_reference_repair_bit_for_bit():
     for damage in ("zero bias block", "indefinite"):
         out = []
         for kernel in ("numpy", "numba"):
-            pf = ExtendedKalmanParticleFilter(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, np.random.default_rng(5),
-                                              resample_threshold=0.0, kernel=kernel)
+            core = EkpfCore(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, resampling_gate=EffectiveSampleSizeGate(0.0),
+                            kernel=kernel)
+            state = core.draw_initial_state(np.random.default_rng(5))
+            covariances = state.covariances.copy()
             if damage == "zero bias block":
-                pf.covariances[:, 3:, :] = 0.0
-                pf.covariances[:, :, 3:] = 0.0
+                covariances[:, 3:, :] = 0.0
+                covariances[:, :, 3:] = 0.0
             else:
-                pf.covariances[3, 5, 5] = -1e-20
-            assert pf.update(y, REFS, SIGMA_STAR, np.random.default_rng(2))
-            out.append((pf.particles, pf.covariances, pf.log_weights))
+                covariances[3, 5, 5] = -1e-20
+            state, info = core.update(replace(state, covariances=covariances), observation(y), np.random.default_rng(2))
+            assert info.accepted
+            out.append((state.particles, state.covariances, state.log_weights))
         for a, b in zip(*out):
             np.testing.assert_array_equal(a, b)
 
@@ -288,7 +305,7 @@ def test_the_kernel_choice_is_validated_naming_the_field():
     from drake_att.scenarios.library import load
 
     with pytest.raises(ValueError, match="kernel: got 'fortran'; must be 'numba'"):
-        BootstrapParticleFilter(5, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, np.random.default_rng(0), kernel="fortran")
+        BootstrapPfCore(5, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, kernel="fortran")
     for scenario, name in (("s0_particle_filters_small_error", "ekpf"), ("s0_particle_filters_small_error", "bootstrap_pf"),
                            ("s0_gyroless_pf", None)):
         s = load(scenario)
@@ -302,10 +319,12 @@ import warnings
 warnings.simplefilter("error")
 import numpy as np
 from drake_att.filters import particle_kernels
-from drake_att.filters.particle import BootstrapParticleFilter
+from drake_att.contract import VectorObservations
+from drake_att.filters.particle import BootstrapPfCore
 r = np.random.default_rng(0)
-pf = BootstrapParticleFilter(5, [1, 0, 0, 0], np.zeros(3), np.eye(6) * 1e-6, 1e-6, r)
-assert pf.update(np.array([1.0, 0, 0, 0, 1.0, 0]), np.eye(3)[:2], 1e-3, r)
+core = BootstrapPfCore(5, [1, 0, 0, 0], np.zeros(3), np.eye(6) * 1e-6, 1e-6)
+obs = VectorObservations(0.0, True, np.eye(3)[:2], np.eye(3)[:2], 1e-3, np.array([1.0, 0, 0, 0]))
+assert core.update(core.draw_initial_state(r), obs, r)[1].accepted
 print(particle_kernels.CACHING)
 """
 

@@ -6,6 +6,7 @@ measurements, state kept in the Context, the S0 claims at reduced size and the b
 from __future__ import annotations
 
 import copy
+import functools
 
 import numpy as np
 import pytest
@@ -24,6 +25,9 @@ from drake_att.systems.filter_setups import (
     EkpfEstimator,
     GyrolessPfEstimator,
     MrpEkfEstimator,
+    bootstrap_pf_setup,
+    ekpf_setup,
+    gyroless_pf_setup,
 )
 from drake_att.estimators.gyroless_pf import plant_dynamics
 from drake_att.scenarios.registry import ESTIMATOR, plugins
@@ -262,9 +266,9 @@ def test_s0_plugins_are_registered_and_shipped_s0_scenarios_carry_the_paper_nois
     expected = {
         "ekf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
         "ekpf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekpf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
-        "bootstrap_pf": dict(arw_rad_per_rt_s=2e-5, bias_roughening_sigma=0.0),
-        "bootstrap_pf_true_arw": dict(arw_rad_per_rt_s=arw, bias_roughening_sigma=0.0),
-        "bootstrap_pf_roughened": dict(arw_rad_per_rt_s=2e-5, bias_roughening_sigma=0.05 * np.pi / 180 / 3600),
+        "bootstrap_pf": {"arw_rad_per_rt_s": 2e-5, "bias_roughening.sigma": 0.0},
+        "bootstrap_pf_true_arw": {"arw_rad_per_rt_s": arw, "bias_roughening.sigma": 0.0},
+        "bootstrap_pf_roughened": {"arw_rad_per_rt_s": 2e-5, "bias_roughening.sigma": 0.05 * np.pi / 180 / 3600},
         "gyroless_pf": dict(attitude_process_sigma=3e-5, rate_process_sigma=1e-6),
         "gyroless_pf_paper": dict(attitude_process_sigma=0.0, rate_process_sigma=1e-6),
     }
@@ -275,19 +279,38 @@ def test_s0_plugins_are_registered_and_shipped_s0_scenarios_carry_the_paper_nois
         sd = builder.ScenarioDiagram(s)
         for e in s.estimators:
             core = sd.estimators[e.name].core
-            core = getattr(core, "template", core)  # particle cores wrap a template filter
             for attr, value in expected[e.name].items():
-                assert getattr(core, attr) == pytest.approx(value, rel=1e-9, abs=1e-18), (e.name, attr)
+                got = functools.reduce(getattr, attr.split("."), core)
+                assert got == pytest.approx(value, rel=1e-9, abs=1e-18), (e.name, attr)
             if hasattr(e, "num_particles"):
                 assert core.num_particles == 1000
             seen.add(e.name)
     assert seen == set(expected)
 
 
+def test_particle_setups_give_the_cores_their_components_and_name_bad_arguments():
+    """A setup turns its numbers into the core's components (the ESS gate, the bias
+    roughening), names a bad one by the setup's argument, and starts from the draw of
+    numpy's generator 0 (the value before the initialization event draws from the seed)."""
+    P0 = np.eye(6) * 1e-6
+    args = (1.0, "st", 10, [1, 0, 0, 0], np.zeros(3), P0)
+    setups = [bootstrap_pf_setup(*args, 1e-6, 3e-7, 0.5), ekpf_setup(*args, 1e-6, 1e-9, resample_threshold=0.5),
+              gyroless_pf_setup(*args, np.eye(3), np.zeros(3), 1e-6, resample_threshold=0.5)]
+    for setup in setups:
+        assert setup.core.resampling_gate.threshold == 0.5 and setup.vector_sensors == ("st",)
+        drawn = setup.core.draw_initial_state(np.random.default_rng(0))
+        np.testing.assert_array_equal(setup.core.to_vector(setup.initial_state), setup.core.to_vector(drawn))
+    assert setups[0].core.bias_roughening.sigma == 3e-7
+    with pytest.raises(ValueError, match=r"^bias_roughening_sigma: got nan"):
+        bootstrap_pf_setup(*args, 1e-6, bias_roughening_sigma=np.nan)
+    with pytest.raises(ValueError, match=r"^resample_threshold: got 1.5"):
+        ekpf_setup(*args, 1e-6, 1e-9, resample_threshold=1.5)
+
+
 def test_gyroless_takes_the_plants_inertia_and_torque_and_explains_errors(diagram):
     gpf = diagram.estimators["gpf"]
-    np.testing.assert_array_equal(gpf.core.template.inertia, np.diag([100.0, 200.0, 200.0]))
-    np.testing.assert_array_equal(gpf.core.template.torque, np.full(3, 1e-5))
+    np.testing.assert_array_equal(gpf.core.inertia, np.diag([100.0, 200.0, 200.0]))
+    np.testing.assert_array_equal(gpf.core.torque, np.full(3, 1e-5))
     # A kinematic truth has no inertia or torque: the filter needs them explicitly.
     s = load_scenario(text=SCENARIO)
     s.plant = cfg.PrescribedRateConfig()

@@ -3,7 +3,7 @@
 * EKPF: in the linear-Gaussian limit the weight increment
   ``log p(y|x) + log pi(x) - log q(x)`` (pi = N(m-, P-), q = the EKF posterior) is the
   predictive likelihood ``log N(y; h(m-), H P- H' + R)`` for EVERY draw ``x``
-  (documented in ``ExtendedKalmanParticleFilter``); so after an update the normalized
+  (documented in ``docs/particle_filters.md``); so after an update the normalized
   weights are ``prior weight x predictive likelihood`` and do not depend on the rng.
 * Every filter carries its log-weights across updates: without resampling, the weights
   after K updates are the normalized product of the K per-update factors.
@@ -15,17 +15,17 @@ here from first principles, not taken from the library.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from s0_truth import P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V
+from s0_truth import P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation
 
 from drake_att.filters.mrp_ekf import vector_measurement_model
-from drake_att.filters.particle import (
-    BootstrapParticleFilter,
-    ExtendedKalmanParticleFilter,
-    GyrolessParticleFilter,
-)
+from drake_att.filters.particle import BootstrapPfCore, EffectiveSampleSizeGate, EkpfCore, GyrolessPfCore
+
+NEVER = EffectiveSampleSizeGate(0.0)  # these tests follow the weights: no resampling
 
 W_TRUE = np.array([1e-3, -5e-4, 2e-4])  # rad/s, S0's constant body rate
 
@@ -128,12 +128,12 @@ def _ekpf_components(seed, n=16):
 
 
 def _ekpf_with(q_c, means, covs, log_w0):
+    """An EKPF core and a state with the given components."""
     n = len(means)
-    pf = ExtendedKalmanParticleFilter(n, q_c, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U,
-                                      np.random.default_rng(0), resample_threshold=0.0)
-    pf.particles, pf.covariances = means.copy(), covs.copy()
-    pf.log_weights, pf.weights = log_w0.copy(), np.exp(log_w0)
-    return pf
+    core = EkpfCore(n, q_c, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U, resampling_gate=NEVER)
+    state = replace(core.draw_initial_state(np.random.default_rng(0)), particles=means.copy(),
+                    covariances=covs.copy(), log_weights=log_w0.copy(), weights=np.exp(log_w0))
+    return core, state
 
 
 # Tolerance on normalized log-weights, from the residual nonlinearity of h: a draw x lies
@@ -154,13 +154,13 @@ def test_ekpf_update_weights_are_prior_times_predictive_likelihood(seed):
     assert np.ptp(log_w0) > 2.0  # ... and the prior weights matter
     results = []
     for draw_seed in (11, 12):
-        pf = _ekpf_with(q_c, means, covs, log_w0)
-        assert pf.update(y, REFS, SIGMA_STAR, np.random.default_rng(draw_seed))
-        assert pf.n_resamples == 0
-        np.testing.assert_allclose(pf.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)
-        np.testing.assert_allclose(pf.weights, np.exp(expected), rtol=LINEARIZATION_TOL,
+        core, state = _ekpf_with(q_c, means, covs, log_w0)
+        state, info = core.update(state, observation(y), np.random.default_rng(draw_seed))
+        assert info.accepted and not info.resampled
+        np.testing.assert_allclose(state.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)
+        np.testing.assert_allclose(state.weights, np.exp(expected), rtol=LINEARIZATION_TOL,
                                    atol=1e-12)
-        results.append((pf.particles.copy(), pf.weights.copy()))
+        results.append((state.particles, state.weights))
     # Different draws (the particles moved differently), same weights.
     assert np.min(np.abs(results[0][0][:, :3] - results[1][0][:, :3])) > 0.0
     np.testing.assert_allclose(np.log(results[0][1]), np.log(results[1][1]), rtol=0,
@@ -177,46 +177,47 @@ def test_ekpf_weights_carry_over_updates_as_product_of_predictive_likelihoods():
     q0 = np.array([0.9, 0.2, -0.3, 0.25])
     q0 /= np.linalg.norm(q0)
     P0 = np.diag([(100e-6) ** 2] * 3 + [(1e-7) ** 2] * 3)
-    pf = ExtendedKalmanParticleFilter(n, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U,
-                                      np.random.default_rng(5), resample_threshold=0.0)
+    core = EkpfCore(n, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, resampling_gate=NEVER)
+    state = core.draw_initial_state(np.random.default_rng(5))
     rng = np.random.default_rng(6)
-    expected = pf.log_weights.copy()
+    expected = state.log_weights.copy()
     R_true = _R_IB_from_mrp(_mrp(q0))
     for k in range(8):
         if k > 0:
-            pf.predict(1.0, W_TRUE, rng)
+            state = core.predict(state, W_TRUE, 1.0, rng)
             R_true = R_true @ _rodrigues(W_TRUE)
         y = _h(R_true) + SIGMA_STAR * data.standard_normal(6)
         expected += np.array([_log_predictive(m, P, y, SIGMA_STAR)
-                              for m, P in zip(pf.particles, pf.covariances)])
-        pf.update(y, REFS, SIGMA_STAR, rng)
-        np.testing.assert_allclose(pf.log_weights, _normalized_log(expected), rtol=0,
+                              for m, P in zip(state.particles, state.covariances)])
+        state, info = core.update(state, observation(y), rng)
+        np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0,
                                    atol=LINEARIZATION_TOL)
-    assert pf.n_resamples == 0
+        assert info.accepted and not info.resampled
     assert np.ptp(_normalized_log(expected)) > 10.0  # far from uniform: discriminates
 
 
 # --------------------------------------------------------------------------------------
 # Bootstrap and gyroless PF: weights = normalized product of the K likelihoods
 # --------------------------------------------------------------------------------------
-def _bootstrap(q0, P0, rng):
-    pf = BootstrapParticleFilter(200, q0, np.zeros(3), P0, 0.0, rng, resample_threshold=0.0)
-    pf.particles[:, 3:] = 0.0  # zero bias: every particle turns at exactly w_meas
+def _with_second(state, value):
+    particles = state.particles.copy()
+    particles[:, 3:] = value
+    return replace(state, particles=particles)
 
-    def predict(rng):
-        pf.predict(1.0, W_TRUE, rng)
-    return pf, predict
+
+def _bootstrap(q0, P0, rng):
+    """A bootstrap core, its initial state (zero bias: every particle turns at exactly
+    w_meas) and its step ``(state, rng) -> state``."""
+    core = BootstrapPfCore(200, q0, np.zeros(3), P0, 0.0, resampling_gate=NEVER)
+    state = _with_second(core.draw_initial_state(rng), 0.0)
+    return core, state, lambda state, rng: core.predict(state, W_TRUE, 1.0, rng)
 
 
 def _gyroless(q0, P0, rng):
     # Isotropic inertia and zero torque: w x (I w) = 0, the rate stays W_TRUE exactly.
-    pf = GyrolessParticleFilter(200, q0, W_TRUE, P0, 150.0 * np.eye(3), np.zeros(3), 0.0,
-                                rng, resample_threshold=0.0)
-    pf.particles[:, 3:] = W_TRUE
-
-    def predict(rng):
-        pf.predict(1.0, rng)
-    return pf, predict
+    core = GyrolessPfCore(200, q0, W_TRUE, P0, 150.0 * np.eye(3), np.zeros(3), 0.0, resampling_gate=NEVER)
+    state = _with_second(core.draw_initial_state(rng), W_TRUE)
+    return core, state, lambda state, rng: core.predict(state, None, 1.0, rng)
 
 
 @pytest.mark.parametrize("make", [_bootstrap, _gyroless], ids=["bootstrap", "gyroless"])
@@ -235,22 +236,22 @@ def test_weights_after_k_updates_are_the_product_of_the_k_likelihoods(make):
     # so the K-fold product is far from uniform (compared in log space, so the
     # light particles count as much as the heavy ones).
     P0 = np.diag([(150e-6) ** 2] * 3 + [1e-20] * 3)
-    pf, predict = make(q0, P0, rng)
-    R = np.array([_R_IB_from_mrp(r) for r in pf.particles[:, :3]])
+    core, state, predict = make(q0, P0, rng)
+    R = np.array([_R_IB_from_mrp(r) for r in state.particles[:, :3]])
     R_true = _R_IB_from_mrp(_mrp(_quat_compose_rotvec(q0, np.array([80e-6, -50e-6, 30e-6]))))
     data = np.random.default_rng(10)
-    expected = np.zeros(pf.num_particles)
+    expected = np.zeros(core.num_particles)
     step = _rodrigues(W_TRUE)
     for k in range(10):
         if k > 0:
-            predict(rng)
+            state = predict(state, rng)
             R, R_true = R @ step, R_true @ step
         y = _h(R_true) + SIGMA_STAR * data.standard_normal(6)
         expected += np.array([-0.5 * np.sum((y - _h(Ri)) ** 2) / SIGMA_STAR**2 for Ri in R])
-        assert pf.update(y, REFS, SIGMA_STAR, rng)
-        np.testing.assert_allclose(pf.log_weights, _normalized_log(expected), rtol=0,
+        state, info = core.update(state, observation(y), rng)
+        assert info.accepted and not info.resampled
+        np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0,
                                    atol=1e-6)
-    assert pf.n_resamples == 0
     assert np.ptp(_normalized_log(expected)) > 20.0  # far from uniform: discriminates
 
 
@@ -268,13 +269,15 @@ def test_ekpf_weights_with_a_zero_variance_bias_are_the_predictive_likelihood(si
     q0 = np.array([0.9, 0.2, -0.3, 0.25])
     q0 /= np.linalg.norm(q0)
     P0 = np.diag([(100e-6) ** 2] * 3 + [(1e-7) ** 2] * 3)
-    pf = ExtendedKalmanParticleFilter(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, rng,
-                                      resample_threshold=0.0)
+    core = EkpfCore(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, resampling_gate=NEVER)
+    state = core.draw_initial_state(rng)
     damaged = slice(None) if singular == "every particle" else slice(None, None, 2)
-    pf.covariances[damaged, 3:, :] = 0.0
-    pf.covariances[damaged, :, 3:] = 0.0
+    covariances = state.covariances.copy()
+    covariances[damaged, 3:, :] = 0.0
+    covariances[damaged, :, 3:] = 0.0
+    state = replace(state, covariances=covariances)
     y = _h(_R_IB_from_mrp(_mrp(q0))) + SIGMA_STAR * np.random.default_rng(1).standard_normal(6)
-    expected = _normalized_log(pf.log_weights + np.array(
-        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(pf.particles, pf.covariances)]))
-    pf.update(y, REFS, SIGMA_STAR, np.random.default_rng(2))
-    np.testing.assert_allclose(pf.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)
+    expected = _normalized_log(state.log_weights + np.array(
+        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(state.particles, state.covariances)]))
+    state, _ = core.update(state, observation(y), np.random.default_rng(2))
+    np.testing.assert_allclose(state.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)

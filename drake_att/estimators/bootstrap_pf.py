@@ -1,5 +1,5 @@
 """Estimator plug-in: paper S0's bootstrap (SIR) particle filter in gyro mode
-(:class:`drake_att.filters.particle.BootstrapParticleFilter`). YAML tag ``!BootstrapPfConfig``.
+(:class:`drake_att.filters.particle.BootstrapPfCore`). YAML tag ``!BootstrapPfConfig``.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Estimator plug-in: paper S0's extended-Kalman particle filter
-(:class:`drake_att.filters.particle.ExtendedKalmanParticleFilter`). YAML tag ``!EkpfConfig``.
+(:class:`drake_att.filters.particle.EkpfCore`). YAML tag ``!EkpfConfig``.
 """
 
 from __future__ import annotations

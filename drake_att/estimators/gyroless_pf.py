@@ -1,5 +1,5 @@
 """Estimator plug-in: paper S0's gyroless bootstrap PF on ``[MRP; body rate]`` propagated
-with Euler's equations (:class:`drake_att.filters.particle.GyrolessParticleFilter`).
+with Euler's equations (:class:`drake_att.filters.particle.GyrolessPfCore`).
 YAML tag ``!GyrolessPfConfig``.
 """
 

@@ -1,47 +1,44 @@
-"""Particle filters for paper S0 (Zhang & Sun 2012), vectorized over particles, plain numpy.
+"""Particle filters of paper S0 (Zhang & Sun 2012) as pure filter cores, vectorized over
+particles, plain numpy.
 
-Three filters share one measurement model (star sensor, sensor frame = body frame)::
+Three cores, each a :class:`drake_att.contract.FilterCore` on an immutable
+:class:`ParticleSetState` (particles ``(N, 6)`` ``[rho; s]``, normalized weights and their
+logs, and the EKPF's per-particle covariances):
+
+* :class:`BootstrapPfCore` — SIR in gyro mode, ``s`` = gyro bias; the proposal is the
+  transition prior, the bias static (paper) or roughened by a :class:`RandomWalkRoughening`.
+* :class:`EkpfCore` — extended-Kalman PF: every particle carries an MRP EKF
+  (:mod:`drake_att.filters.mrp_ekf`, batched) whose posterior is its proposal.
+* :class:`GyrolessPfCore` — SIR with ``s`` = body rate, propagated by Euler's equations.
+
+They share one measurement model (star sensor, vectors rotated into the body frame)::
 
     y = [R_BI u_1; ...; R_BI u_m] + v,   v ~ N(0, sigma^2 I_3m),   R_BI = R(q_IB)'
 
-and one output convention: :meth:`mean` returns ``(q_IB_hat, second_hat)`` with the
-attitude mean taken on the rotation group (Markley's weighted quaternion average,
-:func:`drake_att.filters.quaternion_average.average_quaternions`) and
-:meth:`covariance` returns the ``(6, 6)`` weighted second moment of
-``[dtheta_B; s - s_hat]`` about the reported estimate, where ``dtheta_B`` is the
-body-frame rotation vector of ``q_hat^-1 ⊗ q_i`` (the project's attitude-error
-definition) and ``s`` is the bias (gyro mode) or the body rate (gyroless mode).
+one update rule (log-weights incremented, normalized by log-sum-exp so they stay finite
+when every likelihood underflows; then the resampling components decide) and one estimate:
+Markley's weighted quaternion average and the weighted second moment of
+``[dtheta_B; s - s_hat]`` about it (:func:`weighted_mean_and_covariance`). Resampling is
+two components passed to each core: when (:class:`EffectiveSampleSizeGate`, paper:
+``N_eff < 2/3 N``) and which particles (:class:`SystematicResampler`). ``update`` reports
+``N_eff``, resampling and degenerate weights in :class:`~drake_att.contract.UpdateInfo`;
+the cores count nothing.
 
-* :class:`BootstrapParticleFilter` — SIR in gyro mode, ``x = [rho; b]``; the proposal is
-  the transition prior, the bias is static (``b_{k+1} = b_k`` as in the paper) unless the
-  optional bias roughening is switched on.
-* :class:`ExtendedKalmanParticleFilter` — EKPF: every particle carries an MRP EKF
-  (:mod:`drake_att.filters.mrp_ekf`, batched); the EKF posterior is the proposal.
-* :class:`GyrolessParticleFilter` — SIR with ``x = [rho; w]`` propagated by Euler's
-  equations with known inertia and torque.
+Randomness: every draw comes from the ``rng`` passed to ``draw_initial_state``,
+``predict`` or ``update``, in a fixed order; the same generators give bit-identical states.
 
-Randomness: every draw comes from the ``rng`` (``numpy.random.Generator``) passed to the
-constructor (initial particle set) or to ``predict``/``update``; the same seed gives
-bit-identical results. Weights are kept in log space during an update, normalized with
-log-sum-exp, so they stay finite and sum to one even when every likelihood underflows.
-Missing or non-finite measurements (``y`` None / NaN, ``w_meas`` None / NaN) are skipped
-and counted in ``n_skipped``; for a missing gyro sample the last valid one is held.
-Resampling (systematic) happens when ``N_eff = 1 / sum(w^2) < resample_threshold * N``
-(paper: 2/3).
-
-Kernels: the code in this module (with :mod:`drake_att.filters.mrp_ekf`) is the readable
-specification, run with ``kernel="numpy"``. The default ``kernel="numba"`` runs the same
-steps through the compiled loops of :mod:`drake_att.filters.particle_kernels` (imported on
-first use): the same random numbers from the same generator in the same order, the weight
-normalization and resampling here in numpy, results equal to round-off (EKPF with 1000
-particles ~10x faster per step; ``benchmarks/README.md``).
+Kernels: this module (with :mod:`drake_att.filters.mrp_ekf`) is the readable specification,
+run with ``kernel="numpy"``. The default ``kernel="numba"`` runs the same steps through the
+compiled loops of :mod:`drake_att.filters.particle_kernels` (imported on first use): the
+same random numbers from the same generator in the same order, weight normalization and
+resampling here in numpy, results equal to round-off. Derivations and measured behaviour:
+``docs/particle_filters.md``.
 
 Units: SI and radians (rad, rad/s, ARW rad/s^0.5, RRW / process noise rad/s^1.5).
 """
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,11 +46,11 @@ import numpy as np
 from drake_att.contract import SecondQuantity, UpdateInfo
 from drake_att.filters.compiled import KERNELS  # one home for the kernel names
 from drake_att.filters.mrp_ekf import (
-    valid_rate_or_none,
     attitude_to_mrp_covariance,
+    body_frame_vectors,
     ekf_predict,
     ekf_update,
-    measurement_is_valid,
+    gyro_rate,
     switch_to_short_mrp,
     vector_measurement_model,
 )
@@ -64,7 +61,6 @@ from drake_att.validation import (
     check_int,
     check_positive,
     check_quaternion,
-    check_reference_vectors,
     fail,
 )
 from drake_att.rotations import (
@@ -72,7 +68,6 @@ from drake_att.rotations import (
     quat_error_rotvec,
     quat_multiply,
     quat_to_mrp,
-    quat_to_rotmat,
     rotvec_to_quat,
 )
 
@@ -81,11 +76,15 @@ __all__ = [
     "systematic_resample",
     "normalize_log_weights",
     "vector_log_likelihood",
-    "BootstrapParticleFilter",
-    "ExtendedKalmanParticleFilter",
-    "GyrolessParticleFilter",
+    "weighted_mean_and_covariance",
+    "ekpf_proposal_step",
+    "SystematicResampler",
+    "EffectiveSampleSizeGate",
+    "RandomWalkRoughening",
     "ParticleSetState",
-    "ParticleFilterCore",
+    "BootstrapPfCore",
+    "EkpfCore",
+    "GyrolessPfCore",
     "KERNELS",
 ]
 
@@ -204,7 +203,7 @@ def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------
-# Components the filters take (Stone Soup's split: resampler / when to resample /
+# Components the cores take (Stone Soup's split: resampler / when to resample /
 # regulariser); each is a small frozen object, tested on its own.
 # ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -254,7 +253,7 @@ class RandomWalkRoughening:
 
 
 # ----------------------------------------------------------------------------------
-# Shared machinery
+# Pieces of the cores
 # ----------------------------------------------------------------------------------
 def _sample_initial_attitudes(num_particles, q0, s0, covariance0, rng):
     """Draw ``q_i = q0 ⊗ exp(dtheta_i / 2)``, ``s_i = s0 + ds_i``, ``[dtheta; ds] ~ N(0, P0)``.
@@ -272,14 +271,11 @@ def _sample_initial_attitudes(num_particles, q0, s0, covariance0, rng):
 def _paired_cholesky(P_prior, P_post):
     """Batched lower Cholesky factors of the EKPF's prior and proposal covariances.
 
-    If either is not positive definite (rarely: a zero-variance block, e.g. a known bias, or
+    If either is not positive definite (a zero-variance block, e.g. a known bias, or
     round-off), both are repaired by clipping their eigenvalues at one common floor per
-    particle, ``1e-12`` x the larger of the two largest eigenvalues. A direction where both
-    are singular (their common null space: the EKF update only moves the mean inside the
-    prior's range) then gets the same variance in the prior and in the proposal, so its
-    density terms cancel in the weight ``pi / q`` as the exact degenerate densities' would.
-    Flooring each at its own scale (an earlier version) left ``3/2 log(f+/f-)`` plus a
-    quadratic term per particle: log-weights off the predictive likelihood by up to 1.5."""
+    particle, ``1e-12`` x the larger of the two largest eigenvalues, so a direction
+    singular in both gets the same variance in both and cancels in the weight ``pi / q``
+    (``docs/particle_filters.md``)."""
     try:
         return np.linalg.cholesky(P_prior), np.linalg.cholesky(P_post)
     except np.linalg.LinAlgError:
@@ -290,505 +286,74 @@ def _paired_cholesky(P_prior, P_post):
                      for vals, vecs in pairs)
 
 
-class _ParticleFilterBase:
-    """Weights, resampling (a gate and a resampler component), skipped-measurement
-    bookkeeping and outputs."""
+def ekpf_proposal_step(m_prior, P_prior, y, ref_vectors_I, sigma: float, eps, iterations: int = 1):
+    """The EKPF's measurement step in numpy (the reference of
+    :func:`drake_att.filters.particle_kernels.ekpf_update`).
 
-    def __init__(self, num_particles, resample_threshold, resampler=None, kernel="numba"):
-        self.num_particles = check_int("num_particles", num_particles, 1)
-        self.kernel = _check_kernel(kernel)
-        self.resampling_gate = EffectiveSampleSizeGate(resample_threshold)
-        self.resampler = SystematicResampler() if resampler is None else resampler
-        n = self.num_particles
-        self.weights = np.full(n, 1.0 / n)
-        self.log_weights = np.full(n, -np.log(n))
-        self.n_skipped = 0
-        self.n_updates = 0
-        self.n_resamples = 0
-        self.n_degenerate = 0
-        self.last_effective_sample_size = float(n)
-        self._last_w_meas = np.zeros(3)
-        self._estimate_set = None
-        self.particles = np.zeros((n, 6))
+    Every particle's EKF update of ``(m-, P-)`` gives the proposal ``N(m+, P+)``; the draw is
+    ``x = m+ + L+ eps`` with the given standard normals ``eps`` ``(N, 6)``, and the log-weight
+    increment ``log p(y | x) + log pi(x) - log q(x)`` with the prior ``pi = N(m-, P-)``
+    (``docs/particle_filters.md``), all in the MRP chart of ``m-``.
 
-    # -- helpers -------------------------------------------------------------------
-    def _begin_update(self, y, ref_vectors_I, sigma, rng):
-        """``(y, U, sigma)`` checked for an update, or None (skipped and counted)."""
-        _check_rng(rng)
-        U = check_reference_vectors("ref_vectors_I", ref_vectors_I)
-        sigma = check_positive("sigma", sigma)
-        yv = measurement_is_valid(y, U.shape[0])
-        if yv is None:
-            self.n_skipped += 1
-            return None
-        self._estimate_set = None
-        return yv, U, sigma
-
-    def _gyro(self, w_meas):
-        w = valid_rate_or_none(w_meas)
-        if w is None:
-            self.n_skipped += 1
-            return self._last_w_meas
-        self._last_w_meas = w
-        return w
-
-    def _reweight(self, log_increment) -> None:
-        lw = self.log_weights + log_increment
-        if not np.any(np.isfinite(lw)):
-            self.n_degenerate += 1
-        self.weights, self.log_weights = normalize_log_weights(lw)
-        self.last_effective_sample_size = float(1.0 / np.sum(self.weights ** 2))
-
-    @property
-    def resample_threshold(self) -> float:
-        return self.resampling_gate.threshold
-
-    def _maybe_resample(self, rng) -> bool:
-        n = self.num_particles
-        if not self.resampling_gate.should_resample(self.last_effective_sample_size, n):
-            return False
-        # Keep the weighted set for the estimates of this step: resampling only adds
-        # Monte Carlo noise (the arrays are replaced, not modified, by _take).
-        self._estimate_set = (self.particles, self.weights)
-        idx = self.resampler.indices(self.weights, rng)
-        self._take(idx)
-        self.weights = np.full(n, 1.0 / n)
-        self.log_weights = np.full(n, -np.log(n))
-        self.n_resamples += 1
-        return True
-
-    def _take(self, idx) -> None:
-        self.particles = self.particles[idx]
-
-    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
-        """Bootstrap update (the bootstrap and gyroless filters): weight by the star-sensor
-        likelihood and resample if ``N_eff`` is low.
-
-        Args:
-            y: ``(3m,)`` measured body-frame vectors; None / non-finite: skipped.
-            ref_vectors_I: ``(m, 3)`` inertial reference directions.
-            sigma: Noise std per component (rad), > 0.
-            rng: Generator for resampling.
-
-        Returns:
-            True if the measurement was used, False if skipped.
-        """
-        checked = self._begin_update(y, ref_vectors_I, sigma, rng)
-        if checked is None:
-            return False
-        yv, U, sigma = checked
-        log_likelihood = _kernels().vector_log_likelihood if self.kernel == "numba" else vector_log_likelihood
-        self._reweight(log_likelihood(self.particles[:, :3], yv, U, sigma))
-        self.n_updates += 1
-        self._maybe_resample(rng)
-        return True
-
-    def effective_sample_size(self) -> float:
-        """Current ``N_eff = 1 / sum(w^2)``."""
-        return float(1.0 / np.sum(self.weights ** 2))
-
-    # -- outputs -------------------------------------------------------------------
-    def _weighted_set(self):
-        """``(rho (N, 3), s (N, 3), w (N,))`` used for the estimates."""
-        particles, weights = self._estimate_set or (self.particles, self.weights)
-        return particles[:, :3], particles[:, 3:], weights
-
-    def particle_quaternions(self) -> np.ndarray:
-        """``(N, 4)`` current particle attitudes ``q_IB`` (scalar part >= 0)."""
-        return mrp_to_quat(self.particles[:, :3])
-
-    def mean(self):
-        """Weighted posterior mean ``(q_IB_hat (4,), s_hat (3,))``.
-
-        The attitude is Markley's weighted quaternion average (largest eigenvector of
-        ``sum w_i q_i q_i'``, invariant to the sign of each ``q_i``); the second block
-        (bias or rate, rad/s) is the weighted arithmetic mean. If the last update
-        resampled, the estimates use the weighted set from just before resampling
-        (same expectation, less Monte Carlo noise); after the next predict they use the
-        current particles.
-        """
-        rho, s, w = self._weighted_set()
-        return average_quaternions(mrp_to_quat(rho), w), w @ s
-
-    def covariance(self) -> np.ndarray:
-        """``(6, 6)`` weighted covariance of ``[dtheta_B (rad); s - s_hat (rad/s)]``.
-
-        ``dtheta_B,i = log(q_hat^-1 ⊗ q_i)`` relative to the reported mean ``q_hat`` (so
-        this is the particle approximation of the estimate's error covariance). Same
-        weighted set as :meth:`mean`.
-        """
-        return self.mean_and_covariance()[2]
-
-    def mean_and_covariance(self):
-        """``(q_IB_hat, s_hat, covariance)``: :meth:`mean` and :meth:`covariance` in one pass
-        (the particles' quaternions and their average computed once; the same numbers)."""
-        rho, s, w = self._weighted_set()
-        q = mrp_to_quat(rho)
-        q_hat = average_quaternions(q, w)
-        s_hat = w @ s
-        e = np.empty((rho.shape[0], 6))
-        e[:, :3] = quat_error_rotvec(q_hat, q)
-        e[:, 3:] = s - s_hat
-        C = (e * w[:, None]).T @ e
-        return q_hat, s_hat, 0.5 * (C + C.T)
-
-
-# ----------------------------------------------------------------------------------
-# Bootstrap (SIR) particle filter, gyro mode
-# ----------------------------------------------------------------------------------
-class BootstrapParticleFilter(_ParticleFilterBase):
-    """Bootstrap / SIR particle filter on ``x = [rho; b]`` (paper S0, gyro mode).
-
-    Prediction per particle ``i`` (batched)::
-
-        w_i   = w_meas - b_i - n_i,          n_i ~ N(0, arw_rad_per_rt_s^2 / dt I)
-        q_i  <- q_i ⊗ exp(w_i dt / 2)          (closed form, exact for constant rate)
-        rho_i = MRP(q_i) with |rho_i| <= 1     (shadow switch)
-        b_i  <- b_i [+ N(0, bias_roughening_sigma^2 dt I)]
-
-    With ``bias_roughening_sigma = 0`` (default) the bias is static, exactly as in the
-    paper; resampling then collapses the bias cloud and the bias estimate cannot
-    converge (the paper's Fig. 2 finding). A positive value is a random-walk roughening
-    of the bias (the "beyond the paper" remedy); setting it to the true RRW ``sigma_u``
-    is the model-consistent SIR, larger values trade bias noise for diversity.
-
-    Update: ``log w_i += -|y - h(rho_i)|^2 / (2 sigma^2)``, log-sum-exp normalization,
-    systematic resampling when ``N_eff < resample_threshold * N``.
-
-    Args:
-        num_particles: ``N >= 1``.
-        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]``.
-        bias_hat0: Initial bias estimate ``(3,)`` (rad/s).
-        covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); b (rad/s)]`` used to draw
-            the initial set: ``q_i = q0 ⊗ exp(dtheta_i / 2)``, ``b_i = b0 + db_i``.
-        arw_rad_per_rt_s: Gyro ARW ``sigma_v`` (rad/s^0.5) used for the attitude process noise,
-            >= 0 (0 means a deterministic attitude propagation).
-        rng: Generator for the initial draw.
-        bias_roughening_sigma: Bias random-walk density (rad/s per sqrt(s) = rad/s^1.5),
-            >= 0; default 0 (paper).
-        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3 (paper)
-            (:class:`EffectiveSampleSizeGate`).
-        resampler: which particles survive (default :class:`SystematicResampler`); any
-            object with ``indices(weights, rng) -> (N,) int array``.
-        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code);
-            equal to round-off (module docstring).
-
-    Attributes:
-        particles: ``(N, 6)`` ``[rho; b]``. weights: ``(N,)`` normalized weights.
-        n_skipped, n_updates, n_resamples, last_effective_sample_size.
+    Returns:
+        ``(x (N, 6), P+ (N, 6, 6), log-weight increments (N,))``, shadow switch applied.
     """
+    m_post, P_post, _, _ = ekf_update(m_prior, P_prior, y, ref_vectors_I, sigma, switch=False, iterations=iterations)
+    L_prior, L_post = _paired_cholesky(P_prior, P_post)
+    # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
+    x = m_post + (L_post @ eps[:, :, None])[:, :, 0]
+    log_q = -0.5 * np.sum(eps * eps, axis=1) - np.sum(np.log(np.diagonal(L_post, axis1=1, axis2=2)), axis=1)
+    z = np.linalg.solve(L_prior, (x - m_prior)[:, :, None])[:, :, 0]
+    log_pi = -0.5 * np.sum(z * z, axis=1) - np.sum(np.log(np.diagonal(L_prior, axis1=1, axis2=2)), axis=1)
+    log_lik = vector_log_likelihood(x[:, :3], y, ref_vectors_I, sigma)
+    x, P, _ = switch_to_short_mrp(x, P_post)
+    return x, P, log_lik + log_pi - log_q
 
-    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-                 arw_rad_per_rt_s: float, rng: np.random.Generator, *,
-                 bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0, resampler=None,
-                 kernel: str = "numba"):
-        super().__init__(num_particles, resample_threshold, resampler, kernel)
-        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
-        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
-        P0 = check_covariance("covariance0", covariance0, 6)
-        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s, allow_zero=True)
-        self.roughening = RandomWalkRoughening(check_positive("bias_roughening_sigma", bias_roughening_sigma,
-                                                              allow_zero=True))
-        _check_rng(rng)
-        rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
-        self.particles = np.concatenate([rho, b], axis=1)
 
-    @property
-    def bias_roughening_sigma(self) -> float:
-        """The bias roughening density (rad/s^1.5) of :attr:`roughening`."""
-        return self.roughening.sigma
+def weighted_mean_and_covariance(particles, weights):
+    """``(q_IB_hat (4), s_hat (3), covariance (6, 6))`` of a weighted particle set.
 
-    def predict(self, dt: float, w_meas, rng: np.random.Generator) -> None:
-        """Propagate every particle over ``dt`` (s) with gyro rate ``w_meas`` (rad/s).
-
-        Args:
-            dt: Step (s), > 0.
-            w_meas: Measured body rate ``(3,)`` (rad/s), held over the step. None or
-                non-finite: skipped (counted) and the last valid rate is used.
-            rng: Generator for the ARW samples (and the bias roughening).
-        """
-        dt = check_positive("dt", dt)
-        self._estimate_set = None
-        _check_rng(rng)
-        w_meas = self._gyro(w_meas)
-        n = self.num_particles
-        w = w_meas - self.particles[:, 3:]
-        if self.arw_rad_per_rt_s > 0.0:
-            w = w - rng.standard_normal((n, 3)) * (self.arw_rad_per_rt_s / np.sqrt(dt))
-        if self.kernel == "numba":
-            self.particles[:, :3] = _kernels().propagate_attitudes(self.particles[:, :3], w, dt)
-        else:
-            q = quat_multiply(mrp_to_quat(self.particles[:, :3]), rotvec_to_quat(w * dt))
-            self.particles[:, :3] = quat_to_mrp(q)
-        self.particles[:, 3:] = self.roughening.apply(self.particles[:, 3:], dt, rng)
-
-# ----------------------------------------------------------------------------------
-# Extended Kalman particle filter, gyro mode
-# ----------------------------------------------------------------------------------
-class ExtendedKalmanParticleFilter(_ParticleFilterBase):
-    """Extended-Kalman particle filter (EKPF, van der Merwe et al. 2000) on ``[rho; b]``.
-
-    Each particle ``i`` is a point ``x_i`` with an EKF covariance ``P_i`` (MRP chart of
-    ``x_i``). One cycle, batched over particles with ``(N, 6, 6)`` arrays:
-
-    1. :meth:`predict`: the particle's EKF time update
-       (:func:`~drake_att.filters.mrp_ekf.ekf_predict`) gives ``(m_i^-, P_i^-)``; the
-       particle is moved to ``m_i^-``.
-    2. :meth:`update`: the EKF update with the current measurement gives the proposal
-       ``q_i = N(m_i^+, P_i^+)``; draw ``x_i ~ q_i`` and set
-       ``log w_i += log p(y | x_i) + log pi(x_i) - log q_i(x_i)``; then ``P_i = P_i^+``,
-       shadow switch (with covariance mapping) and resampling (means and covariances
-       are copied).
-
-    **Prior approximation.** The exact transition density ``p(x_k | x_{k-1})`` has
-    covariance ``Qd``, whose bias block is ``sigma_u^2 dt`` (~1e-18 rad^2/s^2 for S0):
-    any proposal draw of the bias would get a vanishing prior and the weights would
-    degenerate at the first step. We use the particle's *predicted EKF Gaussian*
-    ``pi = N(m_i^-, P_i^-)`` instead (each particle is treated as a Gaussian component,
-    as in a Gaussian-sum filter). In the linear-Gaussian limit the weight increment is
-    then exactly the predictive likelihood ``N(y; h(m_i^-), H P_i^- H' + R)`` for every
-    draw; with the nonlinear measurement it also rewards draws that fit ``y``.
-    All three densities are evaluated in the same MRP chart (that of ``m_i^-``).
-
-    Consequences worth knowing (measured on S0): the draw from ``P_i^+`` at every step
-    acts as a kernel jitter, so the particle cloud (and :meth:`covariance`) is wider than
-    a single EKF's covariance, notably for the bias (~0.1 deg/h spread vs ~0.01 deg/h
-    EKF sigma after 1000 s); the attitude error is ~0.002 deg, as in the paper. With the
-    paper's single-linearization proposal a 170 deg initial error is *not* removed
-    quickly (every particle's EKF step is a local Gauss-Newton step of ~10 deg, then its
-    covariance collapses, exactly like the EKF); ``proposal_iterations > 1`` fixes this.
-
-    Without a measurement (skipped) the particles stay at their predicted means with
-    their predicted covariances (no draw).
-
-    Args:
-        num_particles: ``N >= 1``.
-        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]``.
-        bias_hat0: Initial bias estimate ``(3,)`` (rad/s).
-        covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); b (rad/s)]``: used to
-            draw the particles and, mapped into each particle's MRP chart, as every
-            particle's initial EKF covariance.
-        arw_rad_per_rt_s: Gyro ARW ``sigma_v`` (rad/s^0.5), > 0.
-        rrw_rad_per_s15: Gyro RRW ``sigma_u`` (rad/s^1.5), >= 0.
-        rng: Generator for the initial draw.
-        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
-        resampler: default :class:`SystematicResampler` (see :class:`BootstrapParticleFilter`).
-        proposal_iterations: Linearizations of each particle's EKF update, >= 1.
-            1 (default) is the paper's EKF proposal; > 1 uses the iterated EKF update
-            (Gauss-Newton), a beyond-the-paper option that lets every particle reach the
-            measurement's basin from a large initial error (e.g. 170 deg) in one step.
-        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code:
-            :func:`~drake_att.filters.mrp_ekf.ekf_predict`, ``ekf_update`` and the lines of
-            :meth:`update`); equal to round-off (module docstring).
-
-    Attributes:
-        particles: ``(N, 6)`` ``[rho; b]``. covariances: ``(N, 6, 6)`` (MRP chart).
-        weights, n_skipped, n_updates, n_resamples, last_effective_sample_size.
+    The attitude is Markley's weighted quaternion average (largest eigenvector of
+    ``sum w_i q_i q_i'``, invariant to the sign of each ``q_i``), ``s_hat`` the weighted
+    mean; the covariance is the weighted second moment of ``[dtheta_B,i; s_i - s_hat]``
+    with ``dtheta_B,i = log(q_hat^-1 ⊗ q_i)`` about the reported mean (the particle
+    approximation of the estimate's error covariance).
     """
+    rho, s = particles[:, :3], particles[:, 3:]
+    q = mrp_to_quat(rho)
+    q_hat = average_quaternions(q, weights)
+    s_hat = weights @ s
+    e = np.empty((rho.shape[0], 6))
+    e[:, :3] = quat_error_rotvec(q_hat, q)
+    e[:, 3:] = s - s_hat
+    C = (e * weights[:, None]).T @ e
+    return q_hat, s_hat, 0.5 * (C + C.T)
 
-    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-                 arw_rad_per_rt_s: float, rrw_rad_per_s15: float, rng: np.random.Generator, *,
-                 resample_threshold: float = 2.0 / 3.0, proposal_iterations: int = 1, resampler=None,
-                 kernel: str = "numba"):
-        super().__init__(num_particles, resample_threshold, resampler, kernel)
-        self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
-        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
-        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
-        P0 = check_covariance("covariance0", covariance0, 6)
-        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
-        self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
-        _check_rng(rng)
-        rho, b = _sample_initial_attitudes(self.num_particles, q0, b0, P0, rng)
-        self.particles = np.concatenate([rho, b], axis=1)
-        self.covariances = attitude_to_mrp_covariance(rho, P0)
 
-    def _take(self, idx):
-        self.particles = self.particles[idx]
-        self.covariances = self.covariances[idx]
-
-    def predict(self, dt: float, w_meas, rng: np.random.Generator | None = None) -> None:
-        """EKF time update of every particle (deterministic; ``rng`` is not used).
-
-        Args:
-            dt: Step (s), > 0.
-            w_meas: Measured body rate ``(3,)`` (rad/s); None / non-finite: skipped
-                (counted) and the last valid rate is held.
-            rng: Accepted for a uniform interface with the other filters; unused.
-        """
-        dt = check_positive("dt", dt)
-        self._estimate_set = None
-        if rng is not None:
-            _check_rng(rng)
-        w_meas = self._gyro(w_meas)
-        predict = _kernels().ekf_predict if self.kernel == "numba" else ekf_predict
-        self.particles, self.covariances = predict(
-            self.particles, self.covariances, w_meas, dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
-
-    def update(self, y, ref_vectors_I, sigma: float, rng: np.random.Generator) -> bool:
-        """Per-particle EKF update as proposal, draw, weight, resample.
-
-        Args:
-            y: ``(3m,)`` measured body-frame vectors; None / non-finite: skipped.
-            ref_vectors_I: ``(m, 3)`` inertial reference directions.
-            sigma: Noise std per component (rad), > 0.
-            rng: Generator for the proposal draws and resampling.
-
-        Returns:
-            True if the measurement was used, False if skipped.
-        """
-        checked = self._begin_update(y, ref_vectors_I, sigma, rng)
-        if checked is None:
-            return False
-        yv, U, sigma = checked
-        # The proposal's standard normals (no other draw before the resampler's).
-        eps = rng.standard_normal((self.num_particles, 6))
-        step = None
-        if self.kernel == "numba":  # None if a Cholesky factor needs the repair below
-            step = _kernels().ekpf_update(self.particles, self.covariances, eps, yv, U, sigma,
-                                          iterations=self.proposal_iterations)
-        x, P, log_increment = self._proposal_step(yv, U, sigma, eps) if step is None else step
-        self._reweight(log_increment)
-        self.particles, self.covariances = x, P
-        self.n_updates += 1
-        self._maybe_resample(rng)
-        return True
-
-    def _proposal_step(self, yv, U, sigma, eps):
-        """The reference (numpy) measurement step: ``(x, P, log-weight increment)`` of every
-        particle for the proposal draws ``x = m+ + L+ eps``."""
-        m_prior, P_prior = self.particles, self.covariances
-        m_post, P_post, _, _ = ekf_update(m_prior, P_prior, yv, U, sigma, switch=False,
-                                          iterations=self.proposal_iterations)
-        L_prior, L_post = _paired_cholesky(P_prior, P_post)
-        # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
-        x = m_post + (L_post @ eps[:, :, None])[:, :, 0]
-        log_q = -0.5 * np.sum(eps * eps, axis=1) - np.sum(
-            np.log(np.diagonal(L_post, axis1=1, axis2=2)), axis=1)
-        # Prior pi = N(m-, P-) (see the class docstring).
-        z = np.linalg.solve(L_prior, (x - m_prior)[:, :, None])[:, :, 0]
-        log_pi = -0.5 * np.sum(z * z, axis=1) - np.sum(
-            np.log(np.diagonal(L_prior, axis1=1, axis2=2)), axis=1)
-        log_lik = vector_log_likelihood(x[:, :3], yv, U, sigma)
-        x, P, _ = switch_to_short_mrp(x, P_post)
-        return x, P, log_lik + log_pi - log_q
+def _component(field: str, value, method: str):
+    """``value`` if it has the component's method, else TypeError naming the argument."""
+    if not callable(getattr(value, method, None)):
+        fail(field, value, f"must have a method {method}()", TypeError)
+    return value
 
 
 # ----------------------------------------------------------------------------------
-# Gyroless bootstrap particle filter
-# ----------------------------------------------------------------------------------
-class GyrolessParticleFilter(_ParticleFilterBase):
-    """Bootstrap PF on ``x = [rho; w]`` with Euler's equations (paper S0, gyroless mode).
-
-    Prediction (batched over particles), ``num_substeps`` substeps of ``h = dt / n``:
-    RK4 on ``I w_dot = T - w x (I w)`` gives the stage rates ``w_0, w_a, w_b, w_1``; the
-    attitude advances by the closed form ``q <- q ⊗ exp(h w_avg / 2)`` with the Simpson
-    average ``w_avg = (w_0 + 2 w_a + 2 w_b + w_1) / 6`` (= the RK4 integral of ``w``; the
-    neglected non-commutativity term is ``O(|w x w_dot| h^3)``). Then process noise:
-    ``w += N(0, rate_process_sigma^2 dt I)`` and, optionally,
-    ``q <- q ⊗ exp(N(0, attitude_process_sigma^2 dt I) / 2)``.
-    Update and resampling as in :class:`BootstrapParticleFilter`.
-
-    Args:
-        num_particles: ``N >= 1``.
-        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]``.
-        w_hat0: Initial body-rate estimate ``w_IB_B`` ``(3,)`` (rad/s).
-        covariance0: ``(6, 6)`` covariance of ``[dtheta_B (rad); w (rad/s)]``.
-        inertia: ``(3, 3)`` symmetric positive-definite inertia (kg m^2), body frame.
-        torque: ``(3,)`` known body torque ``T`` (N m), held constant (can be overridden
-            per :meth:`predict` call).
-        rate_process_sigma: Rate process-noise density (rad/s^1.5), >= 0.
-        rng: Generator for the initial draw.
-        attitude_process_sigma: Attitude process-noise density (rad/s^0.5), >= 0,
-            default 0.
-        num_substeps: RK4 substeps per :meth:`predict`, >= 1 (default 1).
-        resample_threshold: Fraction of ``N`` in ``[0, 1]``; default 2/3.
-        resampler: default :class:`SystematicResampler` (see :class:`BootstrapParticleFilter`).
-        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code);
-            equal to round-off (module docstring).
-
-    Attributes:
-        particles: ``(N, 6)`` ``[rho; w]``. weights, n_skipped, n_updates, n_resamples.
-    """
-
-    def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
-                 rate_process_sigma: float, rng: np.random.Generator, *,
-                 attitude_process_sigma: float = 0.0, num_substeps: int = 1,
-                 resample_threshold: float = 2.0 / 3.0, resampler=None, kernel: str = "numba"):
-        super().__init__(num_particles, resample_threshold, resampler, kernel)
-        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
-        w0 = check_array("w_hat0", w_hat0, (3,), " (rad/s)")
-        P0 = check_covariance("covariance0", covariance0, 6)
-        self.inertia = check_covariance("inertia", inertia, 3)
-        self.inertia_inverse = np.linalg.inv(self.inertia)
-        self.torque = check_array("torque", torque, (3,), " (N m)")
-        self.rate_process_sigma = check_positive("rate_process_sigma", rate_process_sigma, allow_zero=True)
-        self.attitude_process_sigma = check_positive("attitude_process_sigma", attitude_process_sigma, allow_zero=True)
-        self.num_substeps = check_int("num_substeps", num_substeps, 1)
-        _check_rng(rng)
-        rho, w = _sample_initial_attitudes(self.num_particles, q0, w0, P0, rng)
-        self.particles = np.concatenate([rho, w], axis=1)
-
-    def _w_dot(self, w, torque):
-        Iw = w @ self.inertia.T
-        return (torque - np.cross(w, Iw)) @ self.inertia_inverse.T
-
-    def predict(self, dt: float, rng: np.random.Generator, torque=None) -> None:
-        """Propagate all particles over ``dt`` (s) with Euler's equations + process noise.
-
-        Args:
-            dt: Step (s), > 0.
-            rng: Generator for the process noise.
-            torque: Optional ``(3,)`` torque (N m) for this step; default: the
-                constructor's ``torque``.
-        """
-        dt = check_positive("dt", dt)
-        self._estimate_set = None
-        _check_rng(rng)
-        T = self.torque if torque is None else check_array("torque", torque, (3,), " (N m)")
-        n = self.num_particles
-        h = dt / self.num_substeps
-        # Attitude noise (applied after the deterministic step): drawn first, as no other draw
-        # comes between.
-        dtheta = None
-        if self.attitude_process_sigma > 0.0:
-            dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
-        if self.kernel == "numba":
-            rho, w = _kernels().gyroless_propagate(self.particles[:, :3], self.particles[:, 3:], self.inertia,
-                                                   self.inertia_inverse, T, h, self.num_substeps, dtheta)
-        else:
-            q = mrp_to_quat(self.particles[:, :3])
-            w = self.particles[:, 3:].copy()
-            for _ in range(self.num_substeps):
-                k1 = self._w_dot(w, T)
-                wa = w + 0.5 * h * k1
-                k2 = self._w_dot(wa, T)
-                wb = w + 0.5 * h * k2
-                k3 = self._w_dot(wb, T)
-                w1 = w + h * k3
-                k4 = self._w_dot(w1, T)
-                w_avg = (w + 2.0 * wa + 2.0 * wb + w1) / 6.0
-                q = quat_multiply(q, rotvec_to_quat(w_avg * h))
-                w = w + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            if dtheta is not None:
-                q = quat_multiply(q, rotvec_to_quat(dtheta))
-            rho = quat_to_mrp(q)
-        if self.rate_process_sigma > 0.0:
-            w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
-        self.particles[:, :3] = rho
-        self.particles[:, 3:] = w
-
-
-# ----------------------------------------------------------------------------------
-# The filter-core protocol (drake_att.contract.FilterCore) for the particle filters
+# The state and the cores
 # ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ParticleSetState:
-    """A particle filter's state: particles ``(N, 6)`` ``[rho; s]``, normalized weights and
-    log-weights ``(N,)``, per-particle EKF covariances ``(N, 6, 6)`` (EKPF) or None.
+    """A particle filter's state.
 
-    ``estimate_set``: after an update that resampled, the weighted set from just before
-    resampling ``(particles, weights)``, which the estimate of that step uses (same
-    expectation, less Monte Carlo noise); not part of the stored state.
+    Attributes:
+        particles: ``(N, 6)`` ``[rho; s]`` (MRP of ``q_IB`` with ``|rho| <= 1``; bias or
+            body rate, rad/s).
+        weights: ``(N,)`` normalized weights. log_weights: ``(N,)`` their logs.
+        covariances: ``(N, 6, 6)`` per-particle EKF covariances in each particle's MRP chart
+            (EKPF), else None.
+        estimate_set: after an update that resampled, the weighted set ``(particles,
+            weights)`` from just before resampling, which :meth:`estimate` uses (same
+            expectation, less Monte Carlo noise); None otherwise. Not stored by
+            ``to_vector``.
     """
 
     particles: np.ndarray
@@ -798,88 +363,81 @@ class ParticleSetState:
     estimate_set: tuple | None = None
 
 
-class ParticleFilterCore:
-    """One of the particle filters above as a :class:`drake_att.contract.FilterCore`.
+_DECLINED = UpdateInfo(None, None, float("nan"), False)
 
-    Each call runs the filter's own ``predict``/``update`` on a shallow copy of a template
-    filter whose arrays are replaced by the state's, and returns a new
-    :class:`ParticleSetState`; the template is never modified, so the core has no hidden
-    state and no counters (resamplings and degenerate updates are reported in
-    :class:`~drake_att.contract.UpdateInfo`). State vector: ``[particles (N*6, row-major),
-    weights (N), log weights (N), (EKPF) covariances (N*36, MRP chart)]``.
 
-    Args:
-        make_filter: ``rng -> filter`` building the filter (and drawing its initial set)
-            with every constructor argument but the generator fixed.
-        second_quantity: gyro bias (gyro mode) or body rate (gyroless).
-    """
+class _ParticleCore:
+    """What the three cores share: the prior and its draw, reweighting and resampling, the
+    estimate and the state vector ``[particles (N*6, row-major), weights (N), log weights
+    (N)]`` (+ ``covariances (N*36)`` for the EKPF)."""
 
     is_random = True
+    _has_covariances = False
 
-    def __init__(self, make_filter, second_quantity: SecondQuantity):
-        self._make_filter = make_filter
-        self.template = make_filter(np.random.default_rng(0))
-        self.second_quantity = second_quantity
-        self.num_particles = self.template.num_particles
-        self.uses_gyro = not isinstance(self.template, GyrolessParticleFilter)
-        self._has_covariances = isinstance(self.template, ExtendedKalmanParticleFilter)
+    def __init__(self, num_particles, q_IB_hat0, second0, covariance0, second_field: str, resampling_gate,
+                 resampler, kernel):
+        self.num_particles = check_int("num_particles", num_particles, 1)
+        self.kernel = _check_kernel(kernel)
+        self.resampling_gate = _component("resampling_gate", resampling_gate, "should_resample")
+        self.resampler = _component("resampler", resampler, "indices")
+        self.q_IB_hat0 = check_quaternion("q_IB_hat0", q_IB_hat0)
+        self.second0 = check_array(second_field, second0, (3,), " (rad/s)")
+        self.covariance0 = check_covariance("covariance0", covariance0, 6)
         self.state_size = self.num_particles * (8 + (36 if self._has_covariances else 0))
 
-    # -- state <-> filter object ------------------------------------------------------
-    @staticmethod
-    def _state_of(pf) -> ParticleSetState:
-        return ParticleSetState(pf.particles, pf.weights, pf.log_weights, getattr(pf, "covariances", None),
-                                pf._estimate_set)
-
-    def _filter_of(self, state: ParticleSetState, copy_arrays: bool = True):
-        """The template with the state's arrays (copies, unless the caller only reads them)."""
-        pf = copy.copy(self.template)
-        take = np.array if copy_arrays else np.asarray
-        pf.particles = take(state.particles)
-        pf.weights = take(state.weights)
-        pf.log_weights = take(state.log_weights)
-        if self._has_covariances:
-            pf.covariances = take(state.covariances)
-        pf.n_skipped = pf.n_updates = pf.n_resamples = pf.n_degenerate = 0
-        pf._estimate_set = state.estimate_set
-        return pf
+    def _uniform(self):
+        n = self.num_particles
+        return np.full(n, 1.0 / n), np.full(n, -np.log(n))
 
     def draw_initial_state(self, rng: np.random.Generator) -> ParticleSetState:
-        """A fresh initial particle set drawn with ``rng``."""
-        return self._state_of(self._make_filter(rng))
+        """A particle set drawn from the prior ``N([q_IB_hat0; second0], covariance0)`` on the
+        rotation group, with uniform weights (EKPF: every particle's covariance is
+        ``covariance0`` in its own MRP chart)."""
+        _check_rng(rng)
+        rho, s = _sample_initial_attitudes(self.num_particles, self.q_IB_hat0, self.second0, self.covariance0, rng)
+        weights, log_weights = self._uniform()
+        covariances = attitude_to_mrp_covariance(rho, self.covariance0) if self._has_covariances else None
+        return ParticleSetState(np.concatenate([rho, s], axis=1), weights, log_weights, covariances)
 
-    def initial_state(self) -> ParticleSetState:
-        """The template's set (drawn with numpy seed 0): the default before initialization."""
-        return self._state_of(self.template)
+    def _reweighted(self, state: ParticleSetState, particles, covariances, log_increment, rng):
+        """``(state, info)`` after adding ``log_increment`` to the log-weights of the moved
+        ``particles`` (and ``covariances``), resampling if the gate says so."""
+        lw = state.log_weights + log_increment
+        degenerate = not np.any(np.isfinite(lw))
+        weights, log_weights = normalize_log_weights(lw)
+        ess = float(1.0 / np.sum(weights ** 2))
+        estimate_set = None
+        resampled = bool(self.resampling_gate.should_resample(ess, self.num_particles))
+        if resampled:
+            estimate_set = (particles, weights)
+            idx = self.resampler.indices(weights, rng)
+            particles = particles[idx]
+            if covariances is not None:
+                covariances = covariances[idx]
+            weights, log_weights = self._uniform()
+        return (ParticleSetState(particles, weights, log_weights, covariances, estimate_set),
+                UpdateInfo(None, None, float("nan"), True, effective_sample_size=ess, resampled=resampled,
+                           degenerate=degenerate))
 
-    # -- protocol ---------------------------------------------------------------------
-    def predict(self, state, w_meas_B, dt, rng):
-        pf = self._filter_of(state)
-        if isinstance(pf, GyrolessParticleFilter):
-            pf.predict(dt, rng)
-        elif isinstance(pf, ExtendedKalmanParticleFilter):
-            pf.predict(dt, w_meas_B)
-        else:
-            pf.predict(dt, w_meas_B, rng)
-        return self._state_of(pf)
+    def update(self, state: ParticleSetState, observations, rng: np.random.Generator):
+        """Bootstrap update with a :class:`~drake_att.contract.VectorObservations` sample:
+        weight by the star-sensor likelihood, resample if the gate says so. A sample with a
+        missing or non-finite direction is declined (state unchanged)."""
+        _check_rng(rng)
+        y, U, sigma = body_frame_vectors(observations)
+        if y is None:
+            return state, _DECLINED
+        log_likelihood = _kernels().vector_log_likelihood if self.kernel == "numba" else vector_log_likelihood
+        return self._reweighted(state, state.particles, None, log_likelihood(state.particles[:, :3], y, U, sigma), rng)
 
-    def update(self, state, observations, rng):
-        """Weight by a :class:`~drake_att.contract.VectorObservations` sample (rotated into the
-        body frame, ``y_B = R_BS y_S``: exact for isotropic vector noise) and resample."""
-        pf = self._filter_of(state)
-        R_BS = quat_to_rotmat(np.asarray(observations.q_BS, dtype=float))
-        y_B = (np.asarray(observations.directions_S, dtype=float) @ R_BS.T).ravel()
-        used = pf.update(y_B, np.asarray(observations.references_I, dtype=float),
-                         float(observations.sigma_rad), rng)
-        info = UpdateInfo(None, None, float("nan"), bool(used),
-                          effective_sample_size=pf.last_effective_sample_size if used else float("nan"),
-                          resampled=pf.n_resamples > 0, degenerate=pf.n_degenerate > 0)
-        return self._state_of(pf), info
+    @staticmethod
+    def estimate(state: ParticleSetState):
+        """:func:`weighted_mean_and_covariance` of the state (of its ``estimate_set`` after a
+        resampling update)."""
+        particles, weights = state.estimate_set or (state.particles, state.weights)
+        return weighted_mean_and_covariance(particles, weights)
 
-    def estimate(self, state):
-        return self._filter_of(state, copy_arrays=False).mean_and_covariance()
-
-    def to_vector(self, state) -> np.ndarray:
+    def to_vector(self, state: ParticleSetState) -> np.ndarray:
         parts = [np.asarray(state.particles).ravel(), state.weights, state.log_weights]
         if self._has_covariances:
             parts.append(np.asarray(state.covariances).ravel())
@@ -891,3 +449,210 @@ class ParticleFilterCore:
         covariances = np.array(s[8 * n:]).reshape(n, 6, 6) if self._has_covariances else None
         return ParticleSetState(np.array(s[:6 * n]).reshape(n, 6), np.array(s[6 * n:7 * n]),
                                 np.array(s[7 * n:8 * n]), covariances)
+
+
+class BootstrapPfCore(_ParticleCore):
+    """Bootstrap / SIR particle filter on ``x = [rho; b]`` (paper S0, gyro mode).
+
+    Prediction per particle ``i`` (batched)::
+
+        w_i   = w_meas - b_i - n_i,          n_i ~ N(0, arw_rad_per_rt_s^2 / dt I)
+        q_i  <- q_i ⊗ exp(w_i dt / 2)          (closed form, exact for constant rate)
+        rho_i = MRP(q_i) with |rho_i| <= 1     (shadow switch)
+        b_i  <- bias_roughening(b_i)
+
+    Update: ``log w_i += -|y - h(rho_i)|^2 / (2 sigma^2)``, then the resampling components.
+    Without roughening the bias is static as in the paper, and resampling collapses the bias
+    cloud (the paper's Fig. 2 finding); a :class:`RandomWalkRoughening` at the true RRW is the
+    model-consistent SIR, larger values trade bias noise for diversity.
+
+    Args:
+        num_particles: ``N >= 1``.
+        q_IB_hat0, bias_hat0, covariance0: the prior the initial set is drawn from:
+            attitude (wxyz), bias (3, rad/s) and the (6, 6) covariance of
+            ``[dtheta_B (rad); b (rad/s)]``.
+        arw_rad_per_rt_s: gyro ARW ``sigma_v`` (rad/s^0.5) >= 0 of the attitude process
+            noise (0: deterministic attitude propagation).
+        bias_roughening: the bias regulariser (default: none, the paper).
+        resampling_gate: when to resample (default ``N_eff < 2/3 N``, the paper).
+        resampler: which particles survive (default systematic); any object with
+            ``indices(weights, rng) -> (N,) int array``.
+        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code).
+    """
+
+    second_quantity = SecondQuantity.GYRO_BIAS
+    uses_gyro = True
+
+    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float, *,
+                 bias_roughening=RandomWalkRoughening(), resampling_gate=EffectiveSampleSizeGate(),
+                 resampler=SystematicResampler(), kernel: str = "numba"):
+        super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler,
+                         kernel)
+        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s, allow_zero=True)
+        self.bias_roughening = _component("bias_roughening", bias_roughening, "apply")
+
+    def predict(self, state: ParticleSetState, w_meas_B, dt: float, rng: np.random.Generator) -> ParticleSetState:
+        """Every particle propagated over ``dt`` (s) > 0 with the mean gyro rate ``w_meas_B``
+        (rad/s); ``rng`` draws the ARW samples, then the roughening."""
+        dt = check_positive("dt", dt)
+        _check_rng(rng)
+        w_meas = gyro_rate(w_meas_B)
+        rho, b = state.particles[:, :3], np.ascontiguousarray(state.particles[:, 3:])  # b: read twice
+        w = w_meas - b
+        if self.arw_rad_per_rt_s > 0.0:
+            w = w - rng.standard_normal((self.num_particles, 3)) * (self.arw_rad_per_rt_s / np.sqrt(dt))
+        particles = np.empty_like(state.particles)
+        if self.kernel == "numba":
+            particles[:, :3] = _kernels().propagate_attitudes(rho, w, dt)
+        else:
+            particles[:, :3] = quat_to_mrp(quat_multiply(mrp_to_quat(rho), rotvec_to_quat(w * dt)))
+        particles[:, 3:] = self.bias_roughening.apply(b, dt, rng)
+        return ParticleSetState(particles, state.weights, state.log_weights)
+
+
+class EkpfCore(_ParticleCore):
+    """Extended-Kalman particle filter (EKPF, van der Merwe et al. 2000) on ``[rho; b]``.
+
+    Each particle is a point ``x_i`` with an EKF covariance ``P_i`` (MRP chart of ``x_i``),
+    batched with ``(N, 6, 6)`` arrays. ``predict``: every particle's EKF time update
+    (:func:`~drake_att.filters.mrp_ekf.ekf_predict`, deterministic). ``update``: every
+    particle's EKF update is its proposal ``N(m+, P+)``; draw ``x_i`` from it and weight by
+    ``p(y | x_i) pi(x_i) / q(x_i)`` with the particle's predicted Gaussian as the prior
+    ``pi`` (:func:`ekpf_proposal_step`; why that prior, and what it costs:
+    ``docs/particle_filters.md``); then ``P_i = P+``, shadow switch, resampling (means and
+    covariances copied). A declined sample leaves the predicted set (no draw).
+
+    Args:
+        num_particles: ``N >= 1``.
+        q_IB_hat0, bias_hat0, covariance0: the prior (as :class:`BootstrapPfCore`);
+            ``covariance0`` is also every particle's initial EKF covariance.
+        arw_rad_per_rt_s: gyro ARW ``sigma_v`` (rad/s^0.5) > 0.
+        rrw_rad_per_s15: gyro RRW ``sigma_u`` (rad/s^1.5) >= 0.
+        proposal_iterations: linearizations of each particle's EKF update, >= 1: 1 is the
+            paper's proposal, > 1 the iterated EKF update (reaches the measurement's basin
+            from e.g. 170 deg in one step; beyond the paper).
+        resampling_gate, resampler, kernel: as :class:`BootstrapPfCore`.
+    """
+
+    second_quantity = SecondQuantity.GYRO_BIAS
+    uses_gyro = True
+    _has_covariances = True
+
+    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
+                 rrw_rad_per_s15: float, *, proposal_iterations: int = 1, resampling_gate=EffectiveSampleSizeGate(),
+                 resampler=SystematicResampler(), kernel: str = "numba"):
+        super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler,
+                         kernel)
+        self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
+        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
+        self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
+
+    def predict(self, state: ParticleSetState, w_meas_B, dt: float, rng=None) -> ParticleSetState:
+        """Every particle's EKF time update over ``dt`` (s) > 0 with the mean gyro rate
+        ``w_meas_B`` (rad/s); draws nothing."""
+        dt = check_positive("dt", dt)
+        if rng is not None:
+            _check_rng(rng)
+        predict = _kernels().ekf_predict if self.kernel == "numba" else ekf_predict
+        particles, covariances = predict(state.particles, state.covariances, gyro_rate(w_meas_B), dt,
+                                         self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
+        return ParticleSetState(particles, state.weights, state.log_weights, covariances)
+
+    def update(self, state: ParticleSetState, observations, rng: np.random.Generator):
+        """Proposal draw (``rng``: ``N x 6`` standard normals, then the resampler's draws),
+        weights, resampling; a declined sample leaves the state unchanged."""
+        _check_rng(rng)
+        y, U, sigma = body_frame_vectors(observations)
+        if y is None:
+            return state, _DECLINED
+        eps = rng.standard_normal((self.num_particles, 6))
+        step = None
+        if self.kernel == "numba":  # None if a Cholesky factor needs the numpy repair
+            step = _kernels().ekpf_update(state.particles, state.covariances, eps, y, U, sigma,
+                                          iterations=self.proposal_iterations)
+        if step is None:
+            step = ekpf_proposal_step(state.particles, state.covariances, y, U, sigma, eps, self.proposal_iterations)
+        particles, covariances, log_increment = step
+        return self._reweighted(state, particles, covariances, log_increment, rng)
+
+
+def _euler_rate_derivative(w, torque, inertia, inertia_inverse):
+    """``I^-1 (T - w x (I w))`` for ``(N, 3)`` rates."""
+    Iw = w @ inertia.T
+    return (torque - np.cross(w, Iw)) @ inertia_inverse.T
+
+
+class GyrolessPfCore(_ParticleCore):
+    """Bootstrap PF on ``x = [rho; w]`` with Euler's equations (paper S0, gyroless mode).
+
+    Prediction (batched over particles), ``num_substeps`` substeps of ``h = dt / n``:
+    RK4 on ``I w_dot = T - w x (I w)`` gives the stage rates ``w_0, w_a, w_b, w_1``; the
+    attitude advances by the closed form ``q <- q ⊗ exp(h w_avg / 2)`` with the Simpson
+    average ``w_avg = (w_0 + 2 w_a + 2 w_b + w_1) / 6`` (= the RK4 integral of ``w``; the
+    neglected non-commutativity term is ``O(|w x w_dot| h^3)``). Then process noise:
+    ``q <- q ⊗ exp(N(0, attitude_process_sigma^2 dt I) / 2)`` (if > 0) and
+    ``w += N(0, rate_process_sigma^2 dt I)``. Update and resampling as
+    :class:`BootstrapPfCore`. ``predict`` ignores ``w_meas_B`` (``uses_gyro`` is false).
+
+    Args:
+        num_particles: ``N >= 1``.
+        q_IB_hat0, w_hat0, covariance0: the prior: attitude (wxyz), body rate ``w_IB_B``
+            (3, rad/s) and the (6, 6) covariance of ``[dtheta_B (rad); w (rad/s)]``.
+        inertia: ``(3, 3)`` symmetric positive-definite inertia (kg m^2), body frame.
+        torque: ``(3,)`` known body torque ``T`` (N m), constant.
+        rate_process_sigma: rate process-noise density (rad/s^1.5) >= 0.
+        attitude_process_sigma: attitude process-noise density (rad/s^0.5) >= 0 (default 0).
+        num_substeps: RK4 substeps per step >= 1 (default 1).
+        resampling_gate, resampler, kernel: as :class:`BootstrapPfCore`.
+    """
+
+    second_quantity = SecondQuantity.BODY_RATE
+    uses_gyro = False
+
+    def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
+                 rate_process_sigma: float, *, attitude_process_sigma: float = 0.0, num_substeps: int = 1,
+                 resampling_gate=EffectiveSampleSizeGate(), resampler=SystematicResampler(), kernel: str = "numba"):
+        super().__init__(num_particles, q_IB_hat0, w_hat0, covariance0, "w_hat0", resampling_gate, resampler, kernel)
+        self.inertia = check_covariance("inertia", inertia, 3)
+        self.inertia_inverse = np.linalg.inv(self.inertia)
+        self.torque = check_array("torque", torque, (3,), " (N m)")
+        self.rate_process_sigma = check_positive("rate_process_sigma", rate_process_sigma, allow_zero=True)
+        self.attitude_process_sigma = check_positive("attitude_process_sigma", attitude_process_sigma, allow_zero=True)
+        self.num_substeps = check_int("num_substeps", num_substeps, 1)
+
+    def predict(self, state: ParticleSetState, w_meas_B, dt: float, rng: np.random.Generator) -> ParticleSetState:
+        """Every particle propagated over ``dt`` (s) > 0 by Euler's equations; ``rng`` draws
+        the attitude noise, then the rate noise."""
+        dt = check_positive("dt", dt)
+        _check_rng(rng)
+        n, T, h = self.num_particles, self.torque, dt / self.num_substeps
+        I, I_inv = self.inertia, self.inertia_inverse
+        dtheta = None  # the attitude noise, applied after the deterministic step, drawn first
+        if self.attitude_process_sigma > 0.0:
+            dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
+        if self.kernel == "numba":
+            rho, w = _kernels().gyroless_propagate(state.particles[:, :3], state.particles[:, 3:], I, I_inv, T, h,
+                                                   self.num_substeps, dtheta)
+        else:
+            q = mrp_to_quat(state.particles[:, :3])
+            w = state.particles[:, 3:].copy()
+            for _ in range(self.num_substeps):
+                k1 = _euler_rate_derivative(w, T, I, I_inv)
+                wa = w + 0.5 * h * k1
+                k2 = _euler_rate_derivative(wa, T, I, I_inv)
+                wb = w + 0.5 * h * k2
+                k3 = _euler_rate_derivative(wb, T, I, I_inv)
+                w1 = w + h * k3
+                k4 = _euler_rate_derivative(w1, T, I, I_inv)
+                w_avg = (w + 2.0 * wa + 2.0 * wb + w1) / 6.0
+                q = quat_multiply(q, rotvec_to_quat(w_avg * h))
+                w = w + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            if dtheta is not None:
+                q = quat_multiply(q, rotvec_to_quat(dtheta))
+            rho = quat_to_mrp(q)
+        if self.rate_process_sigma > 0.0:
+            w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
+        particles = np.empty_like(state.particles)
+        particles[:, :3] = rho
+        particles[:, 3:] = w
+        return ParticleSetState(particles, state.weights, state.log_weights)

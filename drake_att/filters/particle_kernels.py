@@ -3,7 +3,7 @@
 The numpy code is the specification and the test oracle: every public function here
 computes what the reference function it names computes, with explicit loops over the
 particles instead of ~50 batched numpy calls, and agrees with it to round-off
-(``tests/test_particle_kernels.py``). The filters of :mod:`drake_att.filters.particle`
+(``tests/test_particle_kernels.py``). The cores of :mod:`drake_att.filters.particle`
 choose between the two with their ``kernel`` argument (``"numba"``, the default, or
 ``"numpy"``); nothing else changes.
 
@@ -14,12 +14,12 @@ here                                         reference
                                              rotvec_to_quat(w dt)))`` (bootstrap PF predict)
 :func:`vector_log_likelihood`                :func:`drake_att.filters.particle.vector_log_likelihood`
 :func:`gyroless_propagate`                   the deterministic part (RK4 + closed-form attitude,
-                                             attitude noise) of ``GyrolessParticleFilter.predict``
+                                             attitude noise) of ``GyrolessPfCore.predict``
 :func:`ekf_predict`                          :func:`drake_att.filters.mrp_ekf.ekf_predict`
 :func:`ekf_update`                           ``ekf_update(..., switch=False)[:2]`` (same module)
-:func:`ekpf_update`                          ``ExtendedKalmanParticleFilter.update`` up to the
-                                             reweighting: EKF update, Cholesky factors, proposal
-                                             draw, the three log densities, shadow switch
+:func:`ekpf_update`                          :func:`drake_att.filters.particle.ekpf_proposal_step`:
+                                             EKF update, Cholesky factors, proposal draw, the
+                                             three log densities, shadow switch
 ==========================================  ====================================================
 
 **Same maths, equal to round-off.** No ``fastmath`` (no reassociation, no fused multiply-add);
@@ -292,7 +292,7 @@ def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
 
 @_jit
 def _w_dot(w0, w1, w2, I, Iinv, T):
-    """``I^-1 (T - w x (I w))`` (GyrolessParticleFilter._w_dot)."""
+    """``I^-1 (T - w x (I w))`` (``particle._euler_rate_derivative``)."""
     a0 = w0 * I[0, 0] + w1 * I[0, 1] + w2 * I[0, 2]
     a1 = w0 * I[1, 0] + w1 * I[1, 1] + w2 * I[1, 2]
     a2 = w0 * I[2, 0] + w1 * I[2, 1] + w2 * I[2, 2]
@@ -339,7 +339,7 @@ def _gyroless_propagate(rho, w_in, I, Iinv, T, h, num_substeps, dtheta, use_dthe
 
 
 def gyroless_propagate(rho, w, inertia, inertia_inverse, torque, h: float, num_substeps: int, dtheta=None):
-    """The deterministic step of ``GyrolessParticleFilter.predict`` (``num_substeps`` RK4
+    """The deterministic step of ``GyrolessPfCore.predict`` (``num_substeps`` RK4
     substeps of ``h`` s on Euler's equations, attitude by the Simpson-averaged rate), then
     ``q <- q ⊗ exp(dtheta / 2)`` if ``dtheta`` ``(N, 3)`` is given.
 
@@ -852,8 +852,9 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
 
 def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int = 1,
                 iteration_tolerance: float = 1e-12):
-    """The EKPF's measurement step (``ExtendedKalmanParticleFilter.update`` before the
-    reweighting): every particle's EKF update ``(m+, P+)`` (:func:`ekf_update`), the proposal
+    """The EKPF's measurement step before the reweighting
+    (:func:`drake_att.filters.particle.ekpf_proposal_step`): every particle's EKF update
+    ``(m+, P+)`` (:func:`ekf_update`), the proposal
     draw ``x = m+ + L+ eps`` with the given ``(N, 6)`` standard normals, the weight increment
     ``log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+)`` (up to a common constant; ``L+``,
     ``L-`` the lower Cholesky factors of ``P+``, ``P-``) and the shadow switch of ``(x, P+)``.

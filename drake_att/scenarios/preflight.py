@@ -122,7 +122,7 @@ def run_warnings(metrics: dict) -> list[str]:
 # Memory
 # --------------------------------------------------------------------------------------
 # Peak memory per particle of the shipped particle filters (bytes), for a whole run: the
-# template filter and its initial set, the core state in the diagram's context, the
+# setup's initial set, the core state in the diagram's context, the
 # simulator's discrete-update copy and each step's numpy temporaries. Measured as the slope
 # of the process's peak RSS (``ru_maxrss``, one fresh process per point) over
 # ``ScenarioDiagram(...)`` + ``simulate()`` of a gyro + vector tracker + one filter at N = 1e5

@@ -5,10 +5,10 @@ MRP EKF, bootstrap PF, EKPF and gyroless PF.
 initial state, sensors) that the estimator plug-ins build from a config; the ``*Estimator``
 constructor functions wrap the same setup in a system for direct use (tests, notebooks).
 Each system is the one :class:`~drake_att.systems.estimators.EstimatorSystem` running a numpy filter core
-(:class:`~drake_att.filters.mrp_ekf.MrpEkf`,
-:class:`~drake_att.filters.particle.BootstrapParticleFilter`,
-:class:`~drake_att.filters.particle.ExtendedKalmanParticleFilter`,
-:class:`~drake_att.filters.particle.GyrolessParticleFilter`) and follows the estimator
+(:class:`~drake_att.filters.mrp_ekf.MrpEkfCore`,
+:class:`~drake_att.filters.particle.BootstrapPfCore`,
+:class:`~drake_att.filters.particle.EkpfCore`,
+:class:`~drake_att.filters.particle.GyrolessPfCore`) and follows the estimator
 contract of :mod:`drake_att.systems.estimators` (outputs ``q_IB_hat``, ``bias_B_hat`` or
 ``w_IB_B_hat``, ``covariance``, ``status``; one periodic discrete update per filter step;
 a measurement is used only at its own sample time, at most once; invalid or non-finite
@@ -17,9 +17,9 @@ samples are skipped and counted).
 **Everything the filter knows lives in the Context.**  The filter's numbers (EKF mean and
 covariance, or the particle set with its weights and, for the EKPF, the per-particle
 covariances) are a discrete-state group; nothing is kept on the Python object, so one
-diagram can be re-run with fresh contexts (Monte Carlo). The cores are
-:class:`~drake_att.filters.mrp_ekf.MrpEkfCore` and
-:class:`~drake_att.filters.particle.ParticleFilterCore`.
+diagram can be re-run with fresh contexts (Monte Carlo). A particle setup's initial state
+(the value before the initialization event draws one from the seed) is the draw of
+``numpy.random.default_rng(0)``.
 
 **Randomness.**  The particle filters declare the random input port ``seed_uniform``
 (:func:`drake_att.systems.randomness.declare_seed_port`).  An initialization event copies
@@ -42,14 +42,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_att.contract import SecondQuantity
 from drake_att.filters.mrp_ekf import MrpEkfCore
 from drake_att.filters.particle import (
-    BootstrapParticleFilter,
-    ExtendedKalmanParticleFilter,
-    GyrolessParticleFilter,
-    ParticleFilterCore,
+    BootstrapPfCore,
+    EffectiveSampleSizeGate,
+    EkpfCore,
+    GyrolessPfCore,
+    RandomWalkRoughening,
 )
+from drake_att.validation import check_positive
 from drake_att.systems.estimators import PARTICLE_DIAGNOSTICS_SIZE, EstimatorSetup, EstimatorSystem
 
 __all__ = [
@@ -106,9 +107,9 @@ def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bi
                                                           arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations))
 
 
-def _particle_setup(period_s, star_tracker, gyro, second: SecondQuantity, make_filter) -> EstimatorSetup:
-    core = ParticleFilterCore(make_filter, second)
-    return EstimatorSetup(core, core.initial_state(), period_s, gyro=gyro, vector_sensors=(star_tracker,))
+def _particle_setup(period_s, star_tracker, gyro, core) -> EstimatorSetup:
+    return EstimatorSetup(core, core.draw_initial_state(np.random.default_rng(0)), period_s, gyro=gyro,
+                          vector_sensors=(star_tracker,))
 
 
 _PF_PORTS_DOC = """
@@ -125,10 +126,10 @@ def bootstrap_pf_setup(period_s: float, star_tracker: str, num_particles: int, q
                        gyro: str | None = None, kernel: str = "numba") -> EstimatorSetup:
     """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name; ``kernel``:
     ``"numba"`` or ``"numpy"``, see :mod:`drake_att.filters.particle`)."""
-    P0 = _covariance0(covariance0)
-    return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS, lambda rng: BootstrapParticleFilter(
-        num_particles, q_IB_hat0, bias_hat0, P0, arw_rad_per_rt_s, rng, bias_roughening_sigma=bias_roughening_sigma,
-        resample_threshold=resample_threshold, kernel=kernel))
+    roughening = RandomWalkRoughening(check_positive("bias_roughening_sigma", bias_roughening_sigma, allow_zero=True))
+    return _particle_setup(period_s, star_tracker, gyro, BootstrapPfCore(
+        num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_rad_per_rt_s, bias_roughening=roughening,
+        resampling_gate=EffectiveSampleSizeGate(resample_threshold), kernel=kernel))
 
 
 def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
@@ -139,7 +140,7 @@ def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_part
         resample_threshold))
 
 
-BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:class:`~drake_att.filters.particle.BootstrapParticleFilter`).
+BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:class:`~drake_att.filters.particle.BootstrapPfCore`).
 
     Args:
         name: system name (also the random stream name).
@@ -160,12 +161,10 @@ def ekpf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0
                resample_threshold: float = 2.0 / 3.0, gyro: str | None = None, kernel: str = "numba") -> EstimatorSetup:
     """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name; ``kernel``: ``"numba"``
     or ``"numpy"``, see :mod:`drake_att.filters.particle`)."""
-    P0 = _covariance0(covariance0)
-    return _particle_setup(period_s, star_tracker, gyro, SecondQuantity.GYRO_BIAS,
-                           lambda rng: ExtendedKalmanParticleFilter(
-                               num_particles, q_IB_hat0, bias_hat0, P0, arw_rad_per_rt_s, rrw_rad_per_s15, rng,
-                               proposal_iterations=proposal_iterations, resample_threshold=resample_threshold,
-                               kernel=kernel))
+    return _particle_setup(period_s, star_tracker, gyro, EkpfCore(
+        num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_rad_per_rt_s, rrw_rad_per_s15,
+        proposal_iterations=proposal_iterations, resampling_gate=EffectiveSampleSizeGate(resample_threshold),
+        kernel=kernel))
 
 
 def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
@@ -176,7 +175,7 @@ def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: 
         proposal_iterations, resample_threshold))
 
 
-EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~drake_att.filters.particle.ExtendedKalmanParticleFilter`).
+EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~drake_att.filters.particle.EkpfCore`).
 
     Args:
         name: system name (also the random stream name).
@@ -201,12 +200,10 @@ def gyroless_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
         I = np.diag(I)
-    P0 = _covariance0(covariance0)
-    return _particle_setup(period_s, star_tracker, None, SecondQuantity.BODY_RATE,
-                           lambda rng: GyrolessParticleFilter(
-                               num_particles, q_IB_hat0, w_hat0, P0, I, torque, rate_process_sigma, rng,
-                               attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
-                               resample_threshold=resample_threshold, kernel=kernel))
+    return _particle_setup(period_s, star_tracker, None, GyrolessPfCore(
+        num_particles, q_IB_hat0, w_hat0, _covariance0(covariance0), I, torque, rate_process_sigma,
+        attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
+        resampling_gate=EffectiveSampleSizeGate(resample_threshold), kernel=kernel))
 
 
 def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0,
@@ -217,7 +214,7 @@ def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_parti
         attitude_process_sigma, num_substeps, resample_threshold))
 
 
-GyrolessPfEstimator.__doc__ = """Paper S0's gyroless bootstrap PF on ``[rho; w]`` (:class:`~drake_att.filters.particle.GyrolessParticleFilter`).
+GyrolessPfEstimator.__doc__ = """Paper S0's gyroless bootstrap PF on ``[rho; w]`` (:class:`~drake_att.filters.particle.GyrolessPfCore`).
 
     Propagates every particle with Euler's equations (known inertia and torque), no gyro.
 
