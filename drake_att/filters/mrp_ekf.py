@@ -10,8 +10,8 @@ inertial, ``v_I = R(q_IB) v_B``) and ``b`` (3, rad/s) the gyro bias. Models (S0)
 * vector measurements ``y = [R_BI u_1; ...; R_BI u_m] + v``, ``R_BI = R(q_IB)'``
   (the paper's attitude matrix ``A``), ``v ~ N(0, sigma^2 I_3m)`` (sigma in rad).
 
-Discretization choices (documented here once, used by :class:`MrpEkf` and by the
-batched helpers that :mod:`drake_att.filters.particle` reuses for the EKPF):
+Discretization choices (documented here once, used by :class:`MrpEkfCore` and, batched, by
+the EKPF of :mod:`drake_att.filters.particle`):
 
 * **Mean**: exact for a constant rate over the step. ``rho`` is converted to its
   quaternion (either MRP set gives ``+q`` or ``-q``), advanced with the closed form
@@ -70,14 +70,12 @@ from drake_att.rotations import (
     mrp_to_quat,
     mrp_to_rotmat,
     quat_to_rotmat,
-    quat_error_rotvec,
     quat_propagate,
     quat_to_mrp,
     skew,
 )
 
 __all__ = [
-    "MrpEkf",
     "MrpEkfCore",
     "MrpEkfState",
     "mrp_rate_jacobian",
@@ -97,12 +95,6 @@ __all__ = [
     "attitude_to_mrp_covariance",
     "mrp_to_attitude_covariance",
 ]
-
-
-def measurement_is_valid(y, m: int) -> np.ndarray | None:
-    """``y`` as a ``(3m,)`` float array, or None if missing / non-finite (skipped by the
-    caller); a wrong shape raises ValueError (:func:`drake_att.validation.measurement_or_none`)."""
-    return measurement_or_none("y", y, (3 * m,), f" (3 components per reference vector, {m} vectors)")
 
 
 def body_frame_vectors(observations) -> tuple[np.ndarray | None, np.ndarray, float]:
@@ -413,126 +405,8 @@ def mrp_to_attitude_covariance(rho, P) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------
-# Filter class
+# The filter core
 # ----------------------------------------------------------------------------------
-class MrpEkf:
-    """Additive EKF on ``x = [rho; b]`` (paper S0 gyro mode), plain numpy.
-
-    Call :meth:`predict` once per gyro interval and :meth:`update` with each star-sensor
-    sample. Invalid (None / non-finite) gyro or star-sensor inputs are skipped and
-    counted in :attr:`n_skipped` (a missing gyro sample is replaced by the last valid one,
-    zero before the first).
-
-    Args:
-        q_IB_hat0: Initial attitude estimate ``[w, x, y, z]`` (body to inertial).
-        bias_hat0: Initial gyro-bias estimate ``(3,)`` (rad/s).
-        covariance0: Initial covariance ``(6, 6)`` of ``[dtheta_B (rad); b (rad/s)]``
-            where ``q_IB = q_IB_hat ⊗ exp(dtheta_B / 2)``. It is mapped to MRP
-            coordinates with ``B(rho0)`` (see :func:`attitude_to_mrp_covariance`).
-        arw_rad_per_rt_s: Gyro angle random walk ``sigma_v`` (rad/s^0.5), > 0.
-            (A white-noise std ``s`` per sample of period ``T`` is ``s sqrt(T)``.)
-        rrw_rad_per_s15: Gyro rate random walk ``sigma_u`` (rad/s^1.5), >= 0.
-        update_iterations: Linearizations per measurement update, >= 1. 1 (default) is
-            the classic EKF of the paper; > 1 gives the iterated EKF (see
-            :func:`ekf_update`), which converges from large initial errors.
-
-    Attributes:
-        x: Current state ``[rho; b]`` ``(6,)`` with ``|rho| <= 1``.
-        P: Current covariance ``(6, 6)`` in ``[rho; b]`` coordinates.
-        n_skipped: Number of skipped (missing / non-finite) inputs.
-        n_updates: Number of measurement updates applied.
-        last_innovation, last_innovation_covariance: From the last update (or None).
-    """
-
-    def __init__(self, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
-                 rrw_rad_per_s15: float = 0.0, update_iterations: int = 1):
-        q0 = check_quaternion("q_IB_hat0", q_IB_hat0)
-        b0 = check_array("bias_hat0", bias_hat0, (3,), " (rad/s)")
-        P_att = check_covariance("covariance0", covariance0, 6)
-        self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
-        self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
-        self.update_iterations = check_int("update_iterations", update_iterations, 1)
-        rho0 = quat_to_mrp(q0)
-        self.x = np.concatenate([rho0, b0])
-        self.P = attitude_to_mrp_covariance(rho0, P_att)
-        self.n_skipped = 0
-        self.n_updates = 0
-        self.last_innovation = None
-        self.last_innovation_covariance = None
-        self._last_w_meas = np.zeros(3)
-
-    # -- time update -------------------------------------------------------------
-    def predict(self, dt: float, w_meas) -> None:
-        """Propagate over ``dt`` (s) with the measured rate ``w_meas`` (rad/s, (3,)).
-
-        ``w_meas`` is held constant over the step (use the interval-averaged gyro
-        output). None / non-finite ``w_meas`` is skipped (counted) and the last valid
-        rate is used.
-        """
-        dt = check_positive("dt", dt)
-        w = valid_rate_or_none(w_meas)
-        if w is None:
-            self.n_skipped += 1
-            w = self._last_w_meas
-        else:
-            self._last_w_meas = w
-        self.x, self.P = ekf_predict(self.x, self.P, w, dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
-
-    # -- measurement update ------------------------------------------------------
-    def update(self, y, ref_vectors_I, sigma: float) -> bool:
-        """Update with star-sensor vectors ``y`` ``(3m,)`` of ``ref_vectors_I`` ``(m, 3)``.
-
-        Args:
-            y: Measured body-frame unit vectors stacked, ``(3m,)``; None or non-finite
-                values skip the update (counted in :attr:`n_skipped`).
-            ref_vectors_I: Inertial reference directions ``(m, 3)``.
-            sigma: Noise standard deviation per component (rad), > 0.
-
-        Returns:
-            True if the update was applied, False if the measurement was skipped.
-        """
-        U = check_reference_vectors("ref_vectors_I", ref_vectors_I)
-        sigma = check_positive("sigma", sigma)
-        yv = measurement_is_valid(y, U.shape[0])
-        if yv is None:
-            self.n_skipped += 1
-            return False
-        self.x, self.P, innov, S = ekf_update(self.x, self.P, yv, U, sigma,
-                                               iterations=self.update_iterations)
-        self.last_innovation = innov
-        self.last_innovation_covariance = S
-        self.n_updates += 1
-        return True
-
-    # -- outputs -----------------------------------------------------------------
-    @property
-    def rho(self) -> np.ndarray:
-        """MRP estimate ``(3,)`` of ``q_IB`` (``|rho| <= 1``)."""
-        return self.x[:3].copy()
-
-    @property
-    def q_IB_hat(self) -> np.ndarray:
-        """Attitude estimate ``[w, x, y, z]`` (scalar part >= 0)."""
-        return mrp_to_quat(self.x[:3])
-
-    @property
-    def bias_hat(self) -> np.ndarray:
-        """Gyro-bias estimate ``(3,)`` (rad/s)."""
-        return self.x[3:].copy()
-
-    def mean(self):
-        """Return ``(q_IB_hat (4,), bias_hat (3,) rad/s)`` (same shape as the PFs)."""
-        return self.q_IB_hat, self.bias_hat
-
-    def covariance(self) -> np.ndarray:
-        """Covariance ``(6, 6)`` of ``[dtheta_B (rad); b (rad/s)]`` (mapped from MRP)."""
-        return mrp_to_attitude_covariance(self.x[:3], self.P)
-
-    def attitude_error(self, q_IB_true) -> np.ndarray:
-        """Body-frame error ``dtheta_B = log(q_hat^-1 ⊗ q_true)`` (rad), for scoring."""
-        return quat_error_rotvec(self.q_IB_hat, q_IB_true)
-
-
 @dataclass(frozen=True)
 class MrpEkfState:
     """MRP EKF state: ``x = [rho; b]`` (6, ``|rho| <= 1``) and its covariance ``P`` (6x6, MRP chart)."""
@@ -630,8 +504,3 @@ def gyro_rate(w_meas_B) -> np.ndarray:
     A core never sees a missing sample (the estimator system holds the last valid rate);
     anything else raises ValueError naming ``w_meas_B``."""
     return check_array("w_meas_B", w_meas_B, (3,), " (rad/s)")
-
-
-def valid_rate_or_none(w_meas):
-    """A finite ``(3,)`` rate or None; a wrong shape raises ValueError."""
-    return measurement_or_none("w_meas", w_meas, (3,), " (rad/s)")
