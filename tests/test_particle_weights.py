@@ -3,7 +3,7 @@
 * EKPF: in the linear-Gaussian limit the weight increment
   ``log p(y|x) + log pi(x) - log q(x)`` (pi = N(m-, P-), q = the EKF posterior) is the
   predictive likelihood ``log N(y; h(m-), H P- H' + R)`` for EVERY draw ``x``
-  (documented in ``docs/particle_filters.md``); so after an update the normalized
+  (documented in ``docs/derivations/particle_filters.md``); so after an update the normalized
   weights are ``prior weight x predictive likelihood`` and do not depend on the rng.
 * Every filter carries its log-weights across updates: without resampling, the weights
   after K updates are the normalized product of the K per-update factors.

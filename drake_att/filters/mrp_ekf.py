@@ -1,51 +1,21 @@
 """Additive extended Kalman filter on modified Rodrigues parameters (paper S0, gyro mode).
+Plain numpy (no Drake).
 
-State ``x = [rho; b]``: ``rho`` (3, dimensionless) is the MRP of ``q_IB`` (body to
-inertial, ``v_I = R(q_IB) v_B``) and ``b`` (3, rad/s) the gyro bias. Models (S0):
+State ``x = [rho; b]``: ``rho`` (3, dimensionless) is the MRP of ``q_IB`` (body to inertial,
+``v_I = R(q_IB) v_B``; ``|rho| <= 1`` between calls, the shadow set taken when it grows
+past 1) and ``b`` (3, rad/s) the gyro bias; ``P`` (6x6) the covariance of ``x`` in the MRP
+chart. Gyro: the mean body rate over the step (Farrenkopf model, ARW ``sigma_v``
+rad/s^0.5, RRW ``sigma_u`` rad/s^1.5); measurements: star vectors
+``y = [R_BI u_1; ...; R_BI u_m] + v``, ``v ~ N(0, sigma^2 I_3m)`` (rad).
 
-* kinematics ``rho_dot = B(rho) w``, ``B(rho) = 1/4 [(1 - rho'rho) I + 2 [rho x] + 2 rho rho']``
-  with ``w = w_IB_B`` (rad/s);
-* gyro (Farrenkopf) ``w_meas = w + b + v_g``, ``b_dot = v_b``, ``v_g`` white with ARW
-  density ``sigma_v`` (rad/s^0.5), ``v_b`` white with RRW density ``sigma_u`` (rad/s^1.5);
-* vector measurements ``y = [R_BI u_1; ...; R_BI u_m] + v``, ``R_BI = R(q_IB)'``
-  (the paper's attitude matrix ``A``), ``v ~ N(0, sigma^2 I_3m)`` (sigma in rad).
+* :class:`MrpEkfCore` on :class:`MrpEkfState`: the :class:`drake_att.contract.FilterCore`.
+* :func:`ekf_predict`, :func:`ekf_update` and the model functions and Jacobians they use,
+  all batched over leading dimensions: the EKPF of :mod:`drake_att.filters.particle` runs
+  one EKF per particle with them, without a Python loop.
+* :func:`body_frame_vectors`, :func:`gyro_rate`: the checks of a vector-fed core's inputs.
 
-Discretization choices (documented here once, used by :class:`MrpEkfCore` and, batched, by
-the EKPF of :mod:`drake_att.filters.particle`):
-
-* **Mean**: exact for a constant rate over the step. ``rho`` is converted to its
-  quaternion (either MRP set gives ``+q`` or ``-q``), advanced with the closed form
-  ``q ⊗ exp(w dt / 2)`` (:func:`drake_att.rotations.quat_propagate`), and converted back
-  to the MRP *of the same sign of q*, i.e. the MRP the continuous ODE would reach (no
-  silent switch), so that the mean and the covariance stay in one chart. The bias is
-  constant.
-* **Transition matrix**: ``Phi = I + F dt + (F dt)^2 / 2 + (F dt)^3 / 6`` (truncated
-  matrix exponential; ``|F dt|`` is ~``|w| dt``, far below 1 for spacecraft rates) with
-  the analytic Jacobian ``F`` evaluated at the *midpoint* of the step (the mean
-  propagated over ``dt / 2``). Against the exact Jacobian of the discrete mean map the
-  error is ``O(|w|^3 dt^3)`` (e.g. ~2e-5 for 0.05 rad/s and 1 s) instead of the
-  ``O(|w|^2 dt^2)`` (~5e-3) of the start-point linearization.
-* **Process noise**: ``Q_c = diag(sigma_v^2 I, sigma_u^2 I)`` enters through
-  ``G = [-B(rho) 0; 0 I]``; with ``Qg = G Q_c G'`` the discrete covariance is the
-  second-order expansion of ``int_0^dt Phi(s) Qg Phi(s)' ds``:
-  ``Qd = Qg dt + (F Qg + Qg F') dt^2 / 2 + F Qg F' dt^3 / 3`` (this contains the classic
-  ``sigma_u^2 dt^3 / 3`` attitude term and ``-sigma_u^2 dt^2 / 2`` cross term).
-* **Update**: analytic Jacobian ``dh/drho = [(R_BI u) x] B(rho)^-1``,
-  ``B^-1 = 16 / (1 + rho'rho)^2 B'``; Joseph-form covariance. Optionally iterated
-  (IEKF, ``iterations`` / ``update_iterations`` > 1, beyond the paper). Measured on S0:
-  the classic EKF's first update from a 1 deg prior with 100 urad vectors is
-  overconfident (mean NEES ~13 instead of 6 over 25 runs; the second-order
-  linearization error is ~2 posterior sigmas), consistent from ~5 steps on; 3
-  iterations make it consistent from the start, and ~8 iterations converge in one
-  update from a 170 deg error, where the classic EKF only creeps (error ~1/k).
-* **Shadow switch**: after each predict and each update, if ``|rho| > 1`` the state is
-  mapped to ``-rho / |rho|^2`` and the covariance with the Jacobian
-  ``d(-rho/|rho|^2)/drho = (2 rho rho' - |rho|^2 I) / |rho|^4``. Thus ``|rho| <= 1``
-  always holds between calls and a 170 deg error (``|rho| = tan(42.5 deg) = 0.92``) is
-  representable.
-
-Everything here is plain numpy (no Drake). All helpers accept a leading batch
-dimension so that particle filters can run one EKF per particle without a Python loop.
+Derivation (mean, transition matrix, process noise, update, shadow switch) and measured
+behaviour: docs/derivations/mrp_ekf.md
 """
 
 from __future__ import annotations

@@ -31,8 +31,9 @@ Kernels: this module (with :mod:`drake_att.filters.mrp_ekf`) is the readable spe
 run with ``kernel="numpy"``. The default ``kernel="numba"`` runs the same steps through the
 compiled loops of :mod:`drake_att.filters.particle_kernels` (imported on first use): the
 same random numbers from the same generator in the same order, weight normalization and
-resampling here in numpy, results equal to round-off. Derivations and measured behaviour:
-``docs/particle_filters.md``.
+resampling here in numpy, results equal to round-off.
+
+Derivations and measured behaviour: docs/derivations/particle_filters.md
 
 Units: SI and radians (rad, rad/s, ARW rad/s^0.5, RRW / process noise rad/s^1.5).
 """
@@ -275,7 +276,7 @@ def _paired_cholesky(P_prior, P_post):
     round-off), both are repaired by clipping their eigenvalues at one common floor per
     particle, ``1e-12`` x the larger of the two largest eigenvalues, so a direction
     singular in both gets the same variance in both and cancels in the weight ``pi / q``
-    (``docs/particle_filters.md``)."""
+    (docs/derivations/particle_filters.md)."""
     try:
         return np.linalg.cholesky(P_prior), np.linalg.cholesky(P_post)
     except np.linalg.LinAlgError:
@@ -293,7 +294,7 @@ def ekpf_proposal_step(m_prior, P_prior, y, ref_vectors_I, sigma: float, eps, it
     Every particle's EKF update of ``(m-, P-)`` gives the proposal ``N(m+, P+)``; the draw is
     ``x = m+ + L+ eps`` with the given standard normals ``eps`` ``(N, 6)``, and the log-weight
     increment ``log p(y | x) + log pi(x) - log q(x)`` with the prior ``pi = N(m-, P-)``
-    (``docs/particle_filters.md``), all in the MRP chart of ``m-``.
+    (docs/derivations/particle_filters.md), all in the MRP chart of ``m-``.
 
     Returns:
         ``(x (N, 6), P+ (N, 6, 6), log-weight increments (N,))``, shadow switch applied.
@@ -519,8 +520,8 @@ class EkpfCore(_ParticleCore):
     particle's EKF update is its proposal ``N(m+, P+)``; draw ``x_i`` from it and weight by
     ``p(y | x_i) pi(x_i) / q(x_i)`` with the particle's predicted Gaussian as the prior
     ``pi`` (:func:`ekpf_proposal_step`; why that prior, and what it costs:
-    ``docs/particle_filters.md``); then ``P_i = P+``, shadow switch, resampling (means and
-    covariances copied). A declined sample leaves the predicted set (no draw).
+    docs/derivations/particle_filters.md); then ``P_i = P+``, shadow switch, resampling
+    (means and covariances copied). A declined sample leaves the predicted set (no draw).
 
     Args:
         num_particles: ``N >= 1``.
