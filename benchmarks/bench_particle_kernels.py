@@ -249,7 +249,7 @@ def main(argv=None) -> None:
         ratio_np = sorted(o / n for o, n in zip(med_round["old"], med_round["new numpy"]))
         print(f"| {f} | {cell['old'][0]:.2f} / {cell['old'][1]:.2f} | {cell['new numpy'][0]:.2f} / "
               f"{cell['new numpy'][1]:.2f} | {cell['new numba'][0]:.3f} / {cell['new numba'][1]:.3f} | "
-              f"{cell['old'][0] / cell['new numba'][0]:.1f} | {median(ratio):.1f} [{ratio[0]:.1f}, {ratio[-1]:.1f}] | "
+              f"{cell['old'][0] / cell['new numba'][0]:.2f} | {median(ratio):.2f} [{ratio[0]:.2f}, {ratio[-1]:.2f}] | "
               f"{median(ratio_np):.2f} [{ratio_np[0]:.2f}, {ratio_np[-1]:.2f}] |")
 
     if not args.no_scenario:
