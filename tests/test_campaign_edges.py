@@ -576,3 +576,30 @@ def test_a_record_with_one_truncated_per_sample_array_is_redone(base_campaign, t
     assert "seed_2.npz: not a record of this campaign" in err.getvalue(), err.getvalue()
     assert (result.ran, result.reused, len(result.failed)) == (1, 2, 0)
     mc.default_summarize(result.records, result.scenario)
+
+
+def test_a_record_problem_names_the_key_and_the_expected_shape(base_campaign):
+    """What the resume prints about an edited record: the unexpected key by name (and how many
+    more), the expected dtype and shape of a mis-shaped array (``(n)`` for a per-sample
+    vector, ``(n, 3)`` for a per-sample 3-vector)."""
+    scenario = mc.resolve_scenario(SCENARIO, SHORT)
+    base = mc.load_record(str(base_campaign / "runs" / "seed_2.npz"))
+
+    def problem(**changes):
+        record = dict(base, **changes)
+        return mc.default_record_problem(record, scenario, 2)
+
+    one = problem(surprise=np.zeros(3))
+    assert one == "unexpected key 'surprise'", one
+    two = problem(surprise=np.zeros(3), another=np.zeros(1))
+    assert two == "unexpected key 'another' (and 1 more)", two
+    t2d = problem(single__t=np.zeros((3, 2)))
+    assert "single__t" in t2d and t2d.endswith("expected a float array of shape (n)"), t2d
+    text = problem(single__dtheta=np.array(["a", "b"]))
+    assert "single__dtheta" in text and "expected a float array of shape (n, 3)" in text, text
+    ints = problem(single__dtheta=np.zeros((4, 3), dtype=np.int64))
+    assert "expected a float array of shape (n, 3)" in ints, ints
+    floats = problem(single__window_n=np.array(2.5))
+    assert "single__window_n" in floats and "expected a int scalar" in floats, floats
+    number = problem(single__second_kind=np.array(3))
+    assert "'single__second_kind'" in number and number.endswith("expected a str scalar"), number
