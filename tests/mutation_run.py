@@ -38,7 +38,7 @@ DEFAULT_WORK = "/tmp/drake_att_mutation"
 _CAMPAIGN_TESTS = ["tests/test_campaign_bookkeeping.py", "tests/test_campaign_edges.py", "tests/test_montecarlo.py",
                    "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
                    "not deadline and not http_server and not silent and not probe and not chromium"
-                   " and not ctrl_c"]
+                   " and not ctrl_c", "--timeout=60"]  # a hung mutant is killed in a minute
 
 # module key -> (file mutated, the unit tests that exercise it)
 MODULES = {
@@ -89,7 +89,8 @@ MODULES = {
        for key in ("executor", "run_records", "campaign", "campaign_folder", "comparison")},
     "cli": ("drake_att/cli.py",
             ["tests/test_cli_errors.py", "tests/test_campaign_bookkeeping.py", "tests/test_hostile_inputs.py",
-             "tests/test_config_loading.py", "tests/test_score.py", "-k", "not sigterm and not downloaded_folder"]),
+             "tests/test_config_loading.py", "tests/test_score.py", "-k", "not sigterm and not downloaded_folder",
+             "--timeout=60"]),  # a mutant that hangs a run is killed in a minute, not pytest.ini's ten
     "ranges": ("drake_att/scenarios/ranges.py",
                ["tests/test_ranges.py", "-k",  # docs/ is not copied; the peak is measured in a child process
                 "not config_reference_is_the_rendered_table and not measured_peak"]),
