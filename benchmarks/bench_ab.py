@@ -100,7 +100,7 @@ def main(argv=None):
         for _ in range(args.rounds):
             old.append(measure(args.old, scenario, args.duration, overrides, args.clock, args.repeats))
             new.append(measure(args.new, scenario, args.duration, overrides, args.clock, args.repeats))
-        ratios = sorted(n / o for n, o in zip(new, old))
+        ratios = sorted(n / o for n, o in zip(new, old, strict=True))
         median = ratios[len(ratios) // 2] if len(ratios) % 2 else 0.5 * (ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2])
         print(f"{label:<45} {min(old):11.3f} {min(new):11.3f} {min(new) / min(old):9.3f} "
               f"{median:10.3f} [{ratios[0]:.2f}, {ratios[-1]:.2f}]")

@@ -86,7 +86,7 @@ def track(solver, frames, truths):
     """Solve every frame from the previous solution; per-frame times and statistics."""
     A = truths[0]
     times, iters, ident, errs = [], [], [], []
-    for frame, R in zip(frames, truths):
+    for frame, R in zip(frames, truths, strict=True):
         t0 = time.perf_counter()
         sol = solver.solve(frame, A)
         times.append(time.perf_counter() - t0)
@@ -146,7 +146,7 @@ def main(argv=None) -> int:
         # one identification pass (centre-referenced directions at the true attitude)
         solver = make_solver(geometry, "triad")
         bs = [directions_from_centroids(f.centroids_m, f.focal_length_m) for f in frames]
-        us = [solver.observed_directions(b, R) for b, R in zip(bs, truths)]
+        us = [solver.observed_directions(b, R) for b, R in zip(bs, truths, strict=True)]
         for u in us[:10]:
             solver.matcher.identify(u)
         reps = max(1, 2000 // len(us))
@@ -157,7 +157,7 @@ def main(argv=None) -> int:
         per = (time.perf_counter() - t0) / (reps * len(us))
         t0 = time.perf_counter()
         for _ in range(reps):
-            for b, R in zip(bs, truths):
+            for b, R in zip(bs, truths, strict=True):
                 solver.count_identified(b, R)
         per_fit = (time.perf_counter() - t0) / (reps * len(us))
         identify_rows.append((stars, np.mean([len(u) for u in us]), per, per_fit))

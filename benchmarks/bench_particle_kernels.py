@@ -245,8 +245,8 @@ def main(argv=None) -> None:
             all_t = [t for r in steps[v] for t in r[f]["times"]]
             cell[v] = (1e3 * min(all_t), 1e3 * median(all_t))
             med_round[v] = [median(r[f]["times"]) for r in steps[v]]
-        ratio = sorted(o / n for o, n in zip(med_round["old"], med_round["new numba"]))
-        ratio_np = sorted(o / n for o, n in zip(med_round["old"], med_round["new numpy"]))
+        ratio = sorted(o / n for o, n in zip(med_round["old"], med_round["new numba"], strict=True))
+        ratio_np = sorted(o / n for o, n in zip(med_round["old"], med_round["new numpy"], strict=True))
         print(f"| {f} | {cell['old'][0]:.2f} / {cell['old'][1]:.2f} | {cell['new numpy'][0]:.2f} / "
               f"{cell['new numpy'][1]:.2f} | {cell['new numba'][0]:.3f} / {cell['new numba'][1]:.3f} | "
               f"{cell['old'][0] / cell['new numba'][0]:.2f} | {median(ratio):.2f} [{ratio[0]:.2f}, {ratio[-1]:.2f}] | "
@@ -264,7 +264,7 @@ def main(argv=None) -> None:
         print("|---|---|---|---|---|")
         for v, _, _ in variants:
             t = [r["cpu_s"] for r in runs[v]]
-            rr = sorted(o["cpu_s"] / n["cpu_s"] for o, n in zip(runs["old"], runs[v]))
+            rr = sorted(o["cpu_s"] / n["cpu_s"] for o, n in zip(runs["old"], runs[v], strict=True))
             print(f"| {v} | {min(t):.2f} | {median(t):.2f} | {min(r['cpu_s'] for r in runs['old']) / min(t):.2f} | "
                   f"{median(rr):.2f} [{rr[0]:.2f}, {rr[-1]:.2f}] |")
 

@@ -100,9 +100,9 @@ def run_peer(case: str, duration: float, seed: int) -> dict:
 
 def drake_scenario(case: str, duration: float, ekpf_kernel: str = "numba"):
     """The drake_att scenario of a case, ``duration`` long, scored from :func:`score_from`."""
-    from drake_att.scenarios.selection import with_estimators
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
+    from drake_att.scenarios.selection import with_estimators
 
     run = [f"duration_s={duration}", f"scoring.score_from_s={score_from(duration)}"]
     if case == "ten_hz":
@@ -194,7 +194,7 @@ def rmse_verdict(case: str, peer_rmse: dict, lib_rmse: dict) -> tuple[bool, list
     lo, hi = SAME_CLASS
     lines, all_same = [], True
     for n in ESTIMATORS[case]:
-        ratios = [x / y if y > 0 else math.inf for x, y in zip(lib_rmse[n], peer_rmse[n])]
+        ratios = [x / y if y > 0 else math.inf for x, y in zip(lib_rmse[n], peer_rmse[n], strict=True)]
         same = all(lo <= r <= hi for r in ratios)
         all_same &= same
         lines.append((n, peer_rmse[n], lib_rmse[n], ratios, same))

@@ -171,7 +171,7 @@ def run(duration_s: float = 5000.0, seed: int = 1, score_from_s: float = SCORE_F
     # The average's measurement model: identity mounting, derived covariance.
     H_avg = np.zeros((3, 6))
     H_avg[:, :3] = np.eye(3)
-    R_avg = sum(w * w * qrot(q) @ R_S @ qrot(q).T for w, q in zip(AVERAGE_WEIGHTS, q_BS))
+    R_avg = sum(w * w * qrot(q) @ R_S @ qrot(q).T for w, q in zip(AVERAGE_WEIGHTS, q_BS, strict=True))
     # Filters: the four MEKFs start from the same estimate.
     q0 = qmul(q_IO0, rpy_quat(EST_RPY_DEG * DEG))
     P0 = np.diag([P0_ATT_SIGMA**2] * 3 + [P0_BIAS_SIGMA**2] * 3)

@@ -46,8 +46,8 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from peer_default_loop import farrenkopf_factors
 import peer_numpy_loop
+from peer_default_loop import farrenkopf_factors
 from peer_numpy_loop import (
     ARW_DEG_PER_RT_H,
     DEG,

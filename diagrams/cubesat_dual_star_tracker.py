@@ -127,7 +127,7 @@ def convergence_vs_p0(scenario, sigmas_deg, seed, out_dir, duration_s=600.0):
         m = compute_metrics(sd.simulate(seed, overrides=over))["estimators"]
         rows.append([m[a]["convergence_time_s"] for a in ARCHITECTURES])
         print(f"  P0 attitude sigma {sig:6.3f} deg: " + ", ".join(
-            f"{a} {('never' if c is None else f'{c:.0f} s')}" for a, c in zip(ARCHITECTURES, rows[-1])))
+            f"{a} {('never' if c is None else f'{c:.0f} s')}" for a, c in zip(ARCHITECTURES, rows[-1], strict=True)))
     import matplotlib
 
     matplotlib.use("Agg")

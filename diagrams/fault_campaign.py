@@ -175,7 +175,7 @@ def plot_campaign(result, estimators, path):
     groups = [g for g in groups if g]
     fig, axes = plt.subplots(len(groups), 1, figsize=(13, 2.8 * len(groups)), sharex=True, squeeze=False)
     colors = {"gyro": "tab:red", "st1": "tab:blue", "st2": "tab:green"}
-    for ax, names in zip(axes[:, 0], groups):
+    for ax, names in zip(axes[:, 0], groups, strict=True):
         for n in names:
             s = result["series"][n]
             ax.semilogy(s["t"], np.maximum(s["error_deg"], 1e-5), lw=0.7, label=n)

@@ -245,7 +245,7 @@ def verdicts(t1, t1_fine, screens, t2, nvc, dyn):
     add("Table 2 trend: iterating from -2 deg raises the stars identified and shrinks the error",
         t2["noise_free"]["stars"][-1] > t2["noise_free"]["stars"][0] and max(nf[-1]) < 1e-3 * max(nf[0]),
         f"noise-free: stars {t2['noise_free']['stars']}, max |error| per iteration (deg) "
-        f"{[float('%.1e' % max(e)) for e in nf]}")
+        f"{[float(f'{max(e):.1e}') for e in nf]}")
     floors = {s: max(d["mean_iter2to5_1e3deg"]) for s, d in t2.items()}
     near = [s for s, f in floors.items() if 0.3 <= f <= 10.0]
     add("Table 2's ~1e-3 deg floor needs an error source the paper does not state",
@@ -255,7 +255,7 @@ def verdicts(t1, t1_fine, screens, t2, nvc, dyn):
     yaw_best = {s: d["mean_iter2to5_1e3deg"][2] < min(d["mean_iter2to5_1e3deg"][:2]) for s, d in t2.items()}
     add("Table 2: yaw is the most accurate axis", any(yaw_best[s] for s in near),
         "yaw below pitch and roll: " + ", ".join(f"{s} {b}" for s, b in yaw_best.items()))
-    tilt_fail = [t for t, n in zip(nvc["tilt_deg"], nvc["naive"]["identified"]) if n < 3]
+    tilt_fail = [t for t, n in zip(nvc["tilt_deg"], nvc["naive"]["identified"], strict=True) if n < 3]
     add("Classic (naive) angle matching fails once the table tilts; the corrected one does not",
         bool(tilt_fail) and all(n >= 3 for n in nvc["corrected"]["identified"]),
         f"naive fails from {min(tilt_fail) if tilt_fail else None} deg of roll+pitch tilt; corrected identifies "
@@ -266,12 +266,12 @@ def verdicts(t1, t1_fine, screens, t2, nvc, dyn):
         and d["frames_failed_outside_outage"] == 0,
         f"noise-free: first frame {d['stars_identified_first_frame']}/{d['stars_observed_first_frame']} stars after "
         f"{d['swarm_generations_first_frame']} swarm generations; moving-phase RMSE roll/pitch/yaw "
-        f"{['%.1e' % x for x in d['rmse_moving_roll_pitch_yaw_deg']]} deg")
+        f"{[f'{x:.1e}' for x in d['rmse_moving_roll_pitch_yaw_deg']]} deg")
     n = dyn["centroid_noise_0.1px"]
     r = n["rmse_moving_roll_pitch_yaw_deg"]
     add("Dynamic test: yaw is measured about as well as roll and pitch (within 3x; 0.1 px centroid noise, TRIAD)",
         r[2] < 3.0 * max(r[0], r[1]),
-        f"moving-phase RMSE roll/pitch/yaw {['%.4f' % x for x in r]} deg (yaw / max(roll, pitch) = "
+        f"moving-phase RMSE roll/pitch/yaw {[f'{x:.4f}' for x in r]} deg (yaw / max(roll, pitch) = "
         f"{r[2] / max(r[0], r[1]):.2f})")
     o = n["outage_max_error_deg"]
     add("Beyond the paper: fused with a MEMS gyro, the attitude survives a 5 s camera outage",
@@ -279,14 +279,14 @@ def verdicts(t1, t1_fine, screens, t2, nvc, dyn):
         f"max error during the outage: camera alone {o[EST]:.3f} deg, fused {o[FUSED]:.4f} deg")
     ls = dyn["least_squares_0.1px"]["rmse_moving_roll_pitch_yaw_deg"]
     add("Beyond the paper: the least-squares attitude over all identified stars beats TRIAD (>= 2x, every axis)",
-        all(a <= 0.5 * b for a, b in zip(ls, r)),
-        f"moving-phase RMSE roll/pitch/yaw: least squares {['%.1e' % x for x in ls]}, TRIAD "
-        f"{['%.1e' % x for x in r]} deg")
+        all(a <= 0.5 * b for a, b in zip(ls, r, strict=True)),
+        f"moving-phase RMSE roll/pitch/yaw: least squares {[f'{x:.1e}' for x in ls]}, TRIAD "
+        f"{[f'{x:.1e}' for x in r]} deg")
     fr = n["fused_rmse_moving_at_frames_roll_pitch_yaw_deg"]
     add("Beyond the paper: fusing the gyro lowers the error at the frame instants (TRIAD, 0.1 px)",
-        all(a < b for a, b in zip(fr, r)),
-        f"moving-phase RMSE at frames roll/pitch/yaw: fused {['%.1e' % x for x in fr]}, camera alone "
-        f"{['%.1e' % x for x in r]} deg (between frames, at 50 Hz: {['%.1e' % x for x in n['fused_rmse_moving_roll_pitch_yaw_deg']]})")
+        all(a < b for a, b in zip(fr, r, strict=True)),
+        f"moving-phase RMSE at frames roll/pitch/yaw: fused {[f'{x:.1e}' for x in fr]}, camera alone "
+        f"{[f'{x:.1e}' for x in r]} deg (between frames, at 50 Hz: {[f'{x:.1e}' for x in n['fused_rmse_moving_roll_pitch_yaw_deg']]})")
     return v
 
 
@@ -324,7 +324,7 @@ def plot(t1_fine, screens, t2, nvc, series, out_dir, static_seed):
     save(fig, "fig_table1_offset_sweep.png")
 
     fig, axes = plt.subplots(1, len(t2), figsize=(5 * len(t2), 4), sharey=True)
-    for ax, (source, d) in zip(axes, t2.items()):
+    for ax, (source, d) in zip(axes, t2.items(), strict=True):
         e = np.array(d["mean_abs_error_pitch_roll_yaw_deg"])
         for k, lab in enumerate(("pitch", "roll", "yaw")):
             ax.semilogy(range(1, 6), np.maximum(e[:, k], 1e-12), "o-", label=lab)
@@ -350,7 +350,7 @@ def plot(t1_fine, screens, t2, nvc, series, out_dir, static_seed):
 
     for case, s in series.items():
         fig, axes = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
-        for k, (ax, lab) in enumerate(zip(axes, ("roll", "pitch", "yaw"))):
+        for k, (ax, lab) in enumerate(zip(axes, ("roll", "pitch", "yaw"), strict=True)):
             ax.plot(s[EST]["t"], s[EST]["rpy_true"][:, k], "k-", lw=2.5, alpha=0.4, label="truth")
             ax.plot(s[EST]["t"], s[EST]["rpy_hat"][:, k], "-", lw=1, label="camera alone")
             ax.plot(s[FUSED]["t"], s[FUSED]["rpy_hat"][:, k], "--", lw=1, label="camera + gyro (MEKF)")
@@ -418,7 +418,7 @@ def main(argv=None) -> int:
         p = "fails" if paper is None else f"{paper[0]:+.4f} {paper[1]:+.4f} {paper[2]:+.4f} {paper[3]:2d}"
         print(f"  {off:+5.0f} | {p:^38} | {ours:^44}")
     counts, matches = screens
-    print(f"  finer sweep, this screen: " + " ".join(f"{o:+.1f}:{t1_fine[o]['identified']}" for o in FINE_OFFSETS_DEG))
+    print("  finer sweep, this screen: " + " ".join(f"{o:+.1f}:{t1_fine[o]['identified']}" for o in FINE_OFFSETS_DEG))
     print(f"  over {len(counts)} screens, % solved: " + " ".join(
         f"{o:+.1f}:{100 * np.mean(counts[:, j] >= 3):.0f}" for j, o in enumerate(FINE_OFFSETS_DEG)))
 

@@ -148,7 +148,7 @@ def plot(results, out_dir):
     for case in results:
         fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), sharey=True)
         s = results[case][0]["series"]
-        for ax, f in zip(axes, FILTERS):
+        for ax, f in zip(axes, FILTERS, strict=True):
             for k, lab in enumerate("xyz"):
                 ax.semilogy(s[f]["t"], np.maximum(np.abs(s[f]["dtheta_deg"][:, k]), 1e-9), lw=0.9, label=lab)
             ax.axhline(THRESHOLD_DEG, color="k", ls="--", lw=0.8, label=f"{THRESHOLD_DEG} deg")

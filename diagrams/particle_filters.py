@@ -385,7 +385,7 @@ def main(argv=None) -> int:
         for r in sweep:
             c = r["convergence_time_s"]
             print(f"  yaw error {r['initial_yaw_error_deg']:>4} deg: "
-                  f"{'converged at %.0f s' % c if c is not None else 'not converged':<22} "
+                  f"{f'converged at {c:.0f} s' if c is not None else 'not converged':<22} "
                   f"|error| at the end {r['final_error_deg']:.4f} deg")
         plot_sweep(sweep, os.path.join(args.out, "fig_ekf_initial_error_sweep.png"), threshold)
 

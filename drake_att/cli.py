@@ -255,10 +255,10 @@ def _saved_runs(out) -> int:
 
 
 def _cmd_montecarlo(args) -> int:
+    from drake_att import outputs
     from drake_att.analysis import campaign_report
     from drake_att.analysis.campaign import campaign_seeds, resolve_scenario, run_campaign
     from drake_att.analysis.executor import executor_phrase
-    from drake_att import outputs
     from drake_att.scenarios.library import scenario_path
 
     def fail(e):
@@ -323,11 +323,10 @@ def _scheduler_option(args):
 
 
 def _cmd_compare(args) -> int:
+    from drake_att import outputs
     from drake_att.analysis import campaign_report
     from drake_att.analysis.campaign import campaign_seeds
     from drake_att.analysis.comparison import comparison_plan, run_comparison
-
-    from drake_att import outputs
 
     def fail(e):
         return _campaign_failed("compare", e)

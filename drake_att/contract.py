@@ -71,7 +71,7 @@ class SecondQuantity(enum.Enum):
         return self.value
 
     @classmethod
-    def from_port_name(cls, name: str) -> "SecondQuantity":
+    def from_port_name(cls, name: str) -> SecondQuantity:
         for member in cls:
             if member.value == name:
                 return member
@@ -95,7 +95,7 @@ class Estimate:
                              self.skipped, self.last_nis)
 
     @classmethod
-    def unpack(cls, vector) -> "Estimate":
+    def unpack(cls, vector) -> Estimate:
         v = np.asarray(vector, dtype=float)
         if v.shape[-1] != ESTIMATE_SIZE:
             raise ValueError(f"estimate vector: got size {v.shape[-1]}; need {ESTIMATE_SIZE}")
@@ -131,7 +131,7 @@ class GyroSample:
     w_meas_B: np.ndarray
 
     @classmethod
-    def from_port(cls, vector) -> "GyroSample":
+    def from_port(cls, vector) -> GyroSample:
         return cls(float(vector[0]), flag_is_true(vector[1]), np.array(vector[2:5], dtype=float))
 
 

@@ -271,7 +271,7 @@ def default_record_problem(record: dict, scenario: cfg.Scenario, seed: int) -> s
         inputs = 0 if source == "none" else len(record[p + "inputs"])
         for i in range(inputs):
             keys = [f"{p}nis{i}__{k}" for k in ("t", "value", "dof")]
-            for key, kinds in zip(keys, (FLOAT, FLOAT, INT)):
+            for key, kinds in zip(keys, (FLOAT, FLOAT, INT), strict=True):
                 if key not in record:
                     return f"key {key!r} is missing"
                 if not _is_kind(record[key], kinds, 1):

@@ -63,7 +63,7 @@ def _name(record, key) -> str:
 
 
 def _stack(records, key, idx):
-    return np.array([np.asarray(r[key], dtype=float)[i] for r, i in zip(records, idx)])
+    return np.array([np.asarray(r[key], dtype=float)[i] for r, i in zip(records, idx, strict=True)])
 
 
 def _moving_mean(x, k: int):
@@ -340,9 +340,9 @@ def format_campaign_table(result) -> str:
     keep = [0, 1, 3, 2, 5, 6, 8, 10, 11]
     table = [[TABLE_COLUMNS[k] for k in keep]] + [[row[k] for k in keep] for row in summary_rows(result.summary)]
     widths = [max(len(r[c]) for r in table) for c in range(len(keep))]
-    lines = [head, "  ".join(h.ljust(w) for h, w in zip(table[0], widths)),
+    lines = [head, "  ".join(h.ljust(w) for h, w in zip(table[0], widths, strict=True)),
              "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in table[1:]]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in table[1:]]
     lines.append(f"(window t >= {result.summary['score_from_s']:g} s; ANEES band: 95% of the window average, 'in'/'OUT'; "
                  "bound: posterior Cramér–Rao, total RMS over the window)")
     return "\n".join(lines)
@@ -538,8 +538,8 @@ def comparison_rows(cells) -> list[list[str]]:
 def format_comparison_table(result) -> str:
     rows = [COMPARISON_COLUMNS] + comparison_rows(comparison_cells(result))
     widths = [max(len(r[c]) for r in rows) for c in range(len(COMPARISON_COLUMNS))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(rows[0], widths)), "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in rows[1:]]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(rows[0], widths, strict=True)), "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows[1:]]
     return "\n".join(lines)
 
 

@@ -197,7 +197,7 @@ def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, work
             fastest = [min(walls[k * len(seeds):(k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])
                        for k in range(len(selections))]
             base = fastest[0]["wall_time_s"]
-            for e, sel, w in zip(names, selections[1:], fastest[1:]):
+            for e, sel, w in zip(names, selections[1:], fastest[1:], strict=True):
                 steps = w["steps"][e]
                 timing[(scenario.name, e)] = {"selection": list(sel), "steps": steps, "wall_s": w["wall_time_s"],
                                               "baseline_wall_s": base, "repeats": len(seeds),

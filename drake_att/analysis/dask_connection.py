@@ -242,7 +242,7 @@ def _close_quietly(client, timeout_s: float = 5.0) -> None:
     except Exception:  # noqa: BLE001, S110 - closing after a failure: the failure is what is reported
         pass
     finally:
-        for q, level in zip(quiet, levels):
+        for q, level in zip(quiet, levels, strict=True):
             q.setLevel(level)
 
 
@@ -358,5 +358,5 @@ def _shut_down(client, cluster, owned, futures) -> None:
             except Exception:  # noqa: BLE001, S110 - shutting down after an error or Ctrl-C: the first error matters
                 pass
     finally:
-        for q, level in zip(quiet, levels):
+        for q, level in zip(quiet, levels, strict=True):
             q.setLevel(level)

@@ -423,7 +423,7 @@ def _estimator_summary(records, command, name, worst, max_history_points):
     out["anees_in_band"] = None if anees is None else bool(band[0] <= anees <= band[1])
     t_common, idx = common_times(records, name)
     score_from = float(records[0]["score_from_s"])
-    nees = np.array([np.asarray(r[p + "nees"], dtype=float)[i] for r, i in zip(records, idx)])  # (N, n)
+    nees = np.array([np.asarray(r[p + "nees"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])  # (N, n)
     # the window on the times themselves (t_common is rounded to 1 us), as per_run_record and
     # metrics.json have it: a sample at score_from - _TOL is in
     win = np.asarray(records[0][p + "t"], dtype=float)[idx[0]] >= score_from - _TOL
@@ -470,7 +470,7 @@ def _estimator_summary(records, command, name, worst, max_history_points):
         "time_s": None if not np.any(ok) else {
             "min": _f(np.min(conv[ok])), "p10": _f(np.percentile(conv[ok], 10)), "median": _f(np.median(conv[ok])),
             "mean": _f(np.mean(conv[ok])), "p90": _f(np.percentile(conv[ok], 90)), "max": _f(np.max(conv[ok]))},
-        "time_s_by_seed": {str(s): _f(c) for s, c in zip(seeds, conv)},
+        "time_s_by_seed": {str(s): _f(c) for s, c in zip(seeds, conv, strict=True)},
     }
 
     # worst runs
@@ -488,7 +488,7 @@ def _estimator_summary(records, command, name, worst, max_history_points):
              "attitude_rmse_total_bound_deg": None, "ratio": None, "ratio_ci95": None, "ratio_total": None,
              "bias_rmse_bound_deg_per_h": None, "bias_ratio": None, "prior_sensitivity": None, "info": None}
     if not all(has):
-        bound["reason"] = next((i.get("reason") for i, h in zip(infos, has) if not h), None)
+        bound["reason"] = next((i.get("reason") for i, h in zip(infos, has, strict=True) if not h), None)
     else:
         bv = np.array([r[p + "bound_window_var"] for r in records], dtype=float)  # (N, 6)
         if np.all(np.isfinite(bv)):
@@ -499,7 +499,7 @@ def _estimator_summary(records, command, name, worst, max_history_points):
             rm = np.sqrt(ms.mean(axis=0))
             bound["ratio"] = _fl(rm / b_att)
             bound["ratio_ci95"] = [None if c is None else [_f(c[0] * DEG / b), _f(c[1] * DEG / b)]
-                                   for c, b in zip(out["attitude_rmse_ci95_deg"], b_att)]
+                                   for c, b in zip(out["attitude_rmse_ci95_deg"], b_att, strict=True)]
             bound["ratio_total"] = _f(math.sqrt(ms.sum(axis=1).mean()) / b_tot)
             b_bias = np.sqrt(bv[:, 3:].mean(axis=0))
             bound["bias_rmse_bound_deg_per_h"] = _fl(b_bias / DEG_PER_H)
@@ -515,13 +515,13 @@ def _estimator_summary(records, command, name, worst, max_history_points):
     # history (for plots)
     n = len(t_common)
     keep = np.unique(np.linspace(0, n - 1, min(n, max_history_points)).round().astype(int)) if n else np.zeros(0, int)
-    d = np.array([np.asarray(r[p + "dtheta"], dtype=float)[i] for r, i in zip(records, idx)])  # (N, n, 3)
+    d = np.array([np.asarray(r[p + "dtheta"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])  # (N, n, 3)
     hist = {"t": _fl(t_common[keep]),
             "attitude_rmse_deg": [_fl(row) for row in np.sqrt(np.mean(d[:, keep] ** 2, axis=0)) / DEG],
             "anees": _fl(_nanmean0(nees[:, keep])),
             "anees_band_95": _fl(band), "bound_attitude_sigma_deg": None}
     if all(p + "bound_sigma" in r for r in records):
-        bs = np.array([np.asarray(r[p + "bound_sigma"], dtype=float)[i] for r, i in zip(records, idx)])
+        bs = np.array([np.asarray(r[p + "bound_sigma"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])
         hist["bound_attitude_sigma_deg"] = [_fl(row) for row in np.sqrt(np.mean(bs[:, keep, :3] ** 2, axis=0)) / DEG]
     out["history"] = hist
     return out

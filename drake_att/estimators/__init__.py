@@ -3,7 +3,7 @@ estimator's config dataclass (its YAML tag), validation and build function, regi
 with :func:`~drake_att.scenarios.registry.register_estimator`. The filter math lives in
 :mod:`drake_att.filters`, the one Drake system in :mod:`drake_att.systems.estimators`."""
 
-from drake_att.estimators import (  # noqa: F401  (registers them, in this order)
+from drake_att.estimators import (  # noqa: F401, I001  (registers them, in this order: not sorted)
     mekf,
     estimate_fusion,
     mrp_ekf,

@@ -24,13 +24,13 @@ from typing import List, Optional
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
 from drake_att.filters.cubature import CubatureQuaternionEstimator
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 from drake_att.filters.multiplicative_noise import MultiplicativeNoiseModel
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.sensors.scale_factor_star_noise import ScaleFactorStarNoiseConfig, noise_model
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import DEG, DEG_PER_H
-from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass

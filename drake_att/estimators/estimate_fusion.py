@@ -80,7 +80,7 @@ def build_estimate_fusion(ctx, c: EstimateFusionConfig):
     fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second, c.covariance_model, period))
     contract_ports = [("q_IB_hat", "q_IB_hat", Q_IB), (second, "second", SECOND), ("covariance", "covariance", COVARIANCE),
                       ("status", "status", STATUS)]
-    for n, src in zip(c.sources, sources):
+    for n, src in zip(c.sources, sources, strict=True):
         if src.HasOutputPort("estimate_state"):
             # The packed estimate (a C++ state port) split by a C++ Demultiplexer: no Python
             # output call per contract port.

@@ -36,6 +36,7 @@ import numpy as np
 from drake_att import validation
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 from drake_att.filters.indoor_star_tracker import (
     ATTITUDE_METHODS,
     IDENTIFICATIONS,
@@ -50,7 +51,6 @@ from drake_att.scenarios.registry import register_estimator
 from drake_att.sensors.screen_camera import camera_geometry
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARCSEC, DEG, DEG_PER_H
-from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 INITIALIZATIONS = ("swarm", "given")
 

@@ -9,10 +9,10 @@ from typing import List, Optional
 
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.filter_setups import mrp_ekf_setup
-from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass

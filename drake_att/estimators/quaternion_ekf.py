@@ -12,13 +12,13 @@ from typing import List, Optional
 
 from drake_att.contract import SecondQuantity
 from drake_att.estimators import common
+from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 from drake_att.filters.quaternion_ekf import AdditiveQuaternionEKF
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.estimators import EstimatorSetup
 from drake_att.units import ARW_DEG_PER_RT_H
-from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 
 
 @dataclass

@@ -29,9 +29,9 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 from drake_att.filters.mekf import process_noise
 from drake_att.filters.multiplicative_noise import MultiplicativeNoiseModel
-from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 from drake_att.validation import (
     check_array,
     check_covariance,

@@ -113,7 +113,7 @@ class InnovationGate:
         object.__setattr__(self, "_thresholds", {})
 
     @classmethod
-    def of(cls, gate) -> "InnovationGate":
+    def of(cls, gate) -> InnovationGate:
         """``gate`` as an :class:`InnovationGate`: None (off), a chi2 threshold, or a gate."""
         if isinstance(gate, InnovationGate):
             return gate

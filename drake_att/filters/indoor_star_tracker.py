@@ -570,7 +570,7 @@ class IndoorStarTrackerMekf:
         """The MEKF's covariance inflated after repeated gate rejections (its own rule)."""
         return IndoorMekfState(self.mekf.reacquire(state.mekf, info), state.solver)
 
-    def ungated(self) -> "IndoorStarTrackerMekf":
+    def ungated(self) -> IndoorStarTrackerMekf:
         """This core with its MEKF's gate off (the gate is the MEKF's)."""
         return IndoorStarTrackerMekf(self.solver, self.mekf.ungated())
 

@@ -22,16 +22,15 @@ Derivation and paper notes: docs/derivations/lie_group.md
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from drake_att import rotations as rot
-from drake_att.validation import check_array, check_nonnegative, check_positive, check_variance_matrix, fail
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf as _mekf
 from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
+from drake_att.validation import check_array, check_nonnegative, check_positive, check_variance_matrix, fail
 
 FORMULATIONS = ("consistent", "paper_literal")
 _EYE3 = np.eye(3)

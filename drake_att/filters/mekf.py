@@ -26,12 +26,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att import rotations as rot
-from drake_att.validation import check_nonnegative, check_positive
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf_kernels as _kernels
 from drake_att.filters.compiled import KERNELS  # MultiplicativeEKF(kernel=...): compiled or the numpy specification
 from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
-
+from drake_att.validation import check_nonnegative
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drake_att.contract import SecondQuantity, UpdateInfo
+from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
+from drake_att.rotations import (
+    mrp_kinematics_matrix,
+    mrp_to_quat,
+    mrp_to_rotmat,
+    quat_propagate,
+    quat_to_mrp,
+    quat_to_rotmat,
+    skew,
+)
 from drake_att.validation import (
     check_array,
     check_covariance,
@@ -32,17 +43,6 @@ from drake_att.validation import (
     check_quaternion,
     check_reference_vectors,
     measurement_or_none,
-)
-from drake_att.contract import SecondQuantity, UpdateInfo
-from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
-from drake_att.rotations import (
-    mrp_kinematics_matrix,
-    mrp_to_quat,
-    mrp_to_rotmat,
-    quat_to_rotmat,
-    quat_propagate,
-    quat_to_mrp,
-    skew,
 )
 
 __all__ = [

@@ -56,6 +56,13 @@ from drake_att.filters.mrp_ekf import (
     vector_measurement_model,
 )
 from drake_att.filters.quaternion_average import average_quaternions
+from drake_att.rotations import (
+    mrp_to_quat,
+    quat_error_rotvec,
+    quat_multiply,
+    quat_to_mrp,
+    rotvec_to_quat,
+)
 from drake_att.validation import (
     check_array,
     check_covariance,
@@ -63,13 +70,6 @@ from drake_att.validation import (
     check_positive,
     check_quaternion,
     fail,
-)
-from drake_att.rotations import (
-    mrp_to_quat,
-    quat_error_rotvec,
-    quat_multiply,
-    quat_to_mrp,
-    rotvec_to_quat,
 )
 
 __all__ = [

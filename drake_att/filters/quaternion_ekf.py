@@ -27,9 +27,9 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity, UpdateInfo, VectorObservations
-from drake_att.validation import check_nonnegative, check_positive, check_quaternion, check_variance_matrix
-from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
 from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
+from drake_att.filters.lie_group import DEFAULT_INITIAL_RATE_SIGMA, _solve_spd, rate_error_model
+from drake_att.validation import check_nonnegative, check_positive, check_quaternion, check_variance_matrix
 
 _EYE4 = np.eye(4)
 # References this close to collinear fix no attitude: the ratio of the references' two largest

@@ -39,11 +39,11 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
 from drake_att.scenarios.selection import fused_sources, with_estimators
-from drake_att.validation import check_seed
 from drake_att.systems.estimators import EstimatorSetup, EstimatorSystem
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
 from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
 from drake_att.units import DEG
+from drake_att.validation import check_seed
 
 
 class NonFiniteRunError(RuntimeError):
@@ -93,7 +93,7 @@ def _same(a, b) -> bool:
     if dataclasses.is_dataclass(a) or dataclasses.is_dataclass(b):
         return type(a) is type(b) and not _changed_fields(a, b)
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
     return bool(a == b)
 
 
@@ -221,7 +221,7 @@ class RunLog:
                 raise ValueError(f"metadata: {where} = {key!r} is not a logged signal")
 
     @classmethod
-    def from_npz(cls, npz, scenario: cfg.Scenario) -> "RunLog":
+    def from_npz(cls, npz, scenario: cfg.Scenario) -> RunLog:
         """Rebuild a run from :meth:`to_npz_dict` arrays (e.g. ``np.load("log.npz")``) and
         its scenario; ValueError if the arrays lack metadata or do not match ``scenario``."""
         import json
@@ -248,7 +248,7 @@ class RunLog:
         return cls(scenario, int(meta["seed"]), float(meta["wall_time_s"]), signals, meta)
 
     @classmethod
-    def load(cls, path: str, scenario: cfg.Scenario | None = None) -> "RunLog":
+    def load(cls, path: str, scenario: cfg.Scenario | None = None) -> RunLog:
         """Load a saved run: ``path`` is a result folder or its ``log.npz``; ``scenario``
         defaults to the ``config.yaml`` next to the log."""
         import os
@@ -430,7 +430,7 @@ class ScenarioDiagram:
                 if [x.name for x in a] != [x.name for x in b] or [type(x) for x in a] != [type(x) for x in b]:
                     out.append(f"{f.name} (the list of {f.name} or their types)")
                     continue
-                for x, y in zip(a, b):
+                for x, y in zip(a, b, strict=True):
                     allowed = plugin_for(x).parameters
                     out += [f"{f.name}.{x.name}.{p} (may change: {list(allowed)})"
                             for p in _changed_fields(x, y) if p not in allowed]

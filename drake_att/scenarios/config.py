@@ -31,7 +31,6 @@ from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
 
 from drake_att import validation
 
-
 # A scenario value is invalid; the message names the field path and the value. Defined
 # with the one validation family (drake_att.validation), whose checks the loader and the
 # plug-ins' validators call with error=ConfigError through the check_* functions below.

@@ -228,7 +228,7 @@ def _loggers(scenario) -> list:
         """The field that sets ``period``: the item's own period_s, else the first item with it."""
         if getattr(item, "period_s", None) == period:
             return f"{path}.period_s"
-        for p, q, x in items:
+        for p, _q, x in items:
             if getattr(x, "period_s", None) == period:
                 return f"{p}.period_s"
         return "duration_s"
@@ -241,7 +241,7 @@ def _loggers(scenario) -> list:
     else:
         truth_path, period = "duration_s", 1.0
     out += [(truth_path, period, w, "the truth's attitude and rate") for w in TRUTH_WIDTHS]
-    for (path, period, item), s in zip(items, scenario.sensors):
+    for (path, period, item), s in zip(items, scenario.sensors, strict=False):  # items: sensors, then estimators
         logged = plugin_for(s).logged_ports
         for port, p in (logged(s) if logged is not None else []):
             q = period if p is None else float(p)

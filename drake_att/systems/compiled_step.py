@@ -55,7 +55,7 @@ class CompiledStepModel:
     rrw: float
 
     @classmethod
-    def of(cls, core, quaternion_sensors) -> "CompiledStepModel":
+    def of(cls, core, quaternion_sensors) -> CompiledStepModel:
         n = len(quaternion_sensors)
         F = max([1] + [len(s.covariance_by_flag) for s in quaternion_sensors])
         q_BS = np.zeros((n, 4))

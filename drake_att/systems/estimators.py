@@ -314,7 +314,7 @@ class EstimatorSystem(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
     @classmethod
-    def from_setup(cls, name: str, setup: EstimatorSetup) -> "EstimatorSystem":
+    def from_setup(cls, name: str, setup: EstimatorSetup) -> EstimatorSystem:
         """The system for a plug-in's :class:`EstimatorSetup` (ports unconnected)."""
         return cls(name, setup.period_s, setup.core, setup.initial_state, setup.quaternion_sensors,
                    setup.vector_sensors, setup.camera_sensors)
@@ -418,7 +418,7 @@ class EstimatorSystem(LeafSystem):
 
     def _measurements(self, context, quaternion_sensors):
         """``(input index, measurement)`` for every connected measurement input, in order."""
-        for i, (sensor, port) in enumerate(zip(quaternion_sensors, self._quat_ports)):
+        for i, (sensor, port) in enumerate(zip(quaternion_sensors, self._quat_ports, strict=True)):
             if port.HasValue(context):
                 m = port.Eval(context)
                 flag = float(m[1])

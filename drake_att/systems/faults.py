@@ -339,7 +339,7 @@ class FaultInjector(LeafSystem):
             mask |= bit(FAULT_TIME_TAG)
         jump = np.zeros(3)
         onset = np.zeros(3)
-        for tj, dj in zip(m.bias_jump_times_s, m.bias_jumps_rad_per_s):
+        for tj, dj in zip(m.bias_jump_times_s, m.bias_jumps_rad_per_s, strict=True):
             if t >= tj - TIME_TOLERANCE_S:
                 jump += dj
                 if t < tj + T - TIME_TOLERANCE_S:

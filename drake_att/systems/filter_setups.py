@@ -50,8 +50,8 @@ from drake_att.filters.particle import (
     GyrolessPfCore,
     RandomWalkRoughening,
 )
-from drake_att.validation import check_positive
 from drake_att.systems.estimators import PARTICLE_DIAGNOSTICS_SIZE, EstimatorSetup, EstimatorSystem
+from drake_att.validation import check_positive
 
 __all__ = [
     "mrp_ekf_setup",

@@ -105,11 +105,11 @@ def _weighted_sum(coefficients, vectors):
     c0, v0 = coefficients[0], vectors[0]
     if isinstance(v0, list):
         acc = [c0 * x for x in v0]
-        for c, v in zip(coefficients[1:], vectors[1:]):
-            acc = [a + c * x for a, x in zip(acc, v)]
+        for c, v in zip(coefficients[1:], vectors[1:], strict=True):
+            acc = [a + c * x for a, x in zip(acc, v, strict=True)]
         return acc
     acc = c0 * v0
-    for c, v in zip(coefficients[1:], vectors[1:]):
+    for c, v in zip(coefficients[1:], vectors[1:], strict=True):
         acc = acc + c * v
     return acc
 
@@ -125,7 +125,7 @@ def average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights) -> np.nd
     """``R_avg,B = sum_i w_i^2 R_BS,i diag(sigma_S,i^2) R_BS,i'`` (weights normalized to 1)."""
     w = _normalized_weights(weights, len(q_BS_list), "weights")
     covariance_B = np.zeros((3, 3))
-    for wi, q, s in zip(w, q_BS_list, sigmas_S_list):
+    for wi, q, s in zip(w, q_BS_list, sigmas_S_list, strict=True):
         R_BS = rot.quat_to_rotmat(rot.quat_normalize(q))
         covariance_B += wi**2 * R_BS @ np.diag(np.asarray(s, dtype=float) ** 2) @ R_BS.T
     return covariance_B
@@ -188,12 +188,13 @@ class StarTrackerAverage(LeafSystem):
         # Fine: flagged valid (a NaN flag is not) and every entry finite.
         fine = [m[1] > 0.5 and all(map(math.isfinite, m)) for m in meas]
         if any(fine):
-            t_latest = max(m[0] for m, f in zip(meas, fine) if f)
+            t_latest = max(m[0] for m, f in zip(meas, fine, strict=True) if f)
         else:
             times = [m[0] for m in meas]
             t_latest = math.nan if any(map(math.isnan, times)) else max(times)
         # This instant's samples only.
-        idx = [i for i, (m, f) in enumerate(zip(meas, fine)) if f and abs(m[0] - t_latest) < TIME_TOLERANCE_S]
+        idx = [i for i, (m, f) in enumerate(zip(meas, fine, strict=True))
+               if f and abs(m[0] - t_latest) < TIME_TOLERANCE_S]
         q_avg, flag = [1.0, 0.0, 0.0, 0.0], 0.0
         if idx:
             q_B = [_quat_multiply(meas[i][2:], self._q_SB[i]) for i in idx]
@@ -278,7 +279,7 @@ class EstimateFusion(LeafSystem):
         active = [p.Eval(context)[1] > 0 for p in self._status_ports]
         if all(active) or not any(active):
             return self._w, True
-        w = [wi if a else 0.0 for wi, a in zip(self._w, active)]
+        w = [wi if a else 0.0 for wi, a in zip(self._w, active, strict=True)]
         total = sum(w)
         return ([wi / total for wi in w] if total > 0.0 else [math.nan] * len(w)), False
 

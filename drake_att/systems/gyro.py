@@ -57,7 +57,7 @@ class GyroModel:
     @classmethod
     def make(cls, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
              initial_bias_rad_per_s=(0.0, 0.0, 0.0), initial_bias_sigma_rad_per_s: float = 0.0,
-             scale_factor_error=(0.0, 0.0, 0.0), misalignment=None) -> "GyroModel":
+             scale_factor_error=(0.0, 0.0, 0.0), misalignment=None) -> GyroModel:
         """Check and convert the arguments of :class:`Gyro` (ValueError naming the field)."""
         try:
             noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
@@ -128,7 +128,7 @@ class _GyroOutputs(LeafSystem):
         elapsed = t - (t_n - self.period_s)
         if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
             w_true = [(a - b) / elapsed for a, b in zip(self._integral_port.Eval(context).tolist(),
-                                                         self._held_port.Eval(context).tolist())]
+                                                         self._held_port.Eval(context).tolist(), strict=True)]
         else:
             w_true = self._w_port.Eval(context).tolist()
         # (I + S + M) w; skipped for the identity (the same numbers, up to the sign of a zero).

@@ -57,6 +57,10 @@ def validate_inertia(inertia, field: str = "inertia") -> np.ndarray:
     return I
 
 
+# RigidBodyAttitudePlant's default inertia (kg m^2): one array, created once, as the default was.
+_UNIT_INERTIA = np.diag([1.0, 1.0, 1.0])
+
+
 class RigidBodyAttitudePlant(Diagram):
     """Rigid-body rotational dynamics and quaternion kinematics.
 
@@ -87,7 +91,7 @@ class RigidBodyAttitudePlant(Diagram):
     never by hand.
     """
 
-    def __init__(self, inertia=np.diag([1.0, 1.0, 1.0])):
+    def __init__(self, inertia=_UNIT_INERTIA):
         Diagram.__init__(self)
         self._default_inertia = validate_inertia(inertia)
         I0 = self._default_inertia
@@ -241,7 +245,8 @@ class PrescribedAttitudeMotion(Diagram):
         from pydrake.symbolic import cos
 
         w = [float(c) + float(a) * cos(float(f) * t + float(p))
-             for c, a, f, p in zip(constant_rad_per_s, amplitude_rad_per_s, frequency_rad_per_s, phase_rad)]
+             for c, a, f, p in zip(constant_rad_per_s, amplitude_rad_per_s, frequency_rad_per_s, phase_rad,
+                                   strict=True)]
         return cls(w, t, q_IB0)
 
     @classmethod
@@ -252,8 +257,9 @@ class PrescribedAttitudeMotion(Diagram):
         The body rate is ``w = E(rpy) rpy_dot`` (see ``rotations.rpy_rates_to_body_rate``),
         so the integrated attitude equals ``rpy_to_quat(rpy(t))`` up to integration error.
         """
-        from drake_att import rotations as rot
         from pydrake.symbolic import cos, sin
+
+        from drake_att import rotations as rot
 
         times = np.asarray(times_s, dtype=float)
         rpy = np.asarray(rpy_rad, dtype=float)

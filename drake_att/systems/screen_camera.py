@@ -50,7 +50,7 @@ class CameraNoise:
 
     @classmethod
     def make(cls, name: str, sigma_m: float = 0.0, quantization_m: float = 0.0, dropout_probability: float = 0.0,
-             outage_windows_s=()) -> "CameraNoise":
+             outage_windows_s=()) -> CameraNoise:
         check_nonnegative(f"{name}.centroid_noise", sigma_m)
         check_nonnegative(f"{name}.quantization", quantization_m)
         if not (0.0 <= dropout_probability < 1.0):

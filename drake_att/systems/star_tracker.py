@@ -73,7 +73,7 @@ class StarTrackerNoise:
 
     @classmethod
     def make(cls, name: str, sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
-             sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> "StarTrackerNoise":
+             sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> StarTrackerNoise:
         """Check the arguments of :class:`StarTracker` (ValueError naming the field)."""
         for field, v in (("sigma_cross_boresight", sigma_cross_boresight_rad),
                          ("sigma_boresight", sigma_boresight_rad), ("sigma_vector", sigma_vector_rad)):
