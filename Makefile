@@ -23,9 +23,9 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/drake-att run $(ARGS)
 
-# Lint first (rules: [tool.ruff] in pyproject.toml; tests/ join later), then the suite.
+# Lint first (rules: [tool.ruff] in pyproject.toml), then the suite.
 test: $(STAMP)
-	$(PY) -m ruff check drake_att benchmarks diagrams
+	$(PY) -m ruff check drake_att benchmarks diagrams tests
 	MPLBACKEND=Agg $(PY) -m pytest -q $(PYTEST_ARGS)
 
 # Mutation testing of the math and filter-core modules, each against its own unit tests (not

@@ -16,14 +16,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 MUTMUT = os.path.join(os.path.dirname(sys.executable), "mutmut")
 EQUIVALENTS = os.path.join(HERE, "mutation_equivalents.txt")
 sys.path.insert(0, HERE)
-from mutation_run import DEFAULT_WORK, MODULES, _statuses as results  # noqa: E402
+from mutation_run import DEFAULT_WORK, MODULES  # noqa: E402
+from mutation_run import _statuses as results  # noqa: E402
 
 
 def judged_equivalent(path: str = EQUIVALENTS) -> dict[str, str]:
@@ -44,7 +44,7 @@ def main(argv=None) -> int:
     equivalent = judged_equivalent()
     totals: dict[str, int] = {}
     unjudged = []
-    for key, (mutated, tests) in MODULES.items():
+    for key, (_mutated, _tests) in MODULES.items():
         folder = os.path.join(args.work, key)
         if not os.path.isdir(os.path.join(folder, "mutants")):
             print(f"{key:<20} not run")

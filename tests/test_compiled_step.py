@@ -43,7 +43,7 @@ def _groups(system, context):
 
 
 def _assert_close(a, b, what):
-    for ga, gb in zip(a, b):
+    for ga, gb in zip(a, b, strict=True):
         finite = np.isfinite(ga)
         assert np.array_equal(finite, np.isfinite(gb)), what
         assert np.array_equal(ga[~finite], gb[~finite]) or np.all(np.isnan(ga[~finite]) == np.isnan(gb[~finite])), what
@@ -59,7 +59,7 @@ def _run(systems, inputs, steps, after_step=None):
         t = k * PERIOD
         values = inputs(k, t)  # one draw for both systems
         repeats = 1 + values.pop("_repeat", 0)  # a second step at the same instant: dt = 0, samples used
-        for s, c in zip(systems, contexts):
+        for s, c in zip(systems, contexts, strict=True):
             c.SetTime(t)
             for name, value in values.items():
                 if value is not None:
@@ -69,7 +69,7 @@ def _run(systems, inputs, steps, after_step=None):
         _assert_close(_groups(systems[0], contexts[0]), _groups(systems[1], contexts[1]), f"step {k}")
         if after_step is not None:
             after_step(systems[1], contexts[1])
-    return [s.estimate_vector(c) for s, c in zip(systems, contexts)], contexts
+    return [s.estimate_vector(c) for s, c in zip(systems, contexts, strict=True)], contexts
 
 
 def test_compiled_step_is_used_for_an_eligible_mekf_and_not_otherwise():

@@ -330,7 +330,7 @@ def test_tracker_mounting_is_handled_as_a_rotation_of_the_measurement():
     obs = VectorObservations(0.0, True, d_B @ R_SB.T, STARS_I, STAR_SIGMA, q_BS)
     s_mounted, info = core.update(s0, obs)
     assert info.accepted
-    for a, c in zip(core.estimate(s_body), core.estimate(s_mounted)):
+    for a, c in zip(core.estimate(s_body), core.estimate(s_mounted), strict=True):
         np.testing.assert_allclose(a, c, rtol=1e-9, atol=1e-20)
     s_wrong, _ = core.update(s0, VectorObservations(0.0, True, d_B @ R_SB, STARS_I, STAR_SIGMA, q_BS))
     assert np.linalg.norm(rot.quat_error_rotvec(core.estimate(s_wrong)[0], core.estimate(s_body)[0])) > 1e-3
@@ -514,7 +514,7 @@ def test_contract_and_state_vector_round_trip():
         v = core.to_vector(s)
         assert v.shape == (core.state_size,)
         back = core.from_vector(v)
-        for x, y in zip(core.estimate(s), core.estimate(back)):
+        for x, y in zip(core.estimate(s), core.estimate(back), strict=True):
             np.testing.assert_array_equal(x, y)
         assert core.zeta_moments(back) == core.zeta_moments(s)
         np.testing.assert_array_equal(core.to_vector(back), v)

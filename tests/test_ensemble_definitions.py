@@ -236,7 +236,7 @@ def test_nis_bands_of_inputs_of_mixed_dimension(start):
     out = ens.summarize(records, _scenario(s))["estimators"]["f"]["nis"]
     assert list(out) == inputs
     for name in inputs:
-        tn, v, d = (np.concatenate(a) for a in zip(*attempts[name]))
+        tn, v, d = (np.concatenate(a) for a in zip(*attempts[name], strict=True))
         w = in_window(tn, s)
         M, D = int(w.sum()), int(d[w].sum())
         got = out[name]

@@ -216,7 +216,7 @@ def test_the_expected_samples_written_out():
 def _jump_total(k: int) -> np.ndarray:
     """The bias jump total (rad/s) at sample k, from the config numbers."""
     total = np.zeros(3)
-    for t, j in zip(TIMING_FIELDS["bias_jump_times_s"], TIMING_FIELDS["bias_jumps_deg_per_h"]):
+    for t, j in zip(TIMING_FIELDS["bias_jump_times_s"], TIMING_FIELDS["bias_jumps_deg_per_h"], strict=True):
         if k >= _first_sample(t):
             total += np.asarray(j) * DEG / 3600.0
     return total

@@ -71,7 +71,7 @@ def rotmat(q):
 def eig_average(qs, w):
     """Markley's average: dominant eigenvector of sum w_i q_i q_i' (w normalized here)."""
     w = np.asarray(w, float) / np.sum(w)
-    M = sum(wi * np.outer(q, q) for wi, q in zip(w, qs))
+    M = sum(wi * np.outer(q, q) for wi, q in zip(w, qs, strict=True))
     vals, vecs = np.linalg.eigh(M)
     assert vals[-1] - vals[-2] > 1e-3  # unique average (inputs close to each other)
     return vecs[:, -1]
@@ -118,7 +118,7 @@ def n_effective(series_per_run):
 # StarTrackerAverage with fixed inputs
 # =====================================================================================
 def _fix_trackers(system, context, names, meas):
-    for n, m in zip(names, meas):
+    for n, m in zip(names, meas, strict=True):
         system.GetInputPort(f"q_meas_{n}").FixValue(context, np.asarray(m, float))
     return system.get_output_port(0).Eval(context)
 
@@ -140,19 +140,19 @@ def test_star_tracker_average_output_is_the_weighted_average_of_body_attitudes(n
     for trial in range(5):
         q_IB = random_quaternion(rng)
         deltas = rng.normal(size=(n_trackers, 3)) * 1e-3  # ~3.4 arcmin: first order holds to ~1e-6
-        q_IS = [qmul(qmul(q_IB, qb), qexp(d)) for qb, d in zip(q_BS, deltas)]
+        q_IS = [qmul(qmul(q_IB, qb), qexp(d)) for qb, d in zip(q_BS, deltas, strict=True)]
         t = 12.3 + trial
         out = _fix_trackers(sys_, ctx, names, [[t, 1.0, *q] for q in q_IS])
         assert out[0] == t and out[1] == 1.0
-        q_body = [qmul(q, qconj(qb)) for q, qb in zip(q_IS, q_BS)]
+        q_body = [qmul(q, qconj(qb)) for q, qb in zip(q_IS, q_BS, strict=True)]
         assert_same_rotation(out[2:], eig_average(q_body, w))
         # First-order error model (second-order terms ~ |delta|^2 = 1e-6 rad).
-        first_order = sum(wi * rotmat(qb) @ d for wi, qb, d in zip(w, q_BS, deltas))
+        first_order = sum(wi * rotmat(qb) @ d for wi, qb, d in zip(w, q_BS, deltas, strict=True))
         np.testing.assert_allclose(qlog(qmul(qconj(q_IB), out[2:])), first_order, atol=5e-6)
         # Same rotations with flipped quaternion signs: the same output.
         flips = rng.choice([-1.0, 1.0], size=n_trackers)
         flips[0] = -1.0
-        out_flipped = _fix_trackers(sys_, ctx, names, [[t, 1.0, *(s * q)] for s, q in zip(flips, q_IS)])
+        out_flipped = _fix_trackers(sys_, ctx, names, [[t, 1.0, *(s * q)] for s, q in zip(flips, q_IS, strict=True)])
         assert_same_rotation(out_flipped[2:], out[2:], atol=1e-14)
 
 
@@ -173,7 +173,7 @@ def test_star_tracker_average_uses_the_trackers_that_are_fine_and_says_which():
     q_IS = [qmul(q_IB, qb) for qb in q_BS]
 
     def run(times=(5.0, 5.0, 5.0), flags=(1.0, 1.0, 1.0), quats=q_IS):
-        return _fix_trackers(sys_, ctx, names, [[t, f, *q] for t, f, q in zip(times, flags, quats)])
+        return _fix_trackers(sys_, ctx, names, [[t, f, *q] for t, f, q in zip(times, flags, quats, strict=True)])
 
     good = run()
     assert good[1] == 1.0 and good[0] == 5.0
@@ -221,7 +221,7 @@ def test_star_tracker_average_covariance_matches_sampled_errors_unequal_weights(
     weights = [1.0, 2.0, 3.0]
     w = np.array(weights) / 6.0
     sys_ = StarTrackerAverage("avg", names, q_BS, sigmas, weights)
-    S = sum(wi**2 * rotmat(qb) @ np.diag(s**2) @ rotmat(qb).T for wi, qb, s in zip(w, q_BS, sigmas))
+    S = sum(wi**2 * rotmat(qb) @ np.diag(s**2) @ rotmat(qb).T for wi, qb, s in zip(w, q_BS, sigmas, strict=True))
     np.testing.assert_allclose(sys_.covariance_B, S, rtol=1e-12, atol=1e-30)
 
     ctx = sys_.CreateDefaultContext()
@@ -290,9 +290,9 @@ def test_estimate_fusion_three_sources_unequal_weights(model):
     _fix_sources(sys_, ctx, names, q, second, P, status)
     out = _outputs(sys_, ctx)
     c = w if model == "conservative" else w**2
-    np.testing.assert_allclose(out["covariance"].reshape(6, 6), sum(ci * Pi for ci, Pi in zip(c, P)), rtol=1e-12)
+    np.testing.assert_allclose(out["covariance"].reshape(6, 6), sum(ci * Pi for ci, Pi in zip(c, P, strict=True)), rtol=1e-12)
     assert_same_rotation(out["q_IB_hat"], eig_average(q, w))
-    np.testing.assert_allclose(out["bias_B_hat"], sum(wi * s for wi, s in zip(w, second)), rtol=1e-12)
+    np.testing.assert_allclose(out["bias_B_hat"], sum(wi * s for wi, s in zip(w, second, strict=True)), rtol=1e-12)
     assert out["status"][0] == 7.0 and out["status"][1] == 33.0 and out["status"][2] == 6.0
     assert np.isnan(out["status"][3])
     # One source's quaternion negated (same rotation): same fused attitude.

@@ -49,7 +49,7 @@ class _OldStarTrackerAverage(StarTrackerAverage):
         out = np.empty(6)
         q_avg, flag = np.array([1.0, 0.0, 0.0, 0.0]), 0.0
         if fine.all():
-            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS)])
+            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS, strict=True)])
             q_avg, flag = average_quaternions(q_B, self.weights), 1.0
         elif fine.any():
             idx = np.flatnonzero(fine)
@@ -230,7 +230,7 @@ def test_star_tracker_average_equals_the_previous_implementation(n, weights):
     for trial in range(400):
         rows = _tracker_rows(rng, q_BS)
         for sys_, ctx in ((new, ctx_new), (old, ctx_old)):
-            for name, row in zip(names, rows):
+            for name, row in zip(names, rows, strict=True):
                 sys_.GetInputPort(f"q_meas_{name}").FixValue(ctx, row)
         out_new = _eval_or_error(new.get_output_port(0), ctx_new)
         out_old = _eval_or_error(old.get_output_port(0), ctx_old)
@@ -263,7 +263,7 @@ def test_star_tracker_average_nominal_samples_take_the_lean_path(monkeypatch):
             cases.append(rows)
         expected = []
         for rows in cases:
-            for name, row in zip(names, rows):
+            for name, row in zip(names, rows, strict=True):
                 old.GetInputPort(f"q_meas_{name}").FixValue(ctx_old, row)
             expected.append(old.get_output_port(0).Eval(ctx_old).copy())
 
@@ -272,8 +272,8 @@ def test_star_tracker_average_nominal_samples_take_the_lean_path(monkeypatch):
 
         with monkeypatch.context() as m:
             m.setattr(fusion, "average_quaternions", fail)
-            for rows, out_old in zip(cases, expected):
-                for name, row in zip(names, rows):
+            for rows, out_old in zip(cases, expected, strict=True):
+                for name, row in zip(names, rows, strict=True):
                     new.GetInputPort(f"q_meas_{name}").FixValue(ctx_new, row)
                 _compare_measurement(new.get_output_port(0).Eval(ctx_new), out_old, f"n={n}")
 
@@ -303,7 +303,7 @@ def _source_inputs(rng, n, tracked):
     spread = rng.choice([1e-4, 1e-2, 0.3])
     t = rng.uniform(0.0, 1e4)
     inputs = []
-    for i in range(n):
+    for _i in range(n):
         q = qmul(q0, qexp(rng.normal(size=3) * spread))
         q = q * rng.choice([-1.0, 1.0]) * rng.choice([1.0] * 6 + [1.0 + 1e-9, 3.0, 1e-3, 1e-60, 1e60])
         used = rng.choice([0.0, 0.0, 1.0, 37.0, NAN])
@@ -315,7 +315,7 @@ def _source_inputs(rng, n, tracked):
     if tracked:
         applied = float(rng.integers(0, 5))
         steps = {0: (applied, applied), 1: (applied + 1, applied + 1), 2: (applied + 1, applied + 2)}[rng.integers(3)]
-        for src, step in zip(inputs, steps):
+        for src, step in zip(inputs, steps, strict=True):
             Phi, A = np.eye(6) + 0.1 * rng.normal(size=(6, 6)), np.eye(6) - 0.3 * rng.random((6, 6))
             src["linearization"] = np.r_[Phi.ravel(), _random_spd(rng, 1e-3).ravel(), A.ravel(), step]
         state = np.r_[(rng.normal(size=(6, 6)) * 1e-3).ravel(), applied]
@@ -323,7 +323,7 @@ def _source_inputs(rng, n, tracked):
 
 
 def _fix(sys_, ctx, names, inputs, state):
-    for name, src in zip(names, inputs):
+    for name, src in zip(names, inputs, strict=True):
         for key, value in src.items():
             sys_.GetInputPort(f"{name}_{key}").FixValue(ctx, value)
     if state is not None:

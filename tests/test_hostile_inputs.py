@@ -55,7 +55,7 @@ import sys
 import time
 import traceback
 import zipfile
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pytest

@@ -132,7 +132,7 @@ def test_every_centroid_back_projects_onto_its_star_and_every_other_star_is_out_
             ids, xy = geom.project(R_IB.inverse().matrix())
             c_I = R_IB.multiply(geom.R0_B)
             b = np.column_stack([-xy, np.full(len(xy), -FOCAL)])
-            for star, bi in zip(ids, b):
+            for star, bi in zip(ids, b, strict=True):
                 d_I = R_IB.multiply(bi / np.linalg.norm(bi))
                 t = (-H - c_I[2]) / d_I[2]
                 assert t > 0
@@ -690,7 +690,7 @@ def test_camera_frames_repeat_with_the_seed_and_differ_between_seeds():
     a, _, _, _ = camera_frames(noise, SEED_A, 40)
     b, _, _, _ = camera_frames(noise, SEED_A, 40)
     c, _, _, _ = camera_frames(noise, SEED_B, 40)
-    for fa, fb, fc in zip(a, b, c):
+    for fa, fb, fc in zip(a, b, c, strict=True):
         np.testing.assert_array_equal(fa.centroids_m, fb.centroids_m)
         assert fa.valid == fb.valid and fa.time_s == fb.time_s
         assert np.all(fa.centroids_m != fc.centroids_m)

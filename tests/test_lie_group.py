@@ -93,7 +93,10 @@ def s4_truth(n_steps, substeps=10):
     return out
 
 
-def stars(R_IB, refs=S4_REFS, noise=None, q_BS=IDENTITY_Q, R_SB=np.eye(3), t=0.0, sigma=1e-3):
+_I3 = np.eye(3)  # default mounting (read only)
+
+
+def stars(R_IB, refs=S4_REFS, noise=None, q_BS=IDENTITY_Q, R_SB=_I3, t=0.0, sigma=1e-3):
     """VectorObservations of the references seen from attitude R_IB (sensor frame S)."""
     d = refs @ R_IB @ R_SB.T  # rows: R_SB R_IB' r_i
     if noise is not None:
@@ -461,7 +464,10 @@ def quat_of(R):
     return RotationMatrix(R).ToQuaternion().wxyz()
 
 
-def quaternion_sample(R_IB, cov_S, q_BS=Q_BS_TEST, R_BS=R_BS_TEST, delta_S=np.zeros(3), t=0.0, flip=False):
+_ZERO3 = np.zeros(3)  # default tracker error (read only)
+
+
+def quaternion_sample(R_IB, cov_S, q_BS=Q_BS_TEST, R_BS=R_BS_TEST, delta_S=_ZERO3, t=0.0, flip=False):
     """QuaternionSample of a tracker mounted by q_BS: R_IS = R_IB R_BS exp([delta_S x])."""
     q = quat_of(R_IB @ R_BS @ drake_exp(delta_S))
     return QuaternionSample(float(t), True, -q if flip else q, np.array(q_BS, dtype=float), np.array(cov_S))
@@ -720,30 +726,30 @@ def test_bias_mode_equals_the_mekf_to_round_off():
 
 
 # -- the plug-in ---------------------------------------------------------------------------------
-PLUGIN_SCENARIO = """
+PLUGIN_SCENARIO = f"""
 name: lie_group_bias_plugin
 duration_s: 60.0
-simulation: {integration_scheme: runge_kutta3, use_error_control: false, max_step_size_s: 0.5}
-plant: !RigidBodyConfig {inertia_kg_m2: [100.0, 200.0, 200.0], initial_rate_deg_per_s: [0.5, -0.3, 0.2],
-                         disturbance_torque_N_m: [0.0, 0.0, 0.0]}
+simulation: {{integration_scheme: runge_kutta3, use_error_control: false, max_step_size_s: 0.5}}
+plant: !RigidBodyConfig {{inertia_kg_m2: [100.0, 200.0, 200.0], initial_rate_deg_per_s: [0.5, -0.3, 0.2],
+                         disturbance_torque_N_m: [0.0, 0.0, 0.0]}}
 sensors:
-- !GyroConfig {name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.1, rrw_deg_per_h15: 1.0,
-               initial_bias_deg_per_h: [12.0, -8.0, 5.0]}
-- !StarTrackerConfig {name: stq, period_s: 0.5, mode: quaternion,
-                      mounting: !PaperS3Eq7Mounting {psi_phi_theta_deg: [-90.0, 45.0, -90.0]},
-                      sigma_cross_boresight_arcsec: 5.0, sigma_boresight_arcsec: 50.0}
-- !StarTrackerConfig {name: stv, period_s: 1.0, mode: vectors, references_I: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-                      sigma_vector_urad: 100.0}
+- !GyroConfig {{name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.1, rrw_deg_per_h15: 1.0,
+               initial_bias_deg_per_h: [12.0, -8.0, 5.0]}}
+- !StarTrackerConfig {{name: stq, period_s: 0.5, mode: quaternion,
+                      mounting: !PaperS3Eq7Mounting {{psi_phi_theta_deg: [-90.0, 45.0, -90.0]}},
+                      sigma_cross_boresight_arcsec: 5.0, sigma_boresight_arcsec: 50.0}}
+- !StarTrackerConfig {{name: stv, period_s: 1.0, mode: vectors, references_I: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                      sigma_vector_urad: 100.0}}
 estimators:
-- !MekfConfig {name: mekf_q, star_trackers: [stq], initial_attitude_rpy_deg: [1.0, -1.0, 0.5],
-               initial_attitude_sigma_deg: 2.0}
-- !LieGroupConfig {name: lg_q, star_tracker: stq, estimate_gyro_bias: true, initial_attitude_rpy_deg: [1.0, -1.0, 0.5],
-                   initial_attitude_variance_rad2: %r}
-- !MekfConfig {name: mekf_v, star_trackers: [stv], initial_attitude_sigma_deg: 2.0}
-- !LieGroupConfig {name: lg_v, star_tracker: stv, estimate_gyro_bias: true, star_noise_from_tracker: true,
-                   initial_attitude_variance_rad2: %r}
-- !LieGroupConfig {name: lg_q_no_bias, star_tracker: stq}
-""" % ((2.0 * DEG) ** 2, (2.0 * DEG) ** 2)
+- !MekfConfig {{name: mekf_q, star_trackers: [stq], initial_attitude_rpy_deg: [1.0, -1.0, 0.5],
+               initial_attitude_sigma_deg: 2.0}}
+- !LieGroupConfig {{name: lg_q, star_tracker: stq, estimate_gyro_bias: true, initial_attitude_rpy_deg: [1.0, -1.0, 0.5],
+                   initial_attitude_variance_rad2: {(2.0 * DEG) ** 2!r}}}
+- !MekfConfig {{name: mekf_v, star_trackers: [stv], initial_attitude_sigma_deg: 2.0}}
+- !LieGroupConfig {{name: lg_v, star_tracker: stv, estimate_gyro_bias: true, star_noise_from_tracker: true,
+                   initial_attitude_variance_rad2: {(2.0 * DEG) ** 2!r}}}
+- !LieGroupConfig {{name: lg_q_no_bias, star_tracker: stq}}
+"""
 
 
 @pytest.fixture(scope="module")

@@ -936,7 +936,7 @@ def test_coning_state_first_step_held_rate_and_updates():
                                    [0.04, 0.01, 0.09], [0.03, 0.02, 0.08], [0.02, 0.04, 0.07])]
     corrected = [False, True, False, False, True, True]  # first step; held (3rd) and the one after
     dt, prev = 0.5, None
-    for w, expect_correction in zip(rates, corrected):
+    for w, expect_correction in zip(rates, corrected, strict=True):
         new = coned.predict(s, w, dt)
         dtheta = (w - bias) * dt
         phi = dtheta + np.cross((prev - bias) * dt, dtheta) / 12.0 if expect_correction else dtheta
@@ -984,7 +984,7 @@ def test_coning_correction_in_the_estimator_system_around_a_missing_gyro_sample(
              [0.03, 0.02, 0.08], [0.02, 0.04, 0.07]]
     corrected = [None, False, True, False, False, True, True]  # t = 0: no step; then as above
     q, prev, held = q0, None, None
-    for k, (w, expect) in enumerate(zip(rates, corrected)):
+    for k, (w, expect) in enumerate(zip(rates, corrected, strict=True)):
         ctx.SetTime(float(k))
         sample = [float(k), 1.0, *(w if w is not None else [np.nan] * 3)]
         est.GetInputPort("gyro_measurement").FixValue(ctx, sample)
@@ -1043,7 +1043,7 @@ def _tumble_statistics(rate_deg_s, seeds, duration=400.0):
         o["band"] = scipy.stats.chi2.ppf([0.005, 0.995], 6 * n_eff) / n_eff
         o["bz_mean"] = float(np.concatenate(o["bz"]).mean())
         o["bz_rmse"] = float(np.sqrt(np.mean(np.concatenate(o["bz"]) ** 2)))
-    diff = [p - c for p, c in zip(out["plain"]["bz"], out["coned"]["bz"])]
+    diff = [p - c for p, c in zip(out["plain"]["bz"], out["coned"]["bz"], strict=True)]
     d = np.concatenate(diff)
     return out, float(d.mean()), float(d.std() / math.sqrt(n_effective(diff)))
 

@@ -15,7 +15,7 @@ import pytest
 
 from drake_att import rotations as rot
 from drake_att.filters.gating import InnovationGate
-from drake_att.filters.mekf import MultiplicativeEKF, MekfState
+from drake_att.filters.mekf import MekfState, MultiplicativeEKF
 
 RTOL = 1e-12
 
@@ -93,7 +93,7 @@ def test_singular_innovation_covariance_is_rejected_like_the_reference():
     s = MekfState(np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros((6, 6)))
     q = np.array([1.0, 0, 0, 0])
     for noise in (np.zeros(3), np.full(3, np.nan), np.diag([1.0, -1.0, 1.0])):
-        (a, ia), (b, ib) = fast.update_quaternion(s, q, q, noise), ref.update_quaternion(s, q, q, noise)
+        (_, ia), (_, ib) = fast.update_quaternion(s, q, q, noise), ref.update_quaternion(s, q, q, noise)
         assert not ia.accepted and not ib.accepted and math.isnan(ia.nis) and math.isnan(ib.nis)
 
 

@@ -143,7 +143,7 @@ def lagged_estimator(name="mekf", n=6, second_name="bias_B_hat", bias_offset=0.0
     t_log = np.arange(n, dtype=float)
     t_est = np.r_[0.0, t_log[:-1]]
     status, q_hat, second, P = [], [], [], []
-    for k, (tl, te) in enumerate(zip(t_log, t_est)):
+    for k, (_tl, te) in enumerate(zip(t_log, t_est, strict=True)):
         d = d_at(te) if (k > 0 or dup_first_d is None) else dup_first_d
         status.append([te, 10 * k, k, 0.5])
         q_hat.append(q_hat_for(te, d))
@@ -254,11 +254,11 @@ def test_attitude_error_convention_matches_design():
     t = np.array([0.0, 1.0, 2.0])
     d = [np.array([1e-3, -2e-3, 0.5e-3]), np.array([-0.02, 0.01, 0.03]), np.array([0.4, 0.0, -0.3])]
     # Self-check of the construction against the DESIGN.md definition (matrices, not quaternions).
-    for ti, di in zip(t, d):
+    for ti, di in zip(t, d, strict=True):
         R_err = rotmat(q_hat_for(ti, di)).T @ rotmat(q_true_at(ti))
         np.testing.assert_allclose(R_err, rodrigues(di), atol=1e-14)
     sig = truth_signals(t)
-    sig.update(estimator_signals("mekf", t, [[ti, 0, 0, 0] for ti in t], [q_hat_for(ti, di) for ti, di in zip(t, d)],
+    sig.update(estimator_signals("mekf", t, [[ti, 0, 0, 0] for ti in t], [q_hat_for(ti, di) for ti, di in zip(t, d, strict=True)],
                                  np.zeros((3, 3)), [np.eye(6)] * 3))
     errs = errors_of(make_run(sig), "mekf", "bias_B_hat", None)
     np.testing.assert_allclose(errs["dtheta"], np.array(d), rtol=0, atol=1e-12)
@@ -278,7 +278,7 @@ def test_estimate_is_scored_against_truth_at_its_own_time():
     np.testing.assert_allclose(errs["q_true"], [q_true_at(t) for t in t_expected], rtol=0, atol=1e-15)
     # The test discriminates: scoring at the log time (one step later) would be off by ~0.3 rad.
     wrong = [rodrigues_log(rotmat(q_hat_for(te, d_at(te))).T @ rotmat(q_true_at(te + 1.0))) for te in t_expected[1:]]
-    assert min(np.linalg.norm(w - d_at(te)) for w, te in zip(wrong, t_expected[1:])) > 0.25
+    assert min(np.linalg.norm(w - d_at(te)) for w, te in zip(wrong, t_expected[1:], strict=True)) > 0.25
 
 
 def rodrigues_log(R):
@@ -487,7 +487,7 @@ def test_nees_six_dof_for_rate_estimators():
     diag = np.array([1e-6, 4e-6, 2.25e-6, 1e-12, 4e-12, 9e-12])
     run, t = _nees_log([np.diag(diag)] * 3, second_name="w_IB_B_hat")
     errs = errors_of(run, "est", "w_IB_B_hat", None)
-    expected = [sum(v ** 2 / s for v, s in zip(np.r_[d_at(ti), e2_at(ti)], diag)) for ti in t]
+    expected = [sum(v ** 2 / s for v, s in zip(np.r_[d_at(ti), e2_at(ti)], diag, strict=True)) for ti in t]
     np.testing.assert_allclose(errs["nees"], expected, rtol=1e-9)
 
 
@@ -676,7 +676,7 @@ def test_compute_metrics_on_tiny_scenario(tiny_metrics):
     e2 = [e2_at(t) for t in t_scored]
     # NEES with the lagged log's covariance diag(...) * (1 + log index), log index = t_est + 1
     diag = [1e-6, 4e-6, 2.25e-6, 1e-12, 4e-12, 9e-12]
-    nees = [sum(v * v / (s * (t + 2)) for v, s in zip(np.r_[d_at(t), e2_at(t)], diag)) for t in t_scored]
+    nees = [sum(v * v / (s * (t + 2)) for v, s in zip(np.r_[d_at(t), e2_at(t)], diag, strict=True)) for t in t_scored]
     # convergence: every axis |d| <= 0.1 deg from t = 2 on (see d_at), by brute force too
     conv = reference_convergence_time(np.arange(5.0), [d_at(t) / DEG_ for t in range(5)], 0.1)
     assert conv == 2.0
@@ -794,7 +794,7 @@ def _check_aligned(text):
     header, body = lines[dash - 1], lines[dash + 1:footer]
     assert all(len(ln) == len(header) for ln in body), [len(ln) for ln in [header, *body]]
     ends = [[m.end() for m in re.finditer(r"\S+", ln)][1:] for ln in body]  # after the name
-    full = [e for e, ln in zip(ends, body) if ln.split()[8] in ("b", "w")]
+    full = [e for e, ln in zip(ends, body, strict=True) if ln.split()[8] in ("b", "w")]
     assert full, "the table has a row with bias or rate numbers"
     assert all(e == full[0] for e in full), full
     for e in ends:

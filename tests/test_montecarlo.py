@@ -46,7 +46,7 @@ def _without_commands(summary: dict) -> dict:
 
 def assert_records_identical(a: list, b: list) -> None:
     assert len(a) == len(b)
-    for ra, rb in zip(a, b):
+    for ra, rb in zip(a, b, strict=True):
         ra, rb = _comparable(ra), _comparable(rb)
         assert sorted(ra) == sorted(rb)
         assert ra.pop("metrics") == rb.pop("metrics")
@@ -163,10 +163,9 @@ def test_ctrl_c_keeps_finished_runs_and_resume_completes(tmp_path):
 
 
 def _write_campaign_folder(path, overrides):
+    from drake_att.analysis.montecarlo import CONFIG_HEADER
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
-
-    from drake_att.analysis.montecarlo import CONFIG_HEADER
 
     os.makedirs(path / "runs")
     (path / "config.yaml").write_text(CONFIG_HEADER + dump_scenario(apply_overrides(load(SCENARIO), overrides)))

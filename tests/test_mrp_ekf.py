@@ -6,16 +6,14 @@ import functools
 
 import numpy as np
 import pytest
+from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation
+from s0_truth import simulate_gyro_truth as simulate_truth
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 from scipy.stats import chi2
 
 from drake_att import rotations as rot
 from drake_att.contract import UpdateInfo, VectorObservations
-from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation
-from s0_truth import simulate_gyro_truth as simulate_truth
-
-from drake_att.validation import check_quaternion
 from drake_att.filters.mrp_ekf import (
     MrpEkfCore,
     attitude_to_mrp_covariance,
@@ -32,6 +30,8 @@ from drake_att.filters.mrp_ekf import (
     vector_measurement_jacobian,
     vector_measurement_model,
 )
+from drake_att.validation import check_quaternion
+
 
 def run_ekf(core, state, wms, ys, dt=1.0):
     """Update at t_0, then predict + update; returns the last state, per-step q_hat, b_hat,
@@ -130,7 +130,7 @@ def test_transition_matrix_matches_discrete_map_jacobian():
         x = np.concatenate([0.3 * rng.normal(size=3), 1e-3 * rng.normal(size=3)])
         w_meas = 0.05 * rng.normal(size=3)
         for dt in (1.0, 0.1):
-            def step(x):
+            def step(x, w_meas=w_meas, dt=dt):
                 return np.concatenate([propagate_mrp(x[:3], w_meas - x[3:], dt), x[3:]])
 
             x_mid = np.concatenate([propagate_mrp(x[:3], w_meas - x[3:], dt / 2), x[3:]])
@@ -228,7 +228,7 @@ def nees_truths(num_runs=25, num_steps=120):
         d = L @ rng.standard_normal(6)
         q_true0 = rot.quat_multiply(q_hat0, rot.rotvec_to_quat(d[:3]))
         runs.append(simulate_truth(num_steps, rng, q0=q_true0, bias0=b_hat0 + d[3:]))
-    return (q_hat0, b_hat0) + tuple(np.array(a) for a in zip(*runs))
+    return (q_hat0, b_hat0) + tuple(np.array(a) for a in zip(*runs, strict=True))
 
 
 def nees_monte_carlo(update_iterations):

@@ -20,7 +20,7 @@ from drake_att.outputs import OutputError
 def snapshot(root) -> dict:
     """(relative path -> (size, sha256)) of every file under ``root``, and every folder."""
     out = {}
-    for folder, dirs, files in os.walk(root):
+    for folder, _dirs, files in os.walk(root):
         rel = os.path.relpath(folder, root)
         out[rel + "/"] = None
         for name in files:

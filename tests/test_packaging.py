@@ -8,8 +8,9 @@ import subprocess
 import sys
 import textwrap
 import time
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 REPO = Path(__file__).resolve().parents[1]
 

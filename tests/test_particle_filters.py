@@ -7,15 +7,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from s0_truth import BODY, DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation, simulate_gyro_truth
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from scipy.stats import chi2
 
 from drake_att import rotations as rot
-from drake_att.filters.mrp_ekf import MrpEkfCore, vector_measurement_model
-from s0_truth import (BODY, DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation,
-                      simulate_gyro_truth)
-
 from drake_att.contract import FilterCore, ParticleSet, RandomInitialState, SecondQuantity, VectorObservations
+from drake_att.filters.mrp_ekf import MrpEkfCore, vector_measurement_model
 from drake_att.filters.particle import (
     BootstrapPfCore,
     EffectiveSampleSizeGate,
@@ -260,7 +258,7 @@ def test_weights_stay_finite_and_normalized_over_many_steps():
     cores = [BootstrapPfCore(300, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7)),
              EkpfCore(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U)]
     initial = [core.draw_initial_state(rng) for core in cores]
-    for core, state in zip(cores, initial):
+    for core, state in zip(cores, initial, strict=True):
         state, _, infos = run_filter(core, state, ys, rng, wms, check=assert_weights_ok)
         assert [k for k, info in enumerate(infos) if not info.accepted] == [10, 20]  # declined
         C = core.estimate(state)[2]
@@ -302,7 +300,7 @@ def _run_all_filters(seed):
 
 def test_same_seed_reproduces_exactly_and_other_seed_differs():
     a, b, c = _run_all_filters(5), _run_all_filters(5), _run_all_filters(6)
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
     assert not np.array_equal(a[0], c[0])
 
@@ -455,13 +453,13 @@ def test_bootstrap_bias_does_not_converge_without_roughening():
         core = BootstrapPfCore(1000, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(rough))
         spreads = []
         out = run_gyro_filter(core, ys, wms, rng,
-                              check=lambda c, state: spreads.append(np.std(state.particles[:, 3:], 0)))
-        b_err = np.array([b - bt for (_, b), bt in zip(out, b_true)])
+                              check=lambda c, state, spreads=spreads: spreads.append(np.std(state.particles[:, 3:], 0)))
+        b_err = np.array([b - bt for (_, b), bt in zip(out, b_true, strict=True)])
         results[rough] = (out, b_err, np.array(spreads))
     msn_bound = chi2.ppf(0.999, 30) / 30
 
     def attitude_msn(out, rough):
-        errors = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out[300:], q_true[300:])]
+        errors = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out[300:], q_true[300:], strict=True)]
         return mean_square_normalized(errors, steady_state_sd(2e-5, rough)[0])
 
     out, b_err, spreads = results[0.0]
@@ -544,9 +542,9 @@ def test_ekpf_from_large_initial_error():
     ekpf = EkpfCore(200, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, proposal_iterations=10)
     covs = []
     out = run_gyro_filter(ekpf, ys, wms, rng, check=lambda core, state: covs.append(core.estimate(state)[2]))
-    errs = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out, q_true)]
+    errs = [rot.quat_error_rotvec(q, qt) for (q, _), qt in zip(out, q_true, strict=True)]
     assert np.linalg.norm(errs[0]) < 0.05 * DEG
-    nees = np.array([e @ np.linalg.solve(C[:3, :3], e) for e, C in zip(errs, covs)])
+    nees = np.array([e @ np.linalg.solve(C[:3, :3], e) for e, C in zip(errs, covs, strict=True)])
     assert np.max(nees[1:]) < chi2.ppf(1.0 - 0.001 / (num_steps - 1), 3), np.argmax(nees[1:])
     # Bias (initial error 1.7 deg/h): consistent with the EKPF's own bias covariance and
     # reduced to under a third of the initial error (measured 0.2 deg/h).
@@ -587,8 +585,8 @@ def test_gyroless_particle_filter_tracks_attitude_and_rate():
     rng = np.random.default_rng(62)
     gpf = GyrolessPfCore(1000, q0, w0, P0, INERTIA, TORQUE, 1e-6, attitude_process_sigma=3e-5)
     out = run_filter(gpf, gpf.draw_initial_state(rng), ys, rng)[1]
-    q_err = [rot.quat_error_rotvec(q_hat, q) for (q_hat, _), q in zip(out, q_true)]
-    w_err = [w_hat - w for (_, w_hat), w in zip(out, w_true)]
+    q_err = [rot.quat_error_rotvec(q_hat, q) for (q_hat, _), q in zip(out, q_true, strict=True)]
+    w_err = [w_hat - w for (_, w_hat), w in zip(out, w_true, strict=True)]
     sd = steady_state_sd(3e-5, 1e-6, truth_without_noise=True)
     assert mean_square_normalized(q_err[-100:], sd[0]) < chi2.ppf(0.999, 30) / 30
     assert mean_square_normalized(w_err[-100:], sd[1]) < chi2.ppf(0.999, 6) / 6
@@ -685,7 +683,7 @@ def test_mean_and_covariance_are_weighted_statistics_of_the_set():
     np.testing.assert_allclose(b_mean, b_hat, rtol=1e-12, atol=0)
     q_hat_conj = q_hat * np.array([1.0, -1.0, -1.0, -1.0])
     e = np.array([np.concatenate([_rotvec_of(_quat_mul(q_hat_conj, qi)), bi - b_hat])
-                  for qi, bi in zip(q_set, particles[:, 3:])])
+                  for qi, bi in zip(q_set, particles[:, 3:], strict=True)])
     C = (e * w[:, None]).T @ e
     np.testing.assert_allclose(C_core, C, rtol=1e-9, atol=1e-12 * np.max(np.abs(C)))
     # The weights matter here: the unweighted average is far from the weighted one.
@@ -807,7 +805,7 @@ def test_update_reports_its_particle_diagnostics_and_estimates_from_the_weighted
     state = core.draw_initial_state(rng)
     copies = [np.copy(a) for a in (state.particles, state.weights, state.log_weights)]
     new, info = core.update(state, observation(ys[0]), rng)
-    for a, b in zip(copies, (state.particles, state.weights, state.log_weights)):
+    for a, b in zip(copies, (state.particles, state.weights, state.log_weights), strict=True):
         np.testing.assert_array_equal(a, b)
     assert info.accepted and info.resampled and not info.degenerate  # 1 deg prior, 100 urad: N_eff ~ 1
     particles, weights = new.estimate_set

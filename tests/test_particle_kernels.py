@@ -206,19 +206,24 @@ def test_filters_equal_the_reference_over_a_run(kind):
     b0 = np.full(3, 2 * DEG / HOUR)
     tol = 1e-13
     if kind == "ekpf":
-        make = lambda k: EkpfCore(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, kernel=k)
+        def make(k):
+            return EkpfCore(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U, kernel=k)
+
         tol = 1e-10
     elif kind.startswith("ekpf iterated"):
         q_far = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
-        make = lambda k: EkpfCore(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, proposal_iterations=10, kernel=k)
+        def make(k):
+            return EkpfCore(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, proposal_iterations=10, kernel=k)
+
         tol = 1e-9
     elif kind == "bootstrap":
-        make = lambda k: BootstrapPfCore(500, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7),
-                                         kernel=k)
+        def make(k):
+            return BootstrapPfCore(500, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7), kernel=k)
     else:
         P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
-        make = lambda k: GyrolessPfCore(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6,
-                                        attitude_process_sigma=3e-5, num_substeps=2, kernel=k)
+        def make(k):
+            return GyrolessPfCore(500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6,
+                                  attitude_process_sigma=3e-5, num_substeps=2, kernel=k)
     twins = _twin_filters(make)
     resamplings = 0
     for k in range(len(ys)):
@@ -265,7 +270,7 @@ def test_singular_covariances_take_the_reference_repair_bit_for_bit():
             state, info = core.update(replace(state, covariances=covariances), observation(y), np.random.default_rng(2))
             assert info.accepted
             out.append((state.particles, state.covariances, state.log_weights))
-        for a, b in zip(*out):
+        for a, b in zip(*out, strict=True):
             np.testing.assert_array_equal(a, b)
 
 
@@ -284,7 +289,7 @@ def test_a_whole_s0_scenario_run_equals_the_reference_run():
     runs = {k: sd.simulate(3, estimators=names, overrides=[f"estimators.{n}.kernel={k}" for n in names])
             for k in ("numpy", "numba")}
     compared = 0
-    for key, (t, ref) in runs["numpy"].signals.items():
+    for key, (_t, ref) in runs["numpy"].signals.items():
         if key.split("/")[0] not in names or key.endswith(("status", "innovations")):
             continue
         new = runs["numba"].values(key)

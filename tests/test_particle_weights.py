@@ -19,7 +19,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from s0_truth import P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation
 
 from drake_att.filters.mrp_ekf import vector_measurement_model
@@ -149,7 +148,7 @@ LINEARIZATION_TOL = 1e-2
 def test_ekpf_update_weights_are_prior_times_predictive_likelihood(seed):
     q_c, y, means, covs, log_w0 = _ekpf_components(seed)
     expected = _normalized_log(log_w0 + np.array(
-        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(means, covs)]))
+        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(means, covs, strict=True)]))
     assert np.ptp(expected) > 3.0  # the test discriminates: weights differ by e^3 and more
     assert np.ptp(log_w0) > 2.0  # ... and the prior weights matter
     results = []
@@ -188,7 +187,7 @@ def test_ekpf_weights_carry_over_updates_as_product_of_predictive_likelihoods():
             R_true = R_true @ _rodrigues(W_TRUE)
         y = _h(R_true) + SIGMA_STAR * data.standard_normal(6)
         expected += np.array([_log_predictive(m, P, y, SIGMA_STAR)
-                              for m, P in zip(state.particles, state.covariances)])
+                              for m, P in zip(state.particles, state.covariances, strict=True)])
         state, info = core.update(state, observation(y), rng)
         np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0,
                                    atol=LINEARIZATION_TOL)
@@ -278,6 +277,6 @@ def test_ekpf_weights_with_a_zero_variance_bias_are_the_predictive_likelihood(si
     state = replace(state, covariances=covariances)
     y = _h(_R_IB_from_mrp(_mrp(q0))) + SIGMA_STAR * np.random.default_rng(1).standard_normal(6)
     expected = _normalized_log(state.log_weights + np.array(
-        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(state.particles, state.covariances)]))
+        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(state.particles, state.covariances, strict=True)]))
     state, _ = core.update(state, observation(y), np.random.default_rng(2))
     np.testing.assert_allclose(state.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)

@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 from pydrake.common.eigen_geometry import Quaternion
 from pydrake.math import RigidTransform, RollPitchYaw
+from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia
-from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
@@ -281,7 +281,7 @@ def test_prescribed_rpy_breakpoints_body_rate_matches_rpy_rates():
     rpy, rates = rpy_interp(times)
     expected = rot.rpy_rates_to_body_rate(rpy, rates)
     drake = np.array([RollPitchYaw(r).CalcAngularVelocityInChildFromRpyDt(rd)
-                      for r, rd in zip(rpy, rates)])
+                      for r, rd in zip(rpy, rates, strict=True)])
     assert np.allclose(w, expected, rtol=0, atol=1e-14)
     assert np.allclose(w, drake, rtol=0, atol=1e-14)
     assert np.allclose(w[-1], 0.0, atol=0)

@@ -454,8 +454,9 @@ def test_contract_unusable_inputs_are_skipped_counted_and_change_nothing_else(co
                                                 lambda t, port=port, how=how: _corrupt(port, t, how), how)
     if d.has_gyro:
         for how, make in GYRO_CORRUPTIONS.items():
+            w_next = _gyro_rate(step + 1)
             step, w_last = _check_unusable_step(d, step, w_last, "gyro", "gyro_measurement",
-                                                lambda t, make=make, w=_gyro_rate(step + 1): make(t, w), how)
+                                                lambda t, make=make, w=w_next: make(t, w), how)
 
     if system.HasInputPort("gyro_measurement"):
         # A gyro input never connected: every step after the first is counted and the held
@@ -644,7 +645,7 @@ def test_registry_refuses_optional_fields_whose_default_is_not_none():
     from drake_att.scenarios.registry import PluginError, register_estimator
 
     _LossyConfig = dc.make_dataclass("_LossyConfig", [("name", str, dc.field(default="lossy")),
-                                                      ("gain", typing.Optional[float], dc.field(default=0.5))])
+                                                      ("gain", typing.Optional[float], dc.field(default=0.5))])  # noqa: UP045 (schema reads typing.Optional)
 
     with pytest.raises(PluginError, match=r"_LossyConfig.gain: an Optional field must default to None"):
         register_estimator(_LossyConfig, second_quantity=SecondQuantity.GYRO_BIAS)(lambda ctx, c: None)

@@ -16,7 +16,6 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
-
 from strategies import unit_quats, unit_vectors
 
 from drake_att import rotations as rot

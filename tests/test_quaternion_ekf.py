@@ -22,7 +22,6 @@ import pytest
 import scipy.stats
 from pydrake.common.eigen_geometry import AngleAxis, Quaternion
 from pydrake.math import RollPitchYaw, RotationMatrix
-
 from test_lie_group import S4_REFS, assert_nees_sums_in_band, drake_exp, error_angle, s4_mean_rate, s4_truth, stars
 
 from drake_att.contract import FilterCore, QuaternionSample, SecondQuantity

@@ -129,7 +129,7 @@ def test_every_numeric_field_of_every_config_resolves_to_a_range():
 
 
 def test_the_library_defaults_are_inside_their_ranges():
-    for t, build in _slots():
+    for _t, build in _slots():
         s, obj, prefix = build()
         check_ranges(s)
 
@@ -558,7 +558,7 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
     assert [s[0] for s in sections] == [title for title, _, _ in expected]
     assert len(expected) > 20
     checked = 0
-    for (title, text, rows), (_, t, prefix) in zip(sections, expected):
+    for (title, text, rows), (_, t, prefix) in zip(sections, expected, strict=True):
         paragraph = " ".join((t.__doc__ or "").strip().split("\n\n")[0].split())
         assert text == ("" if paragraph.startswith(f"{t.__name__}(") else paragraph), title
         hints = typing.get_type_hints(t)
@@ -569,7 +569,7 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
             want += [(f, label, r) for label, r in parts] if _numeric(hints[f.name]) else [(f, None, None)]
         assert [r[0] for r in rows] == [f"`{prefix}{f.name}" + (f" ({label})" if label else "") + "`"
                                         for f, label, _ in want], title
-        for cells, (f, label, r) in zip(rows, want):
+        for cells, (f, _label, r) in zip(rows, want, strict=True):
             ann = hints[f.name]
             where = f"{title}: {cells}"
             assert len(cells) == 6, where
@@ -852,7 +852,7 @@ def test_the_estimate_is_within_a_factor_2_of_the_measured_peak():
                           timeout=300, cwd=REPO)
     assert proc.returncode == 0, proc.stderr[-3000:]
     measured = json.loads(proc.stdout.strip().splitlines()[-1])
-    for text, peak in zip((logs, pf), measured):
+    for text, peak in zip((logs, pf), measured, strict=True):
         estimate = preflight.memory_estimate(cfg.load_scenario(text=text)).total_bytes
         assert 0.5 < estimate / peak < 2.0, (estimate / 1e6, peak / 1e6)
 

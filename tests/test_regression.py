@@ -16,7 +16,6 @@ import math
 import os
 
 import pytest
-
 from regression.shipped_metrics import OVERRIDES, SEEDS, shipped_metrics
 
 FLOAT_RTOL = 1e-9
@@ -35,7 +34,7 @@ def _diff(a, b, path=""):
                 return d
         return None
     if isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
-        for i, (x, y) in enumerate(zip(a, b)):
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
             d = _diff(x, y, f"{path}[{i}]")
             if d:
                 return d
@@ -90,7 +89,7 @@ def _split_diverged(recorded: dict, now: dict):
 
 def _close_enough(a, b, rtol) -> bool:
     if isinstance(a, list) and isinstance(b, list):
-        return len(a) == len(b) and all(_close_enough(x, y, rtol) for x, y in zip(a, b))
+        return len(a) == len(b) and all(_close_enough(x, y, rtol) for x, y in zip(a, b, strict=True))
     if isinstance(a, float) and isinstance(b, float):
         return math.isclose(a, b, rel_tol=rtol, abs_tol=0.0)
     return a == b

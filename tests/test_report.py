@@ -43,7 +43,7 @@ def transient_run():
     # 3 sigma: 540 deg at the start (an initial sigma of 180 deg), 0.03 deg afterwards
     s_att = np.where(t < 5.0, 180.0, 0.01) * DEG_
     s_bias = np.where(t < 5.0, 100.0, 0.2) * DEG_PER_H_
-    P = np.array([np.diag([a * a] * 3 + [b * b] * 3) for a, b in zip(s_att, s_bias)]).reshape(len(t), 36)
+    P = np.array([np.diag([a * a] * 3 + [b * b] * 3) for a, b in zip(s_att, s_bias, strict=True)]).reshape(len(t), 36)
     status = np.column_stack([t, np.arange(len(t)), np.zeros(len(t)), np.zeros(len(t))])
     signals = {"plant/q_IB": (t, q_true), "plant/w_IB_B": (t, np.zeros((len(t), 3))),
                "gyro/bias_B": (t, bias_true), f"{NAME}/q_IB_hat": (t, q_hat),
@@ -258,7 +258,7 @@ def test_error_grid_plots_each_estimator_on_each_axis(grid_figure, tmp_path):
         assert top.get_title() == f"attitude error {axis_names[i]}" and top.get_ylabel() == "deg"
         assert bottom.get_title() == f"gyro bias error {axis_names[i]}" and bottom.get_ylabel() == "deg/h"
         assert bottom.get_xlabel() == "time (s)"
-        for k, (lt, lb) in enumerate(zip(top.get_lines(), bottom.get_lines()), start=1):
+        for k, (lt, lb) in enumerate(zip(top.get_lines(), bottom.get_lines(), strict=True), start=1):
             np.testing.assert_array_equal(lt.get_xdata(), t)
             np.testing.assert_allclose(lt.get_ydata(), t * (i + 1) * k / 10, rtol=1e-12)
             np.testing.assert_allclose(lb.get_ydata(), t * (3 - i) * k, rtol=1e-12)

@@ -18,7 +18,6 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from pydrake.common.eigen_geometry import AngleAxis, Quaternion
 from pydrake.math import RollPitchYaw, RotationMatrix
-
 from strategies import unit_quats, unit_vectors
 
 from drake_att import rotations as rot
@@ -304,7 +303,7 @@ def test_rotvec_series_threshold_is_continuous(batched):
     else:
         qs = np.stack([rot.rotvec_to_quat(phi) for phi in phis])
         Rs = np.stack([rot.rotvec_to_rotmat(phi) for phi in phis])
-    for a, phi, q, R in zip(THRESHOLD_ANGLES, phis, qs, Rs):
+    for a, phi, q, R in zip(THRESHOLD_ANGLES, phis, qs, Rs, strict=True):
         np.testing.assert_allclose(q[1:], np.sin(a / 2) / a * phi, rtol=0, atol=1e-15 * a)
         assert abs(q[0] - np.cos(a / 2)) <= 1.2e-16  # one ulp of a number just below 1
         np.testing.assert_allclose(R - np.eye(3), _expm_minus_identity(phi), rtol=0, atol=1e-16)

@@ -32,7 +32,7 @@ def test_truth_stays_aligned_with_the_orbit_frame(s1):
     orbit = make_orbit(run.scenario)
     key = run.metadata["truth"]["attitude"]
     t, q = run.times(key), run.values(key)
-    rpy = np.array([rpy_relative_to_orbit(qi, orbit.q_IO(ti)) for ti, qi in zip(t[::50], q[::50])])
+    rpy = np.array([rpy_relative_to_orbit(qi, orbit.q_IO(ti)) for ti, qi in zip(t[::50], q[::50], strict=True)])
     assert np.degrees(np.abs(rpy)).max() < 1e-6
 
 

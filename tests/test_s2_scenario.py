@@ -18,7 +18,6 @@ import pytest
 from drake_att import rotations as rot
 from drake_att.analysis.metrics import compute_metrics
 from drake_att.scenarios import builder
-from drake_att.scenarios.config import apply_overrides
 from drake_att.scenarios.library import load
 
 EST, FUSED = "indoor_star_tracker", "indoor_star_tracker_gyro"
@@ -83,7 +82,7 @@ def test_iterations_contract_from_minus_two_degrees_noise_free(static):
         errs.append(e)
         stars.append(int(d[1]))
     assert stars[0] < 7 and stars[-1] == 7
-    for a, b in zip(errs, errs[1:]):
+    for a, b in zip(errs, errs[1:], strict=False):
         assert b < a / 50.0 or b < 1e-10, errs
 
 

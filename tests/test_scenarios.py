@@ -225,7 +225,7 @@ def test_monte_carlo_pool_matches_in_process_runs():
     s = apply_overrides(load_scenario(text=BASE), ["duration_s=30", "scoring.score_from_s=5"])
     pooled = run_seeds(s, [1, 2, 3], workers=2, keep_series_for=[2])
     local = run_seeds(s, [1, 2, 3], workers=1)
-    for a, b in zip(pooled, local):
+    for a, b in zip(pooled, local, strict=True):
         assert a["metrics"]["seed"] == b["metrics"]["seed"]
         assert a["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] == b["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"]
     assert "series" in pooled[1] and "series" not in pooled[0]

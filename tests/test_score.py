@@ -17,10 +17,10 @@ import shutil
 
 import numpy as np
 import pytest
+from test_metrics import qmul  # the independent quaternion product written in the metrics tests
 
 from drake_att.cli import main as cli_main
 from drake_att.scenarios.builder import RunLog
-from test_metrics import qmul  # the independent quaternion product written in the metrics tests
 
 SCENARIO_YAML = """
 name: score_mix
