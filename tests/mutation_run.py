@@ -87,6 +87,9 @@ MODULES = {
     # The Monte Carlo modules (analysis/montecarlo.py only re-exports them), one selection.
     **{key: (f"drake_att/analysis/{key}.py", _CAMPAIGN_TESTS)
        for key in ("executor", "run_records", "campaign", "campaign_folder", "comparison")},
+    "selection": ("drake_att/scenarios/selection.py",
+                  ["tests/test_campaign_outputs.py", "tests/test_sweeps.py", "tests/test_bound.py",
+                   "tests/test_preflight.py", "-m", "not slow", "--timeout=60"]),
     "cli": ("drake_att/cli.py",
             ["tests/test_cli_errors.py", "tests/test_campaign_bookkeeping.py", "tests/test_hostile_inputs.py",
              "tests/test_config_loading.py", "tests/test_score.py", "-k", "not sigterm and not downloaded_folder",
