@@ -142,9 +142,6 @@ class Bookkeeping:
         return book
 
 
-_T_LAST, _W_LAST, _STEP, _SEED = Bookkeeping.T_LAST, Bookkeeping.W_LAST, Bookkeeping.STEP, Bookkeeping.SEED
-_N_RESAMPLES, _ESS, _N_DEGENERATE = Bookkeeping.N_RESAMPLES, Bookkeeping.ESS, Bookkeeping.N_DEGENERATE
-_LAST_SAMPLE = Bookkeeping.LAST_SAMPLE
 # The status entries of the packed estimate the runner counts in.
 _USED, _SKIPPED, _LAST_NIS = (STATUS.start + i for i in (STATUS_USED, STATUS_SKIPPED, STATUS_LAST_NIS))
 _NO_GYRO = np.full(GYRO_MEASUREMENT_SIZE, np.nan)
@@ -376,7 +373,7 @@ class EstimatorSystem(LeafSystem):
 
     def _calc_diagnostics(self, context, output: BasicVector):
         book = context.get_discrete_state(self._book_group).value()
-        output.SetFromVector([book[_ESS], book[_N_RESAMPLES], book[_N_DEGENERATE], float(self.num_particles)])
+        output.SetFromVector([book[Bookkeeping.ESS], book[Bookkeeping.N_RESAMPLES], book[Bookkeeping.N_DEGENERATE], float(self.num_particles)])
 
     def _calc_core_diagnostics(self, context, output: BasicVector):
         core = self.filter_model(context).core
@@ -396,8 +393,8 @@ class EstimatorSystem(LeafSystem):
         without ``draw_initial_state`` start from the model's initial state)."""
         words = read_seed_words(self, context, self._seed_port)
         book = context.get_discrete_state(self._book_group).value().copy()
-        book[_SEED] = words
-        book[_STEP] = 0.0
+        book[Bookkeeping.SEED] = words
+        book[Bookkeeping.STEP] = 0.0
         model = self.filter_model(context)
         core = model.core
         state = (core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
@@ -465,7 +462,7 @@ class EstimatorSystem(LeafSystem):
         innovations = group(self._innovation_group) if self._innovation_group is not None else _NO_INNOVATIONS
         compiled_step.mekf_step(
             context.get_time(), TIME_TOLERANCE_S, gyro_connected, gyro, connected, meas, m.q_BS, m.R_SB, m.covariance,
-            m.allowed, m.n_masks, m.threshold, m.arw, m.rrw, float(REACQUIRE_AFTER_REJECTIONS), _LAST_SAMPLE,
+            m.allowed, m.n_masks, m.threshold, m.arw, m.rrw, float(REACQUIRE_AFTER_REJECTIONS), Bookkeeping.LAST_SAMPLE,
             self._rejections, group(self._estimate_group), group(self._book_group), group(self._core_group),
             group(self._linearization_group), innovations)
         return EventStatus.Succeeded()
@@ -487,11 +484,11 @@ class EstimatorSystem(LeafSystem):
         n_used, n_skipped, nis = est[_USED], est[_SKIPPED], est[_LAST_NIS]
         rng = None
         if core.is_random:
-            book[_STEP] += 1.0
-            rng = counter_random(book[_SEED], self.get_name()).generator(int(book[_STEP]))
+            book[Bookkeeping.STEP] += 1.0
+            rng = counter_random(book[Bookkeeping.SEED], self.get_name()).generator(int(book[Bookkeeping.STEP]))
 
         # -- time update over (t_last, t] ----------------------------------------------------
-        t_last = float(book[_T_LAST])
+        t_last = float(book[Bookkeeping.T_LAST])
         Phi, Q, A = _EYE6, _ZERO6, _EYE6
         if math.isfinite(t_last):
             w_meas = None
@@ -499,9 +496,9 @@ class EstimatorSystem(LeafSystem):
                 w_meas = self._gyro_rate(context, t)
                 if w_meas is None:
                     n_skipped += 1
-                    w_meas = book[_W_LAST].copy()
+                    w_meas = book[Bookkeeping.W_LAST].copy()
                 else:
-                    book[_W_LAST] = w_meas
+                    book[Bookkeeping.W_LAST] = w_meas
             if self._linearizing:
                 state, Phi, Q = core.predict_linearized(state, w_meas, t - t_last)
             else:
@@ -509,8 +506,8 @@ class EstimatorSystem(LeafSystem):
         elif core.uses_gyro and self._gyro_port.HasValue(context):
             g = GyroSample.from_port(self._gyro_port.Eval(context))
             if g.valid and np.all(np.isfinite(g.w_meas_B)):
-                book[_W_LAST] = g.w_meas_B
-        book[_T_LAST] = t
+                book[Bookkeeping.W_LAST] = g.w_meas_B
+        book[Bookkeeping.T_LAST] = t
 
         # -- measurement updates at this instant ------------------------------------------------
         innovations = None
@@ -519,9 +516,9 @@ class EstimatorSystem(LeafSystem):
             if not math.isfinite(t_meas):
                 n_skipped += 1  # a sample with no usable time stamp
                 continue
-            if abs(t_meas - t) >= TIME_TOLERANCE_S or t_meas <= book[_LAST_SAMPLE + i]:
+            if abs(t_meas - t) >= TIME_TOLERANCE_S or t_meas <= book[Bookkeeping.LAST_SAMPLE + i]:
                 continue  # not this instant's sample, or already used
-            book[_LAST_SAMPLE + i] = t_meas
+            book[Bookkeeping.LAST_SAMPLE + i] = t_meas
             if not contract.is_usable(m):
                 n_skipped += 1
                 continue
@@ -544,10 +541,10 @@ class EstimatorSystem(LeafSystem):
                     A = info.error_transition if A is _EYE6 else info.error_transition @ A
             else:
                 n_skipped += 1
-            book[_N_RESAMPLES] += info.resampled
-            book[_N_DEGENERATE] += info.degenerate
+            book[Bookkeeping.N_RESAMPLES] += info.resampled
+            book[Bookkeeping.N_DEGENERATE] += info.degenerate
             if math.isfinite(info.effective_sample_size):
-                book[_ESS] = info.effective_sample_size
+                book[Bookkeeping.ESS] = info.effective_sample_size
 
         q_hat, second, P = core.estimate(state)
         discrete_state.get_mutable_vector(self._estimate_group).SetFromVector(
