@@ -131,7 +131,7 @@ CASES = {  # case -> sensors in its diagram
 def s3_numbers():
     """The S3 scenario and the SI numbers the sensors use."""
     from drake_att.scenarios.library import load
-    from drake_att.sensors.star_tracker import star_tracker_mounting
+    from drake_att.sensors.star_tracker_plugin import star_tracker_mounting
     from drake_att.units import ARCSEC, ARW_DEG_PER_RT_H, DEG_PER_H, RRW_DEG_PER_H_15
 
     scenario = load(SCENARIO)
@@ -230,7 +230,7 @@ def use_cpp_gyro_plugin() -> None:
     import dataclasses
 
     from drake_att.scenarios import registry
-    from drake_att.sensors.gyro import gyro_model_si
+    from drake_att.sensors.gyro_plugin import gyro_model_si
 
     def build(ctx, c):
         arw, rrw, bias0, bias_sigma, scale, misalignment = gyro_model_si(c)

@@ -49,7 +49,7 @@ def install_null_callbacks() -> None:
     import numpy as np
     from pydrake.systems.framework import EventStatus
 
-    from drake_att.systems import estimators, fusion, gyro, star_tracker
+    from drake_att.systems import estimator_system, fusion, gyro, star_tracker
 
     def tracker(self, context, output):
         q = self._q_port.Eval(context)  # the read the real callback does
@@ -104,7 +104,7 @@ def install_null_callbacks() -> None:
 
     star_tracker.StarTracker._calc_quaternion = tracker
     gyro._GyroOutputs._calc_measurement = gyro_out
-    estimators.EstimatorSystem._on_step = estimator_step
+    estimator_system.EstimatorSystem._on_step = estimator_step
     fusion.StarTrackerAverage._calc = average
     fusion.EstimateFusion._calc_estimate_state = fusion_estimate
     fusion.EstimateFusion._advance_cross = fusion_advance

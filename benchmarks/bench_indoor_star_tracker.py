@@ -40,7 +40,7 @@ from dataclasses import replace
 import numpy as np
 
 from drake_att.contract import CameraCentroids
-from drake_att.estimators.indoor_star_tracker import IndoorStarTrackerConfig
+from drake_att.estimators.indoor_star_tracker_plugin import IndoorStarTrackerConfig
 from drake_att.filters.indoor_star_tracker import (
     IndoorStarTrackerSolver,
     SwarmSettings,
@@ -49,8 +49,8 @@ from drake_att.filters.indoor_star_tracker import (
 )
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.library import load
-from drake_att.screen_camera import directions_from_centroids
-from drake_att.sensors.screen_camera import ScreenCameraConfig, camera_geometry
+from drake_att.screen_geometry import directions_from_centroids
+from drake_att.sensors.screen_camera_plugin import ScreenCameraConfig, camera_geometry
 from drake_att.units import ARCSEC
 
 NOISE_PX = 0.1
@@ -223,7 +223,7 @@ def main(argv=None) -> int:
         return sum(v[1] for v in hits), sum(v[3] for v in hits)
 
     print(f"  camera + gyro, 30 s under cProfile ({total:.2f} s of own time in all functions); cumulative:")
-    for label, name, part in (("estimator steps (_on_step)", "_on_step", "systems/estimators.py"),
+    for label, name, part in (("estimator steps (_on_step)", "_on_step", "systems/estimator_system.py"),
                               ("  frame solves (IndoorStarTrackerSolver.solve)", "solve", "filters/indoor_star_tracker.py"),
                               ("  camera port evaluations (ScreenCamera._calc_centroids)", "_calc_centroids",
                                "systems/screen_camera.py"),

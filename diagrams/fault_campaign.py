@@ -14,7 +14,7 @@ are contexts of one diagram per worker process. Usage::
 Prints, per fault (sensor and kind) and estimator, summed over the seeds: the faulted steps
 the estimator saw and what it did at them (detected / rejected / accepted / ignored), its
 peak attitude error, its recovery time and its NEES after recovery (definitions:
-:mod:`drake_att.analysis.faults`); then the verdicts. Writes ``results.json`` (every seed's
+:mod:`drake_att.analysis.fault_scores`); then the verdicts. Writes ``results.json`` (every seed's
 rows, the summary, the verdicts), ``config.yaml`` (the scenario used), ``table.md`` (the
 README table) and ``fig_fault_campaign.png`` (attitude error of one seed with the faults
 marked).
@@ -29,7 +29,7 @@ import sys
 
 import numpy as np
 
-from drake_att.analysis.faults import (
+from drake_att.analysis.fault_scores import (
     HOLD_S,
     PRE_FAULT_WINDOW_S,
     RECOVERY_FACTOR,

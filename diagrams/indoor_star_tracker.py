@@ -5,7 +5,7 @@ Every number below comes from running the model — the screen camera and the in
 tracker solver in the scenario diagrams ``s2_indoor_static`` and ``s2_indoor_dynamic`` (one
 diagram each; A0 offsets, iteration counts, noise sources, tilts and identification modes
 are context parameters), except the "over 100 random screens" columns, which run the same
-solver core (:func:`drake_att.estimators.indoor_star_tracker.solver_for`) on 100 other star
+solver core (:func:`drake_att.estimators.indoor_star_tracker_plugin.solver_for`) on 100 other star
 patterns (a screen's pattern is part of the diagram's structure).
 
 * **Table 1**: stars identified and pitch/roll/yaw errors of the first frame after one
@@ -40,12 +40,12 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids
-from drake_att.estimators.indoor_star_tracker import solver_for
+from drake_att.estimators.indoor_star_tracker_plugin import solver_for
 from drake_att.filters.indoor_star_tracker import rpy_deg_to_R_BI
 from drake_att.scenarios.builder import diagram_for
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
-from drake_att.sensors.screen_camera import camera_geometry
+from drake_att.sensors.screen_camera_plugin import camera_geometry
 
 EST = "indoor_star_tracker"
 FRAME_PERIOD_S = 0.2  # s2_indoor_dynamic's camera

@@ -41,9 +41,9 @@ import time
 import numpy as np
 
 from drake_att.analysis.metrics import compute_metrics, estimator_errors
-from drake_att.estimators.lie_group import LieGroupConfig
-from drake_att.estimators.mekf import MekfConfig
-from drake_att.estimators.mrp_ekf import MrpEkfConfig
+from drake_att.estimators.lie_group_plugin import LieGroupConfig
+from drake_att.estimators.mekf_plugin import MekfConfig
+from drake_att.estimators.mrp_ekf_plugin import MrpEkfConfig
 from drake_att.scenarios.builder import diagram_for
 from drake_att.scenarios.config import dump_scenario
 from drake_att.scenarios.library import load

@@ -1,7 +1,7 @@
 """The estimator contract, in code: estimate layout, measurement types, filter-core protocol.
 
 Every estimator in the library (and a user's own) is a *filter core* — plain numpy, no
-Drake — run by the one estimator system (:class:`drake_att.systems.estimators.EstimatorSystem`),
+Drake — run by the one estimator system (:class:`drake_att.systems.estimator_system.EstimatorSystem`),
 which owns the loop they all share. This module is the only definition of what flows
 between them. It imports nothing from Drake and nothing from the rest of the library
 (layer 1: math).

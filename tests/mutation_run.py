@@ -64,7 +64,7 @@ MODULES = {
                              ["tests/test_cubature.py", "tests/test_correlated_noise.py"]),
     # Added with paper S2 and the gate (issues 11, 12).
     "gating": ("drake_att/filters/gating.py", ["tests/test_gating.py"]),
-    "screen_camera": ("drake_att/screen_camera.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
+    "screen_geometry": ("drake_att/screen_geometry.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
     "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",
                             ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
     # The edges: output folders and physical ranges.
@@ -79,8 +79,8 @@ MODULES = {
     "bound": ("drake_att/analysis/bound.py", ["tests/test_bound.py", "tests/test_ensemble_definitions.py"]),
     "report": ("drake_att/analysis/report.py",
                ["tests/test_report.py", "tests/test_campaign_bookkeeping.py", "tests/test_ensemble.py"]),
-    "analysis_faults": ("drake_att/analysis/faults.py", ["tests/test_fault_joint.py", "tests/test_faults.py"]),
-    "systems_faults": ("drake_att/systems/faults.py", ["tests/test_faults.py", "tests/test_fault_joint.py"]),
+    "analysis_faults": ("drake_att/analysis/fault_scores.py", ["tests/test_fault_joint.py", "tests/test_faults.py"]),
+    "systems_faults": ("drake_att/systems/fault_injector.py", ["tests/test_faults.py", "tests/test_fault_joint.py"]),
     "fusion": ("drake_att/systems/fusion.py", ["tests/test_fusion.py", "tests/test_fusion_speed_equivalence.py"]),
     "build_context": ("drake_att/scenarios/build_context.py",
                       ["tests/test_initial_frames.py", "tests/test_faults.py", "tests/test_fusion.py"]),

@@ -10,7 +10,7 @@ from drake_att import rotations as rot
 from drake_att.analysis import bound as bd
 from drake_att.filters.mekf import process_noise, steady_state_covariance, transition_matrix
 from drake_att.scenarios.library import load
-from drake_att.sensors.star_tracker import star_tracker_mounting
+from drake_att.sensors.star_tracker_plugin import star_tracker_mounting
 from drake_att.units import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
 ARW = 0.56 * ARW_DEG_PER_RT_H  # paper S3's MEMS gyro

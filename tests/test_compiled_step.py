@@ -21,7 +21,7 @@ import pytest
 from drake_att import rotations as rot
 from drake_att.filters.mekf import MultiplicativeEKF
 from drake_att.systems import compiled_step
-from drake_att.systems.estimators import EstimatorSystem, QuaternionSensorModel
+from drake_att.systems.estimator_system import EstimatorSystem, QuaternionSensorModel
 
 DEG = math.pi / 180
 ARCSEC = DEG / 3600

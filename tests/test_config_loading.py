@@ -301,7 +301,7 @@ def test_a_prescribed_rpy_truth_with_an_orbit_is_refused():
 # What config's mutation sample found untested
 # --------------------------------------------------------------------------------------
 def test_plugin_config_classes_resolve_as_attributes_of_config():
-    from drake_att.estimators.mekf import MekfConfig
+    from drake_att.estimators.mekf_plugin import MekfConfig
 
     assert cfg.MekfConfig is MekfConfig
     with pytest.raises(AttributeError):

@@ -2,7 +2,7 @@
 at a time, marginal rates) does not pin down.
 
 * **Independence of the random decisions.** The per-sample yes/no decisions (outlier, NaN,
-  inf, drop-out) are drawn through the real :class:`~drake_att.systems.faults.FaultInjector`
+  inf, drop-out) are drawn through the real :class:`~drake_att.systems.fault_injector.FaultInjector`
   (inputs FixValue'd, the decision events stepped with ``EvalUniquePeriodicDiscreteUpdate``,
   the decisions read back from ``fault_truth``'s mask), 20000 samples per injector. For
   every pair of streams — two kinds on one sensor, one kind on a sample and any kind on the
@@ -22,8 +22,8 @@ at a time, marginal rates) does not pin down.
   only that sample; a stuck window holds sample ``ceil(s / T) - 1``). Checked on a
   standalone injector run by a Simulator (values: held, clipped, jumped, re-tagged,
   invalid) and through a scenario (the logged ``fault_truth`` and
-  :func:`~drake_att.analysis.faults.fault_events`' first and last sample of each event).
-* **Detection thresholds.** :data:`drake_att.analysis.faults.DETECTION_NIS` is the 99.9%
+  :func:`~drake_att.analysis.fault_scores.fault_events`' first and last sample of each event).
+* **Detection thresholds.** :data:`drake_att.analysis.fault_scores.DETECTION_NIS` is the 99.9%
   point of chi-square with 3 dof (a quaternion update's innovation), derived here from
   ``scipy.stats.chi2.ppf`` (to the constant's two decimals); ``score_fault_events`` counts an
   accepted step as detected exactly when its NIS is above that quantile (an NIS 0.01 either
@@ -45,12 +45,12 @@ import pytest
 from pydrake.systems.analysis import Simulator
 from scipy import stats
 
-from drake_att.analysis import faults as afl
+from drake_att.analysis import fault_scores as afl
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
-from drake_att.sensors.faults import SensorFaultsConfig, fault_model
-from drake_att.systems import faults as flt
-from drake_att.systems.faults import FaultInjector, FaultModel
+from drake_att.sensors.faults_plugin import SensorFaultsConfig, fault_model
+from drake_att.systems import fault_injector as flt
+from drake_att.systems.fault_injector import FaultInjector, FaultModel
 
 DEG = math.pi / 180.0  # written out here
 Z_BAND = 4.0

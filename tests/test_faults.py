@@ -2,7 +2,7 @@
 follow the seed, the injected truth is logged, every consumer reads the faulted sample, and
 every library estimator survives every fault kind.
 
-* Standalone :class:`~drake_att.systems.faults.FaultInjector`: inputs FixValue'd, the sample
+* Standalone :class:`~drake_att.systems.fault_injector.FaultInjector`: inputs FixValue'd, the sample
   decisions stepped with ``EvalUniquePeriodicDiscreteUpdate``; the stuck window's hold is
   abstract state changed by an unrestricted event, so that test runs a Simulator on the
   injector alone (inputs still FixValue'd, changed between samples).
@@ -31,7 +31,7 @@ import pytest
 from pydrake.systems.analysis import Simulator
 
 from drake_att import rotations as rot
-from drake_att.analysis.faults import (
+from drake_att.analysis.fault_scores import (
     consumed_sensors,
     fault_events,
     finite_outputs,
@@ -43,8 +43,8 @@ from drake_att.contract import CameraCentroids, VectorObservations
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import ConfigError, load_scenario
 from drake_att.scenarios.registry import ESTIMATOR, plugins
-from drake_att.systems import faults as flt
-from drake_att.systems.faults import FaultInjector, FaultModel
+from drake_att.systems import fault_injector as flt
+from drake_att.systems.fault_injector import FaultInjector, FaultModel
 
 DEG = math.pi / 180.0  # written out here
 SEED_A, SEED_B = np.array([0.11, 0.52, 0.23, 0.94]), np.array([0.61, 0.02, 0.73, 0.34])

@@ -162,7 +162,7 @@ def test_star_tracker_average_uses_the_trackers_that_are_fine_and_says_which():
     those (weights renormalized; noise-free: still the truth), flag 1 + bit mask of the
     inputs used; none -> flag 0. The estimator system picks the subset's covariance by the
     flag (QuaternionSensorModel.covariance_for_flag)."""
-    from drake_att.systems.estimators import QuaternionSensorModel
+    from drake_att.systems.estimator_system import QuaternionSensorModel
 
     rng = np.random.default_rng(3)
     names = ["a", "b", "c"]

@@ -1,5 +1,5 @@
 """Paper S2's indoor star tracker (SPEC S2): the screen camera's geometry
-(:mod:`drake_att.screen_camera`), the solver (:mod:`drake_att.filters.indoor_star_tracker`:
+(:mod:`drake_att.screen_geometry`), the solver (:mod:`drake_att.filters.indoor_star_tracker`:
 angle matching corrected for the camera offset, TRIAD / SVD, the iteration, the particle
 swarm), the camera as a Drake system (:mod:`drake_att.systems.screen_camera`) and invalid
 frames through a scenario diagram.
@@ -14,7 +14,7 @@ Independent reference model (written here, never from the library's helpers):
   the screen plane ``z_I = -h``; visibility: the star lies in front of the camera
   (``(s - c_I) . boresight_I > 0``, boresight ``R_IB [0, 0, -1]``) and inside the detector's
   pyramid (``|(s - c_I) . x_I| <= depth W / 2f``, same for ``y``);
-* the paper's default camera (SPEC S2, ``drake_att/sensors/screen_camera.py``): 2048 x 2048 px
+* the paper's default camera (SPEC S2, ``drake_att/sensors/screen_camera_plugin.py``): 2048 x 2048 px
   of 5.5 um behind f = 12 mm, screen 1.2 m square at h = 2 m, ``R0_B = [0, 0, -0.2]`` m; angle
   tolerance 0.01 deg (the plug-in's default).
 
@@ -49,12 +49,12 @@ from drake_att.filters.indoor_star_tracker import (
 )
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
-from drake_att.screen_camera import (
+from drake_att.screen_geometry import (
     ScreenCameraGeometry,
     directions_from_centroids,
     random_star_pattern,
 )
-from drake_att.sensors.screen_camera import ScreenCameraConfig, camera_geometry
+from drake_att.sensors.screen_camera_plugin import ScreenCameraConfig, camera_geometry
 from drake_att.systems.screen_camera import CameraNoise, ScreenCamera
 
 DEG = math.pi / 180.0
@@ -800,7 +800,7 @@ def test_catalogue_of_a_photo_numbers_its_centroids_and_equals_the_own_view_for_
 
 
 def test_bad_geometry_inputs_are_refused_naming_the_field_and_the_rule():
-    from drake_att.screen_camera import check_geometry_inputs
+    from drake_att.screen_geometry import check_geometry_inputs
 
     stars = random_star_pattern(5, SCREEN, H, 1)
     ok = dict(stars_I=stars, h_m=H, R0_B=R0_B, focal_length_m=FOCAL, detector_size_m=(DETECTOR, DETECTOR),

@@ -41,7 +41,7 @@ from pydrake.math import RollPitchYaw
 from drake_att.scenarios import library
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.builder import diagram_for
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.estimator_system import EstimatorSystem
 
 TOL = 1e-12
 DEG = math.pi / 180.0

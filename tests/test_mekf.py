@@ -689,7 +689,7 @@ def test_dropouts_are_skipped_counted_and_covariance_follows_riccati_recursion()
 
 def test_invalid_measurement_values_are_skipped_not_crashing():
     """Drive the MEKF system directly with NaN and invalid-flagged measurements."""
-    from drake_att.systems.estimators import MekfEstimator, QuaternionSensorModel
+    from drake_att.systems.estimator_system import MekfEstimator, QuaternionSensorModel
 
     core = MultiplicativeEKF(ARW, RRW)
     init = core.initial_state([1.0, 0, 0, 0], np.zeros(3), 1 * DEG, 10 * DEG_PER_H)
@@ -715,7 +715,7 @@ def test_missing_gyro_sample_is_counted_and_propagates_with_last_valid_rate():
     AngleAxis) to 1e-12 rad and the covariance equals Phi P Phi' + Q with Phi = expm(F dt)
     of that rate and the paper's Q (every entry within 1e-9 of sigma_i sigma_j); the bias
     estimate is unchanged."""
-    from drake_att.systems.estimators import MekfEstimator
+    from drake_att.systems.estimator_system import MekfEstimator
 
     period = 0.5
     core = MultiplicativeEKF(ARW, RRW)
@@ -973,7 +973,7 @@ def test_coning_correction_in_the_estimator_system_around_a_missing_gyro_sample(
     the system keeps the core's 47 numbers; a NaN gyro sample is counted and the last valid
     rate held, and the core leaves that step and the next uncorrected; every other step after
     the first rotates by the corrected rotation vector (computed here)."""
-    from drake_att.systems.estimators import MekfEstimator
+    from drake_att.systems.estimator_system import MekfEstimator
 
     core = MultiplicativeEKF(ARW, RRW, coning_correction=True)
     bias, q0 = np.array([3e-4, -2e-4, 1e-4]), rot.rpy_to_quat([0.3, -0.2, 1.1])
@@ -1098,7 +1098,7 @@ def test_coning_correction_restores_mekf_consistency_in_a_fast_tumble():
 def test_coning_correction_is_opt_in_and_structural():
     """Default off (the shipped scenarios' MEKFs keep 43 state numbers); the flag changes the
     core's state size, so it is not a context parameter: a run override is refused, naming it."""
-    from drake_att.estimators.mekf import MekfConfig
+    from drake_att.estimators.mekf_plugin import MekfConfig
     from drake_att.scenarios.config import ConfigError
     from drake_att.scenarios.library import load
     from drake_att.scenarios.registry import plugin_for

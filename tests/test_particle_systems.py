@@ -16,7 +16,7 @@ from test_particle_filters import mean_square_normalized, steady_state_sd
 
 from drake_att import rotations as rot
 from drake_att.analysis.metrics import compute_metrics, estimator_errors
-from drake_att.estimators.gyroless_pf import plant_dynamics
+from drake_att.estimators.gyroless_pf_plugin import plant_dynamics
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder
 from drake_att.scenarios import config as cfg

@@ -37,7 +37,7 @@ from drake_att.contract import CameraCentroids, SecondQuantity, VectorObservatio
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import load_scenario
 from drake_att.scenarios.registry import ESTIMATOR, plugins
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.estimator_system import EstimatorSystem
 
 REPO = Path(__file__).resolve().parents[1]
 TUTORIAL = REPO / "docs" / "adding_an_estimator.md"
@@ -284,7 +284,7 @@ def _gyro_rate(step):
 
 def _camera_image():
     """The contract camera's (``cam``) noise-free image at zero attitude, and its focal length."""
-    from drake_att.sensors.screen_camera import ScreenCameraConfig, camera_geometry
+    from drake_att.sensors.screen_camera_plugin import ScreenCameraConfig, camera_geometry
 
     geometry = camera_geometry(ScreenCameraConfig(name="cam", star_count=12))
     return geometry.project(np.eye(3))[1], geometry.focal_length_m
@@ -554,7 +554,7 @@ def test_contract_same_seed_repeats_bit_for_bit_and_another_seed_differs(contrac
         assert not np.array_equal(runs[0].core_state(), runs[2].core_state())  # the initial draw
         same_start = _Driver(system, SEED_B)
         # discrete-state groups 0 (estimate) and 2 (core state), documented in
-        # drake_att.systems.estimators; group 1 keeps SEED_B's seed words
+        # drake_att.systems.estimator_system; group 1 keeps SEED_B's seed words
         for group in (0, 2):
             same_start.context.get_mutable_discrete_state(group).SetFromVector(
                 runs[0].context.get_discrete_state(group).value())
@@ -581,7 +581,7 @@ def test_contract_same_seed_repeats_bit_for_bit_and_another_seed_differs(contrac
     # Each step has its own draws: one Context is stepped to t = 1 and cloned; the clone
     # takes the step of t = 2 (its step counter advances) and is then restored to the
     # state after t = 1 except for that counter (bookkeeping group 1, entry 4, documented in
-    # drake_att.systems.estimators). Both then take the step of t = 2 with the same inputs
+    # drake_att.systems.estimator_system). Both then take the step of t = 2 with the same inputs
     # from the same state: a random core draws different numbers (generator k + 1 instead
     # of k), a deterministic one gives the same result.
     d = _Driver(system, SEED_A)
@@ -622,7 +622,7 @@ def test_every_module_imports_alone_in_a_fresh_interpreter():
     modules = ["drake_att"] + _package_modules(REPO / "drake_att", "drake_att")
     # The enumeration sees what the registry sees: every library plug-in module.
     assert {p.module for p in plugins(ESTIMATOR).values() if p.module.startswith("drake_att.")} <= set(modules)
-    assert {"drake_att.contract", "drake_att.systems.estimators", "drake_att.cli"} <= set(modules)
+    assert {"drake_att.contract", "drake_att.systems.estimator_system", "drake_att.cli"} <= set(modules)
     env = {**_subprocess_env(), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # cheaper start-up
 
     def run(module):

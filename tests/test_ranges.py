@@ -260,7 +260,7 @@ def test_nested_arrays_name_row_and_column_and_nan_is_refused():
     s = cfg.Scenario(plant=cfg.PrescribedRpyConfig(times_s=[0.0, 10.0], rpy_deg=np.array([[0, 0, 0], [0, 0, 2e6]])))
     with pytest.raises(ConfigError, match=r"^plant\.rpy_deg\[1\]\[2\]: got 2000000\.0; must be in \[-1e6, 1e6\] deg"):
         check_ranges(s)
-    from drake_att.sensors.star_tracker import PaperS3Eq7Mounting
+    from drake_att.sensors.star_tracker_plugin import PaperS3Eq7Mounting
 
     st = cfg.StarTrackerConfig(name="st", mounting=PaperS3Eq7Mounting(psi_phi_theta_deg=[0, 400, 0]))
     with pytest.raises(ConfigError, match=r"^sensors\[0\] \(st\)\.mounting\.psi_phi_theta_deg\[1\]: got 400; must be "

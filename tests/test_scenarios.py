@@ -308,7 +308,7 @@ def test_an_estimate_going_non_finite_fails_the_run_naming_it(monkeypatch, compi
     from drake_att.filters import mekf
     from drake_att.scenarios.builder import NonFiniteRunError, ScenarioDiagram
     from drake_att.systems import compiled_step
-    from drake_att.systems.estimators import EstimatorSystem
+    from drake_att.systems.estimator_system import EstimatorSystem
 
     monkeypatch.setattr(EstimatorSystem, "use_compiled_step", compiled)
     steps = {"left": 5}

@@ -21,7 +21,7 @@ from drake_att.analysis.metrics import compute_metrics
 from drake_att.scenarios.builder import ScenarioDiagram
 from drake_att.scenarios.config import ConfigError, apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
-from drake_att.systems.estimators import EstimatorSetup
+from drake_att.systems.estimator_system import EstimatorSetup
 
 SEED = 2
 S3_SHORT = ["duration_s=40", "scoring.score_from_s=10"]

@@ -214,11 +214,11 @@ def bound_sources(scenario, name: str) -> dict:
     ``{"gyro": GyroConfig, "trackers": [StarTrackerConfig, ...], "prior_config": config,
     "notes": [...]}``. Raises :class:`NoBound` (the reason) where no bound is defined."""
     from drake_att.scenarios.selection import fused_sources
-    from drake_att.sensors.faults import SensorFaultsConfig
-    from drake_att.sensors.gyro import GyroConfig
-    from drake_att.sensors.scale_factor_star_noise import ScaleFactorStarNoiseConfig
-    from drake_att.sensors.star_tracker import StarTrackerConfig
-    from drake_att.sensors.star_tracker_average import StarTrackerAverageConfig
+    from drake_att.sensors.faults_plugin import SensorFaultsConfig
+    from drake_att.sensors.gyro_plugin import GyroConfig
+    from drake_att.sensors.scale_factor_star_noise_plugin import ScaleFactorStarNoiseConfig
+    from drake_att.sensors.star_tracker_average_plugin import StarTrackerAverageConfig
+    from drake_att.sensors.star_tracker_plugin import StarTrackerConfig
 
     sensors, estimators = _configs(scenario)
     if name not in estimators:
@@ -432,7 +432,7 @@ def bound_model(run, name: str) -> dict:
 
 
 def _mounting(st):
-    from drake_att.sensors.star_tracker import star_tracker_mounting
+    from drake_att.sensors.star_tracker_plugin import star_tracker_mounting
 
     return star_tracker_mounting(st)
 

@@ -1,7 +1,7 @@
 """Paper S2's indoor star tracker solver: angle-matching star identification corrected for
 the camera's offset, iterative TRIAD, particle-swarm initialization (plain numpy, no Drake).
 
-Geometry and notation: :mod:`drake_att.screen_camera` (``A = R_BI``, ``R0_B``, ``h``,
+Geometry and notation: :mod:`drake_att.screen_geometry` (``A = R_BI``, ``R0_B``, ``h``,
 ``alpha_i``).  Each frame (:class:`~drake_att.contract.CameraCentroids`) is solved from a guess
 ``A0``: centre-referenced directions from ``A0``, identification by inter-star angles, attitude,
 repeated from the new attitude until it converges (or ``max_iterations``).
@@ -28,7 +28,7 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids, SecondQuantity, UpdateInfo
-from drake_att.screen_camera import (
+from drake_att.screen_geometry import (
     ScreenCameraGeometry,
     camera_to_star_distances,
     centre_referenced_directions,

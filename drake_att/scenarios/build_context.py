@@ -15,7 +15,7 @@ from drake_att import rotations as rot
 from drake_att.orbit import CircularOrbit
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, plugin_for
-from drake_att.systems.estimators import EstimatorSystem
+from drake_att.systems.estimator_system import EstimatorSystem
 from drake_att.units import DEG
 
 
@@ -47,7 +47,7 @@ class BuildContext:
         sensors, sensor_configs, estimators, estimator_configs: name -> system / config.
         measurement_sources: sensor name -> ``(system, output port)`` that consumers read
             instead of the sensor's own output (set by a fault-injection entry,
-            :mod:`drake_att.sensors.faults`); :meth:`sensor_output` still describes the sensor.
+            :mod:`drake_att.sensors.faults_plugin`); :meth:`sensor_output` still describes the sensor.
     """
 
     builder: object
@@ -70,8 +70,8 @@ class BuildContext:
         return plugin_for(c).quaternion_model(self, c)
 
     def add_estimator(self, name: str, setup):
-        """Add the :class:`~drake_att.systems.estimators.EstimatorSystem` of ``setup`` (an
-        :class:`~drake_att.systems.estimators.EstimatorSetup`) and wire its gyro, quaternion
+        """Add the :class:`~drake_att.systems.estimator_system.EstimatorSystem` of ``setup`` (an
+        :class:`~drake_att.systems.estimator_system.EstimatorSetup`) and wire its gyro, quaternion
         and vector sensors; the random seed port is wired by the builder. Returns the system."""
         est = self.builder.AddSystem(EstimatorSystem.from_setup(name, setup))
         if setup.core.uses_gyro:

@@ -39,7 +39,7 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
 from drake_att.scenarios.selection import fused_sources, with_estimators
-from drake_att.systems.estimators import EstimatorSetup, EstimatorSystem
+from drake_att.systems.estimator_system import EstimatorSetup, EstimatorSystem
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
 from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
 from drake_att.units import DEG
@@ -115,7 +115,7 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
     and ``signals`` (``{"attitude", "second", "covariance", "status"}`` -> logged key, plus
     ``"innovations"`` for estimators with measurement inputs, whose names are then listed
     in ``inputs``: per input ``[time of its last update, NIS, dimension]``, see
-    :class:`~drake_att.systems.estimators.EstimatorSystem`).
+    :class:`~drake_att.systems.estimator_system.EstimatorSystem`).
     The second-quantity kind comes from the system's ``second_output_name``, here only.
     """
     sd = scenario_diagram

@@ -142,10 +142,10 @@ DEFAULT_PARTICLE_BYTES = 6400  # a plug-in's particle filter: the largest measur
 # grows its buffer by doubling (up to 2x the samples) and simulate() copies it into numpy
 # (1x): peak ~3x the raw samples (measured 2.4x-3.0x on 20k- and 400k-sample sensor logs).
 LOG_COPIES = 3
-# Widths of the logged sensor ports (drake_att.contract, drake_att.systems.faults); a
+# Widths of the logged sensor ports (drake_att.contract, drake_att.systems.fault_injector); a
 # plug-in's port not listed here counts DEFAULT_PORT_WIDTH numbers.
 PORT_WIDTHS = {"gyro_measurement": GYRO_MEASUREMENT_SIZE, "bias_B": 3,
-               "star_tracker_measurement": QUATERNION_MEASUREMENT_SIZE, "fault_truth": 9,  # faults.FAULT_TRUTH_SIZE
+               "star_tracker_measurement": QUATERNION_MEASUREMENT_SIZE, "fault_truth": 9,  # fault_injector.FAULT_TRUTH_SIZE
                "stars_in_view": 1}
 DEFAULT_PORT_WIDTH = 16
 # An estimator logs its packed estimate (47: attitude, second vector, covariance, status),

@@ -19,7 +19,7 @@ validation function, registered with one decorator::
     def build_my_filter(ctx, config):                # ctx: drake_att.scenarios.build_context.BuildContext
         return EstimatorSetup(core, initial_state, config.period_s, gyro=..., vector_sensors=(...,))
 
-An estimator's build returns an :class:`~drake_att.systems.estimators.EstimatorSetup` (the
+An estimator's build returns an :class:`~drake_att.systems.estimator_system.EstimatorSetup` (the
 builder adds the one estimator system and wires it) or, for an estimator that is not a
 filter core (e.g. a fusion of estimators), a system it added and wired itself.
 

@@ -1,6 +1,6 @@
 """Which estimators a run keeps: the estimators a fusion fuses (its sources), and a copy of
 a scenario with a selection of its estimators. A fusion is any estimator config with a
-``sources`` list of estimator names (:class:`~drake_att.estimators.estimate_fusion.EstimateFusionConfig`)."""
+``sources`` list of estimator names (:class:`~drake_att.estimators.estimate_fusion_plugin.EstimateFusionConfig`)."""
 
 from __future__ import annotations
 

@@ -3,10 +3,10 @@ sensor's config dataclass (its YAML tag), build, validation and logging, registe
 :func:`~drake_att.scenarios.registry.register_sensor`."""
 
 from drake_att.sensors import (  # noqa: F401, I001  (registers them, in this order: not sorted)
-    gyro,
-    star_tracker,
-    star_tracker_average,
-    scale_factor_star_noise,
-    screen_camera,
+    gyro_plugin,
+    star_tracker_plugin,
+    star_tracker_average_plugin,
+    scale_factor_star_noise_plugin,
+    screen_camera_plugin,
 )
-from drake_att.sensors import faults  # noqa: F401,E402  (registers !SensorFaultsConfig; after the sensors it corrupts)
+from drake_att.sensors import faults_plugin  # noqa: F401,E402  (registers !SensorFaultsConfig; after the sensors it corrupts)

@@ -1,6 +1,6 @@
 """The estimator loop's step for the MEKF as one compiled call (issue 13: fewer Python crossings).
 
-:meth:`drake_att.systems.estimators.EstimatorSystem._on_step` is the loop's specification:
+:meth:`drake_att.systems.estimator_system.EstimatorSystem._on_step` is the loop's specification:
 time update with the gyro's mean rate (held and counted when unusable), then the quaternion
 measurements of this instant in input order (once each, validity, the core's gate, the
 re-acquisition after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
@@ -32,7 +32,7 @@ from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
 
 @dataclass(frozen=True)
 class CompiledStepModel:
-    """Array form of one :class:`~drake_att.systems.estimators.FilterModel` for :func:`mekf_step`.
+    """Array form of one :class:`~drake_att.systems.estimator_system.FilterModel` for :func:`mekf_step`.
 
     Attributes:
         q_BS: (n, 4) sensor mountings. R_SB: (n, 3, 3) their rotations (sensor <- body).

@@ -1,15 +1,15 @@
 """Setups and systems of the estimators fed by one vector-mode star tracker (paper S0's):
 MRP EKF, bootstrap PF, EKPF and gyroless PF.
 
-``*_setup`` functions return the :class:`~drake_att.systems.estimators.EstimatorSetup` (core,
+``*_setup`` functions return the :class:`~drake_att.systems.estimator_system.EstimatorSetup` (core,
 initial state, sensors) that the estimator plug-ins build from a config; the ``*Estimator``
 constructor functions wrap the same setup in a system for direct use (tests, notebooks).
-Each system is the one :class:`~drake_att.systems.estimators.EstimatorSystem` running a numpy filter core
+Each system is the one :class:`~drake_att.systems.estimator_system.EstimatorSystem` running a numpy filter core
 (:class:`~drake_att.filters.mrp_ekf.MrpEkfCore`,
 :class:`~drake_att.filters.particle.BootstrapPfCore`,
 :class:`~drake_att.filters.particle.EkpfCore`,
 :class:`~drake_att.filters.particle.GyrolessPfCore`) and follows the estimator
-contract of :mod:`drake_att.systems.estimators` (outputs ``q_IB_hat``, ``bias_B_hat`` or
+contract of :mod:`drake_att.systems.estimator_system` (outputs ``q_IB_hat``, ``bias_B_hat`` or
 ``w_IB_B_hat``, ``covariance``, ``status``; one periodic discrete update per filter step;
 a measurement is used only at its own sample time, at most once; invalid or non-finite
 samples are skipped and counted).
@@ -50,7 +50,7 @@ from drake_att.filters.particle import (
     GyrolessPfCore,
     RandomWalkRoughening,
 )
-from drake_att.systems.estimators import PARTICLE_DIAGNOSTICS_SIZE, EstimatorSetup, EstimatorSystem
+from drake_att.systems.estimator_system import PARTICLE_DIAGNOSTICS_SIZE, EstimatorSetup, EstimatorSystem
 from drake_att.validation import check_positive
 
 __all__ = [

@@ -1,7 +1,7 @@
 """The indoor star tracker's camera (paper S2): a pinhole camera on the air-bearing table
 imaging the star screen above it, as a Drake ``LeafSystem``.
 
-The image is the exact ray-plane forward model of :mod:`drake_att.screen_camera` at the true
+The image is the exact ray-plane forward model of :mod:`drake_att.screen_geometry` at the true
 attitude (stars behind the camera or off the detector are not seen), plus optional
 per-star centroid noise and centroid quantization:
 
@@ -33,7 +33,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids
-from drake_att.screen_camera import ScreenCameraGeometry
+from drake_att.screen_geometry import ScreenCameraGeometry
 from drake_att.systems.randomness import SEED_WORDS, SampledDrawEvents, counter_random, declare_seed_port
 from drake_att.validation import check_nonnegative, check_positive, fail
 

@@ -1,5 +1,5 @@
 """Sensor plug-in: fault injection into another sensor's measurements
-(:class:`drake_att.systems.faults.FaultInjector`). YAML tag ``!SensorFaultsConfig``.
+(:class:`drake_att.systems.fault_injector.FaultInjector`). YAML tag ``!SensorFaultsConfig``.
 
 List it in ``sensors:`` right after the sensor it corrupts (``sensor``) and before any
 sensor that reads that sensor (e.g. a ``!StarTrackerAverageConfig``): from then on every
@@ -21,7 +21,7 @@ Sizes are in the sensor's units: ``outlier_angle_deg`` for attitude sensors (sta
 the averaged tracker, a camera: the sample rotated by that angle), ``outlier_rate_deg_per_s``
 for a gyro. What each kind does, the times convention (a fault "at t" hits the first sample
 at or after t; windows are ``[start, end)``) and the logged truth are documented in
-:mod:`drake_att.systems.faults`. Logged: ``fault_truth`` at every sample (what was
+:mod:`drake_att.systems.fault_injector`. Logged: ``fault_truth`` at every sample (what was
 injected, and the time tag and validity the consumers read); the sensor's own logged
 measurement is the clean one.
 
@@ -40,7 +40,7 @@ import numpy as np
 
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, plugin_for, register_sensor
-from drake_att.systems.faults import KINDS, FaultInjector, FaultModel
+from drake_att.systems.fault_injector import KINDS, FaultInjector, FaultModel
 from drake_att.units import DEG, DEG_PER_H
 
 

@@ -14,8 +14,8 @@ import numpy as np
 
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
-from drake_att.sensors.star_tracker import StarTrackerConfig, star_tracker_mounting, star_tracker_sigmas_S
-from drake_att.systems.estimators import QuaternionSensorModel
+from drake_att.sensors.star_tracker_plugin import StarTrackerConfig, star_tracker_mounting, star_tracker_sigmas_S
+from drake_att.systems.estimator_system import QuaternionSensorModel
 from drake_att.systems.fusion import StarTrackerAverage, average_measurement_covariance_B, subset_covariances
 
 

@@ -10,7 +10,7 @@ from typing import List
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_att.contract import COVARIANCE, Q_IB, SECOND, STATUS
-from drake_att.estimators.mekf import MekfConfig
+from drake_att.estimators.mekf_plugin import MekfConfig
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.fusion import EstimateFusion

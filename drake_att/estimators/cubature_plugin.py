@@ -28,8 +28,8 @@ from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY
 from drake_att.filters.multiplicative_noise import MultiplicativeNoiseModel
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.sensors.scale_factor_star_noise import ScaleFactorStarNoiseConfig, noise_model
-from drake_att.systems.estimators import EstimatorSetup
+from drake_att.sensors.scale_factor_star_noise_plugin import ScaleFactorStarNoiseConfig, noise_model
+from drake_att.systems.estimator_system import EstimatorSetup
 from drake_att.units import DEG, DEG_PER_H
 
 

@@ -15,7 +15,7 @@ import numpy as np
 from drake_att import rotations as rot
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
-from drake_att.systems.estimators import QuaternionSensorModel
+from drake_att.systems.estimator_system import QuaternionSensorModel
 from drake_att.systems.star_tracker import StarTracker, mounting_from_paper_s3_angles
 from drake_att.units import ARCSEC, DEG
 

@@ -25,7 +25,7 @@ import numpy as np
 from drake_att import validation
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
-from drake_att.screen_camera import ScreenCameraGeometry, random_star_pattern
+from drake_att.screen_geometry import ScreenCameraGeometry, random_star_pattern
 from drake_att.systems.screen_camera import CameraNoise, ScreenCamera
 
 

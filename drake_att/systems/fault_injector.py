@@ -3,7 +3,7 @@
 "Faults are part of the model" (DESIGN.md): any sensor's measurements can be corrupted on
 purpose, and what was injected is published as truth (``fault_truth``) so the metrics can
 say what each estimator saw, rejected, accepted and how it recovered
-(:mod:`drake_att.analysis.faults`).
+(:mod:`drake_att.analysis.fault_scores`).
 
 :class:`FaultInjector` reads the sensor's measurement (the same value every consumer would
 otherwise read) and outputs the same type: ``"gyro"`` ``[t, valid, w_meas_B (3)]``,

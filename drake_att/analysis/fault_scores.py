@@ -2,7 +2,7 @@
 
 Reads only a :class:`~drake_att.scenarios.builder.RunLog`: the fault truth each
 ``!SensorFaultsConfig`` entry logs (``<entry>/fault_truth``, see
-:mod:`drake_att.systems.faults`), each estimator's status ``[t_estimate, used, skipped,
+:mod:`drake_att.systems.fault_injector`), each estimator's status ``[t_estimate, used, skipped,
 NIS]`` and its errors (:func:`drake_att.analysis.metrics.estimator_errors`).
 
 **Fault events.** :func:`fault_events` groups the faulted samples of one injector: every
@@ -49,7 +49,7 @@ import numpy as np
 from drake_att.analysis.metrics import estimator_errors
 from drake_att.noise import DEG
 from drake_att.scenarios.registry import plugin_for
-from drake_att.systems import faults as flt
+from drake_att.systems import fault_injector as flt
 
 DETECTION_NIS = 16.27  # chi-square 99.9% point, 3 dof
 RECOVERY_FACTOR = 5.0
@@ -67,7 +67,7 @@ class FaultEvent:
     Attributes:
         injector: the faults entry's name. sensor: the corrupted sensor. sensor_kind: its
             output kind ("gyro", "quaternion", "vectors", "camera").
-        code, kind: the fault code and its name (:data:`drake_att.systems.faults.FAULT_NAMES`;
+        code, kind: the fault code and its name (:data:`drake_att.systems.fault_injector.FAULT_NAMES`;
             "outage" for drop-outs in an outage window).
         t_start, t_end: first and last faulted sample times (s).
         samples: every faulted sample time (s).
@@ -95,7 +95,7 @@ def _sensor_configs(scenario) -> dict:
 
 def fault_injectors(scenario) -> dict:
     """The scenario's fault entries: entry name -> ``(sensor, sensor kind, period_s)``."""
-    from drake_att.sensors.faults import SensorFaultsConfig
+    from drake_att.sensors.faults_plugin import SensorFaultsConfig
 
     sensors = _sensor_configs(scenario)
     out = {}
@@ -138,7 +138,7 @@ def fault_events(run) -> list[FaultEvent]:
 def consumed_sensors(scenario, estimator: str) -> set:
     """The sensors estimator ``estimator`` reads: the sensors and estimators its config names
     (fields other than ``name``), followed through virtual sensors and fused estimators."""
-    from drake_att.sensors.faults import references
+    from drake_att.sensors.faults_plugin import references
 
     sensors = _sensor_configs(scenario)
     estimators = {e.name: e for e in scenario.estimators}

@@ -25,8 +25,8 @@ from drake_att.filters.multiplicative_noise import (
 )
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
-from drake_att.sensors.gyro import GyroConfig
-from drake_att.sensors.star_tracker import StarTrackerConfig
+from drake_att.sensors.gyro_plugin import GyroConfig
+from drake_att.sensors.star_tracker_plugin import StarTrackerConfig
 from drake_att.systems.correlated_noise import ScaleFactorStarNoiseSource
 
 

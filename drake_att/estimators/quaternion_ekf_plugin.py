@@ -17,7 +17,7 @@ from drake_att.filters.quaternion_ekf import AdditiveQuaternionEKF
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.systems.estimators import EstimatorSetup
+from drake_att.systems.estimator_system import EstimatorSetup
 from drake_att.units import ARW_DEG_PER_RT_H
 
 

@@ -1,6 +1,6 @@
 """Estimator plug-in: paper S2's indoor star tracker
 (:class:`drake_att.filters.indoor_star_tracker.IndoorStarTrackerSolver`) on a screen camera
-(:mod:`drake_att.sensors.screen_camera`), alone or — beyond the paper, with ``gyro`` set —
+(:mod:`drake_att.sensors.screen_camera_plugin`), alone or — beyond the paper, with ``gyro`` set —
 fused with a table gyro in the MEKF
 (:class:`~drake_att.filters.indoor_star_tracker.IndoorStarTrackerMekf`). YAML tag
 ``!IndoorStarTrackerConfig``.
@@ -48,8 +48,8 @@ from drake_att.filters.mekf import MultiplicativeEKF
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
-from drake_att.sensors.screen_camera import camera_geometry
-from drake_att.systems.estimators import EstimatorSetup
+from drake_att.sensors.screen_camera_plugin import camera_geometry
+from drake_att.systems.estimator_system import EstimatorSetup
 from drake_att.units import ARCSEC, DEG, DEG_PER_H
 
 INITIALIZATIONS = ("swarm", "given")
