@@ -70,6 +70,16 @@ class SecondQuantity(enum.Enum):
     def port_name(self) -> str:
         return self.value
 
+    @property
+    def kind(self) -> str:
+        """What scoring calls it: ``"gyro_bias"`` or ``"body_rate"`` (a run's metadata)."""
+        return self.name.lower()
+
+    def estimate_ports(self) -> tuple[tuple[str, slice], ...]:
+        """The contract's output ports and their parts of the packed estimate, in order:
+        ``q_IB_hat``, the second vector (this quantity's port), ``covariance``, ``status``."""
+        return (("q_IB_hat", Q_IB), (self.port_name, SECOND), ("covariance", COVARIANCE), ("status", STATUS))
+
     @classmethod
     def from_port_name(cls, name: str) -> SecondQuantity:
         for member in cls:

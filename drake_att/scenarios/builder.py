@@ -34,6 +34,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
 
 from drake_att import rotations as rot
+from drake_att.contract import SecondQuantity
 from drake_att.progress import Progress
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
@@ -116,11 +117,10 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
     ``"innovations"`` for estimators with measurement inputs, whose names are then listed
     in ``inputs``: per input ``[time of its last update, NIS, dimension]``, see
     :class:`~drake_att.systems.estimator_system.EstimatorSystem`).
-    The second-quantity kind comes from the system's ``second_output_name``, here only.
+    The second-quantity kind is the contract's (:attr:`~drake_att.contract.SecondQuantity.kind`).
     """
     sd = scenario_diagram
     scenario = sd.scenario if scenario is None else scenario
-    kinds = {"bias_B_hat": "gyro_bias", "w_IB_B_hat": "body_rate"}
     configs = {e.name: e for e in scenario.estimators}
     truth = sd.truth.get_name()
     meta = {"schema": RunLog.METADATA_SCHEMA, "scenario": scenario.name, "seed": int(seed),
@@ -128,17 +128,17 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
             "truth": {"attitude": f"{truth}/q_IB", "rate": f"{truth}/w_IB_B"}, "estimators": {}}
     for c in scenario.estimators:
         system = sd.estimators[c.name]
-        second = system.second_output_name
-        if second not in kinds:
-            raise ValueError(f"{c.name}: second output {second!r} is none of {sorted(kinds)}")
+        quantity = SecondQuantity.from_port_name(system.second_output_name)
+        second = quantity.port_name
         gyro_config = c
         while fused_sources(gyro_config):
             gyro_config = configs[fused_sources(gyro_config)[0]]
         gyro = getattr(gyro_config, "gyro", None)
         name = system.get_name()
         meta["estimators"][c.name] = {
-            "second_kind": kinds[second],
-            "true_bias": f"{sd.sensors[gyro].get_name()}/bias_B" if kinds[second] == "gyro_bias" and gyro else None,
+            "second_kind": quantity.kind,
+            "true_bias": (f"{sd.sensors[gyro].get_name()}/bias_B"
+                          if quantity is SecondQuantity.GYRO_BIAS and gyro else None),
             "signals": {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
                         "covariance": f"{name}/covariance", "status": f"{name}/status"}}
         if f"{name}/innovations" in signal_keys:
@@ -363,9 +363,9 @@ class ScenarioDiagram:
             if system.HasOutputPort("estimate_state"):
                 # One C++ state port instead of four Python ports; split after the run.
                 log(system, "estimate_state", self.estimator_period(e.name))
-                self._packed_estimators[e.name] = system.second_output_name
+                self._packed_estimators[e.name] = SecondQuantity.from_port_name(system.second_output_name)
             else:
-                for port in ("q_IB_hat", system.second_output_name, "covariance", "status"):
+                for port, _ in SecondQuantity.from_port_name(system.second_output_name).estimate_ports():
                     log(system, port, self.estimator_period(e.name))
             if system.HasOutputPort("diagnostics"):
                 log(system, "diagnostics", self.estimator_period(e.name))
@@ -522,9 +522,8 @@ class ScenarioDiagram:
             log = logger.FindLog(context)
             t, x = log.sample_times().copy(), log.data().T.copy()
             if key.endswith("/estimate_state") and name in self._packed_estimators:
-                second = self._packed_estimators[name]
-                for port, (a, b) in (("q_IB_hat", (0, 4)), (second, (4, 7)), ("covariance", (7, 43)), ("status", (43, 47))):
-                    signals[f"{name}/{port}"] = (t, x[:, a:b].copy())
+                for port, part in self._packed_estimators[name].estimate_ports():
+                    signals[f"{name}/{port}"] = (t, x[:, part].copy())
             else:
                 signals[key] = (t, x)
         truth = self.truth.get_name()

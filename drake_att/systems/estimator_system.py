@@ -76,12 +76,9 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 from drake_att import contract
 from drake_att import rotations as rot
 from drake_att.contract import (
-    COVARIANCE,
     ESTIMATE_SIZE,
     GYRO_MEASUREMENT_SIZE,
-    Q_IB,
     QUATERNION_MEASUREMENT_SIZE,
-    SECOND,
     STATUS,
     STATUS_LAST_NIS,
     STATUS_SKIPPED,
@@ -287,8 +284,7 @@ class EstimatorSystem(LeafSystem):
 
         # -- outputs -----------------------------------------------------------------------
         ticket = {self.discrete_state_ticket(self._estimate_group)}
-        for port, part in (("q_IB_hat", Q_IB), (self.second_output_name, SECOND), ("covariance", COVARIANCE),
-                           ("status", STATUS)):
+        for port, part in self.second_quantity.estimate_ports():
             self.DeclareVectorOutputPort(port, part.stop - part.start,
                                          lambda c, o, part=part: self._out(c, o, part), ticket)
         # The whole estimate group as one C++-evaluated port: loggers record this one (no
