@@ -223,6 +223,15 @@ def empty_camera_centroids() -> CameraCentroids:
     return CameraCentroids(0.0, False, np.zeros((0, 2)), 1.0, 0.0)
 
 
+def quaternion_usable(w: float, x: float, y: float, z: float) -> bool:
+    """A measured quaternion's numbers are finite and near unit norm (``|q| >= 0.5``; below
+    that it is not a quaternion). A plain scalar function: the compiled MEKF step compiles
+    this same rule."""
+    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        return False
+    return w**2 + x**2 + y**2 + z**2 >= 0.25
+
+
 def is_usable(measurement) -> bool:
     """The one validity rule: flag true, finite time, at least one number, all finite.
 
@@ -236,9 +245,7 @@ def is_usable(measurement) -> bool:
     numbers = measurement.numbers
     if isinstance(measurement, QuaternionSample):  # the per-step case: 4 floats, no numpy reduction
         values = np.ravel(numbers).tolist()
-        if len(values) != 4 or not all(map(math.isfinite, values)):
-            return False
-        return values[0] ** 2 + values[1] ** 2 + values[2] ** 2 + values[3] ** 2 >= 0.25  # |q| < 0.5: not a quaternion
+        return len(values) == 4 and quaternion_usable(*values)
     if numbers.size == 0 or not np.all(np.isfinite(numbers)):
         return False
     if isinstance(measurement, VectorObservations):
@@ -421,7 +428,8 @@ __all__ = [
     "STATUS_T_ESTIMATE", "STATUS_USED", "STATUS_SKIPPED", "STATUS_LAST_NIS",
     "GYRO_MEASUREMENT_SIZE", "QUATERNION_MEASUREMENT_SIZE",
     "SecondQuantity", "Estimate", "pack_estimate", "flag_is_true", "GyroSample", "QuaternionSample",
-    "VectorObservations", "empty_vector_observations", "CameraCentroids", "empty_camera_centroids", "is_usable", "UpdateInfo",
+    "VectorObservations", "empty_vector_observations", "CameraCentroids", "empty_camera_centroids", "quaternion_usable",
+    "is_usable", "UpdateInfo",
     "FilterCore", "LinearizedPrediction", "Reacquisition", "RandomInitialState", "ParticleSet", "CoreDiagnostics",
     "CoreCapabilities",
 ]

@@ -1,7 +1,8 @@
-"""The compiled MEKF steps (drake_att.filters.mekf_kernels) against the numpy specification.
+"""The compiled MEKF steps (drake_att.filters.mekf_kernels) against the numpy oracle.
 
-``MultiplicativeEKF(kernel="numpy")`` is the readable reference; the default ``"numba"`` kernel
-must give the same predict and update to round-off (its 6x6 products sum in another order
+``tests/mekf_reference.py`` writes the same formulas in readable numpy (:class:`ReferenceMEKF`);
+the library's :class:`MultiplicativeEKF`, which runs the kernels, must give the same predict
+and update to round-off (its 6x6 products sum in another order
 than numpy's BLAS): relative differences of a few 1e-16 per step, bounded here by 1e-12
 over random states, rates, step lengths, mountings, noise levels, gate outcomes and long
 runs. A bug in a kernel (a sign, an index, a missing symmetrization) shows as O(1) relative
@@ -12,10 +13,13 @@ import math
 
 import numpy as np
 import pytest
+from mekf_reference import ReferenceMEKF
+from mekf_reference import process_noise as reference_process_noise
+from mekf_reference import transition_matrix as reference_transition_matrix
 
 from drake_att import rotations as rot
 from drake_att.filters.gating import InnovationGate
-from drake_att.filters.mekf import MekfState, MultiplicativeEKF
+from drake_att.filters.mekf import MekfState, MultiplicativeEKF, process_noise, transition_matrix
 
 RTOL = 1e-12
 
@@ -36,7 +40,7 @@ def _close(a, b, what, scale=None):
 
 
 def _pair(**kw):
-    return MultiplicativeEKF(1e-5, 1e-7, kernel="numba", **kw), MultiplicativeEKF(1e-5, 1e-7, kernel="numpy", **kw)
+    return MultiplicativeEKF(1e-5, 1e-7, **kw), ReferenceMEKF(1e-5, 1e-7, **kw)
 
 
 @pytest.mark.parametrize("coning", [False, True])
@@ -118,8 +122,22 @@ def test_a_long_run_stays_within_round_off_of_the_reference():
     assert np.degrees(np.linalg.norm(rot.quat_error_rotvec(sa.q_IB, q_true))) < 0.01
 
 
-def test_kernel_choice_is_validated():
-    with pytest.raises(ValueError, match="kernel: got 'fortran'"):
-        MultiplicativeEKF(1e-5, 1e-7, kernel="fortran")
-    with pytest.raises(ValueError, match=r"kernel: got \['numba'\]"):  # an unhashable value: a message, not a TypeError
-        MultiplicativeEKF(1e-5, 1e-7, kernel=["numba"])
+def test_process_noise_and_transition_equal_the_reference():
+    """The library's ``process_noise`` and ``transition_matrix`` (used by other cores too) are
+    the kernels'; both series branches of the transition included."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        arw, rrw, dt = 10 ** rng.uniform(-7, -3), 10 ** rng.uniform(-9, -5), 10 ** rng.uniform(-3, 1)
+        np.testing.assert_allclose(process_noise(arw, rrw, dt), reference_process_noise(arw, rrw, dt), rtol=1e-14,
+                                   atol=0.0)
+        w = rng.normal(scale=10 ** rng.uniform(-7, 0), size=3)
+        np.testing.assert_allclose(transition_matrix(w, dt), reference_transition_matrix(w, dt), rtol=1e-13,
+                                   atol=1e-15 * dt)
+
+
+def test_only_the_library_step_runs_as_one_compiled_call():
+    """A subclass that changes the step (the oracle), or the coning correction, is not the
+    kernels' step: the estimator runs it in the Python loop."""
+    assert MultiplicativeEKF(1e-5, 1e-7).runs_kernel_step()
+    assert not ReferenceMEKF(1e-5, 1e-7).runs_kernel_step()
+    assert not MultiplicativeEKF(1e-5, 1e-7, coning_correction=True).runs_kernel_step()

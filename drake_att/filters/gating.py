@@ -140,26 +140,38 @@ class InnovationGate:
 
 
 def reacquire_factor(gate: InnovationGate, info) -> float:
-    """Covariance inflation after repeated rejections: the factor that puts the last
-    rejected innovation's NIS at half the gate (``2 NIS / threshold``), at least 2."""
+    """Covariance inflation after repeated rejections (:func:`inflation_factor` of the last
+    rejected innovation's NIS and the gate's threshold for its dimension)."""
     dof = 3 if info.innovation is None else int(len(info.innovation))
-    nis = info.nis if math.isfinite(info.nis) else 0.0
-    threshold = gate.threshold(dof)
-    return max(2.0, 2.0 * nis / threshold) if math.isfinite(threshold) else 2.0
+    return inflation_factor(info.nis, gate.threshold(dof))
+
+
+def inflation_factor(nis: float, threshold: float) -> float:
+    """The factor that puts a rejected innovation's NIS at half the gate (``2 NIS /
+    threshold``), at least 2; 2 without a gate (or a NIS). A plain scalar function: the
+    compiled MEKF step compiles this same rule."""
+    if not math.isfinite(threshold):
+        return 2.0
+    return max(2.0, 2.0 * (nis if math.isfinite(nis) else 0.0) / threshold)
+
+
+def capped_factor(factor: float, largest_variance: float, max_sigma_rad: float = math.pi) -> float:
+    """``factor`` reduced so the largest attitude variance ``largest_variance`` grows to at
+    most ``max_sigma_rad^2`` (never below 1: a re-acquisition does not shrink ``P``)."""
+    if largest_variance > 0.0:
+        return min(factor, max(1.0, max_sigma_rad**2 / largest_variance))
+    return factor
 
 
 def inflate_attitude_block(P, factor: float, n: int = 3, max_sigma_rad: float = math.pi):
     """``P`` with its leading ``n x n`` (attitude) block multiplied by ``factor`` — the
     cross-covariances and the rest untouched, ``P + (factor - 1) blockdiag(P_aa, 0)``, still
-    positive semi-definite — and each attitude variance capped at ``max_sigma_rad^2`` (the
-    block is scaled down to respect the cap). Inflating the bias block too would let one
-    re-acquisition throw the bias estimate away."""
+    positive semi-definite — and each attitude variance capped at ``max_sigma_rad^2``
+    (:func:`capped_factor`). Inflating the bias block too would let one re-acquisition throw
+    the bias estimate away."""
     P = np.array(P, dtype=float)
     block = P[:n, :n]
-    k = float(factor)
-    largest = float(np.max(np.diag(block)))
-    if largest > 0.0:
-        k = min(k, max(1.0, max_sigma_rad**2 / largest))
+    k = capped_factor(float(factor), float(np.max(np.diag(block))), max_sigma_rad)
     P[:n, :n] = block + (k - 1.0) * block
     return P
 
@@ -177,7 +189,7 @@ def inflated(state, factor: float, field: str = "P", square_root: bool = False, 
 
 
 __all__ = ["DEFAULT_GATE_PROBABILITY", "REACQUIRE_AFTER_REJECTIONS", "chi2_cdf", "chi2_quantile", "InnovationGate",
-           "reacquire_factor", "inflated"]
+           "reacquire_factor", "inflation_factor", "capped_factor", "inflated"]
 
 
 class GatedCore:

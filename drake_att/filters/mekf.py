@@ -1,6 +1,7 @@
 """Multiplicative extended Kalman filter (MEKF) for gyro + star-tracker attitude
-(Markley & Crassidis 2014, sec. 6.2).  Plain numpy (no Drake); the propagation and the
-quaternion update also run as compiled kernels (:mod:`drake_att.filters.mekf_kernels`).
+(Markley & Crassidis 2014, sec. 6.2), no Drake. The propagation, process noise, transition
+matrix and quaternion update are the compiled kernels of :mod:`drake_att.filters.mekf_kernels`
+(their one implementation); the vector update and the coning correction are numpy.
 
 State: ``q_IB`` (wxyz Hamilton), gyro bias ``bias_B`` (rad/s) and the 6x6 covariance ``P`` of
 ``x = [dtheta_B (rad); dbias_B (rad/s)]``, truth ``q_IB = q_IB_hat ⊗ exp(dtheta_B)`` (the
@@ -20,7 +21,6 @@ Derivation and paper notes: docs/derivations/mekf.md
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +28,6 @@ import numpy as np
 from drake_att import rotations as rot
 from drake_att.contract import QuaternionSample, SecondQuantity, UpdateInfo, VectorObservations
 from drake_att.filters import mekf_kernels as _kernels
-from drake_att.filters.compiled import KERNELS  # MultiplicativeEKF(kernel=...): compiled or the numpy specification
 from drake_att.filters.gating import GatedCore, InnovationGate, inflated, reacquire_factor
 from drake_att.validation import check_nonnegative
 
@@ -53,52 +52,23 @@ class MekfState:
 
 
 def process_noise(arw: float, rrw: float, dt: float) -> np.ndarray:
-    """Discrete process-noise covariance (6x6) of ``[dtheta; dbias]`` over ``dt``."""
-    sv2, su2 = arw**2, rrw**2
-    eye = np.eye(3)
-    Q = np.zeros((6, 6))
-    Q[:3, :3] = (sv2 * dt + su2 * dt**3 / 3.0) * eye
-    Q[:3, 3:] = Q[3:, :3] = (-su2 * dt**2 / 2.0) * eye
-    Q[3:, 3:] = su2 * dt * eye
+    """Discrete process-noise covariance (6x6) of ``[dtheta; dbias]`` over ``dt``
+    (:func:`drake_att.filters.mekf_kernels.process_noise`)."""
+    Q = np.empty((6, 6))
+    _kernels.process_noise(float(arw), float(rrw), float(dt), Q)
     return Q
 
 
-_EYE3 = np.eye(3)
 _EYE6 = np.eye(6)
 
 
 def transition_matrix(w_hat_B, dt: float) -> np.ndarray:
-    """Closed-form state transition of ``F = [[-[w x], -I], [0, 0]]`` over ``dt``.
-
-    ``Phi = [[exp(-[w x] dt), -J], [0, I]]`` with
-    ``J = integral_0^dt exp(-[w x] s) ds = dt I - c1 [w x] + c2 [w x]^2``,
-    ``c1 = (1 - cos a) / |w|^2``, ``c2 = (a - sin a) / |w|^3``, ``a = |w| dt``
-    (series for small ``a``).  Written with Python floats: one array construction.
-    """
+    """Closed-form state transition (6x6) of ``F = [[-[w x], -I], [0, 0]]`` over ``dt``
+    (:func:`drake_att.filters.mekf_kernels.transition`)."""
     wx, wy, wz = np.asarray(w_hat_B, dtype=float).tolist()
-    n2 = wx * wx + wy * wy + wz * wz
-    wn = math.sqrt(n2)
-    a = wn * dt
-    if a < 1e-4:
-        c1 = dt * dt / 2.0 - n2 * dt**4 / 24.0
-        c2 = dt**3 / 6.0 - n2 * dt**5 / 120.0
-        s1 = dt - n2 * dt**3 / 6.0  # sin(a)/|w|
-        s2 = dt * dt / 2.0 - n2 * dt**4 / 24.0  # (1 - cos a)/|w|^2
-    else:
-        c1 = (1.0 - math.cos(a)) / n2
-        c2 = (a - math.sin(a)) / (n2 * wn)
-        s1 = math.sin(a) / wn
-        s2 = c1
-    # K = [w x], K^2 = w w' - |w|^2 I.  exp(-K dt) = I - s1 K + s2 K^2.
-    k2 = ((wx * wx - n2, wx * wy, wx * wz), (wy * wx, wy * wy - n2, wy * wz), (wz * wx, wz * wy, wz * wz - n2))
-    k = ((0.0, -wz, wy), (wz, 0.0, -wx), (-wy, wx, 0.0))
-    rows = []
-    for r in range(3):
-        e = [(1.0 if r == c else 0.0) - s1 * k[r][c] + s2 * k2[r][c] for c in range(3)]
-        j = [-((dt if r == c else 0.0) - c1 * k[r][c] + c2 * k2[r][c]) for c in range(3)]
-        rows.append(e + j)
-    rows += [[0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]
-    return np.array(rows)
+    Phi = np.empty((6, 6))
+    _kernels.transition(wx, wy, wz, float(dt), Phi)
+    return Phi
 
 
 PREVIOUS_GYRO_SIZE = 4  # [w_meas_B (3), dt] of the previous step (coning correction)
@@ -129,17 +99,12 @@ def coning_rotation_vector(previous_gyro, w_meas_B, bias_B, dt: float) -> tuple[
 
 
 def _inverse(S):
-    """Inverse of a small symmetric positive-definite matrix (closed form for 3x3), or None
-    if it is not positive definite (Sylvester: every leading minor > 0) or not finite."""
+    """Inverse of a small symmetric positive-definite matrix (3x3: the closed form of
+    :func:`drake_att.filters.mekf_kernels.inverse3`), or None if it is not positive definite
+    or not finite."""
     if S.shape == (3, 3):
-        (a, b, c), (d, e, f), (g, h, i) = S.tolist()
-        A, B, C = e * i - f * h, -(d * i - f * g), d * h - e * g
-        det = a * A + b * B + c * C
-        if not (a > 0.0 and a * e - b * d > 0.0 and det > 0.0) or not math.isfinite(det):
-            return None
-        return np.array([[A, -(b * i - c * h), b * f - c * e],
-                         [B, a * i - c * g, -(a * f - c * d)],
-                         [C, -(a * h - b * g), a * e - b * d]]) / det
+        out = np.empty((3, 3))
+        return out if _kernels.inverse3(np.ascontiguousarray(S, dtype=float), out) else None
     try:
         np.linalg.cholesky(S)  # positive definite, or LinAlgError
         return np.linalg.inv(S)
@@ -164,10 +129,6 @@ class MultiplicativeEKF(GatedCore):
         coning_correction: propagate with the two-sample coning-corrected rotation vector
             (docs/derivations/mekf.md); the state vector then carries the previous step's gyro
             rate and length (``state_size`` 47 instead of 43).
-        kernel: ``"numba"`` (default): the propagation and the quaternion update run as
-            compiled kernels (:mod:`drake_att.filters.mekf_kernels`, ~20x faster per step);
-            ``"numpy"``: the numpy code below, the specification and the tests' oracle. Both
-            give the same results to round-off. Vector updates always use numpy.
     """
 
     second_quantity = SecondQuantity.GYRO_BIAS
@@ -176,10 +137,7 @@ class MultiplicativeEKF(GatedCore):
     state_size = 43  # per instance: 47 with the coning correction
 
     def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None,
-                 coning_correction: bool = False, kernel: str = "numba"):
-        if not (isinstance(kernel, str) and kernel in KERNELS):
-            raise ValueError(f"kernel: got {kernel!r}; allowed: {list(KERNELS)}")
-        self.kernel = kernel
+                 coning_correction: bool = False):
         self.arw = check_nonnegative("arw", arw_rad_per_rt_s)
         self.rrw = check_nonnegative("rrw", rrw_rad_per_s15)
         self.gate = InnovationGate.of(innovation_gate_chi2)
@@ -190,6 +148,16 @@ class MultiplicativeEKF(GatedCore):
             self.state_size = 43 + PREVIOUS_GYRO_SIZE
         self._q_cache: dict = {}
         self._model_cache: dict = {}
+
+    def runs_kernel_step(self) -> bool:
+        """Whether a step of this core is exactly the kernels' propagation and quaternion
+        update (what :mod:`drake_att.systems.compiled_step` runs in one call): no coning
+        correction, and no subclass changing the step."""
+        cls = type(self)
+        return not self.coning_correction and all(
+            getattr(cls, name) is getattr(MultiplicativeEKF, name)
+            for name in ("predict", "predict_linearized", "process_noise", "update", "update_quaternion", "reacquire",
+                         "ungated"))
 
     def process_noise(self, dt: float) -> np.ndarray:
         """:func:`process_noise` for this filter's gyro model (cached per ``dt``)."""
@@ -269,15 +237,10 @@ class MultiplicativeEKF(GatedCore):
         else:
             phi = w_hat * dt
         Q = self.process_noise(dt)
-        if self.kernel == "numba":
-            q, P, Phi = np.empty(4), np.empty((6, 6)), np.empty((6, 6))
-            _kernels.predict(np.asarray(state.q_IB, dtype=float), np.asarray(state.P, dtype=float), w_hat, phi,
-                             float(dt), Q, q, P, Phi)
-            return MekfState(q, state.bias_B, P, previous), Phi, Q
-        q = rot.quat_normalize(rot.quat_multiply(state.q_IB, rot.rotvec_to_quat(phi)))
-        Phi = transition_matrix(w_hat, dt)
-        P = Phi @ state.P @ Phi.T + Q
-        return MekfState(q, state.bias_B, 0.5 * (P + P.T), previous), Phi, Q
+        q, P, Phi = np.empty(4), np.empty((6, 6)), np.empty((6, 6))
+        _kernels.predict(np.asarray(state.q_IB, dtype=float), np.asarray(state.P, dtype=float), w_hat, phi,
+                         float(dt), Q, q, P, Phi)
+        return MekfState(q, state.bias_B, P, previous), Phi, Q
 
     def _update(self, state: MekfState, z, H, R):
         P = state.P
@@ -304,15 +267,7 @@ class MultiplicativeEKF(GatedCore):
         ``noise_S``: per-axis sigmas (3,) in rad, or a full 3x3 covariance (rad^2), of the
         measurement's rotation-vector error in the sensor frame.
         """
-        H, R, R_SB = self._quaternion_model(q_BS, noise_S)
-        if self.kernel == "numba":
-            return self._update_quaternion_compiled(state, q_IS_meas, q_BS, R_SB, R)
-        q_IS_hat = rot.quat_multiply(state.q_IB, q_BS)
-        z = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(q_IS_hat), q_IS_meas))
-        return self._update(state, z, H, R)
-
-    def _update_quaternion_compiled(self, state: MekfState, q_IS_meas, q_BS, R_SB, R):
-        """:meth:`update_quaternion` by :func:`drake_att.filters.mekf_kernels.update_quaternion`."""
+        R, R_SB = self._quaternion_model(q_BS, noise_S)
         q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
         z, S, I_KH = np.empty(3), np.empty((3, 3)), np.empty((6, 6))
         outcome, nis = _kernels.update_quaternion(
@@ -324,18 +279,16 @@ class MultiplicativeEKF(GatedCore):
         return MekfState(q, b, P, state.previous_gyro), UpdateInfo(z, S, nis, True, I_KH)
 
     def _quaternion_model(self, q_BS, noise_S):
-        """``H = [R_SB, 0]``, ``R`` and ``R_SB`` of a mounted quaternion sensor (cached per sensor)."""
+        """``R`` and ``R_SB`` of a mounted quaternion sensor (cached per sensor)."""
         q_BS = np.asarray(q_BS, dtype=float)
         noise_S = np.asarray(noise_S, dtype=float)
         key = (q_BS.tobytes(), noise_S.tobytes())
         model = self._model_cache.get(key)
         if model is None:
-            H = np.zeros((3, 6))
-            H[:, :3] = rot.quat_to_rotmat(q_BS).T
             R = np.ascontiguousarray(noise_S if noise_S.shape == (3, 3) else np.diag(noise_S**2))
             if len(self._model_cache) > 64:
                 self._model_cache.clear()
-            model = self._model_cache[key] = (H, R, np.ascontiguousarray(H[:, :3]))
+            model = self._model_cache[key] = (R, np.ascontiguousarray(rot.quat_to_rotmat(q_BS).T))
         return model
 
     def update_vectors(self, state: MekfState, directions_S, references_I, sigma_rad: float,
@@ -400,5 +353,5 @@ def steady_state_covariance(Phi, Q, H, R, max_iterations: int = 100,
     return P, (eye - K @ H) @ P
 
 
-__all__ = ["MekfState", "UpdateInfo", "MultiplicativeEKF", "KERNELS", "process_noise", "transition_matrix",
+__all__ = ["MekfState", "UpdateInfo", "MultiplicativeEKF", "process_noise", "transition_matrix",
            "coning_rotation_vector", "steady_state_covariance", "PREVIOUS_GYRO_SIZE"]

@@ -1,11 +1,11 @@
-"""Compiled MEKF steps (numba): the per-step arithmetic of :mod:`drake_att.filters.mekf`.
-
-The numpy code in :class:`~drake_att.filters.mekf.MultiplicativeEKF` is the specification
-and the test oracle (``kernel="numpy"``); these kernels compute the same quantities with the
-same formulas, in plain loops over the 6x6 matrices, so one predict + update costs a few
-microseconds instead of ~100 (small numpy calls cost 1-2 us each in call overhead; a step
-makes ~30 of them). ``tests/test_mekf_kernels.py`` asserts both paths agree to round-off
-(matrix products sum in another order than numpy's BLAS: ~1e-16 relative per product).
+"""The MEKF's step arithmetic (numba): propagation, process noise, transition matrix and the
+attitude-quaternion update of :mod:`drake_att.filters.mekf`, in plain loops over the 6x6
+matrices — the one implementation. :class:`~drake_att.filters.mekf.MultiplicativeEKF` and
+the one-call step of :mod:`drake_att.systems.compiled_step` call these kernels; the readable
+numpy form of the same formulas is the tests' oracle (``tests/mekf_reference.py``,
+compared in ``tests/test_mekf_kernels.py`` to round-off: matrix products sum in another
+order than numpy's BLAS, ~1e-16 relative per product). One predict + update costs a few
+microseconds instead of ~100 in numpy calls.
 
 Compiled on first use and cached on disk by :func:`drake_att.filters.compiled.jit` (which also
 holds the scalar quaternion helpers shared with the particle-filter kernels; see
@@ -40,8 +40,29 @@ def _normalize(q):
 
 
 @_jit
-def _transition(wx, wy, wz, dt, Phi):
-    """``mekf.transition_matrix`` into ``Phi`` (6x6), the same float formulas."""
+def process_noise(arw, rrw, dt, Q):
+    """Discrete process-noise covariance of ``[dtheta; dbias]`` over ``dt`` into ``Q`` (6x6):
+    Farrenkopf's model with ARW ``arw`` (rad/s^0.5) and RRW ``rrw`` (rad/s^1.5)."""
+    sv2, su2 = arw * arw, rrw * rrw
+    a = sv2 * dt + su2 * dt ** 3 / 3.0
+    c = -su2 * dt ** 2 / 2.0
+    d = su2 * dt
+    for i in range(6):
+        for j in range(6):
+            Q[i, j] = 0.0
+    for i in range(3):
+        Q[i, i] = a
+        Q[i, i + 3] = c
+        Q[i + 3, i] = c
+        Q[i + 3, i + 3] = d
+
+
+@_jit
+def transition(wx, wy, wz, dt, Phi):
+    """Closed-form state transition of ``F = [[-[w x], -I], [0, 0]]`` over ``dt`` into
+    ``Phi`` (6x6): ``Phi = [[exp(-[w x] dt), -J], [0, I]]`` with ``J = integral_0^dt
+    exp(-[w x] s) ds = dt I - c1 [w x] + c2 [w x]^2``, ``c1 = (1 - cos a) / |w|^2``,
+    ``c2 = (a - sin a) / |w|^3``, ``a = |w| dt`` (series for small ``a``)."""
     n2 = wx * wx + wy * wy + wz * wz
     wn = math.sqrt(n2)
     a = wn * dt
@@ -105,14 +126,14 @@ def predict(q, P, w_hat, rotation_vector, dt, Q, q_out, P_out, Phi_out):
     _rotvec_to_quat(rotation_vector[0], rotation_vector[1], rotation_vector[2], dq)
     _quat_mul(q, dq, q_out)
     _normalize(q_out)
-    _transition(w_hat[0], w_hat[1], w_hat[2], dt, Phi_out)
+    transition(w_hat[0], w_hat[1], w_hat[2], dt, Phi_out)
     _symmetric_sandwich(Phi_out, P, Q, P_out)
 
 
 @_jit
-def _inverse3(S, out):
-    """``mekf._inverse`` of a 3x3 matrix (Sylvester's test, closed form); False if not
-    positive definite or not finite."""
+def inverse3(S, out):
+    """The inverse of a symmetric 3x3 matrix into ``out`` (closed form); False (``out``
+    unset) if it is not positive definite (Sylvester: every leading minor > 0) or not finite."""
     a, b, c = S[0, 0], S[0, 1], S[0, 2]
     d, e, f = S[1, 0], S[1, 1], S[1, 2]
     g, h, i = S[2, 0], S[2, 1], S[2, 2]
@@ -169,7 +190,7 @@ def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P
         for j in range(3):
             S[i, j] = 0.5 * (S0[i, j] + S0[j, i])
     S_inv = np.empty((3, 3))
-    if not _inverse3(S, S_inv):
+    if not inverse3(S, S_inv):
         return SINGULAR, math.nan
     nis = 0.0
     for i in range(3):
@@ -230,4 +251,5 @@ def warm_up() -> None:
     del out6
 
 
-__all__ = ["predict", "update_quaternion", "warm_up", "ACCEPTED", "REJECTED_BY_GATE", "SINGULAR"]
+__all__ = ["process_noise", "transition", "inverse3", "predict", "update_quaternion", "warm_up", "ACCEPTED",
+           "REJECTED_BY_GATE", "SINGULAR"]

@@ -67,7 +67,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -84,68 +84,41 @@ from drake_att.contract import (
     STATUS_SKIPPED,
     STATUS_USED,
     CoreCapabilities,
-    GyroSample,
     QuaternionSample,
     SecondQuantity,
     pack_estimate,
 )
 from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
 from drake_att.systems import compiled_step
+from drake_att.systems.estimator_step import (
+    DUE,
+    NO_TIME,
+    TIME_TOLERANCE_S,
+    Bookkeeping,
+    covariance_slot,
+    gyro_sample_usable,
+    is_gate_rejection,
+    rate_usable,
+    sample_disposition,
+)
 from drake_att.systems.randomness import (
-    SEED_WORDS,
     counter_random,
     declare_seed_port,
     read_seed_words,
 )
 
-TIME_TOLERANCE_S = 1e-6
 LINEARIZATION_SIZE = 3 * 36 + 1
 PARTICLE_DIAGNOSTICS_SIZE = 4
 _EYE6 = np.eye(6)
 _ZERO6 = np.zeros((6, 6))
-
-
-
-@dataclass(frozen=True)
-class Bookkeeping:
-    """The layout of the bookkeeping group (discrete-state group 1) of a system with
-    ``n_inputs`` measurement inputs: what the runner counts, by name (the cores count
-    nothing). :mod:`drake_att.systems.compiled_step` writes the same layout."""
-
-    n_inputs: int
-    T_LAST: ClassVar[int] = 0                              # time of the last step (-inf before any)
-    W_LAST: ClassVar[slice] = slice(1, 4)                  # last valid gyro rate (the hold)
-    STEP: ClassVar[int] = 4                                # step index (random cores' generator)
-    SEED: ClassVar[slice] = slice(5, 5 + SEED_WORDS)       # the diagram seed's words
-    N_RESAMPLES: ClassVar[int] = 5 + SEED_WORDS            # particle resamplings so far
-    ESS: ClassVar[int] = 6 + SEED_WORDS                    # N_eff after the last update
-    N_DEGENERATE: ClassVar[int] = 7 + SEED_WORDS           # degenerate particle updates so far
-    LAST_SAMPLE: ClassVar[int] = 8 + SEED_WORDS            # per input: time of its last used sample
-
-    @property
-    def rejections(self) -> int:
-        """First per-input count of consecutive gate rejections (re-acquisition)."""
-        return self.LAST_SAMPLE + self.n_inputs
-
-    @property
-    def size(self) -> int:
-        return self.LAST_SAMPLE + 2 * self.n_inputs
-
-    def initial(self, num_particles: int | None) -> np.ndarray:
-        book = np.zeros(self.size)
-        book[self.T_LAST] = -np.inf
-        book[self.ESS] = float(num_particles) if num_particles is not None else np.nan
-        book[self.LAST_SAMPLE:self.rejections] = -np.inf
-        return book
-
 
 # The status entries of the packed estimate the runner counts in.
 _USED, _SKIPPED, _LAST_NIS = (STATUS.start + i for i in (STATUS_USED, STATUS_SKIPPED, STATUS_LAST_NIS))
 _NO_GYRO = np.full(GYRO_MEASUREMENT_SIZE, np.nan)
 _NO_INNOVATIONS = np.zeros(0)
 
-__all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensorModel", "MekfEstimator", "pack_estimate", "ESTIMATE_SIZE",
-           "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
+__all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensorModel", "MekfEstimator", "Bookkeeping",
+           "pack_estimate", "ESTIMATE_SIZE", "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
 
 
 @dataclass(frozen=True)
@@ -164,13 +137,12 @@ class QuaternionSensorModel:
     covariance_by_flag: tuple = ()
 
     def covariance_for_flag(self, flag: float):
-        """The covariance of a sample with validity ``flag`` (None: not a usable subset)."""
-        if not self.covariance_by_flag or not flag > 1.5:
-            return self.covariance_S
-        if not math.isfinite(flag):
+        """The covariance of a sample with validity ``flag`` (None: not a usable subset;
+        :func:`~drake_att.systems.estimator_step.covariance_slot`)."""
+        slot = covariance_slot(flag, len(self.covariance_by_flag))
+        if slot < 0:
             return None
-        mask = int(round(flag)) - 1
-        return self.covariance_by_flag[mask] if 0 < mask < len(self.covariance_by_flag) else None
+        return self.covariance_S if slot == 0 else self.covariance_by_flag[slot]
 
 
 @dataclass(frozen=True)
@@ -404,10 +376,7 @@ class EstimatorSystem(LeafSystem):
         if not self._gyro_port.HasValue(context):
             return None
         t_g, valid, wx, wy, wz = self._gyro_port.Eval(context).tolist()  # the GyroSample layout
-        if (abs(t_g - t) < TIME_TOLERANCE_S and valid > 0.5 and math.isfinite(valid) and math.isfinite(wx)
-                and math.isfinite(wy) and math.isfinite(wz)):
-            return np.array([wx, wy, wz])
-        return None
+        return np.array([wx, wy, wz]) if gyro_sample_usable(t, TIME_TOLERANCE_S, t_g, valid, wx, wy, wz) else None
 
     def _measurements(self, context, quaternion_sensors):
         """``(input index, measurement)`` for every connected measurement input, in order."""
@@ -436,7 +405,7 @@ class EstimatorSystem(LeafSystem):
             return hit[1]
         array_model = None
         if self._linearizing and compiled_step.eligible(model.core, len(self._vector_ports), model.core.is_random):
-            array_model = compiled_step.CompiledStepModel.of(model.core, model.quaternion_sensors)
+            array_model = compiled_step.StepModel.of(model.core, model.quaternion_sensors, self.bookkeeping)
         if len(self._compiled_models) > 8:
             self._compiled_models.clear()
         self._compiled_models[id(model)] = (model, array_model)
@@ -456,11 +425,9 @@ class EstimatorSystem(LeafSystem):
                 connected[i] = True
         group = discrete_state.get_mutable_value  # a writable view of a group (one pybind call)
         innovations = group(self._innovation_group) if self._innovation_group is not None else _NO_INNOVATIONS
-        compiled_step.mekf_step(
-            context.get_time(), TIME_TOLERANCE_S, gyro_connected, gyro, connected, meas, m.q_BS, m.R_SB, m.covariance,
-            m.allowed, m.n_masks, m.threshold, m.arw, m.rrw, float(REACQUIRE_AFTER_REJECTIONS), Bookkeeping.LAST_SAMPLE,
-            self._rejections, group(self._estimate_group), group(self._book_group), group(self._core_group),
-            group(self._linearization_group), innovations)
+        compiled_step.mekf_step(context.get_time(), gyro_connected, gyro, connected, meas, m, group(self._estimate_group),
+                                group(self._book_group), group(self._core_group), group(self._linearization_group),
+                                innovations)
         return EventStatus.Succeeded()
 
     def _on_step(self, context, discrete_state):
@@ -472,7 +439,6 @@ class EstimatorSystem(LeafSystem):
             if array_model is not None:
                 return self._on_step_compiled(context, discrete_state, array_model)
         core = model.core
-        reacquires = model.capabilities.reacquisition
         t = context.get_time()
         est = self.estimate_vector(context)
         book = context.get_discrete_state(self._book_group).value().copy()
@@ -482,51 +448,22 @@ class EstimatorSystem(LeafSystem):
         if core.is_random:
             book[Bookkeeping.STEP] += 1.0
             rng = counter_random(book[Bookkeeping.SEED], self.get_name()).generator(int(book[Bookkeeping.STEP]))
-
-        # -- time update over (t_last, t] ----------------------------------------------------
-        t_last = float(book[Bookkeeping.T_LAST])
-        Phi, Q, A = _EYE6, _ZERO6, _EYE6
-        if math.isfinite(t_last):
-            w_meas = None
-            if core.uses_gyro:
-                w_meas = self._gyro_rate(context, t)
-                if w_meas is None:
-                    n_skipped += 1
-                    w_meas = book[Bookkeeping.W_LAST].copy()
-                else:
-                    book[Bookkeeping.W_LAST] = w_meas
-            if self._linearizing:
-                state, Phi, Q = core.predict_linearized(state, w_meas, t - t_last)
-            else:
-                state = core.predict(state, w_meas, t - t_last, rng)
-        elif core.uses_gyro and self._gyro_port.HasValue(context):
-            g = GyroSample.from_port(self._gyro_port.Eval(context))
-            if g.valid and np.all(np.isfinite(g.w_meas_B)):
-                book[Bookkeeping.W_LAST] = g.w_meas_B
-        book[Bookkeeping.T_LAST] = t
+        state, Phi, Q, held = self._time_update(context, core, state, book, t, rng)
+        n_skipped += held
 
         # -- measurement updates at this instant ------------------------------------------------
+        A = _EYE6
         innovations = None
         for i, m in self._measurements(context, model.quaternion_sensors):
-            t_meas = float(m.time_s)
-            if not math.isfinite(t_meas):
-                n_skipped += 1  # a sample with no usable time stamp
+            disposition = sample_disposition(float(m.time_s), t, TIME_TOLERANCE_S, book[Bookkeeping.LAST_SAMPLE + i])
+            if disposition != DUE:
+                n_skipped += disposition == NO_TIME  # a sample with no usable time stamp is counted
                 continue
-            if abs(t_meas - t) >= TIME_TOLERANCE_S or t_meas <= book[Bookkeeping.LAST_SAMPLE + i]:
-                continue  # not this instant's sample, or already used
-            book[Bookkeeping.LAST_SAMPLE + i] = t_meas
+            book[Bookkeeping.LAST_SAMPLE + i] = float(m.time_s)
             if not contract.is_usable(m):
                 n_skipped += 1
                 continue
-            new_state, info = core.update(state, m, rng)
-            if info.accepted:
-                book[self._rejections + i] = 0.0
-            elif info.nis == info.nis and reacquires:  # a gate rejection (finite NIS)
-                book[self._rejections + i] += 1.0
-                if book[self._rejections + i] >= REACQUIRE_AFTER_REJECTIONS:
-                    book[self._rejections + i] = 0.0
-                    new_state, info = core.ungated().update(core.reacquire(state, info), m, rng)
-            state = new_state
+            state, info = self._update(model, state, m, book, self._rejections + i, rng)
             nis = info.nis
             if innovations is None:
                 innovations = context.get_discrete_state(self._innovation_group).value().copy()
@@ -554,6 +491,49 @@ class EstimatorSystem(LeafSystem):
             discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
                 np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
         return EventStatus.Succeeded()
+
+    def _time_update(self, context, core, state, book, t, rng):
+        """The time update over ``(t_last, t]`` (none at the first step): ``(state, Phi, Q,
+        held)``, ``held`` 1 when the gyro sample was unusable and the last valid rate held
+        (``book`` keeps the rate and the step's time)."""
+        t_last = float(book[Bookkeeping.T_LAST])
+        Phi, Q, held = _EYE6, _ZERO6, 0
+        if math.isfinite(t_last):
+            w_meas = None
+            if core.uses_gyro:
+                w_meas = self._gyro_rate(context, t)
+                if w_meas is None:
+                    held = 1
+                    w_meas = book[Bookkeeping.W_LAST].copy()
+                else:
+                    book[Bookkeeping.W_LAST] = w_meas
+            if self._linearizing:
+                state, Phi, Q = core.predict_linearized(state, w_meas, t - t_last)
+            else:
+                state = core.predict(state, w_meas, t - t_last, rng)
+        elif core.uses_gyro and self._gyro_port.HasValue(context):
+            t_g, valid, wx, wy, wz = self._gyro_port.Eval(context).tolist()
+            if rate_usable(valid, wx, wy, wz):
+                book[Bookkeeping.W_LAST] = (wx, wy, wz)
+        book[Bookkeeping.T_LAST] = t
+        return state, Phi, Q, held
+
+    @staticmethod
+    def _update(model: FilterModel, state, measurement, book, rejections: int, rng):
+        """The core's update with one due, usable measurement, and the re-acquisition rule:
+        after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS` consecutive gate
+        rejections of this input (count at ``book[rejections]``), the core's ``reacquire``
+        and one retry with its ``ungated()`` twin."""
+        core = model.core
+        new_state, info = core.update(state, measurement, rng)
+        if info.accepted:
+            book[rejections] = 0.0
+        elif is_gate_rejection(info.accepted, info.nis) and model.capabilities.reacquisition:
+            book[rejections] += 1.0
+            if book[rejections] >= REACQUIRE_AFTER_REJECTIONS:
+                book[rejections] = 0.0
+                new_state, info = core.ungated().update(core.reacquire(state, info), measurement, rng)
+        return new_state, info
 
 
 def MekfEstimator(name: str, period_s: float, filter_core, initial_state, quaternion_sensors=(),
