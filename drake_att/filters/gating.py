@@ -169,7 +169,7 @@ def inflate_attitude_block(P, factor: float, n: int = 3, max_sigma_rad: float = 
     positive semi-definite — and each attitude variance capped at ``max_sigma_rad^2``
     (:func:`capped_factor`). Inflating the bias block too would let one re-acquisition throw
     the bias estimate away."""
-    P = np.array(P, dtype=float)
+    P = np.asarray(P, dtype=np.float64).copy()  # numba compiles this function too (no np.array of an array)
     block = P[:n, :n]
     k = capped_factor(float(factor), float(np.max(np.diag(block))), max_sigma_rad)
     P[:n, :n] = block + (k - 1.0) * block

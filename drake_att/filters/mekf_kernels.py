@@ -96,25 +96,38 @@ def transition(wx, wy, wz, dt, Phi):
 
 
 @_jit
+def matmul(X, Y, out):
+    """``out = X[:, :k] @ Y[:k]`` with ``k = X.shape[1]`` (``out``'s shape sets the rows and
+    columns), summed in index order; numba's ``@`` needs SciPy's BLAS, and these are tiny."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            acc = 0.0
+            for m in range(X.shape[1]):
+                acc += X[i, m] * Y[m, j]
+            out[i, j] = acc
+
+
+@_jit
+def matmul_transposed(X, Y, out):
+    """``out = X[:, :k] @ Y[:, :k]'`` with ``k = Y.shape[1]``, summed in index order."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            acc = 0.0
+            for m in range(Y.shape[1]):
+                acc += X[i, m] * Y[j, m]
+            out[i, j] = acc
+
+
+@_jit
 def _symmetric_sandwich(A, P, Q, out):
     """``out = sym(A P A' + Q)`` for 6x6 matrices (``sym(X) = (X + X')/2``)."""
     T = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += A[i, k] * P[k, j]
-            T[i, j] = s
+    matmul(A, P, T)
     M = np.empty((6, 6))
+    matmul_transposed(T, A, M)
     for i in range(6):
         for j in range(6):
-            s = 0.0
-            for k in range(6):
-                s += T[i, k] * A[j, k]
-            M[i, j] = s + Q[i, j]
-    for i in range(6):
-        for j in range(6):
-            out[i, j] = 0.5 * (M[i, j] + M[j, i])
+            out[i, j] = 0.5 * ((M[i, j] + Q[i, j]) + (M[j, i] + Q[j, i]))
 
 
 @_jit
@@ -173,22 +186,12 @@ def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P
     z[0], z[1], z[2] = k * dq[1], k * dq[2], k * dq[3]
     # H = [R_SB, 0]: P H' = P[:, :3] R_SB', S = R_SB P[:3, :3] R_SB' + R.
     PHt = np.empty((6, 3))
-    for i in range(6):
-        for j in range(3):
-            acc = 0.0
-            for m in range(3):
-                acc += P[i, m] * R_SB[j, m]
-            PHt[i, j] = acc
+    matmul_transposed(P, R_SB, PHt)
     S0 = np.empty((3, 3))
+    matmul(R_SB, PHt, S0)
     for i in range(3):
         for j in range(3):
-            acc = 0.0
-            for m in range(3):
-                acc += R_SB[i, m] * PHt[m, j]
-            S0[i, j] = acc + R[i, j]
-    for i in range(3):
-        for j in range(3):
-            S[i, j] = 0.5 * (S0[i, j] + S0[j, i])
+            S[i, j] = 0.5 * ((S0[i, j] + R[i, j]) + (S0[j, i] + R[j, i]))
     S_inv = np.empty((3, 3))
     if not inverse3(S, S_inv):
         return SINGULAR, math.nan
@@ -201,12 +204,7 @@ def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P
     if not math.isfinite(nis) or nis > threshold:
         return REJECTED_BY_GATE, nis
     K = np.empty((6, 3))
-    for i in range(6):
-        for j in range(3):
-            acc = 0.0
-            for m in range(3):
-                acc += PHt[i, m] * S_inv[m, j]
-            K[i, j] = acc
+    matmul(PHt, S_inv, K)
     dx = np.empty(6)
     for i in range(6):
         dx[i] = K[i, 0] * z[0] + K[i, 1] * z[1] + K[i, 2] * z[2]
@@ -220,16 +218,9 @@ def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P
             I_KH[i, j] = (1.0 if i == j else 0.0) - kh
     # Joseph form: (I - KH) P (I - KH)' + K R K'.
     KR = np.empty((6, 3))
-    for i in range(6):
-        for j in range(3):
-            acc = 0.0
-            for m in range(3):
-                acc += K[i, m] * R[m, j]
-            KR[i, j] = acc
+    matmul(K, R, KR)
     KRKt = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            KRKt[i, j] = KR[i, 0] * K[j, 0] + KR[i, 1] * K[j, 1] + KR[i, 2] * K[j, 2]
+    matmul_transposed(KR, K, KRKt)
     _symmetric_sandwich(I_KH, P, KRKt, P_out)
     dq2 = np.empty(4)
     _rotvec_to_quat(dx[0], dx[1], dx[2], dq2)
@@ -251,5 +242,5 @@ def warm_up() -> None:
     del out6
 
 
-__all__ = ["process_noise", "transition", "inverse3", "predict", "update_quaternion", "warm_up", "ACCEPTED",
+__all__ = ["matmul", "matmul_transposed", "process_noise", "transition", "inverse3", "predict", "update_quaternion", "warm_up", "ACCEPTED",
            "REJECTED_BY_GATE", "SINGULAR"]

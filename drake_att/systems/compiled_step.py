@@ -28,27 +28,16 @@ from numba.extending import register_jitable
 
 from drake_att import contract
 from drake_att import rotations as rot
-from drake_att.contract import STATUS, STATUS_LAST_NIS, STATUS_SKIPPED, STATUS_USED, flag_is_true, quaternion_usable
+from drake_att.contract import STATUS, STATUS_LAST_NIS, STATUS_SKIPPED, STATUS_USED
 from drake_att.filters import gating
 from drake_att.filters import mekf_kernels as _mekf
 from drake_att.filters.compiled import jit as _jit
-from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS, capped_factor, inflation_factor
-from drake_att.systems import estimator_step
-from drake_att.systems.estimator_step import (
-    DUE,
-    NO_TIME,
-    TIME_TOLERANCE_S,
-    Bookkeeping,
-    covariance_slot,
-    gyro_sample_usable,
-    is_gate_rejection,
-    rate_usable,
-    sample_disposition,
-)
+from drake_att.systems import estimator_step as rules
+from drake_att.systems.estimator_step import TIME_TOLERANCE_S, Bookkeeping
 
-for _rule in (estimator_step.rate_usable, estimator_step.gyro_sample_usable, estimator_step.sample_disposition,
-              estimator_step.covariance_slot, estimator_step.is_gate_rejection, gating.inflation_factor,
-              gating.capped_factor, contract.quaternion_usable, contract.flag_is_true):
+for _rule in (rules.rate_usable, rules.gyro_sample_usable, rules.sample_disposition, rules.covariance_slot,
+              rules.is_gate_rejection, gating.inflation_factor, gating.capped_factor, gating.inflate_attitude_block,
+              contract.quaternion_usable, contract.flag_is_true):
     register_jitable(_rule)  # the Python function stays as it is; compiled code may call it
 
 
@@ -102,7 +91,7 @@ class StepModel(NamedTuple):
                     cov[i, mask] = _as_covariance(c)
                     allowed[i, mask] = True
         return cls(q_BS, R_SB, cov, allowed, n_subsets, float(core.gate.threshold(3)), float(core.arw),
-                   float(core.rrw), TIME_TOLERANCE_S, float(REACQUIRE_AFTER_REJECTIONS), Bookkeeping.LAST_SAMPLE,
+                   float(core.rrw), TIME_TOLERANCE_S, float(gating.REACQUIRE_AFTER_REJECTIONS), Bookkeeping.LAST_SAMPLE,
                    bookkeeping.rejections)
 
 
@@ -132,7 +121,7 @@ def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
     skipped = 0.0
     t_last = book[_T_LAST]
     if math.isfinite(t_last):
-        usable = gyro_connected and gyro_sample_usable(t, model.tolerance, gyro[0], gyro[1], gyro[2], gyro[3],
+        usable = gyro_connected and rules.gyro_sample_usable(t, model.tolerance, gyro[0], gyro[1], gyro[2], gyro[3],
                                                        gyro[4])
         if usable:
             for k in range(3):
@@ -150,7 +139,7 @@ def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
             _mekf.predict(q, P, w_hat, w_hat * dt, dt, Q, q_new, P_new, Phi)
             q[:] = q_new
             P[:, :] = P_new
-    elif gyro_connected and rate_usable(gyro[1], gyro[2], gyro[3], gyro[4]):
+    elif gyro_connected and rules.rate_usable(gyro[1], gyro[2], gyro[3], gyro[4]):
         for k in range(3):
             book[_W_LAST + k] = gyro[2 + k]
     book[_T_LAST] = t
@@ -163,17 +152,18 @@ def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S,
     written). Returns ``(outcome, nis, counted)``: outcome -1 for a sample passed over or
     skipped before the core sees it (``counted``: whether it counts as skipped), else the
     kernel's outcome after any re-acquisition."""
-    disposition = sample_disposition(meas_i[0], t, model.tolerance, book[model.last_sample + i])
-    if disposition == NO_TIME:
+    disposition = rules.sample_disposition(meas_i[0], t, model.tolerance, book[model.last_sample + i])
+    if disposition == rules.NO_TIME:
         return -1, math.nan, True
-    if disposition != DUE:
+    if disposition != rules.DUE:
         return -1, math.nan, False
     book[model.last_sample + i] = meas_i[0]
     flag = meas_i[1]
-    slot = covariance_slot(flag, model.n_subsets[i])
+    slot = rules.covariance_slot(flag, model.n_subsets[i])
     if slot > 0 and not model.allowed[i, slot]:
         slot = -1
-    if not flag_is_true(flag) or slot < 0 or not quaternion_usable(meas_i[2], meas_i[3], meas_i[4], meas_i[5]):
+    usable = contract.quaternion_usable(meas_i[2], meas_i[3], meas_i[4], meas_i[5])
+    if not contract.flag_is_true(flag) or slot < 0 or not usable:
         return -1, math.nan, True
     q_meas = meas_i[2:6].copy()
     R = model.covariance[i, slot].copy()
@@ -182,17 +172,12 @@ def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S,
     count = model.rejections + i
     if outcome == _mekf.ACCEPTED:
         book[count] = 0.0
-    elif is_gate_rejection(False, nis):
+    elif rules.is_gate_rejection(False, nis):
         book[count] += 1.0
         if book[count] >= model.reacquire_after:
             book[count] = 0.0
             # The core's reacquire (gating.inflated), then the same measurement without the gate.
-            largest = max(P[0, 0], max(P[1, 1], P[2, 2]))
-            factor = capped_factor(inflation_factor(nis, model.threshold), largest, math.pi)
-            P_try = P.copy()
-            for r in range(3):
-                for c in range(3):
-                    P_try[r, c] = P[r, c] + (factor - 1.0) * P[r, c]
+            P_try = gating.inflate_attitude_block(P, gating.inflation_factor(nis, model.threshold), 3, math.pi)
             outcome, nis = _mekf.update_quaternion(q, b, P_try, q_meas, model.q_BS[i], model.R_SB[i], R, math.inf,
                                                    q_out, b_out, P_out, z, S, I_KH)
             if outcome != _mekf.ACCEPTED:
@@ -231,7 +216,10 @@ def mekf_step(t, gyro_connected, gyro, connected, meas, model, est, book, core, 
         innov[3 * i], innov[3 * i + 1], innov[3 * i + 2] = t, nis, 3.0
         if outcome == _mekf.ACCEPTED:
             n_used += 1.0
-            A = I_KH.copy() if first else _matmul6(I_KH, A)
+            if first:
+                A[:, :] = I_KH
+            else:
+                _mekf.matmul(I_KH, A.copy(), A)
             first = False
         else:
             n_skipped += 1.0
@@ -247,19 +235,6 @@ def mekf_step(t, gyro_connected, gyro, connected, meas, model, est, book, core, 
     lin[36:72] = Q.ravel()
     lin[72:108] = A.ravel()
     lin[108] += 1.0
-
-
-@_jit
-def _matmul6(X, Y):
-    """``X @ Y`` of 6x6 matrices (numba's ``@`` needs SciPy's BLAS)."""
-    out = np.empty((6, 6))
-    for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for m in range(6):
-                acc += X[i, m] * Y[m, j]
-            out[i, j] = acc
-    return out
 
 
 def warm_up() -> None:
