@@ -2,11 +2,12 @@
 library estimator that runs on EstimatorSystem keeps the contract (unusable inputs skipped
 and counted, finite outputs, seeds); every module of the package imports alone.
 
-* The tutorial (docs/adding_an_estimator.md): its first ```python block (a module whose first
-  line is ``# <module>.py``) and its first ```yaml block (a scenario whose ``plugins:`` names
-  that module) are written verbatim to a temporary folder and run with the CLI in a fresh
-  process. Predictions come from an independent derivation written here (scipy Lyapunov and
-  Riccati solutions of the per-axis error model), with every number read from the YAML.
+* The tutorial (docs/adding_an_estimator.md): its ```python and ```yaml blocks (each first
+  line ``# <file name>``: the plug-in module, a scenario whose ``plugins:`` names it, the
+  user's unit tests) are written verbatim to a temporary folder; the scenario runs with the
+  CLI and the unit tests with pytest, each in a fresh process. Predictions come from an
+  independent derivation written here (scipy Lyapunov and Riccati solutions of the per-axis
+  error model), with every number read from the YAML.
 * The contract: each estimator is built by its registered build function in a small scenario
   and then driven alone, inputs FixValue'd, stepped event by event.
 * Imports: one fresh interpreter per module (a module that only imports because another one
@@ -58,10 +59,19 @@ def _subprocess_env(*front) -> dict:
 # ======================================================================================
 # a. The tutorial, verbatim
 # ======================================================================================
-def _first_block(text: str, language: str) -> str:
-    m = re.search(rf"^```{language}[ \t]*\n(.*?)^```", text, flags=re.DOTALL | re.MULTILINE)
-    assert m, f"{TUTORIAL.name}: no ```{language} block"
-    return m.group(1)
+def _write_tutorial_files(folder: Path) -> dict[str, str]:
+    """Writes every ```python and ```yaml block of the tutorial to ``folder`` under the file
+    name its first line gives (``# <file name>``); returns {file name: text}."""
+    blocks = re.findall(r"^```(?:python|yaml)[ \t]*\n(.*?)^```", TUTORIAL.read_text(), flags=re.DOTALL | re.MULTILINE)
+    files = {}
+    for text in blocks:
+        m = re.fullmatch(r"# (\w+\.(?:py|yaml))", text.splitlines()[0])
+        assert m, f"{TUTORIAL.name}: a code block's first line names its file: {text.splitlines()[0]!r}"
+        files[m.group(1)] = text
+    assert len(files) == len(blocks), f"{TUTORIAL.name}: two code blocks name the same file"
+    for name, text in files.items():
+        (folder / name).write_text(text)
+    return files
 
 
 class _TaggedLoader(yaml.SafeLoader):
@@ -147,14 +157,11 @@ def test_tutorial_runs_from_the_cli_and_scores_as_derived(tmp_path):
     * used / skipped: one estimate per filter step at 0, T, ..., duration - T, the samples
       of the tracker's outage windows skipped, every other sample used.
     """
-    doc = TUTORIAL.read_text()
-    module_text, yaml_text = _first_block(doc, "python"), _first_block(doc, "yaml")
-    scenario = yaml.load(yaml_text, Loader=_TaggedLoader)
+    files = _write_tutorial_files(tmp_path)
+    (yaml_name,) = [name for name in files if name.endswith(".yaml")]
+    scenario = yaml.load(files[yaml_name], Loader=_TaggedLoader)
     (module,) = scenario["plugins"]
-    assert module_text.splitlines()[0] == f"# {module}.py", "the module block's first line names its file"
-    yaml_name = re.fullmatch(r"# (\S+\.yaml)", yaml_text.splitlines()[0]).group(1)
-    (tmp_path / f"{module}.py").write_text(module_text)
-    (tmp_path / yaml_name).write_text(yaml_text)
+    module_text = files[f"{module}.py"]  # the plug-in the scenario imports is the page's
 
     tag = re.search(r"@register_estimator\(\s*(\w+)", module_text).group(1)
     (new,) = [e for e in scenario["estimators"] if e["__tag__"] == tag]
@@ -203,6 +210,19 @@ def test_tutorial_runs_from_the_cli_and_scores_as_derived(tmp_path):
                                                             sd_diff / ARCSEC**2)
     reported = np.sum((np.asarray(m_new["attitude_3sigma_final_deg"]) / 3 * DEG) ** 2)
     assert reported == pytest.approx(ms_cf, rel=2e-3)
+
+
+def test_tutorial_unit_tests_pass(tmp_path):
+    """The tutorial's own unit tests (its ``test_*.py`` block), verbatim, pass with pytest in a
+    fresh process next to the page's module and scenario: every test function runs and passes."""
+    files = _write_tutorial_files(tmp_path)
+    tests = [name for name in files if name.startswith("test_")]
+    assert tests, f"{TUTORIAL.name}: no test_*.py block"
+    n_tests = sum(len(re.findall(r"^def test_", files[name], flags=re.MULTILINE)) for name in tests)
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *tests], cwd=tmp_path,
+                          env=_subprocess_env(tmp_path), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    assert re.search(rf"\b{n_tests} passed", proc.stdout) and "skipped" not in proc.stdout, proc.stdout[-2000:]
 
 
 # ======================================================================================
