@@ -100,8 +100,7 @@ PlantConfig = Union[RigidBodyConfig, PrescribedRateConfig, PrescribedRpyConfig]
 
 # Sensor and estimator configs live in their plug-in modules (drake_att.sensors,
 # drake_att.estimators, or a scenario's ``plugins``); the scenario's lists accept every
-# registered type (drake_att.scenarios.registry). ``cfg.MekfConfig`` etc. still resolve
-# (module __getattr__ below).
+# registered type (drake_att.scenarios.registry).
 
 
 @dataclass
@@ -773,14 +772,3 @@ def validate(s: Scenario) -> None:
 
     check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
 
-
-def __getattr__(name):
-    """``cfg.GyroConfig``, ``cfg.MekfConfig``, ...: the registered plug-in config classes."""
-    if name.endswith("Config"):
-        from drake_att.scenarios import registry
-
-        try:
-            return registry.config_type(name)
-        except AttributeError:
-            pass
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

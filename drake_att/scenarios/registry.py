@@ -305,15 +305,6 @@ def plugin_for(config) -> Plugin:
     raise PluginError(f"{getattr(config, 'name', tag)}: no plug-in is registered for config type {tag}")
 
 
-def config_type(tag: str) -> type:
-    """The registered config class with class name ``tag``."""
-    ensure_builtin_plugins()
-    for kind in (ESTIMATOR, SENSOR):
-        if tag in _PLUGINS[kind]:
-            return _PLUGINS[kind][tag].config_type
-    raise AttributeError(tag)
-
-
 def union_of(kind: str):
     """``typing.Union`` of the registered config types of ``kind`` (in registration order)."""
     types = tuple(p.config_type for p in plugins(kind).values())
