@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -64,7 +65,7 @@ def cubature_points(mean, sqrt_cov) -> np.ndarray:
 
 def triangularize(A_rows) -> np.ndarray:
     """Lower-triangular ``L`` (positive diagonal) with ``L L' = A_rows' A_rows`` (QR)."""
-    R = np.linalg.qr(A_rows, mode="r")
+    R = cast(np.ndarray, np.linalg.qr(A_rows, mode="r"))  # numpy's stub: mode="r" returns R, not a QRResult
     s = np.where(np.diag(R) < 0.0, -1.0, 1.0)
     return (R * s[:, None]).T
 

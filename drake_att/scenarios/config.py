@@ -24,7 +24,7 @@ import dataclasses
 import os
 import typing
 from dataclasses import dataclass, field
-from typing import List, Optional, Union
+from typing import List, NoReturn, Optional, Union
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
@@ -193,7 +193,7 @@ def load_yaml_text(text: str, where: str, loader=None):
 
     base = loader or yaml.SafeLoader
 
-    class _Bounded(base):
+    class _Bounded(base):  # type: ignore[valid-type,misc]  # the loader class is chosen at run time
         depth = 0
 
         def compose_node(self, parent, index):
@@ -655,7 +655,7 @@ zeros3 = _zeros3  # default factory for 3-vectors in plug-in configs
 
 # The one validation family: plug-ins use these (each raises ConfigError naming the field
 # path, the value and what is allowed).
-def fail(path: str, value, allowed: str):
+def fail(path: str, value, allowed: str) -> NoReturn:
     validation.fail(path, value, allowed, ConfigError)
 
 
