@@ -38,6 +38,9 @@ import numpy as np
 
 from drake_att.analysis.executor import run_seeds
 from drake_att.analysis.report import plot_error_grid
+from drake_att.estimators.bootstrap_pf_plugin import BootstrapPfConfig
+from drake_att.estimators.ekpf_plugin import EkpfConfig
+from drake_att.estimators.gyroless_pf_plugin import GyrolessPfConfig
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder as _builder
 from drake_att.scenarios import config as cfg
@@ -46,7 +49,7 @@ from drake_att.scenarios.library import load
 
 SCENARIOS = {"small": "s0_particle_filters_small_error", "large": "s0_particle_filters_large_error",
              "gyroless": "s0_gyroless_pf"}
-PARTICLE_CONFIGS = (cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig)
+PARTICLE_CONFIGS = (BootstrapPfConfig, EkpfConfig, GyrolessPfConfig)
 
 # Paper S0's reported figures, typed in for COMPARISON only (never used in a verdict except
 # as the reference a "class" is measured against: within a factor CLASS_FACTOR).

@@ -14,6 +14,7 @@ Math layer: numpy only, no Drake.
 from __future__ import annotations
 
 import numbers
+from typing import NoReturn
 
 import numpy as np
 
@@ -50,7 +51,7 @@ def describe(value) -> str:
     return text if len(text) <= DESCRIBE_LIMIT else text[:DESCRIBE_LIMIT] + "..."
 
 
-def fail(field: str, value, allowed: str, error: type = ValueError):
+def fail(field: str, value, allowed: str, error: type = ValueError) -> NoReturn:
     """Raise ``error("<field>: got <value>; <allowed>")``."""
     raise error(f"{field}: got {describe(value)}; {allowed}")
 

@@ -300,14 +300,6 @@ def test_a_prescribed_rpy_truth_with_an_orbit_is_refused():
 # --------------------------------------------------------------------------------------
 # What config's mutation sample found untested
 # --------------------------------------------------------------------------------------
-def test_plugin_config_classes_resolve_as_attributes_of_config():
-    from drake_att.estimators.mekf_plugin import MekfConfig
-
-    assert cfg.MekfConfig is MekfConfig
-    with pytest.raises(AttributeError):
-        cfg.NoSuchConfig  # noqa: B018
-
-
 def test_set_by_name_lists_the_names_and_sets_a_whole_list_item_from_a_mapping():
     s = load_scenario(text=SHIPPED)
     with pytest.raises(ConfigError, match=r"names: \['gyro', 'st1'\]"):

@@ -18,6 +18,9 @@ import numpy as np
 import pytest
 
 from drake_att.analysis import metrics
+from drake_att.estimators.estimate_fusion_plugin import EstimateFusionConfig
+from drake_att.estimators.gyroless_pf_plugin import GyrolessPfConfig
+from drake_att.estimators.mekf_plugin import MekfConfig
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.builder import RunLog
 
@@ -649,9 +652,9 @@ def tiny_metrics():
     the second MEKF (scored against gyro g2's bias), and a gyroless PF (rate)."""
     scenario = cfg.Scenario(
         name="tiny", duration_s=5.0,
-        estimators=[cfg.MekfConfig(name="mekf1", gyro="g1"), cfg.MekfConfig(name="mekf2", gyro="g2"),
-                    cfg.EstimateFusionConfig(name="fusion", sources=["mekf2", "mekf1"]),
-                    cfg.GyrolessPfConfig(name="gpf")],
+        estimators=[MekfConfig(name="mekf1", gyro="g1"), MekfConfig(name="mekf2", gyro="g2"),
+                    EstimateFusionConfig(name="fusion", sources=["mekf2", "mekf1"]),
+                    GyrolessPfConfig(name="gpf")],
         scoring=cfg.ScoringConfig(score_from_s=2.0, convergence_threshold_deg=0.1))
     sig = truth_signals(np.arange(6.0))
     sig.update(gyro_signals("g1", offset=0.0))

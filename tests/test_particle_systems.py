@@ -16,7 +16,10 @@ from test_particle_filters import mean_square_normalized, steady_state_sd
 
 from drake_att import rotations as rot
 from drake_att.analysis.metrics import compute_metrics, estimator_errors
-from drake_att.estimators.gyroless_pf_plugin import plant_dynamics
+from drake_att.estimators.bootstrap_pf_plugin import BootstrapPfConfig
+from drake_att.estimators.ekpf_plugin import EkpfConfig
+from drake_att.estimators.gyroless_pf_plugin import GyrolessPfConfig, plant_dynamics
+from drake_att.estimators.mrp_ekf_plugin import MrpEkfConfig
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import builder
 from drake_att.scenarios import config as cfg
@@ -261,7 +264,7 @@ def test_s0_plugins_are_registered_and_shipped_s0_scenarios_carry_the_paper_nois
     0.05 deg/h/sqrt(s); the gyroless PF's 3e-5 rad/s^0.5 and 1e-6 rad/s^1.5; 1000 particles
     and 1000 s as in the paper."""
     registered = {p.config_type for p in plugins(ESTIMATOR).values()}
-    assert {cfg.MrpEkfConfig, cfg.BootstrapPfConfig, cfg.EkpfConfig, cfg.GyrolessPfConfig} <= registered
+    assert {MrpEkfConfig, BootstrapPfConfig, EkpfConfig, GyrolessPfConfig} <= registered
     arw, rrw = 0.2 * np.pi / 180 / 3600, 0.02 * np.pi / 180 / 3600**1.5
     expected = {
         "ekf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),

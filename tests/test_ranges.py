@@ -32,10 +32,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drake_att.estimators.bootstrap_pf_plugin import BootstrapPfConfig
+from drake_att.estimators.ekpf_plugin import EkpfConfig
+from drake_att.estimators.mekf_plugin import MekfConfig
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios import preflight, registry
 from drake_att.scenarios.library import available_scenarios, load
 from drake_att.scenarios.ranges import Range, Split, check_ranges, range_for, render_markdown
+from drake_att.sensors.faults_plugin import SensorFaultsConfig
+from drake_att.sensors.gyro_plugin import GyroConfig
+from drake_att.sensors.star_tracker_plugin import StarTrackerConfig
 from drake_att.validation import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
@@ -209,19 +215,19 @@ def _scenario_with_sensors(*sensors, estimators=()):
 
 
 def test_the_issue_examples_are_refused_with_the_one_message_shape():
-    gyro = cfg.GyroConfig(name="gyro", arw_deg_per_rt_h=1.0e300)
+    gyro = GyroConfig(name="gyro", arw_deg_per_rt_h=1.0e300)
     with pytest.raises(ConfigError) as e:
         check_ranges(_scenario_with_sensors(gyro))
     assert str(e.value) == ("sensors[0] (gyro).arw_deg_per_rt_h: got 1e+300; must be in [0, 100] deg/sqrt(h) (an angle "
                             "random walk: 1e-4 (navigation grade) to ~10 (the noisiest MEMS))")
-    gyro = cfg.GyroConfig(name="g", rrw_deg_per_h15=1.0e300)
+    gyro = GyroConfig(name="g", rrw_deg_per_h15=1.0e300)
     with pytest.raises(ConfigError, match=r"^sensors\[0\] \(g\)\.rrw_deg_per_h15: got 1e\+300; must be in \[0, 1000\] "
                                           r"deg/h\^1\.5 \("):
         check_ranges(_scenario_with_sensors(gyro))
-    faults = cfg.SensorFaultsConfig(name="f", outlier_rate_deg_per_s=1.0e300)
+    faults = SensorFaultsConfig(name="f", outlier_rate_deg_per_s=1.0e300)
     with pytest.raises(ConfigError, match=r"^sensors\[1\] \(f\)\.outlier_rate_deg_per_s: got 1e\+300; must be in "
                                           r"\[-5000, 5000\] deg/s \("):
-        check_ranges(_scenario_with_sensors(cfg.GyroConfig(), faults))
+        check_ranges(_scenario_with_sensors(GyroConfig(), faults))
     s = _scenario_with_sensors()
     s.orbit.altitude_km = 1.0e300
     with pytest.raises(ConfigError, match=r"^orbit\.altitude_km: got 1e\+300; must be in \[100, 1e6\] km \("):
@@ -235,7 +241,7 @@ def test_the_issue_examples_are_refused_with_the_one_message_shape():
         check_ranges(s)
     s.plant.inertia_kg_m2 = [10.0, -2.0, 0.0, -2.0, 12.0, 0.0, 0.0, 0.0, 15.0]  # negative products: physical
     check_ranges(s)
-    s.estimators = [cfg.MekfConfig(name="m"), cfg.EkpfConfig(name="joint", initial_attitude_sigma_deg=1e6)]
+    s.estimators = [MekfConfig(name="m"), EkpfConfig(name="joint", initial_attitude_sigma_deg=1e6)]
     with pytest.raises(ConfigError, match=r"^estimators\[1\] \(joint\)\.initial_attitude_sigma_deg: got 1000000\.0; "
                                           r"must be in \[0, 360\] deg \("):
         check_ranges(s)
@@ -244,11 +250,11 @@ def test_the_issue_examples_are_refused_with_the_one_message_shape():
 def test_real_sensors_and_missions_pass():
     """A few real extremes: a fast spinner, a consumer MEMS gyro, a coarse tracker, a GEO
     mission of 30 days, a navigation-grade gyro, a 100 kHz sample period."""
-    gyro = cfg.GyroConfig(name="mems", period_s=1e-5, sample_rate_hz=1e5, arw_deg_per_rt_h=0.6, rrw_deg_per_h15=5.0,
+    gyro = GyroConfig(name="mems", period_s=1e-5, sample_rate_hz=1e5, arw_deg_per_rt_h=0.6, rrw_deg_per_h15=5.0,
                           initial_bias_deg_per_h=[3600.0, -7200.0, 10.0], scale_factor_error_ppm=[5000.0, 0, 0])
-    nav = cfg.GyroConfig(name="nav", arw_deg_per_rt_h=0.001, rrw_deg_per_h15=1e-4, initial_bias_deg_per_h=[0.01] * 3)
-    st = cfg.StarTrackerConfig(name="st", sigma_cross_boresight_arcsec=100.0, sigma_boresight_arcsec=600.0)
-    s = _scenario_with_sensors(gyro, nav, st, estimators=[cfg.BootstrapPfConfig(num_particles=10**6)])
+    nav = GyroConfig(name="nav", arw_deg_per_rt_h=0.001, rrw_deg_per_h15=1e-4, initial_bias_deg_per_h=[0.01] * 3)
+    st = StarTrackerConfig(name="st", sigma_cross_boresight_arcsec=100.0, sigma_boresight_arcsec=600.0)
+    s = _scenario_with_sensors(gyro, nav, st, estimators=[BootstrapPfConfig(num_particles=10**6)])
     s.duration_s = 30 * 86400.0
     s.orbit.altitude_km = 35786.0
     s.plant.initial_rate_deg_per_s = [600.0, 0.0, 0.0]  # 100 rpm
@@ -262,7 +268,7 @@ def test_nested_arrays_name_row_and_column_and_nan_is_refused():
         check_ranges(s)
     from drake_att.sensors.star_tracker_plugin import PaperS3Eq7Mounting
 
-    st = cfg.StarTrackerConfig(name="st", mounting=PaperS3Eq7Mounting(psi_phi_theta_deg=[0, 400, 0]))
+    st = StarTrackerConfig(name="st", mounting=PaperS3Eq7Mounting(psi_phi_theta_deg=[0, 400, 0]))
     with pytest.raises(ConfigError, match=r"^sensors\[0\] \(st\)\.mounting\.psi_phi_theta_deg\[1\]: got 400; must be "
                                           r"in \[-360, 360\] deg"):
         check_ranges(_scenario_with_sensors(st))
@@ -305,7 +311,7 @@ class _Nameless:  # a list item without a ``name``: its path says "(?)"
 def test_a_nameless_list_item_is_named_by_its_index_and_a_question_mark():
     check_ranges(cfg.Scenario(estimators=[_Nameless()]))
     with pytest.raises(ConfigError) as e:
-        check_ranges(cfg.Scenario(estimators=[cfg.MekfConfig(name="m"), _Nameless(horizon_s=-1.0)]))
+        check_ranges(cfg.Scenario(estimators=[MekfConfig(name="m"), _Nameless(horizon_s=-1.0)]))
     assert str(e.value) == ("estimators[1] (?).horizon_s: got -1.0; must be in [0, 2592000] s (a time within the "
                             "longest run (30 days))")
 
@@ -544,8 +550,8 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
                             "plausible range `drake_att.scenarios.ranges.check_ranges` enforces"), intro
     assert not re.search(r"\. [a-z]", intro), intro  # sentences start with a capital (or code)
     with pytest.raises(ConfigError) as e:  # its example is the message check_ranges gives
-        check_ranges(_scenario_with_sensors(cfg.GyroConfig(name="gyro", arw_deg_per_rt_h=1e300)))
-    why = range_for(cfg.GyroConfig, "arw_deg_per_rt_h").why
+        check_ranges(_scenario_with_sensors(GyroConfig(name="gyro", arw_deg_per_rt_h=1e300)))
+    why = range_for(GyroConfig, "arw_deg_per_rt_h").why
     assert str(e.value).endswith(f" ({why})")
     example = f"{str(e.value)[:-len(why) - 3]} (...)"
     assert ("(which also check signs, shapes, names and consistency: a value inside the range may still be refused "

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 
@@ -64,7 +65,7 @@ def cubature_points(mean, sqrt_cov) -> np.ndarray:
 
 def triangularize(A_rows) -> np.ndarray:
     """Lower-triangular ``L`` (positive diagonal) with ``L L' = A_rows' A_rows`` (QR)."""
-    R = np.linalg.qr(A_rows, mode="r")
+    R = cast(np.ndarray, np.linalg.qr(A_rows, mode="r"))  # numpy's stub: mode="r" returns R, not a QRResult
     s = np.where(np.diag(R) < 0.0, -1.0, 1.0)
     return (R * s[:, None]).T
 
@@ -315,17 +316,10 @@ class CubatureQuaternionEstimator(GatedCore):
                        q_BS=(1.0, 0.0, 0.0, 0.0)) -> tuple[CubatureState, UpdateInfo]:
         """Update with ``m`` measured directions (m, 3, sensor frame) of inertial references (m, 3)."""
         rejected = UpdateInfo(None, None, float("nan"), False)
-        try:
-            y = np.asarray(directions_S, dtype=float)
-            refs = np.asarray(references_I, dtype=float)
-            q_BS = np.asarray(q_BS, dtype=float)
-            sigma = float(sigma_rad)
-        except (TypeError, ValueError):
+        measurement = _vector_measurement(directions_S, references_I, q_BS, sigma_rad)
+        if measurement is None:
             return state, rejected
-        if (y.ndim != 2 or y.shape[1] != 3 or y.shape != refs.shape or y.shape[0] < 1 or q_BS.shape != (4,)
-                or not (np.all(np.isfinite(y)) and np.all(np.isfinite(refs)) and np.all(np.isfinite(q_BS)))
-                or not (math.isfinite(sigma) and sigma >= 0.0) or not float(q_BS @ q_BS) > 1e-18):
-            return state, rejected
+        y, refs, q_BS, sigma = measurement
         m = y.shape[0]
         nm = self.noise_model
         if nm is not None and not nm.admits(m):
@@ -380,6 +374,16 @@ class CubatureQuaternionEstimator(GatedCore):
         if not np.all(np.isfinite(xj)) or self.gate.rejects(nis, len(nu)):
             return state, UpdateInfo(nu, Pzz, nis, False)
         q_ref = rot.quat_normalize(rot.quat_multiply(state.q_ref, self._to_quat(xj[:3])))
+        M, D, cross = self._zeta_moments(Lz, w_nu, K, sigma, m)
+        new = CubatureState(q_ref, np.zeros(3), xj[3:], Lj, M, D, cross)
+        return new, UpdateInfo(nu, Pzz, nis, True)
+
+    def _zeta_moments(self, Lz: np.ndarray, w_nu: np.ndarray, K: np.ndarray, sigma: float,
+                      m: int) -> tuple[float, float, np.ndarray]:
+        """``(M, D, Cov([dp; beta], zeta | D))`` of the multiplicative noise after an update with
+        innovation covariance factor ``Lz``, whitened innovation ``w_nu`` and gain ``K``
+        (``(0, 0, 0)`` without a noise model or when ``M`` is gated out)."""
+        nm = self.noise_model
         M = D = 0.0
         if nm is not None:
             w_S = np.linalg.solve(Lz, nm.cross_covariance(sigma, m))  # Lz^-1 S
@@ -391,8 +395,26 @@ class CubatureQuaternionEstimator(GatedCore):
         cross = _ZERO6
         if nm is not None and (M != 0.0 or D != 0.0):
             cross = -K @ nm.cross_covariance(sigma, m)  # Cov(x, zeta | D) = -K S
-        new = CubatureState(q_ref, np.zeros(3), xj[3:], Lj, M, D, cross)
-        return new, UpdateInfo(nu, Pzz, nis, True)
+        return M, D, cross
+
+
+def _vector_measurement(directions_S, references_I, q_BS,
+                        sigma_rad) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+    """``(directions (m, 3), references (m, 3), q_BS (4,), sigma)`` as floats, or None when they
+    cannot make an update: not numbers, wrong or unequal shapes, not finite, a negative sigma
+    or a zero ``q_BS``."""
+    try:
+        y = np.asarray(directions_S, dtype=float)
+        refs = np.asarray(references_I, dtype=float)
+        q = np.asarray(q_BS, dtype=float)
+        sigma = float(sigma_rad)
+    except (TypeError, ValueError):
+        return None
+    if (y.ndim != 2 or y.shape[1] != 3 or y.shape != refs.shape or y.shape[0] < 1 or q.shape != (4,)
+            or not (np.all(np.isfinite(y)) and np.all(np.isfinite(refs)) and np.all(np.isfinite(q)))
+            or not (math.isfinite(sigma) and sigma >= 0.0) or not float(q @ q) > 1e-18):
+        return None
+    return y, refs, q, sigma
 
 
 class CubatureQuaternionEstimatorMCNS(CubatureQuaternionEstimator):

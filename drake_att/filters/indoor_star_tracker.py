@@ -409,7 +409,7 @@ class IndoorStarTrackerSolver:
         (docs/derivations/indoor_star_tracker.md)."""
         b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
         A = np.asarray(R_BI_guess, dtype=float)
-        history = []
+        history: list[IterationRecord] = []
         ids = np.full(len(b), -1)
         P = np.full((3, 3), np.nan)
         for _ in range(self.max_iterations if self.identification == "corrected" else 1):

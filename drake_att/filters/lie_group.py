@@ -283,14 +283,14 @@ class LieGroupFilter(GatedCore):
             if self.arw:
                 Q = Q + (self.arw**2 * dt) * _EYE3
             return Q
-        Q = self._q_cache.get(dt)
-        if Q is None:
+        Q_bias = self._q_cache.get(dt)
+        if Q_bias is None:
             if len(self._q_cache) > 64:
                 self._q_cache.clear()
-            Q = _mekf.process_noise(self.arw or 0.0, self.rrw or 0.0, dt)
-            Q[:3, :3] += self.Q_w * (dt / self.step_s)
-            self._q_cache[dt] = Q
-        return Q
+            Q_bias = _mekf.process_noise(self.arw or 0.0, self.rrw or 0.0, dt)
+            Q_bias[:3, :3] += self.Q_w * (dt / self.step_s)
+            self._q_cache[dt] = Q_bias
+        return Q_bias
 
     def predict(self, state, w_meas_B, dt: float, rng=None):
         """Propagate over ``dt`` (s) with the gyro's mean rate ``w_meas_B`` (rad/s, body).

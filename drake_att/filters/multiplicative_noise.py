@@ -216,8 +216,8 @@ def reference_step(q_IB, bias_B, w_mean_B, dt: float, z, gyro_noise: FarrenkopfG
     if z.shape != (normals_per_step(m),):
         fail("z", z, f"must have shape ({normals_per_step(m)},) for m = {m} stars")
     e, db = gyro_noise.from_normals(z[:GYRO_NORMALS].reshape(2, 3))
-    zeta, v = model.from_normals(z[ZETA_INDEX:], star_sigma_rad)
-    zeta = float(zeta)
+    zeta_array, v = model.from_normals(z[ZETA_INDEX:], star_sigma_rad)
+    zeta = float(zeta_array)
     w_mean_B = np.asarray(w_mean_B, dtype=float)
     bias_B = np.asarray(bias_B, dtype=float)
     w_meas = w_mean_B / (1.0 + model.scale_per_zeta * zeta) + bias_B + e

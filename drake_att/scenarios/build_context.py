@@ -10,11 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydrake.systems.framework import DiagramBuilder
 
 from drake_att import rotations as rot
 from drake_att.orbit import CircularOrbit
 from drake_att.scenarios import config as cfg
-from drake_att.scenarios.registry import SensorOutput, plugin_for
+from drake_att.scenarios.registry import PluginError, SensorOutput, plugin_for
 from drake_att.systems.estimator_system import EstimatorSystem
 from drake_att.units import DEG
 
@@ -40,7 +41,7 @@ class BuildContext:
     """The builder, the scenario, the truth system and the systems built so far.
 
     Attributes:
-        builder: the ``DiagramBuilder``.
+        builder: the ``DiagramBuilder``; None once the diagram is built (a plug-in's ``configure``).
         scenario: the validated scenario.
         truth: plant or prescribed motion (output ports ``q_IB``, ``w_IB_B``,
             ``w_IB_B_integral``).
@@ -50,7 +51,7 @@ class BuildContext:
             :mod:`drake_att.sensors.faults_plugin`); :meth:`sensor_output` still describes the sensor.
     """
 
-    builder: object
+    builder: DiagramBuilder | None
     scenario: cfg.Scenario
     truth: object
     sensors: dict = field(default_factory=dict)
@@ -62,18 +63,24 @@ class BuildContext:
     def sensor_output(self, name: str) -> SensorOutput:
         """What sensor ``name`` delivers (kind, port, period)."""
         c = self.sensor_configs[name]
-        return plugin_for(c).output(c, self.sensor_configs)
+        output = plugin_for(c).output
+        if output is None:  # only a sensor's plug-in describes its output
+            raise PluginError(f"{name}: {type(c).__name__} is not a sensor's config")
+        return output(c, self.sensor_configs)
 
     def quaternion_model(self, name: str):
         """What a filter assumes about quaternion sensor ``name`` (mounting, noise covariance)."""
         c = self.sensor_configs[name]
-        return plugin_for(c).quaternion_model(self, c)
+        model = plugin_for(c).quaternion_model
+        if model is None:  # only a quaternion sensor's plug-in has one
+            raise PluginError(f"{name}: {type(c).__name__} is not a quaternion sensor")
+        return model(self, c)
 
     def add_estimator(self, name: str, setup):
         """Add the :class:`~drake_att.systems.estimator_system.EstimatorSystem` of ``setup`` (an
         :class:`~drake_att.systems.estimator_system.EstimatorSetup`) and wire its gyro, quaternion
         and vector sensors; the random seed port is wired by the builder. Returns the system."""
-        est = self.builder.AddSystem(EstimatorSystem.from_setup(name, setup))
+        est = self._diagram_builder().AddSystem(EstimatorSystem.from_setup(name, setup))
         if setup.core.uses_gyro:
             if setup.gyro is None:
                 raise ValueError(f"{name}: the core uses a gyro but the setup names none")
@@ -95,4 +102,10 @@ class BuildContext:
         """Wire sensor ``name``'s measurement (:meth:`measurement_source`) to ``system``'s
         ``input_port``."""
         source, port = self.measurement_source(name)
-        self.builder.Connect(source.GetOutputPort(port), system.GetInputPort(input_port))
+        self._diagram_builder().Connect(source.GetOutputPort(port), system.GetInputPort(input_port))
+
+    def _diagram_builder(self) -> DiagramBuilder:
+        """The builder; refused once the diagram is built (nothing can be added or wired then)."""
+        if self.builder is None:
+            raise ValueError("the diagram is built: no system can be added or wired")
+        return self.builder

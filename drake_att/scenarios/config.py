@@ -24,7 +24,7 @@ import dataclasses
 import os
 import typing
 from dataclasses import dataclass, field
-from typing import List, Optional, Union
+from typing import List, NoReturn, Optional, Union
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
@@ -100,8 +100,7 @@ PlantConfig = Union[RigidBodyConfig, PrescribedRateConfig, PrescribedRpyConfig]
 
 # Sensor and estimator configs live in their plug-in modules (drake_att.sensors,
 # drake_att.estimators, or a scenario's ``plugins``); the scenario's lists accept every
-# registered type (drake_att.scenarios.registry). ``cfg.MekfConfig`` etc. still resolve
-# (module __getattr__ below).
+# registered type (drake_att.scenarios.registry).
 
 
 @dataclass
@@ -194,7 +193,7 @@ def load_yaml_text(text: str, where: str, loader=None):
 
     base = loader or yaml.SafeLoader
 
-    class _Bounded(base):
+    class _Bounded(base):  # type: ignore[valid-type,misc]  # the loader class is chosen at run time
         depth = 0
 
         def compose_node(self, parent, index):
@@ -338,60 +337,81 @@ def _check_raw(value, typ, path: str) -> None:
     a wrong type or an unknown key anywhere is refused naming its field path (the typed
     loader names neither): numbers where numbers belong, lists where lists belong, sections
     (mappings) with known fields and, for a choice of section types, a registered tag."""
-    import typing as t
-
-    origin, args = t.get_origin(typ), t.get_args(typ)
-    if typ is t.Any:
+    origin, args = typing.get_origin(typ), typing.get_args(typ)
+    if typ is typing.Any:
         return
     if origin is Union:
-        options = [a for a in args if a is not type(None)]
-        if value is None:
-            if type(None) in args:
-                return
-            fail(path, value, "must be set")
-        if len(options) == 1:
-            return _check_raw(value, options[0], path)
-        if not isinstance(value, dict):
-            fail(path, value, "must be a section (a mapping), tagged with its type: one of "
-                 f"{['!' + o.__name__ for o in options]}")
-        tag = value.get(_TAG_KEY)
-        chosen = options[0] if tag is None else next((o for o in options if o.__name__ == tag), None)
-        if chosen is None:
-            fail(path, "!" + tag, f"allowed types: {['!' + o.__name__ for o in options]} (a plug-in's type needs "
-                 "its module in plugins:)")
-        return _check_raw(value, chosen, path)
+        return _check_raw_choice(value, args, path)
     if isinstance(typ, type) and dataclasses.is_dataclass(typ):
-        if not isinstance(value, dict):
-            fail(path, value, f"must be a section (a mapping of the fields of {typ.__name__})")
-        names = {f.name: f for f in dataclasses.fields(typ)}
-        unknown = [k for k in value if k != _TAG_KEY and k not in names]
-        if unknown:
-            raise ConfigError(f"{path}: unknown field(s) {_short(unknown)}; allowed: {list(names)}")
-        hints = _field_types(typ)
-        for key, v in value.items():
-            if key != _TAG_KEY:
-                _check_raw(v, hints[key], f"{path}.{key}" if path else key)
-        return
+        return _check_raw_section(value, typ, path)
     if origin in (list, List):
-        if not isinstance(value, list):
-            fail(path, value, "must be a list" + (" (write [] for none)" if value is None else ""))
-        (item_type,) = args or (t.Any,)
-        section = path in ("sensors", "estimators")
-        options = [a for a in t.get_args(item_type) if isinstance(a, type)] if t.get_origin(item_type) is Union \
-            else [item_type]
-        for i, item in enumerate(value):
-            tag = item.get(_TAG_KEY) if section and isinstance(item, dict) else None
-            if tag is None:
-                _check_raw(item, item_type, _item_path(path, i, item) if section else f"{path}[{i}]")
-                continue
-            chosen = next((o for o in options if o.__name__ == tag), None)
-            if chosen is None:
-                raise ConfigError(f"{path}[{i}]: unknown type !{tag[:100]}; registered: "
-                                  f"{['!' + o.__name__ for o in options]} (a plug-in module must be listed in "
-                                  "plugins:)")
-            name = item.get("name")
-            _check_raw(item, chosen, f"{path}[{i}] ({name[:60] if isinstance(name, str) else '?'}, !{tag})")
-        return
+        return _check_raw_list(value, args, path)
+    _check_raw_scalar(value, typ, path)
+
+
+def _check_raw_choice(value, args: tuple, path: str) -> None:
+    """``value`` of ``Union[args]``: None where the union is Optional, else the one option or
+    the section type its tag names (untagged: the first option)."""
+    options = [a for a in args if a is not type(None)]
+    if value is None:
+        if type(None) in args:
+            return
+        fail(path, value, "must be set")
+    if len(options) == 1:
+        return _check_raw(value, options[0], path)
+    if not isinstance(value, dict):
+        fail(path, value, "must be a section (a mapping), tagged with its type: one of "
+             f"{['!' + o.__name__ for o in options]}")
+    tag = value.get(_TAG_KEY)
+    if tag is None:
+        return _check_raw(value, options[0], path)
+    chosen = next((o for o in options if o.__name__ == tag), None)
+    if chosen is None:
+        fail(path, "!" + tag, f"allowed types: {['!' + o.__name__ for o in options]} (a plug-in's type needs "
+             "its module in plugins:)")
+    return _check_raw(value, chosen, path)
+
+
+def _check_raw_section(value, typ: type, path: str) -> None:
+    """``value`` a mapping of fields of the dataclass ``typ``, each checked against its type."""
+    if not isinstance(value, dict):
+        fail(path, value, f"must be a section (a mapping of the fields of {typ.__name__})")
+    names = {f.name: f for f in dataclasses.fields(typ)}
+    unknown = [k for k in value if k != _TAG_KEY and k not in names]
+    if unknown:
+        raise ConfigError(f"{path}: unknown field(s) {_short(unknown)}; allowed: {list(names)}")
+    hints = _field_types(typ)
+    for key, v in value.items():
+        if key != _TAG_KEY:
+            _check_raw(v, hints[key], f"{path}.{key}" if path else key)
+
+
+def _check_raw_list(value, args: tuple, path: str) -> None:
+    """``value`` a list of ``args[0]``; in ``sensors`` and ``estimators`` a tagged item is
+    checked against the registered type its tag names."""
+    if not isinstance(value, list):
+        fail(path, value, "must be a list" + (" (write [] for none)" if value is None else ""))
+    (item_type,) = args or (typing.Any,)
+    section = path in ("sensors", "estimators")
+    options = [a for a in typing.get_args(item_type) if isinstance(a, type)] \
+        if typing.get_origin(item_type) is Union else [item_type]
+    for i, item in enumerate(value):
+        tag = item.get(_TAG_KEY) if section and isinstance(item, dict) else None
+        if tag is None:
+            _check_raw(item, item_type, _item_path(path, i, item) if section else f"{path}[{i}]")
+            continue
+        chosen = next((o for o in options if o.__name__ == tag), None)
+        if chosen is None:
+            raise ConfigError(f"{path}[{i}]: unknown type !{tag[:100]}; registered: "
+                              f"{['!' + o.__name__ for o in options]} (a plug-in module must be listed in "
+                              "plugins:)")
+        name = item.get("name")
+        _check_raw(item, chosen, f"{path}[{i}] ({name[:60] if isinstance(name, str) else '?'}, !{tag})")
+
+
+def _check_raw_scalar(value, typ, path: str) -> None:
+    """``value`` of a leaf type: float (a number, or text that reads as a finite one), int,
+    bool, str or a numpy matrix (a list of rows of numbers); other types are not checked."""
     if typ is float:
         if isinstance(value, bool) or not isinstance(value, (int, float, str)):
             fail(path, value, "must be a number")
@@ -402,25 +422,20 @@ def _check_raw(value, typ, path: str) -> None:
                 fail(path, value, "must be a number")
             if not np.isfinite(number):
                 fail(path, value, "must be a finite number")
-        return
-    if typ is int:
+    elif typ is int:
         if isinstance(value, bool) or not isinstance(value, int):
             fail(path, value, "must be an integer")
-        return
-    if typ is bool:
+    elif typ is bool:
         if not isinstance(value, bool):
             fail(path, value, "must be true or false")
-        return
-    if typ is str:
+    elif typ is str:
         if not isinstance(value, str):
             fail(path, value, "must be a text string")
-        return
-    if typ is np.ndarray:
+    elif typ is np.ndarray:
         rows = value if isinstance(value, list) else None
         flat = [x for r in rows for x in (r if isinstance(r, list) else [r])] if rows is not None else None
         if flat is None or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in flat):
             fail(path, value, "must be a list of rows of numbers")
-        return
 
 
 def _field_types(typ) -> dict:
@@ -640,7 +655,7 @@ zeros3 = _zeros3  # default factory for 3-vectors in plug-in configs
 
 # The one validation family: plug-ins use these (each raises ConfigError naming the field
 # path, the value and what is allowed).
-def fail(path: str, value, allowed: str):
+def fail(path: str, value, allowed: str) -> NoReturn:
     validation.fail(path, value, allowed, ConfigError)
 
 
@@ -773,14 +788,3 @@ def validate(s: Scenario) -> None:
 
     check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
 
-
-def __getattr__(name):
-    """``cfg.GyroConfig``, ``cfg.MekfConfig``, ...: the registered plug-in config classes."""
-    if name.endswith("Config"):
-        from drake_att.scenarios import registry
-
-        try:
-            return registry.config_type(name)
-        except AttributeError:
-            pass
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -159,7 +159,7 @@ class MemoryPart:
     """One contribution to a run's peak memory: the field that sets it, its value, bytes."""
 
     path: str
-    value: object
+    value: float  # a particle count or a period (s)
     bytes: float
     what: str
 
@@ -247,7 +247,7 @@ def _loggers(scenario) -> list:
             q = period if p is None else float(p)
             out.append((period_field(path, q, item), q, PORT_WIDTHS.get(port, DEFAULT_PORT_WIDTH), f"{s.name}/{port}"))
     for path, period, e in items[len(scenario.sensors):]:
-        inputs = set()
+        inputs: set[str] = set()
         for f in dataclasses.fields(e):
             v = getattr(e, f.name)
             names = [v] if isinstance(v, str) else [x for x in v if isinstance(x, str)] if isinstance(v, list) else []
@@ -284,7 +284,7 @@ def memory_estimate(scenario) -> MemoryEstimate:
             per = PARTICLE_BYTES.get((type(e).__name__, getattr(e, "kernel", "numba")), DEFAULT_PARTICLE_BYTES)
             parts.append(MemoryPart(f"estimators[{i}] ({e.name}).num_particles", int(n), float(n) * per,
                                     f"~{per} bytes per particle"))
-    logs = {}
+    logs: dict[str, tuple[float, float, int]] = {}  # period field -> (period, bytes, samples)
     for path, q, w, _ in _loggers(scenario):
         if math.isfinite(q) and q > 0:
             samples = math.floor(scenario.duration_s / q) + 1
@@ -316,11 +316,13 @@ def check_memory(scenario, available_bytes: float | None = None, processes: int 
 
     estimate = memory_estimate(scenario)
     measured = available_bytes is None
-    available = available_memory_bytes() if measured else float(available_bytes)
+    available = available_memory_bytes() if available_bytes is None else float(available_bytes)
     need = estimate.total_bytes * max(1, int(processes))
     if available is None or need <= available:
         return estimate
     part = estimate.dominant()
+    if part is None:  # nothing needs memory: only a negative available_bytes gets here, and nothing is to blame
+        return estimate
     where = "this machine's" if measured else "the"
     runs = f" for {processes} runs at once" if processes > 1 else ""
     if part.path.endswith(".num_particles"):

@@ -252,7 +252,7 @@ def _trusted_roots() -> list[str]:
     import sys
     import sysconfig
 
-    roots = [os.getcwd()]
+    roots: list[str | None] = [os.getcwd()]
     roots += [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     roots += [sys.prefix, sys.base_prefix, sys.exec_prefix]
     roots += [sysconfig.get_paths().get(k) for k in ("purelib", "platlib", "stdlib")]
@@ -305,15 +305,6 @@ def plugin_for(config) -> Plugin:
     raise PluginError(f"{getattr(config, 'name', tag)}: no plug-in is registered for config type {tag}")
 
 
-def config_type(tag: str) -> type:
-    """The registered config class with class name ``tag``."""
-    ensure_builtin_plugins()
-    for kind in (ESTIMATOR, SENSOR):
-        if tag in _PLUGINS[kind]:
-            return _PLUGINS[kind][tag].config_type
-    raise AttributeError(tag)
-
-
 def union_of(kind: str):
     """``typing.Union`` of the registered config types of ``kind`` (in registration order)."""
     types = tuple(p.config_type for p in plugins(kind).values())
@@ -326,6 +317,7 @@ def refresh_schema(scenario_type: type) -> None:
     Drake's YAML loader reads each dataclass field's ``type``; updating it after plug-ins
     are imported is what lets a plug-in's tag appear in a scenario.
     """
-    fields = scenario_type.__dataclass_fields__
-    fields["sensors"].type = typing.List[union_of(SENSOR)]
-    fields["estimators"].type = typing.List[union_of(ESTIMATOR)]
+    fields = {f.name: f for f in dataclasses.fields(scenario_type)}
+    # The item types are known only at run time (the registered plug-ins).
+    fields["sensors"].type = typing.List[union_of(SENSOR)]  # type: ignore[misc]
+    fields["estimators"].type = typing.List[union_of(ESTIMATOR)]  # type: ignore[misc]

@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -202,11 +203,14 @@ class FaultModel:
         _probability(p + "nan_probability", m.nan_probability)
         _probability(p + "inf_probability", m.inf_probability)
         _probability(p + "dropout_probability", m.dropout_probability)
-        times = {f: _times(p + f, getattr(m, f)) for f in
-                 ("outlier_times_s", "nan_times_s", "inf_times_s", "dropout_times_s", "bias_jump_times_s",
-                  "time_tag_times_s")}
-        windows = {f: _windows(p + f, getattr(m, f)) for f in
-                   ("outage_windows_s", "stuck_windows_s", "saturation_windows_s", "time_tag_windows_s")}
+        # The checked times and windows by field name: keyword arguments of replace() below (Any: a
+        # type checker cannot tell which field each key fills).
+        times: dict[str, Any] = {f: _times(p + f, getattr(m, f)) for f in
+                                 ("outlier_times_s", "nan_times_s", "inf_times_s", "dropout_times_s",
+                                  "bias_jump_times_s", "time_tag_times_s")}
+        windows: dict[str, Any] = {f: _windows(p + f, getattr(m, f)) for f in
+                                   ("outage_windows_s", "stuck_windows_s", "saturation_windows_s",
+                                    "time_tag_windows_s")}
         size = check_nonnegative(p + "outlier_size", m.outlier_size)
         if kind != "gyro" and size >= math.pi:
             fail(p + "outlier_size", size, "an attitude outlier is a rotation angle in [0, pi) (rad)")
@@ -276,12 +280,12 @@ class FaultInjector(LeafSystem):
         if kind in ("gyro", "quaternion"):
             size = GYRO_MEASUREMENT_SIZE if kind == "gyro" else QUATERNION_MEASUREMENT_SIZE
             self._in = self.DeclareVectorInputPort("sensor_measurement", size)
-            hold = np.zeros(size)
+            hold: object = np.zeros(size)
         else:
             empty = empty_vector_observations() if kind == "vectors" else empty_camera_centroids()
             self._in = self.DeclareAbstractInputPort("sensor_measurement", AbstractValue.Make(empty))
             hold = empty
-        self._state_index = self.DeclareDiscreteState(np.zeros(STATE_SIZE))
+        self._state_index = self.DeclareDiscreteState(np.zeros(STATE_SIZE))  # type: ignore[arg-type]  # pydrake stub
         self._no_hold = Hold(False, -math.inf, hold)
         self._hold_index = self.DeclareAbstractState(AbstractValue.Make(self._no_hold))
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
@@ -497,7 +501,7 @@ class FaultInjector(LeafSystem):
         truth[TRUTH_T_SAMPLE], truth[TRUTH_CODE], truth[TRUTH_MAGNITUDE], truth[TRUTH_MASK] = x[_T], code, magnitude, mask
         truth[TRUTH_BIAS_JUMP] = x[_JUMP]
         truth[TRUTH_T_OUT], truth[TRUTH_VALID_OUT] = t_out, valid_out
-        output.SetFromVector(truth)
+        output.SetFromVector(truth)  # type: ignore[arg-type]  # pydrake stub
 
     def _numbers_size(self, out) -> int:
         if self.kind == "gyro":

@@ -136,7 +136,7 @@ def subset_covariances(q_BS_list, sigmas_S_list, weights) -> tuple:
     their weights renormalized (index 0 and the full mask: None — flag 1 covers all)."""
     n = len(q_BS_list)
     w = np.asarray(weights, dtype=float)
-    out = [None] * (1 << n)
+    out: list[np.ndarray | None] = [None] * (1 << n)
     for mask in range(1, (1 << n) - 1):
         idx = [i for i in range(n) if mask >> i & 1]
         if w[idx].sum() <= 0.0:
@@ -201,7 +201,7 @@ class StarTrackerAverage(LeafSystem):
             flag = 1.0 if len(idx) == len(meas) else 1.0 + float(sum(1 << i for i in idx))
             # _average renormalizes the weights of the trackers used.
             q_avg = q_B[0] if len(idx) == 1 else _average(q_B, [self._w[i] for i in idx])
-        output.SetFromVector([t_latest, flag, *q_avg])
+        output.SetFromVector([t_latest, flag, *q_avg])  # type: ignore[arg-type]  # pydrake stub
 
 
 class EstimateFusion(LeafSystem):

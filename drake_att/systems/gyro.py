@@ -92,7 +92,7 @@ class _GyroOutputs(LeafSystem):
         # Optional: a per-step scale-factor error s_k from a correlated-noise source
         # (paper S1, drake_att.systems.correlated_noise); unconnected = 0.
         self._scale_error_port = self.DeclareVectorInputPort("scale_error", 1)
-        self.DeclareDiscreteState(np.zeros(SEED_WORDS))
+        self.DeclareDiscreteState(np.zeros(SEED_WORDS))  # type: ignore[arg-type]  # pydrake stub
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         # One Python output for both signals (the Gyro diagram splits it in C++): a logged
         # bias costs no Python call of its own.
@@ -127,17 +127,19 @@ class _GyroOutputs(LeafSystem):
         draws = self._draws(context)
         elapsed = t - (t_n - self.period_s)
         if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
-            w_true = [(a - b) / elapsed for a, b in zip(self._integral_port.Eval(context).tolist(),
-                                                         self._held_port.Eval(context).tolist(), strict=True)]
+            integral = self._integral_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
+            held = self._held_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
+            w_true = [(a - b) / elapsed for a, b in zip(integral, held, strict=True)]
         else:
-            w_true = self._w_port.Eval(context).tolist()
+            w_true = self._w_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
         # (I + S + M) w; skipped for the identity (the same numbers, up to the sign of a zero).
         w_meas = w_true if draws.unit_sensor_matrix else (draws.model.sensor_matrix @ w_true).tolist()
         if self._scale_error_port.HasValue(context):
-            divisor = 1.0 + self._scale_error_port.Eval(context)[0]
+            divisor = 1.0 + self._scale_error_port.Eval(context)[0]  # type: ignore[index]  # pydrake stub
             w_meas = [w / divisor for w in w_meas]
         (ox, oy, oz), (bx, by, bz) = draws.offset_and_bias(n)
-        output.SetFromVector(np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz]))
+        sample = np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz])
+        output.SetFromVector(sample)  # type: ignore[arg-type]  # pydrake stub
 
 
 class _GyroDraws:
@@ -159,7 +161,8 @@ class _GyroDraws:
         self.unit_sensor_matrix = bool(np.array_equal(model.sensor_matrix, np.eye(3)))
         self._cr = cr
         self._blocks: list = []  # (offsets (BLOCK, 3), biases (BLOCK, 3)) of blocks 0, 1, ...
-        self._lists_block, self._lists = -1, None  # the last block read by offset_and_bias(), as lists
+        self._lists_block = -1  # the last block read by offset_and_bias() and its (offsets, biases) as lists
+        self._lists: tuple[list, list] = ([], [])
 
     def __deepcopy__(self, memo):
         return self
@@ -241,7 +244,8 @@ class Gyro(Diagram):
         self.default_model = GyroModel.make(name, period_s, arw_rad_per_rt_s, rrw_rad_per_s15, initial_bias_rad_per_s,
                                             initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
         builder = DiagramBuilder()
-        outputs = builder.AddSystem(_GyroOutputs(name, self.period_s, self.default_model))
+        outputs = _GyroOutputs(name, self.period_s, self.default_model)
+        builder.AddSystem(outputs)
         hold = builder.AddNamedSystem(f"{name}_integral_hold", ZeroOrderHold(self.period_s, 3))
         builder.ExportInput(outputs.GetInputPort("w_IB_B"), "w_IB_B")
         builder.ExportInput(outputs.GetInputPort("w_IB_B_integral"), "w_IB_B_integral")

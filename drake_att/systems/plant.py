@@ -174,7 +174,8 @@ class RigidBodyAttitudePlant(Diagram):
         self.SetInertia(context, self._default_inertia)
 
     def get_continuous_state(self, context) -> np.ndarray:
-        return self.GetSubsystemContext(self._symbolic, context).get_continuous_state_vector().CopyToVector()
+        sub = self.GetSubsystemContext(self._symbolic, context)
+        return sub.get_continuous_state_vector().CopyToVector()  # type: ignore[return-value]  # pydrake stub
 
 
 def _as_expression(x):
@@ -214,7 +215,8 @@ class PrescribedAttitudeMotion(Diagram):
             raise ValueError(f"w_of_t_expressions: got {len(w)} expressions; need 3")
         dynamics = _quat_kinematics(q, w) + list(w)
         output = list(q) + list(w) + list(th)
-        self._symbolic = SymbolicVectorSystem(time=t, state=q + th, dynamics=dynamics, output=output)
+        self._symbolic = SymbolicVectorSystem(  # type: ignore[call-overload]  # pydrake stub
+            time=t, state=q + th, dynamics=dynamics, output=output)
         self._q0 = np.asarray(q_IB0, dtype=float) / np.linalg.norm(q_IB0)
         builder = DiagramBuilder()
         sym = builder.AddNamedSystem("prescribed_kinematics", self._symbolic)
@@ -232,7 +234,8 @@ class PrescribedAttitudeMotion(Diagram):
         if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) < 1e-9:
             raise ValueError(f"q_IB: got {q_IB!r}; must be 4 finite numbers, not all zero")
         sub = self.GetMutableSubsystemContext(self._symbolic, context)
-        sub.SetContinuousState(np.concatenate([q / np.linalg.norm(q), np.zeros(3)]))
+        x = np.concatenate([q / np.linalg.norm(q), np.zeros(3)])
+        sub.SetContinuousState(x)  # type: ignore[arg-type]  # pydrake stub
 
     def SetDefaultParametersAndState(self, context) -> None:
         self.SetInitialState(context)

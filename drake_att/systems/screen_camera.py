@@ -83,7 +83,8 @@ class ScreenCamera(SampledDrawEvents, LeafSystem):
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
         self._seed_port = declare_seed_port(self)
         self._numbers_start = SEED_WORDS + 3 + self._n_noise
-        self.DeclareDiscreteState(np.concatenate([np.zeros(self._numbers_start), self._noise_numbers(noise)]))
+        state = np.concatenate([np.zeros(self._numbers_start), self._noise_numbers(noise)])
+        self.DeclareDiscreteState(state)  # type: ignore[arg-type]  # pydrake stub
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
         deps = {self.xd_ticket(), self.all_input_ports_ticket()}
@@ -134,4 +135,4 @@ class ScreenCamera(SampledDrawEvents, LeafSystem):
 
     def _calc_count(self, context, output: BasicVector):
         ids, _ = self.geometry.project(rot.quat_to_rotmat(np.asarray(self._q_port.Eval(context))).T)
-        output.SetFromVector([float(len(ids))])
+        output.SetFromVector([float(len(ids))])  # type: ignore[arg-type]  # pydrake stub

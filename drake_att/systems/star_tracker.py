@@ -160,7 +160,7 @@ class StarTracker(LeafSystem):
         # when an output at a time in ((k-1) T, k T] is evaluated (one Python call per
         # evaluation instead of a per-sample event plus the evaluation). The state holds only
         # the seed words, read once at initialization (the seed port's value changes after t = 0).
-        self.DeclareDiscreteState(np.zeros(SEED_WORDS))
+        self.DeclareDiscreteState(np.zeros(SEED_WORDS))  # type: ignore[arg-type]  # pydrake stub
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         # The context's samples (a _TrackerSamples of its seed words and noise parameter):
         # one cache look-up per output evaluation.
@@ -217,8 +217,10 @@ class StarTracker(LeafSystem):
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
         t_sample, valid, noise, _ = self._sample(context)
-        q_meas = _canonical_product(self._q_port.Eval(context).tolist(), noise)
-        output.SetFromVector(np.array([t_sample, 1.0 if valid else 0.0, *q_meas]))
+        q_IB = self._q_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
+        q_meas = _canonical_product(q_IB, noise)
+        sample = np.array([t_sample, 1.0 if valid else 0.0, *q_meas])
+        output.SetFromVector(sample)  # type: ignore[arg-type]  # pydrake stub
 
     def _calc_vectors(self, context, output):
         t_sample, valid, noise, p = self._sample(context)
