@@ -297,6 +297,8 @@ class UpdateInfo:
 
 
 StateT = TypeVar("StateT")
+StateT_co = TypeVar("StateT_co", covariant=True)  # a capability that only returns states
+StateT_contra = TypeVar("StateT_contra", contravariant=True)  # a capability that only reads them
 
 
 @runtime_checkable
@@ -359,10 +361,10 @@ class Reacquisition(Protocol[StateT]):
 
 
 @runtime_checkable
-class RandomInitialState(Protocol[StateT]):
+class RandomInitialState(Protocol[StateT_co]):
     """A random core whose initial state is drawn at initialization with generator 0."""
 
-    def draw_initial_state(self, rng: np.random.Generator) -> StateT:
+    def draw_initial_state(self, rng: np.random.Generator) -> StateT_co:
         """A draw of the initial state (e.g. a particle set)."""
 
 
@@ -375,12 +377,12 @@ class ParticleSet(Protocol):
 
 
 @runtime_checkable
-class CoreDiagnostics(Protocol[StateT]):
+class CoreDiagnostics(Protocol[StateT_contra]):
     """A core with named diagnostics, published on ``diagnostics`` and logged."""
 
     diagnostic_names: tuple[str, ...]
 
-    def diagnostics(self, state: StateT) -> np.ndarray:
+    def diagnostics(self, state: StateT_contra) -> np.ndarray:
         """One number per name of ``diagnostic_names``."""
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -102,6 +102,7 @@ class InnovationGate:
 
     chi2: float | None = None
     probability: float | None = None
+    _thresholds: dict[int, float] = field(default_factory=dict, init=False, repr=False, compare=False)  # per dof
 
     def __post_init__(self):
         if self.chi2 is not None and self.probability is not None:
@@ -110,7 +111,6 @@ class InnovationGate:
             check_positive("innovation_gate_chi2", self.chi2)
         if self.probability is not None and not 0.0 < self.probability < 1.0:
             fail("innovation_gate_probability", self.probability, "must be in (0, 1) (0 in a config: no gate)")
-        object.__setattr__(self, "_thresholds", {})
 
     @classmethod
     def of(cls, gate) -> InnovationGate:

@@ -31,7 +31,7 @@ import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput
+from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput, VectorLogSink
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity
@@ -318,18 +318,23 @@ class ScenarioDiagram:
         self.scenario = scenario
         builder = DiagramBuilder()
         p = scenario.plant
+        truth: RigidBodyAttitudePlant | PrescribedAttitudeMotion
         if isinstance(p, cfg.RigidBodyConfig):
             I = np.asarray(p.inertia_kg_m2, dtype=float)
-            truth = builder.AddSystem(RigidBodyAttitudePlant(I if I.size == 3 else I.reshape(3, 3)))
-            torque = builder.AddNamedSystem("disturbance_torque", ConstantVectorSource(np.asarray(p.disturbance_torque_N_m, dtype=float)))
+            truth = RigidBodyAttitudePlant(I if I.size == 3 else I.reshape(3, 3))
+            builder.AddSystem(truth)
+            torque_N_m = np.asarray(p.disturbance_torque_N_m, dtype=float)
+            torque = builder.AddNamedSystem("disturbance_torque",
+                                            ConstantVectorSource(torque_N_m))  # type: ignore[arg-type]  # pydrake stub
             builder.Connect(torque.get_output_port(), truth.GetInputPort("torque_B"))
         elif isinstance(p, cfg.PrescribedRateConfig):
-            truth = builder.AddSystem(PrescribedAttitudeMotion.from_rate_profile(
+            truth = PrescribedAttitudeMotion.from_rate_profile(
                 np.asarray(p.constant_deg_per_s) * DEG, np.asarray(p.amplitude_deg_per_s) * DEG,
-                p.frequency_rad_per_s, np.asarray(p.phase_deg) * DEG, attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg)))
+                p.frequency_rad_per_s, np.asarray(p.phase_deg) * DEG, attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg))
+            builder.AddSystem(truth)
         else:
-            truth = builder.AddSystem(PrescribedAttitudeMotion.from_rpy_breakpoints(
-                p.times_s, np.asarray(p.rpy_deg) * DEG))
+            truth = PrescribedAttitudeMotion.from_rpy_breakpoints(p.times_s, np.asarray(p.rpy_deg) * DEG)
+            builder.AddSystem(truth)
         self.truth = truth
         ctx = BuildContext(builder, scenario, truth)
         for s in scenario.sensors:
@@ -345,7 +350,7 @@ class ScenarioDiagram:
         periods = [self.estimator_period(e.name) for e in scenario.estimators] + [
             ctx.sensor_output(s.name).period_s for s in scenario.sensors]
         self.truth_log_period_s = min(periods) if periods else 1.0
-        self.loggers = {}
+        self.loggers: dict[str, VectorLogSink] = {}
 
         def log(system, port_name, period):
             key = f"{system.get_name()}/{port_name}"
@@ -470,14 +475,15 @@ class ScenarioDiagram:
             for name, system in self.estimators.items():
                 if isinstance(system, EstimatorSystem) and name not in estimators:
                     system.set_filter(system.GetMyMutableContextFromRoot(context), enabled=False)
-        truth_ctx = self.truth.GetMyMutableContextFromRoot(context)
-        self.truth.SetDefaultParametersAndState(truth_ctx)
+        truth = self.truth
+        truth_ctx = truth.GetMyMutableContextFromRoot(context)
+        truth.SetDefaultParametersAndState(truth_ctx)
         p = scenario.plant
         q0 = self.initial_q_IB(scenario)
-        if isinstance(p, cfg.RigidBodyConfig):
-            self.truth.SetInitialState(truth_ctx, q0, np.asarray(p.initial_rate_deg_per_s) * DEG)
-        else:
-            self.truth.SetInitialState(truth_ctx, q0)
+        if isinstance(truth, RigidBodyAttitudePlant) and isinstance(p, cfg.RigidBodyConfig):
+            truth.SetInitialState(truth_ctx, q0, np.asarray(p.initial_rate_deg_per_s) * DEG)
+        elif isinstance(truth, PrescribedAttitudeMotion):
+            truth.SetInitialState(truth_ctx, q0)
         return context
 
     def simulate(self, seed: int | None = None, progress: bool = False, overrides=None, estimators=None) -> RunLog:

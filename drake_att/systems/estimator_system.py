@@ -65,13 +65,14 @@ Discrete state:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
+from pydrake.systems.framework import BasicVector, EventStatus, InputPort, LeafSystem
 
 from drake_att import contract
 from drake_att import rotations as rot
@@ -239,26 +240,24 @@ class EstimatorSystem(LeafSystem):
 
         # -- state -------------------------------------------------------------------------
         q0, second0, P0 = core.estimate(initial_state)
-        self._estimate_group = self.DeclareDiscreteState(
-            pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
+        self._estimate_group = self._declare_group(pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
         self.bookkeeping = Bookkeeping(n_inputs)
         self._rejections = self.bookkeeping.rejections
-        self._book_group = self.DeclareDiscreteState(self.bookkeeping.initial(self.num_particles))
-        self._core_group = self.DeclareDiscreteState(np.asarray(core.to_vector(initial_state), dtype=float))
+        self._book_group = self._declare_group(self.bookkeeping.initial(self.num_particles))
+        self._core_group = self._declare_group(core.to_vector(initial_state))
         if self._linearizing:
-            self._linearization_group = self.DeclareDiscreteState(
+            self._linearization_group = self._declare_group(
                 np.concatenate([_EYE6.ravel(), _ZERO6.ravel(), _EYE6.ravel(), [0.0]]))
         self.input_names = tuple(s.name for s in self._quat_sensors) + self._vector_names + self._camera_names
         self._innovation_group = None
         if n_inputs:
-            self._innovation_group = self.DeclareDiscreteState(np.tile([-np.inf, np.nan, 0.0], n_inputs))
+            self._innovation_group = self._declare_group(np.tile([-np.inf, np.nan, 0.0], n_inputs))
 
         # -- outputs -----------------------------------------------------------------------
         ticket = {self.discrete_state_ticket(self._estimate_group)}
         for port, part in self.second_quantity.estimate_ports():
-            self.DeclareVectorOutputPort(port, part.stop - part.start,
-                                         lambda c, o, part=part: self._out(c, o, part), ticket)
+            self.DeclareVectorOutputPort(port, part.stop - part.start, functools.partial(self._out, part=part), ticket)
         # The whole estimate group as one C++-evaluated port: loggers record this one (no
         # Python callback per logged sample); the builder splits it into the contract signals.
         self.DeclareStateOutputPort("estimate_state", self._estimate_group)
@@ -277,6 +276,10 @@ class EstimatorSystem(LeafSystem):
         if core.is_random:
             self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
+
+    def _declare_group(self, values):
+        """A discrete-state group with these initial values; its index."""
+        return self.DeclareDiscreteState(np.asarray(values, dtype=float))
 
     @classmethod
     def from_setup(cls, name: str, setup: EstimatorSetup) -> EstimatorSystem:
@@ -341,7 +344,9 @@ class EstimatorSystem(LeafSystem):
 
     def _calc_diagnostics(self, context, output: BasicVector):
         book = context.get_discrete_state(self._book_group).value()
-        output.SetFromVector([book[Bookkeeping.ESS], book[Bookkeeping.N_RESAMPLES], book[Bookkeeping.N_DEGENERATE], float(self.num_particles)])
+        values = [book[Bookkeeping.ESS], book[Bookkeeping.N_RESAMPLES], book[Bookkeeping.N_DEGENERATE],
+                  float(cast(int, self.num_particles))]
+        output.SetFromVector(np.array(values))  # type: ignore[arg-type]  # pydrake stub
 
     def _calc_core_diagnostics(self, context, output: BasicVector):
         core = self.filter_model(context).core
@@ -414,14 +419,15 @@ class EstimatorSystem(LeafSystem):
     def _on_step_compiled(self, context, discrete_state, m) -> EventStatus:
         """:meth:`_on_step` by :func:`~drake_att.systems.compiled_step.mekf_step`: the port
         reads here, the rest in one compiled call writing the state groups in place."""
-        gyro_connected = self._gyro_port.HasValue(context)
-        gyro = self._gyro_port.Eval(context) if gyro_connected else _NO_GYRO
+        gyro_port = cast(InputPort, self._gyro_port)  # an MEKF reads the gyro
+        gyro_connected = gyro_port.HasValue(context)
+        gyro = gyro_port.Eval(context) if gyro_connected else _NO_GYRO
         n = len(self._quat_ports)
         meas = np.zeros((n, QUATERNION_MEASUREMENT_SIZE))
         connected = np.zeros(n, dtype=np.bool_)
         for i, port in enumerate(self._quat_ports):
             if port.HasValue(context):
-                meas[i] = port.Eval(context)
+                meas[i] = port.Eval(context)  # type: ignore[call-overload]  # pydrake stub: Eval returns object
                 connected[i] = True
         group = discrete_state.get_mutable_value  # a writable view of a group (one pybind call)
         innovations = group(self._innovation_group) if self._innovation_group is not None else _NO_INNOVATIONS
