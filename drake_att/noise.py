@@ -2,8 +2,8 @@
 
 * :class:`CounterRandom` - random numbers as a pure function of (key, sample index):
   the key comes from the diagram's ``RandomGenerator`` (via a random input port, see
-  ``drake_att.systems.randomness``), the index is the sample counter a sensor keeps in
-  its discrete state.  Re-running with the same seed reproduces every draw; a sensor
+  ``drake_att.systems.randomness``), the index is the sample's number computed from its
+  time (``n = ceil(t / T)`` for a sensor of period ``T``).  Re-running with the same seed reproduces every draw; a sensor
   never depends on how often its outputs were evaluated.
 * :class:`FarrenkopfGyroNoise` - the Farrenkopf gyro model (angle random walk
   ``sigma_v`` in rad/s^0.5, rate random walk ``sigma_u`` in rad/s^1.5) delivered as the
