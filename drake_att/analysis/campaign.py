@@ -223,17 +223,17 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     resolved = resolve_scenario(scenario, overrides, estimators)
     yaml_text = cfg.dump_scenario(resolved)
     start = time.perf_counter()
-    runs_so_far = _CampaignRuns(resolved, seeds, record, executor_name(workers, scheduler),
-                                None if out is None else os.path.normpath(out))
-    if runs_so_far.out is not None:
-        runs_so_far.read_saved(yaml_text, resume, stream)
+    out = None if out is None else os.path.normpath(out)
+    runs_so_far = _CampaignRuns(resolved, seeds, record, executor_name(workers, scheduler), out)
+    if out is not None:
+        runs_so_far.read_saved(out, yaml_text, resume, stream)
     _run_pending(runs_so_far, yaml_text, workers, scheduler, connect_timeout_s, progress, stream)
     result = runs_so_far.result()
     if report:
         result.summary = _campaign_summary(result, record, scenario, overrides)
     result.wall_time_s = time.perf_counter() - start
-    if result.out is not None and report:
-        _write_report_and_manifest(result, runs_so_far)
+    if out is not None and report:
+        _write_report_and_manifest(result, out, runs_so_far)
     return result
 
 
@@ -253,19 +253,23 @@ class _CampaignRuns:
         self.resolved, self.seeds, self.record, self.out = resolved, seeds, record, out
         self.executor_text = executor_text  # campaign.json's and the report's
         self.optional = getattr(record, "optional_key_suffixes", ())
-        self.records, self.failed, self.layout, self.ran, self.bar = {}, {}, None, 0, None
+        self.records: dict = {}
+        self.failed: dict = {}
+        self.layout: dict | None = None
+        self.ran = 0
+        self.bar: CampaignProgress | None = None
         self.reused = self.failed_reused = 0
 
-    def read_saved(self, yaml_text: str, resume: bool, stream) -> None:
-        """The saved runs of the campaign in ``out`` when it is resumed (the folder's checks:
-        :func:`~drake_att.analysis.campaign_folder._inspect_folder`); a saved record that fails its
-        check is reported in one line on ``stream`` and left out (its run is redone)."""
-        mode, info = _inspect_folder(self.out, yaml_text, self.record, resume)
+    def read_saved(self, out: str, yaml_text: str, resume: bool, stream) -> None:
+        """The saved runs of the campaign in its folder ``out`` when it is resumed (the folder's
+        checks: :func:`~drake_att.analysis.campaign_folder._inspect_folder`); a saved record that
+        fails its check is reported in one line on ``stream`` and left out (its run is redone)."""
+        mode, info = _inspect_folder(out, yaml_text, self.record, resume)
         if mode != "resume":
             return
         self.layout = _valid_layout((info or {}).get("record_layout"))
-        if os.path.isdir(os.path.join(self.out, RUNS_DIR)):
-            self.records, self.failed, bad = _load_existing(self.out, self.seeds,
+        if os.path.isdir(os.path.join(out, RUNS_DIR)):
+            self.records, self.failed, bad = _load_existing(out, self.seeds,
                                                             _record_check(self.record, self.resolved, self.layout))
             for path, why in bad:
                 print(f"drake-att: {_shown(path)}: {why}; its run is redone", file=stream or sys.stderr)
@@ -353,12 +357,12 @@ def _campaign_summary(result: CampaignResult, record: Callable, scenario, overri
             if result.records and record is default_record else None)
 
 
-def _write_report_and_manifest(result: CampaignResult, runs: _CampaignRuns) -> None:
-    """``report.html`` and its figures and ``summary.json`` (their names in ``result.files``),
-    then ``manifest.json`` over every file of the campaign."""
+def _write_report_and_manifest(result: CampaignResult, out: str, runs: _CampaignRuns) -> None:
+    """``report.html`` and its figures and ``summary.json`` in the campaign folder ``out`` (their
+    names in ``result.files``), then ``manifest.json`` over every file of the campaign."""
     from drake_att.analysis import campaign_report
 
-    out, seeds = result.out, result.seeds
+    seeds = result.seeds
     result.files = campaign_report.write_campaign_report(result, executor=runs.executor_text)
     run_files = [_run_path(out, s) for s in seeds if s in runs.records] + [_failed_path(out, s) for s in result.failed]
     write_campaign_manifest(out, [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)]

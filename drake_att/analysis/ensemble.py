@@ -516,9 +516,9 @@ def _bound_comparison(records, p: str, ms, ms2, kind: str, rmse_ci95_deg) -> dic
     has no bound."""
     infos = [json.loads(str(r[p + "bound_json"])) for r in records]
     has = [p + "bound_window_var" in r for r in records]
-    bound = {"defined": bool(all(has)), "reason": None, "attitude_rmse_bound_deg": None,
-             "attitude_rmse_total_bound_deg": None, "ratio": None, "ratio_ci95": None, "ratio_total": None,
-             "bias_rmse_bound_deg_per_h": None, "bias_ratio": None, "prior_sensitivity": None, "info": None}
+    bound: dict = {"defined": bool(all(has)), "reason": None, "attitude_rmse_bound_deg": None,
+                   "attitude_rmse_total_bound_deg": None, "ratio": None, "ratio_ci95": None, "ratio_total": None,
+                   "bias_rmse_bound_deg_per_h": None, "bias_ratio": None, "prior_sensitivity": None, "info": None}
     if not all(has):
         bound["reason"] = next((i.get("reason") for i, h in zip(infos, has, strict=True) if not h), None)
         return bound
