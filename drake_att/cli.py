@@ -254,6 +254,31 @@ def _saved_runs(out) -> int:
     return len([f for f in os.listdir(runs) if f.endswith(".npz")]) if runs and os.path.isdir(runs) else 0
 
 
+def _kept_runs(out: str, runs: int) -> str:
+    """What an interrupted campaign in ``out`` kept, in words."""
+    saved = _saved_runs(out)
+    return (f"{saved} of {runs} runs are saved in {out}/runs; the same command with --resume continues the campaign"
+            if saved else "no run had finished, so nothing was kept")
+
+
+def _run_holding_lock(command: str, run, target, args, scheduler, out: str, kept):
+    """``run(target, ...)`` (:func:`~drake_att.analysis.campaign.run_campaign` or
+    :func:`~drake_att.analysis.comparison.run_comparison`) with the command line's campaign
+    options, holding ``out``'s writer lock. Returns ``(result, None)``, or ``(None, exit code)``:
+    2 for a user's error (its message on stderr), 130 for Ctrl-C (``kept()``, what was kept, on stderr)."""
+    from drake_att import outputs
+
+    try:
+        with outputs.writer_lock(out):
+            return run(target, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler, out=out,
+                       resume=args.resume, progress=not args.quiet, connect_timeout_s=args.connect_timeout), None
+    except UserInputError as e:
+        return None, _campaign_failed(command, e)
+    except KeyboardInterrupt:
+        print(f"\ndrake-att {command}: interrupted; {kept()}", file=sys.stderr)
+        return None, 130
+
+
 def _cmd_montecarlo(args) -> int:
     from drake_att import outputs
     from drake_att.analysis import campaign_report
@@ -277,19 +302,10 @@ def _cmd_montecarlo(args) -> int:
     where = executor_phrase(args.workers, scheduler, args.runs)
     print(f"Monte Carlo: {scenario.name}, {args.runs} runs (seeds {args.first_seed}..{args.first_seed + args.runs - 1}) "
           f"{where} -> {out}/", file=sys.stderr)
-    try:
-        with outputs.writer_lock(out):
-            result = run_campaign(scenario, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler,
-                                  out=out, resume=args.resume, progress=not args.quiet,
-                                  connect_timeout_s=args.connect_timeout)
-    except UserInputError as e:
-        return fail(e)
-    except KeyboardInterrupt:
-        saved = _saved_runs(out)
-        print("\ndrake-att montecarlo: interrupted; " + (
-            f"{saved} of {args.runs} runs are saved in {out}/runs; the same command with --resume continues the "
-            "campaign" if saved else "no run had finished, so nothing was kept"), file=sys.stderr)
-        return 130
+    result, code = _run_holding_lock("montecarlo", run_campaign, scenario, args, scheduler, out,
+                                     lambda: _kept_runs(out, args.runs))
+    if code is not None:
+        return code
     print(campaign_report.format_campaign_table(result))
     for seed, message in result.failed.items():
         _say(f"drake-att: warning: seed {seed} failed: {message}")
@@ -343,17 +359,11 @@ def _cmd_compare(args) -> int:
     out = outputs.check_target(out, option="--out", kinds=("empty", "comparison"))
     for cell in plan.skipped:
         print(f"drake-att compare: note: {cell}", file=sys.stderr)
-    try:
-        with outputs.writer_lock(out):
-            result = run_comparison(plan, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler,
-                                    out=out, resume=args.resume, progress=not args.quiet,
-                                    connect_timeout_s=args.connect_timeout)
-    except UserInputError as e:
-        return fail(e)
-    except KeyboardInterrupt:
-        print(f"\ndrake-att compare: interrupted; the finished runs are saved under {out}/; the same command with "
-              "--resume continues", file=sys.stderr)
-        return 130
+    result, code = _run_holding_lock(
+        "compare", run_comparison, plan, args, scheduler, out,
+        lambda: f"the finished runs are saved under {out}/; the same command with --resume continues")
+    if code is not None:
+        return code
     print(campaign_report.format_comparison_table(result))
     print(f"\nWrote {out}/comparison.html, comparison.json, comparison.md and comparison.png "
           f"(one campaign folder per scenario under {out}/)")

@@ -330,11 +330,32 @@ def run_bound(run, name: str, prior_scale: float = 1.0) -> BoundResult:
 def bound_model(run, name: str) -> dict:
     """The linear model of :func:`run_bound`: ``{"t", "P0", "transitions", "noises",
     "measurements", "info"}`` (the arguments of :func:`covariance_recursion`)."""
-    scenario = run.scenario
-    src = bound_sources(scenario, name)
+    src = bound_sources(run.scenario, name)
     gyro = src["gyro"]
-    T = float(gyro.period_s)
-    meta = run.metadata
+    grid = _gyro_grid(run, gyro)
+    q_true = _true_attitudes(run, grid)
+    transitions, noises = _propagation(gyro, grid, q_true)
+    measurements = [[] for _ in range(len(grid))]
+    counts = {}
+    for st in src["trackers"]:
+        if st.mode == "quaternion":
+            counts[st.name] = _quaternion_tracker_measurements(run, st, grid, measurements)
+        else:
+            counts[st.name] = _vector_tracker_measurements(st, grid, q_true, measurements)
+    P0, prior_from = prior_covariance(src)
+    info = {
+        "gyro": gyro.name, "trackers": [t.name for t in src["trackers"]],
+        "grid_period_s": float(gyro.period_s), "prior": prior_from,
+        "gyro_arw_deg_per_rt_h": gyro.arw_deg_per_rt_h, "gyro_rrw_deg_per_h15": gyro.rrw_deg_per_h15,
+        "tracker_samples": counts, "notes": list(src["notes"]),
+    }
+    return {"t": grid, "P0": P0, "transitions": transitions, "noises": noises, "measurements": measurements,
+            "info": info}
+
+
+def _gyro_grid(run, gyro) -> np.ndarray:
+    """The gyro's sample instants (one per sample, the log may repeat one); NoBound unless every
+    interval after the first instant has a usable sample."""
     gkey = f"{gyro.name}/gyro_measurement"
     if gkey not in run.signals:
         raise NoBound(f"the gyro's samples ({gkey}) are not logged")
@@ -346,13 +367,22 @@ def bound_model(run, name: str) -> dict:
     if not np.all(gyro_ok[1:]):
         raise NoBound(f"{gyro.name} delivered {int(np.sum(~gyro_ok[1:]))} unusable samples; the bound assumes "
                       "a gyro sample for every interval")
-    truth_key = meta["truth"]["attitude"]
+    return grid
+
+
+def _true_attitudes(run, grid) -> np.ndarray:
+    """The logged true attitude quaternions at the grid's instants; NoBound where one is missing."""
+    truth_key = run.metadata["truth"]["attitude"]
     tq = run.times(truth_key)
     it = _sample_index(np.asarray(tq, dtype=float), grid)
     if np.any(it < 0):
         raise NoBound(f"the truth is not logged at the gyro's instants (e.g. {grid[it < 0][:2]} s)")
-    q_true = run.values(truth_key)[it]
+    return run.values(truth_key)[it]
 
+
+def _propagation(gyro, grid, q_true) -> tuple[list, list]:
+    """The transitions and process noises of each gyro interval on the true trajectory (entry 0:
+    None), with the gyro's TRUE noise; intervals of equal length share one noise covariance."""
     arw = gyro.arw_deg_per_rt_h * ARW_DEG_PER_RT_H
     rrw = gyro.rrw_deg_per_h15 * RRW_DEG_PER_H_15
     K = len(grid)
@@ -367,68 +397,69 @@ def bound_model(run, name: str) -> dict:
         if c is None:
             c = interval[dt] = FarrenkopfGyroNoise(arw, rrw, dt).interval_covariance()
         noises[k] = _step_noise(c, -Phi[:3, 3:])
+    return transitions, noises
 
-    measurements = [[] for _ in range(K)]
-    counts = {}
-    for st in src["trackers"]:
-        R_SB = rot.quat_to_rotmat(_mounting(st)).T
-        n_used = n_between = n_invalid = 0
-        if st.mode == "quaternion":
-            key = f"{st.name}/star_tracker_measurement"
-            if key not in run.signals:
-                raise NoBound(f"{st.name}'s samples ({key}) are not logged")
-            x = run.values(key)
-            t_meas = x[:, 0]
-            ok = (x[:, 1] > 0.5) & np.all(np.isfinite(x), axis=1)
-            # one row per sample (the log may repeat a sample)
-            first = np.r_[True, np.diff(t_meas) > TIME_TOLERANCE_S]
-            t_s, ok_s = t_meas[first], ok[first]
-            H = np.hstack([R_SB, np.zeros((3, 3))])
-            sig = np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
-                            st.sigma_boresight_arcsec]) * ARCSEC
-            R = np.diag(sig**2)
-            on_grid = _sample_index(t_s, grid)
-            for k in np.flatnonzero(on_grid >= 0):
-                if ok_s[on_grid[k]]:
-                    measurements[k].append((H, R))
-                    n_used += 1
-            n_valid = int(np.sum(ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
-            n_between = n_valid - n_used
-            n_invalid = int(np.sum(~ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
-        else:
-            refs = np.asarray(st.references_I, dtype=float)
-            refs = refs / np.linalg.norm(refs, axis=1, keepdims=True)
-            sigma = st.sigma_vector_urad * 1e-6
-            windows = np.reshape(st.outage_windows_s, (-1, 2))
-            n_samples = int(np.floor(grid[-1] / st.period_s + 1e-9)) + 1
-            t_s = np.arange(n_samples) * st.period_s
-            out = np.zeros(n_samples, dtype=bool)
-            for a, b in windows:
-                out |= (a <= t_s) & (t_s < b)
-            on_grid = _sample_index(t_s, grid)
-            for k in np.flatnonzero(on_grid >= 0):
-                if out[on_grid[k]]:
-                    continue
-                R_BI = rot.quat_to_rotmat(q_true[k]).T
-                for r in refs:
-                    b_B = R_BI @ r
-                    H = np.hstack([R_SB @ rot.skew(b_B), np.zeros((3, 3))])
-                    measurements[k].append((H, sigma**2 * np.eye(3)))
-                n_used += 1
-            n_invalid = int(np.sum(out))
-            n_between = n_samples - n_invalid - n_used
-        counts[st.name] = {"samples_used": n_used, "samples_between_gyro_samples": int(n_between),
-                           "samples_invalid": n_invalid}
 
-    P0, prior_from = prior_covariance(src)
-    info = {
-        "gyro": gyro.name, "trackers": [t.name for t in src["trackers"]],
-        "grid_period_s": T, "prior": prior_from,
-        "gyro_arw_deg_per_rt_h": gyro.arw_deg_per_rt_h, "gyro_rrw_deg_per_h15": gyro.rrw_deg_per_h15,
-        "tracker_samples": counts, "notes": list(src["notes"]),
-    }
-    return {"t": grid, "P0": P0, "transitions": transitions, "noises": noises, "measurements": measurements,
-            "info": info}
+def _sample_counts(used: int, between, invalid: int) -> dict:
+    """A tracker's entry of the bound's ``tracker_samples``."""
+    return {"samples_used": used, "samples_between_gyro_samples": int(between), "samples_invalid": invalid}
+
+
+def _quaternion_tracker_measurements(run, st, grid, measurements) -> dict:
+    """Appends the ``(H, R)`` of each valid sample of quaternion tracker ``st`` at a grid instant
+    to ``measurements``; returns its sample counts. NoBound when its samples are not logged."""
+    R_SB = rot.quat_to_rotmat(_mounting(st)).T
+    key = f"{st.name}/star_tracker_measurement"
+    if key not in run.signals:
+        raise NoBound(f"{st.name}'s samples ({key}) are not logged")
+    x = run.values(key)
+    t_meas = x[:, 0]
+    ok = (x[:, 1] > 0.5) & np.all(np.isfinite(x), axis=1)
+    # one row per sample (the log may repeat a sample)
+    first = np.r_[True, np.diff(t_meas) > TIME_TOLERANCE_S]
+    t_s, ok_s = t_meas[first], ok[first]
+    H = np.hstack([R_SB, np.zeros((3, 3))])
+    sig = np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
+                    st.sigma_boresight_arcsec]) * ARCSEC
+    R = np.diag(sig**2)
+    on_grid = _sample_index(t_s, grid)
+    n_used = 0
+    for k in np.flatnonzero(on_grid >= 0):
+        if ok_s[on_grid[k]]:
+            measurements[k].append((H, R))
+            n_used += 1
+    n_valid = int(np.sum(ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
+    n_invalid = int(np.sum(~ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
+    return _sample_counts(n_used, n_valid - n_used, n_invalid)
+
+
+def _vector_tracker_measurements(st, grid, q_true, measurements) -> dict:
+    """Appends the ``(H, R)`` of each direction of vector tracker ``st`` at each grid instant it
+    samples outside its outage windows to ``measurements`` (its samples are not logged: they
+    follow from its period, at the true attitude); returns its sample counts."""
+    R_SB = rot.quat_to_rotmat(_mounting(st)).T
+    refs = np.asarray(st.references_I, dtype=float)
+    refs = refs / np.linalg.norm(refs, axis=1, keepdims=True)
+    sigma = st.sigma_vector_urad * 1e-6
+    windows = np.reshape(st.outage_windows_s, (-1, 2))
+    n_samples = int(np.floor(grid[-1] / st.period_s + 1e-9)) + 1
+    t_s = np.arange(n_samples) * st.period_s
+    out = np.zeros(n_samples, dtype=bool)
+    for a, b in windows:
+        out |= (a <= t_s) & (t_s < b)
+    on_grid = _sample_index(t_s, grid)
+    n_used = 0
+    for k in np.flatnonzero(on_grid >= 0):
+        if out[on_grid[k]]:
+            continue
+        R_BI = rot.quat_to_rotmat(q_true[k]).T
+        for r in refs:
+            b_B = R_BI @ r
+            H = np.hstack([R_SB @ rot.skew(b_B), np.zeros((3, 3))])
+            measurements[k].append((H, sigma**2 * np.eye(3)))
+        n_used += 1
+    n_invalid = int(np.sum(out))
+    return _sample_counts(n_used, n_samples - n_invalid - n_used, n_invalid)
 
 
 def _mounting(st):

@@ -223,83 +223,147 @@ def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | Non
     resolved = resolve_scenario(scenario, overrides, estimators)
     yaml_text = cfg.dump_scenario(resolved)
     start = time.perf_counter()
-    records, failed, layout, mode, ran = {}, {}, None, "new", 0
-    optional = getattr(record, "optional_key_suffixes", ())
-    executor_text = executor_name(workers, scheduler)  # campaign.json's and the report's
+    out = None if out is None else os.path.normpath(out)
+    runs_so_far = _CampaignRuns(resolved, seeds, record, executor_name(workers, scheduler), out)
     if out is not None:
-        out = os.path.normpath(out)
-        mode, info = _inspect_folder(out, yaml_text, record, resume)
-        if mode == "resume":
-            layout = _valid_layout((info or {}).get("record_layout"))
-            if os.path.isdir(os.path.join(out, RUNS_DIR)):
-                records, failed, bad = _load_existing(out, seeds, _record_check(record, resolved, layout))
-                for path, why in bad:
-                    print(f"drake-att: {_shown(path)}: {why}; its run is redone", file=stream or sys.stderr)
-    reused, failed_reused = len(records), len(failed)
-    pending = [s for s in seeds if s not in records and s not in failed]
+        runs_so_far.read_saved(out, yaml_text, resume, stream)
+    _run_pending(runs_so_far, yaml_text, workers, scheduler, connect_timeout_s, progress, stream)
+    result = runs_so_far.result()
+    if report:
+        result.summary = _campaign_summary(result, record, scenario, overrides)
+    result.wall_time_s = time.perf_counter() - start
+    if out is not None and report:
+        _write_report_and_manifest(result, out, runs_so_far)
+    return result
+
+
+class _CampaignRuns:
+    """The runs of one :func:`run_campaign` call as they are read from its folder ``out`` or
+    arrive from the runner, each written to ``out`` as it arrives (None: kept in memory only).
+
+    Attributes:
+        records, failed: seed -> record, seed -> message of a run that went non-finite.
+        reused, failed_reused: how many of them were read from ``out``.
+        layout: the campaign's record layout (campaign.json's ``record_layout``; None: not known yet).
+        ran: records that arrived from the runner.
+        bar: the progress line a run that arrives advances (None: no progress line).
+    """
+
+    def __init__(self, resolved: cfg.Scenario, seeds: list, record: Callable, executor_text: str, out: str | None):
+        self.resolved, self.seeds, self.record, self.out = resolved, seeds, record, out
+        self.executor_text = executor_text  # campaign.json's and the report's
+        self.optional = getattr(record, "optional_key_suffixes", ())
+        self.records: dict = {}
+        self.failed: dict = {}
+        self.layout: dict | None = None
+        self.ran = 0
+        self.bar: CampaignProgress | None = None
+        self.reused = self.failed_reused = 0
+
+    def read_saved(self, out: str, yaml_text: str, resume: bool, stream) -> None:
+        """The saved runs of the campaign in its folder ``out`` when it is resumed (the folder's
+        checks: :func:`~drake_att.analysis.campaign_folder._inspect_folder`); a saved record that
+        fails its check is reported in one line on ``stream`` and left out (its run is redone)."""
+        mode, info = _inspect_folder(out, yaml_text, self.record, resume)
+        if mode != "resume":
+            return
+        self.layout = _valid_layout((info or {}).get("record_layout"))
+        if os.path.isdir(os.path.join(out, RUNS_DIR)):
+            self.records, self.failed, bad = _load_existing(out, self.seeds,
+                                                            _record_check(self.record, self.resolved, self.layout))
+            for path, why in bad:
+                print(f"drake-att: {_shown(path)}: {why}; its run is redone", file=stream or sys.stderr)
+        self.reused, self.failed_reused = len(self.records), len(self.failed)
+
+    def pending(self) -> list:
+        """The seeds without a record or a failure, in seed order."""
+        return [s for s in self.seeds if s not in self.records and s not in self.failed]
+
+    def write_campaign_file(self) -> None:
+        _write_campaign_file(self.out, self.resolved, self.seeds, self.record, self.executor_text, self.layout)
+
+    def on_result(self, i, job, result) -> None:
+        """The runner's callback: keep (and save) a run's record or failure."""
+        seed = job[0]
+        if isinstance(result, RunFailed):
+            self.failed[seed] = result.message
+            if self.out is not None:
+                write_text_atomic(_failed_path(self.out, seed), result.message + "\n")
+        else:
+            if self.out is not None:
+                save_record(self.out, seed, result)
+                fresh = record_layout(result, self.optional)
+                if fresh != self.layout:  # the first record (or a stale layout): the campaign's layout now
+                    self.layout = fresh
+                    self.write_campaign_file()
+            self.records[seed] = result
+            self.ran += 1
+        if self.bar:
+            self.bar.run_done()
+
+    def result(self) -> CampaignResult:
+        """The campaign's result without its summary and wall time (the counts checked)."""
+        seeds = self.seeds
+        ordered = [self.records[s] for s in seeds if s in self.records]
+        result = CampaignResult(self.resolved, seeds, ordered, {s: self.failed[s] for s in seeds if s in self.failed},
+                                None, self.out, self.ran, self.reused, 0.0, failed_reused=self.failed_reused)
+        if result.ran + result.reused + len(result.failed) != len(seeds):  # a bug, not a user's error
+            raise RuntimeError(f"campaign counts do not add up: {result.ran} ran + {result.reused} reused + "
+                               f"{len(result.failed)} failed != {len(seeds)} seeds")
+        return result
+
+
+def _run_pending(runs: _CampaignRuns, yaml_text: str, workers, scheduler, connect_timeout_s: float, progress: bool,
+                 stream) -> None:
+    """Runs the pending seeds into ``runs`` (:func:`map_runs`), with the campaign folder created
+    first; a failure takes back what the folder got from this call. The progress line (with
+    ``progress``, on ``stream``) is closed and a cluster this call connected to shut down,
+    whatever happens."""
+    pending = runs.pending()
     # Connect first: an unreachable scheduler must not leave a campaign folder behind.
     executor = None
     if pending and not _is_serial(workers, scheduler) and (scheduler is None or isinstance(scheduler, str)):
         executor = _connect(min(workers or os.cpu_count() or 1, len(pending)), scheduler, connect_timeout_s)
     bar, created = None, []
     try:
-        if out is not None:
-            created = _create_folder(out, yaml_text)
-            _write_campaign_file(out, resolved, seeds, record, executor_text, layout)
-
-        def on_result(i, job, result):
-            nonlocal ran, layout
-            seed = job[0]
-            if isinstance(result, RunFailed):
-                failed[seed] = result.message
-                if out is not None:
-                    write_text_atomic(_failed_path(out, seed), result.message + "\n")
-            else:
-                if out is not None:
-                    save_record(out, seed, result)
-                    fresh = record_layout(result, optional)
-                    if fresh != layout:  # the first record (or a stale layout): the campaign's layout now
-                        layout = fresh
-                        _write_campaign_file(out, resolved, seeds, record, executor_text, layout)
-                records[seed] = result
-                ran += 1
-            if bar:
-                bar.run_done()
-
-        bar = CampaignProgress(len(seeds), reused + failed_reused, f"{resolved.name}", stream=stream) \
-            if progress else None
-        map_runs(resolved, pending, record, workers=workers, scheduler=executor[0] if executor else scheduler,
-                 on_result=on_result, connect_timeout_s=connect_timeout_s)
+        if runs.out is not None:
+            created = _create_folder(runs.out, yaml_text)
+            runs.write_campaign_file()
+        bar = runs.bar = CampaignProgress(len(runs.seeds), runs.reused + runs.failed_reused, f"{runs.resolved.name}",
+                                          stream=stream) if progress else None
+        map_runs(runs.resolved, pending, runs.record, workers=workers,
+                 scheduler=executor[0] if executor else scheduler, on_result=runs.on_result,
+                 connect_timeout_s=connect_timeout_s)
     except BaseException:
-        if out is not None:
-            _remove_created(out, created)
+        if runs.out is not None:
+            _remove_created(runs.out, created)
         raise
     finally:
         if bar:
             bar.close()
         if executor is not None:
             _shut_down(executor[0], executor[1], executor[2], [])
-    ordered = [records[s] for s in seeds if s in records]
-    result = CampaignResult(resolved, seeds, ordered, {s: failed[s] for s in seeds if s in failed}, None, out, ran,
-                            reused, 0.0, failed_reused=failed_reused)
-    if result.ran + result.reused + len(result.failed) != len(seeds):  # a bug, not a user's error
-        raise RuntimeError(f"campaign counts do not add up: {result.ran} ran + {result.reused} reused + "
-                           f"{len(result.failed)} failed != {len(seeds)} seeds")
-    if report:
-        # The ensemble statistics read the default record; another record gets a report of
-        # the campaign alone (its caller reduces its own records).
-        # The worst runs' re-run command: the campaign's resolved config.yaml says everything
-        # (--set, --estimators); without a folder, the scenario and the overrides.
-        where = ({"scenario_arg": os.path.join(out, CONFIG_FILE)} if out is not None else
-                 {"scenario_arg": scenario if isinstance(scenario, str) else None, "overrides": list(overrides)})
-        result.summary = (default_summarize(ordered, resolved, **where)
-                          if ordered and record is default_record else None)
-    result.wall_time_s = time.perf_counter() - start
-    if out is not None and report:
-        from drake_att.analysis import campaign_report
 
-        result.files = campaign_report.write_campaign_report(result, executor=executor_text)
-        run_files = [_run_path(out, s) for s in seeds if s in records] + [_failed_path(out, s) for s in result.failed]
-        write_campaign_manifest(out, [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)]
-                                + result.files + run_files, resolved.name, seeds)
-    return result
+
+def _campaign_summary(result: CampaignResult, record: Callable, scenario, overrides) -> dict | None:
+    """The ensemble statistics of the campaign's records: they read the default record; another
+    record gets a report of the campaign alone (its caller reduces its own records)."""
+    # The worst runs' re-run command: the campaign's resolved config.yaml says everything
+    # (--set, --estimators); without a folder, the scenario and the overrides.
+    out = result.out
+    where = ({"scenario_arg": os.path.join(out, CONFIG_FILE)} if out is not None else
+             {"scenario_arg": scenario if isinstance(scenario, str) else None, "overrides": list(overrides)})
+    return (default_summarize(result.records, result.scenario, **where)
+            if result.records and record is default_record else None)
+
+
+def _write_report_and_manifest(result: CampaignResult, out: str, runs: _CampaignRuns) -> None:
+    """``report.html`` and its figures and ``summary.json`` in the campaign folder ``out`` (their
+    names in ``result.files``), then ``manifest.json`` over every file of the campaign."""
+    from drake_att.analysis import campaign_report
+
+    seeds = result.seeds
+    result.files = campaign_report.write_campaign_report(result, executor=runs.executor_text)
+    run_files = [_run_path(out, s) for s in seeds if s in runs.records] + [_failed_path(out, s) for s in result.failed]
+    write_campaign_manifest(out, [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)]
+                            + result.files + run_files, result.scenario.name, seeds)

@@ -166,14 +166,18 @@ def _layout_text(entry) -> str:
     return f"{name} scalar" if ndim == 0 else f"{name} array of shape ({', '.join(['n'] + [str(d) for d in rest])})"
 
 
+def _and_more(keys: list) -> str:
+    """`` (and N more)`` after the first of ``keys`` when there are more."""
+    return f" (and {len(keys) - 1} more)" if len(keys) > 1 else ""
+
+
 def _layout_problem(record: dict, layout: dict, optional_suffixes=()) -> str | None:
     mine = record_layout(record, optional_suffixes)
     missing, extra = sorted(set(layout) - set(mine)), sorted(set(mine) - set(layout))
-    more = lambda keys: f" (and {len(keys) - 1} more)" if len(keys) > 1 else ""  # noqa: E731
     if missing:
-        return f"key {_one_line(repr(missing[0]), 80)} is missing{more(missing)}"
+        return f"key {_one_line(repr(missing[0]), 80)} is missing{_and_more(missing)}"
     if extra:
-        return f"unexpected key {_one_line(repr(extra[0]), 80)}{more(extra)}"
+        return f"unexpected key {_one_line(repr(extra[0]), 80)}{_and_more(extra)}"
     for key, entry in layout.items():
         if mine[key] != entry:
             return f"{key!r}: got a {_layout_text(mine[key])}; the campaign's records hold a {_layout_text(entry)}"
@@ -184,104 +188,159 @@ def _is_kind(a, kinds: str, ndim: int) -> bool:
     return isinstance(a, np.ndarray) and a.dtype.kind in kinds and a.ndim == ndim
 
 
+# The default record's documented structure (drake_att.analysis.ensemble): dtype kinds of its
+# scalars, and per estimator ``<name>__<suffix>``: (dtype kinds, ndim, columns or None).
+_FLOAT, _INT, _STR = "f", "iu", "U"
+_RECORD_SCALARS = {"schema": _INT, "scenario": _STR, "seed": _INT, "duration_s": _FLOAT, "score_from_s": _FLOAT,
+                   "convergence_threshold_deg": _FLOAT, "metrics_json": _STR}
+_PER_ESTIMATOR = {
+    "t": (_FLOAT, 1, None), "dtheta": (_FLOAT, 2, 3), "sigma": (_FLOAT, 2, 6), "nees": (_FLOAT, 1, None),
+    "second_kind": (_STR, 0, None), "nees_dof": (_INT, 0, None), "window_n": (_INT, 0, None),
+    "window_ms": (_FLOAT, 1, None), "window_ms_second": (_FLOAT, 1, None), "window_nees_sum": (_FLOAT, 0, None),
+    "window_nees_n": (_INT, 0, None), "convergence_time_s": (_FLOAT, 0, None), "inputs": (_STR, 1, None),
+    "nis_source": (_STR, 0, None), "bound_json": (_STR, 0, None)}
+_OPTIONAL_PER_ESTIMATOR = {"second_err": (_FLOAT, 2, 3), "bound_sigma": (_FLOAT, 2, 6),
+                           "bound_window_var": (_FLOAT, 1, None)}
+
+
+def _text(record: dict, key: str) -> str:
+    return str(record[key])
+
+
+def _is_json_object(record: dict, key: str) -> bool:
+    try:
+        return isinstance(json.loads(_text(record, key)), dict)
+    except ValueError:
+        return False
+
+
+def _got(record: dict, key: str) -> str:
+    """The layout of ``record[key]`` in words."""
+    return _layout_text(record_layout({key: record[key]})[key])
+
+
 def default_record_problem(record: dict, scenario: cfg.Scenario, seed: int) -> str | None:
     """Why ``record`` is not :func:`~drake_att.analysis.run_records.default_record` of run
     ``seed`` of ``scenario`` (None: it has the documented structure,
     :mod:`drake_att.analysis.ensemble`). Checks keys, dtype kinds and shapes, shapes
     consistent within the record, the seed, scenario, estimators and scoring it names, and
     that its JSON texts are JSON objects; derived from the scenario, no simulation needed."""
+    names = [e.name for e in scenario.estimators]
+    problem = _run_scalars_problem(record, scenario, seed) or _estimator_names_problem(record, names)
+    if problem:
+        return problem
+    expected = set(_RECORD_SCALARS) | {"estimators"}
+    for name in names:
+        problem = _estimator_problem(record, f"{name}__", expected)
+        if problem:
+            return problem
+    extra = sorted(set(record) - expected)
+    if extra:
+        return f"unexpected key {_one_line(repr(extra[0]), 80)}{_and_more(extra)}"
+    return None
+
+
+def _run_scalars_problem(record: dict, scenario: cfg.Scenario, seed: int) -> str | None:
+    """The record's scalars: their kinds, the schema, and the seed, scenario and scoring they name."""
     from drake_att.analysis.ensemble import RECORD_SCHEMA
 
-    FLOAT, INT, STR = "f", "iu", "U"
-
-    def text(key):
-        return str(record[key])
-
-    def json_object(key):
-        try:
-            return isinstance(json.loads(text(key)), dict)
-        except ValueError:
-            return False
-
-    names = [e.name for e in scenario.estimators]
-    scalars = {"schema": INT, "scenario": STR, "seed": INT, "duration_s": FLOAT, "score_from_s": FLOAT,
-               "convergence_threshold_deg": FLOAT, "metrics_json": STR}
-    expected = set(scalars) | {"estimators"}
-    for key, kinds in scalars.items():
+    for key, kinds in _RECORD_SCALARS.items():
         if key not in record:
             return f"key {key!r} is missing"
         if not _is_kind(record[key], kinds, 0):
-            return f"{key!r}: got {_layout_text(record_layout({key: record[key]})[key])}; expected a scalar"
+            return f"{key!r}: got {_got(record, key)}; expected a scalar"
     if int(record["schema"]) != RECORD_SCHEMA:
         return f"record schema {int(record['schema'])}, this drake_att writes {RECORD_SCHEMA}"
     if int(record["seed"]) != seed:
         return f"it holds seed {int(record['seed'])}, not {seed}"
-    if text("scenario") != scenario.name:
-        return f"it holds scenario {_one_line(repr(text('scenario')), 80)}, not {scenario.name!r}"
+    if _text(record, "scenario") != scenario.name:
+        return f"it holds scenario {_one_line(repr(_text(record, 'scenario')), 80)}, not {scenario.name!r}"
     for key, value in (("duration_s", scenario.duration_s), ("score_from_s", scenario.scoring.score_from_s),
                        ("convergence_threshold_deg", scenario.scoring.convergence_threshold_deg)):
         if not abs(float(record[key]) - float(value)) <= 1e-9 * max(1.0, abs(float(value))):
             return f"{key} {float(record[key])!r}, the campaign's configuration has {float(value)!r}"
-    if not json_object("metrics_json"):
+    if not _is_json_object(record, "metrics_json"):
         return "'metrics_json' is not a JSON object"
-    if "estimators" not in record or not _is_kind(record["estimators"], STR, 1):
+    return None
+
+
+def _estimator_names_problem(record: dict, names: list) -> str | None:
+    """The record's ``estimators``: the scenario's, in its order."""
+    if "estimators" not in record or not _is_kind(record["estimators"], _STR, 1):
         return "'estimators' is missing or not an array of names"
     if [str(x) for x in record["estimators"]] != names:
         return f"it holds estimators {_one_line([str(x) for x in record['estimators']], 120)}, not {names}"
-    per = {"t": (FLOAT, 1, None), "dtheta": (FLOAT, 2, 3), "sigma": (FLOAT, 2, 6), "nees": (FLOAT, 1, None),
-           "second_kind": (STR, 0, None), "nees_dof": (INT, 0, None), "window_n": (INT, 0, None),
-           "window_ms": (FLOAT, 1, None), "window_ms_second": (FLOAT, 1, None), "window_nees_sum": (FLOAT, 0, None),
-           "window_nees_n": (INT, 0, None), "convergence_time_s": (FLOAT, 0, None), "inputs": (STR, 1, None),
-           "nis_source": (STR, 0, None), "bound_json": (STR, 0, None)}
-    optional = {"second_err": (FLOAT, 2, 3), "bound_sigma": (FLOAT, 2, 6), "bound_window_var": (FLOAT, 1, None)}
-    for name in names:
-        p = f"{name}__"
-        for suffix, (kinds, ndim, cols) in list(per.items()) + list(optional.items()):
-            key = p + suffix
+    return None
+
+
+def _estimator_problem(record: dict, p: str, expected: set) -> str | None:
+    """The arrays of the estimator whose keys start with ``p`` (their keys added to ``expected``)."""
+    return (_estimator_kinds_problem(record, p, expected) or _estimator_shapes_problem(record, p)
+            or _estimator_values_problem(record, p) or _nis_problem(record, p, expected))
+
+
+def _estimator_kinds_problem(record: dict, p: str, expected: set) -> str | None:
+    """Each of the estimator's arrays is there (the optional ones may be absent), of its dtype
+    kind, rank and number of columns."""
+    for suffix, (kinds, ndim, cols) in list(_PER_ESTIMATOR.items()) + list(_OPTIONAL_PER_ESTIMATOR.items()):
+        key = p + suffix
+        if key not in record:
+            if suffix in _OPTIONAL_PER_ESTIMATOR:
+                continue
+            return f"key {key!r} is missing"
+        a = record[key]
+        if not _is_kind(a, kinds, ndim) or (cols is not None and a.shape[1] != cols):
+            want = ("str" if kinds == _STR else "int" if kinds == _INT else "float")
+            want += " scalar" if ndim == 0 else f" array of shape (n{', ' + str(cols) if cols else ''})"
+            return f"{key!r}: got a {_got(record, key)}; expected a {want}"
+        expected.add(key)
+    return None
+
+
+def _estimator_shapes_problem(record: dict, p: str) -> str | None:
+    """The estimator's time series have as many samples as its times; its window arrays one
+    entry per axis."""
+    n = len(record[p + "t"])
+    for suffix in ("dtheta", "sigma", "nees", "second_err", "bound_sigma"):
+        if p + suffix in record and len(record[p + suffix]) != n:
+            return f"'{p}{suffix}' has {len(record[p + suffix])} samples, '{p}t' {n}"
+    for suffix, size in (("window_ms", 3), ("window_ms_second", 3), ("bound_window_var", 6)):
+        if p + suffix in record and record[p + suffix].shape != (size,):
+            return f"'{p}{suffix}': got shape {record[p + suffix].shape}; expected ({size},)"
+    return None
+
+
+def _estimator_values_problem(record: dict, p: str) -> str | None:
+    """The estimator's times increase, and its kinds, degrees of freedom and JSON text are ones
+    the summary reads."""
+    t = record[p + "t"]
+    if not (np.all(np.isfinite(t)) and np.all(np.diff(t) >= 0)):
+        return f"'{p}t' is not a finite, increasing time series"
+    if _text(record, p + "second_kind") not in ("gyro_bias", "body_rate"):
+        return (f"'{p}second_kind' is {_one_line(repr(_text(record, p + 'second_kind')), 60)}, not gyro_bias or "
+                "body_rate")
+    if int(record[p + "nees_dof"]) < 1:
+        return f"'{p}nees_dof' is {int(record[p + 'nees_dof'])}; a NEES has at least 1 degree of freedom"
+    source = _text(record, p + "nis_source")
+    if source not in ("innovations", "status", "none"):
+        return f"'{p}nis_source' is {_one_line(repr(source), 60)}, not innovations, status or none"
+    if not _is_json_object(record, p + "bound_json"):
+        return f"'{p}bound_json' is not a JSON object"
+    return None
+
+
+def _nis_problem(record: dict, p: str, expected: set) -> str | None:
+    """The estimator's NIS samples: one (t, value, dof) triple per input, of equal lengths (none
+    for the NIS source "none"); their keys added to ``expected``."""
+    inputs = 0 if _text(record, p + "nis_source") == "none" else len(record[p + "inputs"])
+    for i in range(inputs):
+        keys = [f"{p}nis{i}__{k}" for k in ("t", "value", "dof")]
+        for key, kinds in zip(keys, (_FLOAT, _FLOAT, _INT), strict=True):
             if key not in record:
-                if suffix in optional:
-                    continue
                 return f"key {key!r} is missing"
-            a = record[key]
-            if not _is_kind(a, kinds, ndim) or (cols is not None and a.shape[1] != cols):
-                want = ("str" if kinds == STR else "int" if kinds == INT else "float")
-                want += " scalar" if ndim == 0 else f" array of shape (n{', ' + str(cols) if cols else ''})"
-                return f"{key!r}: got a {_layout_text(record_layout({key: a})[key])}; expected a {want}"
+            if not _is_kind(record[key], kinds, 1):
+                return f"{key!r}: got a {_got(record, key)}; expected a 1-d array"
             expected.add(key)
-        t = record[p + "t"]
-        n = len(t)
-        for suffix in ("dtheta", "sigma", "nees", "second_err", "bound_sigma"):
-            if p + suffix in record and len(record[p + suffix]) != n:
-                return f"'{p}{suffix}' has {len(record[p + suffix])} samples, '{p}t' {n}"
-        for suffix, size in (("window_ms", 3), ("window_ms_second", 3), ("bound_window_var", 6)):
-            if p + suffix in record and record[p + suffix].shape != (size,):
-                return f"'{p}{suffix}': got shape {record[p + suffix].shape}; expected ({size},)"
-        if not (np.all(np.isfinite(t)) and np.all(np.diff(t) >= 0)):
-            return f"'{p}t' is not a finite, increasing time series"
-        if text(p + "second_kind") not in ("gyro_bias", "body_rate"):
-            return f"'{p}second_kind' is {_one_line(repr(text(p + 'second_kind')), 60)}, not gyro_bias or body_rate"
-        if int(record[p + "nees_dof"]) < 1:
-            return f"'{p}nees_dof' is {int(record[p + 'nees_dof'])}; a NEES has at least 1 degree of freedom"
-        source = text(p + "nis_source")
-        if source not in ("innovations", "status", "none"):
-            return f"'{p}nis_source' is {_one_line(repr(source), 60)}, not innovations, status or none"
-        if not json_object(p + "bound_json"):
-            return f"'{p}bound_json' is not a JSON object"
-        # NIS samples: one (t, value, dof) triple per input, of equal lengths (none: "none")
-        inputs = 0 if source == "none" else len(record[p + "inputs"])
-        for i in range(inputs):
-            keys = [f"{p}nis{i}__{k}" for k in ("t", "value", "dof")]
-            for key, kinds in zip(keys, (FLOAT, FLOAT, INT), strict=True):
-                if key not in record:
-                    return f"key {key!r} is missing"
-                if not _is_kind(record[key], kinds, 1):
-                    got = _layout_text(record_layout({key: record[key]})[key])
-                    return f"{key!r}: got a {got}; expected a 1-d array"
-                expected.add(key)
-            if len({len(record[k]) for k in keys}) != 1:
-                return f"'{p}nis{i}__t', '__value' and '__dof' differ in length"
-    extra = sorted(set(record) - expected)
-    if extra:
-        return f"unexpected key {_one_line(repr(extra[0]), 80)}" + (f" (and {len(extra) - 1} more)" if len(extra) > 1
-                                                                   else "")
+        if len({len(record[k]) for k in keys}) != 1:
+            return f"'{p}nis{i}__t', '__value' and '__dof' differ in length"
     return None

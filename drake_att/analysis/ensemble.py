@@ -391,18 +391,43 @@ METHODS = {
 
 
 def _estimator_summary(records, command, name, worst, max_history_points):
+    """Estimator ``name``'s entry of the summary's ``estimators`` (its keys: the module
+    docstring); ``command(seed)`` is the line that re-runs a seed."""
     p = f"{name}__"
     N = len(records)
     seeds = [int(r["seed"]) for r in records]
     out = {"n_runs": N, "window_samples_per_run": int(np.median([int(r[p + "window_n"]) for r in records]))}
     ms = np.array([r[p + "window_ms"] for r in records], dtype=float)  # (N, 3)
+    ms2 = np.array([r[p + "window_ms_second"] for r in records], dtype=float)
+    kind = str(records[0][p + "second_kind"])
+    out.update(_error_rmse(ms, ms2, kind))
+    dof = int(records[0][p + "nees_dof"])
+    band = anees_band(N, dof)
+    t_common, idx = common_times(records, name)
+    score_from = float(records[0]["score_from_s"])
+    nees = np.array([np.asarray(r[p + "nees"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])  # (N, n)
+    # the window on the times themselves (t_common is rounded to 1 us), as per_run_record and
+    # metrics.json have it: a sample at score_from - _TOL is in
+    win = np.asarray(records[0][p + "t"], dtype=float)[idx[0]] >= score_from - _TOL
+    out.update(_nees_consistency(records, p, dof, band, nees, win))
+    out["nis"] = _nis_consistency(records, p, score_from)
+    out["convergence"] = _convergence(records, p, seeds)
+    out["worst_runs"] = _worst_runs(ms, seeds, worst, command)
+    out["bound"] = _bound_comparison(records, p, ms, ms2, kind, out["attitude_rmse_ci95_deg"])
+    out["history"] = _history(records, p, t_common, idx, nees, band, max_history_points)
+    return out
+
+
+def _error_rmse(ms, ms2, kind: str) -> dict:
+    """The attitude RMSE (per axis and total) and the second error's (``kind``: the gyro bias or
+    the body rate; None where its truth is unknown), with their CIs, from the per-run window
+    mean squares ``ms`` and ``ms2`` (N, 3)."""
+    out = {}
     out["attitude_rmse_deg"], out["attitude_rmse_ci95_deg"] = _rmse_block(ms, DEG)
     M, lo, hi = mean_square_ci(ms.sum(axis=1))
     out["attitude_rmse_total_deg"] = None if M is None else _f(math.sqrt(M) / DEG)
     out["attitude_rmse_total_ci95_deg"] = None if lo is None else [_f(math.sqrt(lo) / DEG), _f(math.sqrt(hi) / DEG)]
-    kind = str(records[0][p + "second_kind"])
     out["second_kind"] = kind
-    ms2 = np.array([r[p + "window_ms_second"] for r in records], dtype=float)
     out["bias_rmse_deg_per_h"] = out["bias_rmse_ci95_deg_per_h"] = None
     out["rate_rmse_deg_per_s"] = out["rate_rmse_ci95_deg_per_s"] = None
     if np.any(np.isfinite(ms2)):
@@ -410,35 +435,34 @@ def _estimator_summary(records, command, name, worst, max_history_points):
             out["bias_rmse_deg_per_h"], out["bias_rmse_ci95_deg_per_h"] = _rmse_block(ms2, DEG_PER_H)
         else:
             out["rate_rmse_deg_per_s"], out["rate_rmse_ci95_deg_per_s"] = _rmse_block(ms2, DEG)
+    return out
 
-    # NEES
-    dof = int(records[0][p + "nees_dof"])
-    out["nees_dof"] = dof
+
+def _nees_consistency(records, p: str, dof: int, band, nees, win) -> dict:
+    """The ANEES over runs and window samples and its bands: ``band`` at one instant, and the
+    window's, with the NEES's correlation time estimated from ``nees`` (N, n) at the common
+    times in the window (``win``)."""
     nsum = sum(float(r[p + "window_nees_sum"]) for r in records)
     ncount = sum(int(r[p + "window_nees_n"]) for r in records)
     anees = nsum / ncount if ncount else None
-    out["anees"] = _f(anees)
-    band = anees_band(N, dof)
-    out["anees_band_95"] = _fl(band)
-    out["anees_in_band"] = None if anees is None else bool(band[0] <= anees <= band[1])
-    t_common, idx = common_times(records, name)
-    score_from = float(records[0]["score_from_s"])
-    nees = np.array([np.asarray(r[p + "nees"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])  # (N, n)
-    # the window on the times themselves (t_common is rounded to 1 us), as per_run_record and
-    # metrics.json have it: a sample at score_from - _TOL is in
-    win = np.asarray(records[0][p + "t"], dtype=float)[idx[0]] >= score_from - _TOL
+    out = {"nees_dof": dof, "anees": _f(anees), "anees_band_95": _fl(band),
+           "anees_in_band": None if anees is None else bool(band[0] <= anees <= band[1])}
     tau = integrated_autocorrelation_time(nees[:, win]) if np.sum(win) >= 4 else None
     out["nees_correlation_time_samples"] = _f(tau)
     if tau is not None and anees is not None:
         n_eff = max(1.0, np.sum(win) / tau)
-        wband = anees_band(N, dof, samples_per_run=n_eff)
+        wband = anees_band(len(records), dof, samples_per_run=n_eff)
         out["anees_window_band_95"] = _fl(wband)
         out["anees_in_window_band"] = bool(wband[0] <= anees <= wband[1])
     else:
         out["anees_window_band_95"] = None
         out["anees_in_window_band"] = None
+    return out
 
-    # NIS per input
+
+def _nis_consistency(records, p: str, score_from: float) -> dict:
+    """Input name -> the mean NIS of the window's update attempts over every run and its band
+    (inputs without a sample left out)."""
     nis = {}
     inputs = [str(x) for x in np.atleast_1d(records[0][p + "inputs"])]
     for i, input_name in enumerate(inputs):
@@ -460,59 +484,71 @@ def _estimator_summary(records, command, name, worst, max_history_points):
         mean = float(np.mean(v))
         nis[input_name] = {"source": str(records[0][p + "nis_source"]), "count": int(v.size), "mean": _f(mean),
                            "mean_dof": _f(D / v.size), "band_95": _fl(nb), "in_band": bool(nb[0] <= mean <= nb[1])}
-    out["nis"] = nis
+    return nis
 
-    # convergence
+
+def _convergence(records, p: str, seeds) -> dict:
+    """How many runs converged, the statistics of their convergence times, each seed's."""
     conv = np.array([float(r[p + "convergence_time_s"]) for r in records])
     ok = np.isfinite(conv)
-    out["convergence"] = {
-        "fraction_converged": _f(np.mean(ok)) if N else None, "n_converged": int(np.sum(ok)),
+    return {
+        "fraction_converged": _f(np.mean(ok)) if len(records) else None, "n_converged": int(np.sum(ok)),
         "time_s": None if not np.any(ok) else {
             "min": _f(np.min(conv[ok])), "p10": _f(np.percentile(conv[ok], 10)), "median": _f(np.median(conv[ok])),
             "mean": _f(np.mean(conv[ok])), "p90": _f(np.percentile(conv[ok], 90)), "max": _f(np.max(conv[ok]))},
         "time_s_by_seed": {str(s): _f(c) for s, c in zip(seeds, conv, strict=True)},
     }
 
-    # worst runs
+
+def _worst_runs(ms, seeds, worst: int, command) -> list:
+    """The ``worst`` runs of the largest total attitude mean square ``ms`` (N, 3), largest first."""
     total = ms.sum(axis=1)
     order = [i for i in np.argsort(-np.where(np.isfinite(total), total, -np.inf), kind="stable")][:worst]
-    out["worst_runs"] = [{"seed": seeds[i], "attitude_rmse_total_deg": _f(math.sqrt(total[i]) / DEG)
-                          if np.isfinite(total[i]) else None,
-                          "attitude_rmse_deg": _fl(np.sqrt(ms[i]) / DEG),
-                          "command": command(seeds[i])} for i in order]
+    return [{"seed": seeds[i], "attitude_rmse_total_deg": _f(math.sqrt(total[i]) / DEG)
+             if np.isfinite(total[i]) else None,
+             "attitude_rmse_deg": _fl(np.sqrt(ms[i]) / DEG),
+             "command": command(seeds[i])} for i in order]
 
-    # the bound
+
+def _bound_comparison(records, p: str, ms, ms2, kind: str, rmse_ci95_deg) -> dict:
+    """The bound's RMS over the window, pooled over runs, and the RMSEs ``ms``, ``ms2`` (with
+    their CIs ``rmse_ci95_deg``) as ratios to it; ``defined`` false with the reason when a run
+    has no bound."""
     infos = [json.loads(str(r[p + "bound_json"])) for r in records]
     has = [p + "bound_window_var" in r for r in records]
-    bound = {"defined": bool(all(has)), "reason": None, "attitude_rmse_bound_deg": None,
-             "attitude_rmse_total_bound_deg": None, "ratio": None, "ratio_ci95": None, "ratio_total": None,
-             "bias_rmse_bound_deg_per_h": None, "bias_ratio": None, "prior_sensitivity": None, "info": None}
+    bound: dict = {"defined": bool(all(has)), "reason": None, "attitude_rmse_bound_deg": None,
+                   "attitude_rmse_total_bound_deg": None, "ratio": None, "ratio_ci95": None, "ratio_total": None,
+                   "bias_rmse_bound_deg_per_h": None, "bias_ratio": None, "prior_sensitivity": None, "info": None}
     if not all(has):
         bound["reason"] = next((i.get("reason") for i, h in zip(infos, has, strict=True) if not h), None)
+        return bound
+    bv = np.array([r[p + "bound_window_var"] for r in records], dtype=float)  # (N, 6)
+    if np.all(np.isfinite(bv)):
+        b_att = np.sqrt(bv[:, :3].mean(axis=0))
+        bound["attitude_rmse_bound_deg"] = _fl(b_att / DEG)
+        b_tot = math.sqrt(bv[:, :3].sum(axis=1).mean())
+        bound["attitude_rmse_total_bound_deg"] = _f(b_tot / DEG)
+        rm = np.sqrt(ms.mean(axis=0))
+        bound["ratio"] = _fl(rm / b_att)
+        bound["ratio_ci95"] = [None if c is None else [_f(c[0] * DEG / b), _f(c[1] * DEG / b)]
+                               for c, b in zip(rmse_ci95_deg, b_att, strict=True)]
+        bound["ratio_total"] = _f(math.sqrt(ms.sum(axis=1).mean()) / b_tot)
+        b_bias = np.sqrt(bv[:, 3:].mean(axis=0))
+        bound["bias_rmse_bound_deg_per_h"] = _fl(b_bias / DEG_PER_H)
+        if kind == "gyro_bias" and np.all(np.isfinite(ms2)):
+            bound["bias_ratio"] = _fl(np.sqrt(ms2.mean(axis=0)) / b_bias)
+        sens = [i.get("prior_sensitivity") for i in infos if i.get("prior_sensitivity") is not None]
+        bound["prior_sensitivity"] = _f(max(sens)) if sens else None
     else:
-        bv = np.array([r[p + "bound_window_var"] for r in records], dtype=float)  # (N, 6)
-        if np.all(np.isfinite(bv)):
-            b_att = np.sqrt(bv[:, :3].mean(axis=0))
-            bound["attitude_rmse_bound_deg"] = _fl(b_att / DEG)
-            b_tot = math.sqrt(bv[:, :3].sum(axis=1).mean())
-            bound["attitude_rmse_total_bound_deg"] = _f(b_tot / DEG)
-            rm = np.sqrt(ms.mean(axis=0))
-            bound["ratio"] = _fl(rm / b_att)
-            bound["ratio_ci95"] = [None if c is None else [_f(c[0] * DEG / b), _f(c[1] * DEG / b)]
-                                   for c, b in zip(out["attitude_rmse_ci95_deg"], b_att, strict=True)]
-            bound["ratio_total"] = _f(math.sqrt(ms.sum(axis=1).mean()) / b_tot)
-            b_bias = np.sqrt(bv[:, 3:].mean(axis=0))
-            bound["bias_rmse_bound_deg_per_h"] = _fl(b_bias / DEG_PER_H)
-            if kind == "gyro_bias" and np.all(np.isfinite(ms2)):
-                bound["bias_ratio"] = _fl(np.sqrt(ms2.mean(axis=0)) / b_bias)
-            sens = [i.get("prior_sensitivity") for i in infos if i.get("prior_sensitivity") is not None]
-            bound["prior_sensitivity"] = _f(max(sens)) if sens else None
-        else:
-            bound["reason"] = "the scoring window holds no estimate"
-        bound["info"] = {k: v for k, v in infos[0].items() if k not in ("reason", "prior_sensitivity")}
-    out["bound"] = bound
+        bound["reason"] = "the scoring window holds no estimate"
+    bound["info"] = {k: v for k, v in infos[0].items() if k not in ("reason", "prior_sensitivity")}
+    return bound
 
-    # history (for plots)
+
+def _history(records, p: str, t_common, idx, nees, band, max_history_points: int) -> dict:
+    """For plots, at at most ``max_history_points`` of the common times ``t_common`` (``idx``:
+    each record's indices of them): the RMS over runs of the attitude error, the mean NEES
+    (``nees`` (N, n)) and its band, the bound's RMS 1-sigma (None unless every run has one)."""
     n = len(t_common)
     keep = np.unique(np.linspace(0, n - 1, min(n, max_history_points)).round().astype(int)) if n else np.zeros(0, int)
     d = np.array([np.asarray(r[p + "dtheta"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])  # (N, n, 3)
@@ -523,8 +559,7 @@ def _estimator_summary(records, command, name, worst, max_history_points):
     if all(p + "bound_sigma" in r for r in records):
         bs = np.array([np.asarray(r[p + "bound_sigma"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])
         hist["bound_attitude_sigma_deg"] = [_fl(row) for row in np.sqrt(np.mean(bs[:, keep, :3] ** 2, axis=0)) / DEG]
-    out["history"] = hist
-    return out
+    return hist
 
 
 def summarize(records: list[dict], scenario, worst: int = 5, max_history_points: int = 1000,

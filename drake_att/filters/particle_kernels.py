@@ -425,6 +425,9 @@ def _log_det(L, j):
 
 @_jit
 def _ekf_predict(x, P, w_meas, dt, half_dt, c2, c3, sv2, su2):
+    """:func:`ekf_predict`'s loop: every particle's mean, ``F``, ``Phi``, ``Qd`` and ``P+``.
+    Long on purpose: one compiled loop over the particles with its scratch arrays allocated once;
+    split into helpers, each particle's step would pass them through a dozen calls."""
     n = x.shape[0]
     x_out = np.empty((n, 6))
     P_out = np.empty((n, 6, 6))
@@ -768,6 +771,10 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, iterations: int = 1, iterat
 
 @_jit
 def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
+    """:func:`ekpf_update`'s loop over blocks of ``W`` particles; status 0, 1 (a factor not
+    positive definite) or 2 (a singular innovation covariance). Long on purpose: one compiled
+    pass over the blocks sharing its scratch arrays; split, each block would pass them through
+    extra calls."""
     n = m_prior.shape[0]
     nm = y.shape[0]
     x_out = np.empty((n, 6))
