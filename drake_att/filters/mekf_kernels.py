@@ -97,8 +97,8 @@ def transition(wx, wy, wz, dt, Phi):
 
 @_jit
 def matmul(X, Y, out):
-    """``out = X[:, :k] @ Y[:k]`` with ``k = X.shape[1]`` (``out``'s shape sets the rows and
-    columns), summed in index order; numba's ``@`` needs SciPy's BLAS, and these are tiny."""
+    """``out = X @ Y`` (``out``'s shape sets the rows and columns; ``Y`` may be a transposed
+    view), summed in index order; numba's ``@`` needs SciPy's BLAS, and these are tiny."""
     for i in range(out.shape[0]):
         for j in range(out.shape[1]):
             acc = 0.0
@@ -108,23 +108,12 @@ def matmul(X, Y, out):
 
 
 @_jit
-def matmul_transposed(X, Y, out):
-    """``out = X[:, :k] @ Y[:, :k]'`` with ``k = Y.shape[1]``, summed in index order."""
-    for i in range(out.shape[0]):
-        for j in range(out.shape[1]):
-            acc = 0.0
-            for m in range(Y.shape[1]):
-                acc += X[i, m] * Y[j, m]
-            out[i, j] = acc
-
-
-@_jit
 def _symmetric_sandwich(A, P, Q, out):
     """``out = sym(A P A' + Q)`` for 6x6 matrices (``sym(X) = (X + X')/2``)."""
     T = np.empty((6, 6))
     matmul(A, P, T)
     M = np.empty((6, 6))
-    matmul_transposed(T, A, M)
+    matmul(T, A.T, M)
     for i in range(6):
         for j in range(6):
             out[i, j] = 0.5 * ((M[i, j] + Q[i, j]) + (M[j, i] + Q[j, i]))
@@ -186,7 +175,7 @@ def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P
     z[0], z[1], z[2] = k * dq[1], k * dq[2], k * dq[3]
     # H = [R_SB, 0]: P H' = P[:, :3] R_SB', S = R_SB P[:3, :3] R_SB' + R.
     PHt = np.empty((6, 3))
-    matmul_transposed(P, R_SB, PHt)
+    matmul(P[:, :3], R_SB.T, PHt)
     S0 = np.empty((3, 3))
     matmul(R_SB, PHt, S0)
     for i in range(3):
@@ -220,7 +209,7 @@ def update_quaternion(q, b, P, q_meas, q_BS, R_SB, R, threshold, q_out, b_out, P
     KR = np.empty((6, 3))
     matmul(K, R, KR)
     KRKt = np.empty((6, 6))
-    matmul_transposed(KR, K, KRKt)
+    matmul(KR, K.T, KRKt)
     _symmetric_sandwich(I_KH, P, KRKt, P_out)
     dq2 = np.empty(4)
     _rotvec_to_quat(dx[0], dx[1], dx[2], dq2)
@@ -242,5 +231,5 @@ def warm_up() -> None:
     del out6
 
 
-__all__ = ["matmul", "matmul_transposed", "process_noise", "transition", "inverse3", "predict", "update_quaternion", "warm_up", "ACCEPTED",
+__all__ = ["matmul", "process_noise", "transition", "inverse3", "predict", "update_quaternion", "warm_up", "ACCEPTED",
            "REJECTED_BY_GATE", "SINGULAR"]
