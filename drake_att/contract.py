@@ -55,6 +55,9 @@ SECOND = slice(4, 7)
 COVARIANCE = slice(7, 43)
 STATUS = slice(43, 47)
 ESTIMATE_SIZE = 47
+# Two times are one instant when they differ by less than this (s): a sample is used at the
+# step whose time its tag matches, and scoring pairs logged signals by time the same way.
+TIME_TOLERANCE_S = 1e-6
 # Fields of the status block (indices into ``status``).
 STATUS_T_ESTIMATE, STATUS_USED, STATUS_SKIPPED, STATUS_LAST_NIS = 0, 1, 2, 3
 STATUS_SIZE = 4
@@ -426,7 +429,7 @@ class CoreCapabilities:
 
 
 __all__ = [
-    "Q_IB", "SECOND", "COVARIANCE", "STATUS", "ESTIMATE_SIZE", "STATUS_SIZE",
+    "Q_IB", "SECOND", "COVARIANCE", "STATUS", "ESTIMATE_SIZE", "STATUS_SIZE", "TIME_TOLERANCE_S",
     "STATUS_T_ESTIMATE", "STATUS_USED", "STATUS_SKIPPED", "STATUS_LAST_NIS",
     "GYRO_MEASUREMENT_SIZE", "QUATERNION_MEASUREMENT_SIZE",
     "SecondQuantity", "Estimate", "pack_estimate", "flag_is_true", "GyroSample", "QuaternionSample",

@@ -86,11 +86,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.contract import TIME_TOLERANCE_S
 from drake_att.filters.mekf import transition_matrix
 from drake_att.noise import FarrenkopfGyroNoise
 from drake_att.units import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
-TIME_TOLERANCE_S = 1e-6
 PRIOR_SENSITIVITY_FACTOR = 100.0
 
 

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drake_att.analysis.metrics import estimator_errors
+from drake_att.contract import TIME_TOLERANCE_S
 from drake_att.noise import DEG
 from drake_att.scenarios.registry import plugin_for
 from drake_att.systems import fault_injector as flt
@@ -56,7 +57,6 @@ RECOVERY_FACTOR = 5.0
 PRE_FAULT_WINDOW_S = 60.0
 HOLD_S = 30.0
 MIN_HOLD_S = 10.0
-TIME_TOLERANCE_S = 1e-6
 POINT_CODES = (flt.FAULT_OUTLIER, flt.FAULT_NAN, flt.FAULT_INF, flt.FAULT_BIAS_JUMP)
 
 

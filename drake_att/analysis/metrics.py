@@ -27,10 +27,11 @@ from __future__ import annotations
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.contract import TIME_TOLERANCE_S
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios import config as cfg
 
-TIME_MATCH_TOLERANCE_S = 1e-6
+TIME_MATCH_TOLERANCE_S = TIME_TOLERANCE_S  # signals of one instant (the contract's tolerance)
 
 
 def _align(t_query, t_ref, what):

@@ -14,9 +14,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from drake_att.contract import TIME_TOLERANCE_S
 from drake_att.systems.randomness import SEED_WORDS
-
-TIME_TOLERANCE_S = 1e-6  # a sample is this step's when its time tag is this close to the step's time
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
-from drake_att.contract import ESTIMATE_SIZE
+from drake_att.contract import ESTIMATE_SIZE, TIME_TOLERANCE_S
 from drake_att.filters.quaternion_average import (
     _average_two_unit_quaternions,
     _average_unit_quaternions,
@@ -53,7 +53,6 @@ from drake_att.filters.quaternion_average import (
 )
 from drake_att.systems.star_tracker import QUATERNION_MEASUREMENT_SIZE
 
-TIME_TOLERANCE_S = 1e-6
 _UNIT_NORM2_RANGE = (1e-100, 1e100)  # |q|^2 normalized directly in floats (no under/overflow)
 
 
