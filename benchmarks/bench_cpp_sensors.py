@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Measured gain of a gyro and a star tracker built from Drake's C++ primitives over the shipped
-Python sensors (issue 13: "sensors evaluated in C++ where Drake's primitives can express them
+Python sensors ("sensors evaluated in C++ where Drake's primitives can express them
 exactly").
 
     .venv/bin/python benchmarks/bench_cpp_sensors.py                  # checks + callgrind counts (~3 min)

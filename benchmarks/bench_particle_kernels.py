@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""A/B of the S0 particle filters' compiled kernels (issue 13): per-step and whole-run CPU
+"""A/B of the S0 particle filters' compiled kernels: per-step and whole-run CPU
 time of an old checkout (numpy code) against this one with ``kernel="numpy"`` and
 ``kernel="numba"``, in one run, as ratios; plus numba's first-compile and cache-load cost.
 

@@ -21,7 +21,7 @@ both sides, scored from ``min(500 s, duration / 2)`` (different random streams: 
 in class, within a factor 2 per axis, not in digits).
 
     python benchmarks/bench_peer.py                      # all three cases, best of 2 (~6 min)
-    python benchmarks/bench_peer.py --case ten_hz        # the single case of earlier versions
+    python benchmarks/bench_peer.py --case ten_hz        # the 10 Hz case only
     python benchmarks/bench_peer.py --quick              # 1000 s / 1000 s / 300 s, 1 repeat
     python benchmarks/bench_peer.py --instructions --duration 500 --ekpf-duration 100   # callgrind
 
@@ -233,7 +233,7 @@ def measure_cpu(case: str, duration: float, seed: int, repeats: int, ekpf_kernel
     ratio = lib / peer["cpu_s"]
     peer_all = ", ".join(f"{r['cpu_s']:.2f}" for r in peer_runs)
     lib_all = ", ".join(f"{c:.2f}" for c in lib_cpu)
-    if case == "ten_hz":  # the output of earlier versions
+    if case == "ten_hz":  # with its per-axis RMSE
         m = lib_rmse["single"]
         print(f"{'':<10} {'CPU (s)':>9}  {'RMSE x/y/z after ' + str(int(start)) + ' s (deg)':>32}")
         print(f"{'peer':<10} {peer['cpu_s']:9.2f}  {_fmt(peer['rmse_deg']['single']):>32}   ({peer['note']})")

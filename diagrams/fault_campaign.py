@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Fault campaign (issue 12 item 8): paper S3's dual-tracker CubeSat with every fault kind
+"""Fault campaign: paper S3's dual-tracker CubeSat with every fault kind
 injected at known times (scenario ``fault_campaign``), every applicable estimator — the S3
 MEKFs (single, centralized, single_st2, joint; ungated, as in the paper), their decentralized
 fusion, and MEKF variants with a 99.9% chi-square gate — over several seeds.

@@ -62,7 +62,7 @@ MODULES = {
     "cubature": ("drake_att/filters/cubature.py", ["tests/test_cubature.py"]),
     "multiplicative_noise": ("drake_att/filters/multiplicative_noise.py",
                              ["tests/test_cubature.py", "tests/test_correlated_noise.py"]),
-    # Added with paper S2 and the gate (issues 11, 12).
+    # Added with paper S2 and the gate.
     "gating": ("drake_att/filters/gating.py", ["tests/test_gating.py"]),
     "screen_geometry": ("drake_att/screen_geometry.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
     "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",

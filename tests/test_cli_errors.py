@@ -1,4 +1,4 @@
-"""Every bad input the reliability review listed (issue 12) gets exit code 2 and a one-line
+"""Every bad input the reliability review listed gets exit code 2 and a one-line
 message naming the field or file, the value and what is allowed — never a traceback; Ctrl-C
 exits 130 and leaves no result folder behind."""
 

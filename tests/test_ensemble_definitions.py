@@ -1,5 +1,4 @@
-"""Every statistic a Monte Carlo report prints, against its definition written in this file
-(issue 23, item 1).
+"""Every statistic a Monte Carlo report prints, against its definition written in this file.
 
 Each expected value is computed here from the definition - chi-square and Student quantiles
 from ``scipy.stats``, rotations from ``scipy.spatial.transform``, autocorrelations as plain

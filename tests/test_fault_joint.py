@@ -1,4 +1,4 @@
-"""Fault injection, joint behaviour (issue 23 item 3): what ``tests/test_faults.py`` (one kind
+"""Fault injection, joint behaviour: what ``tests/test_faults.py`` (one kind
 at a time, marginal rates) does not pin down.
 
 * **Independence of the random decisions.** The per-sample yes/no decisions (outlier, NaN,

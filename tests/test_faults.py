@@ -1,4 +1,4 @@
-"""Fault injection (issue 12 items 3 and 8): every fault kind does what it says, the faults
+"""Fault injection: every fault kind does what it says, the faults
 follow the seed, the injected truth is logged, every consumer reads the faulted sample, and
 every library estimator survives every fault kind.
 

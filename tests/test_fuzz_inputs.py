@@ -1,4 +1,4 @@
-"""Property-based fuzz of the loading and validation layer (issue 22): Hypothesis mutates the
+"""Property-based fuzz of the loading and validation layer: Hypothesis mutates the
 shipped scenario YAMLs and ``--set`` strings and runs ``drake-att check`` on them in this
 process.
 

@@ -1,4 +1,4 @@
-"""Hostile inputs at the edges of ``drake-att`` (issue 22): a table of bad YAML files, ``--set``
+"""Hostile inputs at the edges of ``drake-att``: a table of bad YAML files, ``--set``
 strings, CLI options, result folders and output folders, each run through
 ``drake_att.cli.main`` in this process.
 

@@ -1,5 +1,5 @@
 """Each shipped scenario's initial truth and initial estimates, recomputed here from the YAML
-numbers (issue 23, item 5).
+numbers.
 
 The library composes every initial attitude of a scenario with an orbit (LVLH) frame when the
 scenario has one (``scenarios/config.py``: "when ``orbit`` is set, every initial attitude -

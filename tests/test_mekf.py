@@ -825,7 +825,7 @@ def test_mekf_with_mounted_vector_tracker_is_consistent():
     assert_consistent_with_power(errors, 50.0, P_dare, A_dare)
 
 
-# -- coning correction (issue 12) -----------------------------------------------------------
+# -- coning correction -----------------------------------------------------------
 def _hamilton(a, b):
     """Hamilton product of wxyz quaternions (written here)."""
     aw, ax, ay, az = a

@@ -1,4 +1,4 @@
-"""Monte Carlo campaigns (issue 14): Dask equals serial bit for bit, an interrupted campaign
+"""Monte Carlo campaigns: Dask equals serial bit for bit, an interrupted campaign
 resumes to exactly N runs, bad input exits 2 naming the flag, report.html renders in a real
 headless browser without console messages, and the comparison matrix runs every listed
 estimator on every listed scenario."""

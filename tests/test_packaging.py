@@ -1,4 +1,4 @@
-"""Packaging and CI hygiene (issue 12): the package installs without deprecation warnings on
+"""Packaging and CI hygiene: the package installs without deprecation warnings on
 current setuptools, and a hung test fails fast, with its name, instead of running into CI's
 limit."""
 

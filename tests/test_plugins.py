@@ -1,4 +1,4 @@
-"""Plug-ins (issue 8): the estimator tutorial runs as written and scores as derived; every
+"""Plug-ins: the estimator tutorial runs as written and scores as derived; every
 library estimator that runs on EstimatorSystem keeps the contract (unusable inputs skipped
 and counted, finite outputs, seeds); every module of the package imports alone.
 

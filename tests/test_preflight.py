@@ -1,4 +1,4 @@
-"""Degenerate but valid scenarios are announced (issue 12): a very expensive run before it
+"""Degenerate but valid scenarios are announced: a very expensive run before it
 starts, a vector tracker whose references leave the attitude unobservable, and, after a run,
 an estimator that never used a measurement."""
 

@@ -5,7 +5,7 @@ written by tests/regression/shipped_metrics.py from a git worktree of that commi
 The runs are pure functions of config + seed, so the comparison is exact for every count
 and to ``FLOAT_RTOL`` (1e-9 relative) for every real number: a refactor that changes a noise
 draw, a counter or an estimate fails here and must say why. The tolerance admits only
-round-off: the compiled filter kernels (issue 13) sum their 6x6 products in another order
+round-off: the compiled filter kernels sum their 6x6 products in another order
 than numpy's BLAS, which moves metrics by ~1e-15 relative; a changed draw or model moves
 them by many orders of magnitude more. The one exception, the covariance metrics of a filter
 that had diverged in the record, is explained at :func:`_split_diverged`.

@@ -1,4 +1,4 @@
-"""Sweeps on one diagram (issue 8, item 6): filter tunings, initial estimates, sensor noise
+"""Sweeps on one diagram: filter tunings, initial estimates, sensor noise
 levels and the plant's initial conditions are context parameters, so a run with other
 values reuses the diagram.
 

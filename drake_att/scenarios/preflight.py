@@ -1,4 +1,4 @@
-"""Warnings for scenarios that are valid but degenerate (issue 12): checked before a run
+"""Warnings for scenarios that are valid but degenerate: checked before a run
 starts (:func:`preflight_warnings`) and after it (:func:`run_warnings`).
 
 * **Cost**: the number of discrete events (every sensor sample and estimator step over the

@@ -207,8 +207,8 @@ class StarTracker(LeafSystem):
     def _sample(self, context):
         """``(t_sample, valid, draw, noise parameter)`` of the sample an output at this time
         carries: the pending one, index ``k = ceil(t / T)`` (``t`` on a sample instant: that
-        instant's), stamped ``t_k = t_(k-1) + T`` (as the per-sample events of earlier versions
-        did; 0 for ``k = 0``)."""
+        instant's), stamped ``t_k = t_(k-1) + T`` (accumulated, as a sampling clock counts; 0 for
+        ``k = 0``)."""
         samples = self._samples(context)
         block, r = divmod(self._sample_index(context.get_time()), CounterRandom.BLOCK)
         stamps, valid, draws = samples.block(block)

@@ -1,5 +1,5 @@
 """Metrics of every shipped scenario, shortened, for seeds 1-3: the behaviour-preservation
-record for refactors (issue 8's redesign must reproduce these numbers).
+record for refactors (a refactor must reproduce these numbers).
 
 Run as a script to (re)record them from the library that is on ``sys.path``::
 
