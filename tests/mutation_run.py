@@ -64,6 +64,11 @@ MODULES = {
                              ["tests/test_cubature.py", "tests/test_correlated_noise.py"]),
     # Added with paper S2 and the gate.
     "gating": ("drake_att/filters/gating.py", ["tests/test_gating.py"]),
+    # The estimator loop's rules, shared by the Python loop and the compiled step (so the two
+    # loops' equivalence test cannot see a change to a rule: the rules' own semantics must).
+    "estimator_step": ("drake_att/systems/estimator_step.py",
+                       ["tests/test_contract.py", "tests/test_plugins.py", "tests/test_gating.py",
+                        "tests/test_compiled_step.py", "tests/test_fusion.py", "-m", "not slow", "--timeout=120"]),
     "screen_geometry": ("drake_att/screen_geometry.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
     "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",
                             ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),

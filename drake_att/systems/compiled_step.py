@@ -228,7 +228,7 @@ def _mekf_step(t, gyro_connected, gyro, connected, meas, q_BS, R_SB, covariance,
             if first:
                 A[:, :] = I_KH
             else:
-                _mekf.matmul(I_KH, A.copy(), A)
+                _mekf.matmul66(I_KH, A.copy(), A)
             first = False
         else:
             n_skipped += 1.0
