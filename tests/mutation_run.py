@@ -68,7 +68,9 @@ MODULES = {
     # loops' equivalence test cannot see a change to a rule: the rules' own semantics must).
     "estimator_step": ("drake_att/systems/estimator_step.py",
                        ["tests/test_contract.py", "tests/test_plugins.py", "tests/test_gating.py",
-                        "tests/test_compiled_step.py", "tests/test_fusion.py", "-m", "not slow", "--timeout=120"]),
+                        "tests/test_faults.py", "tests/test_fusion.py", "-m", "not slow", "-k",
+                        "not tutorial", "--timeout=120"]),  # the tutorial runs the CLI in a temporary folder
+    # (test_compiled_step.py is left out: under mutmut the rules cannot be compiled, see conftest.py)
     "screen_geometry": ("drake_att/screen_geometry.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
     "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",
                             ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
