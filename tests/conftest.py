@@ -68,13 +68,12 @@ def drake_att_cli():
     return run
 
 
-@pytest.fixture(autouse=True)
-def _python_loop_under_mutation(monkeypatch):
-    """Under mutmut (``MUTANT_UNDER_TEST`` set) the estimator loop's rules are mutmut's
-    trampolines, which numba cannot compile: the estimators then run the Python loop, which
-    calls the same rules (``tests/test_compiled_step.py`` compares the two loops outside
-    mutation runs)."""
-    if os.environ.get("MUTANT_UNDER_TEST"):
+def pytest_configure(config):
+    """Under mutmut (``MUTANT_UNDER_TEST`` in the environment, also while it collects its
+    stats) the estimator loop's rules are mutmut's trampolines, which numba cannot compile:
+    the estimators then run the Python loop, which calls the same rules
+    (``tests/test_compiled_step.py`` compares the two loops outside mutation runs)."""
+    if "MUTANT_UNDER_TEST" in os.environ:
         from drake_att.systems.estimator_system import EstimatorSystem
 
-        monkeypatch.setattr(EstimatorSystem, "use_compiled_step", False)
+        EstimatorSystem.use_compiled_step = False
