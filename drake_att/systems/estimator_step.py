@@ -85,8 +85,8 @@ def covariance_slot(flag: float, n_subsets: int) -> int:
         return 0
     if not math.isfinite(flag):
         return -1
-    mask = int(round(flag)) - 1
-    return mask if 0 < mask < n_subsets else -1
+    mask = int(round(flag)) - 1  # >= 1: flag > 1.5
+    return mask if mask < n_subsets else -1
 
 
 def is_gate_rejection(accepted: bool, nis: float) -> bool:
