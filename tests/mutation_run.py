@@ -67,7 +67,8 @@ MODULES = {
     # The estimator loop's rules, shared by the Python loop and the compiled step (so the two
     # loops' equivalence test cannot see a change to a rule: the rules' own semantics must).
     "estimator_step": ("drake_att/systems/estimator_step.py",
-                       ["tests/test_contract.py", "tests/test_plugins.py", "tests/test_gating.py",
+                       ["tests/test_estimator_step.py", "tests/test_contract.py", "tests/test_plugins.py",
+                        "tests/test_gating.py",
                         "tests/test_faults.py", "tests/test_fusion.py", "-m", "not slow", "-k",
                         "not tutorial", "--timeout=120"]),  # the tutorial runs the CLI in a temporary folder
     # (test_compiled_step.py is left out: under mutmut the rules cannot be compiled, see conftest.py)
