@@ -206,7 +206,14 @@ def _mekf_step(t, gyro_connected, gyro, connected, meas, q_BS, R_SB, covariance,
     """:func:`mekf_step` with the :class:`StepModel` as its fields."""
     model = StepModel(q_BS, R_SB, covariance, allowed, n_subsets, threshold, arw, rrw, tolerance, reacquire_after,
                       last_sample, rejections)
-    q, b, P = core[0:4].copy(), core[4:7].copy(), core[7:43].copy().reshape(6, 6)
+    q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
+    for k in range(4):
+        q[k] = core[k]
+    for k in range(3):
+        b[k] = core[4 + k]
+    for r in range(6):
+        for c in range(6):
+            P[r, c] = core[7 + 6 * r + c]
     Phi, Q, A = np.eye(6), np.zeros((6, 6)), np.eye(6)
     n_skipped = est[_SKIPPED] + _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q)
     n_used, nis = est[_USED], est[_LAST_NIS]
