@@ -23,8 +23,6 @@ from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, a
 
 CACHING = True
 
-KERNELS = ("numba", "numpy")  # a filter core's kernel option: compiled loops, or its numpy specification
-
 
 def jit(func):
     """``numba.njit(cache=True)``, or ``numba.njit`` without the on-disk cache where numba finds
@@ -56,4 +54,4 @@ def quat_multiply(pw, px, py, pz, qw, qx, qy, qz):
             pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
 
 
-__all__ = ["CACHING", "KERNELS", "jit", "rotvec_to_quat", "quat_multiply"]
+__all__ = ["CACHING", "jit", "rotvec_to_quat", "quat_multiply"]
