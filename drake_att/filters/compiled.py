@@ -24,15 +24,18 @@ from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, a
 CACHING = True
 
 
-def jit(func):
-    """``numba.njit(cache=True)``, or ``numba.njit`` without the on-disk cache where numba finds
-    no writable cache directory (see the module docstring)."""
+def jit(func=None, **options):
+    """``numba.njit(cache=True, **options)``, or ``numba.njit(**options)`` without the on-disk
+    cache where numba finds no writable cache directory (see the module docstring). As
+    ``@jit`` or, with numba's options (e.g. ``inline="always"``), ``@jit(**options)``."""
     global CACHING
+    if func is None:
+        return lambda f: jit(f, **options)
     try:
-        return numba.njit(cache=True)(func)
+        return numba.njit(cache=True, **options)(func)
     except RuntimeError:
         CACHING = False
-        return numba.njit(func)
+        return numba.njit(**options)(func)
 
 
 @jit

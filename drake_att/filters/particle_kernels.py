@@ -810,21 +810,15 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True, iterat
     return x_post, P_post, innovation, S
 
 
-@_jit
-def _draw_scratch(nm):
-    return np.empty((6, W)), np.empty((6, W)), np.empty(W), np.empty(nm), np.empty((3, 3)), np.empty((6, 6))
-
-
-@_jit
-def _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, d, x_out, P_out,
-                    log_increment):
+@_jit(inline="always")  # compiled into each caller: as a call, it cost the fused step ~5% (measured)
+def _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP,
+                    x_out, P_out, log_increment):
     """The proposal step of a block, given the lower Cholesky factors ``L_post`` of ``P+`` and
     ``L_prior`` of ``P-`` (6, 6, W) and the reciprocals of ``L_prior``'s pivots: the draw
     ``x = m+ + L+ eps``, the log-weight increment ``log p(y | x) + log N(x; m-, P-) -
     log N(x; m+, P+)`` and the shadow switch of ``(x, P+)`` (``Pn``: lower triangles read),
     written to the block's particles' rows of ``x_out``, ``P_out`` and ``log_increment``.
-    ``d``: :func:`_draw_scratch`."""
-    xb, z, s, h1, T, TP = d
+    ``xb``, ``z`` (6, W), ``s`` (W,), ``h1`` (3m,), ``T`` (3, 3), ``TP`` (6, 6): scratch."""
     # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
     for a in range(6):
         for j in range(W):
@@ -872,15 +866,19 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
     P_out = np.empty((n, 6, 6))
     log_increment = np.empty(n)
     ix = np.empty(W, np.int64)
-    mb, m_post, eb = np.empty((6, W)), np.empty((6, W)), np.empty((6, W))
+    mb, m_post, xb, eb = np.empty((6, W)), np.empty((6, W)), np.empty((6, W)), np.empty((6, W))
     Pb, Pn = np.empty((6, 6, W)), np.empty((6, 6, W))
     L_post, L_prior = np.empty((6, 6, W)), np.empty((6, 6, W))
     inv_post, inv_prior = np.empty((6, W)), np.empty((6, W))
     ok = np.empty(W, np.bool_)
     Hr, Kt = np.empty((nm, 3, W)), np.empty((nm, 6, W))
     IKH, M = np.empty((6, 3, W)), np.empty((6, 6, W))
+    z = np.empty((6, W))
+    s = np.empty(W)
+    h1 = np.empty(nm)
+    T = np.empty((3, 3))
+    TP = np.empty((6, 6))
     w = _gain_scratch(nm)
-    d = _draw_scratch(nm)
     # Iterated: the batch's iterations first (they stop together); classic: each block's EKF
     # update right before its proposal step (one pass over the particles).
     one_pass = iterations == 1
@@ -907,8 +905,8 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
         _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn)
         if not (_cholesky_lanes(Pn, L_post, inv_post, 6, ok) and _cholesky_lanes(Pb, L_prior, inv_prior, 6, ok)):
             return x_out, P_out, log_increment, 1
-        _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, d, x_out, P_out,
-                        log_increment)
+        _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP,
+                        x_out, P_out, log_increment)
     return x_out, P_out, log_increment, 0
 
 
@@ -945,7 +943,8 @@ def _ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, U, sigma2):
     mb, mpb, eb = np.empty((6, W)), np.empty((6, W)), np.empty((6, W))
     Pn, Lpo, Lpr = np.empty((6, 6, W)), np.empty((6, 6, W)), np.empty((6, 6, W))
     inv_prior = np.empty((6, W))
-    d = _draw_scratch(y.shape[0])
+    nm = y.shape[0]
+    xb, z, s, h1, T, TP = np.empty((6, W)), np.empty((6, W)), np.empty(W), np.empty(nm), np.empty((3, 3)), np.empty((6, 6))
     for i0 in range(0, n, W):
         count = _block(i0, n, ix)
         _gather(ix, m_prior, mb)
@@ -957,7 +956,8 @@ def _ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, U, sigma2):
         for a in range(6):
             for j in range(W):
                 inv_prior[a, j] = 1.0 / Lpr[a, a, j]
-        _draw_and_weigh(count, ix, mb, mpb, eb, Pn, Lpo, Lpr, inv_prior, y, U, sigma2, d, x_out, P_out, log_increment)
+        _draw_and_weigh(count, ix, mb, mpb, eb, Pn, Lpo, Lpr, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP, x_out, P_out,
+                        log_increment)
     return x_out, P_out, log_increment
 
 
