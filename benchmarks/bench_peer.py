@@ -10,8 +10,9 @@ Cases (``--case``; default ``all``, in this order):
   10 Hz, gyro and four MEKFs at 1 Hz, tracker average, decentralized fusion) against
   ``peer_default_loop.py``; 5000 s.
 * ``ekpf``: ``s0_particle_filters_small_error`` with only its ``ekpf`` estimator (N = 1000,
-  drake_att's compiled kernels as shipped; ``--ekpf-kernel numpy`` for the numpy core the peer
-  uses) against ``peer_ekpf_loop.py`` (drake_att's numpy EKPF core in a plain loop); 1000 s.
+  drake_att's compiled kernels as shipped; ``--ekpf-kernel numpy`` builds it with the numpy core
+  the peer uses, the tests' oracle ``ReferenceEkpfCore``) against ``peer_ekpf_loop.py`` (that
+  numpy EKPF core in a plain loop); 1000 s.
 
 Per case, in one process: the peer's loop and ``ScenarioDiagram.simulate(seed)`` alone (the
 diagram's build time is reported separately), CPU time (``time.process_time``), best of
@@ -37,6 +38,7 @@ PYTHONPATH=/tmp/old python /path/to/bench_peer.py --instructions``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -98,7 +100,7 @@ def run_peer(case: str, duration: float, seed: int) -> dict:
             "note": f"{r['steps']} steps, {r['resamplings']} resamplings"}
 
 
-def drake_scenario(case: str, duration: float, ekpf_kernel: str = "numba"):
+def drake_scenario(case: str, duration: float):
     """The drake_att scenario of a case, ``duration`` long, scored from :func:`score_from`."""
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
@@ -109,17 +111,35 @@ def drake_scenario(case: str, duration: float, ekpf_kernel: str = "numba"):
         return apply_overrides(load("cubesat_single_star_tracker"), run + TEN_HZ)
     if case == "default":
         return apply_overrides(load("cubesat_dual_star_tracker"), run)
-    scenario = apply_overrides(load("s0_particle_filters_small_error"), run + [f"estimators.ekpf.kernel={ekpf_kernel}"])
-    return with_estimators(scenario, ["ekpf"])
+    return with_estimators(apply_overrides(load("s0_particle_filters_small_error"), run), ["ekpf"])
+
+
+@contextlib.contextmanager
+def ekpf_core(ekpf_kernel: str):
+    """While building: the EKPF core of the setups, the library's (``"numba"``) or the peer's
+    numpy core (``"numpy"``: the tests' oracle, ``ReferenceEkpfCore``)."""
+    from drake_att.systems import filter_setups
+
+    library = filter_setups.EkpfCore
+    if ekpf_kernel == "numpy":
+        sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "tests"))
+        from particle_reference import ReferenceEkpfCore
+
+        filter_setups.EkpfCore = ReferenceEkpfCore
+    try:
+        yield
+    finally:
+        filter_setups.EkpfCore = library
 
 
 def build_diagram(case: str, duration: float, ekpf_kernel: str = "numba"):
     """``(ScenarioDiagram, build CPU s)``."""
     from drake_att.scenarios.builder import ScenarioDiagram
 
-    scenario = drake_scenario(case, duration, ekpf_kernel)
+    scenario = drake_scenario(case, duration)
     c0 = time.process_time()
-    sd = ScenarioDiagram(scenario)
+    with ekpf_core(ekpf_kernel):
+        sd = ScenarioDiagram(scenario)
     return sd, time.process_time() - c0
 
 
@@ -277,8 +297,8 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="1000 s (ten_hz, default), 300 s (ekpf), 1 repeat")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--ekpf-kernel", choices=("numba", "numpy"), default="numba",
-                    help="drake_att's EKPF kernel (default numba, as shipped; numpy: the peer's core, which "
-                         "leaves the framework's overhead)")
+                    help="drake_att's EKPF core (default numba: the compiled kernels, as shipped; numpy: the "
+                         "peer's core, the tests' numpy oracle, which leaves the framework's overhead)")
     ap.add_argument("--instructions", action="store_true",
                     help="count instructions under callgrind instead of timing (deterministic; ~50x slower)")
     a = ap.parse_args(argv)

@@ -16,10 +16,10 @@ restricted to its ``ekpf`` estimator, to benchmark the library against (``benchm
 * star tracker at 1 s in vector mode, sensor frame = body frame: ``b_i = R_BI r_i + v_i``,
   ``r = (1, 0, 0), (0, 1, 0)``, ``v_i ~ N(0, (100 urad)^2 I3)``, not re-normalized
   (``drake_att/systems/star_tracker.py``);
-* the EKPF: drake_att's own plain-numpy core,
-  ``drake_att.filters.particle.EkpfCore(..., kernel="numpy")`` (the reference code: batched
-  MRP-EKF predict and update per particle, proposal draw, weights, systematic resampling
-  below N_eff = 2/3 N) with the scenario's numbers: N = 1000, initial estimate [1, 1, 1] deg
+* the EKPF: drake_att's plain-numpy EKPF, the numpy oracle of its tests
+  (``tests/particle_reference.py``: ``ReferenceEkpfCore``, batched MRP-EKF predict and update
+  per particle, proposal draw, weights, systematic resampling below N_eff = 2/3 N) with the
+  scenario's numbers: N = 1000, initial estimate [1, 1, 1] deg
   and [2, 2, 2] deg/h with sigmas 1 deg and 1 deg/h, the gyro's ARW and RRW, one
   linearization per particle. Per step: predict with the gyro sample (not at t = 0), update
   with the tracker sample, then the estimate and its covariance (``estimate``: what
@@ -31,7 +31,10 @@ preallocated arrays; the attitude RMSE is computed from them after the timed par
 (``numpy.random.default_rng(seed)`` for the sensors, ``default_rng(seed + 1)`` for the filter):
 the same statistics as drake_att's, not the same realization.
 
-    python benchmarks/peer_ekpf_loop.py [--duration 1000] [--seed 1] [--particles 1000]
+    python benchmarks/peer_ekpf_loop.py [--duration 1000] [--seed 1] [--particles 1000] [--kernel numpy|numba]
+
+``--kernel numba`` runs the same loop on drake_att's library core (``EkpfCore``: its compiled
+kernels) instead, for comparison.
 """
 
 from __future__ import annotations
@@ -45,8 +48,10 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.append(os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, "tests"))
 
 import peer_numpy_loop
+from particle_reference import ReferenceEkpfCore  # the tests' numpy oracle: the peer's EKPF core
 from peer_default_loop import farrenkopf_factors
 from peer_numpy_loop import (
     ARW_DEG_PER_RT_H,
@@ -57,8 +62,8 @@ from peer_numpy_loop import (
     rpy_quat,
 )
 
-# drake_att's plain-numpy pieces (no Drake): the EKPF core, and the attitude error of the
-# scoring (after the timed loop).
+# drake_att's pieces without Drake: the library's EKPF core (``--kernel numba``) and the
+# attitude error of the scoring (after the timed loop).
 from drake_att.contract import VectorObservations
 from drake_att.filters.particle import EffectiveSampleSizeGate, EkpfCore
 from drake_att.rotations import quat_error_rotvec
@@ -92,8 +97,8 @@ def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_F
         num_particles: int = NUM_PARTICLES, kernel: str = "numpy") -> dict:
     """Simulate ``duration_s`` of the S0 EKPF case.
 
-    ``kernel``: the EKPF core's kernel, ``"numpy"`` (default: the plain-numpy peer) or
-    ``"numba"`` (drake_att's compiled loops, for comparison).
+    ``kernel``: the EKPF core, ``"numpy"`` (default: the plain-numpy peer, the tests' oracle) or
+    ``"numba"`` (drake_att's library core, its compiled kernels, for comparison).
     Returns ``{"cpu_s", "rmse_deg": {"ekpf": [x, y, z] after score_from_s}, "steps",
     "resamplings", "samples_scored"}``; ``cpu_s`` is ``time.process_time`` of the set-up
     (the initial particle draw included) and the loop, not of the scoring after it."""
@@ -106,9 +111,9 @@ def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_F
     l11, l21, l22 = farrenkopf_factors(ARW, RRW, T)
     bias = GYRO_BIAS0.copy()
     P0 = np.diag([P0_ATT_SIGMA**2] * 3 + [P0_BIAS_SIGMA**2] * 3)
-    core = EkpfCore(num_particles, rpy_quat(EST_RPY_DEG * DEG), EST_BIAS0, P0, ARW, RRW,
-                    proposal_iterations=PROPOSAL_ITERATIONS,
-                    resampling_gate=EffectiveSampleSizeGate(RESAMPLE_THRESHOLD), kernel=kernel)
+    core = (ReferenceEkpfCore if kernel == "numpy" else EkpfCore)(
+        num_particles, rpy_quat(EST_RPY_DEG * DEG), EST_BIAS0, P0, ARW, RRW, proposal_iterations=PROPOSAL_ITERATIONS,
+        resampling_gate=EffectiveSampleSizeGate(RESAMPLE_THRESHOLD))
     pf = core.draw_initial_state(pf_rng)
     q_BS = np.array([1.0, 0.0, 0.0, 0.0])
     resamplings = 0

@@ -2,10 +2,10 @@
 the MRP-EKF and particle-filter core tests (independent of the Drake plant and sensors)."""
 
 import numpy as np
+from particle_reference import vector_measurement_model
 
 from drake_att import rotations as rot
 from drake_att.contract import VectorObservations
-from drake_att.filters.mrp_ekf import vector_measurement_model
 
 DEG = np.pi / 180.0
 HOUR = 3600.0

@@ -1,4 +1,8 @@
-"""Tests of the MRP EKF core (paper S0, gyro mode): Jacobians, convergence, NEES."""
+"""Tests of the MRP EKF core (paper S0, gyro mode): Jacobians, convergence, NEES.
+
+The model, its Jacobians and the batched updates tested here are the numpy oracle's
+(``tests/particle_reference.py``); tests/test_particle_kernels.py checks that the kernels the
+core runs equal them to round-off."""
 
 from __future__ import annotations
 
@@ -6,6 +10,18 @@ import functools
 
 import numpy as np
 import pytest
+from particle_reference import (
+    discrete_process_noise,
+    discrete_transition_matrix,
+    ekf_predict,
+    ekf_update,
+    mrp_dynamics_jacobian,
+    mrp_shadow_jacobian,
+    propagate_mrp,
+    switch_to_short_mrp,
+    vector_measurement_jacobian,
+    vector_measurement_model,
+)
 from s0_truth import DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation
 from s0_truth import simulate_gyro_truth as simulate_truth
 from scipy.integrate import solve_ivp
@@ -17,18 +33,8 @@ from drake_att.contract import UpdateInfo, VectorObservations
 from drake_att.filters.mrp_ekf import (
     MrpEkfCore,
     attitude_to_mrp_covariance,
-    discrete_process_noise,
-    discrete_transition_matrix,
-    ekf_predict,
-    ekf_update,
-    mrp_dynamics_jacobian,
     mrp_kinematics_inverse,
-    mrp_shadow_jacobian,
     mrp_to_attitude_covariance,
-    propagate_mrp,
-    switch_to_short_mrp,
-    vector_measurement_jacobian,
-    vector_measurement_model,
 )
 from drake_att.validation import check_quaternion
 
@@ -234,8 +240,9 @@ def nees_truths(num_runs=25, num_steps=120):
 def nees_monte_carlo(update_iterations):
     """Sum over runs of the 6-dof NEES at NEES_CHECK_STEPS (truth drawn from the prior).
 
-    All runs are filtered at once with the batched ekf_predict / ekf_update that MrpEkfCore
-    calls (one EKF per run along the leading axis); run 0 is checked against MrpEkfCore."""
+    All runs are filtered at once with the oracle's batched ekf_predict / ekf_update (one EKF
+    per run along the leading axis, each with its own gyro rate); run 0 is checked against
+    MrpEkfCore."""
     q_hat0, b_hat0, q_true, b_true, ys, wms = nees_truths()
     num_runs, num_steps = ys.shape[:2]
     rho0 = rot.quat_to_mrp(q_hat0)

@@ -7,13 +7,14 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from particle_reference import vector_measurement_model
 from s0_truth import BODY, DEG, HOUR, P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation, simulate_gyro_truth
 from scipy.linalg import solve_discrete_are, solve_discrete_lyapunov
 from scipy.stats import chi2
 
 from drake_att import rotations as rot
 from drake_att.contract import FilterCore, ParticleSet, RandomInitialState, SecondQuantity, VectorObservations
-from drake_att.filters.mrp_ekf import MrpEkfCore, vector_measurement_model
+from drake_att.filters.mrp_ekf import MrpEkfCore
 from drake_att.filters.particle import (
     BootstrapPfCore,
     EffectiveSampleSizeGate,
@@ -349,7 +350,6 @@ def test_missing_inputs_are_declined_or_refused():
         (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, INERTIA, TORQUE, 1e-6),
          r"w_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)"),
         (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6, 1e-9), "covariance0"),
-        (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, 1e-9, kernel="fortran"), "kernel"),
     ],
 )
 def test_constructor_validation_names_the_field(make, field):

@@ -19,9 +19,9 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from particle_reference import vector_measurement_model
 from s0_truth import P0_ATT, REFS, SIGMA_STAR, SIGMA_U, SIGMA_V, observation
 
-from drake_att.filters.mrp_ekf import vector_measurement_model
 from drake_att.filters.particle import BootstrapPfCore, EffectiveSampleSizeGate, EkpfCore, GyrolessPfCore
 
 NEVER = EffectiveSampleSizeGate(0.0)  # these tests follow the weights: no resampling

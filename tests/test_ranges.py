@@ -772,7 +772,7 @@ sensors:
                       sigma_vector_urad: 100.0}}
 estimators:
 - !MrpEkfConfig {{name: ekf}}
-- !BootstrapPfConfig {{name: bootstrap_pf, num_particles: {n}, kernel: numpy}}
+- !BootstrapPfConfig {{name: bootstrap_pf, num_particles: {n}}}
 """
 _LOGS = """
 name: logs_{duration}

@@ -21,8 +21,7 @@ class BootstrapPfConfig:
 
     ``attitude_process_noise_deg_per_rt_h``: the ARW used to spread the particles'
     attitude (None: the gyro's ARW).  ``bias_roughening_deg_per_h_per_rt_s``: the
-    beyond-the-paper bias-diffusion remedy (0 = the paper's frozen particle biases).
-    ``kernel``: ``numba`` (compiled loops) or ``numpy`` (the reference code), equal to round-off."""
+    beyond-the-paper bias-diffusion remedy (0 = the paper's frozen particle biases)."""
 
     name: str = "bootstrap_pf"
     period_s: float = 1.0
@@ -36,7 +35,6 @@ class BootstrapPfConfig:
     initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_sigma_deg: float = 1.0
     initial_bias_sigma_deg_per_h: float = 1.0
-    kernel: str = "numba"
 
 
 def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
@@ -44,12 +42,11 @@ def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
     if c.attitude_process_noise_deg_per_rt_h is not None:
         cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
     cfg.check_nonnegative(f"{path}.bias_roughening_deg_per_h_per_rt_s", c.bias_roughening_deg_per_h_per_rt_s)
-    common.check_kernel(path, c)
 
 
 @register_estimator(BootstrapPfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_bootstrap_pf,
                     parameters=("attitude_process_noise_deg_per_rt_h", "bias_roughening_deg_per_h_per_rt_s",
-                                "resample_threshold", *common.INITIAL_GYRO_MODE_FIELDS, "kernel"))
+                                "resample_threshold", *common.INITIAL_GYRO_MODE_FIELDS))
 def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
     g = ctx.sensor_configs[c.gyro]
     arw_deg = g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None \
@@ -57,4 +54,4 @@ def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
     return bootstrap_pf_setup(c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H,
                               bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
-                              resample_threshold=c.resample_threshold, gyro=c.gyro, kernel=c.kernel)
+                              resample_threshold=c.resample_threshold, gyro=c.gyro)

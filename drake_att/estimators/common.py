@@ -99,15 +99,6 @@ def innovation_gate(c) -> InnovationGate:
     return InnovationGate(probability=p) if p > 0.0 else InnovationGate()
 
 
-def check_kernel(path: str, c) -> None:
-    """``kernel``: the particle filters' ``"numba"`` (compiled loops) or ``"numpy"`` (reference)."""
-    from drake_att.filters.particle import KERNELS
-
-    if c.kernel not in KERNELS:
-        cfg.fail(f"{path}.kernel", c.kernel, f"must be one of {list(KERNELS)} (numba: compiled loops, the default; "
-                 "numpy: the reference code, equal to round-off)")
-
-
 def check_integers_at_least_one(path: str, c, *fields) -> None:
     for f in fields:
         validation.check_int(f"{path}.{f}", getattr(c, f), 1, cfg.ConfigError)

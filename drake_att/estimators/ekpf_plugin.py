@@ -17,8 +17,7 @@ from drake_att.systems.filter_setups import ekpf_setup
 @dataclass
 class EkpfConfig:
     """Paper S0's extended-Kalman particle filter (per-particle EKF proposal).
-    ``proposal_iterations`` > 1 iterates each particle's EKF update (beyond the paper).
-    ``kernel``: ``numba`` (compiled loops) or ``numpy`` (the reference code), equal to round-off."""
+    ``proposal_iterations`` > 1 iterates each particle's EKF update (beyond the paper)."""
 
     name: str = "ekpf"
     period_s: float = 1.0
@@ -33,21 +32,18 @@ class EkpfConfig:
     initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_sigma_deg: float = 1.0
     initial_bias_sigma_deg_per_h: float = 1.0
-    kernel: str = "numba"
 
 
 def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
     common.validate_vector_filter(path, c, checks, integer_fields=("num_particles", "proposal_iterations"),
                                   resampling=True, filter_gyro_noise=True)
-    common.check_kernel(path, c)
 
 
 @register_estimator(EkpfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_ekpf,
                     parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "proposal_iterations", "resample_threshold",
-                                *common.INITIAL_GYRO_MODE_FIELDS, "kernel"))
+                                *common.INITIAL_GYRO_MODE_FIELDS))
 def build_ekpf(ctx, c: EkpfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
     return ekpf_setup(c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw, rrw,
-                      proposal_iterations=c.proposal_iterations, resample_threshold=c.resample_threshold, gyro=c.gyro,
-                      kernel=c.kernel)
+                      proposal_iterations=c.proposal_iterations, resample_threshold=c.resample_threshold, gyro=c.gyro)

@@ -22,8 +22,7 @@ from drake_att.units import ARW_DEG_PER_RT_H, DEG
 @dataclass
 class GyrolessPfConfig:
     """Paper S0's gyroless bootstrap PF on ``[MRP; body rate]`` propagated with Euler's
-    equations (known inertia and disturbance torque; empty lists = the plant's).
-    ``kernel``: ``numba`` (compiled loops) or ``numpy`` (the reference code), equal to round-off."""
+    equations (known inertia and disturbance torque; empty lists = the plant's)."""
 
     name: str = "gyroless_pf"
     period_s: float = 1.0
@@ -39,7 +38,6 @@ class GyrolessPfConfig:
     initial_rate_deg_per_s: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_sigma_deg: float = 1.0
     initial_rate_sigma_deg_per_s: float = 0.001
-    kernel: str = "numba"
 
 
 def plant_dynamics(scenario, c: GyrolessPfConfig, path: str | None = None):
@@ -64,7 +62,6 @@ def validate_gyroless_pf(path: str, c: GyrolessPfConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
     cfg.check_nonnegative(f"{path}.rate_process_noise_deg_per_s_per_rt_s", c.rate_process_noise_deg_per_s_per_rt_s)
     cfg.check_vector(f"{path}.initial_rate_deg_per_s", c.initial_rate_deg_per_s, 3)
-    common.check_kernel(path, c)
     cfg.check_positive(f"{path}.initial_rate_sigma_deg_per_s", c.initial_rate_sigma_deg_per_s)
     for f, n in (("inertia_kg_m2", (0, 3, 9)), ("disturbance_torque_N_m", (0, 3))):
         if len(getattr(c, f)) not in n:
@@ -82,7 +79,7 @@ def validate_gyroless_pf(path: str, c: GyrolessPfConfig, checks) -> None:
                     parameters=("inertia_kg_m2", "disturbance_torque_N_m", "rate_process_noise_deg_per_s_per_rt_s",
                                 "attitude_process_noise_deg_per_rt_h", "num_substeps", "resample_threshold",
                                 "initial_attitude_rpy_deg", "initial_rate_deg_per_s", "initial_attitude_sigma_deg",
-                                "initial_rate_sigma_deg_per_s", "kernel"))
+                                "initial_rate_sigma_deg_per_s"))
 def build_gyroless_pf(ctx, c: GyrolessPfConfig):
     inertia, torque = plant_dynamics(ctx.scenario, c)
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
@@ -91,4 +88,4 @@ def build_gyroless_pf(ctx, c: GyrolessPfConfig):
     return gyroless_pf_setup(c.period_s, c.star_tracker, c.num_particles, q0, w0, P0, inertia, torque,
                              c.rate_process_noise_deg_per_s_per_rt_s * DEG,
                              attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
-                             num_substeps=c.num_substeps, resample_threshold=c.resample_threshold, kernel=c.kernel)
+                             num_substeps=c.num_substeps, resample_threshold=c.resample_threshold)

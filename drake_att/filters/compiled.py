@@ -23,18 +23,19 @@ from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, a
 
 CACHING = True
 
-KERNELS = ("numba", "numpy")  # a filter core's kernel option: compiled loops, or its numpy specification
 
-
-def jit(func):
-    """``numba.njit(cache=True)``, or ``numba.njit`` without the on-disk cache where numba finds
-    no writable cache directory (see the module docstring)."""
+def jit(func=None, **options):
+    """``numba.njit(cache=True, **options)``, or ``numba.njit(**options)`` without the on-disk
+    cache where numba finds no writable cache directory (see the module docstring). As
+    ``@jit`` or, with numba's options (e.g. ``inline="always"``), ``@jit(**options)``."""
     global CACHING
+    if func is None:
+        return lambda f: jit(f, **options)
     try:
-        return numba.njit(cache=True)(func)
+        return numba.njit(cache=True, **options)(func)
     except RuntimeError:
         CACHING = False
-        return numba.njit(func)
+        return numba.njit(**options)(func)
 
 
 @jit
@@ -56,4 +57,4 @@ def quat_multiply(pw, px, py, pz, qw, qx, qy, qz):
             pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
 
 
-__all__ = ["CACHING", "KERNELS", "jit", "rotvec_to_quat", "quat_multiply"]
+__all__ = ["CACHING", "jit", "rotvec_to_quat", "quat_multiply"]

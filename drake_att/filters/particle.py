@@ -1,5 +1,5 @@
 """Particle filters of paper S0 (Zhang & Sun 2012) as pure filter cores, vectorized over
-particles, plain numpy.
+particles.
 
 Three cores, each a :class:`drake_att.contract.FilterCore` on an immutable
 :class:`ParticleSetState` (particles ``(N, 6)`` ``[rho; s]``, normalized weights and their
@@ -7,8 +7,8 @@ logs, and the EKPF's per-particle covariances):
 
 * :class:`BootstrapPfCore` — SIR in gyro mode, ``s`` = gyro bias; the proposal is the
   transition prior, the bias static (paper) or roughened by a :class:`RandomWalkRoughening`.
-* :class:`EkpfCore` — extended-Kalman PF: every particle carries an MRP EKF
-  (:mod:`drake_att.filters.mrp_ekf`, batched) whose posterior is its proposal.
+* :class:`EkpfCore` — extended-Kalman PF: every particle carries an MRP EKF (the one of
+  :mod:`drake_att.filters.mrp_ekf`, batched) whose posterior is its proposal.
 * :class:`GyrolessPfCore` — SIR with ``s`` = body rate, propagated by Euler's equations.
 
 They share one measurement model (star sensor, vectors rotated into the body frame)::
@@ -27,11 +27,11 @@ the cores count nothing.
 Randomness: every draw comes from the ``rng`` passed to ``draw_initial_state``,
 ``predict`` or ``update``, in a fixed order; the same generators give bit-identical states.
 
-Kernels: this module (with :mod:`drake_att.filters.mrp_ekf`) is the readable specification,
-run with ``kernel="numpy"``. The default ``kernel="numba"`` runs the same steps through the
-compiled loops of :mod:`drake_att.filters.particle_kernels` (imported on first use): the
-same random numbers from the same generator in the same order, weight normalization and
-resampling here in numpy, results equal to round-off.
+Step arithmetic: the compiled kernels of :mod:`drake_att.filters.particle_kernels` (the
+propagations, the likelihood, the EKPF's EKF steps, proposal draw and weights), their one
+implementation; the readable numpy form is the tests' oracle (``tests/particle_reference.py``).
+Here: the random draws (passed to the kernels), weight normalization, resampling, the
+estimate and the EKPF's repair of Cholesky factors that are not positive definite.
 
 Derivations and measured behaviour: docs/derivations/particle_filters.md
 
@@ -45,16 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att.contract import SecondQuantity, UpdateInfo
-from drake_att.filters.compiled import KERNELS  # one home for the kernel names
-from drake_att.filters.mrp_ekf import (
-    attitude_to_mrp_covariance,
-    body_frame_vectors,
-    ekf_predict,
-    ekf_update,
-    gyro_rate,
-    switch_to_short_mrp,
-    vector_measurement_model,
-)
+from drake_att.filters import particle_kernels as _kernels
+from drake_att.filters.mrp_ekf import attitude_to_mrp_covariance, body_frame_vectors, gyro_rate
 from drake_att.filters.quaternion_average import average_quaternions
 from drake_att.rotations import (
     mrp_to_quat,
@@ -76,9 +68,7 @@ __all__ = [
     "effective_sample_size",
     "systematic_resample",
     "normalize_log_weights",
-    "vector_log_likelihood",
     "weighted_mean_and_covariance",
-    "ekpf_proposal_step",
     "SystematicResampler",
     "EffectiveSampleSizeGate",
     "RandomWalkRoughening",
@@ -86,22 +76,7 @@ __all__ = [
     "BootstrapPfCore",
     "EkpfCore",
     "GyrolessPfCore",
-    "KERNELS",
 ]
-
-
-def _check_kernel(kernel) -> str:
-    if not (isinstance(kernel, str) and kernel in KERNELS):
-        fail("kernel", kernel, "must be 'numba' (compiled loops, default) or 'numpy' (the reference code)")
-    return kernel
-
-
-def _kernels():
-    """The compiled kernels (:mod:`drake_att.filters.particle_kernels`), imported on first use
-    (importing numba costs ~0.5 s)."""
-    from drake_att.filters import particle_kernels
-
-    return particle_kernels
 
 
 # ----------------------------------------------------------------------------------
@@ -182,25 +157,6 @@ def normalize_log_weights(log_weights) -> tuple[np.ndarray, np.ndarray]:
     total = np.sum(shifted)
     w = shifted / total
     return w, lw - (top + np.log(total))
-
-
-def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
-    """Gaussian log-likelihood (up to a common constant) of ``y`` per particle.
-
-    ``log p(y | rho_i) = -|y - h(rho_i)|^2 / (2 sigma^2)`` with
-    ``h(rho) = [R_BI u_1; ...]`` (see :func:`drake_att.filters.mrp_ekf.vector_measurement_model`).
-
-    Args:
-        rho: ``(N, 3)`` MRPs of ``q_IB``. y: ``(3m,)``. ref_vectors_I: ``(m, 3)``.
-        sigma: Noise std per component (rad).
-
-    Returns:
-        ``(N,)`` log-likelihoods (non-finite entries replaced by ``-inf``).
-    """
-    r = np.asarray(y, dtype=float) - vector_measurement_model(rho, ref_vectors_I)
-    ll = -0.5 * np.sum(r * r, axis=-1) / sigma ** 2
-    ll[~np.isfinite(ll)] = -np.inf
-    return ll
 
 
 # ----------------------------------------------------------------------------------
@@ -287,28 +243,14 @@ def _paired_cholesky(P_prior, P_post):
                      for vals, vecs in pairs)
 
 
-def ekpf_proposal_step(m_prior, P_prior, y, ref_vectors_I, sigma: float, eps, iterations: int = 1):
-    """The EKPF's measurement step in numpy (the reference of
-    :func:`drake_att.filters.particle_kernels.ekpf_update`).
-
-    Every particle's EKF update of ``(m-, P-)`` gives the proposal ``N(m+, P+)``; the draw is
-    ``x = m+ + L+ eps`` with the given standard normals ``eps`` ``(N, 6)``, and the log-weight
-    increment ``log p(y | x) + log pi(x) - log q(x)`` with the prior ``pi = N(m-, P-)``
-    (docs/derivations/particle_filters.md), all in the MRP chart of ``m-``.
-
-    Returns:
-        ``(x (N, 6), P+ (N, 6, 6), log-weight increments (N,))``, shadow switch applied.
-    """
-    m_post, P_post, _, _ = ekf_update(m_prior, P_prior, y, ref_vectors_I, sigma, switch=False, iterations=iterations)
+def _repaired_proposal_step(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int):
+    """The EKPF's measurement step when a Cholesky factor of some ``P-`` or ``P+`` failed: every
+    particle's EKF update, both factors repaired together (:func:`_paired_cholesky`), then the
+    kernels' draw and weights (:func:`drake_att.filters.particle_kernels.ekpf_draw`) on them."""
+    m_post, P_post, _, _ = _kernels.ekf_update(m_prior, P_prior, y, ref_vectors_I, sigma, switch=False,
+                                               iterations=iterations)
     L_prior, L_post = _paired_cholesky(P_prior, P_post)
-    # Proposal draw x = m+ + L eps, log q(x) = -|eps|^2/2 - log det L (+ const).
-    x = m_post + (L_post @ eps[:, :, None])[:, :, 0]
-    log_q = -0.5 * np.sum(eps * eps, axis=1) - np.sum(np.log(np.diagonal(L_post, axis1=1, axis2=2)), axis=1)
-    z = np.linalg.solve(L_prior, (x - m_prior)[:, :, None])[:, :, 0]
-    log_pi = -0.5 * np.sum(z * z, axis=1) - np.sum(np.log(np.diagonal(L_prior, axis1=1, axis2=2)), axis=1)
-    log_lik = vector_log_likelihood(x[:, :3], y, ref_vectors_I, sigma)
-    x, P, _ = switch_to_short_mrp(x, P_post)
-    return x, P, log_lik + log_pi - log_q
+    return _kernels.ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, ref_vectors_I, sigma)
 
 
 def weighted_mean_and_covariance(particles, weights):
@@ -376,9 +318,8 @@ class _ParticleCore:
     _has_covariances = False
 
     def __init__(self, num_particles, q_IB_hat0, second0, covariance0, second_field: str, resampling_gate,
-                 resampler, kernel):
+                 resampler):
         self.num_particles = check_int("num_particles", num_particles, 1)
-        self.kernel = _check_kernel(kernel)
         self.resampling_gate = _component("resampling_gate", resampling_gate, "should_resample")
         self.resampler = _component("resampler", resampler, "indices")
         self.q_IB_hat0 = check_quaternion("q_IB_hat0", q_IB_hat0)
@@ -428,8 +369,8 @@ class _ParticleCore:
         y, U, sigma = body_frame_vectors(observations)
         if y is None:
             return state, _DECLINED
-        log_likelihood = _kernels().vector_log_likelihood if self.kernel == "numba" else vector_log_likelihood
-        return self._reweighted(state, state.particles, None, log_likelihood(state.particles[:, :3], y, U, sigma), rng)
+        log_likelihood = _kernels.vector_log_likelihood(state.particles[:, :3], y, U, sigma)
+        return self._reweighted(state, state.particles, None, log_likelihood, rng)
 
     @staticmethod
     def estimate(state: ParticleSetState):
@@ -478,7 +419,6 @@ class BootstrapPfCore(_ParticleCore):
         resampling_gate: when to resample (default ``N_eff < 2/3 N``, the paper).
         resampler: which particles survive (default systematic); any object with
             ``indices(weights, rng) -> (N,) int array``.
-        kernel: ``"numba"`` (default: compiled loops) or ``"numpy"`` (the reference code).
     """
 
     second_quantity = SecondQuantity.GYRO_BIAS
@@ -486,9 +426,8 @@ class BootstrapPfCore(_ParticleCore):
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float, *,
                  bias_roughening=RandomWalkRoughening(), resampling_gate=EffectiveSampleSizeGate(),
-                 resampler=SystematicResampler(), kernel: str = "numba"):
-        super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler,
-                         kernel)
+                 resampler=SystematicResampler()):
+        super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler)
         self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s, allow_zero=True)
         self.bias_roughening = _component("bias_roughening", bias_roughening, "apply")
 
@@ -503,10 +442,7 @@ class BootstrapPfCore(_ParticleCore):
         if self.arw_rad_per_rt_s > 0.0:
             w = w - rng.standard_normal((self.num_particles, 3)) * (self.arw_rad_per_rt_s / np.sqrt(dt))
         particles = np.empty_like(state.particles)
-        if self.kernel == "numba":
-            particles[:, :3] = _kernels().propagate_attitudes(rho, w, dt)
-        else:
-            particles[:, :3] = quat_to_mrp(quat_multiply(mrp_to_quat(rho), rotvec_to_quat(w * dt)))
+        particles[:, :3] = _kernels.propagate_attitudes(rho, w, dt)
         particles[:, 3:] = self.bias_roughening.apply(b, dt, rng)
         return ParticleSetState(particles, state.weights, state.log_weights)
 
@@ -516,11 +452,11 @@ class EkpfCore(_ParticleCore):
 
     Each particle is a point ``x_i`` with an EKF covariance ``P_i`` (MRP chart of ``x_i``),
     batched with ``(N, 6, 6)`` arrays. ``predict``: every particle's EKF time update
-    (:func:`~drake_att.filters.mrp_ekf.ekf_predict`, deterministic). ``update``: every
+    (:func:`~drake_att.filters.particle_kernels.ekf_predict`, deterministic). ``update``: every
     particle's EKF update is its proposal ``N(m+, P+)``; draw ``x_i`` from it and weight by
     ``p(y | x_i) pi(x_i) / q(x_i)`` with the particle's predicted Gaussian as the prior
-    ``pi`` (:func:`ekpf_proposal_step`; why that prior, and what it costs:
-    docs/derivations/particle_filters.md); then ``P_i = P+``, shadow switch, resampling
+    ``pi`` (:func:`~drake_att.filters.particle_kernels.ekpf_update`; why that prior, and what it
+    costs: docs/derivations/particle_filters.md); then ``P_i = P+``, shadow switch, resampling
     (means and covariances copied). A declined sample leaves the predicted set (no draw).
 
     Args:
@@ -532,7 +468,7 @@ class EkpfCore(_ParticleCore):
         proposal_iterations: linearizations of each particle's EKF update, >= 1: 1 is the
             paper's proposal, > 1 the iterated EKF update (reaches the measurement's basin
             from e.g. 170 deg in one step; beyond the paper).
-        resampling_gate, resampler, kernel: as :class:`BootstrapPfCore`.
+        resampling_gate, resampler: as :class:`BootstrapPfCore`.
     """
 
     second_quantity = SecondQuantity.GYRO_BIAS
@@ -541,9 +477,8 @@ class EkpfCore(_ParticleCore):
 
     def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
                  rrw_rad_per_s15: float, *, proposal_iterations: int = 1, resampling_gate=EffectiveSampleSizeGate(),
-                 resampler=SystematicResampler(), kernel: str = "numba"):
-        super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler,
-                         kernel)
+                 resampler=SystematicResampler()):
+        super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler)
         self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
         self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
         self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
@@ -554,9 +489,8 @@ class EkpfCore(_ParticleCore):
         dt = check_positive("dt", dt)
         if rng is not None:
             _check_rng(rng)
-        predict = _kernels().ekf_predict if self.kernel == "numba" else ekf_predict
-        particles, covariances = predict(state.particles, state.covariances, gyro_rate(w_meas_B), dt,
-                                         self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
+        particles, covariances = _kernels.ekf_predict(state.particles, state.covariances, gyro_rate(w_meas_B), dt,
+                                                      self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
         return ParticleSetState(particles, state.weights, state.log_weights, covariances)
 
     def update(self, state: ParticleSetState, observations, rng: np.random.Generator):
@@ -567,20 +501,13 @@ class EkpfCore(_ParticleCore):
         if y is None:
             return state, _DECLINED
         eps = rng.standard_normal((self.num_particles, 6))
-        step = None
-        if self.kernel == "numba":  # None if a Cholesky factor needs the numpy repair
-            step = _kernels().ekpf_update(state.particles, state.covariances, eps, y, U, sigma,
-                                          iterations=self.proposal_iterations)
-        if step is None:
-            step = ekpf_proposal_step(state.particles, state.covariances, y, U, sigma, eps, self.proposal_iterations)
+        step = _kernels.ekpf_update(state.particles, state.covariances, eps, y, U, sigma,
+                                    iterations=self.proposal_iterations)
+        if step is None:  # a Cholesky factor failed
+            step = _repaired_proposal_step(state.particles, state.covariances, eps, y, U, sigma,
+                                           self.proposal_iterations)
         particles, covariances, log_increment = step
         return self._reweighted(state, particles, covariances, log_increment, rng)
-
-
-def _euler_rate_derivative(w, torque, inertia, inertia_inverse):
-    """``I^-1 (T - w x (I w))`` for ``(N, 3)`` rates."""
-    Iw = w @ inertia.T
-    return (torque - np.cross(w, Iw)) @ inertia_inverse.T
 
 
 class GyrolessPfCore(_ParticleCore):
@@ -604,7 +531,7 @@ class GyrolessPfCore(_ParticleCore):
         rate_process_sigma: rate process-noise density (rad/s^1.5) >= 0.
         attitude_process_sigma: attitude process-noise density (rad/s^0.5) >= 0 (default 0).
         num_substeps: RK4 substeps per step >= 1 (default 1).
-        resampling_gate, resampler, kernel: as :class:`BootstrapPfCore`.
+        resampling_gate, resampler: as :class:`BootstrapPfCore`.
     """
 
     second_quantity = SecondQuantity.BODY_RATE
@@ -612,8 +539,8 @@ class GyrolessPfCore(_ParticleCore):
 
     def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
                  rate_process_sigma: float, *, attitude_process_sigma: float = 0.0, num_substeps: int = 1,
-                 resampling_gate=EffectiveSampleSizeGate(), resampler=SystematicResampler(), kernel: str = "numba"):
-        super().__init__(num_particles, q_IB_hat0, w_hat0, covariance0, "w_hat0", resampling_gate, resampler, kernel)
+                 resampling_gate=EffectiveSampleSizeGate(), resampler=SystematicResampler()):
+        super().__init__(num_particles, q_IB_hat0, w_hat0, covariance0, "w_hat0", resampling_gate, resampler)
         self.inertia = check_covariance("inertia", inertia, 3)
         self.inertia_inverse = np.linalg.inv(self.inertia)
         self.torque = check_array("torque", torque, (3,), " (N m)")
@@ -631,26 +558,8 @@ class GyrolessPfCore(_ParticleCore):
         dtheta = None  # the attitude noise, applied after the deterministic step, drawn first
         if self.attitude_process_sigma > 0.0:
             dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
-        if self.kernel == "numba":
-            rho, w = _kernels().gyroless_propagate(state.particles[:, :3], state.particles[:, 3:], I, I_inv, T, h,
-                                                   self.num_substeps, dtheta)
-        else:
-            q = mrp_to_quat(state.particles[:, :3])
-            w = state.particles[:, 3:].copy()
-            for _ in range(self.num_substeps):
-                k1 = _euler_rate_derivative(w, T, I, I_inv)
-                wa = w + 0.5 * h * k1
-                k2 = _euler_rate_derivative(wa, T, I, I_inv)
-                wb = w + 0.5 * h * k2
-                k3 = _euler_rate_derivative(wb, T, I, I_inv)
-                w1 = w + h * k3
-                k4 = _euler_rate_derivative(w1, T, I, I_inv)
-                w_avg = (w + 2.0 * wa + 2.0 * wb + w1) / 6.0
-                q = quat_multiply(q, rotvec_to_quat(w_avg * h))
-                w = w + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-            if dtheta is not None:
-                q = quat_multiply(q, rotvec_to_quat(dtheta))
-            rho = quat_to_mrp(q)
+        rho, w = _kernels.gyroless_propagate(state.particles[:, :3], state.particles[:, 3:], I, I_inv, T, h,
+                                             self.num_substeps, dtheta)
         if self.rate_process_sigma > 0.0:
             w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
         particles = np.empty_like(state.particles)

@@ -1,45 +1,49 @@
-"""Compiled kernels of the S0 particle filters' batched steps (numba ``njit``, cached on disk).
-
-The numpy code is the specification and the test oracle: every public function here
-computes what the reference function it names computes, with explicit loops over the
-particles instead of ~50 batched numpy calls, and agrees with it to round-off
-(``tests/test_particle_kernels.py``). The cores of :mod:`drake_att.filters.particle`
-choose between the two with their ``kernel`` argument (``"numba"``, the default, or
-``"numpy"``); nothing else changes.
+"""The S0 particle filters' and the MRP EKF's step arithmetic (numba ``njit``, cached on disk):
+the one implementation. The cores of :mod:`drake_att.filters.particle` and
+:class:`~drake_att.filters.mrp_ekf.MrpEkfCore` call these kernels for every step; the readable
+numpy form of the same formulas is the tests' oracle (``tests/particle_reference.py``), which
+``tests/test_particle_kernels.py`` compares with them to round-off. Each kernel is an explicit
+loop over the particles where numpy would need ~50 batched calls.
 
 ==========================================  ====================================================
-here                                         reference
+kernel                                       oracle (``tests/particle_reference.py``)
 ==========================================  ====================================================
-:func:`propagate_attitudes`                  ``quat_to_mrp(quat_multiply(mrp_to_quat(rho),
-                                             rotvec_to_quat(w dt)))`` (bootstrap PF predict)
-:func:`vector_log_likelihood`                :func:`drake_att.filters.particle.vector_log_likelihood`
-:func:`gyroless_propagate`                   the deterministic part (RK4 + closed-form attitude,
-                                             attitude noise) of ``GyrolessPfCore.predict``
-:func:`ekf_predict`                          :func:`drake_att.filters.mrp_ekf.ekf_predict`
-:func:`ekf_update`                           ``ekf_update(..., switch=False)[:2]`` (same module)
-:func:`ekpf_update`                          :func:`drake_att.filters.particle.ekpf_proposal_step`:
-                                             EKF update, Cholesky factors, proposal draw, the
-                                             three log densities, shadow switch
+:func:`propagate_attitudes`                  ``propagate_attitudes``: ``quat_to_mrp(quat_multiply(
+                                             mrp_to_quat(rho), rotvec_to_quat(w dt)))``
+                                             (bootstrap PF predict)
+:func:`vector_log_likelihood`                ``vector_log_likelihood``
+:func:`gyroless_propagate`                   ``gyroless_propagate``: the deterministic part (RK4 +
+                                             closed-form attitude, attitude noise) of the
+                                             gyroless PF's predict
+:func:`ekf_predict`                          ``ekf_predict`` (the MRP EKF's time update)
+:func:`ekf_update`                           ``ekf_update`` (its measurement update, iterated
+                                             or not, with the innovation and ``S``)
+:func:`ekpf_update`                          ``ekpf_proposal_step``: EKF update, Cholesky
+                                             factors, proposal draw, the three log densities,
+                                             shadow switch
+:func:`ekpf_draw`                            the draw and weights of ``ekpf_proposal_step``
+                                             from given Cholesky factors
 ==========================================  ====================================================
 
 **Same maths, equal to round-off.** No ``fastmath`` (no reassociation, no fused multiply-add);
 scalar expressions (quaternion products, rotation-vector exponentials, RK4 stages, the
-likelihood) are written in the reference's order of operations, which makes the bootstrap
-and gyroless steps bit-identical to the numpy code on this machine. The EKPF's matrix
+likelihood) are written in the oracle's order of operations, which makes the bootstrap
+and gyroless steps bit-identical to it on this machine. The EKF's matrix
 algebra differs by round-off, in these places only: small matrix products sum in their own
 order (numpy's batched ``matmul``/``einsum`` call BLAS); terms that are *exactly* zero in the
-reference are skipped (the zero rows of the dynamics Jacobian ``F = [[J, -B], [0, 0]]``, so
+oracle are skipped (the zero rows of the dynamics Jacobian ``F = [[J, -B], [0, 0]]``, so
 ``Phi = [[Phi_1, Phi_2], [0, I]]``; the zero blocks of ``Qg``; the zero bias columns of
 ``H = [H_rho, 0]``, so ``I - K H`` has identity bias columns); symmetric results (``S``, the
 predicted and the updated covariance) are computed on one triangle and mirrored where the
-reference averages ``(A + A') / 2``; ``S^-1`` is applied by Cholesky (LU with partial
+oracle averages ``(A + A') / 2``; ``S^-1`` is applied by Cholesky (LU with partial
 pivoting, numpy's method, if that fails) and the triangular factors by reciprocal pivots,
 as LAPACK's ``dpotf2``; ``log det L`` is one log of the product of the pivots (the sum of
 logs if that product leaves the normal range). No random numbers are drawn here: the
-filters draw them from their ``numpy.random.Generator`` in the reference's order and pass
-them in, and keep the weight normalization and the systematic-resampling cumulative sums in
-numpy. When a Cholesky factor of some particle's covariance fails, the EKPF hands the whole
-step to the numpy code (whose repair is batch-wide).
+filters draw them from their ``numpy.random.Generator`` and pass them in, and keep the
+weight normalization and the systematic-resampling cumulative sums in numpy. When a
+Cholesky factor of some particle's covariance fails, :func:`ekpf_update` returns None; the
+EKPF then repairs the factors of the whole batch in numpy (``particle._paired_cholesky``)
+and runs :func:`ekpf_draw` on them.
 
 **Cache.** ``cache=True``: the first call of each kernel in a fresh environment compiles it
 (about 10 s for all of them; ``benchmarks/README.md`` has the measured figures) and writes
@@ -69,6 +73,7 @@ __all__ = [
     "CACHING",
     "ekf_predict",
     "ekf_update",
+    "ekpf_draw",
     "ekpf_update",
     "gyroless_propagate",
     "propagate_attitudes",
@@ -112,7 +117,7 @@ def _mrp_step(r0, r1, r2, w0, w1, w2, dt):
 
 @_jit
 def _propagate_mrp(r0, r1, r2, w0, w1, w2, dt):
-    """mrp_ekf.propagate_mrp: the MRP after a constant-rate step, same chart (sign of q kept)."""
+    """The MRP after a constant-rate step, same chart (sign of q kept; the oracle's ``propagate_mrp``)."""
     qw, qx, qy, qz = _mrp_step(r0, r1, r2, w0, w1, w2, dt)
     d = 1.0 + qw
     return qx / d, qy / d, qz / d
@@ -137,12 +142,12 @@ def _kinematics_matrix(r0, r1, r2, B):
 
 @_jit
 def _measurement(r0, r1, r2, U, h):
-    """mrp_ekf.vector_measurement_model into ``h`` (3m,): ``[R_BI u_1; ...]`` with
+    """The measurement model (the oracle's ``vector_measurement_model``) into ``h`` (3m,): ``[R_BI u_1; ...]`` with
     ``R_IB = I + (8 [p x]^2 + 4 (1 - p'p) [p x]) / (1 + p'p)^2`` (rotations.mrp_to_rotmat)."""
     n2 = r0 * r0 + r1 * r1 + r2 * r2
     den = (1.0 + n2) * (1.0 + n2)
     c4 = 4.0 * (1.0 - n2)
-    # [p x]^2 = p p' - n2 I (written as the reference's 3-term matrix product)
+    # [p x]^2 = p p' - n2 I (written as the oracle's 3-term matrix product)
     K00, K01, K02 = 0.0, -r2, r1
     K10, K11, K12 = r2, 0.0, -r0
     K20, K21, K22 = -r1, r0, 0.0
@@ -174,7 +179,8 @@ def _measurement(r0, r1, r2, U, h):
 
 @_jit
 def _log_likelihood(r0, r1, r2, y, U, sigma2, h):
-    """particle.vector_log_likelihood of one particle (``h``: scratch (3m,))."""
+    """The log-likelihood of one particle, ``-|y - h(rho)|^2 / (2 sigma^2)`` (``-inf`` if not finite;
+    ``h``: scratch (3m,))."""
     _measurement(r0, r1, r2, U, h)
     s = 0.0
     for k in range(y.shape[0]):
@@ -188,7 +194,7 @@ def _log_likelihood(r0, r1, r2, y, U, sigma2, h):
 
 @_jit
 def _switch_to_short_mrp(x, P, T, TP):
-    """mrp_ekf.switch_to_short_mrp of one particle, in place: if ``|rho| > 1``, ``rho ->
+    """The shadow switch of one particle, in place (the oracle's ``switch_to_short_mrp``): if ``|rho| > 1``, ``rho ->
     -rho / |rho|^2`` and ``P -> sym(T P T')`` with ``T = diag(ds/drho, I)``
     (``T``, ``TP``: (3, 3) and (6, 6) scratch)."""
     r0, r1, r2 = x[0], x[1], x[2]
@@ -285,14 +291,14 @@ def _vector_log_likelihood(rho, y, U, sigma2):
 
 
 def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
-    """``(N,)`` ``-|y - h(rho_i)|^2 / (2 sigma^2)``, non-finite entries ``-inf``
-    (:func:`drake_att.filters.particle.vector_log_likelihood`)."""
+    """Gaussian log-likelihood (up to a common constant) of ``y`` per particle: ``(N,)``
+    ``-|y - h(rho_i)|^2 / (2 sigma^2)`` with ``h(rho) = [R_BI u_1; ...]``, non-finite entries ``-inf``."""
     return _vector_log_likelihood(_f64(rho), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2)
 
 
 @_jit
 def _w_dot(w0, w1, w2, I, Iinv, T):
-    """``I^-1 (T - w x (I w))`` (``particle._euler_rate_derivative``)."""
+    """``I^-1 (T - w x (I w))`` (Euler's equations)."""
     a0 = w0 * I[0, 0] + w1 * I[0, 1] + w2 * I[0, 2]
     a1 = w0 * I[1, 0] + w1 * I[1, 1] + w2 * I[1, 2]
     a2 = w0 * I[2, 0] + w1 * I[2, 1] + w2 * I[2, 2]
@@ -353,7 +359,7 @@ def gyroless_propagate(rho, w, inertia, inertia_inverse, torque, h: float, num_s
 
 
 # ----------------------------------------------------------------------------------
-# EKPF: the per-particle MRP EKF (drake_att.filters.mrp_ekf, batched) and the proposal.
+# The MRP EKF (one per EKPF particle; a batch of one for MrpEkfCore) and the EKPF's proposal.
 # The measurement update's matrix algebra runs on blocks of W particles at once, the particle
 # ("lane") as the last axis of every block array: the long dependency chains of one particle
 # (Cholesky pivots, triangular solves) then interleave with those of W - 1 independent others
@@ -523,8 +529,13 @@ def _ekf_predict(x, P, w_meas, dt, half_dt, c2, c3, sv2, su2):
 
 
 def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
-    """:func:`drake_att.filters.mrp_ekf.ekf_predict` for ``(N, 6)`` states, ``(N, 6, 6)``
-    covariances and one ``(3,)`` rate: ``(x_pred, P_pred)``, shadow switch applied."""
+    """Every particle's EKF time update of ``(N, 6)`` states ``[rho; b]`` and ``(N, 6, 6)``
+    covariances with one ``(3,)`` measured rate held over ``dt``: the mean exact for the constant
+    rate, ``Phi`` and ``Qd`` from ``F`` at the half-step mean (docs/derivations/mrp_ekf.md).
+
+    Returns:
+        ``(x_pred, P_pred)``, shadow switch applied.
+    """
     dt = float(dt)
     return _ekf_predict(_f64(x), _f64(P), _f64(w_meas), dt, 0.5 * dt, 0.5 * dt ** 2, dt ** 3 / 3.0,
                         float(sigma_v) ** 2, float(sigma_u) ** 2)
@@ -532,7 +543,7 @@ def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
 
 @_jit
 def _measurement_jacobian(r0, r1, r2, U, h, Hr, B):
-    """mrp_ekf.vector_measurement_jacobian: the rho columns ``Hr`` (3m, 3) (the bias columns
+    """The measurement Jacobian (the oracle's ``vector_measurement_jacobian``): the rho columns ``Hr`` (3m, 3) (the bias columns
     are zero) and the model ``h`` (3m,) at ``rho``; ``B``: (3, 3) scratch."""
     _measurement(r0, r1, r2, U, h)
     n2 = r0 * r0 + r1 * r1 + r2 * r2
@@ -550,7 +561,7 @@ def _measurement_jacobian(r0, r1, r2, U, h, Hr, B):
 
 @_jit
 def _ekf_gain(x, xj, Pb, y, U, sigma2, x_next, Hr, Kt, w):
-    """One linearization of the (iterated) EKF update (mrp_ekf.ekf_update) of a block: at the
+    """One linearization of the (iterated) EKF update (:func:`ekf_update`) of a block: at the
     iterates ``xj`` (6, W) (``xj = x``: the classic EKF), ``Hr`` (3m, 3, W) = the rho columns of
     ``H`` (its bias columns are zero), ``Kt`` (3m, 6, W) = ``K' = S^-1 H P`` with
     ``S = H P H' + sigma^2 I``, and ``x_next = x + K (y - h(x_j) - H (x - x_j))`` (6, W).
@@ -649,12 +660,13 @@ def _gather_matrices(ix, v, vb):
 
 
 @_jit
-def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
-    """The mean of every particle's (iterated) EKF update (mrp_ekf.ekf_update): the last
+def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks, zs, Ss):
+    """The mean of every particle's (iterated) EKF update (the oracle's ``ekf_update``): the last
     iterates ``(N, 6)`` and whether every innovation covariance was invertible. The batch
     stops iterating when no component of any particle moved by more than ``tol``, as the
-    reference. ``Hs`` ``(N, 3m, 3)`` and ``Ks`` ``(N, 3m, 6)`` receive the last linearization's
-    ``H_rho`` and ``K'``."""
+    oracle. ``Hs`` ``(N, 3m, 3)`` and ``Ks`` ``(N, 3m, 6)`` receive the last linearization's
+    ``H_rho`` and ``K'``; ``zs`` ``(N, 3m)`` and ``Ss`` ``(N, 3m, 3m)``, unless empty, the innovation
+    ``y - h(x)`` and its covariance ``S`` at the prior (the first linearization)."""
     n = x.shape[0]
     nm = y.shape[0]
     w = _gain_scratch(nm)
@@ -663,7 +675,7 @@ def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
     Pb = np.empty((6, 6, W))
     Hr, Kt = np.empty((nm, 3, W)), np.empty((nm, 6, W))
     x_j = x.copy()
-    for _ in range(iterations):
+    for iteration in range(iterations):
         converged = True
         for i0 in range(0, n, W):
             count = _block(i0, n, ix)
@@ -672,6 +684,8 @@ def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
             _gather_matrices(ix, P, Pb)
             if not _ekf_gain(xb, xjb, Pb, y, U, sigma2, x_next, Hr, Kt, w):
                 return x_j, False
+            if iteration == 0 and zs.shape[0] > 0:
+                _store_innovations(ix, count, y, w[0], w[1], zs, Ss)
             for j in range(count):
                 i = ix[j]
                 for a in range(6):
@@ -689,10 +703,24 @@ def _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks):
 
 
 @_jit
+def _store_innovations(ix, count, y, h, S, zs, Ss):
+    """The block's innovations ``y - h`` and covariances ``S`` (lower triangles of ``S`` read,
+    both written) into the particles' rows of ``zs`` and ``Ss``."""
+    nm = y.shape[0]
+    for j in range(count):
+        i = ix[j]
+        for l in range(nm):
+            zs[i, l] = y[l] - h[l, j]
+            for l2 in range(l + 1):
+                Ss[i, l, l2] = S[l, l2, j]
+                Ss[i, l2, l] = S[l, l2, j]
+
+
+@_jit
 def _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn):
     """Lower triangles of ``(I - K H) P (I - K H)' + sigma^2 K K'`` of a block into ``Pn``
     (6, 6, W), ``H = [Hr 0]`` (so ``I - K H`` has the bias columns of ``I``), ``Kt = K'``;
-    ``IKH`` (6, 3, W), ``M`` (6, 6, W): scratch. (The reference symmetrizes the full product.)"""
+    ``IKH`` (6, 3, W), ``M`` (6, 6, W): scratch. (The oracle symmetrizes the full product.)"""
     nm = Hr.shape[0]
     s = np.empty(W)
     for a in range(6):
@@ -727,12 +755,14 @@ def _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn):
 
 
 @_jit
-def _ekf_update(x, P, y, U, sigma2, iterations, tol):
+def _ekf_update(x, P, y, U, sigma2, iterations, tol, switch):
     n = x.shape[0]
     nm = y.shape[0]
     Hs = np.empty((n, nm, 3))
     Ks = np.empty((n, nm, 6))
-    x_post, ok = _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks)
+    zs = np.empty((n, nm))
+    Ss = np.empty((n, nm, nm))
+    x_post, ok = _ekf_iterate(x, P, y, U, sigma2, iterations, tol, Hs, Ks, zs, Ss)
     P_post = np.empty((n, 6, 6))
     if ok:
         ix = np.empty(W, np.int64)
@@ -750,31 +780,86 @@ def _ekf_update(x, P, y, U, sigma2, iterations, tol):
                     for c in range(a + 1):
                         P_post[ix[j], a, c] = Pn[a, c, j]
                         P_post[ix[j], c, a] = Pn[a, c, j]
-    return x_post, P_post, ok
+        if switch:
+            T, TP = np.empty((3, 3)), np.empty((6, 6))
+            for i in range(n):
+                _switch_to_short_mrp(x_post[i], P_post[i], T, TP)
+    return x_post, P_post, zs, Ss, ok
 
 
-def ekf_update(x, P, y, ref_vectors_I, sigma: float, iterations: int = 1, iteration_tolerance: float = 1e-12):
-    """``ekf_update(x, P, y, ref_vectors_I, sigma, switch=False, iterations,
-    iteration_tolerance)[:2]`` of :mod:`drake_att.filters.mrp_ekf` for ``(N, 6)`` states:
-    ``(x_post, P_post)`` (Joseph form; iterated when ``iterations > 1``, stopping when no
-    component of the whole batch moved by more than the tolerance). No shadow switch.
+def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True, iterations: int = 1,
+               iteration_tolerance: float = 1e-12):
+    """Every particle's EKF measurement update of ``(N, 6)`` states and ``(N, 6, 6)`` covariances
+    with ``y`` ``(3m,)``: Joseph form; iterated when ``iterations > 1`` (Gauss-Newton, relinearized
+    at the latest iterate, all iterates in the prior's MRP chart), the batch stopping when no
+    component of any particle moved by more than the tolerance; then the shadow switch if
+    ``switch``.
+
+    Returns:
+        ``(x_post, P_post, innovation (N, 3m), S (N, 3m, 3m))``: the innovation ``y - h(x^-)``
+        and its covariance ``S = H P H' + sigma^2 I`` at the prior.
 
     Raises:
         numpy.linalg.LinAlgError: an exactly singular innovation covariance.
     """
-    x_post, P_post, ok = _ekf_update(_f64(x), _f64(P), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2,
-                                     int(iterations), float(iteration_tolerance))
+    x_post, P_post, innovation, S, ok = _ekf_update(
+        _f64(x), _f64(P), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2, int(iterations),
+        float(iteration_tolerance), bool(switch))
     if not ok:
         raise np.linalg.LinAlgError("Singular matrix")
-    return x_post, P_post
+    return x_post, P_post, innovation, S
+
+
+@_jit(inline="always")  # compiled into each caller: as a call, it cost the fused step ~5% (measured)
+def _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP,
+                    x_out, P_out, log_increment):
+    """The proposal step of a block, given the lower Cholesky factors ``L_post`` of ``P+`` and
+    ``L_prior`` of ``P-`` (6, 6, W) and the reciprocals of ``L_prior``'s pivots: the draw
+    ``x = m+ + L+ eps``, the log-weight increment ``log p(y | x) + log N(x; m-, P-) -
+    log N(x; m+, P+)`` and the shadow switch of ``(x, P+)`` (``Pn``: lower triangles read),
+    written to the block's particles' rows of ``x_out``, ``P_out`` and ``log_increment``.
+    ``xb``, ``z`` (6, W), ``s`` (W,), ``h1`` (3m,), ``T`` (3, 3), ``TP`` (6, 6): scratch."""
+    # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
+    for a in range(6):
+        for j in range(W):
+            s[j] = 0.0
+        for k in range(a + 1):
+            for j in range(W):
+                s[j] += L_post[a, k, j] * eb[k, j]
+        for j in range(W):
+            xb[a, j] = m_post[a, j] + s[j]
+    # log pi(x) = -|L-^-1 (x - m-)|^2 / 2 - log det L-
+    for a in range(6):
+        for j in range(W):
+            s[j] = xb[a, j] - mb[a, j]
+        for k in range(a):
+            for j in range(W):
+                s[j] -= L_prior[a, k, j] * z[k, j]
+        for j in range(W):
+            z[a, j] = s[j] * inv_prior[a, j]
+    for j in range(count):
+        ee = 0.0
+        zz = 0.0
+        for a in range(6):
+            ee += eb[a, j] * eb[a, j]
+            zz += z[a, j] * z[a, j]
+        log_q = -0.5 * ee - _log_det(L_post, j)
+        log_pi = -0.5 * zz - _log_det(L_prior, j)
+        log_lik = _log_likelihood(xb[0, j], xb[1, j], xb[2, j], y, U, sigma2, h1)
+        i = ix[j]
+        log_increment[i] = log_lik + log_pi - log_q
+        for a in range(6):
+            x_out[i, a] = xb[a, j]
+            for c in range(a + 1):
+                P_out[i, a, c] = Pn[a, c, j]
+                P_out[i, c, a] = Pn[a, c, j]
+        _switch_to_short_mrp(x_out[i], P_out[i], T, TP)
 
 
 @_jit
 def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
     """:func:`ekpf_update`'s loop over blocks of ``W`` particles; status 0, 1 (a factor not
-    positive definite) or 2 (a singular innovation covariance). Long on purpose: one compiled
-    pass over the blocks sharing its scratch arrays; split, each block would pass them through
-    extra calls."""
+    positive definite) or 2 (a singular innovation covariance)."""
     n = m_prior.shape[0]
     nm = y.shape[0]
     x_out = np.empty((n, 6))
@@ -801,7 +886,8 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
     Ks = np.empty((0 if one_pass else n, nm, 6))
     m_posts = m_prior
     if not one_pass:
-        m_posts, ok_all = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks)
+        m_posts, ok_all = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks, np.empty((0, nm)),
+                                       np.empty((0, nm, nm)))
         if not ok_all:
             return x_out, P_out, log_increment, 2
     for i0 in range(0, n, W):
@@ -819,57 +905,22 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
         _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn)
         if not (_cholesky_lanes(Pn, L_post, inv_post, 6, ok) and _cholesky_lanes(Pb, L_prior, inv_prior, 6, ok)):
             return x_out, P_out, log_increment, 1
-        # x = m+ + L+ eps; log q(x) = -|eps|^2 / 2 - log det L+
-        for a in range(6):
-            for j in range(W):
-                s[j] = 0.0
-            for k in range(a + 1):
-                for j in range(W):
-                    s[j] += L_post[a, k, j] * eb[k, j]
-            for j in range(W):
-                xb[a, j] = m_post[a, j] + s[j]
-        # log pi(x) = -|L-^-1 (x - m-)|^2 / 2 - log det L-
-        for a in range(6):
-            for j in range(W):
-                s[j] = xb[a, j] - mb[a, j]
-            for k in range(a):
-                for j in range(W):
-                    s[j] -= L_prior[a, k, j] * z[k, j]
-            for j in range(W):
-                z[a, j] = s[j] * inv_prior[a, j]
-        for j in range(count):
-            ee = 0.0
-            zz = 0.0
-            for a in range(6):
-                ee += eb[a, j] * eb[a, j]
-                zz += z[a, j] * z[a, j]
-            log_q = -0.5 * ee - _log_det(L_post, j)
-            log_pi = -0.5 * zz - _log_det(L_prior, j)
-            log_lik = _log_likelihood(xb[0, j], xb[1, j], xb[2, j], y, U, sigma2, h1)
-            i = ix[j]
-            log_increment[i] = log_lik + log_pi - log_q
-            for a in range(6):
-                x_out[i, a] = xb[a, j]
-                for c in range(a + 1):
-                    P_out[i, a, c] = Pn[a, c, j]
-                    P_out[i, c, a] = Pn[a, c, j]
-            _switch_to_short_mrp(x_out[i], P_out[i], T, TP)
+        _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP,
+                        x_out, P_out, log_increment)
     return x_out, P_out, log_increment, 0
 
 
 def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int = 1,
                 iteration_tolerance: float = 1e-12):
-    """The EKPF's measurement step before the reweighting
-    (:func:`drake_att.filters.particle.ekpf_proposal_step`): every particle's EKF update
-    ``(m+, P+)`` (:func:`ekf_update`), the proposal
-    draw ``x = m+ + L+ eps`` with the given ``(N, 6)`` standard normals, the weight increment
-    ``log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+)`` (up to a common constant; ``L+``,
-    ``L-`` the lower Cholesky factors of ``P+``, ``P-``) and the shadow switch of ``(x, P+)``.
+    """The EKPF's measurement step before the reweighting: every particle's EKF update
+    ``(m+, P+)`` (as :func:`ekf_update`, no shadow switch), the lower Cholesky factors ``L+``,
+    ``L-`` of ``P+`` and ``P-``, then :func:`ekpf_draw`'s draw, weight increment and shadow switch,
+    in one pass over the particles.
 
     Returns:
         ``(x (N, 6), P (N, 6, 6), log_increment (N,))``, or None if some ``P+`` or ``P-`` is
-        not positive definite: the reference then repairs the factors of the whole batch
-        (``particle._paired_cholesky``), which the caller does by running the numpy code.
+        not positive definite: the caller then repairs the factors of the whole batch
+        (``particle._paired_cholesky``) and calls :func:`ekpf_draw` with them.
 
     Raises:
         numpy.linalg.LinAlgError: an exactly singular innovation covariance.
@@ -880,6 +931,48 @@ def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iteration
     if status == 2:
         raise np.linalg.LinAlgError("Singular matrix")
     return None if status == 1 else (x, P, log_increment)
+
+
+@_jit
+def _ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, U, sigma2):
+    n = m_prior.shape[0]
+    x_out = np.empty((n, 6))
+    P_out = np.empty((n, 6, 6))
+    log_increment = np.empty(n)
+    ix = np.empty(W, np.int64)
+    mb, mpb, eb = np.empty((6, W)), np.empty((6, W)), np.empty((6, W))
+    Pn, Lpo, Lpr = np.empty((6, 6, W)), np.empty((6, 6, W)), np.empty((6, 6, W))
+    inv_prior = np.empty((6, W))
+    nm = y.shape[0]
+    xb, z, s, h1, T, TP = np.empty((6, W)), np.empty((6, W)), np.empty(W), np.empty(nm), np.empty((3, 3)), np.empty((6, 6))
+    for i0 in range(0, n, W):
+        count = _block(i0, n, ix)
+        _gather(ix, m_prior, mb)
+        _gather(ix, m_post, mpb)
+        _gather(ix, eps, eb)
+        _gather_matrices(ix, P_post, Pn)
+        _gather_matrices(ix, L_post, Lpo)
+        _gather_matrices(ix, L_prior, Lpr)
+        for a in range(6):
+            for j in range(W):
+                inv_prior[a, j] = 1.0 / Lpr[a, a, j]
+        _draw_and_weigh(count, ix, mb, mpb, eb, Pn, Lpo, Lpr, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP, x_out, P_out,
+                        log_increment)
+    return x_out, P_out, log_increment
+
+
+def ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, ref_vectors_I, sigma: float):
+    """The EKPF's proposal draw and weights from given lower Cholesky factors ``L_prior`` of the
+    prior covariances ``P-`` and ``L_post`` of the proposal covariances ``P+`` (``(N, 6, 6)``
+    each): ``x = m+ + L+ eps`` with the ``(N, 6)`` standard normals ``eps``, the weight increment
+    ``log p(y | x) + log N(x; m-, P-) - log N(x; m+, P+)`` (up to a common constant) and the
+    shadow switch of ``(x, P+)`` — the arithmetic :func:`ekpf_update` runs on its own factors.
+
+    Returns:
+        ``(x (N, 6), P (N, 6, 6), log_increment (N,))``.
+    """
+    return _ekpf_draw(_f64(m_prior), _f64(m_post), _f64(P_post), _f64(L_prior), _f64(L_post), _f64(eps), _f64(y),
+                      _f64(ref_vectors_I), float(sigma) ** 2)
 
 
 CACHING = _compiled.CACHING  # after every kernel's decoration: False if none could be cached

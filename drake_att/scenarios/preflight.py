@@ -127,16 +127,11 @@ def run_warnings(metrics: dict) -> list[str]:
 # of the process's peak RSS (``ru_maxrss``, one fresh process per point) over
 # ``ScenarioDiagram(...)`` + ``simulate()`` of a gyro + vector tracker + one filter at N = 1e5
 # and 3e5 (and 1e6 bootstrap, 6e5 EKPF to check linearity), 5 s at 1 Hz (the peak is
-# the same after 60 s: nothing accumulates per step), rounded up:
-#   bootstrap PF  numba 950,  numpy 960      gyroless PF  numba 950, numpy 1100
-#   EKPF          numba 4200, numpy 6400 (its per-particle 6x6 covariances and their temporaries)
+# the same after 60 s: nothing accumulates per step), rounded up: bootstrap PF 950,
+# gyroless PF 950, EKPF 4200 (its per-particle 6x6 covariances and their temporaries).
 # tests/test_ranges.py re-measures one of them against this estimate.
-PARTICLE_BYTES = {
-    ("BootstrapPfConfig", "numba"): 1000, ("BootstrapPfConfig", "numpy"): 1000,
-    ("GyrolessPfConfig", "numba"): 1000, ("GyrolessPfConfig", "numpy"): 1100,
-    ("EkpfConfig", "numba"): 4200, ("EkpfConfig", "numpy"): 6400,
-}
-DEFAULT_PARTICLE_BYTES = 6400  # a plug-in's particle filter: the largest measured
+PARTICLE_BYTES = {"BootstrapPfConfig": 1000, "GyrolessPfConfig": 1000, "EkpfConfig": 4200}
+DEFAULT_PARTICLE_BYTES = 6400  # a plug-in's particle filter: a margin above the largest measured (the EKPF's)
 
 # Logged signals: every logger keeps its times and samples as float64. Drake's VectorLog
 # grows its buffer by doubling (up to 2x the samples) and simulate() copies it into numpy
@@ -281,7 +276,7 @@ def memory_estimate(scenario) -> MemoryEstimate:
     for i, e in enumerate(scenario.estimators):
         n = getattr(e, "num_particles", None)
         if isinstance(n, (int, np.integer)) and not isinstance(n, bool):
-            per = PARTICLE_BYTES.get((type(e).__name__, getattr(e, "kernel", "numba")), DEFAULT_PARTICLE_BYTES)
+            per = PARTICLE_BYTES.get(type(e).__name__, DEFAULT_PARTICLE_BYTES)
             parts.append(MemoryPart(f"estimators[{i}] ({e.name}).num_particles", int(n), float(n) * per,
                                     f"~{per} bytes per particle"))
     logs: dict[str, tuple[float, float, int]] = {}  # period field -> (period, bytes, samples)

@@ -123,13 +123,12 @@ _PF_PORTS_DOC = """
 
 def bootstrap_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                        arw_rad_per_rt_s: float, bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0,
-                       gyro: str | None = None, kernel: str = "numba") -> EstimatorSetup:
-    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name; ``kernel``:
-    ``"numba"`` or ``"numpy"``, see :mod:`drake_att.filters.particle`)."""
+                       gyro: str | None = None) -> EstimatorSetup:
+    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name)."""
     roughening = RandomWalkRoughening(check_positive("bias_roughening_sigma", bias_roughening_sigma, allow_zero=True))
     return _particle_setup(period_s, star_tracker, gyro, BootstrapPfCore(
         num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_rad_per_rt_s, bias_roughening=roughening,
-        resampling_gate=EffectiveSampleSizeGate(resample_threshold), kernel=kernel))
+        resampling_gate=EffectiveSampleSizeGate(resample_threshold)))
 
 
 def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
@@ -158,13 +157,11 @@ BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:c
 
 def ekpf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
                arw_rad_per_rt_s: float, rrw_rad_per_s15: float, proposal_iterations: int = 1,
-               resample_threshold: float = 2.0 / 3.0, gyro: str | None = None, kernel: str = "numba") -> EstimatorSetup:
-    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name; ``kernel``: ``"numba"``
-    or ``"numpy"``, see :mod:`drake_att.filters.particle`)."""
+               resample_threshold: float = 2.0 / 3.0, gyro: str | None = None) -> EstimatorSetup:
+    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name)."""
     return _particle_setup(period_s, star_tracker, gyro, EkpfCore(
         num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_rad_per_rt_s, rrw_rad_per_s15,
-        proposal_iterations=proposal_iterations, resampling_gate=EffectiveSampleSizeGate(resample_threshold),
-        kernel=kernel))
+        proposal_iterations=proposal_iterations, resampling_gate=EffectiveSampleSizeGate(resample_threshold)))
 
 
 def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
@@ -194,16 +191,15 @@ EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~
 
 def gyroless_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0, covariance0,
                       inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
-                      num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0, kernel: str = "numba") -> EstimatorSetup:
-    """The setup of :func:`GyrolessPfEstimator` (same arguments; ``kernel``: ``"numba"`` or ``"numpy"``, see
-    :mod:`drake_att.filters.particle`)."""
+                      num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSetup:
+    """The setup of :func:`GyrolessPfEstimator` (same arguments)."""
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
         I = np.diag(I)
     return _particle_setup(period_s, star_tracker, None, GyrolessPfCore(
         num_particles, q_IB_hat0, w_hat0, _covariance0(covariance0), I, torque, rate_process_sigma,
         attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
-        resampling_gate=EffectiveSampleSizeGate(resample_threshold), kernel=kernel))
+        resampling_gate=EffectiveSampleSizeGate(resample_threshold)))
 
 
 def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0,
