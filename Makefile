@@ -1,6 +1,6 @@
 # drake_att: two commands do all set-up on a fresh machine.
 #   make run    run the default scenario (creates .venv and installs what is missing)
-#   make test   lint (ruff), type-check (mypy) and run the test suite (same set-up)
+#   make test   lint and format check (ruff), type-check (mypy), then the test suite (same set-up)
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
@@ -23,9 +23,10 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/drake-att run $(ARGS)
 
-# Lint and type-check first (rules: [tool.ruff] and [tool.mypy] in pyproject.toml), then the suite.
+# Lint, format check and type check first ([tool.ruff], [tool.mypy] in pyproject.toml), then the suite.
 test: $(STAMP)
 	$(PY) -m ruff check drake_att benchmarks diagrams tests
+	$(PY) -m ruff format --check drake_att benchmarks diagrams tests
 	$(PY) -m mypy drake_att/contract.py drake_att/filters drake_att/systems drake_att/scenarios
 	MPLBACKEND=Agg $(PY) -m pytest -q $(PYTEST_ARGS)
 

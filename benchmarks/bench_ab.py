@@ -32,9 +32,15 @@ CASES = {
     "default (S3 dual tracker, 1 Hz)": ("cubesat_dual_star_tracker", []),
     "S3 single tracker, 10 Hz gyro + ST + MEKF": (
         "cubesat_single_star_tracker",
-        ["simulation.integration_scheme=runge_kutta3", "simulation.use_error_control=false",
-         "simulation.max_step_size_s=0.1", "sensors.gyro.period_s=0.1", "sensors.st1.period_s=0.1",
-         "estimators.single.period_s=0.1"]),
+        [
+            "simulation.integration_scheme=runge_kutta3",
+            "simulation.use_error_control=false",
+            "simulation.max_step_size_s=0.1",
+            "sensors.gyro.period_s=0.1",
+            "sensors.st1.period_s=0.1",
+            "estimators.single.period_s=0.1",
+        ],
+    ),
 }
 
 CHILD = """
@@ -85,25 +91,39 @@ def main(argv=None):
     ap.add_argument("--new", default=os.path.join(os.path.dirname(__file__), os.pardir))
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--duration", type=float, default=1000.0, help="simulated seconds per case")
-    ap.add_argument("--clock", choices=("cpu", "wall", "instructions"), default="cpu",
-                    help="cpu: the child's process time; wall; instructions: callgrind's count of the "
-                         "timed simulate (deterministic; needs valgrind; ~50x slower)")
+    ap.add_argument(
+        "--clock",
+        choices=("cpu", "wall", "instructions"),
+        default="cpu",
+        help="cpu: the child's process time; wall; instructions: callgrind's count of the "
+        "timed simulate (deterministic; needs valgrind; ~50x slower)",
+    )
     ap.add_argument("--repeats", type=int, default=1, help="timed runs per child (seeds 2, 3, ...; the best is kept)")
     args = ap.parse_args(argv)
-    print(f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
-          f"{args.rounds} alternating rounds, {args.duration:.0f} s simulated per case, best of {args.repeats} "
-          f"{args.clock} time(s) per child shown")
+    print(
+        f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
+        f"{args.rounds} alternating rounds, {args.duration:.0f} s simulated per case, best of {args.repeats} "
+        f"{args.clock} time(s) per child shown"
+    )
     unit = "G instr" if args.clock == "instructions" else "s"
-    print(f"{'case':<45} {'old (' + unit + ')':>11} {'new (' + unit + ')':>11} {'best/best':>9} {'median ratio [range]':>24}")
+    print(
+        f"{'case':<45} {'old (' + unit + ')':>11} {'new (' + unit + ')':>11} {'best/best':>9} {'median ratio [range]':>24}"
+    )
     for label, (scenario, overrides) in CASES.items():
         old, new = [], []
         for _ in range(args.rounds):
             old.append(measure(args.old, scenario, args.duration, overrides, args.clock, args.repeats))
             new.append(measure(args.new, scenario, args.duration, overrides, args.clock, args.repeats))
         ratios = sorted(n / o for n, o in zip(new, old, strict=True))
-        median = ratios[len(ratios) // 2] if len(ratios) % 2 else 0.5 * (ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2])
-        print(f"{label:<45} {min(old):11.3f} {min(new):11.3f} {min(new) / min(old):9.3f} "
-              f"{median:10.3f} [{ratios[0]:.2f}, {ratios[-1]:.2f}]")
+        median = (
+            ratios[len(ratios) // 2]
+            if len(ratios) % 2
+            else 0.5 * (ratios[len(ratios) // 2 - 1] + ratios[len(ratios) // 2])
+        )
+        print(
+            f"{label:<45} {min(old):11.3f} {min(new):11.3f} {min(new) / min(old):9.3f} "
+            f"{median:10.3f} [{ratios[0]:.2f}, {ratios[-1]:.2f}]"
+        )
 
 
 if __name__ == "__main__":

@@ -128,6 +128,7 @@ CASES = {  # case -> sensors in its diagram
 # Diagrams
 # ---------------------------------------------------------------------------------------------
 
+
 def s3_numbers():
     """The S3 scenario and the SI numbers the sensors use."""
     from drake_att.scenarios.library import load
@@ -137,10 +138,13 @@ def s3_numbers():
     scenario = load(SCENARIO)
     st1 = next(s for s in scenario.sensors if s.name == "st1")
     return SimpleNamespace(
-        scenario=scenario, arw=S3_ARW_DEG_PER_RT_H * ARW_DEG_PER_RT_H, rrw=S3_RRW_DEG_PER_H15 * RRW_DEG_PER_H_15,
+        scenario=scenario,
+        arw=S3_ARW_DEG_PER_RT_H * ARW_DEG_PER_RT_H,
+        rrw=S3_RRW_DEG_PER_H15 * RRW_DEG_PER_H_15,
         bias0=np.full(3, S3_BIAS_DEG_PER_H * DEG_PER_H),
         sigmas=np.array([SIGMA_CROSS_ARCSEC, SIGMA_CROSS_ARCSEC, SIGMA_BORESIGHT_ARCSEC]) * ARCSEC,
-        q_BS=star_tracker_mounting(st1))
+        q_BS=star_tracker_mounting(st1),
+    )
 
 
 def interval_factor(arw: float, rrw: float) -> np.ndarray:
@@ -235,7 +239,9 @@ def use_cpp_gyro_plugin() -> None:
     def build(ctx, c):
         arw, rrw, bias0, bias_sigma, scale, misalignment = gyro_model_si(c)
         if c.period_s != T or bias_sigma or np.any(scale) or np.any(misalignment):
-            raise ValueError(f"{c.name}: the C++ gyro here models period {T} s and no random bias, scale or misalignment")
+            raise ValueError(
+                f"{c.name}: the C++ gyro here models period {T} s and no random bias, scale or misalignment"
+            )
         gyro = ctx.builder.AddSystem(make_cpp_gyro(c.name, arw, rrw, bias0))
         ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B_integral"), gyro.GetInputPort("w_IB_B_integral"))
         return gyro
@@ -248,8 +254,12 @@ def _quat_product(p, q):
     """Hamilton product ``p ⊗ q`` of two 4-sequences (floats or symbolic expressions)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    return [pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw]
+    return [
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    ]
 
 
 def left_product_matrix(p) -> np.ndarray:
@@ -329,7 +339,9 @@ def build(sensors, gyro_noise=None, tracker_sigmas=None, check_logs=False):
     builder = DiagramBuilder()
     inertia = np.asarray(p.inertia_kg_m2, dtype=float)
     plant = builder.AddSystem(RigidBodyAttitudePlant(inertia if inertia.size == 3 else inertia.reshape(3, 3)))
-    torque = builder.AddNamedSystem("disturbance_torque", ConstantVectorSource(np.asarray(p.disturbance_torque_N_m, float)))
+    torque = builder.AddNamedSystem(
+        "disturbance_torque", ConstantVectorSource(np.asarray(p.disturbance_torque_N_m, float))
+    )
     builder.Connect(torque.get_output_port(), plant.GetInputPort("torque_B"))
     loggers = {}
 
@@ -385,24 +397,44 @@ def build(sensors, gyro_noise=None, tracker_sigmas=None, check_logs=False):
             # sample k). Sample 0 then has no noise (the hold starts at 0).
             hold = builder.AddNamedSystem(f"{sensor}_hold", ZeroOrderHold(T, 3))
             builder.Connect(noise.get_output_port(), hold.get_input_port())
-            mux = builder.AddNamedSystem(f"{sensor}_inputs", Multiplexer([4, 4] if sensor == "cpp_tracker_split" else [4, 3]))
+            mux = builder.AddNamedSystem(
+                f"{sensor}_inputs", Multiplexer([4, 4] if sensor == "cpp_tracker_split" else [4, 3])
+            )
             builder.Connect(plant.GetOutputPort("q_IB"), mux.get_input_port(0))
             if sensor != "cpp_tracker_split":  # one system: the whole formula in its output
                 # (cpp_tracker_floor, not a sensor: the same systems with a trivial output, the
                 # least any one-system symbolic tracker costs here)
-                output = ([0.0 * t, 1.0, q[0] + 0.0 * z[0], q[1], q[2], q[3]] if sensor == "cpp_tracker_floor" else
-                          [tracker_stamp(t), 1.0] + tracker_quaternion(q, num.q_BS, exp_half(sigmas, z)))
-                rotation = builder.AddNamedSystem(sensor, SymbolicVectorSystem(
-                    time=t, state=[Variable("unused")], input=q + z, dynamics=[Expression(0.0)], output=output))
+                output = (
+                    [0.0 * t, 1.0, q[0] + 0.0 * z[0], q[1], q[2], q[3]]
+                    if sensor == "cpp_tracker_floor"
+                    else [tracker_stamp(t), 1.0] + tracker_quaternion(q, num.q_BS, exp_half(sigmas, z))
+                )
+                rotation = builder.AddNamedSystem(
+                    sensor,
+                    SymbolicVectorSystem(
+                        time=t, state=[Variable("unused")], input=q + z, dynamics=[Expression(0.0)], output=output
+                    ),
+                )
                 builder.Connect(hold.get_output_port(), mux.get_input_port(1))
             else:  # exp(delta / 2) of the draw, q_BS ⊗ it (a C++ MatrixGain), then the product
                 r = [Variable(f"r{i}") for i in range(4)]
-                exp_map = builder.AddNamedSystem(f"{sensor}_exp", SymbolicVectorSystem(
-                    state=[Variable("unused")], input=z, dynamics=[Expression(0.0)], output=exp_half(sigmas, z)))
+                exp_map = builder.AddNamedSystem(
+                    f"{sensor}_exp",
+                    SymbolicVectorSystem(
+                        state=[Variable("unused")], input=z, dynamics=[Expression(0.0)], output=exp_half(sigmas, z)
+                    ),
+                )
                 mounting = builder.AddNamedSystem(f"{sensor}_mounting", MatrixGain(left_product_matrix(num.q_BS)))
-                rotation = builder.AddNamedSystem(sensor, SymbolicVectorSystem(
-                    time=t, state=[Variable("unused")], input=q + r, dynamics=[Expression(0.0)],
-                    output=[tracker_stamp(t), 1.0] + canonical(_quat_product(q, r))))
+                rotation = builder.AddNamedSystem(
+                    sensor,
+                    SymbolicVectorSystem(
+                        time=t,
+                        state=[Variable("unused")],
+                        input=q + r,
+                        dynamics=[Expression(0.0)],
+                        output=[tracker_stamp(t), 1.0] + canonical(_quat_product(q, r)),
+                    ),
+                )
                 builder.Connect(hold.get_output_port(), exp_map.get_input_port())
                 builder.Connect(exp_map.get_output_port(), mounting.get_input_port())
                 builder.Connect(mounting.get_output_port(), mux.get_input_port(1))
@@ -431,8 +463,11 @@ def make_simulator(bench, seed: int):
     plant_context = bench.plant.GetMyMutableContextFromRoot(context)
     bench.plant.SetDefaultParametersAndState(plant_context)
     p = scenario.plant
-    bench.plant.SetInitialState(plant_context, attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg),
-                                np.asarray(p.initial_rate_deg_per_s) * DEG)
+    bench.plant.SetInitialState(
+        plant_context,
+        attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg),
+        np.asarray(p.initial_rate_deg_per_s) * DEG,
+    )
     return configured_simulator(bench.diagram, context, scenario.simulation)
 
 
@@ -440,9 +475,17 @@ def configured_simulator(diagram, context, sc):
     from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 
     simulator = Simulator(diagram, context)
-    ApplySimulatorConfig(SimulatorConfig(
-        integration_scheme=sc.integration_scheme, max_step_size=sc.max_step_size_s, accuracy=sc.accuracy,
-        use_error_control=sc.use_error_control, target_realtime_rate=0.0, publish_every_time_step=False), simulator)
+    ApplySimulatorConfig(
+        SimulatorConfig(
+            integration_scheme=sc.integration_scheme,
+            max_step_size=sc.max_step_size_s,
+            accuracy=sc.accuracy,
+            use_error_control=sc.use_error_control,
+            target_realtime_rate=0.0,
+            publish_every_time_step=False,
+        ),
+        simulator,
+    )
     simulator.Initialize()
     return simulator
 
@@ -461,6 +504,7 @@ def run(bench, seed: int, duration: float) -> dict:
 # ---------------------------------------------------------------------------------------------
 # Part 1: statistical and deterministic checks
 # ---------------------------------------------------------------------------------------------
+
 
 class Checks:
     def __init__(self):
@@ -493,8 +537,10 @@ def check_gyro_statistics(check: Checks, logs, arw, rrw, title):
 
     cov = FarrenkopfGyroNoise(arw, rrw, T).interval_covariance()
     ve, c, vd = cov[0, 0], cov[0, 1], cov[1, 1]
-    print(f"\n{title}: model per axis var(e) = {ve:.4e} (rad/s)^2, var(db) = {vd:.4e}, cov(e, db) = {c:.4e} "
-          f"(correlation {c / math.sqrt(ve * vd):.3f})")
+    print(
+        f"\n{title}: model per axis var(e) = {ve:.4e} (rad/s)^2, var(db) = {vd:.4e}, cov(e, db) = {c:.4e} "
+        f"(correlation {c / math.sqrt(ve * vd):.3f})"
+    )
     stats = {}
     for prefix in ("py_gyro", "cpp_gyro"):
         e, db, _, _ = gyro_interval_noise(logs, prefix)
@@ -502,31 +548,46 @@ def check_gyro_statistics(check: Checks, logs, arw, rrw, title):
         k = TOL_SE
         print(f" {prefix} ({n} samples x 3 axes; e_n = w_n - mean rate_n - B_(n-1), db_n = B_n - B_(n-1)):")
         z_e, z_d = e.mean(0) / math.sqrt(ve / n), db.mean(0) / math.sqrt(vd / n)
-        check(f"{prefix} mean(e), mean(db) / standard error", bool(np.all(abs(z_e) <= k) and np.all(abs(z_d) <= k)),
-              f"e {np.round(z_e, 2).tolist()}, db {np.round(z_d, 2).tolist()} (|.| <= {k})")
+        check(
+            f"{prefix} mean(e), mean(db) / standard error",
+            bool(np.all(abs(z_e) <= k) and np.all(abs(z_d) <= k)),
+            f"e {np.round(z_e, 2).tolist()}, db {np.round(z_d, 2).tolist()} (|.| <= {k})",
+        )
         se_var = k * math.sqrt(2.0 / n)
         r_e, r_d = e.var(0) / ve - 1.0, db.var(0) / vd - 1.0
-        check(f"{prefix} var(e) / model - 1, var(db) / model - 1", bool(np.all(abs(r_e) <= se_var) and np.all(abs(r_d) <= se_var)),
-              f"e {np.round(r_e, 4).tolist()}, db {np.round(r_d, 4).tolist()} (|.| <= {se_var:.4f})")
+        check(
+            f"{prefix} var(e) / model - 1, var(db) / model - 1",
+            bool(np.all(abs(r_e) <= se_var) and np.all(abs(r_d) <= se_var)),
+            f"e {np.round(r_e, 4).tolist()}, db {np.round(r_d, 4).tolist()} (|.| <= {se_var:.4f})",
+        )
         cov_ed = np.array([np.cov(e[:, i], db[:, i])[0, 1] for i in range(3)])
         se_c = math.sqrt((ve * vd + c * c) / n)
         z_c = (cov_ed - c) / se_c
-        check(f"{prefix} (cov(e, db) - model) / standard error", bool(np.all(abs(z_c) <= k)),
-              f"{np.round(z_c, 2).tolist()}; sample {np.array2string(cov_ed, precision=3)} vs {c:.3e}")
+        check(
+            f"{prefix} (cov(e, db) - model) / standard error",
+            bool(np.all(abs(z_c) <= k)),
+            f"{np.round(z_c, 2).tolist()}; sample {np.array2string(cov_ed, precision=3)} vs {c:.3e}",
+        )
         corr = np.corrcoef(np.hstack([e, db]).T)
         off = corr[np.triu_indices(6, 1)]
         off = np.delete(off, [2, 7, 11])  # drop the 3 same-axis (e_i, db_i) pairs checked above
         auto = [lag1(e[:, i]) for i in range(3)] + [lag1(db[:, i]) for i in range(3)]
         lim = k / math.sqrt(n)
-        check(f"{prefix} independence: cross-axis and lag-1 correlations", bool(np.all(abs(off) <= lim) and np.all(np.abs(auto) <= lim)),
-              f"max |cross| {np.abs(off).max():.4f}, max |lag-1| {np.abs(auto).max():.4f} (<= {lim:.4f})")
+        check(
+            f"{prefix} independence: cross-axis and lag-1 correlations",
+            bool(np.all(abs(off) <= lim) and np.all(np.abs(auto) <= lim)),
+            f"max |cross| {np.abs(off).max():.4f}, max |lag-1| {np.abs(auto).max():.4f} (<= {lim:.4f})",
+        )
         stats[prefix] = (e, db)
     (e_p, db_p), (e_c, db_c) = stats["py_gyro"], stats["cpp_gyro"]
     n = len(e_p)
     lim = k * math.sqrt(4.0 / n)
     ratio_e, ratio_d = e_c.var(0) / e_p.var(0) - 1.0, db_c.var(0) / db_p.var(0) - 1.0
-    check("C++ vs Python: var ratio - 1 of e and db", bool(np.all(abs(ratio_e) <= lim) and np.all(abs(ratio_d) <= lim)),
-          f"e {np.round(ratio_e, 4).tolist()}, db {np.round(ratio_d, 4).tolist()} (|.| <= {lim:.4f})")
+    check(
+        "C++ vs Python: var ratio - 1 of e and db",
+        bool(np.all(abs(ratio_e) <= lim) and np.all(abs(ratio_d) <= lim)),
+        f"e {np.round(ratio_e, 4).tolist()}, db {np.round(ratio_d, 4).tolist()} (|.| <= {lim:.4f})",
+    )
     return stats
 
 
@@ -535,8 +596,10 @@ def check_tracker_statistics(check: Checks, logs, q_BS, sigmas, prefixes):
 
     _, q_IB = logs["truth/q_IB"]
     q_ref_inv = rot.quat_conjugate(rot.quat_multiply(q_IB, np.broadcast_to(q_BS, q_IB.shape)))
-    print(f"\nStar tracker: model sigmas {np.round(sigmas / (math.pi / 180 / 3600), 3).tolist()} arcsec "
-          "(small-angle error = rotvec((q_IB ⊗ q_BS)^-1 ⊗ q_meas), samples n >= 1)")
+    print(
+        f"\nStar tracker: model sigmas {np.round(sigmas / (math.pi / 180 / 3600), 3).tolist()} arcsec "
+        "(small-angle error = rotvec((q_IB ⊗ q_BS)^-1 ⊗ q_meas), samples n >= 1)"
+    )
     errs = {}
     for prefix in prefixes:
         _, m = logs[f"{prefix}/star_tracker_measurement"]
@@ -551,21 +614,36 @@ def check_tracker_statistics(check: Checks, logs, q_BS, sigmas, prefixes):
         auto = [lag1(err[:, i]) for i in range(3)]
         lim_c = k / math.sqrt(n)
         print(f" {prefix} ({n} samples):")
-        check(f"{prefix} mean / standard error", bool(np.all(abs(z_m) <= k)), f"{np.round(z_m, 2).tolist()} (|.| <= {k})")
-        check(f"{prefix} var / sigma^2 - 1", bool(np.all(abs(r_v) <= lim_v)), f"{np.round(r_v, 4).tolist()} (|.| <= {lim_v:.4f})")
-        check(f"{prefix} correlations (axes, lag 1)", bool(np.all(abs(corr) <= lim_c) and np.all(np.abs(auto) <= lim_c)),
-              f"axes {np.round(corr, 4).tolist()}, lag-1 {np.round(auto, 4).tolist()} (|.| <= {lim_c:.4f})")
+        check(
+            f"{prefix} mean / standard error", bool(np.all(abs(z_m) <= k)), f"{np.round(z_m, 2).tolist()} (|.| <= {k})"
+        )
+        check(
+            f"{prefix} var / sigma^2 - 1",
+            bool(np.all(abs(r_v) <= lim_v)),
+            f"{np.round(r_v, 4).tolist()} (|.| <= {lim_v:.4f})",
+        )
+        check(
+            f"{prefix} correlations (axes, lag 1)",
+            bool(np.all(abs(corr) <= lim_c) and np.all(np.abs(auto) <= lim_c)),
+            f"axes {np.round(corr, 4).tolist()}, lag-1 {np.round(auto, 4).tolist()} (|.| <= {lim_c:.4f})",
+        )
         norm_err = np.abs(np.linalg.norm(m[:, 2:6], axis=1) - np.linalg.norm(q_IB, axis=1)).max()
-        check(f"{prefix} |q_meas| = |q_IB|, scalar part >= 0, valid = 1",
-              bool(norm_err < 1e-14 and np.all(m[:, 2] >= 0) and np.all(m[:, 1] == 1)),
-              f"max | |q_meas| - |q_IB| | = {norm_err:.1e} (|q_IB| - 1 up to {np.abs(np.linalg.norm(q_IB, axis=1) - 1).max():.1e}: "
-              "the truth's norm stabilization)")
+        check(
+            f"{prefix} |q_meas| = |q_IB|, scalar part >= 0, valid = 1",
+            bool(norm_err < 1e-14 and np.all(m[:, 2] >= 0) and np.all(m[:, 1] == 1)),
+            f"max | |q_meas| - |q_IB| | = {norm_err:.1e} (|q_IB| - 1 up to {np.abs(np.linalg.norm(q_IB, axis=1) - 1).max():.1e}: "
+            "the truth's norm stabilization)",
+        )
         errs[prefix] = err
     base = errs["py_tracker"]
     lim = TOL_SE * math.sqrt(4.0 / len(base))
     for prefix in prefixes[1:]:
         r = errs[prefix].var(0) / base.var(0) - 1.0
-        check(f"{prefix} vs py_tracker: var ratio - 1", bool(np.all(abs(r) <= lim)), f"{np.round(r, 4).tolist()} (|.| <= {lim:.4f})")
+        check(
+            f"{prefix} vs py_tracker: var ratio - 1",
+            bool(np.all(abs(r) <= lim)),
+            f"{np.round(r, 4).tolist()} (|.| <= {lim:.4f})",
+        )
 
 
 def check_replay(check: Checks, logs, L, num):
@@ -579,8 +657,11 @@ def check_replay(check: Checks, logs, L, num):
     e_model = L[0, 0] * z[1:, :3]
     db_model = L[1, 0] * z[1:, :3] + L[1, 1] * z[1:, 3:]
     de, dd = np.abs(e - e_model).max() / L[0, 0], np.abs(db - db_model).max() / math.hypot(L[1, 0], L[1, 1])
-    check("cpp_gyro (e_n, db_n) = L z_n", de < 1e-8 and dd < 1e-8,
-          f"max |diff| / sigma: e {de:.1e} (round-off of I_n / T - I_(n-1) / T), db {dd:.1e}")
+    check(
+        "cpp_gyro (e_n, db_n) = L z_n",
+        de < 1e-8 and dd < 1e-8,
+        f"max |diff| / sigma: e {de:.1e} (round-off of I_n / T - I_(n-1) / T), db {dd:.1e}",
+    )
     _, q_IB = logs["truth/q_IB"]
     for prefix, first in (("cpp_tracker", 1), ("cpp_tracker_split", 1)):
         _, m = logs[f"{prefix}/star_tracker_measurement"]
@@ -588,14 +669,20 @@ def check_replay(check: Checks, logs, L, num):
         dq = rot.quat_multiply(np.broadcast_to(num.q_BS, (len(z), 4)), rot.rotvec_to_quat(num.sigmas * z))
         q_model = rot.quat_canonical(rot.quat_multiply(q_IB, dq))
         diff = np.abs(m[first:, 2:6] - q_model[first:]).max()
-        check(f"{prefix} q_meas = canonical(q_IB ⊗ q_BS ⊗ exp(sigmas z / 2)) (n >= {first})", diff < 1e-14,
-              f"max |diff| {diff:.1e}")
+        check(
+            f"{prefix} q_meas = canonical(q_IB ⊗ q_BS ⊗ exp(sigmas z / 2)) (n >= {first})",
+            diff < 1e-14,
+            f"max |diff| {diff:.1e}",
+        )
     print("Readers: what a discrete update at t_k reads (a C++ hold, logged at t_(k+1)) = the logged sample k")
     for key in sorted(k for k in logs if k.endswith("@update")):
-        logged, read = logs[key[:-len("@update")]][1], logs[key][1]
+        logged, read = logs[key[: -len("@update")]][1], logs[key][1]
         same = np.array_equal(read[2:], logged[1:-1])
-        check(f"{key[:-len('@update')]}: read at t_k = logged at t_k (k >= 1)", same,
-              "bit-identical" if same else f"max |diff| {np.abs(read[2:] - logged[1:-1]).max():.1e}")
+        check(
+            f"{key[: -len('@update')]}: read at t_k = logged at t_k (k >= 1)",
+            same,
+            "bit-identical" if same else f"max |diff| {np.abs(read[2:] - logged[1:-1]).max():.1e}",
+        )
 
 
 def run_checks(samples: int):
@@ -605,8 +692,10 @@ def run_checks(samples: int):
     check = Checks()
     all_sensors = ("py_gyro", "cpp_gyro", "py_tracker", "cpp_tracker", "cpp_tracker_split")
     duration = samples * T
-    print(f"Part 1: checks (Python and C++ sensors side by side on one truth, {samples} samples of T = {T} s each; "
-          f"statistical tolerance {TOL_SE:g} standard errors)")
+    print(
+        f"Part 1: checks (Python and C++ sensors side by side on one truth, {samples} samples of T = {T} s each; "
+        f"statistical tolerance {TOL_SE:g} standard errors)"
+    )
 
     # (a) noise-free: the C++ sensors must give the Python numbers to round-off.
     t0 = time.perf_counter()
@@ -619,20 +708,31 @@ def run_checks(samples: int):
     _, bc = logs["cpp_gyro/bias_B"]
     dw = np.abs(mc[1:, 2:5] - mp[1:, 2:5]).max()
     scale = np.abs(mp[1:, 2:5]).max()
-    check("C++ gyro w_meas (n >= 1) = Python's to round-off", dw <= 1e-11 * max(1.0, scale) and np.array_equal(bp, bc),
-          f"max |diff| {dw:.1e} rad/s (|w| up to {scale:.1e}; the C++ affine map computes I_n/T - I_(n-1)/T, "
-          f"round-off ~ eps |I| / T); bias_B identical: {np.array_equal(bp, bc)}")
-    print(f"    sample 0 (by design): Python w(0) + B_0 = {np.round(mp[0, 2:5], 6).tolist()}, C++ B_0 = {np.round(mc[0, 2:5], 6).tolist()}")
+    check(
+        "C++ gyro w_meas (n >= 1) = Python's to round-off",
+        dw <= 1e-11 * max(1.0, scale) and np.array_equal(bp, bc),
+        f"max |diff| {dw:.1e} rad/s (|w| up to {scale:.1e}; the C++ affine map computes I_n/T - I_(n-1)/T, "
+        f"round-off ~ eps |I| / T); bias_B identical: {np.array_equal(bp, bc)}",
+    )
+    print(
+        f"    sample 0 (by design): Python w(0) + B_0 = {np.round(mp[0, 2:5], 6).tolist()}, C++ B_0 = {np.round(mc[0, 2:5], 6).tolist()}"
+    )
     ds = np.abs(mc[:, 0] - mp[:, 0]).max()
-    check("C++ gyro stamp T n = Python's (n - 1) T + T", ds <= 1e-12 * mp[-1, 0], f"max |diff| {ds:.1e} s; valid flags equal: "
-          f"{np.array_equal(mc[:, 1], mp[:, 1])}")
+    check(
+        "C++ gyro stamp T n = Python's (n - 1) T + T",
+        ds <= 1e-12 * mp[-1, 0],
+        f"max |diff| {ds:.1e} s; valid flags equal: {np.array_equal(mc[:, 1], mp[:, 1])}",
+    )
     _, tp = logs["py_tracker/star_tracker_measurement"]
     for prefix in ("cpp_tracker", "cpp_tracker_split"):
         _, tc = logs[f"{prefix}/star_tracker_measurement"]
         dq = np.abs(tc[:, 2:6] - tp[:, 2:6]).max()
-        check(f"{prefix} q_meas = Python's (q_IB ⊗ q_BS, canonical) to round-off", dq <= 1e-15,
-              f"max |diff| {dq:.1e}; stamps identical: {np.array_equal(tc[:, 0], tp[:, 0])} "
-              f"(max |diff| {np.abs(tc[:, 0] - tp[:, 0]).max():.1e} s)")
+        check(
+            f"{prefix} q_meas = Python's (q_IB ⊗ q_BS, canonical) to round-off",
+            dq <= 1e-15,
+            f"max |diff| {dq:.1e}; stamps identical: {np.array_equal(tc[:, 0], tp[:, 0])} "
+            f"(max |diff| {np.abs(tc[:, 0] - tp[:, 0]).max():.1e} s)",
+        )
 
     # (b) S3's noise: statistics of each sensor against its model and against each other.
     t0 = time.perf_counter()
@@ -641,10 +741,14 @@ def run_checks(samples: int):
     L = interval_factor(num.arw, num.rrw)
     noise = FarrenkopfGyroNoise(num.arw, num.rrw, T)
     print(f"\nS3 noise ({duration:.0f} s simulated)")
-    check("C++ gyro factor: L L' = interval_covariance(), L = the Python gyro's factor (FarrenkopfGyroNoise._chol)",
-          bool(np.allclose(L @ L.T, noise.interval_covariance(), rtol=1e-14, atol=0)
-               and np.allclose(L, noise._chol, rtol=1e-14, atol=0)),
-          f"L = {np.array2string(L, precision=4, separator=', ').replace(chr(10), '')}")
+    check(
+        "C++ gyro factor: L L' = interval_covariance(), L = the Python gyro's factor (FarrenkopfGyroNoise._chol)",
+        bool(
+            np.allclose(L @ L.T, noise.interval_covariance(), rtol=1e-14, atol=0)
+            and np.allclose(L, noise._chol, rtol=1e-14, atol=0)
+        ),
+        f"L = {np.array2string(L, precision=4, separator=', ').replace(chr(10), '')}",
+    )
     logs = run(bench, seed=4, duration=duration)
     print(f"  (built and ran in {time.perf_counter() - t0:.0f} s)")
     check_replay(check, logs, L, num)
@@ -655,8 +759,13 @@ def run_checks(samples: int):
     rrw = math.sqrt(3.0) * num.arw / T
     bench = build(("py_gyro", "cpp_gyro"), gyro_noise=(num.arw, rrw), check_logs=True)
     logs = run(bench, seed=5, duration=duration)
-    check_gyro_statistics(check, logs, num.arw, rrw, f"Gyro, large RRW ({rrw / RRW_DEG_PER_H_15:.3g} deg/h^1.5, "
-                          "var of the bias part of e = the ARW part)")
+    check_gyro_statistics(
+        check,
+        logs,
+        num.arw,
+        rrw,
+        f"Gyro, large RRW ({rrw / RRW_DEG_PER_H_15:.3g} deg/h^1.5, var of the bias part of e = the ARW part)",
+    )
     print(f"\nChecks: {check.total - check.failed} of {check.total} passed")
     return check.failed
 
@@ -664,6 +773,7 @@ def run_checks(samples: int):
 # ---------------------------------------------------------------------------------------------
 # Part 2: instruction counts (or CPU time) of AdvanceTo, one child process per case
 # ---------------------------------------------------------------------------------------------
+
 
 def child(case: str, duration: float, warmup: float, clock: str, repeats: int):
     """Build ``case``'s diagram, warm up, then measure ``AdvanceTo(duration)`` (prints the result)."""
@@ -678,7 +788,9 @@ def child(case: str, duration: float, warmup: float, clock: str, repeats: int):
         from drake_att.scenarios.library import load
 
         name, overrides = AB_CASES["S3 single tracker, 10 Hz gyro + ST + MEKF"]
-        scenario = apply_overrides(load(name), [f"duration_s={duration}", f"scoring.score_from_s={duration / 10}"] + overrides)
+        scenario = apply_overrides(
+            load(name), [f"duration_s={duration}", f"scoring.score_from_s={duration / 10}"] + overrides
+        )
         sd = ScenarioDiagram(scenario)
 
         def simulator_for(seed):
@@ -708,13 +820,31 @@ def child(case: str, duration: float, warmup: float, clock: str, repeats: int):
 
 def launch(case: str, args) -> subprocess.Popen:
     clock = "cpu" if args.no_callgrind else "instructions"
-    command = [sys.executable, os.path.abspath(__file__), "--child", case, "--duration", str(args.duration),
-               "--warmup", str(args.warmup), "--repeats", str(args.repeats), "--clock", clock]
+    command = [
+        sys.executable,
+        os.path.abspath(__file__),
+        "--child",
+        case,
+        "--duration",
+        str(args.duration),
+        "--warmup",
+        str(args.warmup),
+        "--repeats",
+        str(args.repeats),
+        "--clock",
+        clock,
+    ]
     if clock == "instructions":
         command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--callgrind-out-file=/dev/null"] + command
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONHASHSEED="0")  # the same count on every run
-    return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    return subprocess.Popen(
+        command,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+    )
 
 
 def result(case: str, process: subprocess.Popen, instructions: bool) -> float:
@@ -748,8 +878,10 @@ def print_table(results: dict, args):
     steps = round(args.duration / T)
     unit, scale = ("k instr", 1e-3) if instructions else ("us", 1e6)
     what = "callgrind instructions" if instructions else f"CPU time (process_time, best of {args.repeats})"
-    print(f"\nPart 2: {what} of simulator.AdvanceTo({args.duration:g}) after a {args.warmup:g}-s warm-up; "
-          f"{steps} steps of 0.1 s, {steps} sensor samples")
+    print(
+        f"\nPart 2: {what} of simulator.AdvanceTo({args.duration:g}) after a {args.warmup:g}-s warm-up; "
+        f"{steps} steps of 0.1 s, {steps} sensor samples"
+    )
     base = results.get("baseline")
     print(f"{'case':<22} {'total':>14} {unit + ' / step':>16} {'sensor ' + unit + ' / sample':>24}")
     for case in (c for c in CASES if c in results):
@@ -766,13 +898,19 @@ def print_table(results: dict, args):
         return (results[case] - base) / steps * scale if case in results else None
 
     print()
-    pairs = [("gyro (one Diagram)", "py_gyro", "cpp_gyro"), ("gyro (flat)", "py_gyro", "cpp_gyro_flat"), ("star tracker (one system)", "py_tracker", "cpp_tracker"),
-             ("star tracker (split)", "py_tracker", "cpp_tracker_split"),
-             ("  floor: one system, no math", "py_tracker", "cpp_tracker_floor"),
-             ("both (gyro + split)", "py_both", "cpp_both")]
+    pairs = [
+        ("gyro (one Diagram)", "py_gyro", "cpp_gyro"),
+        ("gyro (flat)", "py_gyro", "cpp_gyro_flat"),
+        ("star tracker (one system)", "py_tracker", "cpp_tracker"),
+        ("star tracker (split)", "py_tracker", "cpp_tracker_split"),
+        ("  floor: one system, no math", "py_tracker", "cpp_tracker_floor"),
+        ("both (gyro + split)", "py_both", "cpp_both"),
+    ]
     shipped = results["shipped"] / steps * scale if "shipped" in results else None
-    print(f"{'sensor cost per sample':<30} {'Python':>9} {'C++':>9} {'Python/C++':>11} {'saved':>9}"
-          + (f" {'saved / shipped step':>21}" if shipped else ""))
+    print(
+        f"{'sensor cost per sample':<30} {'Python':>9} {'C++':>9} {'Python/C++':>11} {'saved':>9}"
+        + (f" {'saved / shipped step':>21}" if shipped else "")
+    )
     for label, py, cpp in pairs:
         a, b = cost(py), cost(cpp)
         if a is None or b is None:
@@ -782,22 +920,35 @@ def print_table(results: dict, args):
             line += f" {(a - b) / shipped:20.1%}"
         print(line)
     if shipped:
-        print(f"\nshipped 10 Hz case (bench_ab.py's 'S3 single tracker, 10 Hz gyro + ST + MEKF'): {shipped:.1f} {unit} "
-              f"per 0.1-s step (its truth and truth loggers alone, the baseline: {base / steps * scale:.1f})")
+        print(
+            f"\nshipped 10 Hz case (bench_ab.py's 'S3 single tracker, 10 Hz gyro + ST + MEKF'): {shipped:.1f} {unit} "
+            f"per 0.1-s step (its truth and truth loggers alone, the baseline: {base / steps * scale:.1f})"
+        )
         if "shipped_cpp_gyro" in results:
             mixed = results["shipped_cpp_gyro"] / steps * scale
-            print(f"the same with the C++ gyro (its plug-in replaced):           {mixed:.1f} {unit} per step: "
-                  f"{shipped - mixed:.1f} saved, {(shipped - mixed) / shipped:.1%} of the step ({shipped / mixed:.3f}x)")
+            print(
+                f"the same with the C++ gyro (its plug-in replaced):           {mixed:.1f} {unit} per step: "
+                f"{shipped - mixed:.1f} saved, {(shipped - mixed) / shipped:.1%} of the step ({shipped / mixed:.3f}x)"
+            )
     print(f"(units: {unit}; 'sensor' = (case - baseline) / samples)")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--no-callgrind", action="store_true", help="time AdvanceTo with process_time instead of counting instructions")
-    ap.add_argument("--duration", type=float, default=200.0, help="simulated seconds of the measured AdvanceTo (default 200)")
+    ap.add_argument(
+        "--no-callgrind", action="store_true", help="time AdvanceTo with process_time instead of counting instructions"
+    )
+    ap.add_argument(
+        "--duration", type=float, default=200.0, help="simulated seconds of the measured AdvanceTo (default 200)"
+    )
     ap.add_argument("--warmup", type=float, default=10.0, help="simulated seconds of the warm-up run (default 10)")
     ap.add_argument("--repeats", type=int, default=3, help="--no-callgrind: timed runs per case, best kept (default 3)")
-    ap.add_argument("--jobs", type=int, default=None, help="child processes at once (default 2 under callgrind, 1 with --no-callgrind)")
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        default=None,
+        help="child processes at once (default 2 under callgrind, 1 with --no-callgrind)",
+    )
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, from {list(CASES)}")
     ap.add_argument("--samples", type=int, default=20000, help="samples per statistical check (default 20000)")
     ap.add_argument("--skip-checks", action="store_true")

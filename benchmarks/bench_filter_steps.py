@@ -148,9 +148,18 @@ def first_iteration_verdict(core, state, w, obs) -> str:
     """Whether the timed update stopped after its first iteration (cubature cores)."""
     if not isinstance(core, CubatureQuaternionEstimator) or core.update_iterations == 1:
         return ""
-    single = CubatureQuaternionEstimator(core.arw, core.rrw, core.grp_a, core.grp_f, core.gate, core.noise_model,
-                                         core.zeta_gate_sigmas, 1, core.iteration_tolerance,
-                                         core.zeta_state_correlation)
+    single = CubatureQuaternionEstimator(
+        core.arw,
+        core.rrw,
+        core.grp_a,
+        core.grp_f,
+        core.gate,
+        core.noise_model,
+        core.zeta_gate_sigmas,
+        1,
+        core.iteration_tolerance,
+        core.zeta_state_correlation,
+    )
     prior = core.predict(state, w, DT)
     same = np.array_equal(core.to_vector(core.update(prior, obs)[0]), single.to_vector(single.update(prior, obs)[0]))
     return "1 iteration" if same else f"> 1 iteration (of {core.update_iterations})"
@@ -168,14 +177,25 @@ def time_slot(case, clock) -> float:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=7, help="timed repeats per core (the best is kept)")
-    ap.add_argument("--number", type=int, default=0,
-                    help="steps per timed slot for every core (0: per core, about --slot-time per slot)")
+    ap.add_argument(
+        "--number",
+        type=int,
+        default=0,
+        help="steps per timed slot for every core (0: per core, about --slot-time per slot)",
+    )
     ap.add_argument("--slot-time", type=float, default=0.1, help="target seconds per slot with --number 0")
     ap.add_argument("--stars", type=int, choices=(2, 3), default=3, help="star vectors per sample (S1: 3)")
-    ap.add_argument("--particles", default="100,1000",
-                    help="comma-separated particle counts for the bootstrap PF and EKPF ('' or 0: none)")
-    ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
-                    help="cpu: time.process_time (default); wall: time.perf_counter")
+    ap.add_argument(
+        "--particles",
+        default="100,1000",
+        help="comma-separated particle counts for the bootstrap PF and EKPF ('' or 0: none)",
+    )
+    ap.add_argument(
+        "--clock",
+        choices=("cpu", "wall"),
+        default="cpu",
+        help="cpu: time.process_time (default); wall: time.perf_counter",
+    )
     ap.add_argument("--burn-in", type=int, default=200, help="filter steps before the timed state")
     args = ap.parse_args(argv)
     if args.repeats < 1 or args.number < 0 or args.burn_in < 1 or not args.slot_time > 0.0:
@@ -191,7 +211,7 @@ def main(argv=None) -> None:
             state, info = core.update(core.predict(state, w_meas[k], DT, rng), obs[k + 1], rng)
         w, y = w_meas[K], obs[K + 1]
         after, info = core.update(core.predict(state, w, DT, rng), y, rng)
-        check = f"err {attitude_error_arcsec(core, after, q_true[K + 1]):.2f}\""
+        check = f'err {attitude_error_arcsec(core, after, q_true[K + 1]):.2f}"'
         if not info.accepted:
             check += ", update REJECTED"
         verdict = first_iteration_verdict(core, state, w, y)
@@ -228,7 +248,7 @@ def main(argv=None) -> None:
     try:
         gc.disable()
         for r in range(args.repeats):
-            order = others[r % len(others):] + others[:r % len(others)] if others else []
+            order = others[r % len(others) :] + others[: r % len(others)] if others else []
             prev = time_slot(ref_case, clock)
             ref_case["times"].append(prev)
             for c in order:
@@ -244,15 +264,21 @@ def main(argv=None) -> None:
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
 
     ref = min(ref_case["times"])
-    print(f"Filter cores, one predict + update step (dt = {DT:g} s, {args.stars} stars at 2 arcsec, S1 gyro), "
-          f"converged state after {K} steps; {args.clock} clock "
-          f"({'time.process_time' if args.clock == 'cpu' else 'time.perf_counter'}), best of {args.repeats} "
-          f"round-robin repeats")
-    print(f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, "
-          f"{datetime.date.today().isoformat()}; timed loops: {wall:.1f} s wall, CPU / wall = {cpu / wall:.2f}, "
-          f"1-min load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after ({os.cpu_count()} CPUs)")
+    print(
+        f"Filter cores, one predict + update step (dt = {DT:g} s, {args.stars} stars at 2 arcsec, S1 gyro), "
+        f"converged state after {K} steps; {args.clock} clock "
+        f"({'time.process_time' if args.clock == 'cpu' else 'time.perf_counter'}), best of {args.repeats} "
+        f"round-robin repeats"
+    )
+    print(
+        f"Python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}, "
+        f"{datetime.date.today().isoformat()}; timed loops: {wall:.1f} s wall, CPU / wall = {cpu / wall:.2f}, "
+        f"1-min load average {load0:.2f} before, {os.getloadavg()[0]:.2f} after ({os.cpu_count()} CPUs)"
+    )
     print()
-    print("| core | us/step (best) | x MEKF, median per repeat [range] | x MEKF, best/best | steps x slots | check of the timed step |")
+    print(
+        "| core | us/step (best) | x MEKF, median per repeat [range] | x MEKF, best/best | steps x slots | check of the timed step |"
+    )
     print("|---|---|---|---|---|---|")
     for c in cases:
         t = c["times"]
@@ -261,8 +287,10 @@ def main(argv=None) -> None:
         else:
             ratios = sorted(c["ratios"])
             spread = f"{statistics.median(ratios):.2f} [{ratios[0]:.2f}, {ratios[-1]:.2f}]"
-        print(f"| {c['label']} | {1e6 * min(t):.1f} | {spread} | {min(t) / ref:.2f} | "
-              f"{c['number']} x {len(t)} | {c['check']} |")
+        print(
+            f"| {c['label']} | {1e6 * min(t):.1f} | {spread} | {min(t) / ref:.2f} | "
+            f"{c['number']} x {len(t)} | {c['check']} |"
+        )
 
 
 if __name__ == "__main__":

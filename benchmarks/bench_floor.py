@@ -73,8 +73,13 @@ def install_null_callbacks() -> None:
             if port.HasValue(context):
                 port.Eval(context)
         group = discrete_state.get_mutable_value
-        for g in (self._innovation_group, self._estimate_group, self._book_group, self._core_group,
-                  self._linearization_group):
+        for g in (
+            self._innovation_group,
+            self._estimate_group,
+            self._book_group,
+            self._core_group,
+            self._linearization_group,
+        ):
             if g is not None:
                 group(g)
         return EventStatus.Succeeded()
@@ -133,13 +138,23 @@ def truth_only(case: str, duration: float):
 
     def simulate(seed):
         context = diagram.CreateDefaultContext()
-        truth.SetInitialState(truth.GetMyMutableContextFromRoot(context), np.array([1.0, 0.0, 0.0, 0.0]),
-                              np.asarray(p.initial_rate_deg_per_s) * DEG)
+        truth.SetInitialState(
+            truth.GetMyMutableContextFromRoot(context),
+            np.array([1.0, 0.0, 0.0, 0.0]),
+            np.asarray(p.initial_rate_deg_per_s) * DEG,
+        )
         simulator = Simulator(diagram, context)
-        ApplySimulatorConfig(SimulatorConfig(
-            integration_scheme=sc.integration_scheme, max_step_size=sc.max_step_size_s, accuracy=sc.accuracy,
-            use_error_control=sc.use_error_control, target_realtime_rate=0.0, publish_every_time_step=False),
-            simulator)
+        ApplySimulatorConfig(
+            SimulatorConfig(
+                integration_scheme=sc.integration_scheme,
+                max_step_size=sc.max_step_size_s,
+                accuracy=sc.accuracy,
+                use_error_control=sc.use_error_control,
+                target_realtime_rate=0.0,
+                publish_every_time_step=False,
+            ),
+            simulator,
+        )
         simulator.Initialize()
         simulator.AdvanceTo(duration)
 
@@ -179,9 +194,25 @@ def child_run(case: str, side: str, duration: float, seed: int, toggle) -> dict:
 
 def count(case: str, side: str, duration: float, seed: int) -> float:
     """Callgrind's instruction count of one side's timed part."""
-    out = subprocess.run(["valgrind", "--tool=callgrind", "--instr-atstart=no", "--callgrind-out-file=/dev/null",
-                          sys.executable, "-c", _CHILD, os.path.dirname(os.path.abspath(__file__)), case, side,
-                          str(duration), str(seed)], capture_output=True, text=True, check=False)
+    out = subprocess.run(
+        [
+            "valgrind",
+            "--tool=callgrind",
+            "--instr-atstart=no",
+            "--callgrind-out-file=/dev/null",
+            sys.executable,
+            "-c",
+            _CHILD,
+            os.path.dirname(os.path.abspath(__file__)),
+            case,
+            side,
+            str(duration),
+            str(seed),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     counts = [line.split(":")[-1] for line in out.stderr.splitlines() if "Collected :" in line]
     if out.returncode != 0 or not counts or not any(line.startswith("RESULT ") for line in out.stdout.splitlines()):
         raise SystemExit(f"{case} {side} under callgrind failed:\n{out.stderr[-3000:]}")
@@ -201,14 +232,18 @@ def main(argv=None):
         counts = {side: count(case, side, a.duration, a.seed) for side in SIDES}
         summary[case] = counts
         peer = counts["peer"]
-        print(f"\n{bench_peer.title(case)}, {a.duration:.0f} s ({steps} steps of 0.1 s), seed {a.seed}; "
-              f"callgrind instructions of the timed part")
+        print(
+            f"\n{bench_peer.title(case)}, {a.duration:.0f} s ({steps} steps of 0.1 s), seed {a.seed}; "
+            f"callgrind instructions of the timed part"
+        )
         print(f"{'side':<8} {'10^6 instr':>11} {'per step':>10} {'/ peer':>8} {'/ drake':>8}")
         for side in SIDES:
             c = counts[side]
             print(f"{side:<8} {c / 1e6:11.1f} {c / steps / 1e3:9.0f}k {c / peer:8.3f} {c / counts['drake']:8.3f}")
-        print(f"goal: {GOAL[case]}. null / peer = {counts['null'] / peer:.3f}: no change of our Python code "
-              f"can go below this on this design; truth alone / peer = {counts['truth'] / peer:.3f}.")
+        print(
+            f"goal: {GOAL[case]}. null / peer = {counts['null'] / peer:.3f}: no change of our Python code "
+            f"can go below this on this design; truth alone / peer = {counts['truth'] / peer:.3f}."
+        )
     print("\nRESULT " + json.dumps(summary))
 
 

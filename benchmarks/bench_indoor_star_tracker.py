@@ -62,11 +62,28 @@ FRAME_S = 0.2
 def make_solver(geometry, method: str) -> IndoorStarTrackerSolver:
     """The estimator config's solver settings (the dynamic scenario uses the defaults)."""
     c = IndoorStarTrackerConfig()
-    swarm = SwarmSettings(c.pso_particles, c.pso_inertia, c.pso_c1, c.pso_c2, c.pso_v_max_deg,
-                          c.pso_max_generations, c.pso_search_range_deg, c.pso_stop_fraction)
-    return IndoorStarTrackerSolver(geometry, c.tolerance_deg, c.identification, method, c.max_iterations,
-                                   c.convergence_tolerance_arcsec * ARCSEC, "given", swarm, c.max_lost_frames,
-                                   c.sigma_floor_urad * 1e-6)
+    swarm = SwarmSettings(
+        c.pso_particles,
+        c.pso_inertia,
+        c.pso_c1,
+        c.pso_c2,
+        c.pso_v_max_deg,
+        c.pso_max_generations,
+        c.pso_search_range_deg,
+        c.pso_stop_fraction,
+    )
+    return IndoorStarTrackerSolver(
+        geometry,
+        c.tolerance_deg,
+        c.identification,
+        method,
+        c.max_iterations,
+        c.convergence_tolerance_arcsec * ARCSEC,
+        "given",
+        swarm,
+        c.max_lost_frames,
+        c.sigma_floor_urad * 1e-6,
+    )
 
 
 def make_frames(geometry, count: int, seed: int, pitch: float):
@@ -110,8 +127,10 @@ def machine_line() -> str:
     except Exception:  # pragma: no cover - presentation only
         drake_version = getattr(pydrake, "__version__", "?")
     load_avg = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    return (f"{platform.machine()} '{platform.processor()}', {os.cpu_count()} CPUs, Python {platform.python_version()}, "
-            f"drake {drake_version}, numpy {np.__version__}; 1-min load average at start {load_avg:.2f}")
+    return (
+        f"{platform.machine()} '{platform.processor()}', {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+        f"drake {drake_version}, numpy {np.__version__}; 1-min load average at start {load_avg:.2f}"
+    )
 
 
 def main(argv=None) -> int:
@@ -127,10 +146,14 @@ def main(argv=None) -> int:
     pitch = base.pixel_pitch_um * 1e-6
 
     # -- tracking frames and identification passes --------------------------------------------
-    print(f"\nTracking: {n_frames} frames at {FRAME_S:g} s along the turn, {NOISE_PX:g} px noise, A0 = previous "
-          "solution (times per frame: identification + iteration)")
-    print(f"{'stars':>5} {'in view':>8} {'method':<14} {'median ms':>9} {'mean ms':>8} {'iterations':>10} "
-          f"{'ms/iter':>8} {'identified':>10} {'err RMS (deg)':>13}")
+    print(
+        f"\nTracking: {n_frames} frames at {FRAME_S:g} s along the turn, {NOISE_PX:g} px noise, A0 = previous "
+        "solution (times per frame: identification + iteration)"
+    )
+    print(
+        f"{'stars':>5} {'in view':>8} {'method':<14} {'median ms':>9} {'mean ms':>8} {'iterations':>10} "
+        f"{'ms/iter':>8} {'identified':>10} {'err RMS (deg)':>13}"
+    )
     identify_rows = []
     for stars in (7, 50):
         geometry = camera_geometry(replace(base, star_count=stars))
@@ -140,9 +163,11 @@ def main(argv=None) -> int:
             track(solver, frames[:10], truths[:10])  # warm-up
             t, it, ident, err = track(solver, frames, truths)
             view = np.mean([len(f.centroids_m) for f in frames])
-            print(f"{stars:5d} {view:8.1f} {method:<14} {1e3 * np.median(t):9.3f} {1e3 * t.mean():8.3f} "
-                  f"{it.mean():10.2f} {1e3 * t.sum() / it.sum():8.3f} {ident.mean():10.1f} "
-                  f"{np.sqrt(np.mean(err**2)):13.5f}")
+            print(
+                f"{stars:5d} {view:8.1f} {method:<14} {1e3 * np.median(t):9.3f} {1e3 * t.mean():8.3f} "
+                f"{it.mean():10.2f} {1e3 * t.sum() / it.sum():8.3f} {ident.mean():10.1f} "
+                f"{np.sqrt(np.mean(err**2)):13.5f}"
+            )
         # one identification pass (centre-referenced directions at the true attitude)
         solver = make_solver(geometry, "triad")
         bs = [directions_from_centroids(f.centroids_m, f.focal_length_m) for f in frames]
@@ -161,8 +186,10 @@ def main(argv=None) -> int:
                 solver.count_identified(b, R)
         per_fit = (time.perf_counter() - t0) / (reps * len(us))
         identify_rows.append((stars, np.mean([len(u) for u in us]), per, per_fit))
-    print("\nOne identification pass (AngleMatcher.identify), and one swarm fitness evaluation "
-          "(directions + alpha correction + identify):")
+    print(
+        "\nOne identification pass (AngleMatcher.identify), and one swarm fitness evaluation "
+        "(directions + alpha correction + identify):"
+    )
     for stars, view, per, per_fit in identify_rows:
         print(f"  {stars:2d} stars ({view:.1f} in view): identify {1e6 * per:7.1f} us; fitness {1e6 * per_fit:7.1f} us")
 
@@ -183,12 +210,16 @@ def main(argv=None) -> int:
         found.append(-res.fitness)
     times, gens = np.array(times), np.array(gens)
     evals = solver.swarm.particles * (1 + gens)
-    print(f"\nPSO initialization ({solver.swarm.particles} particles, 50 stars, truth {START_RPY.tolist()} deg, "
-          f"+-{solver.swarm.search_range_deg:g} deg about 0), {n_seeds} seeds:")
-    print(f"  median {1e3 * np.median(times):.1f} ms (range {1e3 * times.min():.1f}-{1e3 * times.max():.1f} ms); "
-          f"generations median {np.median(gens):g} (range {gens.min()}-{gens.max()}, {np.mean(gens == 0):.0%} none); "
-          f"{1e6 * times.sum() / evals.sum():.0f} us per fitness evaluation; best particle identified "
-          f"{min(found):g}-{max(found):g} stars")
+    print(
+        f"\nPSO initialization ({solver.swarm.particles} particles, 50 stars, truth {START_RPY.tolist()} deg, "
+        f"+-{solver.swarm.search_range_deg:g} deg about 0), {n_seeds} seeds:"
+    )
+    print(
+        f"  median {1e3 * np.median(times):.1f} ms (range {1e3 * times.min():.1f}-{1e3 * times.max():.1f} ms); "
+        f"generations median {np.median(gens):g} (range {gens.min()}-{gens.max()}, {np.mean(gens == 0):.0%} none); "
+        f"{1e6 * times.sum() / evals.sum():.0f} us per fitness evaluation; best particle identified "
+        f"{min(found):g}-{max(found):g} stars"
+    )
 
     # -- scenario ----------------------------------------------------------------------------------
     scenario = load("s2_indoor_dynamic")
@@ -198,16 +229,24 @@ def main(argv=None) -> int:
     names = [e.name for e in scenario.estimators]
     print(f"\n{scenario.name}: {scenario.duration_s:g} s simulated, one diagram, seed 1 (estimators {names}):")
     walls, cpus = {}, {}
-    for label, sel in (("sensors only (estimators=[])", []), ("camera alone", ["indoor_star_tracker"]),
-                       ("camera + gyro (MEKF)", ["indoor_star_tracker_gyro"]), ("both (the scenario)", None)):
+    for label, sel in (
+        ("sensors only (estimators=[])", []),
+        ("camera alone", ["indoor_star_tracker"]),
+        ("camera + gyro (MEKF)", ["indoor_star_tracker_gyro"]),
+        ("both (the scenario)", None),
+    ):
         t0, c0 = time.perf_counter(), time.process_time()
         run = sd.simulate(seed=1, estimators=sel)
         walls[label], cpus[label] = time.perf_counter() - t0, time.process_time() - c0
-        print(f"  {label:<30} {walls[label]:6.2f} s wall, {cpus[label]:6.2f} s CPU "
-              f"({scenario.duration_s / walls[label]:5.1f} sim-s / wall-s)")
+        print(
+            f"  {label:<30} {walls[label]:6.2f} s wall, {cpus[label]:6.2f} s CPU "
+            f"({scenario.duration_s / walls[label]:5.1f} sim-s / wall-s)"
+        )
     for label in ("camera alone", "camera + gyro (MEKF)"):
-        print(f"  {label}: the estimator's share {walls[label] - walls['sensors only (estimators=[])']:5.2f} s wall, "
-              f"{cpus[label] - cpus['sensors only (estimators=[])']:5.2f} s CPU over the sensors-only run")
+        print(
+            f"  {label}: the estimator's share {walls[label] - walls['sensors only (estimators=[])']:5.2f} s wall, "
+            f"{cpus[label] - cpus['sensors only (estimators=[])']:5.2f} s CPU over the sensors-only run"
+        )
     del run
 
     # where the fused run's time goes (30 s of it, under cProfile)
@@ -223,11 +262,12 @@ def main(argv=None) -> int:
         return sum(v[1] for v in hits), sum(v[3] for v in hits)
 
     print(f"  camera + gyro, 30 s under cProfile ({total:.2f} s of own time in all functions); cumulative:")
-    for label, name, part in (("estimator steps (_on_step)", "_on_step", "systems/estimator_system.py"),
-                              ("  frame solves (IndoorStarTrackerSolver.solve)", "solve", "filters/indoor_star_tracker.py"),
-                              ("  camera port evaluations (ScreenCamera._calc_centroids)", "_calc_centroids",
-                               "systems/screen_camera.py"),
-                              ("  MEKF predictions (MultiplicativeEKF.predict)", "predict", "filters/mekf.py")):
+    for label, name, part in (
+        ("estimator steps (_on_step)", "_on_step", "systems/estimator_system.py"),
+        ("  frame solves (IndoorStarTrackerSolver.solve)", "solve", "filters/indoor_star_tracker.py"),
+        ("  camera port evaluations (ScreenCamera._calc_centroids)", "_calc_centroids", "systems/screen_camera.py"),
+        ("  MEKF predictions (MultiplicativeEKF.predict)", "predict", "filters/mekf.py"),
+    ):
         calls, cum = cumulative(name, part)
         print(f"    {label:<58} {calls:6d} calls {cum:6.2f} s ({cum / total:5.1%})")
 
@@ -241,13 +281,15 @@ def main(argv=None) -> int:
     ids = solver.matcher.identify(u)
     sigmas = solver.direction_sigmas(frame, b, R)
     lsq = make_solver(geometry, "least_squares")
-    pieces = (("directions from centroids", lambda: directions_from_centroids(frame.centroids_m, frame.focal_length_m)),
-              ("alpha + centre-referenced directions", lambda: solver.observed_directions(b, R)),
-              ("identification (AngleMatcher.identify)", lambda: solver.matcher.identify(u)),
-              ("direction sigmas (for the covariance)", lambda: solver.direction_sigmas(frame, b, R)),
-              ("TRIAD + its covariance (pair choice incl.)", lambda: solver._attitude(u, ids, sigmas, frame.centroids_m)),
-              ("least squares (SVD) + covariance", lambda: lsq._attitude(u, ids, sigmas, frame.centroids_m)),
-              ("rotation_angle (the stop test)", lambda: rotation_angle(R, R)))
+    pieces = (
+        ("directions from centroids", lambda: directions_from_centroids(frame.centroids_m, frame.focal_length_m)),
+        ("alpha + centre-referenced directions", lambda: solver.observed_directions(b, R)),
+        ("identification (AngleMatcher.identify)", lambda: solver.matcher.identify(u)),
+        ("direction sigmas (for the covariance)", lambda: solver.direction_sigmas(frame, b, R)),
+        ("TRIAD + its covariance (pair choice incl.)", lambda: solver._attitude(u, ids, sigmas, frame.centroids_m)),
+        ("least squares (SVD) + covariance", lambda: lsq._attitude(u, ids, sigmas, frame.centroids_m)),
+        ("rotation_angle (the stop test)", lambda: rotation_angle(R, R)),
+    )
     print(f"\nOne iteration's pieces, 50 stars ({len(b)} in view), us per call (best of 5 x 200 calls, no profiler):")
     for label, fn in pieces:
         best = np.inf
@@ -265,8 +307,10 @@ def main(argv=None) -> int:
     prof.disable()
     out = io.StringIO()
     stats = pstats.Stats(prof, stream=out)
-    print(f"\ncProfile of {len(frames)} tracking frames (50 stars, TRIAD), top 10 by own time "
-          f"(total {stats.total_tt:.3f} s under the profiler):")
+    print(
+        f"\ncProfile of {len(frames)} tracking frames (50 stars, TRIAD), top 10 by own time "
+        f"(total {stats.total_tt:.3f} s under the profiler):"
+    )
     stats.sort_stats("tottime").print_stats(10)
     text = out.getvalue()
     start = text.find("   ncalls")

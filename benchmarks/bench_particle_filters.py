@@ -52,8 +52,9 @@ def make_data(num_steps: int, seed: int = 0):
     q = np.array([1.0, 0.0, 0.0, 0.0])
     ys, wms = [], []
     for _ in range(num_steps):
-        ys.append(particle_reference.vector_measurement_model(rot.quat_to_mrp(q), REFS)
-                  + SIGMA_STAR * rng.standard_normal(6))
+        ys.append(
+            particle_reference.vector_measurement_model(rot.quat_to_mrp(q), REFS) + SIGMA_STAR * rng.standard_normal(6)
+        )
         wms.append(w + b + SIGMA_V * rng.standard_normal(3))
         b = b + SIGMA_U * rng.standard_normal(3)
         q = rot.quat_propagate(q, w, 1.0)
@@ -65,8 +66,12 @@ def cores(kernel: str):
     (``"numba"``) or the numpy oracle's (``"numpy"``)."""
     if kernel == "numba":
         return MrpEkfCore, BootstrapPfCore, EkpfCore, GyrolessPfCore
-    return (particle_reference.ReferenceMrpEkfCore, particle_reference.ReferenceBootstrapPfCore,
-            particle_reference.ReferenceEkpfCore, particle_reference.ReferenceGyrolessPfCore)
+    return (
+        particle_reference.ReferenceMrpEkfCore,
+        particle_reference.ReferenceBootstrapPfCore,
+        particle_reference.ReferenceEkpfCore,
+        particle_reference.ReferenceGyrolessPfCore,
+    )
 
 
 def time_steps(step, num_steps: int):
@@ -83,8 +88,12 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300, help="timed steps per filter")
     parser.add_argument("--particles", type=int, default=1000, help="particles per PF")
-    parser.add_argument("--kernel", choices=("numba", "numpy"), default="numba",
-                        help="numba: the library's cores (compiled kernels); numpy: the tests' numpy oracle")
+    parser.add_argument(
+        "--kernel",
+        choices=("numba", "numpy"),
+        default="numba",
+        help="numba: the library's cores (compiled kernels); numpy: the tests' numpy oracle",
+    )
     args = parser.parse_args(argv)
     ekf_core, bootstrap_core, ekpf_core, gyroless_core = cores(args.kernel)
     n, num_steps = args.particles, args.steps
@@ -94,8 +103,9 @@ def main(argv=None) -> None:
     P0 = np.diag([DEG**2] * 3 + [(DEG / HOUR) ** 2] * 3)
     P0_gyroless = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
 
-    observations = [VectorObservations(float(k), True, y.reshape(2, 3), REFS, SIGMA_STAR, BODY)
-                    for k, y in enumerate(ys)]
+    observations = [
+        VectorObservations(float(k), True, y.reshape(2, 3), REFS, SIGMA_STAR, BODY) for k, y in enumerate(ys)
+    ]
     rows = []
 
     def bench(name, core, state, rng, particles):
@@ -121,19 +131,25 @@ def main(argv=None) -> None:
         rng = np.random.default_rng(seed)
         bench(name, core, core.draw_initial_state(rng), rng, n)
 
-    particle_bench("bootstrap PF (gyro)", bootstrap_core(
-        n, q0, b0, P0, 2e-5, bias_roughening=RandomWalkRoughening(3e-7)), 2)
+    particle_bench(
+        "bootstrap PF (gyro)", bootstrap_core(n, q0, b0, P0, 2e-5, bias_roughening=RandomWalkRoughening(3e-7)), 2
+    )
     particle_bench("EKPF (gyro)", ekpf_core(n, q0, b0, P0, SIGMA_V, SIGMA_U), 3)
-    particle_bench("EKPF, iterated proposal (<=10)", ekpf_core(
-        n, q0, b0, P0, SIGMA_V, SIGMA_U, proposal_iterations=10), 4)
-    particle_bench("gyroless PF (RK4, 1 substep)", gyroless_core(
-        n, q0, np.full(3, 0.001 * DEG), P0_gyroless, INERTIA, TORQUE, 1e-6, attitude_process_sigma=3e-5), 5)
+    particle_bench(
+        "EKPF, iterated proposal (<=10)", ekpf_core(n, q0, b0, P0, SIGMA_V, SIGMA_U, proposal_iterations=10), 4
+    )
+    particle_bench(
+        "gyroless PF (RK4, 1 substep)",
+        gyroless_core(n, q0, np.full(3, 0.001 * DEG), P0_gyroless, INERTIA, TORQUE, 1e-6, attitude_process_sigma=3e-5),
+        5,
+    )
 
     what = "the library (compiled kernels)" if args.kernel == "numba" else "the numpy oracle"
-    print(f"S0 filter cores, {what}, {num_steps} timed steps (predict + update), "
-          f"numpy {np.__version__}, Python {platform.python_version()}, {platform.machine()}")
-    header = (f"{'filter':<32} {'N':>6} {'mean ms/step':>13} {'best ms/step':>13} "
-              f"{'1000 steps s':>13}")
+    print(
+        f"S0 filter cores, {what}, {num_steps} timed steps (predict + update), "
+        f"numpy {np.__version__}, Python {platform.python_version()}, {platform.machine()}"
+    )
+    header = f"{'filter':<32} {'N':>6} {'mean ms/step':>13} {'best ms/step':>13} {'1000 steps s':>13}"
     print(header)
     print("-" * len(header))
     for name, particles, mean_ms, best_ms, total_s in rows:

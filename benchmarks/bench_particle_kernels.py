@@ -122,7 +122,9 @@ else:
                                               attitude_process_sigma=attitude_sigma, **kw), r, sigma, True)
 """
 
-STEP_CHILD = FILTERS + r"""
+STEP_CHILD = (
+    FILTERS
+    + r"""
 import json, sys, time
 from drake_att import rotations as rot
 try:  # the measurement model: the library's where it has one, else the oracle's
@@ -169,6 +171,7 @@ for name in ("EKPF", "bootstrap PF", "gyroless PF"):
     out[name] = {"times": times, "first_update_s": first}
 print(json.dumps(out))
 """
+)
 
 SCENARIO_CHILD = r"""
 import json, os, sys, time
@@ -192,7 +195,8 @@ sd.simulate(2, estimators=["ekpf"])
 print(json.dumps({"cpu_s": time.process_time() - t0, "warm_up_s": warm}))
 """
 
-COMPILE_CHILD = r"""
+COMPILE_CHILD = (
+    r"""
 import json, time
 t0 = time.perf_counter()
 import numba
@@ -200,7 +204,9 @@ t_numba = time.perf_counter() - t0
 t0 = time.perf_counter()
 from drake_att.filters import particle_kernels
 t_module = time.perf_counter() - t0
-""" + FILTERS + r"""
+"""
+    + FILTERS
+    + r"""
 P0 = np.diag([1e-4] * 3 + [1e-10] * 3)
 y = np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])
 out = {"import numba": t_numba, "import particle_kernels": t_module, "caching": particle_kernels.CACHING}
@@ -214,12 +220,19 @@ for name in ("EKPF", "bootstrap PF", "gyroless PF"):
     out[f"first step, {name}"] = time.perf_counter() - t0
 print(json.dumps(out))
 """
+)
 
 
 def child(checkout: str, code: str, args, env_extra=None) -> dict:
     env = dict(os.environ, PYTHONPATH=os.path.abspath(checkout), MPLBACKEND="Agg", **(env_extra or {}))
-    out = subprocess.run([sys.executable, "-c", code, *map(str, args)], check=False, env=env, capture_output=True,
-                         text=True, cwd=os.path.abspath(checkout))
+    out = subprocess.run(
+        [sys.executable, "-c", code, *map(str, args)],
+        check=False,
+        env=env,
+        capture_output=True,
+        text=True,
+        cwd=os.path.abspath(checkout),
+    )
     if out.returncode != 0:
         raise SystemExit(f"{checkout} {args}: failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -244,9 +257,11 @@ def main(argv=None) -> None:
     variants = [("old", args.old, "library"), ("new oracle", args.new, "oracle"), ("new", args.new, "library")]
     if args.no_oracle:
         del variants[1]
-    print(f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
-          f"{args.rounds} rounds ({', '.join(v for v, _, _ in variants)} in turn); N = {args.particles}; CPU time "
-          f"(time.process_time); 1-min load average {os.getloadavg()[0]:.2f} at start, {os.cpu_count()} CPUs")
+    print(
+        f"old: {os.path.abspath(args.old)}\nnew: {os.path.abspath(args.new)}\n"
+        f"{args.rounds} rounds ({', '.join(v for v, _, _ in variants)} in turn); N = {args.particles}; CPU time "
+        f"(time.process_time); 1-min load average {os.getloadavg()[0]:.2f} at start, {os.cpu_count()} CPUs"
+    )
     step_table(variants, args)
     if not args.no_scenario:
         run_table(variants, args)
@@ -263,9 +278,13 @@ def step_table(variants, args) -> None:
     filters = list(steps["old"][0])
     others = [v for v, _, _ in variants if v != "old"]
     print(f"\nPer step (predict + update), ms of CPU; {args.steps} steps x {args.rounds} rounds per cell")
-    print("| filter | " + " | ".join(f"{v} best / median" for v, _, _ in variants) + " | "
-          + " | ".join(f"old / {v}, best/best | old / {v}, median of per-round median ratios [range]" for v in others)
-          + " |")
+    print(
+        "| filter | "
+        + " | ".join(f"{v} best / median" for v, _, _ in variants)
+        + " | "
+        + " | ".join(f"old / {v}, best/best | old / {v}, median of per-round median ratios [range]" for v in others)
+        + " |"
+    )
     print("|---|" + "---|" * (len(variants) + 2 * len(others)))
     for f in filters:
         cell, med_round = {}, {}
@@ -286,16 +305,18 @@ def run_table(variants, args) -> None:
     for _ in range(args.rounds):
         for v, tree, kind in variants:
             runs[v].append(child(tree, SCENARIO_CHILD, [kind, args.duration]))
-    print(f"\nWhole run: s0_particle_filters_small_error, EKPF only, {args.duration:.0f} s simulated, "
-          f"CPU s of simulate()")
-    print("| variant | best | median | old / variant, best/best | old / variant, median of per-round ratios "
-          "[range] |")
+    print(
+        f"\nWhole run: s0_particle_filters_small_error, EKPF only, {args.duration:.0f} s simulated, CPU s of simulate()"
+    )
+    print("| variant | best | median | old / variant, best/best | old / variant, median of per-round ratios [range] |")
     print("|---|---|---|---|---|")
     for v, _, _ in variants:
         t = [r["cpu_s"] for r in runs[v]]
         rr = sorted(o["cpu_s"] / n["cpu_s"] for o, n in zip(runs["old"], runs[v], strict=True))
-        print(f"| {v} | {min(t):.2f} | {median(t):.2f} | {min(r['cpu_s'] for r in runs['old']) / min(t):.2f} | "
-              f"{median(rr):.2f} [{rr[0]:.2f}, {rr[-1]:.2f}] |")
+        print(
+            f"| {v} | {min(t):.2f} | {median(t):.2f} | {min(r['cpu_s'] for r in runs['old']) / min(t):.2f} | "
+            f"{median(rr):.2f} [{rr[0]:.2f}, {rr[-1]:.2f}] |"
+        )
 
 
 def compile_table(args) -> None:
@@ -305,8 +326,7 @@ def compile_table(args) -> None:
         cold = child(args.new, COMPILE_CHILD, [], env)
         warm = child(args.new, COMPILE_CHILD, [], env)
         size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(cache) for f in fs)
-    print(f"\nFirst compile (NUMBA_CACHE_DIR = a new empty directory; wall s; cache written: "
-          f"{size / 1e6:.1f} MB)")
+    print(f"\nFirst compile (NUMBA_CACHE_DIR = a new empty directory; wall s; cache written: {size / 1e6:.1f} MB)")
     print("| | cold cache (compiles) | warm cache (loads) |")
     print("|---|---|---|")
     for k in cold:

@@ -67,10 +67,11 @@ SAME_CLASS = (0.5, 2.0)  # drake_att / peer RMSE per axis
 
 
 def title(case: str, ekpf_kernel: str = "numba") -> str:
-    return {"ten_hz": "S3 single tracker, gyro/ST/MEKF at 10 Hz",
-            "default": "default scenario (S3 dual tracker: 2 trackers at 10 Hz, gyro + 4 MEKFs at 1 Hz, average, "
-                       "fusion)",
-            "ekpf": f"S0 EKPF, N = 1000, all at 1 Hz (drake_att's kernel: {ekpf_kernel}; the peer's: numpy)"}[case]
+    return {
+        "ten_hz": "S3 single tracker, gyro/ST/MEKF at 10 Hz",
+        "default": "default scenario (S3 dual tracker: 2 trackers at 10 Hz, gyro + 4 MEKFs at 1 Hz, average, fusion)",
+        "ekpf": f"S0 EKPF, N = 1000, all at 1 Hz (drake_att's kernel: {ekpf_kernel}; the peer's: numpy)",
+    }[case]
 
 
 def score_from(duration: float) -> float:
@@ -88,16 +89,28 @@ def run_peer(case: str, duration: float, seed: int) -> dict:
             r = peer_numpy_loop.run(duration, seed, 10.0)
         finally:
             peer_numpy_loop.SCORE_FROM_S = saved
-        return {"cpu_s": r["cpu_s"], "rmse_deg": {"single": r["rmse_deg"]}, "steps": r["steps"],
-                "note": f"{r['steps']} steps, {r['gate_rejections']} gate rejections"}
+        return {
+            "cpu_s": r["cpu_s"],
+            "rmse_deg": {"single": r["rmse_deg"]},
+            "steps": r["steps"],
+            "note": f"{r['steps']} steps, {r['gate_rejections']} gate rejections",
+        }
     if case == "default":
         r = peer_default_loop.run(duration, seed, start)
         rejected = sum(r["gate_rejections"].values())
-        return {"cpu_s": r["cpu_s"], "rmse_deg": r["rmse_deg"], "steps": r["steps"],
-                "note": f"{r['steps']} truth steps, {r['filter_steps']} filter steps, {rejected} gate rejections"}
+        return {
+            "cpu_s": r["cpu_s"],
+            "rmse_deg": r["rmse_deg"],
+            "steps": r["steps"],
+            "note": f"{r['steps']} truth steps, {r['filter_steps']} filter steps, {rejected} gate rejections",
+        }
     r = peer_ekpf_loop.run(duration, seed, start)
-    return {"cpu_s": r["cpu_s"], "rmse_deg": r["rmse_deg"], "steps": r["steps"],
-            "note": f"{r['steps']} steps, {r['resamplings']} resamplings"}
+    return {
+        "cpu_s": r["cpu_s"],
+        "rmse_deg": r["rmse_deg"],
+        "steps": r["steps"],
+        "note": f"{r['steps']} steps, {r['resamplings']} resamplings",
+    }
 
 
 def drake_scenario(case: str, duration: float):
@@ -193,12 +206,28 @@ def count_instructions(case: str, side: str, duration: float, seed: int, ekpf_ke
     """``(callgrind's instruction count of one side's timed part, its child_run result)``."""
     import subprocess
 
-    out = subprocess.run(["valgrind", "--tool=callgrind", "--instr-atstart=no", "--callgrind-out-file=/dev/null",
-                          sys.executable, "-c", _CHILD, os.path.dirname(os.path.abspath(__file__)), case, side,
-                          str(duration), str(seed), ekpf_kernel],
-                         capture_output=True, text=True, check=False)
+    out = subprocess.run(
+        [
+            "valgrind",
+            "--tool=callgrind",
+            "--instr-atstart=no",
+            "--callgrind-out-file=/dev/null",
+            sys.executable,
+            "-c",
+            _CHILD,
+            os.path.dirname(os.path.abspath(__file__)),
+            case,
+            side,
+            str(duration),
+            str(seed),
+            ekpf_kernel,
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     counts = [line.split(":")[-1] for line in out.stderr.splitlines() if "Collected :" in line]
-    results = [line[len("RESULT "):] for line in out.stdout.splitlines() if line.startswith("RESULT ")]
+    results = [line[len("RESULT ") :] for line in out.stdout.splitlines() if line.startswith("RESULT ")]
     if out.returncode != 0 or not counts or not results:
         raise SystemExit(f"{case} {side} under callgrind failed:\n{out.stderr[-2000:]}")
     return float(counts[-1].replace(",", "")), json.loads(results[-1])
@@ -226,10 +255,18 @@ def print_rmse_table(case: str, peer_rmse: dict, lib_rmse: dict, start: float) -
     print(f"attitude RMSE x/y/z after {start:.0f} s (deg):")
     print(f"  {'estimator':<14} {'peer':<27} {'drake_att':<27} drake_att / peer")
     for n, p, d, ratios, ok in lines:
-        print(f"  {n:<14} {_fmt(p):<27} {_fmt(d):<27} {' '.join(f'{r:.2f}' for r in ratios)}"
-              + ("" if ok else "  <- NOT the same class"))
-    print("-> " + ("same class (within a factor 2 per axis; different random streams)" if same
-                   else "NOT the same class (a factor > 2 on some axis): check the models"))
+        print(
+            f"  {n:<14} {_fmt(p):<27} {_fmt(d):<27} {' '.join(f'{r:.2f}' for r in ratios)}"
+            + ("" if ok else "  <- NOT the same class")
+        )
+    print(
+        "-> "
+        + (
+            "same class (within a factor 2 per axis; different random streams)"
+            if same
+            else "NOT the same class (a factor > 2 on some axis): check the models"
+        )
+    )
     return same
 
 
@@ -260,9 +297,14 @@ def measure_cpu(case: str, duration: float, seed: int, repeats: int, ekpf_kernel
         print(f"{'drake_att':<10} {lib:9.2f}  {_fmt(m):>32}   (simulate only; build {build:.2f} s; {lib_note})")
         print(f"ratio drake_att / peer: {ratio:.1f}  (all CPU times: peer {peer_all}; drake_att {lib_all})")
         same, lines = rmse_verdict(case, peer["rmse_deg"], lib_rmse)
-        print(f"RMSE drake_att / peer per axis: {' '.join(f'{r:.2f}' for r in lines[0][3])} -> "
-              + ("same class (within a factor 2 per axis; different random streams)" if same
-                 else "NOT the same class (a factor > 2 on some axis): check the models"))
+        print(
+            f"RMSE drake_att / peer per axis: {' '.join(f'{r:.2f}' for r in lines[0][3])} -> "
+            + (
+                "same class (within a factor 2 per axis; different random streams)"
+                if same
+                else "NOT the same class (a factor > 2 on some axis): check the models"
+            )
+        )
     else:
         print(f"{'':<10} {'CPU (s)':>9}")
         print(f"{'peer':<10} {peer['cpu_s']:9.2f}   ({peer['note']})")
@@ -278,29 +320,48 @@ def measure_instructions(case: str, duration: float, seed: int, ekpf_kernel: str
     lib_n, lib_r = count_instructions(case, "drake_att", duration, seed, ekpf_kernel)
     steps = round(duration / STEP_S[case])
     what = f"{STEP_S[case]:g}-s step"
-    print(f"{title(case, ekpf_kernel)}, {duration:.0f} s ({steps} steps), seed {seed}: instructions (callgrind)\n"
-          f"{'peer':<10} {peer_n / 1e9:8.3f} G  ({peer_n / steps / 1e3:.0f} k per {what}; {peer_r['note']})\n"
-          f"{'drake_att':<10} {lib_n / 1e9:8.3f} G  ({lib_n / steps / 1e3:.0f} k per {what}; {lib_r['note']})\n"
-          f"ratio drake_att / peer: {lib_n / peer_n:.2f}")
+    print(
+        f"{title(case, ekpf_kernel)}, {duration:.0f} s ({steps} steps), seed {seed}: instructions (callgrind)\n"
+        f"{'peer':<10} {peer_n / 1e9:8.3f} G  ({peer_n / steps / 1e3:.0f} k per {what}; {peer_r['note']})\n"
+        f"{'drake_att':<10} {lib_n / 1e9:8.3f} G  ({lib_n / steps / 1e3:.0f} k per {what}; {lib_r['note']})\n"
+        f"ratio drake_att / peer: {lib_n / peer_n:.2f}"
+    )
     same = print_rmse_table(case, peer_r["rmse_deg"], lib_r["rmse_deg"], score_from(duration))
-    return {"case": case, "duration": duration, "peer": peer_n / 1e9, "lib": lib_n / 1e9, "ratio": lib_n / peer_n,
-            "same": same}
+    return {
+        "case": case,
+        "duration": duration,
+        "peer": peer_n / 1e9,
+        "lib": lib_n / 1e9,
+        "ratio": lib_n / peer_n,
+        "same": same,
+    }
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--case", choices=CASES + ("all",), default="all", help="which case (default: all three)")
-    ap.add_argument("--duration", type=float, default=None,
-                    help="simulated seconds of every selected case (default: 5000 ten_hz, 5000 default, 1000 ekpf)")
+    ap.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="simulated seconds of every selected case (default: 5000 ten_hz, 5000 default, 1000 ekpf)",
+    )
     ap.add_argument("--ekpf-duration", type=float, default=None, help="simulated seconds of the ekpf case")
     ap.add_argument("--repeats", type=int, default=2, help="best of N (default 2)")
     ap.add_argument("--quick", action="store_true", help="1000 s (ten_hz, default), 300 s (ekpf), 1 repeat")
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--ekpf-kernel", choices=("numba", "numpy"), default="numba",
-                    help="drake_att's EKPF core (default numba: the compiled kernels, as shipped; numpy: the "
-                         "peer's core, the tests' numpy oracle, which leaves the framework's overhead)")
-    ap.add_argument("--instructions", action="store_true",
-                    help="count instructions under callgrind instead of timing (deterministic; ~50x slower)")
+    ap.add_argument(
+        "--ekpf-kernel",
+        choices=("numba", "numpy"),
+        default="numba",
+        help="drake_att's EKPF core (default numba: the compiled kernels, as shipped; numpy: the "
+        "peer's core, the tests' numpy oracle, which leaves the framework's overhead)",
+    )
+    ap.add_argument(
+        "--instructions",
+        action="store_true",
+        help="count instructions under callgrind instead of timing (deterministic; ~50x slower)",
+    )
     a = ap.parse_args(argv)
     cases = CASES if a.case == "all" else (a.case,)
     durations = dict(QUICK_DURATION_S if a.quick else DURATION_S)
@@ -323,11 +384,15 @@ def main(argv=None):
     if len(rows) > 1:
         unit = "G instr" if a.instructions else "CPU s"
         print(f"\nsummary, seed {a.seed} ({'callgrind instructions' if a.instructions else f'best of {a.repeats}'}):")
-        print(f"  {'case':<8} {'duration':>9} {'peer (' + unit + ')':>15} {'drake_att (' + unit + ')':>20} "
-              f"{'drake_att / peer':>17}  RMSE in class")
+        print(
+            f"  {'case':<8} {'duration':>9} {'peer (' + unit + ')':>15} {'drake_att (' + unit + ')':>20} "
+            f"{'drake_att / peer':>17}  RMSE in class"
+        )
         for r in rows:
-            print(f"  {r['case']:<8} {r['duration']:>7.0f} s {r['peer']:>15.3f} {r['lib']:>20.3f} {r['ratio']:>17.2f}  "
-                  + ("yes" if r["same"] else "NO"))
+            print(
+                f"  {r['case']:<8} {r['duration']:>7.0f} s {r['peer']:>15.3f} {r['lib']:>20.3f} {r['ratio']:>17.2f}  "
+                + ("yes" if r["same"] else "NO")
+            )
 
 
 if __name__ == "__main__":

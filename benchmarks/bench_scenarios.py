@@ -39,8 +39,9 @@ def time_case(label, scenario, repeat):
         run = sd.simulate(seed=1 + k)
         walls.append(time.perf_counter() - t0)
     best = min(walls)
-    print(f"{label:<58} {scenario.duration_s:7.0f} s  wall {best:6.2f} s  "
-          f"{scenario.duration_s / best:8.0f} sim-s/wall-s")
+    print(
+        f"{label:<58} {scenario.duration_s:7.0f} s  wall {best:6.2f} s  {scenario.duration_s / best:8.0f} sim-s/wall-s"
+    )
     return best, run
 
 
@@ -56,26 +57,67 @@ def main(argv=None):
     dual = apply_overrides(load("cubesat_dual_star_tracker"), dur)
     results = {}
     results["default"] = time_case("default: S3 dual tracker, 4 estimators + fusion (1 Hz)", dual, args.repeat)[0]
-    rk5 = apply_overrides(single, ["simulation.integration_scheme=runge_kutta5", "simulation.accuracy=1e-10",
-                                   "simulation.use_error_control=true", "simulation.max_step_size_s=1.0"])
+    rk5 = apply_overrides(
+        single,
+        [
+            "simulation.integration_scheme=runge_kutta5",
+            "simulation.accuracy=1e-10",
+            "simulation.use_error_control=true",
+            "simulation.max_step_size_s=1.0",
+        ],
+    )
     results["single"] = time_case("S3 single tracker (gyro 1 Hz, ST 10 Hz, MEKF 1 Hz), RK5 1e-10", rk5, args.repeat)[0]
-    fast = apply_overrides(single, ["simulation.integration_scheme=runge_kutta3", "simulation.use_error_control=false",
-                                    "simulation.max_step_size_s=0.1"])
+    fast = apply_overrides(
+        single,
+        [
+            "simulation.integration_scheme=runge_kutta3",
+            "simulation.use_error_control=false",
+            "simulation.max_step_size_s=0.1",
+        ],
+    )
     results["single_rk3"] = time_case("  same, truth by fixed-step RK3 (0.1 s) [shipped setting]", fast, args.repeat)[0]
     ten = apply_overrides(fast, TEN_HZ)
     results["ten_hz"] = time_case("S3 single tracker at 10 Hz gyro, ST and MEKF (RK3 0.1 s)", ten, args.repeat)[0]
-    dual_ten = apply_overrides(dual, ["sensors.gyro.period_s=0.1"] + [
-        f"estimators.{n}.period_s=0.1" for n in ("single", "centralized", "single_st2", "joint")])
+    dual_ten = apply_overrides(
+        dual,
+        ["sensors.gyro.period_s=0.1"]
+        + [f"estimators.{n}.period_s=0.1" for n in ("single", "centralized", "single_st2", "joint")],
+    )
     results["default_ten_hz"] = time_case("default at 10 Hz gyro and all 4 MEKFs", dual_ten, args.repeat)[0]
 
     print("\n== Truth integrator: accuracy vs speed (S3 single tracker) ==")
-    ref = apply_overrides(single, ["simulation.integration_scheme=runge_kutta5", "simulation.accuracy=1e-12",
-                                   "simulation.use_error_control=true"])
+    ref = apply_overrides(
+        single,
+        [
+            "simulation.integration_scheme=runge_kutta5",
+            "simulation.accuracy=1e-12",
+            "simulation.use_error_control=true",
+        ],
+    )
     _, ref_run = time_case("reference: runge_kutta5, accuracy 1e-12", ref, 1)
     q_ref = ref_run.values("rigid_body_plant/q_IB")
-    for label, over in [("runge_kutta5, error-controlled 1e-10", ["simulation.integration_scheme=runge_kutta5", "simulation.accuracy=1e-10"]),
-                        ("runge_kutta3, fixed 0.1 s", ["simulation.integration_scheme=runge_kutta3", "simulation.use_error_control=false", "simulation.max_step_size_s=0.1"]),
-                        ("runge_kutta2, fixed 0.1 s", ["simulation.integration_scheme=runge_kutta2", "simulation.use_error_control=false", "simulation.max_step_size_s=0.1"])]:
+    for label, over in [
+        (
+            "runge_kutta5, error-controlled 1e-10",
+            ["simulation.integration_scheme=runge_kutta5", "simulation.accuracy=1e-10"],
+        ),
+        (
+            "runge_kutta3, fixed 0.1 s",
+            [
+                "simulation.integration_scheme=runge_kutta3",
+                "simulation.use_error_control=false",
+                "simulation.max_step_size_s=0.1",
+            ],
+        ),
+        (
+            "runge_kutta2, fixed 0.1 s",
+            [
+                "simulation.integration_scheme=runge_kutta2",
+                "simulation.use_error_control=false",
+                "simulation.max_step_size_s=0.1",
+            ],
+        ),
+    ]:
         s = apply_overrides(single, over)
         wall, run = time_case(label, s, 1)
         err = np.linalg.norm(rot.quat_error_rotvec(q_ref, run.values("rigid_body_plant/q_IB")), axis=1).max()
@@ -95,10 +137,14 @@ def main(argv=None):
     print(buf.getvalue().split("\n", 6)[-1][:3500])
     own = {k: v for k, v in stats.stats.items()}
     advance = sum(v[2] for k, v in own.items() if k[2] == "<built-in method pydrake.systems.analysis.AdvanceTo>")
-    print(f"total {total:.2f} s; inside AdvanceTo but not in Python callbacks (C++ integrator, event dispatch, "
-          f"loggers): {advance:.2f} s ({100 * advance / total:.0f}%)")
+    print(
+        f"total {total:.2f} s; inside AdvanceTo but not in Python callbacks (C++ integrator, event dispatch, "
+        f"loggers): {advance:.2f} s ({100 * advance / total:.0f}%)"
+    )
     print("\n== Ratios ==")
-    print(f"default (4 estimators + fusion) / single (both RK3 fixed): {results['default'] / results['single_rk3']:.2f}")
+    print(
+        f"default (4 estimators + fusion) / single (both RK3 fixed): {results['default'] / results['single_rk3']:.2f}"
+    )
     print(f"single RK3 fixed / single RK5 error-controlled: {results['single_rk3'] / results['single']:.2f}")
     print(f"10 Hz everything / 1 Hz filter: {results['ten_hz'] / results['single_rk3']:.2f}")
 

@@ -255,8 +255,14 @@ def run(duration_s: float = 5000.0, seed: int = 1, score_from_s: float = SCORE_F
     for n in ESTIMATORS:
         d = quat_error_rotvec(est_log[n][scored, :4], q_true) / DEG
         rmse[n] = np.sqrt(np.mean(d * d, axis=0)).tolist() if len(d) else [math.nan] * 3
-    return {"cpu_s": cpu, "rmse_deg": rmse, "steps": steps, "filter_steps": n_filter - 1,
-            "gate_rejections": rejections, "samples_scored": int(np.sum(scored))}
+    return {
+        "cpu_s": cpu,
+        "rmse_deg": rmse,
+        "steps": steps,
+        "filter_steps": n_filter - 1,
+        "gate_rejections": rejections,
+        "samples_scored": int(np.sum(scored)),
+    }
 
 
 def main(argv=None):
@@ -265,12 +271,17 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args(argv)
     r = run(a.duration, a.seed)
-    print(f"peer default loop: {a.duration:.0f} s, {r['steps']} truth steps, {r['filter_steps']} filter steps, "
-          f"seed {a.seed}; CPU time {r['cpu_s']:.2f} s")
+    print(
+        f"peer default loop: {a.duration:.0f} s, {r['steps']} truth steps, {r['filter_steps']} filter steps, "
+        f"seed {a.seed}; CPU time {r['cpu_s']:.2f} s"
+    )
     print(f"attitude RMSE after {SCORE_FROM_S:.0f} s (deg, x/y/z):")
     for n in ESTIMATORS:
-        print(f"  {n:<14} " + " ".join(f"{v:.2e}" for v in r["rmse_deg"][n])
-              + (f"   gate rejections {r['gate_rejections'][n]}" if n in MEKFS else ""))
+        print(
+            f"  {n:<14} "
+            + " ".join(f"{v:.2e}" for v in r["rmse_deg"][n])
+            + (f"   gate rejections {r['gate_rejections'][n]}" if n in MEKFS else "")
+        )
 
 
 if __name__ == "__main__":

@@ -93,8 +93,13 @@ def rk3_step(y, h):
     return peer_numpy_loop.rk3_step(y, h, INERTIA_T, TORQUE_T)
 
 
-def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_FROM_S,
-        num_particles: int = NUM_PARTICLES, kernel: str = "numpy") -> dict:
+def run(
+    duration_s: float = 1000.0,
+    seed: int = 1,
+    score_from_s: float = SCORE_FROM_S,
+    num_particles: int = NUM_PARTICLES,
+    kernel: str = "numpy",
+) -> dict:
     """Simulate ``duration_s`` of the S0 EKPF case.
 
     ``kernel``: the EKPF core, ``"numpy"`` (default: the plain-numpy peer, the tests' oracle) or
@@ -112,8 +117,15 @@ def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_F
     bias = GYRO_BIAS0.copy()
     P0 = np.diag([P0_ATT_SIGMA**2] * 3 + [P0_BIAS_SIGMA**2] * 3)
     core = (ReferenceEkpfCore if kernel == "numpy" else EkpfCore)(
-        num_particles, rpy_quat(EST_RPY_DEG * DEG), EST_BIAS0, P0, ARW, RRW, proposal_iterations=PROPOSAL_ITERATIONS,
-        resampling_gate=EffectiveSampleSizeGate(RESAMPLE_THRESHOLD))
+        num_particles,
+        rpy_quat(EST_RPY_DEG * DEG),
+        EST_BIAS0,
+        P0,
+        ARW,
+        RRW,
+        proposal_iterations=PROPOSAL_ITERATIONS,
+        resampling_gate=EffectiveSampleSizeGate(RESAMPLE_THRESHOLD),
+    )
     pf = core.draw_initial_state(pf_rng)
     q_BS = np.array([1.0, 0.0, 0.0, 0.0])
     resamplings = 0
@@ -145,8 +157,13 @@ def run(duration_s: float = 1000.0, seed: int = 1, score_from_s: float = SCORE_F
     scored = np.arange(steps + 1) * T >= score_from_s - 1e-6
     d = quat_error_rotvec(est_log[scored, :4], truth_log[scored, :4]) / DEG
     rmse = np.sqrt(np.mean(d * d, axis=0)).tolist() if len(d) else [math.nan] * 3
-    return {"cpu_s": cpu, "rmse_deg": {"ekpf": rmse}, "steps": steps, "resamplings": resamplings,
-            "samples_scored": int(np.sum(scored))}
+    return {
+        "cpu_s": cpu,
+        "rmse_deg": {"ekpf": rmse},
+        "steps": steps,
+        "resamplings": resamplings,
+        "samples_scored": int(np.sum(scored)),
+    }
 
 
 def main(argv=None):
@@ -157,9 +174,13 @@ def main(argv=None):
     ap.add_argument("--kernel", choices=("numpy", "numba"), default="numpy")
     a = ap.parse_args(argv)
     r = run(a.duration, a.seed, num_particles=a.particles, kernel=a.kernel)
-    print(f"peer EKPF loop ({a.kernel} core): {a.duration:.0f} s, {r['steps']} steps, N = {a.particles}, seed {a.seed}; "
-          f"CPU time {r['cpu_s']:.2f} s; {r['resamplings']} resamplings")
-    print(f"attitude RMSE after {SCORE_FROM_S:.0f} s (deg, x/y/z): " + " ".join(f"{v:.2e}" for v in r["rmse_deg"]["ekpf"]))
+    print(
+        f"peer EKPF loop ({a.kernel} core): {a.duration:.0f} s, {r['steps']} steps, N = {a.particles}, seed {a.seed}; "
+        f"CPU time {r['cpu_s']:.2f} s; {r['resamplings']} resamplings"
+    )
+    print(
+        f"attitude RMSE after {SCORE_FROM_S:.0f} s (deg, x/y/z): " + " ".join(f"{v:.2e}" for v in r["rmse_deg"]["ekpf"])
+    )
 
 
 if __name__ == "__main__":

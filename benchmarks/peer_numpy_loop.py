@@ -62,8 +62,14 @@ INERTIA_T, TORQUE_T = tuple(INERTIA.tolist()), tuple(TORQUE_N_M.tolist())  # as 
 def qmul(a, b):
     aw, ax, ay, az = a.tolist()
     bw, bx, by, bz = b.tolist()
-    return np.array([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw])
+    return np.array(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
 
 
 def qconj(q):
@@ -91,9 +97,13 @@ def qlog(q):
 def qrot(q):
     """R(q): body -> inertial for q_IB."""
     w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def rpy_quat(rpy):
@@ -116,8 +126,14 @@ def mounting_q_BS(psi, phi, theta):
     c = lambda a: math.cos(0.5 * a)  # noqa: E731
     s = lambda a: math.sin(0.5 * a)  # noqa: E731
     th, ph, ps = theta, phi, psi
-    q7 = np.array([c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps), c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
-                   s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps), s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps)])
+    q7 = np.array(
+        [
+            c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
+            c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
+            s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
+            s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps),
+        ]
+    )
     return qconj(q7 / math.sqrt(q7 @ q7))
 
 
@@ -140,10 +156,20 @@ def rhs(y, inertia=INERTIA_T, torque=TORQUE_T):
     Ix, Iy, Iz = inertia
     tx, ty, tz = torque
     # w x (I w) written out (np.cross costs tens of microseconds on 3-vectors under numpy 2).
-    return np.array([0.5 * (-qx * wx - qy * wy - qz * wz) + k * qw, 0.5 * (qw * wx + qy * wz - qz * wy) + k * qx,
-                     0.5 * (qw * wy - qx * wz + qz * wx) + k * qy, 0.5 * (qw * wz + qx * wy - qy * wx) + k * qz,
-                     (tx - (Iz - Iy) * wy * wz) / Ix, (ty - (Ix - Iz) * wz * wx) / Iy, (tz - (Iy - Ix) * wx * wy) / Iz,
-                     wx, wy, wz])
+    return np.array(
+        [
+            0.5 * (-qx * wx - qy * wy - qz * wz) + k * qw,
+            0.5 * (qw * wx + qy * wz - qz * wy) + k * qx,
+            0.5 * (qw * wy - qx * wz + qz * wx) + k * qy,
+            0.5 * (qw * wz + qx * wy - qy * wx) + k * qz,
+            (tx - (Iz - Iy) * wy * wz) / Ix,
+            (ty - (Ix - Iz) * wz * wx) / Iy,
+            (tz - (Iy - Ix) * wx * wy) / Iz,
+            wx,
+            wy,
+            wz,
+        ]
+    )
 
 
 def rk3_step(y, h, inertia=INERTIA_T, torque=TORQUE_T):
@@ -184,7 +210,7 @@ def process_noise(sv, su, dt):
     Q = np.zeros((6, 6))
     eye = np.eye(3)
     Q[:3, :3] = (sv**2 * dt + su**2 * dt**3 / 3) * eye
-    Q[:3, 3:] = Q[3:, :3] = (-su**2 * dt**2 / 2) * eye
+    Q[:3, 3:] = Q[3:, :3] = (-(su**2) * dt**2 / 2) * eye
     Q[3:, 3:] = su**2 * dt * eye
     return Q
 
@@ -267,8 +293,13 @@ def run(duration_s: float, seed: int, rate_hz: float = 10.0) -> dict:
             n_scored += 1
     cpu = time.process_time() - c0
     rmse = np.sqrt(sq / max(n_scored, 1)) / DEG
-    return {"cpu_s": cpu, "rmse_deg": rmse.tolist(), "steps": steps, "gate_rejections": rejections,
-            "samples_scored": n_scored}
+    return {
+        "cpu_s": cpu,
+        "rmse_deg": rmse.tolist(),
+        "steps": steps,
+        "gate_rejections": rejections,
+        "samples_scored": n_scored,
+    }
 
 
 def main(argv=None):
@@ -279,8 +310,11 @@ def main(argv=None):
     a = ap.parse_args(argv)
     r = run(a.duration, a.seed, a.rate_hz)
     print(f"peer numpy loop: {a.duration:.0f} s at {a.rate_hz:g} Hz, {r['steps']} steps, seed {a.seed}")
-    print(f"CPU time {r['cpu_s']:.2f} s; attitude RMSE after {SCORE_FROM_S:.0f} s (deg, x/y/z): "
-          + " ".join(f"{v:.2e}" for v in r["rmse_deg"]) + f"; gate rejections {r['gate_rejections']}")
+    print(
+        f"CPU time {r['cpu_s']:.2f} s; attitude RMSE after {SCORE_FROM_S:.0f} s (deg, x/y/z): "
+        + " ".join(f"{v:.2e}" for v in r["rmse_deg"])
+        + f"; gate rejections {r['gate_rejections']}"
+    )
 
 
 if __name__ == "__main__":

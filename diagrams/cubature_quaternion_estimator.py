@@ -42,9 +42,15 @@ def two_norms(run, name, t_from):
     sel = e["t"] >= t_from
     att = np.linalg.norm(e["dtheta"], axis=1) / DEG
     bias = np.linalg.norm(e["second_err"], axis=1) / DEG_PER_H
-    return {"attitude_deg": float(np.sqrt(np.mean(att[sel] ** 2))), "bias_deg_per_h": float(np.sqrt(np.mean(bias[sel] ** 2))),
-            "t": e["t"], "att_deg": att, "bias_deg_per_h_series": bias, "dtheta_deg": e["dtheta"] / DEG,
-            "bias_err_deg_per_h": e["second_err"] / DEG_PER_H}
+    return {
+        "attitude_deg": float(np.sqrt(np.mean(att[sel] ** 2))),
+        "bias_deg_per_h": float(np.sqrt(np.mean(bias[sel] ** 2))),
+        "t": e["t"],
+        "att_deg": att,
+        "bias_deg_per_h_series": bias,
+        "dtheta_deg": e["dtheta"] / DEG,
+        "bias_err_deg_per_h": e["second_err"] / DEG_PER_H,
+    }
 
 
 def run_seeds(sd, seeds, overrides, estimators=FILTERS):
@@ -58,29 +64,48 @@ def run_seeds(sd, seeds, overrides, estimators=FILTERS):
 
 
 def mean_norms(rows, name):
-    return (float(np.mean([r["norms"][name]["attitude_deg"] for r in rows])),
-            float(np.mean([r["norms"][name]["bias_deg_per_h"] for r in rows])))
+    return (
+        float(np.mean([r["norms"][name]["attitude_deg"] for r in rows])),
+        float(np.mean([r["norms"][name]["bias_deg_per_h"] for r in rows])),
+    )
 
 
 def evaluate(rows):
     claims = []
     conv = {f: [r["metrics"][f]["convergence_time_s"] for r in rows] for f in ("cqe", "cqe_mcns")}
     ok = all(c is not None for f in conv for c in conv[f])
-    claims.append({"claim": "both filters converge from the [-45, 45, 155] deg initial error",
-                   "evidence": "time after which every axis stays within 0.01 deg (s), per seed: "
-                               + "; ".join(f"{f} {conv[f]}" for f in conv),
-                   "verdict": "holds" if ok else "does not hold"})
+    claims.append(
+        {
+            "claim": "both filters converge from the [-45, 45, 155] deg initial error",
+            "evidence": "time after which every axis stays within 0.01 deg (s), per seed: "
+            + "; ".join(f"{f} {conv[f]}" for f in conv),
+            "verdict": "holds" if ok else "does not hold",
+        }
+    )
     for f, (pa, pb) in PAPER.items():
         a, b = mean_norms(rows, f)
         within = 0.25 <= a / pa <= 4 and 0.25 <= b / pb <= 4
-        claims.append({"claim": f"{f}: ~{pa} deg attitude, ~{pb} deg/h bias (2-norms, orbits 2-3)",
-                       "evidence": f"{a:.2e} deg, {b:.2e} deg/h (mean over seeds)",
-                       "verdict": "holds (same order of magnitude)" if within else "does not hold"})
+        claims.append(
+            {
+                "claim": f"{f}: ~{pa} deg attitude, ~{pb} deg/h bias (2-norms, orbits 2-3)",
+                "evidence": f"{a:.2e} deg, {b:.2e} deg/h (mean over seeds)",
+                "verdict": "holds (same order of magnitude)" if within else "does not hold",
+            }
+        )
     (a_c, b_c), (a_m, b_m) = mean_norms(rows, "cqe"), mean_norms(rows, "cqe_mcns")
-    claims.append({"claim": "CQE-MCNS beats CQE (paper: ~4x on attitude, ~2x on bias)",
-                   "evidence": f"MCNS/CQE = {a_m / a_c:.2f} (attitude), {b_m / b_c:.2f} (bias)",
-                   "verdict": ("does not hold" if not (a_m < a_c and b_m < b_c)
-                               else "holds, but the ratio is not the paper's 4x" if a_c / a_m < 3 else "holds")})
+    claims.append(
+        {
+            "claim": "CQE-MCNS beats CQE (paper: ~4x on attitude, ~2x on bias)",
+            "evidence": f"MCNS/CQE = {a_m / a_c:.2f} (attitude), {b_m / b_c:.2f} (bias)",
+            "verdict": (
+                "does not hold"
+                if not (a_m < a_c and b_m < b_c)
+                else "holds, but the ratio is not the paper's 4x"
+                if a_c / a_m < 3
+                else "holds"
+            ),
+        }
+    )
     return claims
 
 
@@ -145,8 +170,10 @@ def main(argv=None) -> int:
     base = [f"duration_s={duration}", f"scoring.score_from_s={ORBIT_S}"]
     with open(os.path.join(args.out, "config.yaml"), "w") as f:
         f.write(dump_scenario(apply_overrides(scenario, base)))
-    print(f"Paper S1: {len(seeds)} seeds x {duration:.0f} s ({args.orbits:g} orbits), filters {', '.join(FILTERS)}, "
-          "one diagram")
+    print(
+        f"Paper S1: {len(seeds)} seeds x {duration:.0f} s ({args.orbits:g} orbits), filters {', '.join(FILTERS)}, "
+        "one diagram"
+    )
     rows = run_seeds(sd, seeds, base)
     claims = evaluate(rows)
     print("\n=== The paper's claims, our evidence " + "=" * 40)
@@ -167,8 +194,10 @@ def main(argv=None) -> int:
             r = run_seeds(sd, seeds, base + [f"sensors.multiplicative_noise.correlation={rho}"], ("cqe", "cqe_mcns"))
             (ac, bc), (am, bm) = mean_norms(r, "cqe"), mean_norms(r, "cqe_mcns")
             sweep.append({"rho": rho, "cqe": [ac, bc], "cqe_mcns": [am, bm]})
-            print(f"  rho {rho:5.3f}: CQE {ac:.2e} deg {bc:.2e} deg/h, MCNS {am:.2e} deg {bm:.2e} deg/h, "
-                  f"ratio {am / ac:.2f} / {bm / bc:.2f}")
+            print(
+                f"  rho {rho:5.3f}: CQE {ac:.2e} deg {bc:.2e} deg/h, MCNS {am:.2e} deg {bm:.2e} deg/h, "
+                f"ratio {am / ac:.2f} / {bm / bc:.2f}"
+            )
         print("\nMismatch: data rho = 0.158, MCNS assuming another rho:")
         for assumed in (0.0, 0.158, 0.3):
             r = run_seeds(sd, seeds, base + [f"estimators.cqe_mcns.assumed_correlation={assumed}"], ("cqe_mcns",))
@@ -178,9 +207,19 @@ def main(argv=None) -> int:
             print(f"  assumed rho {assumed:5.3f}: {am:.2e} deg {bm:.2e} deg/h, NEES {nees:.2f}")
     figures = plot(rows, args.out)
     with open(os.path.join(args.out, "results.json"), "w") as f:
-        json.dump({"seeds": seeds, "duration_s": duration, "claims": claims, "table": table,
-                   "correlation_sweep": sweep, "mismatch": mismatch,
-                   "metrics": [r["metrics"] for r in rows]}, f, indent=1)
+        json.dump(
+            {
+                "seeds": seeds,
+                "duration_s": duration,
+                "claims": claims,
+                "table": table,
+                "correlation_sweep": sweep,
+                "mismatch": mismatch,
+                "metrics": [r["metrics"] for r in rows],
+            },
+            f,
+            indent=1,
+        )
     print(f"\nWrote results.json, config.yaml and {len(figures)} figures to {args.out}/")
     return 0
 

@@ -29,12 +29,21 @@ from drake_att.scenarios.library import load
 
 # Paper S3, Table 1 (attitude, deg) reordered to body axes x=roll, y=pitch, z=yaw, and
 # Table 2 (gyro bias, deg/s, axes X/Y/Z).  Typed in from the paper for COMPARISON only.
-PAPER_RMSE_DEG = {"single": [0.0099, 0.0068, 0.0068], "centralized": [0.0061, 0.0060, 0.0030],
-                  "decentralized": [0.0063, 0.0062, 0.0040]}
-PAPER_MAE_DEG = {"single": [0.0079, 0.0054, 0.0054], "centralized": [0.0048, 0.0048, 0.0024],
-                 "decentralized": [0.0050, 0.0050, 0.0032]}
-PAPER_BIAS_RMSE_DEG_S = {"single": [0.0027, 0.0025, 0.0025], "centralized": [0.0025, 0.0023, 0.0024],
-                         "decentralized": [0.0025, 0.0024, 0.0024]}
+PAPER_RMSE_DEG = {
+    "single": [0.0099, 0.0068, 0.0068],
+    "centralized": [0.0061, 0.0060, 0.0030],
+    "decentralized": [0.0063, 0.0062, 0.0040],
+}
+PAPER_MAE_DEG = {
+    "single": [0.0079, 0.0054, 0.0054],
+    "centralized": [0.0048, 0.0048, 0.0024],
+    "decentralized": [0.0050, 0.0050, 0.0032],
+}
+PAPER_BIAS_RMSE_DEG_S = {
+    "single": [0.0027, 0.0025, 0.0025],
+    "centralized": [0.0025, 0.0023, 0.0024],
+    "decentralized": [0.0025, 0.0024, 0.0024],
+}
 PAPER_CONVERGENCE_S = {"single": 23.0, "centralized": 20.0, "decentralized": 15.0}
 ARCHITECTURES = ["single", "centralized", "decentralized", "joint"]
 AXES = ["roll(x)", "pitch(y)", "yaw(z)"]
@@ -53,14 +62,23 @@ def print_tables(results, file=sys.stdout):
     for arch in ARCHITECTURES:
         rm, rs = metric_mean_std(results, "attitude_rmse_deg", arch)
         mm, ms = metric_mean_std(results, "attitude_mae_deg", arch)
-        table[arch] = {"rmse_mean": rm.tolist(), "rmse_std": rs.tolist(), "mae_mean": mm.tolist(), "mae_std": ms.tolist()}
+        table[arch] = {
+            "rmse_mean": rm.tolist(),
+            "rmse_std": rs.tolist(),
+            "mae_mean": mm.tolist(),
+            "mae_std": ms.tolist(),
+        }
         for i, ax in enumerate(AXES):
             if arch in PAPER_RMSE_DEG:
                 pr, pm = PAPER_RMSE_DEG[arch][i], PAPER_MAE_DEG[arch][i]
-                lines.append(f"{arch:<14} {ax:<9} {pr:10.4f} {_fmt(rm[i], rs[i]):>16} {rm[i] / pr:6.2f}   "
-                             f"{pm:9.4f} {_fmt(mm[i], ms[i]):>16} {mm[i] / pm:6.2f}")
+                lines.append(
+                    f"{arch:<14} {ax:<9} {pr:10.4f} {_fmt(rm[i], rs[i]):>16} {rm[i] / pr:6.2f}   "
+                    f"{pm:9.4f} {_fmt(mm[i], ms[i]):>16} {mm[i] / pm:6.2f}"
+                )
             else:
-                lines.append(f"{arch:<14} {ax:<9} {'-':>10} {_fmt(rm[i], rs[i]):>16} {'':>6}   {'-':>9} {_fmt(mm[i], ms[i]):>16}")
+                lines.append(
+                    f"{arch:<14} {ax:<9} {'-':>10} {_fmt(rm[i], rs[i]):>16} {'':>6}   {'-':>9} {_fmt(mm[i], ms[i]):>16}"
+                )
     lines.append("\nTable 2 - gyro bias RMSE, stable stage, deg/s")
     hdr = f"{'architecture':<14} {'axis':<5} {'paper':>8} {'ours':>18} {'ratio':>6}"
     lines += [hdr, "-" * len(hdr)]
@@ -98,9 +116,12 @@ def check_ordering(table):
     claims = {
         "centralized beats single on every axis": bool(np.all(r["centralized"] < r["single"])),
         "decentralized beats single on every axis": bool(np.all(r["decentralized"] < r["single"])),
-        "centralized at least as accurate as decentralized on every axis": bool(np.all(r["centralized"] <= r["decentralized"])),
+        "centralized at least as accurate as decentralized on every axis": bool(
+            np.all(r["centralized"] <= r["decentralized"])
+        ),
         "joint (beyond paper) at least as accurate as centralized and decentralized on every axis (2% tol.)": bool(
-            np.all(r["joint"] <= 1.02 * np.minimum(r["centralized"], r["decentralized"]))),
+            np.all(r["joint"] <= 1.02 * np.minimum(r["centralized"], r["decentralized"]))
+        ),
     }
     for k, v in claims.items():
         print(f"  [{'holds' if v else 'DOES NOT HOLD'}] {k}")
@@ -126,8 +147,12 @@ def convergence_vs_p0(scenario, sigmas_deg, seed, out_dir, duration_s=600.0):
         over += [f"duration_s={duration_s}", f"scoring.score_from_s={duration_s / 2}"]
         m = compute_metrics(sd.simulate(seed, overrides=over))["estimators"]
         rows.append([m[a]["convergence_time_s"] for a in ARCHITECTURES])
-        print(f"  P0 attitude sigma {sig:6.3f} deg: " + ", ".join(
-            f"{a} {('never' if c is None else f'{c:.0f} s')}" for a, c in zip(ARCHITECTURES, rows[-1], strict=True)))
+        print(
+            f"  P0 attitude sigma {sig:6.3f} deg: "
+            + ", ".join(
+                f"{a} {('never' if c is None else f'{c:.0f} s')}" for a, c in zip(ARCHITECTURES, rows[-1], strict=True)
+            )
+        )
     import matplotlib
 
     matplotlib.use("Agg")
@@ -156,12 +181,16 @@ def main(argv=None):
     ap.add_argument("--no-p0-sweep", action="store_true")
     args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
-    scenario = apply_overrides(load("cubesat_dual_star_tracker"),
-                               [f"duration_s={args.duration}", f"scoring.score_from_s={min(args.score_from, args.duration / 2)}"])
+    scenario = apply_overrides(
+        load("cubesat_dual_star_tracker"),
+        [f"duration_s={args.duration}", f"scoring.score_from_s={min(args.score_from, args.duration / 2)}"],
+    )
     with open(os.path.join(args.out, "config.yaml"), "w") as f:
         f.write(dump_scenario(scenario))
     seeds = list(range(1, args.seeds + 1))
-    print(f"Running {len(seeds)} seeds x {args.duration:.0f} s (all architectures per seed, one diagram) ...", flush=True)
+    print(
+        f"Running {len(seeds)} seeds x {args.duration:.0f} s (all architectures per seed, one diagram) ...", flush=True
+    )
     results = run_seeds(scenario, seeds, args.workers, keep_series_for=[1])
     table, text = print_tables(results)
     print("\nPaper claims:")
@@ -169,17 +198,37 @@ def main(argv=None):
     series = next(r["series"] for r in results if "series" in r)
     sf = scenario.scoring.score_from_s
     for arch in ARCHITECTURES:
-        plot_error_grid(series, [arch], os.path.join(args.out, f"fig_stable_{arch}.png"),
-                        f"S3 {arch}: stable stage (seed 1)", t_range=(sf, args.duration))
-    plot_error_grid(series, ["single", "centralized", "decentralized"], os.path.join(args.out, "fig_initial_stage.png"),
-                    "S3 initial stage (seed 1)", t_range=(0, 60))
+        plot_error_grid(
+            series,
+            [arch],
+            os.path.join(args.out, f"fig_stable_{arch}.png"),
+            f"S3 {arch}: stable stage (seed 1)",
+            t_range=(sf, args.duration),
+        )
+    plot_error_grid(
+        series,
+        ["single", "centralized", "decentralized"],
+        os.path.join(args.out, "fig_initial_stage.png"),
+        "S3 initial stage (seed 1)",
+        t_range=(0, 60),
+    )
     p0 = None
     if not args.no_p0_sweep:
         print("\nConvergence time vs the initial covariance (seed 1, 600 s):")
         p0 = convergence_vs_p0(scenario, [5.0, 0.5, 0.05, 0.01, 0.005, 0.002, 0.001], 1, args.out)
     with open(os.path.join(args.out, "results.json"), "w") as f:
-        json.dump({"seeds": seeds, "duration_s": args.duration, "table": table, "claims": claims,
-                   "convergence_vs_p0": p0, "per_seed": [r["metrics"] for r in results]}, f, indent=1)
+        json.dump(
+            {
+                "seeds": seeds,
+                "duration_s": args.duration,
+                "table": table,
+                "claims": claims,
+                "convergence_vs_p0": p0,
+                "per_seed": [r["metrics"] for r in results],
+            },
+            f,
+            indent=1,
+        )
     print(f"\nWrote results.json, config.yaml and figures to {args.out}/")
     return 0
 

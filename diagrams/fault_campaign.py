@@ -53,8 +53,10 @@ def campaign_scenario(duration_s: float | None = None):
     scenario = load(SCENARIO)
     if duration_s is None:
         return scenario
-    return apply_overrides(scenario, [f"duration_s={duration_s}",
-                                      f"scoring.score_from_s={min(scenario.scoring.score_from_s, duration_s / 2)}"])
+    return apply_overrides(
+        scenario,
+        [f"duration_s={duration_s}", f"scoring.score_from_s={min(scenario.scoring.score_from_s, duration_s / 2)}"],
+    )
 
 
 def gate_label(config) -> str:
@@ -99,8 +101,10 @@ def _recovery(g, seeds: int) -> str:
 
 def summary_table(summary, estimators, magnitudes, seeds: int) -> str:
     """One line per (fault, estimator), summed over the seeds."""
-    lines = [f"{'fault':<20} {'estimator':<18} {'steps':>5} {'det':>4} {'rej':>4} {'acc':>4} {'ign':>4} "
-             f"{'peak (deg)':>10} {'recovery (s)':>12} {'NEES':>6}"]
+    lines = [
+        f"{'fault':<20} {'estimator':<18} {'steps':>5} {'det':>4} {'rej':>4} {'acc':>4} {'ign':>4} "
+        f"{'peak (deg)':>10} {'recovery (s)':>12} {'NEES':>6}"
+    ]
     lines.append("-" * len(lines[0]))
     last = None
     for g in summary:
@@ -110,8 +114,10 @@ def summary_table(summary, estimators, magnitudes, seeds: int) -> str:
         last = label
         nees = "-" if g["nees_after_recovery"] is None else f"{g['nees_after_recovery']:.1f}"
         peak = "-" if g["peak_error_deg"] is None else f"{g['peak_error_deg']:.3f}"
-        lines.append(f"{label:<20} {g['estimator']:<18} {g['steps']:>5} {g['detected']:>4} {g['rejected']:>4} "
-                     f"{g['accepted']:>4} {g['ignored']:>4} {peak:>10} {_recovery(g, seeds):>12} {nees:>6}")
+        lines.append(
+            f"{label:<20} {g['estimator']:<18} {g['steps']:>5} {g['detected']:>4} {g['rejected']:>4} "
+            f"{g['accepted']:>4} {g['ignored']:>4} {peak:>10} {_recovery(g, seeds):>12} {nees:>6}"
+        )
     return "\n".join(lines)
 
 
@@ -140,25 +146,37 @@ def verdicts(results, summary, gates, via_average=frozenset()) -> dict:
     gated = {n for n, g in gates.items() if g not in ("none", "-")}
     ungated_mekfs = {n for n, g in gates.items() if g == "none"}
     tracker_outliers = [r for r in rows if r["kind"] == "outlier" and r["sensor_kind"] != "gyro" and r["seen"]]
-    late = sorted({(r["sensor"], r["kind"], r["estimator"]) for r in rows
-                   if r["recovery_time_s"] is None or r["recovery_time_s"] > RECOVERY_LIMIT_S})
+    late = sorted(
+        {
+            (r["sensor"], r["kind"], r["estimator"])
+            for r in rows
+            if r["recovery_time_s"] is None or r["recovery_time_s"] > RECOVERY_LIMIT_S
+        }
+    )
     claims = {
-        "no estimator crashed and every output stayed finite, in every seed":
-            all(all(res["finite"].values()) for res in results),
+        "no estimator crashed and every output stayed finite, in every seed": all(
+            all(res["finite"].values()) for res in results
+        ),
         f"every estimator is back within {RECOVERY_FACTOR:g}x its pre-fault RMS error within {RECOVERY_LIMIT_S:g} s "
         "of the end of every fault, in every seed": not late,
         # An estimator fed through the tracker average (centralized) reads, at a step where one
         # tracker is out or corrupt, the average of the others (flag 1 + mask, their own
         # covariance): its "accepted" sample is not the faulted one.
         "a NaN, inf, dropped-out or outage sample is never used (accepted by no estimator; the "
-        "average carries the other trackers)":
-            all(r["accepted"] == 0 for r in rows if r["kind"] in ("nan", "inf", "dropout", "outage")
-                and not (r["sensor_kind"] != "gyro" and r["estimator"] in via_average)),
-        "gated MEKFs reject every tracker outlier they see":
-            all(r["rejected"] == r["steps"] for r in tracker_outliers if r["estimator"] in gated),
-        "ungated MEKFs accept every tracker outlier they see and are pulled off by more than 0.1 deg":
-            all(r["accepted"] == r["steps"] and r["peak_error_deg"] > 0.1
-                for r in tracker_outliers if r["estimator"] in ungated_mekfs),
+        "average carries the other trackers)": all(
+            r["accepted"] == 0
+            for r in rows
+            if r["kind"] in ("nan", "inf", "dropout", "outage")
+            and not (r["sensor_kind"] != "gyro" and r["estimator"] in via_average)
+        ),
+        "gated MEKFs reject every tracker outlier they see": all(
+            r["rejected"] == r["steps"] for r in tracker_outliers if r["estimator"] in gated
+        ),
+        "ungated MEKFs accept every tracker outlier they see and are pulled off by more than 0.1 deg": all(
+            r["accepted"] == r["steps"] and r["peak_error_deg"] > 0.1
+            for r in tracker_outliers
+            if r["estimator"] in ungated_mekfs
+        ),
     }
     return {"claims": claims, "not_recovered_within_limit": [list(x) for x in late]}
 
@@ -187,8 +205,16 @@ def plot_campaign(result, estimators, path):
         ax.legend(loc="upper right", fontsize=8)
     top = axes[0, 0]
     for e in result["events"]:
-        top.annotate(f"{e['sensor']} {e['kind']}", (e["t_start"], 1.0), xycoords=("data", "axes fraction"),
-                     rotation=90, fontsize=6, va="top", ha="right", color=colors.get(e["sensor"], "tab:gray"))
+        top.annotate(
+            f"{e['sensor']} {e['kind']}",
+            (e["t_start"], 1.0),
+            xycoords=("data", "axes fraction"),
+            rotation=90,
+            fontsize=6,
+            va="top",
+            ha="right",
+            color=colors.get(e["sensor"], "tab:gray"),
+        )
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle(f"Fault campaign, seed {result['seed']}: shaded = fault (red gyro, blue st1, green st2)")
     fig.tight_layout()
@@ -211,25 +237,31 @@ def main(argv=None):
     seeds = list(range(1, args.seeds + 1))
     estimators = [e.name for e in scenario.estimators]
     gates = {e.name: gate_label(e) for e in scenario.estimators}
-    print(f"Running {len(seeds)} seeds x {scenario.duration_s:.0f} s of {SCENARIO} (all estimators per seed, "
-          "one diagram per worker) ...", flush=True)
+    print(
+        f"Running {len(seeds)} seeds x {scenario.duration_s:.0f} s of {SCENARIO} (all estimators per seed, "
+        "one diagram per worker) ...",
+        flush=True,
+    )
     results = run_fault_campaign(scenario, seeds, args.workers, keep_series_for=[seeds[0]])
     summary = summarize_fault_scores([r["rows"] for r in results])
     magnitudes = {(e["sensor"], e["kind"]): e["magnitude"] for e in results[0]["events"]}
     print("\nEstimators (gate): " + ", ".join(f"{n} ({gates[n]})" for n in estimators))
-    print(f"\nFault x estimator over {len(seeds)} seeds: faulted steps seen and what the estimator did at them "
-          "(det = rejected, or accepted with NIS > 16.27), peak |attitude error| from the fault to the next one, "
-          f"recovery = time after the fault's end until the error is back within {RECOVERY_FACTOR:g}x its RMS over "
-          f"the {PRE_FAULT_WINDOW_S:g} s before the fault and stays there {HOLD_S:g} s (worst seed; NR = not "
-          "recovered before the next fault), NEES = mean 3-dof attitude NEES after recovery (3 = consistent)\n")
+    print(
+        f"\nFault x estimator over {len(seeds)} seeds: faulted steps seen and what the estimator did at them "
+        "(det = rejected, or accepted with NIS > 16.27), peak |attitude error| from the fault to the next one, "
+        f"recovery = time after the fault's end until the error is back within {RECOVERY_FACTOR:g}x its RMS over "
+        f"the {PRE_FAULT_WINDOW_S:g} s before the fault and stays there {HOLD_S:g} s (worst seed; NR = not "
+        "recovered before the next fault), NEES = mean 3-dof attitude NEES after recovery (3 = consistent)\n"
+    )
     table = summary_table(summary, estimators, magnitudes, len(seeds))
     print(table)
     matrix = markdown_matrix(summary, estimators, magnitudes, len(seeds))
     with open(os.path.join(args.out, "table.md"), "w") as f:
         f.write(matrix + "\n")
     averages = {s.name for s in scenario.sensors if type(s).__name__ == "StarTrackerAverageConfig"}
-    via_average = {e.name for e in scenario.estimators
-                   if getattr(e, "star_trackers", None) and set(e.star_trackers) <= averages}
+    via_average = {
+        e.name for e in scenario.estimators if getattr(e, "star_trackers", None) and set(e.star_trackers) <= averages
+    }
     checked = verdicts(results, summary, gates, via_average)
     print("\nVerdicts:")
     for claim, holds in checked["claims"].items():
@@ -241,14 +273,25 @@ def main(argv=None):
     print(f"\nSimulation wall time per seed: {np.mean(wall):.1f} s (mean of {len(wall)})")
     if not args.no_figure:
         plot_campaign(results[0], estimators, os.path.join(args.out, "fig_fault_campaign.png"))
-    out = {"scenario": SCENARIO, "seeds": seeds, "duration_s": scenario.duration_s, "gates": gates,
-           "recovery_limit_s": RECOVERY_LIMIT_S, "recovery_factor": RECOVERY_FACTOR,
-           "pre_fault_window_s": PRE_FAULT_WINDOW_S, "hold_s": HOLD_S, "summary": summary, "verdicts": checked,
-           "per_seed": [{k: v for k, v in r.items() if k != "series"} for r in results]}
+    out = {
+        "scenario": SCENARIO,
+        "seeds": seeds,
+        "duration_s": scenario.duration_s,
+        "gates": gates,
+        "recovery_limit_s": RECOVERY_LIMIT_S,
+        "recovery_factor": RECOVERY_FACTOR,
+        "pre_fault_window_s": PRE_FAULT_WINDOW_S,
+        "hold_s": HOLD_S,
+        "summary": summary,
+        "verdicts": checked,
+        "per_seed": [{k: v for k, v in r.items() if k != "series"} for r in results],
+    }
     with open(os.path.join(args.out, "results.json"), "w") as f:
         json.dump(strict_json(out), f, indent=1, allow_nan=False)
-    print(f"\nWrote results.json, config.yaml, table.md{'' if args.no_figure else ', fig_fault_campaign.png'} "
-          f"to {args.out}/")
+    print(
+        f"\nWrote results.json, config.yaml, table.md{'' if args.no_figure else ', fig_fault_campaign.png'} "
+        f"to {args.out}/"
+    )
     return 0
 
 

@@ -51,8 +51,13 @@ EST = "indoor_star_tracker"
 FRAME_PERIOD_S = 0.2  # s2_indoor_dynamic's camera
 FUSED = "indoor_star_tracker_gyro"
 # The paper's printed values (for comparison only): pitch, roll, yaw (deg), stars identified.
-TABLE1_PAPER = {0: (0.0, 0.0, 0.0, 7), 3: (0.0017, 0.0074, 0.0003, 3), -3: (-0.0004, 0.0007, -0.0001, 3),
-                6: None, -6: None}
+TABLE1_PAPER = {
+    0: (0.0, 0.0, 0.0, 7),
+    3: (0.0017, 0.0074, 0.0003, 3),
+    -3: (-0.0004, 0.0007, -0.0001, 3),
+    6: None,
+    -6: None,
+}
 TABLE2_PAPER = [(7.9, 6.5, 6.5, 3), (4.9, 4.1, 0.3, 4), (1.5, 4.0, 0.1, 6), (2.4, 3.1, 0.2, 6), (1.3, 3.2, 0.5, 6)]
 TABLE2_PAPER_MEAN = (2.5, 3.6, 0.3)  # 1e-3 deg, mean of iterations 2-5
 # Error sources for Table 2 (camera parameters; the run seed draws the noise).
@@ -80,10 +85,16 @@ def frame_result(run, name: str, t_frame: float = 0.0) -> dict:
     diag = run.values(f"{name}/diagnostics")[i]
     err = np.degrees(rot.quat_to_rpy(q_hat) - rot.quat_to_rpy(q_true))
     err = (err + 180.0) % 360.0 - 180.0
-    return {"roll": float(err[0]), "pitch": float(err[1]), "yaw": float(err[2]),
-            "total_deg": float(np.degrees(np.linalg.norm(rot.quat_error_rotvec(q_hat, q_true)))),
-            "observed": int(diag[0]), "identified": int(diag[1]), "iterations": int(diag[2]),
-            "solved": bool(diag[5] > 0.5)}
+    return {
+        "roll": float(err[0]),
+        "pitch": float(err[1]),
+        "yaw": float(err[2]),
+        "total_deg": float(np.degrees(np.linalg.norm(rot.quat_error_rotvec(q_hat, q_true)))),
+        "observed": int(diag[0]),
+        "identified": int(diag[1]),
+        "iterations": int(diag[2]),
+        "solved": bool(diag[5] > 0.5),
+    }
 
 
 def offset_override(offset_deg: float) -> str:
@@ -129,14 +140,26 @@ def table2(sd, seeds):
         stars = np.zeros((len(use), 5))
         for a, seed in enumerate(use):
             for k in range(1, 6):
-                r = frame_result(sd.simulate(seed, overrides=over + [
-                    offset_override(-2.0), f"estimators.{EST}.max_iterations={k}",
-                    f"estimators.{EST}.convergence_tolerance_arcsec=0.0"]), EST)
+                r = frame_result(
+                    sd.simulate(
+                        seed,
+                        overrides=over
+                        + [
+                            offset_override(-2.0),
+                            f"estimators.{EST}.max_iterations={k}",
+                            f"estimators.{EST}.convergence_tolerance_arcsec=0.0",
+                        ],
+                    ),
+                    EST,
+                )
                 errs[a, k - 1] = [abs(r["pitch"]), abs(r["roll"]), abs(r["yaw"])]
                 stars[a, k - 1] = r["identified"]
-        out[source] = {"seeds": len(use), "mean_abs_error_pitch_roll_yaw_deg": errs.mean(axis=0).tolist(),
-                       "stars": stars.mean(axis=0).tolist(),
-                       "mean_iter2to5_1e3deg": (errs[:, 1:].mean(axis=(0, 1)) * 1e3).tolist()}
+        out[source] = {
+            "seeds": len(use),
+            "mean_abs_error_pitch_roll_yaw_deg": errs.mean(axis=0).tolist(),
+            "stars": stars.mean(axis=0).tolist(),
+            "mean_iter2to5_1e3deg": (errs[:, 1:].mean(axis=(0, 1)) * 1e3).tolist(),
+        }
     return out
 
 
@@ -147,10 +170,17 @@ def naive_vs_corrected(sd):
         ident, err = [], []
         for tilt in TILTS_DEG:
             att = f"[{tilt},{tilt},0.0]"
-            r = frame_result(sd.simulate(overrides=[f"plant.initial_attitude_rpy_deg={att}",
-                                                    f"estimators.{EST}.initial_attitude_rpy_deg={att}",
-                                                    f"estimators.{EST}.identification={mode}",
-                                                    f"estimators.{EST}.max_iterations=10"]), EST)
+            r = frame_result(
+                sd.simulate(
+                    overrides=[
+                        f"plant.initial_attitude_rpy_deg={att}",
+                        f"estimators.{EST}.initial_attitude_rpy_deg={att}",
+                        f"estimators.{EST}.identification={mode}",
+                        f"estimators.{EST}.max_iterations=10",
+                    ]
+                ),
+                EST,
+            )
             ident.append(r["identified"])
             err.append(r["total_deg"] if r["solved"] else None)
         out[mode] = {"identified": ident, "error_deg": err}
@@ -184,9 +214,14 @@ def phase_rmse(s, t0, t1, exclude=None, frames_only=False):
 
 
 def dynamic(sd, seed):
-    cases = {"centroid_noise_0.1px": [], "noise_free": ["sensors.camera.centroid_noise_px=0.0"],
-             "least_squares_0.1px": [f"estimators.{EST}.attitude_method=least_squares",
-                                     f"estimators.{FUSED}.attitude_method=least_squares"]}
+    cases = {
+        "centroid_noise_0.1px": [],
+        "noise_free": ["sensors.camera.centroid_noise_px=0.0"],
+        "least_squares_0.1px": [
+            f"estimators.{EST}.attitude_method=least_squares",
+            f"estimators.{FUSED}.attitude_method=least_squares",
+        ],
+    }
     out, series = {}, {}
     for case, over in cases.items():
         run = sd.simulate(seed, overrides=over or None)
@@ -195,19 +230,23 @@ def dynamic(sd, seed):
         outage = (90.0, 95.2)
         first = s["diag"][0]
         out[case] = {
-            "swarm_generations_first_frame": int(first[3]), "stars_identified_first_frame": int(first[1]),
+            "swarm_generations_first_frame": int(first[3]),
+            "stars_identified_first_frame": int(first[1]),
             "stars_observed_first_frame": int(first[0]),
             "rmse_static_roll_pitch_yaw_deg": phase_rmse(s, 0.0, 40.0),
             "rmse_moving_roll_pitch_yaw_deg": phase_rmse(s, 40.0, 140.01, exclude=outage),
             "fused_rmse_moving_roll_pitch_yaw_deg": phase_rmse(f, 40.0, 140.01, exclude=outage),
-            "fused_rmse_moving_at_frames_roll_pitch_yaw_deg": phase_rmse(f, 40.0, 140.01, exclude=outage,
-                                                                         frames_only=True),
+            "fused_rmse_moving_at_frames_roll_pitch_yaw_deg": phase_rmse(
+                f, 40.0, 140.01, exclude=outage, frames_only=True
+            ),
             "outage_max_error_deg": {
                 n: float(np.max(np.abs(x["err"][(x["t"] >= outage[0]) & (x["t"] < outage[1])])))
-                for n, x in ((EST, s), (FUSED, f))},
+                for n, x in ((EST, s), (FUSED, f))
+            },
             "min_stars_identified": int(np.min(s["diag"][s["diag"][:, 5] > 0.5, 1])),
-            "frames_failed_outside_outage": int(np.sum((s["diag"][:, 5] < 0.5) & ~(
-                (s["t"] >= outage[0]) & (s["t"] < outage[1])))),
+            "frames_failed_outside_outage": int(
+                np.sum((s["diag"][:, 5] < 0.5) & ~((s["t"] >= outage[0]) & (s["t"] < outage[1])))
+            ),
         }
     return out, series
 
@@ -219,74 +258,107 @@ def verdicts(t1, t1_fine, screens, t2, nvc, dyn):
     def add(claim, ok, evidence):
         v.append({"claim": claim, "verdict": "reproduced" if ok else "NOT reproduced", "evidence": evidence})
 
-    add("Table 1: exact A0 identifies all 7 stars, error 0",
+    add(
+        "Table 1: exact A0 identifies all 7 stars, error 0",
         t1[0]["identified"] == 7 and t1[0]["total_deg"] < 1e-9,
-        f"{t1[0]['identified']} stars, total error {t1[0]['total_deg']:.1e} deg")
-    add("Table 1: +-3 deg A0 identifies ~3 stars", all(3 <= t1[o]["identified"] <= 4 for o in (3, -3)),
-        f"+3: {t1[3]['identified']} stars; -3: {t1[-3]['identified']} stars")
+        f"{t1[0]['identified']} stars, total error {t1[0]['total_deg']:.1e} deg",
+    )
+    add(
+        "Table 1: +-3 deg A0 identifies ~3 stars",
+        all(3 <= t1[o]["identified"] <= 4 for o in (3, -3)),
+        f"+3: {t1[3]['identified']} stars; -3: {t1[-3]['identified']} stars",
+    )
     worst_paper = max(abs(x) for o in (3, -3) for x in TABLE1_PAPER[o][:3])
     worst = max(abs(t1[o][a]) for o in (3, -3) for a in ("pitch", "roll", "yaw"))
-    add("Table 1: +-3 deg A0, errors after one iteration within the paper's order (<= 0.0074 deg)",
+    add(
+        "Table 1: +-3 deg A0, errors after one iteration within the paper's order (<= 0.0074 deg)",
         worst <= 2.0 * worst_paper,
         f"largest |axis error| {worst:.4f} deg (paper {worst_paper}); per-axis errors depend on which pair the "
-        "3 identified stars give TRIAD and on the screen: same order of magnitude is what a random screen can match")
-    add("Table 1: +-6 deg A0: identification fails", all(not t1[o]["solved"] for o in (6, -6)),
-        f"+6: {t1[6]['identified']} stars, -6: {t1[-6]['identified']} stars")
+        "3 identified stars give TRIAD and on the screen: same order of magnitude is what a random screen can match",
+    )
+    add(
+        "Table 1: +-6 deg A0: identification fails",
+        all(not t1[o]["solved"] for o in (6, -6)),
+        f"+6: {t1[6]['identified']} stars, -6: {t1[-6]['identified']} stars",
+    )
     counts, matches = screens
     j3 = [FINE_OFFSETS_DEG.index(3.0), FINE_OFFSETS_DEG.index(-3.0)]
     j6 = [FINE_OFFSETS_DEG.index(6.0), FINE_OFFSETS_DEG.index(-6.0)]
     ok3 = float(np.mean(counts[:, j3] >= 3))
     ok6 = float(np.mean(counts[:, j6] >= 3))
-    add(f"Table 1 over {len(counts)} random 7-star screens: +-3 deg mostly works, +-6 deg mostly fails",
+    add(
+        f"Table 1 over {len(counts)} random 7-star screens: +-3 deg mostly works, +-6 deg mostly fails",
         ok3 > 0.7 and ok6 < 0.5,
         f"solved from +-3 deg on {ok3:.0%} of screens (mean {counts[:, j3].mean():.1f} stars), from +-6 deg on "
-        f"{ok6:.0%} (mean {counts[:, j6].mean():.1f}); the paper's exact outcome on {sum(matches)} of {len(matches)}")
+        f"{ok6:.0%} (mean {counts[:, j6].mean():.1f}); the paper's exact outcome on {sum(matches)} of {len(matches)}",
+    )
     nf = t2["noise_free"]["mean_abs_error_pitch_roll_yaw_deg"]
-    add("Table 2 trend: iterating from -2 deg raises the stars identified and shrinks the error",
+    add(
+        "Table 2 trend: iterating from -2 deg raises the stars identified and shrinks the error",
         t2["noise_free"]["stars"][-1] > t2["noise_free"]["stars"][0] and max(nf[-1]) < 1e-3 * max(nf[0]),
         f"noise-free: stars {t2['noise_free']['stars']}, max |error| per iteration (deg) "
-        f"{[float(f'{max(e):.1e}') for e in nf]}")
+        f"{[float(f'{max(e):.1e}') for e in nf]}",
+    )
     floors = {s: max(d["mean_iter2to5_1e3deg"]) for s, d in t2.items()}
     near = [s for s, f in floors.items() if 0.3 <= f <= 10.0]
-    add("Table 2's ~1e-3 deg floor needs an error source the paper does not state",
+    add(
+        "Table 2's ~1e-3 deg floor needs an error source the paper does not state",
         floors["noise_free"] < 0.1 and bool(near),
-        "largest mean |error| of iterations 2-5 (1e-3 deg): " + ", ".join(f"{s} {f:.2g}" for s, f in floors.items())
-        + f" (paper: {max(TABLE2_PAPER_MEAN)}); in the paper's range: {near}")
+        "largest mean |error| of iterations 2-5 (1e-3 deg): "
+        + ", ".join(f"{s} {f:.2g}" for s, f in floors.items())
+        + f" (paper: {max(TABLE2_PAPER_MEAN)}); in the paper's range: {near}",
+    )
     yaw_best = {s: d["mean_iter2to5_1e3deg"][2] < min(d["mean_iter2to5_1e3deg"][:2]) for s, d in t2.items()}
-    add("Table 2: yaw is the most accurate axis", any(yaw_best[s] for s in near),
-        "yaw below pitch and roll: " + ", ".join(f"{s} {b}" for s, b in yaw_best.items()))
+    add(
+        "Table 2: yaw is the most accurate axis",
+        any(yaw_best[s] for s in near),
+        "yaw below pitch and roll: " + ", ".join(f"{s} {b}" for s, b in yaw_best.items()),
+    )
     tilt_fail = [t for t, n in zip(nvc["tilt_deg"], nvc["naive"]["identified"], strict=True) if n < 3]
-    add("Classic (naive) angle matching fails once the table tilts; the corrected one does not",
+    add(
+        "Classic (naive) angle matching fails once the table tilts; the corrected one does not",
         bool(tilt_fail) and all(n >= 3 for n in nvc["corrected"]["identified"]),
         f"naive fails from {min(tilt_fail) if tilt_fail else None} deg of roll+pitch tilt; corrected identifies "
-        f"{nvc['corrected']['identified']} over tilts {nvc['tilt_deg']} deg")
+        f"{nvc['corrected']['identified']} over tilts {nvc['tilt_deg']} deg",
+    )
     d = dyn["noise_free"]
-    add("Dynamic test: the swarm gives an A0 good enough to iterate, then all three angles are tracked",
-        d["stars_identified_first_frame"] >= 3 and max(d["rmse_moving_roll_pitch_yaw_deg"]) < 1e-3
+    add(
+        "Dynamic test: the swarm gives an A0 good enough to iterate, then all three angles are tracked",
+        d["stars_identified_first_frame"] >= 3
+        and max(d["rmse_moving_roll_pitch_yaw_deg"]) < 1e-3
         and d["frames_failed_outside_outage"] == 0,
         f"noise-free: first frame {d['stars_identified_first_frame']}/{d['stars_observed_first_frame']} stars after "
         f"{d['swarm_generations_first_frame']} swarm generations; moving-phase RMSE roll/pitch/yaw "
-        f"{[f'{x:.1e}' for x in d['rmse_moving_roll_pitch_yaw_deg']]} deg")
+        f"{[f'{x:.1e}' for x in d['rmse_moving_roll_pitch_yaw_deg']]} deg",
+    )
     n = dyn["centroid_noise_0.1px"]
     r = n["rmse_moving_roll_pitch_yaw_deg"]
-    add("Dynamic test: yaw is measured about as well as roll and pitch (within 3x; 0.1 px centroid noise, TRIAD)",
+    add(
+        "Dynamic test: yaw is measured about as well as roll and pitch (within 3x; 0.1 px centroid noise, TRIAD)",
         r[2] < 3.0 * max(r[0], r[1]),
         f"moving-phase RMSE roll/pitch/yaw {[f'{x:.4f}' for x in r]} deg (yaw / max(roll, pitch) = "
-        f"{r[2] / max(r[0], r[1]):.2f})")
+        f"{r[2] / max(r[0], r[1]):.2f})",
+    )
     o = n["outage_max_error_deg"]
-    add("Beyond the paper: fused with a MEMS gyro, the attitude survives a 5 s camera outage",
+    add(
+        "Beyond the paper: fused with a MEMS gyro, the attitude survives a 5 s camera outage",
         o[FUSED] < 0.1 * o[EST],
-        f"max error during the outage: camera alone {o[EST]:.3f} deg, fused {o[FUSED]:.4f} deg")
+        f"max error during the outage: camera alone {o[EST]:.3f} deg, fused {o[FUSED]:.4f} deg",
+    )
     ls = dyn["least_squares_0.1px"]["rmse_moving_roll_pitch_yaw_deg"]
-    add("Beyond the paper: the least-squares attitude over all identified stars beats TRIAD (>= 2x, every axis)",
+    add(
+        "Beyond the paper: the least-squares attitude over all identified stars beats TRIAD (>= 2x, every axis)",
         all(a <= 0.5 * b for a, b in zip(ls, r, strict=True)),
         f"moving-phase RMSE roll/pitch/yaw: least squares {[f'{x:.1e}' for x in ls]}, TRIAD "
-        f"{[f'{x:.1e}' for x in r]} deg")
+        f"{[f'{x:.1e}' for x in r]} deg",
+    )
     fr = n["fused_rmse_moving_at_frames_roll_pitch_yaw_deg"]
-    add("Beyond the paper: fusing the gyro lowers the error at the frame instants (TRIAD, 0.1 px)",
+    add(
+        "Beyond the paper: fusing the gyro lowers the error at the frame instants (TRIAD, 0.1 px)",
         all(a < b for a, b in zip(fr, r, strict=True)),
         f"moving-phase RMSE at frames roll/pitch/yaw: fused {[f'{x:.1e}' for x in fr]}, camera alone "
-        f"{[f'{x:.1e}' for x in r]} deg (between frames, at 50 Hz: {[f'{x:.1e}' for x in n['fused_rmse_moving_roll_pitch_yaw_deg']]})")
+        f"{[f'{x:.1e}' for x in r]} deg (between frames, at 50 Hz: {[f'{x:.1e}' for x in n['fused_rmse_moving_roll_pitch_yaw_deg']]})",
+    )
     return v
 
 
@@ -308,8 +380,12 @@ def plot(t1_fine, screens, t2, nvc, series, out_dir, static_seed):
 
     counts, _ = screens
     fig, ax = plt.subplots(1, 2, figsize=(12, 4))
-    ax[0].plot(FINE_OFFSETS_DEG, [t1_fine[o]["identified"] for o in FINE_OFFSETS_DEG], "o-",
-               label="scenario screen (pattern seed 18)")
+    ax[0].plot(
+        FINE_OFFSETS_DEG,
+        [t1_fine[o]["identified"] for o in FINE_OFFSETS_DEG],
+        "o-",
+        label="scenario screen (pattern seed 18)",
+    )
     ax[0].plot(FINE_OFFSETS_DEG, counts.mean(axis=0), "s--", label=f"mean over {len(counts)} screens")
     ax[0].axhline(3, color="k", ls=":", lw=0.8, label="3 = fewest for a solution")
     ax[0].set_xlabel("A0 offset on each axis (deg)")
@@ -328,8 +404,9 @@ def plot(t1_fine, screens, t2, nvc, series, out_dir, static_seed):
         e = np.array(d["mean_abs_error_pitch_roll_yaw_deg"])
         for k, lab in enumerate(("pitch", "roll", "yaw")):
             ax.semilogy(range(1, 6), np.maximum(e[:, k], 1e-12), "o-", label=lab)
-        ax.semilogy(range(1, 6), np.array(TABLE2_PAPER)[:, :3].max(axis=1) * 1e-3, "k--", lw=0.8,
-                    label="paper (max axis)")
+        ax.semilogy(
+            range(1, 6), np.array(TABLE2_PAPER)[:, :3].max(axis=1) * 1e-3, "k--", lw=0.8, label="paper (max axis)"
+        )
         ax.set_title(f"{source} ({d['seeds']} seed{'s' if d['seeds'] > 1 else ''})")
         ax.set_xlabel("iteration")
         ax.grid(True, which="both", alpha=0.3)
@@ -398,8 +475,10 @@ def main(argv=None) -> int:
         dyn_scenario = apply_overrides(dyn_scenario, [f"duration_s={args.dynamic_duration}"])
     sd, sdd = diagram_for(static), diagram_for(dyn_scenario)
     seeds = list(range(1, args.seeds + 1))
-    print(f"Paper S2: static diagram ({static.sensors[0].star_count} stars), dynamic diagram "
-          f"({dyn_scenario.sensors[1].star_count} stars, {dyn_scenario.duration_s:g} s)")
+    print(
+        f"Paper S2: static diagram ({static.sensors[0].star_count} stars), dynamic diagram "
+        f"({dyn_scenario.sensors[1].star_count} stars, {dyn_scenario.duration_s:g} s)"
+    )
 
     t1, t1_fine = table1(sd)
     screens = screens_sweep(static, args.screens)
@@ -413,14 +492,19 @@ def main(argv=None) -> int:
     print(f"  {'A0':>5} | {'paper':^38} | {'ours':^44}")
     for off, paper in TABLE1_PAPER.items():
         r = t1[off]
-        ours = (f"{r['pitch']:+.4f} {r['roll']:+.4f} {r['yaw']:+.4f} {r['identified']:2d}" if r["solved"]
-                else f"fails ({r['identified']} stars)")
+        ours = (
+            f"{r['pitch']:+.4f} {r['roll']:+.4f} {r['yaw']:+.4f} {r['identified']:2d}"
+            if r["solved"]
+            else f"fails ({r['identified']} stars)"
+        )
         p = "fails" if paper is None else f"{paper[0]:+.4f} {paper[1]:+.4f} {paper[2]:+.4f} {paper[3]:2d}"
         print(f"  {off:+5.0f} | {p:^38} | {ours:^44}")
     counts, matches = screens
     print("  finer sweep, this screen: " + " ".join(f"{o:+.1f}:{t1_fine[o]['identified']}" for o in FINE_OFFSETS_DEG))
-    print(f"  over {len(counts)} screens, % solved: " + " ".join(
-        f"{o:+.1f}:{100 * np.mean(counts[:, j] >= 3):.0f}" for j, o in enumerate(FINE_OFFSETS_DEG)))
+    print(
+        f"  over {len(counts)} screens, % solved: "
+        + " ".join(f"{o:+.1f}:{100 * np.mean(counts[:, j] >= 3):.0f}" for j, o in enumerate(FINE_OFFSETS_DEG))
+    )
 
     print("\n=== Table 2: iterations from A0 = -2 deg (mean |error| 1e-3 deg; pitch / roll / yaw / stars) ===")
     print("  iter | paper                | " + " | ".join(f"{s:^27}" for s in t2))
@@ -431,8 +515,11 @@ def main(argv=None) -> int:
             e = np.array(d["mean_abs_error_pitch_roll_yaw_deg"][k]) * 1e3
             cells.append(f"{e[0]:7.3g} {e[1]:7.3g} {e[2]:7.3g} {d['stars'][k]:3.1f}")
         print(f"  {k + 1:4d} | {p[0]:4.1f} {p[1]:4.1f} {p[2]:4.1f} {p[3]:3d}       | " + " | ".join(cells))
-    print("  mean 2-5 | " + f"{TABLE2_PAPER_MEAN}  | " + " | ".join(
-        "{:7.3g} {:7.3g} {:7.3g}    ".format(*d["mean_iter2to5_1e3deg"]) for d in t2.values()))
+    print(
+        "  mean 2-5 | "
+        + f"{TABLE2_PAPER_MEAN}  | "
+        + " | ".join("{:7.3g} {:7.3g} {:7.3g}    ".format(*d["mean_iter2to5_1e3deg"]) for d in t2.values())
+    )
 
     print("\n=== Naive vs corrected matching, table tilted (roll = pitch), exact A0: stars identified ===")
     print("  tilt (deg): " + " ".join(f"{t:5.1f}" for t in nvc["tilt_deg"]))
@@ -442,15 +529,26 @@ def main(argv=None) -> int:
     if dyn:
         print("\n=== Dynamic test (50 stars, swarm start; RMSE deg roll / pitch / yaw) ===")
         for case, d in dyn.items():
-            print(f"  {case}: first frame {d['stars_identified_first_frame']}/{d['stars_observed_first_frame']} "
-                  f"stars after {d['swarm_generations_first_frame']} swarm generations")
-            print("    static 0-40 s      camera alone " + " ".join(f"{x:.2e}" for x in d["rmse_static_roll_pitch_yaw_deg"]))
-            print("    moving 40-140 s    camera alone " + " ".join(f"{x:.2e}" for x in d["rmse_moving_roll_pitch_yaw_deg"])
-                  + "   fused (at frames) " + " ".join(
-                      f"{x:.2e}" for x in d["fused_rmse_moving_at_frames_roll_pitch_yaw_deg"])
-                  + "   fused (50 Hz) " + " ".join(f"{x:.2e}" for x in d["fused_rmse_moving_roll_pitch_yaw_deg"]))
-            print(f"    outage 90-95 s max error: camera alone {d['outage_max_error_deg'][EST]:.3f} deg, "
-                  f"fused {d['outage_max_error_deg'][FUSED]:.4f} deg")
+            print(
+                f"  {case}: first frame {d['stars_identified_first_frame']}/{d['stars_observed_first_frame']} "
+                f"stars after {d['swarm_generations_first_frame']} swarm generations"
+            )
+            print(
+                "    static 0-40 s      camera alone "
+                + " ".join(f"{x:.2e}" for x in d["rmse_static_roll_pitch_yaw_deg"])
+            )
+            print(
+                "    moving 40-140 s    camera alone "
+                + " ".join(f"{x:.2e}" for x in d["rmse_moving_roll_pitch_yaw_deg"])
+                + "   fused (at frames) "
+                + " ".join(f"{x:.2e}" for x in d["fused_rmse_moving_at_frames_roll_pitch_yaw_deg"])
+                + "   fused (50 Hz) "
+                + " ".join(f"{x:.2e}" for x in d["fused_rmse_moving_roll_pitch_yaw_deg"])
+            )
+            print(
+                f"    outage 90-95 s max error: camera alone {d['outage_max_error_deg'][EST]:.3f} deg, "
+                f"fused {d['outage_max_error_deg'][FUSED]:.4f} deg"
+            )
         claims = verdicts(t1, t1_fine, screens, t2, nvc, dyn)
         print("\n=== The paper's claims, our evidence " + "=" * 40)
         for c in claims:
@@ -463,12 +561,25 @@ def main(argv=None) -> int:
     with open(os.path.join(args.out, "config_s2_indoor_dynamic.yaml"), "w") as f:
         f.write(dump_scenario(dyn_scenario))
     with open(os.path.join(args.out, "results.json"), "w") as f:
-        json.dump({"table1": {str(k): v for k, v in t1.items()},
-                   "table1_fine": {str(k): v for k, v in t1_fine.items()},
-                   "screens": {"offsets_deg": FINE_OFFSETS_DEG, "identified": counts.tolist(),
-                               "paper_outcome_screens": int(sum(matches))},
-                   "table2": t2, "table2_sources": SOURCES, "naive_vs_corrected": nvc, "dynamic": dyn,
-                   "claims": claims, "seeds": seeds}, f, indent=1)
+        json.dump(
+            {
+                "table1": {str(k): v for k, v in t1.items()},
+                "table1_fine": {str(k): v for k, v in t1_fine.items()},
+                "screens": {
+                    "offsets_deg": FINE_OFFSETS_DEG,
+                    "identified": counts.tolist(),
+                    "paper_outcome_screens": int(sum(matches)),
+                },
+                "table2": t2,
+                "table2_sources": SOURCES,
+                "naive_vs_corrected": nvc,
+                "dynamic": dyn,
+                "claims": claims,
+                "seeds": seeds,
+            },
+            f,
+            indent=1,
+        )
     print(f"\nWrote results.json, 2 configs and {len(figures)} figures to {args.out}/")
     return 0
 

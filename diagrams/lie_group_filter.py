@@ -44,8 +44,10 @@ RAD_PER_S_TO_DEG_PER_RT_H = 180.0 / np.pi * 60.0  # rad/s^0.5 -> deg/sqrt(h)
 CASES = {
     "noise_free": [],
     "100urad_nav_gyro": ["sensors.st.sigma_vector_urad=100.0", "sensors.gyro.arw_deg_per_rt_h=0.005"],
-    "tuning_as_truth": ["sensors.st.sigma_vector_urad=125000.0",
-                        f"sensors.gyro.arw_deg_per_rt_h={float(np.sqrt(5e-5) * RAD_PER_S_TO_DEG_PER_RT_H)!r}"],
+    "tuning_as_truth": [
+        "sensors.st.sigma_vector_urad=125000.0",
+        f"sensors.gyro.arw_deg_per_rt_h={float(np.sqrt(5e-5) * RAD_PER_S_TO_DEG_PER_RT_H)!r}",
+    ],
 }
 
 
@@ -91,14 +93,20 @@ def evaluate(results, duration):
     nf = results["noise_free"]
     claims = []
     # (a) the consistent Lie-group filter reaches <= 0.005 deg by about step 150.
-    steps = [first_step_staying_below(r["series"]["lie_group"]["t"], r["series"]["lie_group"]["dtheta_deg"],
-                                      THRESHOLD_DEG) for r in nf]
+    steps = [
+        first_step_staying_below(r["series"]["lie_group"]["t"], r["series"]["lie_group"]["dtheta_deg"], THRESHOLD_DEG)
+        for r in nf
+    ]
     ok = all(s is not None and s <= 1.2 * PAPER_STEP for s in steps)
-    claims.append({"claim": "(a) the Lie-group filter converges from X0 = I (120 deg off) to <= 0.005 deg "
-                            f"by about step {PAPER_STEP}",
-                   "evidence": f"consistent form, noise-free truth: first step after which every axis stays "
-                               f"<= {THRESHOLD_DEG} deg, per seed: {steps}",
-                   "verdict": "holds" if ok else "does not hold"})
+    claims.append(
+        {
+            "claim": "(a) the Lie-group filter converges from X0 = I (120 deg off) to <= 0.005 deg "
+            f"by about step {PAPER_STEP}",
+            "evidence": f"consistent form, noise-free truth: first step after which every axis stays "
+            f"<= {THRESHOLD_DEG} deg, per seed: {steps}",
+            "verdict": "holds" if ok else "does not hold",
+        }
+    )
     # (b) the quaternion EKF's x-axis error grows with time.
     growth = []
     for r in nf:
@@ -108,20 +116,30 @@ def evaluate(results, duration):
         late = ex[t >= duration - 100].mean()
         growth.append(late / early)
     grows = all(g > 1.5 for g in growth)
-    claims.append({"claim": "(b) the additive quaternion EKF's x-axis error grows with time (paper Fig 4)",
-                   "evidence": "noise-free truth: mean |x error| over the last 100 s / over 100-200 s, per seed: "
-                               + ", ".join(f"{g:.3g}" for g in growth)
-                               + "; final |x error| (deg): "
-                               + ", ".join(f"{abs(r['series']['quaternion_ekf']['dtheta_deg'][-1, 0]):.2g}" for r in nf),
-                   "verdict": "holds" if grows else "does not hold (on this truth our quaternion EKF converges: "
-                                                    "its exact two-vector quaternion measurement leaves no drift)"})
+    claims.append(
+        {
+            "claim": "(b) the additive quaternion EKF's x-axis error grows with time (paper Fig 4)",
+            "evidence": "noise-free truth: mean |x error| over the last 100 s / over 100-200 s, per seed: "
+            + ", ".join(f"{g:.3g}" for g in growth)
+            + "; final |x error| (deg): "
+            + ", ".join(f"{abs(r['series']['quaternion_ekf']['dtheta_deg'][-1, 0]):.2g}" for r in nf),
+            "verdict": "holds"
+            if grows
+            else "does not hold (on this truth our quaternion EKF converges: "
+            "its exact two-vector quaternion measurement leaves no drift)",
+        }
+    )
     # (c) the literal form does not converge.
     finals = [float(np.linalg.norm(r["series"]["lie_group_paper_literal"]["dtheta_deg"][-1])) for r in nf]
-    claims.append({"claim": "(c) [SPEC.md] the filter as printed (eqs 26-32: body-frame innovation, H = -[r x], "
-                            "right update) does not converge",
-                   "evidence": f"paper_literal, noise-free truth: |error| at {duration:.0f} s per seed (deg): "
-                               + ", ".join(f"{f:.3g}" for f in finals),
-                   "verdict": "holds" if all(f > 1.0 for f in finals) else "does not hold"})
+    claims.append(
+        {
+            "claim": "(c) [SPEC.md] the filter as printed (eqs 26-32: body-frame innovation, H = -[r x], "
+            "right update) does not converge",
+            "evidence": f"paper_literal, noise-free truth: |error| at {duration:.0f} s per seed (deg): "
+            + ", ".join(f"{f:.3g}" for f in finals),
+            "verdict": "holds" if all(f > 1.0 for f in finals) else "does not hold",
+        }
+    )
     return claims
 
 
@@ -132,9 +150,16 @@ def table(results, duration):
             rms = [np.sqrt(np.mean(np.sum(steady(r["series"][f], duration, "dtheta_deg") ** 2, axis=1))) for r in runs]
             n3 = [np.mean(steady(r["series"][f], duration, "nees3")) for r in runs]
             n6 = [r["metrics"][f]["nees_mean"] for r in runs]
-            rows.append({"case": case, "filter": f, "steady_rmse_deg": float(np.mean(rms)),
-                         "steady_rmse_deg_seeds": [float(x) for x in rms],
-                         "nees_attitude_3dof": float(np.mean(n3)), "nees_6dof": float(np.mean(n6))})
+            rows.append(
+                {
+                    "case": case,
+                    "filter": f,
+                    "steady_rmse_deg": float(np.mean(rms)),
+                    "steady_rmse_deg_seeds": [float(x) for x in rms],
+                    "nees_attitude_3dof": float(np.mean(n3)),
+                    "nees_6dof": float(np.mean(n6)),
+                }
+            )
     return rows
 
 
@@ -178,8 +203,10 @@ def main(argv=None) -> int:
     scenario = load("s4_lie_group")
     sd = diagram_for(scenario)  # one diagram; the cases and seeds are contexts
     seeds = list(range(1, args.seeds + 1))
-    print(f"Paper S4: {len(CASES)} truth-noise cases x {len(seeds)} seeds x {args.duration:g} s, "
-          f"filters {', '.join(FILTERS)} in one diagram")
+    print(
+        f"Paper S4: {len(CASES)} truth-noise cases x {len(seeds)} seeds x {args.duration:g} s, "
+        f"filters {', '.join(FILTERS)} in one diagram"
+    )
     results = {}
     for case, over in CASES.items():
         results[case] = run_case(sd, over, seeds, args.duration)
@@ -191,16 +218,30 @@ def main(argv=None) -> int:
     for c in claims:
         print(f"  [{c['verdict']}] {c['claim']}\n      {c['evidence']}")
     rows = table(results, args.duration)
-    print(f"\nSteady stage (t >= {args.duration / 2:g} s), mean over seeds: total attitude RMSE and NEES "
-          "(attitude 3 dof; with the rate block 6 dof):")
+    print(
+        f"\nSteady stage (t >= {args.duration / 2:g} s), mean over seeds: total attitude RMSE and NEES "
+        "(attitude 3 dof; with the rate block 6 dof):"
+    )
     print(f"  {'case':<18} {'filter':<24} {'RMSE (deg)':>12} {'NEES 3':>10} {'NEES 6':>10}")
     for r in rows:
-        print(f"  {r['case']:<18} {r['filter']:<24} {r['steady_rmse_deg']:12.3g} {r['nees_attitude_3dof']:10.3g} "
-              f"{r['nees_6dof']:10.3g}")
+        print(
+            f"  {r['case']:<18} {r['filter']:<24} {r['steady_rmse_deg']:12.3g} {r['nees_attitude_3dof']:10.3g} "
+            f"{r['nees_6dof']:10.3g}"
+        )
     figures = plot(results, args.out)
     with open(os.path.join(args.out, "results.json"), "w") as f:
-        json.dump({"seeds": seeds, "duration_s": args.duration, "cases": CASES, "claims": claims, "table": rows,
-                   "metrics": {c: [r["metrics"] for r in v] for c, v in results.items()}}, f, indent=1)
+        json.dump(
+            {
+                "seeds": seeds,
+                "duration_s": args.duration,
+                "cases": CASES,
+                "claims": claims,
+                "table": rows,
+                "metrics": {c: [r["metrics"] for r in v] for c, v in results.items()},
+            },
+            f,
+            indent=1,
+        )
     print(f"\nWrote results.json, config_*.yaml and {len(figures)} figures to {args.out}/")
     return 0
 

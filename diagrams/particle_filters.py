@@ -47,8 +47,11 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
 
-SCENARIOS = {"small": "s0_particle_filters_small_error", "large": "s0_particle_filters_large_error",
-             "gyroless": "s0_gyroless_pf"}
+SCENARIOS = {
+    "small": "s0_particle_filters_small_error",
+    "large": "s0_particle_filters_large_error",
+    "gyroless": "s0_gyroless_pf",
+}
 PARTICLE_CONFIGS = (BootstrapPfConfig, EkpfConfig, GyrolessPfConfig)
 
 # Paper S0's reported figures, typed in for COMPARISON only (never used in a verdict except
@@ -65,8 +68,7 @@ def prepare(name: str, particles: int, duration: float) -> cfg.Scenario:
     """A shipped S0 scenario with the run length and particle count of this study."""
     s = load(name)
     over = [f"duration_s={duration}", f"scoring.score_from_s={duration / 2}"]
-    over += [f"estimators.{e.name}.num_particles={particles}" for e in s.estimators
-             if isinstance(e, PARTICLE_CONFIGS)]
+    over += [f"estimators.{e.name}.num_particles={particles}" for e in s.estimators if isinstance(e, PARTICLE_CONFIGS)]
     return apply_overrides(s, over)
 
 
@@ -83,7 +85,7 @@ def stable_mask(series, frac=0.5):
 
 
 def rms_norm(x):
-    return float(np.sqrt(np.mean(np.sum(x ** 2, axis=1))))
+    return float(np.sqrt(np.mean(np.sum(x**2, axis=1))))
 
 
 def final_norm(series, key, scale, frac=0.9):
@@ -115,57 +117,78 @@ def evaluate_claims(res: dict, threshold_deg: float, particles: int) -> tuple[li
 
     # (1) Bootstrap PF, small error: attitude converges, bias does not.
     n = len(small)
-    att = {e: mean_axis(small, e, "attitude_rmse_deg") for e in
-           ("ekf", "bootstrap_pf", "bootstrap_pf_true_arw", "bootstrap_pf_roughened", "ekpf")}
+    att = {
+        e: mean_axis(small, e, "attitude_rmse_deg")
+        for e in ("ekf", "bootstrap_pf", "bootstrap_pf_true_arw", "bootstrap_pf_roughened", "ekpf")
+    }
     att_tot = {e: float(np.mean(per_seed(small, e, "attitude_rmse_total_deg"))) for e in att}
     conv = {e: per_seed(small, e, "convergence_time_s") for e in att}
     b_final = {e: float(np.mean([final_norm(r["series"][e], "second_err", DEG_PER_H) for r in small])) for e in att}
     b_rmse = {e: float(np.mean([np.linalg.norm(v) for v in per_seed(small, e, "bias_rmse_deg_per_h")])) for e in att}
-    b_sigma_end = {e: float(np.mean([np.linalg.norm(r["series"][e]["sigma"][-1, 3:]) / DEG_PER_H for r in small]))
-                   for e in att}
+    b_sigma_end = {
+        e: float(np.mean([np.linalg.norm(r["series"][e]["sigma"][-1, 3:]) / DEG_PER_H for r in small])) for e in att
+    }
     bpf_att_ok = all(c is not None for c in conv["bootstrap_pf"]) and att_tot["bootstrap_pf"] < threshold_deg
     bpf_bias_frozen = b_final["bootstrap_pf"] > 0.25 * INITIAL_BIAS_ERROR_DEG_PER_H
-    add("1. Bootstrap PF, small initial error: the attitude converges, the gyro bias does not "
+    add(
+        "1. Bootstrap PF, small initial error: the attitude converges, the gyro bias does not "
         "(sample impoverishment, b_k+1 = b_k)",
         bpf_att_ok and bpf_bias_frozen,
-        [f"attitude RMSE, stable stage (mean of {n} seeds): bootstrap_pf {att_tot['bootstrap_pf']:.4f} deg total "
-         f"(x/y/z {' '.join(f'{v:.4f}' for v in att['bootstrap_pf'])}), converged (<{threshold_deg} deg) in "
-         f"{sum(c is not None for c in conv['bootstrap_pf'])}/{n} seeds; EKF {att_tot['ekf']:.4f} deg",
-         f"bias error |b - b_hat|, last 10% of the run: bootstrap_pf {b_final['bootstrap_pf']:.3f} deg/h "
-         f"(initial error {INITIAL_BIAS_ERROR_DEG_PER_H:.2f} deg/h; 'does not converge' = more than 25% of it left) "
-         f"vs EKF {b_final['ekf']:.4f} deg/h",
-         f"particle bias spread at the end (1-sigma norm): bootstrap_pf {b_sigma_end['bootstrap_pf']:.2e} deg/h "
-         f"(collapsed) vs EKF sigma {b_sigma_end['ekf']:.2e} deg/h",
-         f"paper-literal attitude process noise (the gyro's ARW): bootstrap_pf_true_arw attitude "
-         f"{att_tot['bootstrap_pf_true_arw']:.4f} deg, converged in "
-         f"{sum(c is not None for c in conv['bootstrap_pf_true_arw'])}/{n} seeds: with {particles} particles the "
-         f"cloud cannot follow the truth without an inflated attitude noise (ours: 2e-5 rad/s^0.5)",
-         f"beyond the paper, same data: bias roughening -> bias error {b_final['bootstrap_pf_roughened']:.3f} deg/h "
-         f"(stable-stage RMSE {b_rmse['bootstrap_pf_roughened']:.3f} vs {b_rmse['bootstrap_pf']:.3f} deg/h frozen, "
-         f"{b_rmse['bootstrap_pf'] / max(b_rmse['bootstrap_pf_roughened'], 1e-12):.1f}x better), attitude "
-         f"{att_tot['bootstrap_pf_roughened']:.4f} deg; still far from the EKF's {b_rmse['ekf']:.4f} deg/h"],
-        {"attitude_rmse_total_deg": att_tot, "bias_error_final_deg_per_h": b_final,
-         "bias_rmse_deg_per_h": b_rmse, "bias_sigma_final_deg_per_h": b_sigma_end})
+        [
+            f"attitude RMSE, stable stage (mean of {n} seeds): bootstrap_pf {att_tot['bootstrap_pf']:.4f} deg total "
+            f"(x/y/z {' '.join(f'{v:.4f}' for v in att['bootstrap_pf'])}), converged (<{threshold_deg} deg) in "
+            f"{sum(c is not None for c in conv['bootstrap_pf'])}/{n} seeds; EKF {att_tot['ekf']:.4f} deg",
+            f"bias error |b - b_hat|, last 10% of the run: bootstrap_pf {b_final['bootstrap_pf']:.3f} deg/h "
+            f"(initial error {INITIAL_BIAS_ERROR_DEG_PER_H:.2f} deg/h; 'does not converge' = more than 25% of it left) "
+            f"vs EKF {b_final['ekf']:.4f} deg/h",
+            f"particle bias spread at the end (1-sigma norm): bootstrap_pf {b_sigma_end['bootstrap_pf']:.2e} deg/h "
+            f"(collapsed) vs EKF sigma {b_sigma_end['ekf']:.2e} deg/h",
+            f"paper-literal attitude process noise (the gyro's ARW): bootstrap_pf_true_arw attitude "
+            f"{att_tot['bootstrap_pf_true_arw']:.4f} deg, converged in "
+            f"{sum(c is not None for c in conv['bootstrap_pf_true_arw'])}/{n} seeds: with {particles} particles the "
+            f"cloud cannot follow the truth without an inflated attitude noise (ours: 2e-5 rad/s^0.5)",
+            f"beyond the paper, same data: bias roughening -> bias error {b_final['bootstrap_pf_roughened']:.3f} deg/h "
+            f"(stable-stage RMSE {b_rmse['bootstrap_pf_roughened']:.3f} vs {b_rmse['bootstrap_pf']:.3f} deg/h frozen, "
+            f"{b_rmse['bootstrap_pf'] / max(b_rmse['bootstrap_pf_roughened'], 1e-12):.1f}x better), attitude "
+            f"{att_tot['bootstrap_pf_roughened']:.4f} deg; still far from the EKF's {b_rmse['ekf']:.4f} deg/h",
+        ],
+        {
+            "attitude_rmse_total_deg": att_tot,
+            "bias_error_final_deg_per_h": b_final,
+            "bias_rmse_deg_per_h": b_rmse,
+            "bias_sigma_final_deg_per_h": b_sigma_end,
+        },
+    )
 
     # (2) EKPF small error: ~0.002 deg, comparable to the EKF.
     ratio = att_tot["ekpf"] / att_tot["ekf"]
     ekpf_axes = att["ekpf"]
-    ok2a = bool(np.max(ekpf_axes) <= CLASS_FACTOR * PAPER_EKPF_ATTITUDE_DEG
-                and all(c is not None for c in conv["ekpf"]))
+    ok2a = bool(
+        np.max(ekpf_axes) <= CLASS_FACTOR * PAPER_EKPF_ATTITUDE_DEG and all(c is not None for c in conv["ekpf"])
+    )
     ok2b = bool(0.5 <= ratio <= 2.0)
-    add("2. EKPF, small initial error: converges, attitude ~0.002 deg (a), comparable to the EKF (b)",
+    add(
+        "2. EKPF, small initial error: converges, attitude ~0.002 deg (a), comparable to the EKF (b)",
         ok2a and ok2b,
-        [f"(a) {verdict(ok2a)}: EKPF attitude RMSE per axis x/y/z {' '.join(f'{v:.4f}' for v in ekpf_axes)} deg "
-         f"(paper ~{PAPER_EKPF_ATTITUDE_DEG}; 'class' = within {CLASS_FACTOR:g}x), total {att_tot['ekpf']:.4f} deg; "
-         f"converged (<{threshold_deg} deg) in {sum(c is not None for c in conv['ekpf'])}/{n} seeds",
-         f"(b) {verdict(ok2b)}: EKF attitude RMSE per axis {' '.join(f'{v:.4f}' for v in att['ekf'])} deg, "
-         f"total {att_tot['ekf']:.4f} deg; EKPF/EKF = {ratio:.2f} ('comparable' = between 0.5 and 2)",
-         f"bias RMSE: EKPF {b_rmse['ekpf']:.3f} deg/h = {b_rmse['ekpf'] / 3600:.6f} deg/s "
-         f"(paper {PAPER_EKPF_BIAS_DEG_PER_S} deg/s), EKF {b_rmse['ekf']:.4f} deg/h",
-         "the EKPF redraws every particle from its EKF posterior at each step (a kernel jitter), so its weighted "
-         "mean carries Monte Carlo noise on top of the EKF-level error"],
-        {"ekpf_attitude_rmse_deg": ekpf_axes.tolist(), "ekf_attitude_rmse_deg": att["ekf"].tolist(),
-         "ekpf_over_ekf": ratio, "part_a_holds": ok2a, "part_b_holds": ok2b})
+        [
+            f"(a) {verdict(ok2a)}: EKPF attitude RMSE per axis x/y/z {' '.join(f'{v:.4f}' for v in ekpf_axes)} deg "
+            f"(paper ~{PAPER_EKPF_ATTITUDE_DEG}; 'class' = within {CLASS_FACTOR:g}x), total {att_tot['ekpf']:.4f} deg; "
+            f"converged (<{threshold_deg} deg) in {sum(c is not None for c in conv['ekpf'])}/{n} seeds",
+            f"(b) {verdict(ok2b)}: EKF attitude RMSE per axis {' '.join(f'{v:.4f}' for v in att['ekf'])} deg, "
+            f"total {att_tot['ekf']:.4f} deg; EKPF/EKF = {ratio:.2f} ('comparable' = between 0.5 and 2)",
+            f"bias RMSE: EKPF {b_rmse['ekpf']:.3f} deg/h = {b_rmse['ekpf'] / 3600:.6f} deg/s "
+            f"(paper {PAPER_EKPF_BIAS_DEG_PER_S} deg/s), EKF {b_rmse['ekf']:.4f} deg/h",
+            "the EKPF redraws every particle from its EKF posterior at each step (a kernel jitter), so its weighted "
+            "mean carries Monte Carlo noise on top of the EKF-level error",
+        ],
+        {
+            "ekpf_attitude_rmse_deg": ekpf_axes.tolist(),
+            "ekf_attitude_rmse_deg": att["ekf"].tolist(),
+            "ekpf_over_ekf": ratio,
+            "part_a_holds": ok2a,
+            "part_b_holds": ok2b,
+        },
+    )
 
     # (3) Large error: EKPF converges, EKF does not.
     n = len(large)
@@ -185,35 +208,51 @@ def evaluate_claims(res: dict, threshold_deg: float, particles: int) -> tuple[li
         return sum(c is not None for c in convl[e])
 
     ekf_fails = nconv("ekf") == 0
-    lines_ev = [f"{e:<14} converged (<{threshold_deg} deg to the end) in {nconv(e)}/{n} seeds; |error| at t=100 s "
-                f"{at100[e]:.3f} deg, last 10% {fin[e]:.4f} deg"
-                + (f"; convergence time {np.mean([c for c in convl[e] if c is not None]):.0f} s" if nconv(e) else "")
-                for e in names]
+    lines_ev = [
+        f"{e:<14} converged (<{threshold_deg} deg to the end) in {nconv(e)}/{n} seeds; |error| at t=100 s "
+        f"{at100[e]:.3f} deg, last 10% {fin[e]:.4f} deg"
+        + (f"; convergence time {np.mean([c for c in convl[e] if c is not None]):.0f} s" if nconv(e) else "")
+        for e in names
+    ]
     ok3_paper = nconv("ekpf") == n and ekf_fails
-    add("3. Large initial error [12,-10,170] deg: the EKPF converges, the EKF does not -- with the paper's EKPF "
-        "(one EKF linearization per particle)", ok3_paper,
-        lines_ev + ["our EKF does not diverge (the shadow-set switch keeps the MRP bounded) but creeps: its 1-deg P0 "
-                    "makes it overconfident, the error falls roughly like 1/t; the paper-literal EKPF creeps the same "
-                    "way because each particle's EKF step is the same local step (see fig4_5_large_error.png)"],
-        {"converged_seeds": {e: nconv(e) for e in names}, "final_error_deg": fin, "error_at_100s_deg": at100})
+    add(
+        "3. Large initial error [12,-10,170] deg: the EKPF converges, the EKF does not -- with the paper's EKPF "
+        "(one EKF linearization per particle)",
+        ok3_paper,
+        lines_ev
+        + [
+            "our EKF does not diverge (the shadow-set switch keeps the MRP bounded) but creeps: its 1-deg P0 "
+            "makes it overconfident, the error falls roughly like 1/t; the paper-literal EKPF creeps the same "
+            "way because each particle's EKF step is the same local step (see fig4_5_large_error.png)"
+        ],
+        {"converged_seeds": {e: nconv(e) for e in names}, "final_error_deg": fin, "error_at_100s_deg": at100},
+    )
     if "ekpf_iterated" in names:
         ok3_it = nconv("ekpf_iterated") == n and ekf_fails
         extra = ""
         if "ekf_iterated" in names:
-            extra = (f"; but the iterated EKF (no particles) converges as well ({nconv('ekf_iterated')}/{n}): "
-                     "the iteration, not the particle set, removes the large error")
-        add("3b. (beyond the paper) same, EKPF with the iterated-EKF proposal (<= 10 linearizations per particle)",
-            ok3_it, [f"ekpf_iterated converged in {nconv('ekpf_iterated')}/{n} seeds, EKF in {nconv('ekf')}/{n}" + extra])
+            extra = (
+                f"; but the iterated EKF (no particles) converges as well ({nconv('ekf_iterated')}/{n}): "
+                "the iteration, not the particle set, removes the large error"
+            )
+        add(
+            "3b. (beyond the paper) same, EKPF with the iterated-EKF proposal (<= 10 linearizations per particle)",
+            ok3_it,
+            [f"ekpf_iterated converged in {nconv('ekpf_iterated')}/{n} seeds, EKF in {nconv('ekf')}/{n}" + extra],
+        )
 
     # (4) Gyroless PF: ~0.01 deg attitude, ~0.004 deg/s rate.
     n = len(gyroless)
     g_names = list(gyroless[0]["metrics"]["estimators"])
     g_att = {e: float(np.mean(per_seed(gyroless, e, "attitude_rmse_total_deg"))) for e in g_names}
-    g_rate = {e: float(np.mean([np.linalg.norm(v) for v in per_seed(gyroless, e, "rate_rmse_deg_per_s")]))
-              for e in g_names}
+    g_rate = {
+        e: float(np.mean([np.linalg.norm(v) for v in per_seed(gyroless, e, "rate_rmse_deg_per_s")])) for e in g_names
+    }
     g_conv = {e: sum(c is not None for c in per_seed(gyroless, e, "convergence_time_s")) for e in g_names}
-    g_peak_rate = {e: float(np.mean([np.max(np.linalg.norm(r["series"][e]["second_err"], axis=1)) / DEG
-                                     for r in gyroless])) for e in g_names}
+    g_peak_rate = {
+        e: float(np.mean([np.max(np.linalg.norm(r["series"][e]["second_err"], axis=1)) / DEG for r in gyroless]))
+        for e in g_names
+    }
     g_peak_att = {}
     for e in g_names:
         vals = []
@@ -222,18 +261,32 @@ def evaluate_claims(res: dict, threshold_deg: float, particles: int) -> tuple[li
             m = s["t"] >= 0.1 * s["t"][-1]
             vals.append(np.max(np.linalg.norm(s["dtheta"][m], axis=1)) / DEG)
         g_peak_att[e] = float(np.mean(vals))
-    ok4 = (g_att["gyroless_pf"] <= CLASS_FACTOR * PAPER_GYROLESS_ATTITUDE_DEG
-           and g_rate["gyroless_pf"] <= CLASS_FACTOR * PAPER_GYROLESS_RATE_DEG_PER_S)
-    add("4. Gyroless bootstrap PF: attitude ~0.01 deg, rate ~0.004 deg/s (at least that accurate)", ok4,
-        [f"{e:<18} attitude RMSE (stable stage) {g_att[e]:.4f} deg, rate RMSE {g_rate[e]:.2e} deg/s, converged "
-         f"{g_conv[e]}/{n} seeds; transient: peak |attitude error| after 10% of the run {g_peak_att[e]:.3f} deg, "
-         f"peak |rate error| {g_peak_rate[e]:.4f} deg/s" for e in g_names]
-        + [f"paper: {PAPER_GYROLESS_ATTITUDE_DEG} deg and {PAPER_GYROLESS_RATE_DEG_PER_S} deg/s; ours is more "
-           "accurate in the stable stage (the filter's Euler model, inertia and torque, is exact here); the "
-           "paper-literal variant (rate noise only) shows the paper's slow oscillating transient of that size "
-           "(fig6_gyroless.png), which the attitude process noise removes"],
-        {"attitude_rmse_total_deg": g_att, "rate_rmse_deg_per_s": g_rate, "peak_rate_error_deg_per_s": g_peak_rate,
-         "peak_attitude_error_after_10pct_deg": g_peak_att})
+    ok4 = (
+        g_att["gyroless_pf"] <= CLASS_FACTOR * PAPER_GYROLESS_ATTITUDE_DEG
+        and g_rate["gyroless_pf"] <= CLASS_FACTOR * PAPER_GYROLESS_RATE_DEG_PER_S
+    )
+    add(
+        "4. Gyroless bootstrap PF: attitude ~0.01 deg, rate ~0.004 deg/s (at least that accurate)",
+        ok4,
+        [
+            f"{e:<18} attitude RMSE (stable stage) {g_att[e]:.4f} deg, rate RMSE {g_rate[e]:.2e} deg/s, converged "
+            f"{g_conv[e]}/{n} seeds; transient: peak |attitude error| after 10% of the run {g_peak_att[e]:.3f} deg, "
+            f"peak |rate error| {g_peak_rate[e]:.4f} deg/s"
+            for e in g_names
+        ]
+        + [
+            f"paper: {PAPER_GYROLESS_ATTITUDE_DEG} deg and {PAPER_GYROLESS_RATE_DEG_PER_S} deg/s; ours is more "
+            "accurate in the stable stage (the filter's Euler model, inertia and torque, is exact here); the "
+            "paper-literal variant (rate noise only) shows the paper's slow oscillating transient of that size "
+            "(fig6_gyroless.png), which the attitude process noise removes"
+        ],
+        {
+            "attitude_rmse_total_deg": g_att,
+            "rate_rmse_deg_per_s": g_rate,
+            "peak_rate_error_deg_per_s": g_peak_rate,
+            "peak_attitude_error_after_10pct_deg": g_peak_att,
+        },
+    )
     return claims, "\n".join(lines)
 
 
@@ -248,14 +301,26 @@ def ekf_initial_error_sweep(sd, duration, seed, yaw_errors_deg=(5, 10, 20, 30, 4
 
     rows = []
     for yaw in yaw_errors_deg:
-        run = sd.simulate(seed, estimators=["ekf"], overrides=[
-            f"estimators.ekf.initial_attitude_rpy_deg=[0.0, 0.0, {float(yaw)}]", f"duration_s={duration}",
-            f"scoring.score_from_s={duration / 2}"])
+        run = sd.simulate(
+            seed,
+            estimators=["ekf"],
+            overrides=[
+                f"estimators.ekf.initial_attitude_rpy_deg=[0.0, 0.0, {float(yaw)}]",
+                f"duration_s={duration}",
+                f"scoring.score_from_s={duration / 2}",
+            ],
+        )
         m = compute_metrics(run)["estimators"]["ekf"]
         err = estimator_errors(run, "ekf")
-        rows.append({"initial_yaw_error_deg": yaw, "convergence_time_s": m["convergence_time_s"],
-                     "final_error_deg": float(np.linalg.norm(err["dtheta"][-1]) / DEG),
-                     "t": err["t"], "error_norm_deg": np.linalg.norm(err["dtheta"], axis=1) / DEG})
+        rows.append(
+            {
+                "initial_yaw_error_deg": yaw,
+                "convergence_time_s": m["convergence_time_s"],
+                "final_error_deg": float(np.linalg.norm(err["dtheta"][-1]) / DEG),
+                "t": err["t"],
+                "error_norm_deg": np.linalg.norm(err["dtheta"], axis=1) / DEG,
+            }
+        )
     return rows
 
 
@@ -270,9 +335,17 @@ def time_filters(diagrams, seed=1):
         for e in s.estimators:
             wall = sd.simulate(seed, estimators=[e.name]).wall_time_s
             steps = int(round(s.duration_s / e.period_s)) + 1
-            rows.append({"scenario": s.name, "estimator": e.name, "type": type(e).__name__,
-                         "particles": getattr(e, "num_particles", 1), "wall_s": wall, "sensors_only_s": t_base,
-                         "ms_per_step": 1e3 * (wall - t_base) / steps})
+            rows.append(
+                {
+                    "scenario": s.name,
+                    "estimator": e.name,
+                    "type": type(e).__name__,
+                    "particles": getattr(e, "num_particles", 1),
+                    "wall_s": wall,
+                    "sensors_only_s": t_base,
+                    "ms_per_step": 1e3 * (wall - t_base) / steps,
+                }
+            )
     return rows
 
 
@@ -290,8 +363,9 @@ def _plt():
 
 def plot_axes(series, names, second_scale, second_unit, second_label, path, title, att_ylim=None, sec_ylim=None):
     """Paper style: per-axis attitude error (top) and bias/rate error (bottom) vs time."""
-    plot_error_grid(series, names, path, title, second_scale, second_unit, second_label,
-                    att_ylim=att_ylim, sec_ylim=sec_ylim)
+    plot_error_grid(
+        series, names, path, title, second_scale, second_unit, second_label, att_ylim=att_ylim, sec_ylim=sec_ylim
+    )
 
 
 def plot_norms(series, names, path, title):
@@ -366,11 +440,17 @@ def main(argv=None) -> int:
         res[key] = run_seeds(s, seeds, workers=args.workers, keep_series_for=seeds)
         total = time.perf_counter() - t0
         per_run = [r["metrics"]["wall_time_s"] for r in res[key]]
-        walls[name] = {"per_seed_s": per_run, "mean_s": float(np.mean(per_run)), "monte_carlo_total_s": total,
-                       "estimators": [e.name for e in s.estimators]}
-        print(f"  {name}: {len(s.estimators)} filters in one diagram, {args.duration:g} s simulated: "
-              f"{np.mean(per_run):.1f} s wall per seed (min {min(per_run):.1f}, max {max(per_run):.1f}); "
-              f"{args.seeds} seeds in {total:.1f} s")
+        walls[name] = {
+            "per_seed_s": per_run,
+            "mean_s": float(np.mean(per_run)),
+            "monte_carlo_total_s": total,
+            "estimators": [e.name for e in s.estimators],
+        }
+        print(
+            f"  {name}: {len(s.estimators)} filters in one diagram, {args.duration:g} s simulated: "
+            f"{np.mean(per_run):.1f} s wall per seed (min {min(per_run):.1f}, max {max(per_run):.1f}); "
+            f"{args.seeds} seeds in {total:.1f} s"
+        )
 
     threshold = scen["small"].scoring.convergence_threshold_deg
     claims, text = evaluate_claims(res, threshold, args.particles)
@@ -387,39 +467,77 @@ def main(argv=None) -> int:
         print("\nEKF (P0 = 1 deg, no particles) vs initial yaw error, seed 1:")
         for r in sweep:
             c = r["convergence_time_s"]
-            print(f"  yaw error {r['initial_yaw_error_deg']:>4} deg: "
-                  f"{f'converged at {c:.0f} s' if c is not None else 'not converged':<22} "
-                  f"|error| at the end {r['final_error_deg']:.4f} deg")
+            print(
+                f"  yaw error {r['initial_yaw_error_deg']:>4} deg: "
+                f"{f'converged at {c:.0f} s' if c is not None else 'not converged':<22} "
+                f"|error| at the end {r['final_error_deg']:.4f} deg"
+            )
         plot_sweep(sweep, os.path.join(args.out, "fig_ekf_initial_error_sweep.png"), threshold)
 
     timing = None
     if not args.no_timing:
         timing = time_filters({k: diagram(k) for k in SCENARIOS})
-        print(f"\nWall time of each filter alone ({args.duration:g} s, seed 1; per step = (wall - sensors-only) / steps):")
+        print(
+            f"\nWall time of each filter alone ({args.duration:g} s, seed 1; per step = (wall - sensors-only) / steps):"
+        )
         for r in timing:
-            print(f"  {r['scenario']:<34} {r['estimator']:<24} N={r['particles']:<5} {r['wall_s']:7.2f} s"
-                  f"  {r['ms_per_step']:7.3f} ms/step")
+            print(
+                f"  {r['scenario']:<34} {r['estimator']:<24} N={r['particles']:<5} {r['wall_s']:7.2f} s"
+                f"  {r['ms_per_step']:7.3f} ms/step"
+            )
 
     # Figures (seed 1).
     s1 = {k: res[k][0]["series"] for k in res}
-    plot_axes(s1["small"], ["bootstrap_pf", "bootstrap_pf_roughened"], DEG_PER_H, "deg/h", "bias error",
-              os.path.join(args.out, "fig2_bootstrap_pf_small_error.png"),
-              "Fig. 2: bootstrap PF, small initial error (seed 1): attitude converges, bias (paper) does not",
-              att_ylim=(-0.05, 0.05))
-    plot_axes(s1["small"], ["ekpf", "ekf"], DEG_PER_H, "deg/h", "bias error",
-              os.path.join(args.out, "fig3_ekpf_small_error.png"),
-              "Fig. 3: EKPF vs EKF, small initial error (seed 1)", att_ylim=(-0.02, 0.02))
-    plot_norms(s1["large"], list(s1["large"]), os.path.join(args.out, "fig4_5_large_error.png"),
-               "Figs. 4-5: large initial error [12, -10, 170] deg (seed 1)")
-    plot_axes(s1["gyroless"], list(s1["gyroless"]), DEG, "deg/s", "rate error",
-              os.path.join(args.out, "fig6_gyroless.png"), "Fig. 6: gyroless bootstrap PF (seed 1)",
-              att_ylim=(-0.05, 0.05))
+    plot_axes(
+        s1["small"],
+        ["bootstrap_pf", "bootstrap_pf_roughened"],
+        DEG_PER_H,
+        "deg/h",
+        "bias error",
+        os.path.join(args.out, "fig2_bootstrap_pf_small_error.png"),
+        "Fig. 2: bootstrap PF, small initial error (seed 1): attitude converges, bias (paper) does not",
+        att_ylim=(-0.05, 0.05),
+    )
+    plot_axes(
+        s1["small"],
+        ["ekpf", "ekf"],
+        DEG_PER_H,
+        "deg/h",
+        "bias error",
+        os.path.join(args.out, "fig3_ekpf_small_error.png"),
+        "Fig. 3: EKPF vs EKF, small initial error (seed 1)",
+        att_ylim=(-0.02, 0.02),
+    )
+    plot_norms(
+        s1["large"],
+        list(s1["large"]),
+        os.path.join(args.out, "fig4_5_large_error.png"),
+        "Figs. 4-5: large initial error [12, -10, 170] deg (seed 1)",
+    )
+    plot_axes(
+        s1["gyroless"],
+        list(s1["gyroless"]),
+        DEG,
+        "deg/s",
+        "rate error",
+        os.path.join(args.out, "fig6_gyroless.png"),
+        "Fig. 6: gyroless bootstrap PF (seed 1)",
+        att_ylim=(-0.05, 0.05),
+    )
 
-    out = {"seeds": seeds, "particles": args.particles, "duration_s": args.duration,
-           "claims": claims, "claims_text": text, "wall_time_s": walls, "timing_per_filter": timing,
-           "ekf_initial_error_sweep": None if sweep is None else [
-               {k: v for k, v in r.items() if k not in ("t", "error_norm_deg")} for r in sweep],
-           "metrics": {SCENARIOS[k]: [r["metrics"] for r in v] for k, v in res.items()}}
+    out = {
+        "seeds": seeds,
+        "particles": args.particles,
+        "duration_s": args.duration,
+        "claims": claims,
+        "claims_text": text,
+        "wall_time_s": walls,
+        "timing_per_filter": timing,
+        "ekf_initial_error_sweep": None
+        if sweep is None
+        else [{k: v for k, v in r.items() if k not in ("t", "error_norm_deg")} for r in sweep],
+        "metrics": {SCENARIOS[k]: [r["metrics"] for r in v] for k, v in res.items()},
+    }
     with open(os.path.join(args.out, "results.json"), "w") as f:
         json.dump(_jsonable(out), f, indent=1)
     print(f"\nWrote results.json, config_*.yaml and figures to {args.out}/")

@@ -80,8 +80,10 @@ def _result_bytes(scenario) -> int:
 def _cmd_check(args) -> int:
     path, scenario = _load_with_overrides(args.scenario, args.set, args.seed)
     _preflight(scenario)
-    print(f"{path}: valid ({scenario.name}: {len(scenario.sensors)} sensors, {len(scenario.estimators)} "
-          f"estimators, {scenario.duration_s:g} s, seed {scenario.seed})")
+    print(
+        f"{path}: valid ({scenario.name}: {len(scenario.sensors)} sensors, {len(scenario.estimators)} "
+        f"estimators, {scenario.duration_s:g} s, seed {scenario.seed})"
+    )
     return 0
 
 
@@ -123,11 +125,17 @@ def _cmd_run(args) -> int:
         try:
             files = write_results(sd, run, metrics, out_dir, figures=not args.no_figures)
         except OSError as e:
-            _say(f"drake-att: --out {out_dir}: cannot write the results ({e.strerror or e}); nothing was written "
-                 "or replaced")
+            _say(
+                f"drake-att: --out {out_dir}: cannot write the results ({e.strerror or e}); nothing was written "
+                "or replaced"
+            )
             return 2
-    print(f"\nWrote {len(files)} files to {out_dir}/" + (" (replacing the previous results there)" if replaced else "")
-          + ": " + ", ".join(os.path.basename(f) for f in files))
+    print(
+        f"\nWrote {len(files)} files to {out_dir}/"
+        + (" (replacing the previous results there)" if replaced else "")
+        + ": "
+        + ", ".join(os.path.basename(f) for f in files)
+    )
     return 0
 
 
@@ -172,8 +180,11 @@ def _cmd_score(args) -> int:
             now = f.read()
     except OSError as e:
         return fail(f"{out}: cannot write ({e.strerror or e}); the file is unchanged")
-    same = "" if previous is None else (" (identical to the file it replaced)" if previous == now
-                                        else " (differs from the file it replaced)")
+    same = (
+        ""
+        if previous is None
+        else (" (identical to the file it replaced)" if previous == now else " (differs from the file it replaced)")
+    )
     print(f"\nWrote {out}{same}")
     return 0
 
@@ -217,7 +228,9 @@ def default_out(command: str, scenario, overrides=None, estimators=None, scenari
     if command == "run":
         name = f"{scenario.name}_seed{scenario.seed}{_override_tag(sets)}"
     elif command == "montecarlo":
-        name = f"{scenario.name}_montecarlo{_override_tag(sets + ([f'--estimators={estimators}'] if estimators else []))}"
+        name = (
+            f"{scenario.name}_montecarlo{_override_tag(sets + ([f'--estimators={estimators}'] if estimators else []))}"
+        )
     else:
         name = f"compare{_override_tag(list(scenarios) + sets + [estimators or ''])}"
     return os.path.join("out", outputs.safe_component(name))
@@ -239,8 +252,9 @@ def _estimator_list(text):
         return None
     names = [n.strip() for n in text.split(",") if n.strip()]
     if not names or len(set(names)) != len(names):
-        raise UserInputError(f"--estimators: got {text[:200]!r}; a comma-separated list of estimator names, each "
-                             "listed once")
+        raise UserInputError(
+            f"--estimators: got {text[:200]!r}; a comma-separated list of estimator names, each listed once"
+        )
     return names
 
 
@@ -257,8 +271,11 @@ def _saved_runs(out) -> int:
 def _kept_runs(out: str, runs: int) -> str:
     """What an interrupted campaign in ``out`` kept, in words."""
     saved = _saved_runs(out)
-    return (f"{saved} of {runs} runs are saved in {out}/runs; the same command with --resume continues the campaign"
-            if saved else "no run had finished, so nothing was kept")
+    return (
+        f"{saved} of {runs} runs are saved in {out}/runs; the same command with --resume continues the campaign"
+        if saved
+        else "no run had finished, so nothing was kept"
+    )
 
 
 def _run_holding_lock(command: str, run, target, args, scheduler, out: str, kept):
@@ -270,8 +287,17 @@ def _run_holding_lock(command: str, run, target, args, scheduler, out: str, kept
 
     try:
         with outputs.writer_lock(out):
-            return run(target, args.runs, args.first_seed, workers=args.workers, scheduler=scheduler, out=out,
-                       resume=args.resume, progress=not args.quiet, connect_timeout_s=args.connect_timeout), None
+            return run(
+                target,
+                args.runs,
+                args.first_seed,
+                workers=args.workers,
+                scheduler=scheduler,
+                out=out,
+                resume=args.resume,
+                progress=not args.quiet,
+                connect_timeout_s=args.connect_timeout,
+            ), None
     except UserInputError as e:
         return None, _campaign_failed(command, e)
     except KeyboardInterrupt:
@@ -300,19 +326,25 @@ def _cmd_montecarlo(args) -> int:
     _preflight(scenario, _local_processes(args))
     out = outputs.check_target(out, option="--out", kinds=("empty", "campaign"))
     where = executor_phrase(args.workers, scheduler, args.runs)
-    print(f"Monte Carlo: {scenario.name}, {args.runs} runs (seeds {args.first_seed}..{args.first_seed + args.runs - 1}) "
-          f"{where} -> {out}/", file=sys.stderr)
-    result, code = _run_holding_lock("montecarlo", run_campaign, scenario, args, scheduler, out,
-                                     lambda: _kept_runs(out, args.runs))
+    print(
+        f"Monte Carlo: {scenario.name}, {args.runs} runs (seeds {args.first_seed}..{args.first_seed + args.runs - 1}) "
+        f"{where} -> {out}/",
+        file=sys.stderr,
+    )
+    result, code = _run_holding_lock(
+        "montecarlo", run_campaign, scenario, args, scheduler, out, lambda: _kept_runs(out, args.runs)
+    )
     if code is not None:
         return code
     print(campaign_report.format_campaign_table(result))
     for seed, message in result.failed.items():
         _say(f"drake-att: warning: seed {seed} failed: {message}")
     failed = f", {len(result.failed)} failed" if result.failed else ""
-    print(f"\n{result.ran} runs simulated, {result.reused} found complete in {out}/runs{failed}; "
-          f"{result.wall_time_s:.1f} s wall. "
-          f"Wrote {out}/report.html, summary.json and {len([f for f in result.files if f.endswith('.png')])} figures")
+    print(
+        f"\n{result.ran} runs simulated, {result.reused} found complete in {out}/runs{failed}; "
+        f"{result.wall_time_s:.1f} s wall. "
+        f"Wrote {out}/report.html, summary.json and {len([f for f in result.files if f.endswith('.png')])} figures"
+    )
     if args.screenshot:
         try:
             png = campaign_report.screenshot(os.path.join(out, "report.html"), args.screenshot)
@@ -333,8 +365,10 @@ def _scheduler_option(args):
     if args.scheduler == "serial":
         return "serial"
     if args.workers is not None:
-        raise CampaignError(f"--workers {args.workers} with --scheduler {args.scheduler}: the cluster's own workers "
-                            "run the campaign; give one of the two")
+        raise CampaignError(
+            f"--workers {args.workers} with --scheduler {args.scheduler}: the cluster's own workers "
+            "run the campaign; give one of the two"
+        )
     return check_scheduler_address(args.scheduler)
 
 
@@ -360,31 +394,56 @@ def _cmd_compare(args) -> int:
     for cell in plan.skipped:
         print(f"drake-att compare: note: {cell}", file=sys.stderr)
     result, code = _run_holding_lock(
-        "compare", run_comparison, plan, args, scheduler, out,
-        lambda: f"the finished runs are saved under {out}/; the same command with --resume continues")
+        "compare",
+        run_comparison,
+        plan,
+        args,
+        scheduler,
+        out,
+        lambda: f"the finished runs are saved under {out}/; the same command with --resume continues",
+    )
     if code is not None:
         return code
     print(campaign_report.format_comparison_table(result))
-    print(f"\nWrote {out}/comparison.html, comparison.json, comparison.md and comparison.png "
-          f"(one campaign folder per scenario under {out}/)")
+    print(
+        f"\nWrote {out}/comparison.html, comparison.json, comparison.md and comparison.png "
+        f"(one campaign folder per scenario under {out}/)"
+    )
     return 0
 
 
 def _add_campaign_options(p, what: str) -> None:
     p.add_argument("--runs", type=int, required=True, metavar="N", help="runs (seeds) per scenario")
     p.add_argument("--first-seed", type=int, default=1, metavar="S", help="seeds S .. S+N-1 (default 1)")
-    p.add_argument("--workers", type=int, default=None, metavar="K",
-                   help="worker processes of the local Dask cluster (default: the CPU count); 1 = serial, in this process")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run on an existing Dask cluster (tcp://HOST:8786, started with `dask scheduler` and "
-                        "`dask worker tcp://HOST:8786`), or 'serial'")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
-                   help="deadline in seconds (> 0, at most 3600) for reaching --scheduler: the connection, Dask's "
-                        "handshake, the first worker and its version check, plus a few seconds (default 10)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="K",
+        help="worker processes of the local Dask cluster (default: the CPU count); 1 = serial, in this process",
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run on an existing Dask cluster (tcp://HOST:8786, started with `dask scheduler` and "
+        "`dask worker tcp://HOST:8786`), or 'serial'",
+    )
+    p.add_argument(
+        "--connect-timeout",
+        type=float,
+        default=10.0,
+        metavar="SECONDS",
+        help="deadline in seconds (> 0, at most 3600) for reaching --scheduler: the connection, Dask's "
+        "handshake, the first worker and its version check, plus a few seconds (default 10)",
+    )
     p.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
     p.add_argument("--out", default=None, metavar="DIR", help=f"{what} folder")
-    p.add_argument("--resume", action="store_true",
-                   help="continue the campaign in --out: finished runs are kept, the others run (the config must match)")
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the campaign in --out: finished runs are kept, the others run (the config must match)",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress line")
 
 
@@ -402,52 +461,82 @@ class _UsageError(UserInputError):
 
 def _parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--debug", action="store_true",
-                        help="show the full traceback of an unexpected error (for bug reports)")
+    common.add_argument(
+        "--debug", action="store_true", help="show the full traceback of an unexpected error (for bug reports)"
+    )
     parser = _Parser(prog="drake-att", description="Attitude-determination scenarios on Drake.", parents=[common])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     p_run = sub.add_parser("run", parents=[common], help="run a scenario (default: the project's default scenario)")
     p_run.add_argument("scenario", nargs="?", default=None, help="shipped scenario name or YAML path")
     p_run.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
-    p_run.add_argument("--out", default=None, help="output folder (default out/<scenario>_seed<N>, plus a hash of "
-                       "the --set overrides if any); replaced as a whole, atomically, and only if it is empty or "
-                       "a result folder of drake-att")
-    p_run.add_argument("--set", action="append", metavar="PATH=VALUE",
-                       help="override a config value, e.g. --set duration_s=600 --set sensors.st1.period_s=1")
+    p_run.add_argument(
+        "--out",
+        default=None,
+        help="output folder (default out/<scenario>_seed<N>, plus a hash of "
+        "the --set overrides if any); replaced as a whole, atomically, and only if it is empty or "
+        "a result folder of drake-att",
+    )
+    p_run.add_argument(
+        "--set",
+        action="append",
+        metavar="PATH=VALUE",
+        help="override a config value, e.g. --set duration_s=600 --set sensors.st1.period_s=1",
+    )
     p_run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p_run.add_argument("--quiet", action="store_true", help="no progress line")
     p_run.set_defaults(func=_cmd_run)
-    p_check = sub.add_parser("check", parents=[common],
-                             help="validate a scenario (with --set) without simulating: field ranges, memory, warnings")
+    p_check = sub.add_parser(
+        "check",
+        parents=[common],
+        help="validate a scenario (with --set) without simulating: field ranges, memory, warnings",
+    )
     p_check.add_argument("scenario", nargs="?", default=None, help="shipped scenario name or YAML path")
     p_check.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
     p_check.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
     p_check.set_defaults(func=_cmd_check)
-    p_score = sub.add_parser("score", parents=[common],
-                             help="recompute a result folder's metrics.json from its log.npz + config.yaml")
+    p_score = sub.add_parser(
+        "score", parents=[common], help="recompute a result folder's metrics.json from its log.npz + config.yaml"
+    )
     p_score.add_argument("out_dir", metavar="OUT_DIR", help="result folder written by `drake-att run`")
-    p_score.add_argument("--out", default=None, metavar="FILE",
-                         help="write the metrics here (default OUT_DIR/metrics.json)")
-    p_score.add_argument("--allow-plugins", action="store_true",
-                         help="import the plug-in modules the folder's config.yaml names (runs their code: only for "
-                              "folders you trust); without it such a folder is refused")
+    p_score.add_argument(
+        "--out", default=None, metavar="FILE", help="write the metrics here (default OUT_DIR/metrics.json)"
+    )
+    p_score.add_argument(
+        "--allow-plugins",
+        action="store_true",
+        help="import the plug-in modules the folder's config.yaml names (runs their code: only for "
+        "folders you trust); without it such a folder is refused",
+    )
     p_score.set_defaults(func=_cmd_score)
     p_list = sub.add_parser("list", parents=[common], help="list the shipped scenarios")
     p_list.set_defaults(func=_cmd_list)
-    p_mc = sub.add_parser("montecarlo", parents=[common], help="Monte Carlo campaign over seeds (Dask), with report.html")
-    p_mc.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
-                      help="shipped scenario name or YAML path (default: the project's default scenario)")
+    p_mc = sub.add_parser(
+        "montecarlo", parents=[common], help="Monte Carlo campaign over seeds (Dask), with report.html"
+    )
+    p_mc.add_argument(
+        "scenario",
+        nargs="?",
+        default=None,
+        metavar="SCENARIO",
+        help="shipped scenario name or YAML path (default: the project's default scenario)",
+    )
     _add_campaign_options(p_mc, "campaign (default out/<scenario>_montecarlo, plus a hash of --set/--estimators)")
     p_mc.add_argument("--estimators", default=None, metavar="A,B", help="run only these estimators (default: all)")
-    p_mc.add_argument("--screenshot", default=None, metavar="PNG",
-                      help="also render report.html in headless Chromium into this PNG")
+    p_mc.add_argument(
+        "--screenshot", default=None, metavar="PNG", help="also render report.html in headless Chromium into this PNG"
+    )
     p_mc.set_defaults(func=_cmd_montecarlo)
-    p_cmp = sub.add_parser("compare", parents=[common],
-                           help="every listed estimator on every listed scenario: the comparison matrix")
+    p_cmp = sub.add_parser(
+        "compare", parents=[common], help="every listed estimator on every listed scenario: the comparison matrix"
+    )
     p_cmp.add_argument("scenarios", nargs="+", metavar="SCENARIO", help="shipped scenario names or YAML paths")
-    p_cmp.add_argument("--estimators", default=None, metavar="A,B,SCENARIO:C",
-                       help="estimator names (default: each scenario's own); SCENARIO:NAME takes NAME's config "
-                            "from SCENARIO and adds it to every listed scenario that lacks it")
+    p_cmp.add_argument(
+        "--estimators",
+        default=None,
+        metavar="A,B,SCENARIO:C",
+        help="estimator names (default: each scenario's own); SCENARIO:NAME takes NAME's config "
+        "from SCENARIO and adds it to every listed scenario that lacks it",
+    )
     _add_campaign_options(p_cmp, "comparison (default out/compare_<hash>)")
     p_cmp.set_defaults(func=_cmd_compare)
     return parser
@@ -482,8 +571,10 @@ def main(argv=None) -> int:
     except MemoryError:
         if debug:
             raise
-        _say("drake-att: out of memory; the run needs more memory than this machine has (fewer particles, a "
-             "shorter duration or longer sensor periods?)")
+        _say(
+            "drake-att: out of memory; the run needs more memory than this machine has (fewer particles, a "
+            "shorter duration or longer sensor periods?)"
+        )
         return 1
     except Exception as e:  # noqa: BLE001 - the one guard: a user sees one line, a developer uses --debug
         if debug:
@@ -493,8 +584,10 @@ def main(argv=None) -> int:
         while tb is not None:
             where = f" at {os.path.basename(tb.tb_frame.f_code.co_filename)}:{tb.tb_lineno}"
             tb = tb.tb_next
-        _say(f"drake-att: internal error: {type(e).__name__}: {e}{where}; please report it with the output of "
-             "the same command with --debug")
+        _say(
+            f"drake-att: internal error: {type(e).__name__}: {e}{where}; please report it with the output of "
+            "the same command with --debug"
+        )
         return 1
     finally:
         if previous is not None:

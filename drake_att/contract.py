@@ -104,8 +104,9 @@ class Estimate:
     last_nis: float
 
     def pack(self) -> np.ndarray:
-        return pack_estimate(self.q_IB, self.second, self.covariance, self.t_estimate, self.used,
-                             self.skipped, self.last_nis)
+        return pack_estimate(
+            self.q_IB, self.second, self.covariance, self.t_estimate, self.used, self.skipped, self.last_nis
+        )
 
     @classmethod
     def unpack(cls, vector) -> Estimate:
@@ -113,8 +114,15 @@ class Estimate:
         if v.shape[-1] != ESTIMATE_SIZE:
             raise ValueError(f"estimate vector: got size {v.shape[-1]}; need {ESTIMATE_SIZE}")
         s = v[STATUS]
-        return cls(v[Q_IB].copy(), v[SECOND].copy(), v[COVARIANCE].reshape(6, 6).copy(), float(s[0]),
-                   int(s[1]), int(s[2]), float(s[3]))
+        return cls(
+            v[Q_IB].copy(),
+            v[SECOND].copy(),
+            v[COVARIANCE].reshape(6, 6).copy(),
+            float(s[0]),
+            int(s[1]),
+            int(s[2]),
+            float(s[3]),
+        )
 
 
 def pack_estimate(q, second, P, t, n_used, n_skipped, nis) -> np.ndarray:
@@ -194,8 +202,7 @@ class VectorObservations:
 
 def empty_vector_observations() -> VectorObservations:
     """The model value of a vector-observation port (invalid, no stars)."""
-    return VectorObservations(0.0, False, np.zeros((0, 3)), np.zeros((0, 3)), 0.0,
-                              np.array([1.0, 0.0, 0.0, 0.0]))
+    return VectorObservations(0.0, False, np.zeros((0, 3)), np.zeros((0, 3)), 0.0, np.array([1.0, 0.0, 0.0, 0.0]))
 
 
 @dataclass(frozen=True)
@@ -259,8 +266,7 @@ def is_usable(measurement) -> bool:
         if not np.all(np.isfinite(refs)) or np.any(np.linalg.norm(refs, axis=-1) < 1e-9):
             return False  # a reference direction must be a finite, non-zero vector
     if isinstance(measurement, CameraCentroids):
-        f, sigma, q = (float(measurement.focal_length_m), float(measurement.sigma_m),
-                       float(measurement.quantization_m))
+        f, sigma, q = (float(measurement.focal_length_m), float(measurement.sigma_m), float(measurement.quantization_m))
         if numbers.ndim != 2 or numbers.shape[1] != 2 or not (math.isfinite(f) and f > 0.0):
             return False
         if not (math.isfinite(sigma) and sigma >= 0.0 and math.isfinite(q) and q >= 0.0):
@@ -324,8 +330,7 @@ class FilterCore(Protocol[StateT]):
     is_random: bool
     state_size: int
 
-    def predict(self, state: StateT, w_meas_B: np.ndarray | None, dt: float,
-                rng: np.random.Generator | None) -> StateT:
+    def predict(self, state: StateT, w_meas_B: np.ndarray | None, dt: float, rng: np.random.Generator | None) -> StateT:
         """The state propagated over ``dt`` (s) (``w_meas_B``: mean gyro rate, rad/s)."""
 
     def update(self, state: StateT, measurement, rng: np.random.Generator | None) -> tuple[StateT, UpdateInfo]:
@@ -346,8 +351,9 @@ class LinearizedPrediction(Protocol[StateT]):
     """A core that publishes its step linearization (``step_linearization``, used by the
     tracked decentralized fusion). Its updates report ``UpdateInfo.error_transition``."""
 
-    def predict_linearized(self, state: StateT, w_meas_B: np.ndarray | None,
-                           dt: float) -> tuple[StateT, np.ndarray, np.ndarray]:
+    def predict_linearized(
+        self, state: StateT, w_meas_B: np.ndarray | None, dt: float
+    ) -> tuple[StateT, np.ndarray, np.ndarray]:
         """``(predicted state, Phi (6, 6), Q (6, 6))``: the prediction and its error map."""
 
 
@@ -416,25 +422,55 @@ class CoreCapabilities:
                 ``diagnostic_names`` without ``diagnostics``), naming what is missing.
         """
         name = type(core).__name__
-        for half, whole, protocol in (("reacquire", "ungated", Reacquisition),
-                                      ("diagnostic_names", "diagnostics", CoreDiagnostics)):
+        for half, whole, protocol in (
+            ("reacquire", "ungated", Reacquisition),
+            ("diagnostic_names", "diagnostics", CoreDiagnostics),
+        ):
             if hasattr(core, half) and not isinstance(core, protocol):
-                raise TypeError(f"core {name} has {half!r} but not {whole!r}: drake_att.contract."
-                                f"{protocol.__name__} needs both")
-        return cls(linearized_prediction=isinstance(core, LinearizedPrediction),
-                   reacquisition=isinstance(core, Reacquisition),
-                   random_initial_state=isinstance(core, RandomInitialState),
-                   num_particles=core.num_particles if isinstance(core, ParticleSet) else None,
-                   diagnostic_names=tuple(core.diagnostic_names) if isinstance(core, CoreDiagnostics) else ())
+                raise TypeError(
+                    f"core {name} has {half!r} but not {whole!r}: drake_att.contract.{protocol.__name__} needs both"
+                )
+        return cls(
+            linearized_prediction=isinstance(core, LinearizedPrediction),
+            reacquisition=isinstance(core, Reacquisition),
+            random_initial_state=isinstance(core, RandomInitialState),
+            num_particles=core.num_particles if isinstance(core, ParticleSet) else None,
+            diagnostic_names=tuple(core.diagnostic_names) if isinstance(core, CoreDiagnostics) else (),
+        )
 
 
 __all__ = [
-    "Q_IB", "SECOND", "COVARIANCE", "STATUS", "ESTIMATE_SIZE", "STATUS_SIZE", "TIME_TOLERANCE_S",
-    "STATUS_T_ESTIMATE", "STATUS_USED", "STATUS_SKIPPED", "STATUS_LAST_NIS",
-    "GYRO_MEASUREMENT_SIZE", "QUATERNION_MEASUREMENT_SIZE",
-    "SecondQuantity", "Estimate", "pack_estimate", "flag_is_true", "GyroSample", "QuaternionSample",
-    "VectorObservations", "empty_vector_observations", "CameraCentroids", "empty_camera_centroids", "quaternion_usable",
-    "is_usable", "UpdateInfo",
-    "FilterCore", "LinearizedPrediction", "Reacquisition", "RandomInitialState", "ParticleSet", "CoreDiagnostics",
+    "Q_IB",
+    "SECOND",
+    "COVARIANCE",
+    "STATUS",
+    "ESTIMATE_SIZE",
+    "STATUS_SIZE",
+    "TIME_TOLERANCE_S",
+    "STATUS_T_ESTIMATE",
+    "STATUS_USED",
+    "STATUS_SKIPPED",
+    "STATUS_LAST_NIS",
+    "GYRO_MEASUREMENT_SIZE",
+    "QUATERNION_MEASUREMENT_SIZE",
+    "SecondQuantity",
+    "Estimate",
+    "pack_estimate",
+    "flag_is_true",
+    "GyroSample",
+    "QuaternionSample",
+    "VectorObservations",
+    "empty_vector_observations",
+    "CameraCentroids",
+    "empty_camera_centroids",
+    "quaternion_usable",
+    "is_usable",
+    "UpdateInfo",
+    "FilterCore",
+    "LinearizedPrediction",
+    "Reacquisition",
+    "RandomInitialState",
+    "ParticleSet",
+    "CoreDiagnostics",
     "CoreCapabilities",
 ]

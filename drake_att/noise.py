@@ -130,8 +130,7 @@ class FarrenkopfGyroNoise:
         """2x2 covariance of (mean-rate noise e, bias increment db) per axis."""
         T = self.interval_s
         su2 = self.rrw**2
-        return np.array(
-            [[self.arw**2 / T + su2 * T / 3.0, su2 * T / 2.0], [su2 * T / 2.0, su2 * T]])
+        return np.array([[self.arw**2 / T + su2 * T / 3.0, su2 * T / 2.0], [su2 * T / 2.0, su2 * T]])
 
     def draw(self, rng: np.random.Generator, shape=(3,)) -> tuple[np.ndarray, np.ndarray]:
         """One interval: returns ``(e, db)``, each of ``shape`` (independent axes)."""
@@ -152,8 +151,7 @@ class FarrenkopfGyroNoise:
         z = rng.standard_normal((n, 2, 3))
         e = self._chol[0, 0] * z[:, 0]
         db = self._chol[1, 0] * z[:, 0] + self._chol[1, 1] * z[:, 1]
-        bias = np.asarray(bias0, dtype=float) + np.vstack(
-            [np.zeros((1, 3)), np.cumsum(db, axis=0)[:-1]])
+        bias = np.asarray(bias0, dtype=float) + np.vstack([np.zeros((1, 3)), np.cumsum(db, axis=0)[:-1]])
         return bias + e
 
 
@@ -178,8 +176,7 @@ def overlapping_allan_deviation(rate: np.ndarray, dt: float, taus_s) -> np.ndarr
         m = int(round(tau / dt))
         if m < 1 or 2 * m >= n:
             raise ValueError(f"taus_s: tau={tau} s needs 1 <= m and 2m < n={n} samples")
-        d = theta[2 * m:] - 2.0 * theta[m:-m] + theta[: -2 * m]
+        d = theta[2 * m :] - 2.0 * theta[m:-m] + theta[: -2 * m]
         avar = np.sum(d * d, axis=0) / (2.0 * (m * dt) ** 2 * (n - 2 * m + 1))
         out.append(np.sqrt(avar))
     return np.array(out)
-

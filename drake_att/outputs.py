@@ -193,14 +193,19 @@ def check_target(path: str, *, option: str = "--out", kinds=("empty", "run"), ne
         kind = folder_kind(norm)
         if kind not in kinds:
             what = {"run": "a run's result folder", "campaign": "a Monte Carlo campaign folder"}.get(kind, "a folder")
-            raise OutputError(f"{option} {path}: is {what} with files drake-att did not write ({_foreign(norm)}); "
-                              "drake-att replaces only empty folders and its own results - name a new folder")
-    longest = max(len(os.path.basename(real).encode("utf-8", "surrogateescape")) + len(".writing-XXXXXXXX") + 1,
-                  max(len(c.encode("utf-8", "surrogateescape")) for c in norm.split(os.sep) if c) if norm.strip(os.sep)
-                  else 0)
+            raise OutputError(
+                f"{option} {path}: is {what} with files drake-att did not write ({_foreign(norm)}); "
+                "drake-att replaces only empty folders and its own results - name a new folder"
+            )
+    longest = max(
+        len(os.path.basename(real).encode("utf-8", "surrogateescape")) + len(".writing-XXXXXXXX") + 1,
+        max(len(c.encode("utf-8", "surrogateescape")) for c in norm.split(os.sep) if c) if norm.strip(os.sep) else 0,
+    )
     if longest > NAME_MAX:
-        raise OutputError(f"{option} {path[:100]}...: a folder name is too long for the file system (at most "
-                          f"{NAME_MAX - len('.writing-XXXXXXXX') - 1} bytes for the result folder itself)")
+        raise OutputError(
+            f"{option} {path[:100]}...: a folder name is too long for the file system (at most "
+            f"{NAME_MAX - len('.writing-XXXXXXXX') - 1} bytes for the result folder itself)"
+        )
     parent = os.path.dirname(os.path.abspath(norm))
     existing = _first_existing(parent)
     if not os.path.isdir(existing):
@@ -208,9 +213,11 @@ def check_target(path: str, *, option: str = "--out", kinds=("empty", "run"), ne
     _probe_writable(existing, option, path)
     free = shutil.disk_usage(existing).free
     if free < need_bytes + FREE_SPACE_MARGIN_BYTES:
-        raise OutputError(f"{option} {path}: {free / 2**20:.0f} MiB free on its file system; the results need "
-                          f"~{(need_bytes + FREE_SPACE_MARGIN_BYTES) / 2**20:.0f} MiB - free some space or name "
-                          "another folder")
+        raise OutputError(
+            f"{option} {path}: {free / 2**20:.0f} MiB free on its file system; the results need "
+            f"~{(need_bytes + FREE_SPACE_MARGIN_BYTES) / 2**20:.0f} MiB - free some space or name "
+            "another folder"
+        )
     return norm
 
 
@@ -221,8 +228,9 @@ def _probe_writable(folder: str, option: str, path: str) -> None:
         probe = tempfile.mkdtemp(prefix=".drake-att-probe-", dir=folder)
         os.rmdir(probe)
     except OSError as e:
-        raise OutputError(f"{option} {path}: cannot write in {folder} ({e.strerror or e}); name a writable "
-                          "folder") from None
+        raise OutputError(
+            f"{option} {path}: cannot write in {folder} ({e.strerror or e}); name a writable folder"
+        ) from None
 
 
 def lock_path(target: str) -> str:
@@ -275,8 +283,10 @@ def writer_lock(target: str, option: str = "--out"):
         except FileExistsError:
             holder = _lock_holder(path)
             if holder is not None and _lock_is_live(path):
-                raise OutputError(f"{option} {target}: is being written by process {holder[0]} on {holder[1]} "
-                                  f"(lock {path}); wait for it to finish or name another folder") from None
+                raise OutputError(
+                    f"{option} {target}: is being written by process {holder[0]} on {holder[1]} "
+                    f"(lock {path}); wait for it to finish or name another folder"
+                ) from None
             with contextlib.suppress(FileNotFoundError):  # a dead writer's (or an unreadable) lock
                 os.remove(path)
             continue

@@ -31,8 +31,15 @@ class Progress:
     lines. ``start`` is the wall-clock origin (``clock()`` value; default: now), ``clock`` the
     wall clock (seconds)."""
 
-    def __init__(self, total_s: float, label: str = "", stream=None, tty: bool | None = None,
-                 start: float | None = None, clock=time.perf_counter):
+    def __init__(
+        self,
+        total_s: float,
+        label: str = "",
+        stream=None,
+        tty: bool | None = None,
+        start: float | None = None,
+        clock=time.perf_counter,
+    ):
         self.total_s = float(total_s)
         self.label = label
         self.stream = sys.stderr if stream is None else stream
@@ -55,8 +62,7 @@ class Progress:
         else:
             eta = "ETA unknown"
         prefix = f"  [{self.label}] " if self.label else "  "
-        return (f"{prefix}t = {t_s:8.1f} / {self.total_s:.1f} s ({frac:4.0%})  "
-                f"{format_duration(elapsed)} wall  {eta}")
+        return f"{prefix}t = {t_s:8.1f} / {self.total_s:.1f} s ({frac:4.0%})  {format_duration(elapsed)} wall  {eta}"
 
     def update(self, t_s: float) -> None:
         text = self.line(t_s)

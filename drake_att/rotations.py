@@ -87,8 +87,14 @@ def quat_multiply(p, q) -> np.ndarray:
         # per-event work of Drake systems.
         pw, px, py, pz = p.tolist()
         qw, qx, qy, qz = q.tolist()
-        return np.array([pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-                         pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw])
+        return np.array(
+            [
+                pw * qw - px * qx - py * qy - pz * qz,
+                pw * qx + px * qw + py * qz - pz * qy,
+                pw * qy - px * qz + py * qw + pz * qx,
+                pw * qz + px * qy - py * qx + pz * qw,
+            ]
+        )
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     return np.stack(
@@ -107,9 +113,13 @@ def quat_to_rotmat(q) -> np.ndarray:
     q = quat_normalize(q)
     if q.ndim == 1:  # scalar fast path
         w, x, y, z = q.tolist()
-        return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+            ]
+        )
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     R = np.empty(q.shape[:-1] + (3, 3))
     R[..., 0, 0] = 1 - 2 * (y * y + z * z)
@@ -143,20 +153,40 @@ def rotmat_to_quat(R) -> np.ndarray:
         s = 2.0 * np.sqrt(cand[sel, k])  # = 4 |q_k|
         if k == 0:
             q[sel] = np.column_stack(
-                [s / 4, (Rs[:, 2, 1] - Rs[:, 1, 2]) / s, (Rs[:, 0, 2] - Rs[:, 2, 0]) / s,
-                 (Rs[:, 1, 0] - Rs[:, 0, 1]) / s])
+                [
+                    s / 4,
+                    (Rs[:, 2, 1] - Rs[:, 1, 2]) / s,
+                    (Rs[:, 0, 2] - Rs[:, 2, 0]) / s,
+                    (Rs[:, 1, 0] - Rs[:, 0, 1]) / s,
+                ]
+            )
         elif k == 1:
             q[sel] = np.column_stack(
-                [(Rs[:, 2, 1] - Rs[:, 1, 2]) / s, s / 4, (Rs[:, 0, 1] + Rs[:, 1, 0]) / s,
-                 (Rs[:, 0, 2] + Rs[:, 2, 0]) / s])
+                [
+                    (Rs[:, 2, 1] - Rs[:, 1, 2]) / s,
+                    s / 4,
+                    (Rs[:, 0, 1] + Rs[:, 1, 0]) / s,
+                    (Rs[:, 0, 2] + Rs[:, 2, 0]) / s,
+                ]
+            )
         elif k == 2:
             q[sel] = np.column_stack(
-                [(Rs[:, 0, 2] - Rs[:, 2, 0]) / s, (Rs[:, 0, 1] + Rs[:, 1, 0]) / s, s / 4,
-                 (Rs[:, 1, 2] + Rs[:, 2, 1]) / s])
+                [
+                    (Rs[:, 0, 2] - Rs[:, 2, 0]) / s,
+                    (Rs[:, 0, 1] + Rs[:, 1, 0]) / s,
+                    s / 4,
+                    (Rs[:, 1, 2] + Rs[:, 2, 1]) / s,
+                ]
+            )
         else:
             q[sel] = np.column_stack(
-                [(Rs[:, 1, 0] - Rs[:, 0, 1]) / s, (Rs[:, 0, 2] + Rs[:, 2, 0]) / s,
-                 (Rs[:, 1, 2] + Rs[:, 2, 1]) / s, s / 4])
+                [
+                    (Rs[:, 1, 0] - Rs[:, 0, 1]) / s,
+                    (Rs[:, 0, 2] + Rs[:, 2, 0]) / s,
+                    (Rs[:, 1, 2] + Rs[:, 2, 1]) / s,
+                    s / 4,
+                ]
+            )
     q = quat_canonical(quat_normalize(q))
     return q.reshape(batch + (4,))
 
@@ -221,9 +251,13 @@ def rotvec_to_rotmat(phi) -> np.ndarray:
             a, b = 1.0 - ang * ang / 6.0, 0.5 - ang * ang / 24.0
         else:
             a, b = math.sin(ang) / ang, (1.0 - math.cos(ang)) / (ang * ang)
-        return np.array([[1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
-                         [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
-                         [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)]])
+        return np.array(
+            [
+                [1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z],
+                [a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z],
+                [-a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y)],
+            ]
+        )
     angle = np.linalg.norm(phi, axis=-1)[..., None, None]
     small = angle < _SMALL_ANGLE
     safe = np.where(small, 1.0, angle)
@@ -369,5 +403,4 @@ def rpy_rates_to_body_rate(rpy, rpy_dot) -> np.ndarray:
     r, p = rpy[..., 0], rpy[..., 1]
     rd, pd, yd = rpy_dot[..., 0], rpy_dot[..., 1], rpy_dot[..., 2]
     sr, cr, sp, cp = np.sin(r), np.cos(r), np.sin(p), np.cos(p)
-    return np.stack(
-        [rd - sp * yd, cr * pd + sr * cp * yd, -sr * pd + cr * cp * yd], axis=-1)
+    return np.stack([rd - sp * yd, cr * pd + sr * cp * yd, -sr * pd + cr * cp * yd], axis=-1)

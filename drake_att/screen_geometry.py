@@ -81,8 +81,11 @@ class ScreenCameraGeometry:
         if R0.shape != (3,) or not np.all(np.isfinite(R0)):
             fail("R0_B", self.R0_B, "need 3 finite numbers (m)")
         if not abs(R0 @ SCREEN_NORMAL_I) < self.h_m:
-            fail("R0_B", R0.tolist(), f"the camera must be between the rotation centre plane and the screen "
-                 f"(|p . R0| < h = {self.h_m} m)")
+            fail(
+                "R0_B",
+                R0.tolist(),
+                f"the camera must be between the rotation centre plane and the screen (|p . R0| < h = {self.h_m} m)",
+            )
         check_positive("focal_length_m", self.focal_length_m)
         size = tuple(float(v) for v in self.detector_size_m)
         if len(size) != 2:
@@ -175,5 +178,12 @@ def check_geometry_inputs(name: str, screen_size_m: float, h_m: float, camera_to
         fail(f"{name}.camera_to_screen_mm", camera_to_screen_m * 1e3, f"must be in (0, h = {h_m * 1e3}] mm")
 
 
-__all__ = ["SCREEN_NORMAL_I", "random_star_pattern", "ScreenCameraGeometry", "directions_from_centroids",
-           "camera_to_star_distances", "centre_referenced_directions", "check_geometry_inputs"]
+__all__ = [
+    "SCREEN_NORMAL_I",
+    "random_star_pattern",
+    "ScreenCameraGeometry",
+    "directions_from_centroids",
+    "camera_to_star_distances",
+    "centre_referenced_directions",
+    "check_geometry_inputs",
+]

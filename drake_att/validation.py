@@ -18,9 +18,26 @@ from typing import NoReturn
 
 import numpy as np
 
-__all__ = ["UserInputError", "ConfigError", "describe", "fail", "check_finite", "check_positive", "check_nonnegative", "check_int",
-           "check_vector", "check_weights", "check_array", "check_quaternion", "check_covariance",
-           "check_reference_vectors", "check_variance_matrix", "measurement_or_none", "check_seed", "SEED_MAX"]
+__all__ = [
+    "UserInputError",
+    "ConfigError",
+    "describe",
+    "fail",
+    "check_finite",
+    "check_positive",
+    "check_nonnegative",
+    "check_int",
+    "check_vector",
+    "check_weights",
+    "check_array",
+    "check_quaternion",
+    "check_covariance",
+    "check_reference_vectors",
+    "check_variance_matrix",
+    "measurement_or_none",
+    "check_seed",
+    "SEED_MAX",
+]
 
 
 class UserInputError(ValueError):
@@ -97,8 +114,12 @@ SEED_MAX = 2**32 - 1
 def check_seed(field: str, value, error: type = ValueError) -> int:
     """A run's seed: an integer in ``[0, 2^32 - 1]`` (not a bool, not a float)."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= SEED_MAX:
-        fail(field, value, f"must be an integer in [0, {SEED_MAX}] (Drake's 32-bit seed; a larger one would alias "
-             "a smaller one)", error)
+        fail(
+            field,
+            value,
+            f"must be an integer in [0, {SEED_MAX}] (Drake's 32-bit seed; a larger one would alias a smaller one)",
+            error,
+        )
     return int(value)
 
 
@@ -175,7 +196,12 @@ def check_variance_matrix(field: str, value, n: int, error: type = ValueError) -
     a = np.asarray(value, dtype=float) if _is_real(value) or isinstance(value, (list, tuple, np.ndarray)) else None
     if a is not None and a.ndim == 0:
         return check_nonnegative(field, float(a), error) * np.eye(n)
-    if a is None or a.shape != (n, n) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, rtol=0.0, atol=1e-15 * (1.0 + np.abs(a).max())):
+    if (
+        a is None
+        or a.shape != (n, n)
+        or not np.all(np.isfinite(a))
+        or not np.allclose(a, a.T, rtol=0.0, atol=1e-15 * (1.0 + np.abs(a).max()))
+    ):
         fail(field, value, f"must be a finite scalar variance >= 0 or a symmetric {n}x{n} matrix", error)
     if np.linalg.eigvalsh(a).min() < -1e-12 * max(1.0, np.abs(a).max()):
         fail(field, a, "must be positive semi-definite", error)

@@ -61,9 +61,14 @@ def load_script():
 @pytest.fixture
 def drake_att_cli():
     """``drake_att_cli(*args)``: ``drake-att`` in a fresh interpreter (CompletedProcess)."""
+
     def run(*args):
-        return subprocess.run([sys.executable, "-m", "drake_att.cli", *args], capture_output=True, text=True,
-                              env=dict(os.environ, MPLBACKEND="Agg"))
+        return subprocess.run(
+            [sys.executable, "-m", "drake_att.cli", *args],
+            capture_output=True,
+            text=True,
+            env=dict(os.environ, MPLBACKEND="Agg"),
+        )
 
     return run
 

@@ -63,13 +63,18 @@ def main(argv=None) -> int:
         survivors = sorted(n for n, s in res.items() if s == "survived")
         judged = [n for n in survivors if n in equivalent]
         unjudged += [n for n in survivors if n not in equivalent]
-        commit = open(os.path.join(folder, "COMMIT")).read().strip()[:10] if os.path.exists(
-            os.path.join(folder, "COMMIT")) else "?"
+        commit = (
+            open(os.path.join(folder, "COMMIT")).read().strip()[:10]
+            if os.path.exists(os.path.join(folder, "COMMIT"))
+            else "?"
+        )
         killed = counts.get("killed", 0) + counts.get("timeout", 0)
         score = (killed + len(judged)) / max(1, len(res))
-        print(f"{key:<20} {len(res):5d} mutants{' (sample)' if sampled else ''}  "
-              + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-              + f"  (equivalent {len(judged)}; score {score:.3f}; commit {commit})")
+        print(
+            f"{key:<20} {len(res):5d} mutants{' (sample)' if sampled else ''}  "
+            + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+            + f"  (equivalent {len(judged)}; score {score:.3f}; commit {commit})"
+        )
     totals["survived_judged_equivalent"] = totals.get("survived", 0) - len(unjudged)
     print(json.dumps(totals, indent=1, sort_keys=True))
     for n in unjudged:

@@ -35,76 +35,142 @@ REPO = os.path.dirname(HERE)
 MUTMUT = os.path.join(os.path.dirname(sys.executable), "mutmut")
 DEFAULT_WORK = "/tmp/drake_att_mutation"
 
-_CAMPAIGN_TESTS = ["tests/test_campaign_bookkeeping.py", "tests/test_campaign_edges.py", "tests/test_montecarlo.py",
-                   "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
-                   "not deadline and not http_server and not silent and not probe and not chromium"
-                   " and not ctrl_c", "--timeout=60"]  # a hung mutant is killed in a minute
+_CAMPAIGN_TESTS = [
+    "tests/test_campaign_bookkeeping.py",
+    "tests/test_campaign_edges.py",
+    "tests/test_montecarlo.py",
+    "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
+    "not deadline and not http_server and not silent and not probe and not chromium and not ctrl_c",
+    "--timeout=60",
+]  # a hung mutant is killed in a minute
 
 # module key -> (file mutated, the unit tests that exercise it)
 MODULES = {
-    "rotations": ("drake_att/rotations.py",
-                  ["tests/test_rotations.py", "tests/test_quaternion_average.py", "tests/test_mrp_ekf.py"]),
+    "rotations": (
+        "drake_att/rotations.py",
+        ["tests/test_rotations.py", "tests/test_quaternion_average.py", "tests/test_mrp_ekf.py"],
+    ),
     "noise": ("drake_att/noise.py", ["tests/test_sensors.py", "tests/test_noise.py"]),
     "metrics": ("drake_att/analysis/metrics.py", ["tests/test_metrics.py"]),
     "quaternion_average": ("drake_att/filters/quaternion_average.py", ["tests/test_quaternion_average.py"]),
     "mekf": ("drake_att/filters/mekf.py", ["tests/test_mekf.py"]),
-    "mrp_ekf": ("drake_att/filters/mrp_ekf.py",
-                ["tests/test_mrp_ekf.py", "tests/test_particle_filters.py", "tests/test_particle_weights.py"]),
+    "mrp_ekf": (
+        "drake_att/filters/mrp_ekf.py",
+        ["tests/test_mrp_ekf.py", "tests/test_particle_filters.py", "tests/test_particle_weights.py"],
+    ),
     "contract": ("drake_att/contract.py", ["tests/test_contract.py", "tests/test_plugins.py", "-k", "contract"]),
-    "particle": ("drake_att/filters/particle.py",
-                 ["tests/test_particle_filters.py", "tests/test_particle_weights.py", "tests/test_particle_systems.py"]),
+    "particle": (
+        "drake_att/filters/particle.py",
+        ["tests/test_particle_filters.py", "tests/test_particle_weights.py", "tests/test_particle_systems.py"],
+    ),
     # Added with papers S4 and S1 and the validation family (not yet run: see tests/README.md).
-    "validation": ("drake_att/validation.py",
-                   ["tests/test_mrp_ekf.py", "tests/test_particle_filters.py", "tests/test_quaternion_average.py",
-                    "tests/test_scenarios.py"]),
+    "validation": (
+        "drake_att/validation.py",
+        [
+            "tests/test_mrp_ekf.py",
+            "tests/test_particle_filters.py",
+            "tests/test_quaternion_average.py",
+            "tests/test_scenarios.py",
+        ],
+    ),
     "lie_group": ("drake_att/filters/lie_group.py", ["tests/test_lie_group.py"]),
     "quaternion_ekf": ("drake_att/filters/quaternion_ekf.py", ["tests/test_quaternion_ekf.py"]),
     "cubature": ("drake_att/filters/cubature.py", ["tests/test_cubature.py"]),
-    "multiplicative_noise": ("drake_att/filters/multiplicative_noise.py",
-                             ["tests/test_cubature.py", "tests/test_correlated_noise.py"]),
+    "multiplicative_noise": (
+        "drake_att/filters/multiplicative_noise.py",
+        ["tests/test_cubature.py", "tests/test_correlated_noise.py"],
+    ),
     # Added with paper S2 and the gate.
     "gating": ("drake_att/filters/gating.py", ["tests/test_gating.py"]),
     # The estimator loop's rules, shared by the Python loop and the compiled step (so the two
     # loops' equivalence test cannot see a change to a rule: the rules' own semantics must).
-    "estimator_step": ("drake_att/systems/estimator_step.py",
-                       ["tests/test_estimator_step.py", "tests/test_contract.py", "tests/test_plugins.py",
-                        "tests/test_gating.py",
-                        "tests/test_faults.py", "tests/test_fusion.py", "-m", "not slow", "-k",
-                        "not tutorial", "--timeout=120"]),  # the tutorial runs the CLI in a temporary folder
+    "estimator_step": (
+        "drake_att/systems/estimator_step.py",
+        [
+            "tests/test_estimator_step.py",
+            "tests/test_contract.py",
+            "tests/test_plugins.py",
+            "tests/test_gating.py",
+            "tests/test_faults.py",
+            "tests/test_fusion.py",
+            "-m",
+            "not slow",
+            "-k",
+            "not tutorial",
+            "--timeout=120",
+        ],
+    ),  # the tutorial runs the CLI in a temporary folder
     # (test_compiled_step.py is left out: under mutmut the rules cannot be compiled, see conftest.py)
     "screen_geometry": ("drake_att/screen_geometry.py", ["tests/test_indoor_star_tracker.py", "-k", "not swarm"]),
-    "indoor_star_tracker": ("drake_att/filters/indoor_star_tracker.py",
-                            ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"]),
+    "indoor_star_tracker": (
+        "drake_att/filters/indoor_star_tracker.py",
+        ["tests/test_indoor_star_tracker.py", "-k", "not swarm and not diagram"],
+    ),
     # The edges: output folders and physical ranges.
     "outputs": ("drake_att/outputs.py", ["tests/test_outputs.py"]),
-    "campaign_records": ("drake_att/analysis/campaign_records.py",
-                         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"]),
-    "config": ("drake_att/scenarios/config.py",
-               ["tests/test_config_loading.py", "-k", "not sigterm and not downloaded_folder"]),
+    "campaign_records": (
+        "drake_att/analysis/campaign_records.py",
+        ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"],
+    ),
+    "config": (
+        "drake_att/scenarios/config.py",
+        ["tests/test_config_loading.py", "-k", "not sigterm and not downloaded_folder"],
+    ),
     # The outer layers users read their conclusions from (statistics, campaigns, faults, frames, CLI).
-    "ensemble": ("drake_att/analysis/ensemble.py",
-                 ["tests/test_ensemble.py", "tests/test_ensemble_definitions.py", "tests/test_bound.py"]),
+    "ensemble": (
+        "drake_att/analysis/ensemble.py",
+        ["tests/test_ensemble.py", "tests/test_ensemble_definitions.py", "tests/test_bound.py"],
+    ),
     "bound": ("drake_att/analysis/bound.py", ["tests/test_bound.py", "tests/test_ensemble_definitions.py"]),
-    "report": ("drake_att/analysis/report.py",
-               ["tests/test_report.py", "tests/test_campaign_bookkeeping.py", "tests/test_ensemble.py"]),
+    "report": (
+        "drake_att/analysis/report.py",
+        ["tests/test_report.py", "tests/test_campaign_bookkeeping.py", "tests/test_ensemble.py"],
+    ),
     "analysis_faults": ("drake_att/analysis/fault_scores.py", ["tests/test_fault_joint.py", "tests/test_faults.py"]),
     "systems_faults": ("drake_att/systems/fault_injector.py", ["tests/test_faults.py", "tests/test_fault_joint.py"]),
     "fusion": ("drake_att/systems/fusion.py", ["tests/test_fusion.py", "tests/test_fusion_speed_equivalence.py"]),
-    "build_context": ("drake_att/scenarios/build_context.py",
-                      ["tests/test_initial_frames.py", "tests/test_faults.py", "tests/test_fusion.py"]),
+    "build_context": (
+        "drake_att/scenarios/build_context.py",
+        ["tests/test_initial_frames.py", "tests/test_faults.py", "tests/test_fusion.py"],
+    ),
     # The Monte Carlo modules (analysis/montecarlo.py only re-exports them), one selection.
-    **{key: (f"drake_att/analysis/{key}.py", _CAMPAIGN_TESTS)
-       for key in ("executor", "run_records", "campaign", "campaign_folder", "comparison")},
-    "selection": ("drake_att/scenarios/selection.py",
-                  ["tests/test_campaign_outputs.py", "tests/test_sweeps.py", "tests/test_bound.py",
-                   "tests/test_preflight.py", "-m", "not slow", "--timeout=60"]),
-    "cli": ("drake_att/cli.py",
-            ["tests/test_cli_errors.py", "tests/test_campaign_bookkeeping.py", "tests/test_hostile_inputs.py",
-             "tests/test_config_loading.py", "tests/test_score.py", "-k", "not sigterm and not downloaded_folder",
-             "--timeout=60"]),  # a mutant that hangs a run is killed in a minute, not pytest.ini's ten
-    "ranges": ("drake_att/scenarios/ranges.py",
-               ["tests/test_ranges.py", "-k",  # docs/ is not copied; the peak is measured in a child process
-                "not config_reference_is_the_rendered_table and not measured_peak"]),
+    **{
+        key: (f"drake_att/analysis/{key}.py", _CAMPAIGN_TESTS)
+        for key in ("executor", "run_records", "campaign", "campaign_folder", "comparison")
+    },
+    "selection": (
+        "drake_att/scenarios/selection.py",
+        [
+            "tests/test_campaign_outputs.py",
+            "tests/test_sweeps.py",
+            "tests/test_bound.py",
+            "tests/test_preflight.py",
+            "-m",
+            "not slow",
+            "--timeout=60",
+        ],
+    ),
+    "cli": (
+        "drake_att/cli.py",
+        [
+            "tests/test_cli_errors.py",
+            "tests/test_campaign_bookkeeping.py",
+            "tests/test_hostile_inputs.py",
+            "tests/test_config_loading.py",
+            "tests/test_score.py",
+            "-k",
+            "not sigterm and not downloaded_folder",
+            "--timeout=60",
+        ],
+    ),  # a mutant that hangs a run is killed in a minute, not pytest.ini's ten
+    "ranges": (
+        "drake_att/scenarios/ranges.py",
+        [
+            "tests/test_ranges.py",
+            "-k",  # docs/ is not copied; the peak is measured in a child process
+            "not config_reference_is_the_rendered_table and not measured_peak",
+        ],
+    ),
 }
 
 
@@ -113,25 +179,28 @@ def snapshot(dest: str) -> str:
     os.makedirs(dest, exist_ok=True)
     archive = subprocess.run(["git", "archive", "HEAD"], cwd=REPO, capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", dest], input=archive, check=True)
-    return subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                          check=True).stdout.strip()
+    return subprocess.run(
+        ["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout.strip()
 
 
 def configure(folder: str, mutated: str, tests: list[str]) -> None:
     """Set only_mutate and the test selection of ``folder``'s [tool.mutmut]."""
     path = os.path.join(folder, "pyproject.toml")
     text = open(path).read()
-    text = re.sub(r"only_mutate = \[[^\]]*\]", f"only_mutate = [\"{mutated}\"]", text)
+    text = re.sub(r"only_mutate = \[[^\]]*\]", f'only_mutate = ["{mutated}"]', text)
     selection = ",\n".join(f'    "{t}"' for t in tests)
-    text = re.sub(r"pytest_add_cli_args_test_selection = \[[^\]]*\]",
-                  f"pytest_add_cli_args_test_selection = [\n{selection},\n]", text)
+    text = re.sub(
+        r"pytest_add_cli_args_test_selection = \[[^\]]*\]",
+        f"pytest_add_cli_args_test_selection = [\n{selection},\n]",
+        text,
+    )
     open(path, "w").write(text)
 
 
 def _statuses(folder: str) -> dict[str, str]:
     """mutant name -> status, from ``mutmut results --all true`` in ``folder``."""
-    text = subprocess.run([MUTMUT, "results", "--all", "true"], cwd=folder, capture_output=True,
-                          text=True).stdout
+    text = subprocess.run([MUTMUT, "results", "--all", "true"], cwd=folder, capture_output=True, text=True).stdout
     out = {}
     for line in text.splitlines():
         name, sep, status = line.strip().rpartition(": ")

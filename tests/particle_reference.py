@@ -61,8 +61,7 @@ def mrp_rate_jacobian(rho, w) -> np.ndarray:
     w = np.asarray(w, dtype=float)
     rw = np.sum(rho * w, axis=-1)[..., None, None]
     eye = np.eye(3)
-    return 0.5 * (rho[..., :, None] * w[..., None, :] - w[..., :, None] * rho[..., None, :]
-                  - skew(w) + rw * eye)
+    return 0.5 * (rho[..., :, None] * w[..., None, :] - w[..., :, None] * rho[..., None, :] - skew(w) + rw * eye)
 
 
 def mrp_dynamics_jacobian(x, w_meas) -> np.ndarray:
@@ -95,7 +94,7 @@ def mrp_shadow_jacobian(rho) -> np.ndarray:
     """
     rho = np.asarray(rho, dtype=float)
     n2 = np.sum(rho * rho, axis=-1)[..., None, None]
-    return (2.0 * rho[..., :, None] * rho[..., None, :] - n2 * np.eye(3)) / n2 ** 2
+    return (2.0 * rho[..., :, None] * rho[..., None, :] - n2 * np.eye(3)) / n2**2
 
 
 def propagate_mrp(rho, w, dt: float) -> np.ndarray:
@@ -171,11 +170,10 @@ def discrete_process_noise(x, F, dt: float, sigma_v: float, sigma_u: float) -> n
     x = np.asarray(x, dtype=float)
     B = mrp_kinematics_matrix(x[..., :3])
     Qg = np.zeros(x.shape[:-1] + (6, 6))
-    Qg[..., :3, :3] = sigma_v ** 2 * (B @ np.swapaxes(B, -1, -2))
-    Qg[..., 3:, 3:] = sigma_u ** 2 * np.eye(3)
+    Qg[..., :3, :3] = sigma_v**2 * (B @ np.swapaxes(B, -1, -2))
+    Qg[..., 3:, 3:] = sigma_u**2 * np.eye(3)
     FQ = F @ Qg
-    return (Qg * dt + (FQ + np.swapaxes(FQ, -1, -2)) * (0.5 * dt ** 2)
-            + (FQ @ np.swapaxes(F, -1, -2)) * (dt ** 3 / 3.0))
+    return Qg * dt + (FQ + np.swapaxes(FQ, -1, -2)) * (0.5 * dt**2) + (FQ @ np.swapaxes(F, -1, -2)) * (dt**3 / 3.0)
 
 
 def _sym(P):
@@ -240,8 +238,9 @@ def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
     return x_new, P_new
 
 
-def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True,
-               iterations: int = 1, iteration_tolerance: float = 1e-12):
+def ekf_update(
+    x, P, y, ref_vectors_I, sigma: float, switch: bool = True, iterations: int = 1, iteration_tolerance: float = 1e-12
+):
     """Batched EKF measurement update with Joseph-form covariance.
 
     With ``iterations > 1`` this is the iterated EKF (Gauss-Newton on the prior plus
@@ -269,7 +268,7 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True,
     U = np.asarray(ref_vectors_I, dtype=float)
     y = np.asarray(y, dtype=float)
     n_meas = 3 * U.shape[0]
-    R = sigma ** 2 * np.eye(n_meas)
+    R = sigma**2 * np.eye(n_meas)
     x_j = x
     innovation0 = S0 = None
     for _ in range(iterations):
@@ -288,7 +287,7 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True,
         if converged:
             break
     IKH = np.eye(6) - K @ H
-    P_new = _sym(IKH @ P @ np.swapaxes(IKH, -1, -2) + (K * sigma ** 2) @ np.swapaxes(K, -1, -2))
+    P_new = _sym(IKH @ P @ np.swapaxes(IKH, -1, -2) + (K * sigma**2) @ np.swapaxes(K, -1, -2))
     x_new = x_j
     if switch:
         x_new, P_new, _ = switch_to_short_mrp(x_new, P_new)
@@ -312,7 +311,7 @@ def vector_log_likelihood(rho, y, ref_vectors_I, sigma: float) -> np.ndarray:
         ``(N,)`` log-likelihoods (non-finite entries replaced by ``-inf``).
     """
     r = np.asarray(y, dtype=float) - vector_measurement_model(rho, ref_vectors_I)
-    ll = -0.5 * np.sum(r * r, axis=-1) / sigma ** 2
+    ll = -0.5 * np.sum(r * r, axis=-1) / sigma**2
     ll[~np.isfinite(ll)] = -np.inf
     return ll
 
@@ -438,8 +437,16 @@ class ReferenceGyrolessPfCore(_NumpyLikelihood, GyrolessPfCore):
         dtheta = None  # the attitude noise, applied after the deterministic step, drawn first
         if self.attitude_process_sigma > 0.0:
             dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
-        rho, w = gyroless_propagate(state.particles[:, :3], state.particles[:, 3:], self.inertia,
-                                    self.inertia_inverse, self.torque, dt / self.num_substeps, self.num_substeps, dtheta)
+        rho, w = gyroless_propagate(
+            state.particles[:, :3],
+            state.particles[:, 3:],
+            self.inertia,
+            self.inertia_inverse,
+            self.torque,
+            dt / self.num_substeps,
+            self.num_substeps,
+            dtheta,
+        )
         if self.rate_process_sigma > 0.0:
             w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
         return ParticleSetState(np.concatenate([rho, w], axis=1), state.weights, state.log_weights)
@@ -450,8 +457,9 @@ class ReferenceEkpfCore(EkpfCore):
 
     def predict(self, state: ParticleSetState, w_meas_B, dt: float, rng=None) -> ParticleSetState:
         dt = check_positive("dt", dt)
-        particles, covariances = ekf_predict(state.particles, state.covariances, gyro_rate(w_meas_B), dt,
-                                             self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
+        particles, covariances = ekf_predict(
+            state.particles, state.covariances, gyro_rate(w_meas_B), dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15
+        )
         return ParticleSetState(particles, state.weights, state.log_weights, covariances)
 
     def update(self, state: ParticleSetState, observations, rng: np.random.Generator):
@@ -460,6 +468,7 @@ class ReferenceEkpfCore(EkpfCore):
         if y is None:
             return state, _DECLINED
         eps = rng.standard_normal((self.num_particles, 6))
-        particles, covariances, log_increment = ekpf_proposal_step(state.particles, state.covariances, y, U, sigma,
-                                                                   eps, self.proposal_iterations)
+        particles, covariances, log_increment = ekpf_proposal_step(
+            state.particles, state.covariances, y, U, sigma, eps, self.proposal_iterations
+        )
         return self._reweighted(state, particles, covariances, log_increment, rng)

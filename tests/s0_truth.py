@@ -23,8 +23,16 @@ def observation(y, refs=REFS, sigma=SIGMA_STAR, t=0.0):
     return VectorObservations(t, True, np.reshape(y, (-1, 3)), refs, sigma, BODY)
 
 
-def simulate_gyro_truth(num_steps, rng, q0=(1.0, 0.0, 0.0, 0.0), w=(1e-3, -5e-4, 2e-4),
-                        bias0=(DEG / HOUR,) * 3, dt=1.0, refs=REFS, sigma=SIGMA_STAR):
+def simulate_gyro_truth(
+    num_steps,
+    rng,
+    q0=(1.0, 0.0, 0.0, 0.0),
+    w=(1e-3, -5e-4, 2e-4),
+    bias0=(DEG / HOUR,) * 3,
+    dt=1.0,
+    refs=REFS,
+    sigma=SIGMA_STAR,
+):
     """Constant-rate truth, Farrenkopf gyro and vector measurements.
 
     Returns q_true (K, 4) and b_true (K, 3) at t_k = k dt, the measurements y (K, 3m) of
@@ -38,8 +46,7 @@ def simulate_gyro_truth(num_steps, rng, q0=(1.0, 0.0, 0.0, 0.0), w=(1e-3, -5e-4,
     for _ in range(num_steps):
         qs.append(q)
         bs.append(b)
-        ys.append(vector_measurement_model(rot.quat_to_mrp(q), refs)
-                  + sigma * rng.standard_normal(3 * len(refs)))
+        ys.append(vector_measurement_model(rot.quat_to_mrp(q), refs) + sigma * rng.standard_normal(3 * len(refs)))
         b_next = b + SIGMA_U * np.sqrt(dt) * rng.standard_normal(3)
         noise_std = np.sqrt(SIGMA_V**2 / dt + SIGMA_U**2 * dt / 12.0)
         wms.append(w + 0.5 * (b + b_next) + noise_std * rng.standard_normal(3))

@@ -28,8 +28,9 @@ def _tracker_model(st_name="st1"):
 def test_step_noise_is_the_mekf_process_noise_without_rotation():
     """With ``J = dt I`` the bound's interval noise is exactly the MEKF's ``Q``."""
     for dt in (0.1, 1.0, 2.5):
-        np.testing.assert_allclose(bd.farrenkopf_step_noise(ARW, RRW, dt), process_noise(ARW, RRW, dt),
-                                   rtol=1e-14, atol=0)
+        np.testing.assert_allclose(
+            bd.farrenkopf_step_noise(ARW, RRW, dt), process_noise(ARW, RRW, dt), rtol=1e-14, atol=0
+        )
 
 
 @pytest.mark.parametrize("w", [np.zeros(3), np.array([0.01, -0.02, 0.03])])
@@ -63,13 +64,13 @@ def _batch_filtered_covariance(P0, transitions, noises, measurements, k_end):
         Phi = S @ transitions[k] @ np.linalg.inv(S)
         Qi = np.linalg.inv(S @ noises[k] @ S)
         A = np.zeros((6, n))
-        A[:, 6 * (k - 1):6 * k] = -Phi
-        A[:, 6 * k:6 * k + 6] = np.eye(6)
+        A[:, 6 * (k - 1) : 6 * k] = -Phi
+        A[:, 6 * k : 6 * k + 6] = np.eye(6)
         L += A.T @ Qi @ A
     for k in range(k_end + 1):
         for H, R in measurements[k]:
             Hs = H @ np.linalg.inv(S)
-            L[6 * k:6 * k + 6, 6 * k:6 * k + 6] += Hs.T @ np.linalg.solve(R, Hs)
+            L[6 * k : 6 * k + 6, 6 * k : 6 * k + 6] += Hs.T @ np.linalg.solve(R, Hs)
     C = np.linalg.inv(L)[-6:, -6:]
     Si = np.linalg.inv(S)
     return Si @ C @ Si
@@ -109,13 +110,22 @@ def test_which_estimators_have_a_bound():
     """Gyro + star trackers: defined (an average and a fusion read their raw trackers);
     gyroless, camera, fault injection, S1's correlated gyro noise: None with the reason."""
     dual = load("cubesat_dual_star_tracker")
-    expect = {"single": ["st1"], "single_st2": ["st2"], "centralized": ["st1", "st2"], "joint": ["st1", "st2"],
-              "decentralized": ["st1", "st2"]}
+    expect = {
+        "single": ["st1"],
+        "single_st2": ["st2"],
+        "centralized": ["st1", "st2"],
+        "joint": ["st1", "st2"],
+        "decentralized": ["st1", "st2"],
+    }
     for name, trackers in expect.items():
         src = bd.bound_sources(dual, name)
         assert [t.name for t in src["trackers"]] == trackers and src["gyro"].name == "gyro"
-    for scenario, estimator, words in (("s0_gyroless_pf", None, "no gyro"), ("s2_indoor_dynamic", None, "camera"),
-                                       ("fault_campaign", None, "fault injection"), ("s1_cqe", None, "S1")):
+    for scenario, estimator, words in (
+        ("s0_gyroless_pf", None, "no gyro"),
+        ("s2_indoor_dynamic", None, "camera"),
+        ("fault_campaign", None, "fault injection"),
+        ("s1_cqe", None, "S1"),
+    ):
         sc = load(scenario)
         names = [estimator] if estimator else [e.name for e in sc.estimators]
         for name in names:
@@ -146,6 +156,7 @@ def test_mekf_is_efficient_and_a_mistuned_one_is_not():
     from drake_att.scenarios.builder import diagram_for
 
     sd = diagram_for(load("cubesat_single_star_tracker"))
+
     def campaign(seeds, duration, extra=()):
         overrides = [f"duration_s={duration}", "scoring.score_from_s=50"] + list(extra)
         records = [per_run_record(sd.simulate(seed, overrides=overrides)) for seed in seeds]
@@ -215,10 +226,13 @@ def test_step_noise_of_a_float32_bias_block_is_computed_in_double_precision():
     np.testing.assert_allclose(Q, expect, rtol=1e-13, atol=0)
 
 
-@pytest.mark.parametrize("b0, sigma_b0, expect_deg_per_h", [([1.0, -3.0, 2.0], 0.0, 3.0), ([1.0, 1.0, 1.0], 5.0, 5.0),
-                                                           ([0.0, 0.2, -0.1], 0.5, 1.0)])
+@pytest.mark.parametrize(
+    "b0, sigma_b0, expect_deg_per_h",
+    [([1.0, -3.0, 2.0], 0.0, 3.0), ([1.0, 1.0, 1.0], 5.0, 5.0), ([0.0, 0.2, -0.1], 0.5, 1.0)],
+)
 def test_prior_without_initial_sigmas_uses_1_rad_and_the_largest_of_b0_sigma_b0_and_1_deg_per_h(
-        b0, sigma_b0, expect_deg_per_h):
+    b0, sigma_b0, expect_deg_per_h
+):
     from dataclasses import replace
     from types import SimpleNamespace
 
@@ -234,8 +248,9 @@ def test_sample_index_finds_the_sample_within_a_microsecond_or_minus_one():
     grid = np.array([-1.0, 0.0, 1.5, 2.0 + 5e-7, 3.0, 10.0])
     np.testing.assert_array_equal(bd._sample_index(times, grid), [-1, 0, -1, 2, -1, -1])
     # a single sample: found at its own time only, grid points after it are -1
-    np.testing.assert_array_equal(bd._sample_index(np.array([1.0]), np.array([0.0, 1.0 - 5e-7, 2.0, 3.0])),
-                                  [-1, 0, -1, -1])
+    np.testing.assert_array_equal(
+        bd._sample_index(np.array([1.0]), np.array([0.0, 1.0 - 5e-7, 2.0, 3.0])), [-1, 0, -1, -1]
+    )
     np.testing.assert_array_equal(bd._sample_index(np.array([]), np.array([0.0, 1.0])), [-1, -1])
 
 
@@ -254,8 +269,9 @@ def _synthetic_run(scenario, K=6, T=1.0, gyro_edit=None, signals=()):
     if gyro_edit:
         gyro_edit(g)
     sig = {"gyro/gyro_measurement": (t, g), "truth/q_IB": (t, q), **dict(signals)}
-    return RunLog(scenario=scenario, seed=1, wall_time_s=0.0, signals=sig,
-                  metadata={"truth": {"attitude": "truth/q_IB"}})
+    return RunLog(
+        scenario=scenario, seed=1, wall_time_s=0.0, signals=sig, metadata={"truth": {"attitude": "truth/q_IB"}}
+    )
 
 
 def _single_with_tracker_log():
@@ -269,8 +285,9 @@ def test_quaternion_tracker_bound_model_uses_the_samples_at_gyro_instants_and_re
     model = bd.bound_model(_synthetic_run(sc, signals=sig), "single")
     info = model["info"]
     assert info["gyro"] == "gyro" and info["trackers"] == ["st1"] and info["grid_period_s"] == 1.0
-    assert info["tracker_samples"] == {"st1": {"samples_used": 6, "samples_between_gyro_samples": 45,
-                                               "samples_invalid": 0}}
+    assert info["tracker_samples"] == {
+        "st1": {"samples_used": 6, "samples_between_gyro_samples": 45, "samples_invalid": 0}
+    }
     st = next(s for s in sc.sensors if s.name == "st1")
     R_SB = rot.quat_to_rotmat(star_tracker_mounting(st)).T
     for meas in model["measurements"]:
@@ -310,8 +327,12 @@ def test_vector_tracker_information_is_sum_of_projections_off_each_true_directio
 
     sc = load("s0_particle_filters_small_error")
     refs = np.array([[2.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.3, -0.4, 1.2]])
-    sensors = [replace(s, period_s=0.5, outage_windows_s=np.array([[2.0, 3.0]]), references_I=refs,
-                       sigma_vector_urad=100.0) if s.name == "st" else s for s in sc.sensors]
+    sensors = [
+        replace(s, period_s=0.5, outage_windows_s=np.array([[2.0, 3.0]]), references_I=refs, sigma_vector_urad=100.0)
+        if s.name == "st"
+        else s
+        for s in sc.sensors
+    ]
     run = _synthetic_run(replace(sc, sensors=sensors))
     model = bd.bound_model(run, "ekf")
     s = 100e-6
@@ -325,5 +346,6 @@ def test_vector_tracker_information_is_sum_of_projections_off_each_true_directio
                 expect[:3, :3] += (np.eye(3) - np.outer(b, b)) / s**2
         np.testing.assert_allclose(info, expect, rtol=1e-9, atol=1e-9 / s**2, err_msg=f"t = {tk}")
     # 11 samples over 0..5 s: 2 in the outage, 5 at gyro instants, 4 between
-    assert model["info"]["tracker_samples"] == {"st": {"samples_used": 5, "samples_between_gyro_samples": 4,
-                                                       "samples_invalid": 2}}
+    assert model["info"]["tracker_samples"] == {
+        "st": {"samples_used": 5, "samples_between_gyro_samples": 4, "samples_invalid": 2}
+    }

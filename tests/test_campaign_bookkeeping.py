@@ -28,8 +28,10 @@ def test_the_run_folder_names_the_scenario_the_seed_and_the_overrides():
     assert default_out("run", SCEN) == os.path.join("out", "cubesat_single_star_tracker_seed3")
     sets = ["duration_s=60", "sensors.st1.period_s=0.2"]
     assert default_out("run", SCEN, sets) == os.path.join("out", "cubesat_single_star_tracker_seed3" + _tag(sets))
-    names = {default_out("run", SCEN, s) for s in (None, ["duration_s=60"], ["duration_s=61"],
-                                                  ["duration_s=60", "seed=2"], ["seed=2", "duration_s=60"])}
+    names = {
+        default_out("run", SCEN, s)
+        for s in (None, ["duration_s=60"], ["duration_s=61"], ["duration_s=60", "seed=2"], ["seed=2", "duration_s=60"])
+    }
     assert len(names) == 5  # every change of an override, and of their order, is another folder
     other_seed = types.SimpleNamespace(name=SCEN.name, seed=4)
     assert default_out("run", other_seed) != default_out("run", SCEN)
@@ -53,9 +55,12 @@ def test_the_campaign_folder_changes_with_every_option_that_changes_its_runs():
 def test_the_comparison_folder_changes_with_scenarios_overrides_and_estimators():
     a = default_out("compare", None, None, None, ["s1_cqe", "s4_lie_group"])
     assert a == os.path.join("out", "compare" + _tag(["s1_cqe", "s4_lie_group", ""]))
-    variants = {a, default_out("compare", None, None, None, ["s4_lie_group", "s1_cqe"]),
-                default_out("compare", None, ["duration_s=60"], None, ["s1_cqe", "s4_lie_group"]),
-                default_out("compare", None, None, "mekf", ["s1_cqe", "s4_lie_group"])}
+    variants = {
+        a,
+        default_out("compare", None, None, None, ["s4_lie_group", "s1_cqe"]),
+        default_out("compare", None, ["duration_s=60"], None, ["s1_cqe", "s4_lie_group"]),
+        default_out("compare", None, None, "mekf", ["s1_cqe", "s4_lie_group"]),
+    }
     assert len(variants) == 4
 
 
@@ -74,8 +79,9 @@ def _manifest(folder, names) -> None:
     for n in names:
         data = (folder / n).read_bytes()
         entries.append({"file": n, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
-    (folder / "manifest.json").write_text(json.dumps({"scenario": "s", "seed": 1, "runs": 1, "seeds": [1, 1],
-                                                      "files": entries}))
+    (folder / "manifest.json").write_text(
+        json.dumps({"scenario": "s", "seed": 1, "runs": 1, "seeds": [1, 1], "files": entries})
+    )
 
 
 @pytest.mark.parametrize("check", [check_manifest, check_campaign_manifest], ids=["run", "campaign"])

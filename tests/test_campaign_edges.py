@@ -44,11 +44,27 @@ def one_line(e) -> str:
 # ----------------------------------------------------------------------------------------
 # 1, 2: --scheduler and --connect-timeout
 # ----------------------------------------------------------------------------------------
-@pytest.mark.parametrize("address", ["http://127.0.0.1:8786", "https://example.org:443", "tls://10.0.0.5:8786",
-                                     "ws://127.0.0.1:8786", "inproc://192.0.2.2/1/1", "ucx://127.0.0.1:8786",
-                                     "tcp://127.0.0.1:8786/path", "tcp://127.0.0.1:0", "tcp://127.0.0.1:70000",
-                                     "tcp://:8786", "not an address", "tcp://host name:8786", "tcp://127.0.0.1:８７",
-                                     "tcp://a\nb:8786", 8786, None])
+@pytest.mark.parametrize(
+    "address",
+    [
+        "http://127.0.0.1:8786",
+        "https://example.org:443",
+        "tls://10.0.0.5:8786",
+        "ws://127.0.0.1:8786",
+        "inproc://192.0.2.2/1/1",
+        "ucx://127.0.0.1:8786",
+        "tcp://127.0.0.1:8786/path",
+        "tcp://127.0.0.1:0",
+        "tcp://127.0.0.1:70000",
+        "tcp://:8786",
+        "not an address",
+        "tcp://host name:8786",
+        "tcp://127.0.0.1:８７",
+        "tcp://a\nb:8786",
+        8786,
+        None,
+    ],
+)
 def test_scheduler_other_than_tcp_is_refused_naming_the_value(address):
     with pytest.raises(mc.CampaignError) as e:
         mc.check_scheduler_address(address)
@@ -58,16 +74,22 @@ def test_scheduler_other_than_tcp_is_refused_naming_the_value(address):
         assert f"the scheme {address.split('://')[0]}:// is not supported" in text
 
 
-@pytest.mark.parametrize("address, expected", [("tcp://10.0.0.5:8786", "tcp://10.0.0.5:8786"),
-                                               ("10.0.0.5:8786", "tcp://10.0.0.5:8786"),
-                                               (" TCP://node-1.cluster:8786 ", "tcp://node-1.cluster:8786"),
-                                               ("tcp://[::1]:8786", "tcp://[::1]:8786")])
+@pytest.mark.parametrize(
+    "address, expected",
+    [
+        ("tcp://10.0.0.5:8786", "tcp://10.0.0.5:8786"),
+        ("10.0.0.5:8786", "tcp://10.0.0.5:8786"),
+        (" TCP://node-1.cluster:8786 ", "tcp://node-1.cluster:8786"),
+        ("tcp://[::1]:8786", "tcp://[::1]:8786"),
+    ],
+)
 def test_scheduler_tcp_addresses_are_accepted(address, expected):
     assert mc.check_scheduler_address(address) == expected
 
 
-@pytest.mark.parametrize("value", [-1, -1.0, 0, 0.0, float("nan"), float("inf"), -float("inf"), 3601, 1e300, True,
-                                   "5", None, [5]])
+@pytest.mark.parametrize(
+    "value", [-1, -1.0, 0, 0.0, float("nan"), float("inf"), -float("inf"), 3601, 1e300, True, "5", None, [5]]
+)
 def test_connect_timeout_is_refused_naming_the_option(value):
     with pytest.raises(mc.CampaignError) as e:
         mc.check_connect_timeout(value)
@@ -83,8 +105,9 @@ def test_connect_timeout_accepts_seconds():
 def test_run_campaign_map_runs_and_comparison_check_the_timeout(tmp_path):
     out = tmp_path / "c"
     with pytest.raises(mc.CampaignError, match="--connect-timeout"):
-        mc.run_campaign(SCENARIO, 1, overrides=SHORT, workers=1, out=str(out), progress=False,
-                        connect_timeout_s=float("nan"))
+        mc.run_campaign(
+            SCENARIO, 1, overrides=SHORT, workers=1, out=str(out), progress=False, connect_timeout_s=float("nan")
+        )
     with pytest.raises(mc.CampaignError, match="--connect-timeout"):
         mc.map_runs(mc.resolve_scenario(SCENARIO, SHORT), [1], workers=1, connect_timeout_s=-1)
     plan = mc.comparison_plan([SCENARIO], overrides=SHORT)
@@ -93,13 +116,16 @@ def test_run_campaign_map_runs_and_comparison_check_the_timeout(tmp_path):
     assert os.listdir(tmp_path) == []
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["--scheduler", "http://127.0.0.1:8786"], "--scheduler: got 'http://127.0.0.1:8786'; the scheme http://"),
-    (["--connect-timeout", "nan"], "--connect-timeout: got nan"),
-    (["--connect-timeout", "-1"], "--connect-timeout: got -1"),
-    (["--connect-timeout", "inf"], "--connect-timeout: got inf"),
-    (["--connect-timeout", "0"], "--connect-timeout: got 0"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--scheduler", "http://127.0.0.1:8786"], "--scheduler: got 'http://127.0.0.1:8786'; the scheme http://"),
+        (["--connect-timeout", "nan"], "--connect-timeout: got nan"),
+        (["--connect-timeout", "-1"], "--connect-timeout: got -1"),
+        (["--connect-timeout", "inf"], "--connect-timeout: got inf"),
+        (["--connect-timeout", "0"], "--connect-timeout: got 0"),
+    ],
+)
 def test_cli_refuses_scheduler_scheme_and_timeout_with_exit_2(tmp_path, monkeypatch, capsys, args, needle):
     monkeypatch.chdir(tmp_path)
     for command in (["montecarlo", SCENARIO], ["compare", SCENARIO]):
@@ -142,8 +168,11 @@ def hostile_servers():
     probe.bind(("127.0.0.1", 0))
     closed_port = probe.getsockname()[1]
     probe.close()
-    yield {"http": f"tcp://127.0.0.1:{http_server.server_address[1]}",
-           "silent": f"tcp://127.0.0.1:{silent.getsockname()[1]}", "closed": f"tcp://127.0.0.1:{closed_port}"}
+    yield {
+        "http": f"tcp://127.0.0.1:{http_server.server_address[1]}",
+        "silent": f"tcp://127.0.0.1:{silent.getsockname()[1]}",
+        "closed": f"tcp://127.0.0.1:{closed_port}",
+    }
     http_server.shutdown()
     http_server.server_close()
     silent.close()
@@ -197,8 +226,9 @@ def test_no_probe_outlives_its_deadline_and_distributed_still_works(hostile_serv
     with LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=":0") as cluster:
         text, elapsed = _connect_fails(cluster.scheduler_address)
         assert "no workers connected within 2 s" in text and elapsed < UPPER_BOUND_S
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
-                      dashboard_address=":0") as cluster:
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, processes=False, protocol="tcp", dashboard_address=":0"
+    ) as cluster:
         client = mc.connect_scheduler(cluster.scheduler_address, 10)
         try:
             workers = client.run(mc.worker_stats)
@@ -212,9 +242,29 @@ def test_no_probe_outlives_its_deadline_and_distributed_still_works(hostile_serv
 @pytest.mark.slow
 def test_cli_against_an_http_server_exits_2_within_the_timeout_and_writes_nothing(tmp_path, hostile_servers):
     start = time.monotonic()
-    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "montecarlo", SCENARIO, "--runs", "2", "--scheduler",
-                        hostile_servers["http"], "--connect-timeout", "2", "--out", "c"],
-                       cwd=tmp_path, capture_output=True, text=True, env=ENV, timeout=120, check=False)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "drake_att.cli",
+            "montecarlo",
+            SCENARIO,
+            "--runs",
+            "2",
+            "--scheduler",
+            hostile_servers["http"],
+            "--connect-timeout",
+            "2",
+            "--out",
+            "c",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=120,
+        check=False,
+    )
     elapsed = time.monotonic() - start
     assert r.returncode == 2, r.stderr[-2000:]
     assert "Traceback" not in r.stderr, r.stderr[-2000:]
@@ -233,14 +283,27 @@ def test_unreachable_scheduler_creates_nothing_and_the_next_try_is_the_same(tmp_
     for target in (out, tmp_path / "empty"):
         for _ in range(2):  # the second try fails the same way, not with "holds a campaign already"
             with pytest.raises(mc.CampaignError, match="cannot connect") as e:
-                mc.run_campaign(SCENARIO, 2, overrides=SHORT, scheduler=hostile_servers["closed"], out=str(target),
-                                progress=False, connect_timeout_s=TIMEOUT_S)
+                mc.run_campaign(
+                    SCENARIO,
+                    2,
+                    overrides=SHORT,
+                    scheduler=hostile_servers["closed"],
+                    out=str(target),
+                    progress=False,
+                    connect_timeout_s=TIMEOUT_S,
+                )
             one_line(e.value)
     assert sorted(os.listdir(tmp_path)) == ["empty"] and os.listdir(tmp_path / "empty") == []
     plan = mc.comparison_plan([SCENARIO], overrides=SHORT)
     with pytest.raises(mc.CampaignError, match="cannot connect"):
-        mc.run_comparison(plan, 1, scheduler=hostile_servers["closed"], out=str(tmp_path / "cmp"), progress=False,
-                          connect_timeout_s=TIMEOUT_S)
+        mc.run_comparison(
+            plan,
+            1,
+            scheduler=hostile_servers["closed"],
+            out=str(tmp_path / "cmp"),
+            progress=False,
+            connect_timeout_s=TIMEOUT_S,
+        )
     assert sorted(os.listdir(tmp_path)) == ["empty"]
 
 
@@ -267,8 +330,9 @@ def test_a_start_that_fails_before_its_first_run_takes_back_what_it_created(tmp_
     # ...but a campaign that saved a run keeps everything (it resumes)
     monkeypatch.setattr(campaign, "map_runs", _fake_map_runs(1, error))
     with pytest.raises(type(error)):
-        mc.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(keep), progress=False,
-                        record=mc.metrics_record)
+        mc.run_campaign(
+            SCENARIO, 2, overrides=SHORT, workers=1, out=str(keep), progress=False, record=mc.metrics_record
+        )
     assert sorted(os.listdir(keep)) == ["campaign.json", "config.yaml", "runs"]
     assert os.listdir(keep / "runs") == ["seed_1.npz"]
 
@@ -289,16 +353,24 @@ def test_an_empty_campaign_of_ours_does_not_block_a_new_start(tmp_path):
     removed) starts afresh without --resume, whatever configuration it had; a folder with a
     config.yaml that is not ours (no campaign.json) is still refused and left alone."""
     out = tmp_path / "c"
-    mc.run_campaign(SCENARIO, 1, overrides=["duration_s=50", "scoring.score_from_s=20"], workers=1, out=str(out),
-                    progress=False, report=False)
+    mc.run_campaign(
+        SCENARIO,
+        1,
+        overrides=["duration_s=50", "scoring.score_from_s=20"],
+        workers=1,
+        out=str(out),
+        progress=False,
+        report=False,
+    )
     os.remove(out / "runs" / "seed_1.npz")
     result = mc.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(out), progress=False, report=False)
     assert (result.ran, result.reused) == (2, 0)
     assert "duration_s: 60.0" in (out / "config.yaml").read_text()
     with pytest.raises(mc.CampaignError) as e:  # now it holds runs: refused without --resume
         mc.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(out), progress=False, report=False)
-    assert one_line(e.value) == (f"--out {out}: holds a campaign already (2 runs); add --resume to continue it, or "
-                                 "name another folder")
+    assert one_line(e.value) == (
+        f"--out {out}: holds a campaign already (2 runs); add --resume to continue it, or name another folder"
+    )
     theirs = tmp_path / "theirs"
     (theirs / "runs").mkdir(parents=True)
     (theirs / "config.yaml").write_text("my: own file\n")
@@ -373,15 +445,20 @@ def test_an_edited_run_file_is_reported_and_redone(base_campaign, tmp_path, case
     out = _copy(base_campaign, tmp_path)
     _edit(out / "runs" / "seed_2.npz", EDITS[case])
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             report=False, stream=err)
+    result = mc.run_campaign(
+        SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False, stream=err
+    )
     lines = err.getvalue().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"drake-att: {out / 'runs' / 'seed_2.npz'}: not a record of this "
-                                                   "campaign (") and lines[0].endswith("its run is redone"), lines
+    assert (
+        len(lines) == 1
+        and lines[0].startswith(f"drake-att: {out / 'runs' / 'seed_2.npz'}: not a record of this campaign (")
+        and lines[0].endswith("its run is redone")
+    ), lines
     assert (result.ran, result.reused, len(result.failed)) == (1, 2, 0)
     mc.default_summarize(result.records, result.scenario)  # no traceback
-    again = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                            report=False, stream=err)
+    again = mc.run_campaign(
+        SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False, stream=err
+    )
     assert (again.ran, again.reused) == (0, 3)  # the redone run was saved and is reused now
 
 
@@ -402,8 +479,9 @@ def test_an_unreadable_run_file_is_reported_and_redone(base_campaign, tmp_path, 
     else:
         path.write_bytes(content)
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             report=False, stream=err)
+    result = mc.run_campaign(
+        SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False, stream=err
+    )
     lines = err.getvalue().splitlines()
     assert len(lines) == 1 and "seed_3.npz: unreadable (" in lines[0] and "redone" in lines[0], lines
     assert (result.ran, result.reused) == (1, 2)
@@ -416,19 +494,31 @@ def test_a_custom_record_is_checked_against_the_campaign_layout(tmp_path):
         assert json.load(f)["record_layout"] == {"metrics_json": ["U", 0, []]}
     _edit(out / "runs" / "seed_2.npz", _set("metrics_json", np.array(["a", "b"])))
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             record=mc.metrics_record, stream=err)
+    result = mc.run_campaign(
+        SCENARIO,
+        2,
+        overrides=SHORT,
+        workers=1,
+        out=str(out),
+        resume=True,
+        progress=False,
+        record=mc.metrics_record,
+        stream=err,
+    )
     assert "seed_2.npz: not a record of this campaign ('metrics_json': got a str array of shape (n)" in err.getvalue()
     assert (result.ran, result.reused) == (1, 1)
 
 
-@pytest.mark.parametrize("content, needle", [
-    (b"{not json", "not JSON"),
-    (b"[1, 2, 3]", "got a JSON list"),
-    (b"\xff\xfe\x00\x01binary", "a binary file"),
-    (b"\xc3\x28 latin", "not UTF-8 text"),
-    ("huge", "larger than"),
-])
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        (b"{not json", "not JSON"),
+        (b"[1, 2, 3]", "got a JSON list"),
+        (b"\xff\xfe\x00\x01binary", "a binary file"),
+        (b"\xc3\x28 latin", "not UTF-8 text"),
+        ("huge", "larger than"),
+    ],
+)
 def test_a_hostile_campaign_json_is_one_line_naming_the_file(base_campaign, tmp_path, content, needle):
     out = _copy(base_campaign, tmp_path)
     if content == "huge":
@@ -436,25 +526,30 @@ def test_a_hostile_campaign_json_is_one_line_naming_the_file(base_campaign, tmp_
     (out / "campaign.json").write_bytes(content)
     for resume in (True, False):
         with pytest.raises(mc.CampaignError) as e:
-            mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=resume, progress=False,
-                            report=False)
+            mc.run_campaign(
+                SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=resume, progress=False, report=False
+            )
         assert one_line(e.value).startswith(f"{out / 'campaign.json'}: {needle}"), str(e.value)
     assert (out / "campaign.json").read_bytes() == content  # left as it was
 
 
-@pytest.mark.parametrize("content, needle", [
-    (b"\x00\x01\x02binary", "a binary file"),
-    (b"name: \xff\xfe", "not UTF-8 text"),
-    (b"- just\n- a list\n", "is not a scenario"),
-    (b"hello: [unclosed\n", "is not a scenario"),
-    (b"no_such_field: 1\n", "is not a scenario"),
-])
+@pytest.mark.parametrize(
+    "content, needle",
+    [
+        (b"\x00\x01\x02binary", "a binary file"),
+        (b"name: \xff\xfe", "not UTF-8 text"),
+        (b"- just\n- a list\n", "is not a scenario"),
+        (b"hello: [unclosed\n", "is not a scenario"),
+        (b"no_such_field: 1\n", "is not a scenario"),
+    ],
+)
 def test_a_hostile_config_yaml_is_one_line_naming_the_file(base_campaign, tmp_path, content, needle):
     out = _copy(base_campaign, tmp_path)
     (out / "config.yaml").write_bytes(content)
     with pytest.raises(mc.CampaignError) as e:
-        mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                        report=False)
+        mc.run_campaign(
+            SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False
+        )
     text = one_line(e.value)
     assert str(out / "config.yaml") in text and needle in text, text
     assert (out / "config.yaml").read_bytes() == content
@@ -469,8 +564,9 @@ def test_counts_add_up_after_resume(base_campaign, tmp_path):
     (out / "runs" / "seed_3.failed.txt").write_text("truth went non-finite at t = 12 s\n")
     (out / "runs" / "seed_2.npz").write_bytes(b"damaged")
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 5, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             stream=err)
+    result = mc.run_campaign(
+        SCENARIO, 5, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, stream=err
+    )
     assert (result.ran, result.reused, len(result.failed), result.failed_reused) == (3, 1, 1, 1)
     assert result.ran + result.reused + len(result.failed) == len(result.seeds) == 5
     assert result.simulated == 3
@@ -485,8 +581,9 @@ def test_a_binary_failed_run_message_is_redone_not_a_traceback(base_campaign, tm
     os.remove(out / "runs" / "seed_1.npz")
     (out / "runs" / "seed_1.failed.txt").write_bytes(b"\xff\x00\x01")
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             report=False, stream=err)
+    result = mc.run_campaign(
+        SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False, stream=err
+    )
     assert "seed_1.failed.txt: unreadable" in err.getvalue() and (result.ran, result.reused) == (1, 2)
 
 
@@ -520,8 +617,9 @@ def test_a_run_file_that_is_a_folder_or_a_fifo_is_not_read(base_campaign, tmp_pa
     os.remove(out / "runs" / "seed_2.npz")
     os.mkfifo(out / "runs" / "seed_2.npz")
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             report=False, stream=err)
+    result = mc.run_campaign(
+        SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False, stream=err
+    )
     assert "seed_2.npz: unreadable (not a regular file)" in err.getvalue() and (result.ran, result.reused) == (1, 2)
     assert os.path.isfile(out / "runs" / "seed_2.npz")
     os.remove(out / "runs" / "seed_3.npz")
@@ -531,23 +629,26 @@ def test_a_run_file_that_is_a_folder_or_a_fifo_is_not_read(base_campaign, tmp_pa
     assert "seed_3.npz is a folder, not a run file" in one_line(e.value)
 
 
-@pytest.mark.parametrize("entry, valid", [
-    (["f", 0, []], True),
-    (["f", 1, []], True),
-    (["f", 2, [3]], True),
-    (["f", 2, [0]], True),                 # a zero-size dimension is a shape numpy can hold
-    (["f", 32, [1] * 31], True),           # the most dimensions a stored layout may name
-    (["f", 33, [1] * 32], False),
-    (["f", -1, []], False),
-    (["f", 2, [-1]], False),
-    (["f", 2, []], False),                 # rest must list every dimension but the first
-    (["f", 1, [3]], False),
-    (["f", True, []], False),
-    (["f", 2, [True]], False),
-    (["f", 2, [3.0]], False),
-    ([1, 0, []], False),
-    (["f", 0], False),
-])
+@pytest.mark.parametrize(
+    "entry, valid",
+    [
+        (["f", 0, []], True),
+        (["f", 1, []], True),
+        (["f", 2, [3]], True),
+        (["f", 2, [0]], True),  # a zero-size dimension is a shape numpy can hold
+        (["f", 32, [1] * 31], True),  # the most dimensions a stored layout may name
+        (["f", 33, [1] * 32], False),
+        (["f", -1, []], False),
+        (["f", 2, [-1]], False),
+        (["f", 2, []], False),  # rest must list every dimension but the first
+        (["f", 1, [3]], False),
+        (["f", True, []], False),
+        (["f", 2, [True]], False),
+        (["f", 2, [3.0]], False),
+        ([1, 0, []], False),
+        (["f", 0], False),
+    ],
+)
 def test_a_stored_layout_entry_at_its_bounds(entry, valid):
     """A layout read back from campaign.json: dimensions 0..32, each size a non-negative int,
     one size per dimension after the first; anything else is dropped (None), not trusted."""
@@ -571,8 +672,9 @@ def test_a_record_with_one_truncated_per_sample_array_is_redone(base_campaign, t
     assert key in record and len(record[key]) == len(record["single__t"]) > 1
     _edit(path, lambda r: r.__setitem__(key, r[key][:-1]))
     err = io.StringIO()
-    result = mc.run_campaign(SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False,
-                             report=False, stream=err)
+    result = mc.run_campaign(
+        SCENARIO, 3, overrides=SHORT, workers=1, out=str(out), resume=True, progress=False, report=False, stream=err
+    )
     assert "seed_2.npz: not a record of this campaign" in err.getvalue(), err.getvalue()
     assert (result.ran, result.reused, len(result.failed)) == (1, 2, 0)
     mc.default_summarize(result.records, result.scenario)

@@ -119,10 +119,14 @@ def test_run_seeds_keeps_the_error_series_of_the_listed_seeds_consistent_with_th
         assert np.all(np.isfinite(sigma)) and np.all(sigma > 0)
         scored = t >= SCORE_FROM_S - 1e-6
         assert int(scored.sum()) == metrics["samples_scored"]
-        np.testing.assert_allclose(np.degrees(np.sqrt(np.mean(dtheta[scored] ** 2, axis=0))),
-                                   metrics["attitude_rmse_deg"], rtol=1e-12)
-        np.testing.assert_allclose(np.degrees(np.sqrt(np.mean(series["second_err"][scored] ** 2, axis=0))) * 3600.0,
-                                   metrics["bias_rmse_deg_per_h"], rtol=1e-12)
+        np.testing.assert_allclose(
+            np.degrees(np.sqrt(np.mean(dtheta[scored] ** 2, axis=0))), metrics["attitude_rmse_deg"], rtol=1e-12
+        )
+        np.testing.assert_allclose(
+            np.degrees(np.sqrt(np.mean(series["second_err"][scored] ** 2, axis=0))) * 3600.0,
+            metrics["bias_rmse_deg_per_h"],
+            rtol=1e-12,
+        )
         np.testing.assert_allclose(3 * np.degrees(sigma[-1, :3]), metrics["attitude_3sigma_final_deg"], rtol=1e-12)
 
 
@@ -131,8 +135,9 @@ def test_run_seeds_raises_when_a_run_goes_non_finite():
     raises NonFiniteRunError naming the signal, instead of returning a placeholder."""
     from drake_att.scenarios.builder import NonFiniteRunError
 
-    s = mc.resolve_scenario(SINGLE, ["plant.initial_rate_deg_per_s=[5000,1000,0]", "duration_s=20",
-                                     "scoring.score_from_s=5"])
+    s = mc.resolve_scenario(
+        SINGLE, ["plant.initial_rate_deg_per_s=[5000,1000,0]", "duration_s=20", "scoring.score_from_s=5"]
+    )
     with pytest.raises(NonFiniteRunError, match="is not finite from t ="):
         mc.run_seeds(s, [1], workers=1)
 
@@ -146,7 +151,10 @@ def test_comparison_plan_names_an_estimator_a_scenario_lacks_as_skipped():
     reason (the note ``drake-att compare`` prints); the three others run."""
     plan = mc.comparison_plan([SINGLE, DUAL], estimators=["single", "centralized"], overrides=SHORT)
     assert {k for k, why in plan.cells.items() if why is None} == {
-        (SINGLE, "single"), (DUAL, "single"), (DUAL, "centralized")}
+        (SINGLE, "single"),
+        (DUAL, "single"),
+        (DUAL, "centralized"),
+    }
     why = plan.cells[(SINGLE, "centralized")]
     assert isinstance(why, str) and "not an estimator of this scenario" in why
     assert plan.skipped == [f"{SINGLE} x centralized: {why}"]
@@ -181,8 +189,9 @@ def serial_comparison(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(module, "timing_record", staged_timing)
         mp.setattr(module, "_connect", no_dask)
-        result = mc.run_comparison(plan, 2, 1, scheduler="serial", out=str(out), progress=False,
-                                   timing_repeats=TIMING_REPEATS)
+        result = mc.run_comparison(
+            plan, 2, 1, scheduler="serial", out=str(out), progress=False, timing_repeats=TIMING_REPEATS
+        )
     return result, out
 
 
@@ -215,8 +224,7 @@ def test_a_serial_comparison_runs_serial_campaigns(serial_comparison):
 
 
 @pytest.mark.parametrize("workers", [None, (os.cpu_count() or 1) + 1], ids=["cpu-count", "more-than-cpus"])
-def test_a_parallel_comparison_connects_one_cluster_of_workers_processes_before_writing(tmp_path, monkeypatch,
-                                                                                        workers):
+def test_a_parallel_comparison_connects_one_cluster_of_workers_processes_before_writing(tmp_path, monkeypatch, workers):
     """A local-cluster comparison asks for one cluster of ``--workers`` processes (default:
     the CPU count), before its folder exists; a failed connection leaves no folder."""
 

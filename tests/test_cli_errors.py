@@ -16,8 +16,9 @@ ENV = dict(os.environ, MPLBACKEND="Agg")
 
 
 def _cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "drake_att.cli", *args], capture_output=True, text=True, cwd=cwd,
-                          env=ENV)
+    return subprocess.run(
+        [sys.executable, "-m", "drake_att.cli", *args], capture_output=True, text=True, cwd=cwd, env=ENV
+    )
 
 
 CASES = {
@@ -36,8 +37,11 @@ CASES = {
     "negative_seed": ({}, ["run", "cubesat_single_star_tracker", "--seed=-1"], "seed"),
     "out_is_a_file": ({"taken": "x"}, ["run", "cubesat_single_star_tracker", "--out", "taken"], "taken"),
     "unknown_scenario": ({}, ["run", "no_such_scenario"], "no_such_scenario"),
-    "bad_gate_probability": ({}, ["run", "cubesat_single_star_tracker", "--set",
-                                  "estimators.single.innovation_gate_probability=1.5"], "innovation_gate_probability"),
+    "bad_gate_probability": (
+        {},
+        ["run", "cubesat_single_star_tracker", "--set", "estimators.single.innovation_gate_probability=1.5"],
+        "innovation_gate_probability",
+    ),
     "score_missing_folder": ({}, ["score", "no_such_folder"], "no_such_folder"),
 }
 
@@ -61,9 +65,15 @@ def test_ctrl_c_exits_130_and_leaves_no_result_folder(tmp_path):
     # A CI runner may start the suite with SIGINT ignored (a background job), and Python then
     # installs no KeyboardInterrupt handler: give the child the default disposition, as a
     # terminal user's process has.
-    proc = subprocess.Popen([sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r",
-                             "--no-figures"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=ENV, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r", "--no-figures"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 120
     err = ""
     while time.monotonic() < deadline:  # wait until the simulation has started

@@ -50,9 +50,30 @@ def test_campaign_options_parse_to_their_documented_defaults_and_types(command):
     assert args.workers is None and args.scheduler is None and args.set is None and args.out is None
     assert args.connect_timeout == 10.0 and isinstance(args.connect_timeout, float)
     assert args.resume is False and args.quiet is False and args.estimators is None
-    given = cli._parser().parse_args([command, SCENARIO, "--runs", "4", "--first-seed", "7", "--workers", "2",
-                                      "--connect-timeout", "2.5", "--set", "a=1", "--set", "b=2", "--out", "o",
-                                      "--resume", "--quiet", "--estimators", "x,y"])
+    given = cli._parser().parse_args(
+        [
+            command,
+            SCENARIO,
+            "--runs",
+            "4",
+            "--first-seed",
+            "7",
+            "--workers",
+            "2",
+            "--connect-timeout",
+            "2.5",
+            "--set",
+            "a=1",
+            "--set",
+            "b=2",
+            "--out",
+            "o",
+            "--resume",
+            "--quiet",
+            "--estimators",
+            "x,y",
+        ]
+    )
     assert (given.runs, given.first_seed, given.workers, given.connect_timeout) == (4, 7, 2, 2.5)
     assert given.set == ["a=1", "b=2"] and given.out == "o" and given.resume and given.quiet
     assert given.estimators == "x,y"
@@ -126,8 +147,9 @@ def test_montecarlo_help_states_the_defaults_of_scenario_out_and_estimators(monk
 def test_compare_help_states_the_estimator_syntax_and_the_default_folder(monkeypatch, capsys):
     entries = _help_entries("compare", monkeypatch, capsys)
     assert _says(entries["scenario"], "shipped scenario names or yaml paths")
-    assert _says(entries["--estimators a,b,scenario:c"], "estimator names", "default: each scenario's own",
-                 "scenario:name")
+    assert _says(
+        entries["--estimators a,b,scenario:c"], "estimator names", "default: each scenario's own", "scenario:name"
+    )
     assert _says(entries["--out dir"], "comparison", "default out/compare_<hash>", "folder")
 
 
@@ -162,7 +184,7 @@ def test_list_prints_every_shipped_scenario_its_description_and_estimators(capsy
     assert len(lines) == 3 * len(names)
     for i, name in enumerate(names):
         s = load_scenario(filename=os.path.join(SCENARIO_DIR, f"{name}.yaml"))
-        head, desc, est = lines[3 * i: 3 * i + 3]
+        head, desc, est = lines[3 * i : 3 * i + 3]
         assert head == (f"{name} (default)" if name == "cubesat_dual_star_tracker" else name)
         assert desc == "    " + _one_line(s.description)
         assert est == "    estimators: " + ", ".join(e.name for e in s.estimators)
@@ -178,8 +200,19 @@ def two_runs(tmp_path_factory):
     where = tmp_path_factory.mktemp("runs")
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(where)
-        first = _cli(["run", SCENARIO, "--out", "r", "--no-figures", "--quiet", *SHORT,
-                      "--set", "sensors.st1.outage_windows_s=[[-1.0, 100.0]]"])
+        first = _cli(
+            [
+                "run",
+                SCENARIO,
+                "--out",
+                "r",
+                "--no-figures",
+                "--quiet",
+                *SHORT,
+                "--set",
+                "sensors.st1.outage_windows_s=[[-1.0, 100.0]]",
+            ]
+        )
         second = _cli(["run", SCENARIO, "--out", "r", "--no-figures", "--quiet", *SHORT])
     return first, second, where / "r"
 
@@ -219,8 +252,21 @@ def campaign(tmp_path_factory):
         resumed = (None, "", "")
         if first[0] == 0:  # (each test checks the first exit code)
             (where / "c" / "runs" / "seed_2.failed.txt").write_text("truth went non-finite at t = 12 s\n")
-            resumed = _cli(["montecarlo", SCENARIO, "--runs", "2", "--scheduler", "serial", "--out", "c", "--resume",
-                            "--quiet", *SHORT])
+            resumed = _cli(
+                [
+                    "montecarlo",
+                    SCENARIO,
+                    "--runs",
+                    "2",
+                    "--scheduler",
+                    "serial",
+                    "--out",
+                    "c",
+                    "--resume",
+                    "--quiet",
+                    *SHORT,
+                ]
+            )
     return first, resumed, where
 
 
@@ -262,8 +308,10 @@ def test_an_interrupted_campaign_counts_its_saved_runs_and_suggests_resume(campa
     _interrupted(monkeypatch)
     code, _, err = _cli(["montecarlo", SCENARIO, "--runs", "3", "--workers", "1", "--out", "c", "--resume", *SHORT])
     assert code == 130, err[-2000:]
-    assert ("drake-att montecarlo: interrupted; 1 of 3 runs are saved in c/runs; the same command with --resume "
-            "continues the campaign") in err, err[-2000:]
+    assert (
+        "drake-att montecarlo: interrupted; 1 of 3 runs are saved in c/runs; the same command with --resume "
+        "continues the campaign"
+    ) in err, err[-2000:]
 
 
 def test_an_interrupted_campaign_without_a_finished_run_says_nothing_was_kept(tmp_path, monkeypatch):
@@ -284,8 +332,22 @@ def comparison(tmp_path_factory):
     where = tmp_path_factory.mktemp("compare")
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(where)
-        result = _cli(["compare", SCENARIO, "--estimators", "single,nope", "--runs", "1", "--workers", "1",
-                       "--quiet", "--out", "cmp", *SHORT])
+        result = _cli(
+            [
+                "compare",
+                SCENARIO,
+                "--estimators",
+                "single,nope",
+                "--runs",
+                "1",
+                "--workers",
+                "1",
+                "--quiet",
+                "--out",
+                "cmp",
+                *SHORT,
+            ]
+        )
     return result, where / "cmp"
 
 
@@ -293,15 +355,19 @@ def test_compare_notes_each_skipped_cell_on_stderr(comparison):
     (code, _, err), _ = comparison
     assert code == 0, err[-2000:]
     notes = [line for line in err.splitlines() if line.startswith("drake-att compare: note:")]
-    assert notes == [f"drake-att compare: note: {SCENARIO} x nope: not an estimator of this scenario (SOURCE:NAME "
-                     "adds one from another scenario)"], err[-2000:]
+    assert notes == [
+        f"drake-att compare: note: {SCENARIO} x nope: not an estimator of this scenario (SOURCE:NAME "
+        "adds one from another scenario)"
+    ], err[-2000:]
 
 
 def test_compare_names_the_files_it_wrote(comparison):
     (code, out, err), folder = comparison
     assert code == 0, err[-2000:]
-    assert out.splitlines()[-1] == ("Wrote cmp/comparison.html, comparison.json, comparison.md and comparison.png "
-                                    "(one campaign folder per scenario under cmp/)")
+    assert out.splitlines()[-1] == (
+        "Wrote cmp/comparison.html, comparison.json, comparison.md and comparison.png "
+        "(one campaign folder per scenario under cmp/)"
+    )
     for name in ("comparison.html", "comparison.json", "comparison.md", "comparison.png"):
         assert (folder / name).is_file(), name
 

@@ -56,7 +56,10 @@ def _assert_close(a, b, what, rtol=1e-12):
         scale = np.maximum(np.abs(ga[finite]), 1e-300)
         worst = np.max(np.abs(ga[finite] - gb[finite]) / scale, initial=0.0)
         # Covariance entries can be ~1e-14; compare those against their row's scale too.
-        assert worst < rtol or np.max(np.abs(ga[finite] - gb[finite])) < rtol * np.max(np.abs(ga[finite])), (what, worst)
+        assert worst < rtol or np.max(np.abs(ga[finite] - gb[finite])) < rtol * np.max(np.abs(ga[finite])), (
+            what,
+            worst,
+        )
 
 
 def _run(systems, inputs, steps, after_step=None, rtol=1e-12):
@@ -96,14 +99,17 @@ def test_compiled_step_equals_python_loop_on_fuzzed_inputs(seed, oracle):
     rng = np.random.default_rng(seed)
     core = MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=16.0)
     q_true = rot.rpy_to_quat([0.3, -0.2, 1.1])
-    init = core.initial_state(rot.quat_multiply(q_true, rot.rotvec_to_quat([0.01, -0.02, 0.01])),
-                              np.zeros(3), 2 * DEG, 20 * DEG / 3600)
+    init = core.initial_state(
+        rot.quat_multiply(q_true, rot.rotvec_to_quat([0.01, -0.02, 0.01])), np.zeros(3), 2 * DEG, 20 * DEG / 3600
+    )
     q_BS = [rot.rpy_to_quat([0.1, 0.7, -0.4]), rot.rpy_to_quat([-1.0, 0.2, 2.0])]
     sigma = np.array([5.0, 5.0, 50.0]) * ARCSEC
     cov = np.diag(sigma**2)
     subset = (None, cov * 2.0, None, cov * 3.0)  # masks 1 and 3 allowed, 2 not
-    sensors = [QuaternionSensorModel("a", q_BS[0], cov),
-               QuaternionSensorModel("b", q_BS[1], cov, covariance_by_flag=subset)]
+    sensors = [
+        QuaternionSensorModel("a", q_BS[0], cov),
+        QuaternionSensorModel("b", q_BS[1], cov, covariance_by_flag=subset),
+    ]
     systems = _pair(core, init, sensors, oracle)
     w_true = np.array([0.01, -0.02, 0.015])
     seen = {"outlier_run": 0, "gyro_bad": 0, "flags": set()}
@@ -177,8 +183,10 @@ def test_compiled_step_singular_innovation_and_unconnected_inputs():
     (the gyro's absence counted every step after the first)."""
     core = MultiplicativeEKF(0.0, 0.0)
     init = core.initial_state([1.0, 0, 0, 0], np.zeros(3), 0.0, 0.0)
-    sensors = [QuaternionSensorModel("a", np.array([1.0, 0, 0, 0]), np.zeros((3, 3))),
-               QuaternionSensorModel("b", np.array([1.0, 0, 0, 0]), np.eye(3) * 1e-8)]
+    sensors = [
+        QuaternionSensorModel("a", np.array([1.0, 0, 0, 0]), np.zeros((3, 3))),
+        QuaternionSensorModel("b", np.array([1.0, 0, 0, 0]), np.eye(3) * 1e-8),
+    ]
     systems = _pair(core, init, sensors)
 
     def inputs(k, t):

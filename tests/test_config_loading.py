@@ -43,7 +43,7 @@ def refused(text, needle, seconds=3.0):
 # --------------------------------------------------------------------------------------
 def _laughs(levels, width=9, where="plugins"):
     """A YAML "billion laughs": each level lists the previous one ``width`` times."""
-    lines = ["name: x", f'{where}: &a0 [' + ", ".join(['"lol"'] * width) + "]"]
+    lines = ["name: x", f"{where}: &a0 [" + ", ".join(['"lol"'] * width) + "]"]
     lines += [f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * width) + "]" for i in range(1, levels)]
     return "\n".join(lines) + "\n"
 
@@ -97,13 +97,16 @@ def test_file_size_encoding_and_binary_are_refused_naming_the_file(tmp_path):
 # --------------------------------------------------------------------------------------
 # Tags never run code
 # --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("value", [
-    "!!python/object/apply:os.system ['touch {marker}']",
-    "!!python/object/new:os.system ['touch {marker}']",
-    "!!python/name:os.system",
-    "!foo 20",
-    "!MekfConfig 20",
-])
+@pytest.mark.parametrize(
+    "value",
+    [
+        "!!python/object/apply:os.system ['touch {marker}']",
+        "!!python/object/new:os.system ['touch {marker}']",
+        "!!python/name:os.system",
+        "!foo 20",
+        "!MekfConfig 20",
+    ],
+)
 def test_a_tag_on_a_value_is_refused_and_runs_nothing(tmp_path, value):
     marker = tmp_path / "ran"
     v = value.format(marker=marker)
@@ -122,44 +125,60 @@ def test_a_tagged_top_level_and_an_unknown_section_tag_are_refused():
 # --------------------------------------------------------------------------------------
 # Types, paths, --set
 # --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("old, new, needle", [
-    ("duration_s: 5000.0", "duration_s: five", "duration_s: got 'five'; must be a number"),
-    ("seed: 1", "seed: one", "seed: got 'one'; must be an integer"),
-    ("seed: 1", "seed: 1.5", "seed: got 1.5; must be an integer"),
-    ("inertia_kg_m2: [0.042, 0.042, 0.0067]", "inertia_kg_m2: heavy", "plant.inertia_kg_m2: got 'heavy'"),
-    ("inertia_kg_m2: [0.042, 0.042, 0.0067]", "inertia_kg_m2: [a, b, c]", "plant.inertia_kg_m2[0]: got 'a'"),
-    ("use_error_control: false", "use_error_control: 3", "simulation.use_error_control: got 3"),
-    ("name: cubesat_single_star_tracker", "name: [a]", "name: got ['a']; must be a text"),
-    ("  period_s: 0.1\n", "  period_s: 0.1\n  bogus: 3\n", "sensors[1] (st1, !StarTrackerConfig): unknown field"),
-    ("mounting: !PaperS3Eq7Mounting {", "mounting: !PaperS3Eq7Mounting {zzz: 1, ",
-     "sensors[1] (st1, !StarTrackerConfig).mounting: unknown field(s) ['zzz']"),
-    ("  star_trackers: [st1]", "  star_trackers: st1", "estimators[0] (single, !MekfConfig).star_trackers: got 'st1'"),
-    ("scoring:\n  score_from_s: 500.0\n  convergence_threshold_deg: 0.05\n", "scoring: 3\n",
-     "scoring: got 3; must be a section"),
-])
+@pytest.mark.parametrize(
+    "old, new, needle",
+    [
+        ("duration_s: 5000.0", "duration_s: five", "duration_s: got 'five'; must be a number"),
+        ("seed: 1", "seed: one", "seed: got 'one'; must be an integer"),
+        ("seed: 1", "seed: 1.5", "seed: got 1.5; must be an integer"),
+        ("inertia_kg_m2: [0.042, 0.042, 0.0067]", "inertia_kg_m2: heavy", "plant.inertia_kg_m2: got 'heavy'"),
+        ("inertia_kg_m2: [0.042, 0.042, 0.0067]", "inertia_kg_m2: [a, b, c]", "plant.inertia_kg_m2[0]: got 'a'"),
+        ("use_error_control: false", "use_error_control: 3", "simulation.use_error_control: got 3"),
+        ("name: cubesat_single_star_tracker", "name: [a]", "name: got ['a']; must be a text"),
+        ("  period_s: 0.1\n", "  period_s: 0.1\n  bogus: 3\n", "sensors[1] (st1, !StarTrackerConfig): unknown field"),
+        (
+            "mounting: !PaperS3Eq7Mounting {",
+            "mounting: !PaperS3Eq7Mounting {zzz: 1, ",
+            "sensors[1] (st1, !StarTrackerConfig).mounting: unknown field(s) ['zzz']",
+        ),
+        (
+            "  star_trackers: [st1]",
+            "  star_trackers: st1",
+            "estimators[0] (single, !MekfConfig).star_trackers: got 'st1'",
+        ),
+        (
+            "scoring:\n  score_from_s: 500.0\n  convergence_threshold_deg: 0.05\n",
+            "scoring: 3\n",
+            "scoring: got 3; must be a section",
+        ),
+    ],
+)
 def test_a_wrong_type_is_refused_naming_its_field_path(old, new, needle):
     assert old in SHIPPED
     refused(SHIPPED.replace(old, new), needle)
 
 
 def test_an_empty_list_section_is_refused_naming_it():
-    text = SHIPPED[:SHIPPED.index("estimators:")] + "estimators:\nscoring:\n  score_from_s: 500.0\n"
+    text = SHIPPED[: SHIPPED.index("estimators:")] + "estimators:\nscoring:\n  score_from_s: 500.0\n"
     refused(text, "estimators: got None; must be a list")
 
 
-@pytest.mark.parametrize("override, needle", [
-    ("duration_s=[", "--set 'duration_s': invalid YAML"),
-    ("name=null", "--set name: got null"),
-    ("name=", "--set name: got null"),
-    ("plant={bogus: 1}", "--set plant.bogus: unknown field"),
-    ("plant=5", "plant is a section"),
-    ("=3", "dotted field path"),
-    ("a..b=1", "dotted field path"),
-    ("duration_s", "expected PATH=VALUE"),
-    ("sensors.9.period_s=1", "index 9 out of range"),
-    ("sensors.nope.period_s=1", "no element named 'nope'"),
-    ("plugins=" + "[" * 100 + "]" * 100, "nested more than"),
-])
+@pytest.mark.parametrize(
+    "override, needle",
+    [
+        ("duration_s=[", "--set 'duration_s': invalid YAML"),
+        ("name=null", "--set name: got null"),
+        ("name=", "--set name: got null"),
+        ("plant={bogus: 1}", "--set plant.bogus: unknown field"),
+        ("plant=5", "plant is a section"),
+        ("=3", "dotted field path"),
+        ("a..b=1", "dotted field path"),
+        ("duration_s", "expected PATH=VALUE"),
+        ("sensors.9.period_s=1", "index 9 out of range"),
+        ("sensors.nope.period_s=1", "no element named 'nope'"),
+        ("plugins=" + "[" * 100 + "]" * 100, "nested more than"),
+    ],
+)
 def test_set_is_refused_naming_the_override(override, needle):
     with pytest.raises(ConfigError) as e:
         apply_overrides(load_scenario(text=SHIPPED), [override])
@@ -216,8 +235,13 @@ def test_score_in_a_downloaded_folder_does_not_run_its_module(tmp_path, capsys):
     (folder / "config.yaml").write_text(SHIPPED.replace("seed: 1", "seed: 1\nplugins: [evil_mod_xyz]"))
     (folder / "log.npz").write_bytes(b"PK")
     marker = _marker_module(folder, "evil_mod_xyz")
-    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "score", "."], cwd=folder, capture_output=True,
-                       text=True, env=dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg"))
+    r = subprocess.run(
+        [sys.executable, "-m", "drake_att.cli", "score", "."],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg"),
+    )
     assert r.returncode == 2, r.stderr
     assert "--allow-plugins" in r.stderr.strip().splitlines()[-1] and "Traceback" not in r.stderr
     assert not marker.exists()
@@ -246,8 +270,10 @@ def test_argparse_errors_are_one_line_exit_2(capsys):
 
 
 def test_check_validates_without_simulating(capsys):
-    assert cli.main(["check", "cubesat_single_star_tracker", "--set", "duration_s=20",
-                     "--set", "scoring.score_from_s=5"]) == 0
+    assert (
+        cli.main(["check", "cubesat_single_star_tracker", "--set", "duration_s=20", "--set", "scoring.score_from_s=5"])
+        == 0
+    )
     assert "valid" in capsys.readouterr().out
     assert cli.main(["check", "cubesat_single_star_tracker", "--set", "duration_s=five"]) == 2
     assert "duration_s" in capsys.readouterr().err
@@ -255,9 +281,14 @@ def test_check_validates_without_simulating(capsys):
 
 @pytest.mark.slow
 def test_sigterm_exits_143_and_leaves_no_folder(tmp_path):
-    proc = subprocess.Popen([sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r",
-                             "--no-figures"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg"))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r", "--no-figures"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(REPO), MPLBACKEND="Agg"),
+    )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:  # wait until the simulation has started
         line = proc.stderr.readline()

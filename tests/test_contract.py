@@ -60,9 +60,20 @@ def test_second_quantity_names_its_port_and_parses_it_back():
         c.SecondQuantity.from_port_name("w_hat")
 
 
-@pytest.mark.parametrize("flag, expected", [
-    (1.0, True), (True, True), (0.51, True), (0.5, False), (0.0, False), (False, False),
-    (-1.0, False), (np.nan, False), (np.inf, False)])
+@pytest.mark.parametrize(
+    "flag, expected",
+    [
+        (1.0, True),
+        (True, True),
+        (0.51, True),
+        (0.5, False),
+        (0.0, False),
+        (False, False),
+        (-1.0, False),
+        (np.nan, False),
+        (np.inf, False),
+    ],
+)
 def test_validity_flag_is_true_only_for_a_finite_value_above_one_half(flag, expected):
     assert c.flag_is_true(flag) is expected
 
@@ -85,9 +96,14 @@ def test_empty_vector_observations_is_an_unusable_sample_with_identity_mounting(
 
 
 def _vectors(**kw):
-    base = dict(time_s=1.0, valid=True, directions_S=np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
-                references_I=np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), sigma_rad=1e-4,
-                q_BS=np.array([1.0, 0.0, 0.0, 0.0]))
+    base = dict(
+        time_s=1.0,
+        valid=True,
+        directions_S=np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]),
+        references_I=np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+        sigma_rad=1e-4,
+        q_BS=np.array([1.0, 0.0, 0.0, 0.0]),
+    )
     base.update(kw)
     return c.VectorObservations(**base)
 
@@ -111,8 +127,13 @@ def test_is_usable_for_vector_observations():
 
 
 def test_is_usable_for_quaternion_samples_and_centroids():
-    q = dict(time_s=1.0, valid=True, q_IS_meas=np.array([1.0, 0.0, 0.0, 0.0]), q_BS=np.array([1.0, 0, 0, 0]),
-             covariance_S=np.eye(3) * 1e-10)
+    q = dict(
+        time_s=1.0,
+        valid=True,
+        q_IS_meas=np.array([1.0, 0.0, 0.0, 0.0]),
+        q_BS=np.array([1.0, 0, 0, 0]),
+        covariance_S=np.eye(3) * 1e-10,
+    )
     assert c.is_usable(c.QuaternionSample(**q))
     assert not c.is_usable(c.QuaternionSample(**{**q, "q_IS_meas": np.array([0.4, 0.0, 0.0, 0.0])}))
     assert not c.is_usable(c.QuaternionSample(**{**q, "q_IS_meas": np.array([1.0, np.nan, 0.0, 0.0])}))

@@ -113,11 +113,14 @@ def test_in_a_scenario_the_gyro_reads_the_rate_over_one_plus_kappa_zeta_and_the_
     assert checked_gyro == 11 and checked_st == 5
 
 
-@pytest.mark.parametrize("over, field", [
-    ("sensors.2.star_tracker=gyro", "star_tracker"),
-    ("sensors.2.correlation=0.5", "num_stars"),
-    ("sensors.1.period_s=1.5", "star_tracker"),
-])
+@pytest.mark.parametrize(
+    "over, field",
+    [
+        ("sensors.2.star_tracker=gyro", "star_tracker"),
+        ("sensors.2.correlation=0.5", "num_stars"),
+        ("sensors.1.period_s=1.5", "star_tracker"),
+    ],
+)
 def test_scenario_validation_names_the_field(over, field):
     from drake_att.scenarios.config import apply_overrides
 

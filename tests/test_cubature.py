@@ -68,16 +68,25 @@ NO_ZETA = MultiplicativeNoiseModel.make(0.0, 0.0, 0.0)
 
 
 # -- the S1 case -----------------------------------------------------------------------------
-def s1_run(seed: int, n_steps: int, model: MultiplicativeNoiseModel, star_every: int = STAR_EVERY,
-           arw: float = ARW, rrw: float = RRW, bias0=TRUE_BIAS, stars=STARS_I):
+def s1_run(
+    seed: int,
+    n_steps: int,
+    model: MultiplicativeNoiseModel,
+    star_every: int = STAR_EVERY,
+    arw: float = ARW,
+    rrw: float = RRW,
+    bias0=TRUE_BIAS,
+    stars=STARS_I,
+):
     """Reference truth and sensor data of the S1 case (normals row k = z_k of the model)."""
     rng = np.random.default_rng(seed)
     t = DT * np.arange(n_steps + 1)
     q_IB = ORBIT.q_IO(t)
     w = np.tile(ORBIT.w_IO_O(), (n_steps, 1))
     z = rng.standard_normal((n_steps, normals_per_step(len(stars))))
-    return simulate_reference(q_IB, w, DT, z, FarrenkopfGyroNoise(arw, rrw, DT), model, bias0, stars,
-                              STAR_SIGMA, star_every)
+    return simulate_reference(
+        q_IB, w, DT, z, FarrenkopfGyroNoise(arw, rrw, DT), model, bias0, stars, STAR_SIGMA, star_every
+    )
 
 
 def run_filter(core, run, state):
@@ -89,8 +98,9 @@ def run_filter(core, run, state):
     j = 0
     for k in range(n):
         if j < len(run.star_steps) and run.star_steps[j] == k:
-            state, info = core.update_vectors(state, run.directions_S[j], run.references_I, run.star_sigma_rad,
-                                              run.q_BS)
+            state, info = core.update_vectors(
+                state, run.directions_S[j], run.references_I, run.star_sigma_rad, run.q_BS
+            )
             infos.append(info)
             j += 1
         q_hat, b_hat, P[k] = core.estimate(state)
@@ -133,6 +143,7 @@ def test_cubature_rule_integrates_degree_3_exactly_and_not_degree_4(n):
     xi, w = cubature_rule(n)
     assert xi.shape == (2 * n, n) and np.isclose(w.sum(), 1.0)
     from itertools import product
+
     for powers in product(range(4), repeat=n):
         if sum(powers) <= 3:
             rule = float(w @ np.prod(xi ** np.array(powers), axis=1))
@@ -156,8 +167,12 @@ def test_cubature_points_give_exact_gaussian_moments_up_to_third_order():
     np.testing.assert_allclose(X.mean(axis=0), m, atol=1e-12)
     np.testing.assert_allclose(X.T @ X / len(X), P + np.outer(m, m), atol=1e-11)
     third = np.einsum("ki,kj,kl->ijl", X, X, X) / len(X)
-    expected = (np.einsum("i,j,l->ijl", m, m, m) + np.einsum("i,jl->ijl", m, P) + np.einsum("j,il->ijl", m, P)
-                + np.einsum("l,ij->ijl", m, P))
+    expected = (
+        np.einsum("i,j,l->ijl", m, m, m)
+        + np.einsum("i,jl->ijl", m, P)
+        + np.einsum("j,il->ijl", m, P)
+        + np.einsum("l,ij->ijl", m, P)
+    )
     np.testing.assert_allclose(third, expected, atol=1e-10)
     fourth = np.mean((X[:, 0] - m[0]) ** 4)  # n P_00^2 from the rule; the truth is 3 P_00^2
     assert fourth == pytest.approx(n * P[0, 0] ** 2) and abs(fourth - 3.0 * P[0, 0] ** 2) > 0.5 * P[0, 0] ** 2
@@ -234,8 +249,9 @@ def test_reference_step_and_vectorized_run_give_the_same_numbers():
     run = simulate_reference(q_IB, w, DT, z, gyro, model, TRUE_BIAS, STARS_I, STAR_SIGMA, 10, q_BS)
     b, j = TRUE_BIAS.copy(), 0
     for k in range(n):
-        step = reference_step(q_IB[k], b, w[k], DT, z[k], gyro, model, STARS_I, STAR_SIGMA, q_BS,
-                              star_sample=(k % 10 == 0))
+        step = reference_step(
+            q_IB[k], b, w[k], DT, z[k], gyro, model, STARS_I, STAR_SIGMA, q_BS, star_sample=(k % 10 == 0)
+        )
         assert np.array_equal(step.w_meas_B, run.w_meas_B[k])
         assert step.zeta == run.zeta[k]
         if k % 10 == 0:
@@ -427,8 +443,9 @@ def test_mcns_update_stores_lemma_1_moments():
     assert 0.1 * (1 - 9 * 0.158113883**2) <= U < 0.1
     assert model.conditional_moments(info.innovation, info.innovation_covariance, STAR_SIGMA) == pytest.approx((M, U))
     # CQE (no model) keeps nothing
-    s_c, _ = CubatureQuaternionEstimator(ARW, RRW).update_vectors(mcns.initial_state(q, b, covariance0=P), y,
-                                                                   STARS_I, STAR_SIGMA)
+    s_c, _ = CubatureQuaternionEstimator(ARW, RRW).update_vectors(
+        mcns.initial_state(q, b, covariance0=P), y, STARS_I, STAR_SIGMA
+    )
     assert s_c.zeta_mean == 0.0 and s_c.zeta_var_reduction == 0.0
 
 
@@ -490,12 +507,20 @@ def test_innovation_gate_rejects_and_reports():
     assert not info.accepted and info.nis > 30.0 and new is s
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"arw_rad_per_rt_s": -1.0}, "arw"), ({"rrw_rad_per_s15": float("nan")}, "rrw"),
-    ({"grp_a": 1.5}, "grp_a"), ({"grp_f": 0.0}, "grp_f"), ({"innovation_gate_chi2": 0.0}, "innovation_gate_chi2"),
-    ({"zeta_gate_sigmas": -1.0}, "zeta_gate_sigmas"), ({"update_iterations": 0}, "update_iterations"),
-    ({"noise_model": 0.1}, "noise_model"), ({"zeta_state_correlation": 1}, "zeta_state_correlation"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"arw_rad_per_rt_s": -1.0}, "arw"),
+        ({"rrw_rad_per_s15": float("nan")}, "rrw"),
+        ({"grp_a": 1.5}, "grp_a"),
+        ({"grp_f": 0.0}, "grp_f"),
+        ({"innovation_gate_chi2": 0.0}, "innovation_gate_chi2"),
+        ({"zeta_gate_sigmas": -1.0}, "zeta_gate_sigmas"),
+        ({"update_iterations": 0}, "update_iterations"),
+        ({"noise_model": 0.1}, "noise_model"),
+        ({"zeta_state_correlation": 1}, "zeta_state_correlation"),
+    ],
+)
 def test_invalid_arguments_name_the_field(kwargs, field):
     args = {"arw_rad_per_rt_s": ARW, "rrw_rad_per_s15": RRW, **kwargs}
     with pytest.raises(ValueError, match=rf"^{field}: got "):
@@ -566,8 +591,10 @@ def paper_case():
     """Both cores on the same S1 data (paper model, seed 1), 3 orbits (17 031 s at 1 Hz)."""
     run = s1_run(1, THREE_ORBITS, PAPER_MODEL)
     out = {"run": run}
-    for name, core in (("cqe", CubatureQuaternionEstimator(ARW, RRW)),
-                       ("mcns", CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=PAPER_MODEL))):
+    for name, core in (
+        ("cqe", CubatureQuaternionEstimator(ARW, RRW)),
+        ("mcns", CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=PAPER_MODEL)),
+    ):
         t0 = time.perf_counter()
         out[name] = run_filter(core, run, paper_initial_state(core, run)) + (time.perf_counter() - t0,)
     return out
@@ -598,8 +625,10 @@ def test_both_converge_from_the_paper_initial_error(paper_case):
         att, bias, _, _, seconds = paper_case[name]
         a_deg = np.linalg.norm(att, axis=1) / DEG
         last = slice(-ORBIT_STEPS, None)
-        print(f"{name}: first error {a_deg[0]:.2e} deg, max after t=0 {a_deg[1:].max():.2e} deg; last orbit RMS "
-              f"{rms(att[last]) / DEG:.2e} deg, {rms(bias[last]) / DEG_PER_H:.2e} deg/h; {seconds:.1f} s")
+        print(
+            f"{name}: first error {a_deg[0]:.2e} deg, max after t=0 {a_deg[1:].max():.2e} deg; last orbit RMS "
+            f"{rms(att[last]) / DEG:.2e} deg, {rms(bias[last]) / DEG_PER_H:.2e} deg/h; {seconds:.1f} s"
+        )
         assert np.all(a_deg < 0.01)
         assert rms(att[last]) < 0.003 * DEG
         assert rms(bias[last]) < 0.05 * DEG_PER_H
@@ -620,9 +649,11 @@ def test_mcns_beats_cqe_on_correlated_multiplicative_noise(paper_case):
         att_nees = np.einsum("ni,ni->n", a, np.linalg.solve(Pw[:, :3, :3], a[..., None])[..., 0])
         stats[name] = (rms(a), rms(b), float(nees(a, b, Pw).mean()), float(att_nees.mean()))
     (ac, bc, nc, nac), (am, bm, nm, nam) = stats["cqe"], stats["mcns"]
-    print(f"CQE attitude {ac / DEG:.2e} deg, bias {bc / DEG_PER_H:.2e} deg/h, NEES {nc:.1f} (attitude {nac:.1f}); "
-          f"MCNS attitude {am / DEG:.2e} deg, bias {bm / DEG_PER_H:.2e} deg/h, NEES {nm:.1f} (attitude {nam:.2f}); "
-          f"ratios {am / ac:.2f}, {bm / bc:.2f}")
+    print(
+        f"CQE attitude {ac / DEG:.2e} deg, bias {bc / DEG_PER_H:.2e} deg/h, NEES {nc:.1f} (attitude {nac:.1f}); "
+        f"MCNS attitude {am / DEG:.2e} deg, bias {bm / DEG_PER_H:.2e} deg/h, NEES {nm:.1f} (attitude {nam:.2f}); "
+        f"ratios {am / ac:.2f}, {bm / bc:.2f}"
+    )
     assert am < 0.7 * ac
     assert bm < 0.5 * bc
     assert 3.0 < nm < 9.0 and abs(nam - 3.0) < 0.5
@@ -668,11 +699,14 @@ def test_patent_prediction_is_inconsistent_under_strong_correlation_and_the_corr
     run = s1_run(4, n, model, star_every=1)
     P0 = (5 * ARCSEC, 0.1 * DEG_PER_H)
     results = {}
-    for name, core in (("literal", CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=model)),
-                       ("corrected", CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=model,
-                                                                     zeta_state_correlation=True)),
-                       ("variance_only", CubatureQuaternionEstimatorMCNS(
-                           ARW, RRW, noise_model=MultiplicativeNoiseModel.make(0.1, 0.0, 0.01)))):
+    for name, core in (
+        ("literal", CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=model)),
+        ("corrected", CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=model, zeta_state_correlation=True)),
+        (
+            "variance_only",
+            CubatureQuaternionEstimatorMCNS(ARW, RRW, noise_model=MultiplicativeNoiseModel.make(0.1, 0.0, 0.01)),
+        ),
+    ):
         att, bias, P, _ = run_filter(core, run, core.initial_state(run.q_IB[0], TRUE_BIAS, *P0))
         w = slice(300, None)
         results[name] = (rms(att[w]), float(nees(att[w], bias[w], P[w]).mean()))
@@ -712,10 +746,16 @@ def test_bad_arguments_are_refused_naming_the_field_and_the_documented_defaults_
     cases = [
         (lambda: CubatureQuaternionEstimator(ARW, RRW, grp_a=1.5), "grp_a: ", "must be in [0, 1]"),
         (lambda: CubatureQuaternionEstimator(ARW, RRW, grp_a=math.nan), "grp_a: ", ""),
-        (lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3)), "covariance0: ",
-         "give covariance0 or both attitude and bias sigmas"),
-        (lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), 1e-3, -1e-6), "sigmas: ",
-         "must be finite and > 0"),
+        (
+            lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3)),
+            "covariance0: ",
+            "give covariance0 or both attitude and bias sigmas",
+        ),
+        (
+            lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), 1e-3, -1e-6),
+            "sigmas: ",
+            "must be finite and > 0",
+        ),
         (lambda: core.initial_state([1.0, 0.0, 0.0, 0.0], np.zeros(3), covariance0=-np.eye(6)), "covariance0", ""),
     ]
     for call, field, rule in cases:
@@ -758,8 +798,9 @@ def test_increment_matrix_is_the_cqe_mcns_coefficient_on_the_attitude_rows():
     for a, f in ((1.0, 4.0), (0.0, 1.0), (0.5, 3.0)):
         core = CubatureQuaternionEstimatorMCNS(ARW, RRW, a, f, noise_model=model)
         Phi = model.increment_matrix(a, f)
-        np.testing.assert_allclose(Phi, np.vstack([core.c * model.scale_per_zeta * np.eye(3), np.zeros((3, 3))]),
-                                   rtol=1e-15)
+        np.testing.assert_allclose(
+            Phi, np.vstack([core.c * model.scale_per_zeta * np.eye(3), np.zeros((3, 3))]), rtol=1e-15
+        )
 
 
 def test_multiplicative_noise_inputs_are_refused_naming_the_field_and_what_is_allowed():
@@ -771,14 +812,57 @@ def test_multiplicative_noise_inputs_are_refused_naming_the_field_and_what_is_al
         (lambda: normals_per_step(-1), "num_stars: "),
         (lambda: MultiplicativeNoiseModel.make(correlation=1.0), "correlation: ", "must be in (-1, 1)"),
         (lambda: model.joint_covariance(STAR_SIGMA, 4), "num_stars: ", "needs 3 m rho^2 < 1", "m <= 3"),
-        (lambda: reference_step(q0, np.zeros(3), np.zeros(3), DT, np.zeros(12), gyro, model, refs, STAR_SIGMA),
-         "z: ", "must have shape (13,) for m = 2 stars"),
-        (lambda: simulate_reference(np.tile(q0, (3, 1)), np.zeros((2, 3)), DT, np.zeros((2, 12)), gyro, model,
-                                    np.zeros(3), refs, STAR_SIGMA, 1), "normals: "),
-        (lambda: simulate_reference(np.tile(q0, (3, 1)), np.zeros((2, 3)), 2.0, np.zeros((2, 13)), gyro, model,
-                                    np.zeros(3), refs, STAR_SIGMA, 1), "dt: ", "must equal gyro_noise.interval_s = 1.0"),
-        (lambda: simulate_reference(np.tile(q0, (3, 1)), np.zeros((2, 3)), 1.0 + 1e-9, np.zeros((2, 13)), gyro, model,
-                                    np.zeros(3), refs, STAR_SIGMA, 1), "dt: "),
+        (
+            lambda: reference_step(q0, np.zeros(3), np.zeros(3), DT, np.zeros(12), gyro, model, refs, STAR_SIGMA),
+            "z: ",
+            "must have shape (13,) for m = 2 stars",
+        ),
+        (
+            lambda: simulate_reference(
+                np.tile(q0, (3, 1)),
+                np.zeros((2, 3)),
+                DT,
+                np.zeros((2, 12)),
+                gyro,
+                model,
+                np.zeros(3),
+                refs,
+                STAR_SIGMA,
+                1,
+            ),
+            "normals: ",
+        ),
+        (
+            lambda: simulate_reference(
+                np.tile(q0, (3, 1)),
+                np.zeros((2, 3)),
+                2.0,
+                np.zeros((2, 13)),
+                gyro,
+                model,
+                np.zeros(3),
+                refs,
+                STAR_SIGMA,
+                1,
+            ),
+            "dt: ",
+            "must equal gyro_noise.interval_s = 1.0",
+        ),
+        (
+            lambda: simulate_reference(
+                np.tile(q0, (3, 1)),
+                np.zeros((2, 3)),
+                1.0 + 1e-9,
+                np.zeros((2, 13)),
+                gyro,
+                model,
+                np.zeros(3),
+                refs,
+                STAR_SIGMA,
+                1,
+            ),
+            "dt: ",
+        ),
     ]
     for call, field, *rules in cases:
         with pytest.raises(ValueError) as e:

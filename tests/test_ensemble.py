@@ -39,17 +39,29 @@ def _record(seed, t, dtheta, nees, dof=6, conv=np.nan, score_from_s=0.0, name="f
     p = f"{name}__"
     fin = np.isfinite(nees[m])
     return {
-        "schema": np.array(ens.RECORD_SCHEMA), "scenario": np.array("synthetic"), "seed": np.array(seed),
-        "duration_s": np.array(float(t[-1])), "score_from_s": np.array(score_from_s),
-        "convergence_threshold_deg": np.array(0.05), "estimators": np.array([name]),
+        "schema": np.array(ens.RECORD_SCHEMA),
+        "scenario": np.array("synthetic"),
+        "seed": np.array(seed),
+        "duration_s": np.array(float(t[-1])),
+        "score_from_s": np.array(score_from_s),
+        "convergence_threshold_deg": np.array(0.05),
+        "estimators": np.array([name]),
         "metrics_json": np.array("{}"),
-        p + "t": t, p + "dtheta": dtheta.astype(np.float32), p + "second_kind": np.array("gyro_bias"),
-        p + "sigma": np.ones((len(t), 6), np.float32), p + "nees": nees.astype(np.float32),
-        p + "nees_dof": np.array(dof), p + "window_n": np.array(int(m.sum())),
-        p + "window_ms": np.mean(dtheta[m] ** 2, axis=0), p + "window_ms_second": np.full(3, np.nan),
-        p + "window_nees_sum": np.array(float(nees[m][fin].sum())), p + "window_nees_n": np.array(int(fin.sum())),
-        p + "convergence_time_s": np.array(float(conv)), p + "inputs": np.array([], dtype=str),
-        p + "nis_source": np.array("none"), p + "bound_json": np.array(json.dumps({"reason": "synthetic"})),
+        p + "t": t,
+        p + "dtheta": dtheta.astype(np.float32),
+        p + "second_kind": np.array("gyro_bias"),
+        p + "sigma": np.ones((len(t), 6), np.float32),
+        p + "nees": nees.astype(np.float32),
+        p + "nees_dof": np.array(dof),
+        p + "window_n": np.array(int(m.sum())),
+        p + "window_ms": np.mean(dtheta[m] ** 2, axis=0),
+        p + "window_ms_second": np.full(3, np.nan),
+        p + "window_nees_sum": np.array(float(nees[m][fin].sum())),
+        p + "window_nees_n": np.array(int(fin.sum())),
+        p + "convergence_time_s": np.array(float(conv)),
+        p + "inputs": np.array([], dtype=str),
+        p + "nis_source": np.array("none"),
+        p + "bound_json": np.array(json.dumps({"reason": "synthetic"})),
     }
 
 
@@ -82,14 +94,34 @@ def test_summary_rmse_and_ci_come_from_the_per_run_mean_squares():
 
 
 # scipy.stats.chi2.ppf / t.ppf (scipy 1.17), not imported here: it takes seconds to import.
-CHI2_PPF = {(0.025, 1): 0.0009820691171752555, (0.025, 3): 0.21579528262389785, (0.025, 6): 1.2373442457912027,
-            (0.025, 600): 534.0185504659327, (0.025, 5000): 4805.904730862248, (0.025, 600000): 597854.8619608814,
-            (0.5, 1): 0.454936423119572, (0.5, 3): 2.3659738843753377, (0.5, 6): 5.348120627447118,
-            (0.5, 600): 599.3334651808785, (0.5, 5000): 4999.33334913811, (0.5, 600000): 599999.333333465,
-            (0.975, 1): 5.023886187314888, (0.975, 3): 9.348403604496148, (0.975, 6): 14.44937533544792,
-            (0.975, 600): 669.7691522164112, (0.975, 5000): 5197.883771923797, (0.975, 600000): 602148.9266499715}
-T_PPF_975 = {1: 12.706204736174694, 2: 4.302652729749462, 3: 3.1824463052837078, 6: 2.4469118511449786,
-             19: 2.0930240544083087, 99: 1.9842169515864174}
+CHI2_PPF = {
+    (0.025, 1): 0.0009820691171752555,
+    (0.025, 3): 0.21579528262389785,
+    (0.025, 6): 1.2373442457912027,
+    (0.025, 600): 534.0185504659327,
+    (0.025, 5000): 4805.904730862248,
+    (0.025, 600000): 597854.8619608814,
+    (0.5, 1): 0.454936423119572,
+    (0.5, 3): 2.3659738843753377,
+    (0.5, 6): 5.348120627447118,
+    (0.5, 600): 599.3334651808785,
+    (0.5, 5000): 4999.33334913811,
+    (0.5, 600000): 599999.333333465,
+    (0.975, 1): 5.023886187314888,
+    (0.975, 3): 9.348403604496148,
+    (0.975, 6): 14.44937533544792,
+    (0.975, 600): 669.7691522164112,
+    (0.975, 5000): 5197.883771923797,
+    (0.975, 600000): 602148.9266499715,
+}
+T_PPF_975 = {
+    1: 12.706204736174694,
+    2: 4.302652729749462,
+    3: 3.1824463052837078,
+    6: 2.4469118511449786,
+    19: 2.0930240544083087,
+    99: 1.9842169515864174,
+}
 
 
 def test_quantile_helpers():
@@ -135,8 +167,9 @@ def test_window_anees_band_coverage_and_power():
     assert inside_instant == trials
     assert 2.5 < tau < 7  # AR(1) 0.8, squared: (1 + 0.64) / (1 - 0.64) = 4.6
     t = np.arange(float(n))
-    out = ens.summarize([_record(s, t, 1e-4 * e[s, :3].T, nees[s]) for s in range(n_runs)],
-                        _Scenario())["estimators"]["f"]
+    out = ens.summarize([_record(s, t, 1e-4 * e[s, :3].T, nees[s]) for s in range(n_runs)], _Scenario())["estimators"][
+        "f"
+    ]
     assert out["nees_correlation_time_samples"] == pytest.approx(tau, rel=1e-6)
     assert out["anees"] == pytest.approx(a, rel=1e-6)
     assert out["anees_window_band_95"] == pytest.approx([lo, hi], rel=1e-6)
@@ -155,10 +188,16 @@ def test_convergence_and_worst_runs():
     assert c["time_s_by_seed"] == {"3": 2.0, "4": None, "5": 10.0, "6": None, "7": 0.0}
     assert [w["seed"] for w in out["worst_runs"]] == [4, 6, 5]
     assert out["worst_runs"][0]["command"] == "drake-att run cubesat_single_star_tracker --seed 4"
-    sets = ens.summarize(records, _Scenario("x"), worst=1, scenario_arg="my dir/s.yaml",
-                         overrides=["duration_s=600", "estimators.f.initial_attitude_sigma_deg=1"])
+    sets = ens.summarize(
+        records,
+        _Scenario("x"),
+        worst=1,
+        scenario_arg="my dir/s.yaml",
+        overrides=["duration_s=600", "estimators.f.initial_attitude_sigma_deg=1"],
+    )
     assert sets["estimators"]["f"]["worst_runs"][0]["command"] == (
-        "drake-att run 'my dir/s.yaml' --seed 4 --set duration_s=600 --set estimators.f.initial_attitude_sigma_deg=1")
+        "drake-att run 'my dir/s.yaml' --seed 4 --set duration_s=600 --set estimators.f.initial_attitude_sigma_deg=1"
+    )
     assert out["worst_runs"][0]["attitude_rmse_total_deg"] == pytest.approx(np.sqrt(3) * 4e-4 / DEG, rel=1e-6)
 
 
@@ -181,8 +220,20 @@ def test_real_record_round_trip_and_summary(tmp_path):
     run = sd.simulate(3, overrides=overrides)
     rec = ens.per_run_record(run)
     assert all(isinstance(v, np.ndarray) and v.dtype != object for v in rec.values())
-    for key in ("t", "dtheta", "second_err", "sigma", "nees", "window_ms", "bound_sigma", "bound_window_var",
-                "convergence_time_s", "nis0__t", "nis0__value", "nis0__dof"):
+    for key in (
+        "t",
+        "dtheta",
+        "second_err",
+        "sigma",
+        "nees",
+        "window_ms",
+        "bound_sigma",
+        "bound_window_var",
+        "convergence_time_s",
+        "nis0__t",
+        "nis0__value",
+        "nis0__dof",
+    ):
         assert f"single__{key}" in rec, key
     assert rec["single__dtheta"].dtype == np.float32 and rec["single__t"].dtype == np.float64
     assert json.loads(str(rec["metrics_json"])) == json.loads(json.dumps(strict_json(compute_metrics(run))))

@@ -102,8 +102,9 @@ def ar1(rng, shape, phi):
 # Synthetic records (the record format of ensemble.py's module docstring)
 # ---------------------------------------------------------------------------------------------
 def _scenario(score_from_s):
-    return SimpleNamespace(name="synthetic",
-                           scoring=SimpleNamespace(score_from_s=score_from_s, convergence_threshold_deg=0.05))
+    return SimpleNamespace(
+        name="synthetic", scoring=SimpleNamespace(score_from_s=score_from_s, convergence_threshold_deg=0.05)
+    )
 
 
 def _record(seed, score_from_s, estimators):
@@ -111,10 +112,16 @@ def _record(seed, score_from_s, estimators):
     and optionally ``"second_err"`` (n, 3), ``"kind"``, ``"inputs"`` (names) with ``"nis"``
     (per input ``(t, value, dof)`` arrays, or None: no keys for that input in this run).
     The window fields follow the definition (:func:`in_window`)."""
-    rec = {"schema": np.array(ens.RECORD_SCHEMA), "scenario": np.array("synthetic"), "seed": np.array(seed),
-           "duration_s": np.array(100.0), "score_from_s": np.array(float(score_from_s)),
-           "convergence_threshold_deg": np.array(0.05), "estimators": np.array(list(estimators), dtype=str),
-           "metrics_json": np.array("{}")}
+    rec = {
+        "schema": np.array(ens.RECORD_SCHEMA),
+        "scenario": np.array("synthetic"),
+        "seed": np.array(seed),
+        "duration_s": np.array(100.0),
+        "score_from_s": np.array(float(score_from_s)),
+        "convergence_threshold_deg": np.array(0.05),
+        "estimators": np.array(list(estimators), dtype=str),
+        "metrics_json": np.array("{}"),
+    }
     for name, e in estimators.items():
         p = f"{name}__"
         t = np.asarray(e["t"], dtype=float)
@@ -122,17 +129,25 @@ def _record(seed, score_from_s, estimators):
         d = np.asarray(e["dtheta"], dtype=float)
         nees = np.asarray(e["nees"], dtype=np.float32)
         s2 = e.get("second_err")
-        rec.update({
-            p + "t": t, p + "dtheta": d.astype(np.float32), p + "second_kind": np.array(e.get("kind", "gyro_bias")),
-            p + "sigma": np.ones((len(t), 6), np.float32), p + "nees": nees, p + "nees_dof": np.array(int(e["dof"])),
-            p + "window_n": np.array(int(m.sum())), p + "window_ms": np.mean(d[m] ** 2, axis=0),
-            p + "window_ms_second": np.full(3, np.nan) if s2 is None else np.mean(np.asarray(s2)[m] ** 2, axis=0),
-            p + "window_nees_sum": np.array(float(np.sum(nees[m].astype(float)))),
-            p + "window_nees_n": np.array(int(m.sum())), p + "convergence_time_s": np.array(np.nan),
-            p + "inputs": np.array(e.get("inputs", []), dtype=str),
-            p + "nis_source": np.array("innovations" if e.get("inputs") else "none"),
-            p + "bound_json": np.array(json.dumps({"reason": "synthetic"})),
-        })
+        rec.update(
+            {
+                p + "t": t,
+                p + "dtheta": d.astype(np.float32),
+                p + "second_kind": np.array(e.get("kind", "gyro_bias")),
+                p + "sigma": np.ones((len(t), 6), np.float32),
+                p + "nees": nees,
+                p + "nees_dof": np.array(int(e["dof"])),
+                p + "window_n": np.array(int(m.sum())),
+                p + "window_ms": np.mean(d[m] ** 2, axis=0),
+                p + "window_ms_second": np.full(3, np.nan) if s2 is None else np.mean(np.asarray(s2)[m] ** 2, axis=0),
+                p + "window_nees_sum": np.array(float(np.sum(nees[m].astype(float)))),
+                p + "window_nees_n": np.array(int(m.sum())),
+                p + "convergence_time_s": np.array(np.nan),
+                p + "inputs": np.array(e.get("inputs", []), dtype=str),
+                p + "nis_source": np.array("innovations" if e.get("inputs") else "none"),
+                p + "bound_json": np.array(json.dumps({"reason": "synthetic"})),
+            }
+        )
         if s2 is not None:
             rec[p + "second_err"] = np.asarray(s2, dtype=np.float32)
         for i, nis in enumerate(e.get("nis", [])):
@@ -144,8 +159,12 @@ def _record(seed, score_from_s, estimators):
 
 
 # 100 samples at t = 0, 1, ..., 99 s
-WINDOW_STARTS = {"between samples": 30.5, "on a sample": 30.0, "four samples": 96.0,
-                 "just before the last sample": 99.0 - 1e-3}
+WINDOW_STARTS = {
+    "between samples": 30.5,
+    "on a sample": 30.0,
+    "four samples": 96.0,
+    "just before the last sample": 99.0 - 1e-3,
+}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -216,21 +235,31 @@ def test_nis_bands_of_inputs_of_mixed_dimension(start):
     records = []
     N = 5
     for seed in range(N):
-        times = {"st_q": np.sort(np.r_[np.arange(0.25, 100.0, 0.5), edge]),
-                 "cam": np.arange(0.1, 100.0, 1.0), "st_v": np.arange(0.1, 100.0, 0.7)}
+        times = {
+            "st_q": np.sort(np.r_[np.arange(0.25, 100.0, 0.5), edge]),
+            "cam": np.arange(0.1, 100.0, 1.0),
+            "st_v": np.arange(0.1, 100.0, 0.7),
+        }
         nis = []
         for name in inputs:
             tn = times[name]
-            d = {"st_q": np.full(len(tn), 3), "cam": np.full(len(tn), 2),
-                 "st_v": rng.choice([6, 9], len(tn))}[name]
+            d = {"st_q": np.full(len(tn), 3), "cam": np.full(len(tn), 2), "st_v": rng.choice([6, 9], len(tn))}[name]
             v = rng.chisquare(d)
             if name == "cam" and seed == N - 1:
                 nis.append(None)
                 continue
             nis.append((tn, v, d))
             attempts[name].append((tn, v, d))
-        ests = {"f": {"t": t, "dtheta": 1e-4 * rng.standard_normal((100, 3)), "nees": rng.chisquare(6, 100),
-                      "dof": 6, "inputs": inputs, "nis": nis}}
+        ests = {
+            "f": {
+                "t": t,
+                "dtheta": 1e-4 * rng.standard_normal((100, 3)),
+                "nees": rng.chisquare(6, 100),
+                "dof": 6,
+                "inputs": inputs,
+                "nis": nis,
+            }
+        }
         records.append(_record(seed, s, ests))
     out = ens.summarize(records, _scenario(s))["estimators"]["f"]["nis"]
     assert list(out) == inputs
@@ -287,34 +316,61 @@ def _fake_run(scenario, seed, t_est):
     logt = np.arange(n + 1.0)
     status = np.c_[np.r_[0.0, t_est], np.arange(n + 1.0), np.zeros(n + 1), np.r_[np.nan, nis0]]
     k1 = 2 * (np.arange(n) // 2)  # input 1 updates at every other estimate (repeated in between)
-    innov = np.c_[np.r_[-np.inf, t_est], np.r_[np.nan, nis0], np.r_[0.0, np.full(n, 3.0)],
-                  np.r_[-np.inf, t_est[k1]], np.r_[np.nan, nis1[k1]], np.r_[0.0, np.full(n, 2.0)]]
+    innov = np.c_[
+        np.r_[-np.inf, t_est],
+        np.r_[np.nan, nis0],
+        np.r_[0.0, np.full(n, 3.0)],
+        np.r_[-np.inf, t_est[k1]],
+        np.r_[np.nan, nis1[k1]],
+        np.r_[0.0, np.full(n, 2.0)],
+    ]
     t_st = np.arange(0.0, 40.0 + 1e-9, 0.5)
     signals = {
         "plant/q_IB": (t_truth, _quat_wxyz(truth)),
         "plant/w_IB_B": (t_truth, np.tile(w, (len(t_truth), 1))),
         "gyro/gyro_measurement": (grid, np.c_[grid, np.ones(len(grid)), np.tile(w, (len(grid), 1))]),
         "gyro/bias_B": (t_truth, bias),
-        "st1/star_tracker_measurement": (t_st, np.c_[t_st, np.ones(len(t_st)), np.tile([1.0, 0, 0, 0],
-                                                                                        (len(t_st), 1))]),
+        "st1/star_tracker_measurement": (
+            t_st,
+            np.c_[t_st, np.ones(len(t_st)), np.tile([1.0, 0, 0, 0], (len(t_st), 1))],
+        ),
         "single/q_IB_hat": (logt, np.r_[[[1.0, 0, 0, 0]], q_hat]),
         "single/bias_B_hat": (logt, np.r_[[[0.0, 0, 0]], b_hat]),
         "single/covariance": (logt, np.r_[np.eye(6).reshape(1, 36), P.reshape(n, 36)]),
         "single/status": (logt, status),
         "single/innovations": (logt, innov),
     }
-    meta = {"schema": RunLog.METADATA_SCHEMA, "scenario": scenario.name, "seed": seed, "wall_time_s": 0.0,
-            "signals": list(signals), "truth": {"attitude": "plant/q_IB", "rate": "plant/w_IB_B"},
-            "estimators": {"single": {
-                "second_kind": "gyro_bias", "true_bias": "gyro/bias_B", "inputs": ["st1", "cam"],
-                "signals": {"attitude": "single/q_IB_hat", "second": "single/bias_B_hat",
-                            "covariance": "single/covariance", "status": "single/status",
-                            "innovations": "single/innovations"}}}}
+    meta = {
+        "schema": RunLog.METADATA_SCHEMA,
+        "scenario": scenario.name,
+        "seed": seed,
+        "wall_time_s": 0.0,
+        "signals": list(signals),
+        "truth": {"attitude": "plant/q_IB", "rate": "plant/w_IB_B"},
+        "estimators": {
+            "single": {
+                "second_kind": "gyro_bias",
+                "true_bias": "gyro/bias_B",
+                "inputs": ["st1", "cam"],
+                "signals": {
+                    "attitude": "single/q_IB_hat",
+                    "second": "single/bias_B_hat",
+                    "covariance": "single/covariance",
+                    "status": "single/status",
+                    "innovations": "single/innovations",
+                },
+            }
+        },
+    }
     RunLog.check_metadata(meta)
     run = RunLog(scenario=scenario, seed=seed, wall_time_s=0.0, signals=signals, metadata=meta)
     updates1 = k1[::2]  # input 1's distinct update attempts
-    known = {"dtheta": dtheta, "second_err": second_err, "nees": nees,
-             "nis": [(t_est, nis0), (t_est[updates1], nis1[updates1])]}
+    known = {
+        "dtheta": dtheta,
+        "second_err": second_err,
+        "nees": nees,
+        "nis": [(t_est, nis0), (t_est[updates1], nis1[updates1])],
+    }
     return run, known
 
 
@@ -351,9 +407,15 @@ def test_scoring_window_is_one_set_of_samples_everywhere(case):
     t_est = np.arange(41.0)
     t_est[10] = t10
     W = in_window(t_est, s)
-    expect_n = {"on a sample": 31, "inside the tolerance": 31, "at the tolerance's edge": 31,
-                "just beyond the tolerance": 30, "between samples": 30, "just before the last sample": 1,
-                "from the start": 41}[case]
+    expect_n = {
+        "on a sample": 31,
+        "inside the tolerance": 31,
+        "at the tolerance's edge": 31,
+        "just beyond the tolerance": 30,
+        "between samples": 30,
+        "just before the last sample": 1,
+        "from the start": 41,
+    }[case]
     assert W.sum() == expect_n  # the definition, spelled out
     records, knowns = [], []
     for seed in (1, 2, 3):
@@ -473,10 +535,23 @@ def test_rmse_confidence_intervals_from_the_definition():
             att.append(np.mean(d[20:] ** 2, axis=0))
             sec.append(np.mean(b[20:] ** 2, axis=0))
             rate.append(np.mean(r[20:] ** 2, axis=0))
-            records.append(_record(k, 20.0, {
-                "bias": {"t": t, "dtheta": d, "nees": np.full(50, 6.0), "dof": 6, "second_err": b},
-                "rate": {"t": t, "dtheta": d, "nees": np.full(50, 6.0), "dof": 6, "second_err": r,
-                         "kind": "body_rate"}}))
+            records.append(
+                _record(
+                    k,
+                    20.0,
+                    {
+                        "bias": {"t": t, "dtheta": d, "nees": np.full(50, 6.0), "dof": 6, "second_err": b},
+                        "rate": {
+                            "t": t,
+                            "dtheta": d,
+                            "nees": np.full(50, 6.0),
+                            "dof": 6,
+                            "second_err": r,
+                            "kind": "body_rate",
+                        },
+                    },
+                )
+            )
         out = ens.summarize(records, _scenario(20.0))["estimators"]
         t_rtol = 1e-5 if N == 12 else 1e-9  # ensemble.t_q vs scipy: 2.2e-6 at 11 dof, exact at 2
         att, sec, rate = np.array(att), np.array(sec), np.array(rate)
@@ -521,9 +596,13 @@ def test_rmse_confidence_interval_covers_the_true_rms_95_percent(n_runs):
             b = sig_b * rng.standard_normal((n, 3))
             records.append(_record(k, 0.0, {"f": {"t": t, "dtheta": d, "nees": flat, "dof": 6, "second_err": b}}))
         o = ens.summarize(records, _scenario(0.0), max_history_points=2)["estimators"]["f"]
-        for j, (ci, truth) in enumerate(((o["attitude_rmse_ci95_deg"][0], sig[0] / DEG),
-                                         (o["attitude_rmse_total_ci95_deg"], np.linalg.norm(sig) / DEG),
-                                         (o["bias_rmse_ci95_deg_per_h"][0], sig_b / DEG_PER_H))):
+        for j, (ci, truth) in enumerate(
+            (
+                (o["attitude_rmse_ci95_deg"][0], sig[0] / DEG),
+                (o["attitude_rmse_total_ci95_deg"], np.linalg.norm(sig) / DEG),
+                (o["bias_rmse_ci95_deg_per_h"][0], sig_b / DEG_PER_H),
+            )
+        ):
             hits[j] += ci[0] <= truth <= ci[1]
     coverage = hits / draws
     band = 4 * np.sqrt(0.95 * 0.05 / draws)
@@ -627,15 +706,17 @@ def test_bound_of_an_off_axis_tracker_is_the_brute_force_information(rate_deg_pe
         "gyro/gyro_measurement": (grid, np.c_[grid, np.ones(13), np.tile(w, (13, 1))]),
         "st1/star_tracker_measurement": (t_st, np.c_[t_st, valid_st.astype(float), _quat_wxyz(meas)]),
     }
-    run = RunLog(scenario=scenario, seed=1, wall_time_s=0.0, signals=signals,
-                 metadata={"truth": {"attitude": "plant/q_IB"}})
+    run = RunLog(
+        scenario=scenario, seed=1, wall_time_s=0.0, signals=signals, metadata={"truth": {"attitude": "plant/q_IB"}}
+    )
     result = bd.run_bound(run, "single")
     np.testing.assert_allclose(result.t, grid)
     brute = _brute_force_bound(R0, w, R_BS, sigmas_S, P0, grid, valid_st[::2])
     for k in range(len(grid)):
         d = np.sqrt(np.diag(brute[k]))
-        np.testing.assert_allclose(result.P[k] / np.outer(d, d), brute[k] / np.outer(d, d), atol=1e-6,
-                                   err_msg=f"t = {grid[k]} s")
+        np.testing.assert_allclose(
+            result.P[k] / np.outer(d, d), brute[k] / np.outer(d, d), atol=1e-6, err_msg=f"t = {grid[k]} s"
+        )
     counts = result.info["tracker_samples"]["st1"]
     assert counts == {"samples_used": 12, "samples_between_gyro_samples": 11, "samples_invalid": 2}
 
@@ -685,8 +766,7 @@ def test_an_input_never_updated_has_empty_nis_arrays_and_no_summary_entry():
         run, known = _fake_run(scenario, seed, t_est)
         innov = run.values("single/innovations").copy()
         innov[:, 3], innov[:, 4], innov[:, 5] = -np.inf, np.nan, 0.0
-        rec = ens.per_run_record(_relog(run, signals={"single/innovations": (run.times("single/innovations"),
-                                                                               innov)}))
+        rec = ens.per_run_record(_relog(run, signals={"single/innovations": (run.times("single/innovations"), innov)}))
         assert str(rec["single__nis_source"]) == "innovations"
         assert [str(x) for x in rec["single__inputs"]] == ["st1", "cam"]
         for part, dtype in (("t", np.float64), ("value", np.float64), ("dof", np.int32)):
@@ -718,8 +798,9 @@ def test_status_fallback_takes_the_nis_only_where_the_used_count_rose():
         status = run.values("single/status").copy()
         status[1:, 1] = k // 2 + 1  # 1, 1, 2, 2, ...: an update at every even estimate
         status[1:, 3] = nis[k - k % 2]  # held between updates
-        rec = ens.per_run_record(_relog(run, signals={"single/status": (run.times("single/status"), status)},
-                                        roles={"innovations": None}))
+        rec = ens.per_run_record(
+            _relog(run, signals={"single/status": (run.times("single/status"), status)}, roles={"innovations": None})
+        )
         assert str(rec["single__nis_source"]) == "status"
         assert [str(x) for x in rec["single__inputs"]] == ["st1"]
         np.testing.assert_array_equal(rec["single__nis0__t"], t_est[::2])
@@ -741,8 +822,9 @@ def test_two_input_estimator_without_innovations_log_has_nis_source_none():
     scenario = _scenario_40s("cubesat_dual_star_tracker")
     run, _ = _fake_run(scenario, 1, np.arange(41.0))
     st = run.signals["st1/star_tracker_measurement"]
-    rec = ens.per_run_record(_relog(run, name="joint", signals={"st2/star_tracker_measurement": st},
-                                    roles={"innovations": None}))
+    rec = ens.per_run_record(
+        _relog(run, name="joint", signals={"st2/star_tracker_measurement": st}, roles={"innovations": None})
+    )
     assert str(rec["joint__nis_source"]) == "none"
     assert [str(x) for x in rec["joint__inputs"]] == ["st1", "st2"]
     assert not [k for k in rec if k.startswith("joint__nis") and k != "joint__nis_source"]
@@ -766,8 +848,12 @@ def test_record_and_summary_name_the_second_quantity_and_its_bound(kind):
             rate_err = 1e-4 * np.random.default_rng(seed).standard_normal((len(t_est), 3))
             w = run.values("plant/w_IB_B")[0]
             w_hat = np.r_[[w], w - rate_err]  # row 0: the initial estimate
-            run = _relog(run, signals={"single/w_B_hat": (run.times("single/status"), w_hat)},
-                         roles={"second": "single/w_B_hat"}, second_kind="body_rate")
+            run = _relog(
+                run,
+                signals={"single/w_B_hat": (run.times("single/status"), w_hat)},
+                roles={"second": "single/w_B_hat"},
+                second_kind="body_rate",
+            )
             err = rate_err
         else:
             err = known["second_err"]
@@ -835,8 +921,11 @@ def test_summary_bound_block_from_the_records_bound_variances():
         var = np.mean(sigma[W].astype(float) ** 2, axis=0)
         ps = float(rng.uniform(0.0, 0.1))
         rec["f__bound_sigma"], rec["f__bound_window_var"] = sigma, var
-        rec["f__bound_json"] = np.array(json.dumps({"gyro": "gyro", "trackers": ["st1"], "seed_note": seed,
-                                                    "reason": None, "prior_sensitivity": ps}))
+        rec["f__bound_json"] = np.array(
+            json.dumps(
+                {"gyro": "gyro", "trackers": ["st1"], "seed_note": seed, "reason": None, "prior_sensitivity": ps}
+            )
+        )
         records.append(rec)
         ms.append(np.mean(d[W] ** 2, axis=0))
         ms2.append(np.mean(b[W] ** 2, axis=0))
@@ -863,5 +952,6 @@ def test_summary_bound_block_from_the_records_bound_variances():
     assert bound["info"] == {"gyro": "gyro", "trackers": ["st1"], "seed_note": 0}
     hist = out["history"]
     np.testing.assert_allclose(hist["t"], t)
-    np.testing.assert_allclose(hist["bound_attitude_sigma_deg"], np.sqrt(np.mean(bs[:, :, :3] ** 2, axis=0)) / DEG,
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        hist["bound_attitude_sigma_deg"], np.sqrt(np.mean(bs[:, :, :3] ** 2, axis=0)) / DEG, rtol=1e-12
+    )

@@ -19,16 +19,19 @@ from drake_att.systems.randomness import SEED_WORDS
 NAN, INF = math.nan, math.inf
 
 
-@pytest.mark.parametrize("valid, rate, usable", [
-    (1.0, (0.1, -0.2, 0.3), True),
-    (0.5, (0.0, 0.0, 0.0), False),  # a flag is true only above 0.5
-    (0.5000001, (0.0, 0.0, 0.0), True),
-    (NAN, (0.0, 0.0, 0.0), False),
-    (INF, (0.0, 0.0, 0.0), False),
-    (1.0, (NAN, 0.0, 0.0), False),
-    (1.0, (0.0, INF, 0.0), False),
-    (1.0, (0.0, 0.0, -INF), False),
-])
+@pytest.mark.parametrize(
+    "valid, rate, usable",
+    [
+        (1.0, (0.1, -0.2, 0.3), True),
+        (0.5, (0.0, 0.0, 0.0), False),  # a flag is true only above 0.5
+        (0.5000001, (0.0, 0.0, 0.0), True),
+        (NAN, (0.0, 0.0, 0.0), False),
+        (INF, (0.0, 0.0, 0.0), False),
+        (1.0, (NAN, 0.0, 0.0), False),
+        (1.0, (0.0, INF, 0.0), False),
+        (1.0, (0.0, 0.0, -INF), False),
+    ],
+)
 def test_rate_usable(valid, rate, usable):
     assert rules.rate_usable(valid, *rate) is usable
 
@@ -60,24 +63,40 @@ def test_the_runner_uses_the_contracts_time_tolerance():
     assert rules.TIME_TOLERANCE_S == TIME_TOLERANCE_S == 1e-6
 
 
-@pytest.mark.parametrize("flag, n_subsets, slot", [
-    (1.0, 0, 0), (3.0, 0, 0), (NAN, 0, 0),  # no flag-dependent covariances: always the sensor's own
-    (1.0, 4, 0), (1.5, 4, 0),  # flag <= 1.5: all inputs formed the sample
-    (2.0, 4, 1), (3.0, 4, 2), (4.0, 4, 3), (2.4, 4, 1),  # flag 1 + mask, rounded
-    (5.0, 4, -1), (9.0, 4, -1),  # a mask beyond the table
-    (2.0, 1, -1),  # a table of one entry (mask 0 only) has no subset 1
-    (NAN, 4, 0),  # NaN > 1.5 is false: the own covariance (the flag itself is invalid anyway)
-    (INF, 4, -1),
-])
+@pytest.mark.parametrize(
+    "flag, n_subsets, slot",
+    [
+        (1.0, 0, 0),
+        (3.0, 0, 0),
+        (NAN, 0, 0),  # no flag-dependent covariances: always the sensor's own
+        (1.0, 4, 0),
+        (1.5, 4, 0),  # flag <= 1.5: all inputs formed the sample
+        (2.0, 4, 1),
+        (3.0, 4, 2),
+        (4.0, 4, 3),
+        (2.4, 4, 1),  # flag 1 + mask, rounded
+        (5.0, 4, -1),
+        (9.0, 4, -1),  # a mask beyond the table
+        (2.0, 1, -1),  # a table of one entry (mask 0 only) has no subset 1
+        (NAN, 4, 0),  # NaN > 1.5 is false: the own covariance (the flag itself is invalid anyway)
+        (INF, 4, -1),
+    ],
+)
 def test_covariance_slot(flag, n_subsets, slot):
     assert rules.covariance_slot(flag, n_subsets) == slot
 
 
-@pytest.mark.parametrize("accepted, nis, counts", [
-    (False, 30.0, True), (False, 0.0, True), (False, INF, True),  # the gate's rejection (a NIS)
-    (False, NAN, False),  # no NIS: a singular innovation covariance, not the gate
-    (True, 3.0, False), (True, NAN, False),
-])
+@pytest.mark.parametrize(
+    "accepted, nis, counts",
+    [
+        (False, 30.0, True),
+        (False, 0.0, True),
+        (False, INF, True),  # the gate's rejection (a NIS)
+        (False, NAN, False),  # no NIS: a singular innovation covariance, not the gate
+        (True, 3.0, False),
+        (True, NAN, False),
+    ],
+)
 def test_is_gate_rejection(accepted, nis, counts):
     assert rules.is_gate_rejection(accepted, nis) is counts
 
@@ -87,13 +106,17 @@ def test_bookkeeping_layout_and_initial_values(n_inputs, particles):
     b = Bookkeeping(n_inputs)
     last = 8 + SEED_WORDS
     assert (b.T_LAST, b.W_LAST, b.STEP, b.SEED) == (0, slice(1, 4), 4, slice(5, 5 + SEED_WORDS))
-    assert (b.N_RESAMPLES, b.ESS, b.N_DEGENERATE, b.LAST_SAMPLE) == (5 + SEED_WORDS, 6 + SEED_WORDS, 7 + SEED_WORDS,
-                                                                     last)
+    assert (b.N_RESAMPLES, b.ESS, b.N_DEGENERATE, b.LAST_SAMPLE) == (
+        5 + SEED_WORDS,
+        6 + SEED_WORDS,
+        7 + SEED_WORDS,
+        last,
+    )
     assert b.rejections == last + n_inputs and b.size == last + 2 * n_inputs
     book = b.initial(particles)
     expected = np.zeros(last + 2 * n_inputs)
     expected[0] = -INF  # no step yet
     expected[6 + SEED_WORDS] = NAN if particles is None else float(particles)  # N_eff before any update: N
-    expected[last:last + n_inputs] = -INF  # no sample used yet
+    expected[last : last + n_inputs] = -INF  # no sample used yet
     np.testing.assert_array_equal(book, expected)
     assert book.dtype == np.float64

@@ -75,10 +75,15 @@ Q_SAMPLE = np.r_[0.0, 1.0, np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9
 def _decision_stream(name: str) -> dict:
     """Samples 0..N_DRAWS-1 of a quaternion tracker's injector named ``name``: the truth's
     mask, primary code and magnitude per sample."""
-    model = FaultModel.make(name, "quaternion", outlier_size=0.01,
-                            outlier_probability=PROBABILITY[flt.FAULT_OUTLIER],
-                            nan_probability=PROBABILITY[flt.FAULT_NAN], inf_probability=PROBABILITY[flt.FAULT_INF],
-                            dropout_probability=PROBABILITY[flt.FAULT_DROPOUT])
+    model = FaultModel.make(
+        name,
+        "quaternion",
+        outlier_size=0.01,
+        outlier_probability=PROBABILITY[flt.FAULT_OUTLIER],
+        nan_probability=PROBABILITY[flt.FAULT_NAN],
+        inf_probability=PROBABILITY[flt.FAULT_INF],
+        dropout_probability=PROBABILITY[flt.FAULT_DROPOUT],
+    )
     inj = FaultInjector(name, "quaternion", PERIOD_RANDOM_S, model)
     ctx = inj.CreateDefaultContext()
     inj.GetInputPort("seed_uniform").FixValue(ctx, SEED_WORDS_UNIFORM)
@@ -93,8 +98,11 @@ def _decision_stream(name: str) -> dict:
         ctx.get_mutable_discrete_state().SetFrom(inj.EvalUniquePeriodicDiscreteUpdate(ctx))
     # the stepping itself: one row per sample, in order
     np.testing.assert_allclose(truth[:, flt.TRUTH_T_SAMPLE], np.arange(N_DRAWS) * PERIOD_RANDOM_S, rtol=0, atol=1e-9)
-    return {"mask": truth[:, flt.TRUTH_MASK].astype(np.int64), "code": truth[:, flt.TRUTH_CODE].astype(int),
-            "magnitude": truth[:, flt.TRUTH_MAGNITUDE]}
+    return {
+        "mask": truth[:, flt.TRUTH_MASK].astype(np.int64),
+        "code": truth[:, flt.TRUTH_CODE].astype(int),
+        "magnitude": truth[:, flt.TRUTH_MAGNITUDE],
+    }
 
 
 @pytest.fixture(scope="module")
@@ -129,7 +137,7 @@ def test_marginal_rates_of_the_decision_streams_are_the_configured_ones(streams)
 def test_different_fault_kinds_on_one_sensor_decide_independently(streams):
     m = streams["st1_faults"]["mask"]
     for i, c1 in enumerate(RANDOM_KINDS):
-        for c2 in RANDOM_KINDS[i + 1:]:
+        for c2 in RANDOM_KINDS[i + 1 :]:
             _check_independent(_bits(m, c1), _bits(m, c2), f"{flt.FAULT_NAMES[c1]} x {flt.FAULT_NAMES[c2]}")
 
 
@@ -138,8 +146,9 @@ def test_decisions_of_consecutive_samples_are_independent(streams):
     m = streams["st1_faults"]["mask"]
     for c1 in RANDOM_KINDS:
         for c2 in RANDOM_KINDS:
-            _check_independent(_bits(m[:-1], c1), _bits(m[1:], c2),
-                               f"{flt.FAULT_NAMES[c1]}[k] x {flt.FAULT_NAMES[c2]}[k+1]")
+            _check_independent(
+                _bits(m[:-1], c1), _bits(m[1:], c2), f"{flt.FAULT_NAMES[c1]}[k] x {flt.FAULT_NAMES[c2]}[k+1]"
+            )
 
 
 def test_two_sensors_given_the_same_seed_decide_independently(streams):
@@ -170,15 +179,20 @@ def test_the_number_hit_by_a_nan_or_inf_is_uniform_whatever_decided_the_fault(st
 T_S = "0.1"  # the period, as written in the config
 N_SAMPLES = 60
 TIMING_FIELDS = {
-    "outlier_times_s": [0.0, 0.35, 0.7], "outlier_rate_deg_per_s": 2.0,
+    "outlier_times_s": [0.0, 0.35, 0.7],
+    "outlier_rate_deg_per_s": 2.0,
     "nan_times_s": [1.0, 1.05],
     "inf_times_s": [1.299999, 1.500001],  # 1 us before sample 13, 1 us after sample 15
     "dropout_times_s": [2.0],
-    "time_tag_offset_s": 0.03, "time_tag_times_s": [2.15], "time_tag_windows_s": [[2.5, 2.8]],
+    "time_tag_offset_s": 0.03,
+    "time_tag_times_s": [2.15],
+    "time_tag_windows_s": [[2.5, 2.8]],
     "outage_windows_s": [[3.0, 3.3], [3.45, 3.5], [3.55, 3.61]],  # 3 samples, none, one
     "stuck_windows_s": [[4.0, 4.3]],
-    "saturation_deg_per_s": 1.0, "saturation_windows_s": [[4.6, 4.85]],
-    "bias_jump_times_s": [5.05, 5.5], "bias_jumps_deg_per_h": [[360.0, 0.0, 0.0], [0.0, -720.0, 0.0]],
+    "saturation_deg_per_s": 1.0,
+    "saturation_windows_s": [[4.6, 4.85]],
+    "bias_jump_times_s": [5.05, 5.5],
+    "bias_jumps_deg_per_h": [[360.0, 0.0, 0.0], [0.0, -720.0, 0.0]],
 }
 
 
@@ -196,12 +210,16 @@ def _expected_samples() -> dict:
     f = TIMING_FIELDS
     points = lambda key: [_first_sample(t) for t in f[key]]  # noqa: E731
     windows = lambda key: sorted(k for w in f[key] for k in _window(w))  # noqa: E731
-    return {flt.FAULT_OUTLIER: points("outlier_times_s"), flt.FAULT_NAN: points("nan_times_s"),
-            flt.FAULT_INF: points("inf_times_s"),
-            flt.FAULT_DROPOUT: sorted(points("dropout_times_s") + windows("outage_windows_s")),
-            flt.FAULT_TIME_TAG: sorted(points("time_tag_times_s") + windows("time_tag_windows_s")),
-            flt.FAULT_STUCK: windows("stuck_windows_s"), flt.FAULT_SATURATED: windows("saturation_windows_s"),
-            flt.FAULT_BIAS_JUMP: points("bias_jump_times_s")}
+    return {
+        flt.FAULT_OUTLIER: points("outlier_times_s"),
+        flt.FAULT_NAN: points("nan_times_s"),
+        flt.FAULT_INF: points("inf_times_s"),
+        flt.FAULT_DROPOUT: sorted(points("dropout_times_s") + windows("outage_windows_s")),
+        flt.FAULT_TIME_TAG: sorted(points("time_tag_times_s") + windows("time_tag_windows_s")),
+        flt.FAULT_STUCK: windows("stuck_windows_s"),
+        flt.FAULT_SATURATED: windows("saturation_windows_s"),
+        flt.FAULT_BIAS_JUMP: points("bias_jump_times_s"),
+    }
 
 
 def test_the_expected_samples_written_out():
@@ -266,8 +284,7 @@ def test_every_fault_hits_exactly_the_samples_its_config_names_standalone():
     e = _expected_samples()
     # time tags: + offset exactly on the time-tag samples
     tag = np.isin(np.arange(N_SAMPLES), e[flt.FAULT_TIME_TAG])
-    np.testing.assert_allclose(out[:, 0], t + np.where(tag, TIMING_FIELDS["time_tag_offset_s"], 0.0), rtol=0,
-                               atol=1e-9)
+    np.testing.assert_allclose(out[:, 0], t + np.where(tag, TIMING_FIELDS["time_tag_offset_s"], 0.0), rtol=0, atol=1e-9)
     np.testing.assert_array_equal(truth[:, flt.TRUTH_T_OUT], out[:, 0])
     # validity: 0 exactly on the drop-out and outage samples
     invalid = np.isin(np.arange(N_SAMPLES), e[flt.FAULT_DROPOUT])
@@ -332,8 +349,7 @@ def test_every_fault_hits_exactly_the_samples_its_config_names_through_a_scenari
     """The logged truth of a real run (the gyro's 3 and -2 deg/s exceed the 1 deg/s range
     on two axes) and the events the analysis reads from it: first and last sample each."""
     T = float(T_S)
-    text = TIMING_SCENARIO.format(duration=(N_SAMPLES - 1) * T + 0.05, period=T_S,
-                                  fields=_yaml_fields(TIMING_FIELDS))
+    text = TIMING_SCENARIO.format(duration=(N_SAMPLES - 1) * T + 0.05, period=T_S, fields=_yaml_fields(TIMING_FIELDS))
     run = ScenarioDiagram(load_scenario(text=text)).simulate(3)
     x = run.values("gyro_faults/fault_truth")
     keep = np.r_[True, np.diff(x[:, flt.TRUTH_T_SAMPLE]) > 1e-6]  # sample 0 is logged twice

@@ -95,10 +95,20 @@ def test_gyro_fault_kinds_on_a_standalone_injector():
     w = np.array([0.02, -0.005, 0.001])
     jump = np.array([1e-3, -2e-3, 0.0])
     inj, ctx = _injector(
-        "gyro", outlier_times_s=(1.0,), outlier_size=0.01, nan_times_s=(2.0,), inf_times_s=(3.0,),
-        dropout_times_s=(4.0,), time_tag_offset_s=0.25, time_tag_times_s=(5.0,), saturation_rad_per_s=0.015,
-        saturation_windows_s=((6.0, 7.0),), bias_jump_times_s=(8.0,), bias_jumps_rad_per_s=(tuple(jump),),
-        outage_windows_s=((10.0, 12.0),))
+        "gyro",
+        outlier_times_s=(1.0,),
+        outlier_size=0.01,
+        nan_times_s=(2.0,),
+        inf_times_s=(3.0,),
+        dropout_times_s=(4.0,),
+        time_tag_offset_s=0.25,
+        time_tag_times_s=(5.0,),
+        saturation_rad_per_s=0.015,
+        saturation_windows_s=((6.0, 7.0),),
+        bias_jump_times_s=(8.0,),
+        bias_jumps_rad_per_s=(tuple(jump),),
+        outage_windows_s=((10.0, 12.0),),
+    )
     out = _run_decisions(inj, ctx, lambda k, t: np.r_[t, 1.0, w], 13)
     codes = [_truth_code(tr) for _, tr in out]
     assert codes == [0, 1, 2, 3, 5, 8, 6, 0, 7, 0, 5, 5, 0]
@@ -170,9 +180,17 @@ def _header(kind, m):
 @pytest.mark.parametrize("kind", ["quaternion", "vectors", "camera"])
 def test_attitude_fault_kinds_on_a_standalone_injector(kind):
     angle = 0.02
-    inj, ctx = _injector(kind, period_s=0.5, outlier_times_s=(0.5,), outlier_size=angle, nan_times_s=(1.0,),
-                         inf_times_s=(1.5,), dropout_times_s=(2.0,), time_tag_offset_s=-0.1,
-                         time_tag_windows_s=((2.5, 3.5),))
+    inj, ctx = _injector(
+        kind,
+        period_s=0.5,
+        outlier_times_s=(0.5,),
+        outlier_size=angle,
+        nan_times_s=(1.0,),
+        inf_times_s=(1.5,),
+        dropout_times_s=(2.0,),
+        time_tag_offset_s=-0.1,
+        time_tag_windows_s=((2.5, 3.5),),
+    )
     out = _run_decisions(inj, ctx, lambda k, t: _attitude_sample(kind, k, t), 8)
     assert [_truth_code(tr) for _, tr in out] == [0, 1, 2, 3, 5, 8, 8, 0]
     clean = _numbers(kind, _attitude_sample(kind, 0, 0.0))
@@ -225,8 +243,14 @@ def _simulate_samples(inj, ctx, sample, n):
 def test_stuck_output_repeats_the_last_clean_sample_before_the_window():
     jump = np.array([1e-4, 0.0, 0.0])
     ramp = lambda k, t: np.r_[t, 1.0, 1e-3 * k, -2e-3 * k, 0.5e-3]  # noqa: E731
-    inj, ctx = _injector("gyro", stuck_windows_s=((3.0, 6.0),), bias_jump_times_s=(2.0,),
-                         bias_jumps_rad_per_s=(tuple(jump),), outlier_times_s=(4.0,), outlier_size=0.1)
+    inj, ctx = _injector(
+        "gyro",
+        stuck_windows_s=((3.0, 6.0),),
+        bias_jump_times_s=(2.0,),
+        bias_jumps_rad_per_s=(tuple(jump),),
+        outlier_times_s=(4.0,),
+        outlier_size=0.1,
+    )
     out = _simulate_samples(inj, ctx, ramp, 8)
     held = ramp(2, 2.0)[2:] + jump  # the last sample before the window, with the bias jump
     for k in (3, 5):
@@ -241,8 +265,9 @@ def test_stuck_output_repeats_the_last_clean_sample_before_the_window():
 
     # vector observations; a window from the first sample holds that sample
     def dirs(k, t):
-        R = np.array([[math.cos(0.1 * k), -math.sin(0.1 * k), 0.0], [math.sin(0.1 * k), math.cos(0.1 * k), 0.0],
-                      [0.0, 0.0, 1.0]])
+        R = np.array(
+            [[math.cos(0.1 * k), -math.sin(0.1 * k), 0.0], [math.sin(0.1 * k), math.cos(0.1 * k), 0.0], [0.0, 0.0, 1.0]]
+        )
         return VectorObservations(float(t), True, DIRS @ R, DIRS.copy(), 1e-4, np.array([1.0, 0.0, 0.0, 0.0]))
 
     inj, ctx = _injector("vectors", period_s=0.5, stuck_windows_s=((0.0, 1.5),))
@@ -255,8 +280,15 @@ def test_stuck_output_repeats_the_last_clean_sample_before_the_window():
 
 
 def _masks(seed, n=400):
-    inj, ctx = _injector("gyro", seed=seed, outlier_probability=0.2, outlier_size=0.01, nan_probability=0.1,
-                         inf_probability=0.05, dropout_probability=0.1)
+    inj, ctx = _injector(
+        "gyro",
+        seed=seed,
+        outlier_probability=0.2,
+        outlier_size=0.01,
+        nan_probability=0.1,
+        inf_probability=0.05,
+        dropout_probability=0.1,
+    )
     out = _run_decisions(inj, ctx, lambda k, t: np.r_[t, 1.0, 0.01, 0.02, 0.03], n)
     return np.array([int(tr[flt.TRUTH_MASK]) for _, tr in out]), np.array([m for m, _ in out])
 
@@ -307,37 +339,70 @@ estimators:
 - !EstimateFusionConfig {{name: decentralized, sources: [single, single_st2], covariance_model: tracked}}
 scoring: {{score_from_s: 5.0}}
 """
-ST1_FAULTS = ("- !SensorFaultsConfig {name: st1_faults, sensor: st1, nan_times_s: [10.0], outlier_times_s: [20.0],\n"
-              "                       outlier_angle_deg: 0.01, outage_windows_s: [[30.0, 33.0]]}")
+ST1_FAULTS = (
+    "- !SensorFaultsConfig {name: st1_faults, sensor: st1, nan_times_s: [10.0], outlier_times_s: [20.0],\n"
+    "                       outlier_angle_deg: 0.01, outage_windows_s: [[30.0, 33.0]]}"
+)
 
 
 def _scenario_text(gyro_faults="", st1_faults=ST1_FAULTS, late_faults=""):
     return BASE.format(gyro_faults=gyro_faults, st1_faults=st1_faults, late_faults=late_faults, ungated=UNGATED)
 
 
-@pytest.mark.parametrize("entry, where, message", [
-    ("{name: f, sensor: nosuch}", "st1_faults", "sensors[2] (f).sensor: got 'nosuch'; must name a sensor listed before"),
-    ("{name: f, sensor: st2}", "st1_faults", "must name a sensor listed before it"),
-    ("{name: f, sensor: st1}", "late_faults", "'st_avg' (listed before this entry) reads it"),
-    ("{name: f, sensor: st1, saturation_deg_per_s: 1.0}", "st1_faults", "only a gyro saturates; 'st1' outputs"),
-    ("{name: f, sensor: st1, bias_jump_times_s: [1.0], bias_jumps_deg_per_h: [[1.0, 0.0, 0.0]]}", "st1_faults",
-     "bias_jump_times_s: got [1.0]; only a gyro has bias jumps"),
-    ("{name: f, sensor: gyro, bias_jump_times_s: [1.0, 2.0], bias_jumps_deg_per_h: [[1.0, 0.0, 0.0]]}",
-     "gyro_faults", "need one row [x, y, z] (deg/h) per bias_jump_times_s entry (2)"),
-    ("{name: f, sensor: st1, outlier_probability: 1.0}", "st1_faults",
-     "outlier_probability: got 1.0; must be in [0, 1)"),
-    ("{name: f, sensor: st1, outage_windows_s: [[5.0, 4.0]]}", "st1_faults",
-     "outage_windows_s[0]: got [5. 4.]; must be [start, end] (s), finite, with end > start"),
-    ("{name: f, sensor: st1, time_tag_times_s: [3.0]}", "st1_faults",
-     "time_tag_offset_s: got 0.0; time-tag errors need a non-zero offset (s)"),
-    ("{name: f, sensor: st1, outlier_times_s: [3.0], outlier_angle_deg: 200.0}", "st1_faults",
-     "outlier_angle_deg: got 200.0; an attitude outlier is a rotation angle in (0, 180) deg"),
-    ("{name: f, sensor: gyro, outlier_times_s: [3.0], outlier_rate_deg_per_s: 0.0}", "gyro_faults",
-     "outlier_rate_deg_per_s: got 0.0; gyro outliers need a size > 0 (deg/s)"),
-    ("{name: f, sensor: gyro, nan_times_s: [-1.0]}", "gyro_faults", "nan_times_s[0]: got -1.0; must be >= 0"),
-    ("{name: f, sensor: gyro, saturation_windows_s: [[1.0, 2.0]]}", "gyro_faults",
-     "saturation_windows_s: got [[1. 2.]]; needs saturation_deg_per_s"),
-])
+@pytest.mark.parametrize(
+    "entry, where, message",
+    [
+        (
+            "{name: f, sensor: nosuch}",
+            "st1_faults",
+            "sensors[2] (f).sensor: got 'nosuch'; must name a sensor listed before",
+        ),
+        ("{name: f, sensor: st2}", "st1_faults", "must name a sensor listed before it"),
+        ("{name: f, sensor: st1}", "late_faults", "'st_avg' (listed before this entry) reads it"),
+        ("{name: f, sensor: st1, saturation_deg_per_s: 1.0}", "st1_faults", "only a gyro saturates; 'st1' outputs"),
+        (
+            "{name: f, sensor: st1, bias_jump_times_s: [1.0], bias_jumps_deg_per_h: [[1.0, 0.0, 0.0]]}",
+            "st1_faults",
+            "bias_jump_times_s: got [1.0]; only a gyro has bias jumps",
+        ),
+        (
+            "{name: f, sensor: gyro, bias_jump_times_s: [1.0, 2.0], bias_jumps_deg_per_h: [[1.0, 0.0, 0.0]]}",
+            "gyro_faults",
+            "need one row [x, y, z] (deg/h) per bias_jump_times_s entry (2)",
+        ),
+        (
+            "{name: f, sensor: st1, outlier_probability: 1.0}",
+            "st1_faults",
+            "outlier_probability: got 1.0; must be in [0, 1)",
+        ),
+        (
+            "{name: f, sensor: st1, outage_windows_s: [[5.0, 4.0]]}",
+            "st1_faults",
+            "outage_windows_s[0]: got [5. 4.]; must be [start, end] (s), finite, with end > start",
+        ),
+        (
+            "{name: f, sensor: st1, time_tag_times_s: [3.0]}",
+            "st1_faults",
+            "time_tag_offset_s: got 0.0; time-tag errors need a non-zero offset (s)",
+        ),
+        (
+            "{name: f, sensor: st1, outlier_times_s: [3.0], outlier_angle_deg: 200.0}",
+            "st1_faults",
+            "outlier_angle_deg: got 200.0; an attitude outlier is a rotation angle in (0, 180) deg",
+        ),
+        (
+            "{name: f, sensor: gyro, outlier_times_s: [3.0], outlier_rate_deg_per_s: 0.0}",
+            "gyro_faults",
+            "outlier_rate_deg_per_s: got 0.0; gyro outliers need a size > 0 (deg/s)",
+        ),
+        ("{name: f, sensor: gyro, nan_times_s: [-1.0]}", "gyro_faults", "nan_times_s[0]: got -1.0; must be >= 0"),
+        (
+            "{name: f, sensor: gyro, saturation_windows_s: [[1.0, 2.0]]}",
+            "gyro_faults",
+            "saturation_windows_s: got [[1. 2.]]; needs saturation_deg_per_s",
+        ),
+    ],
+)
 def test_invalid_fault_configs_name_the_field_the_value_and_what_is_allowed(entry, where, message):
     slots = {"gyro_faults": "", "st1_faults": "", "late_faults": ""}
     slots[where] = "- !SensorFaultsConfig " + entry
@@ -398,8 +463,14 @@ def test_every_consumer_reads_the_faulted_sample_and_the_truth_is_logged(small):
 
     # Fault fields are context parameters: cleared on the same diagram, the run is the clean
     # one; what does not read st1 is bit-identical, what does differs.
-    cleared = small.simulate(3, overrides=["sensors.st1_faults.nan_times_s=[]", "sensors.st1_faults.outlier_times_s=[]",
-                                           "sensors.st1_faults.outage_windows_s=[]"])
+    cleared = small.simulate(
+        3,
+        overrides=[
+            "sensors.st1_faults.nan_times_s=[]",
+            "sensors.st1_faults.outlier_times_s=[]",
+            "sensors.st1_faults.outage_windows_s=[]",
+        ],
+    )
     assert fault_events(cleared) == []
     np.testing.assert_array_equal(cleared.values("single_st2/q_IB_hat"), run.values("single_st2/q_IB_hat"))
     assert not np.array_equal(cleared.values("single/q_IB_hat"), run.values("single/q_IB_hat"))
@@ -460,11 +531,12 @@ T_KIND = {k: FIRST_S + SPACING_S * i for i, k in enumerate(SURVIVAL_KINDS)}
 
 def _every_kind(extra: str) -> str:
     t = T_KIND
-    return ("{" + f"outlier_times_s: [{t['outlier']}], nan_times_s: [{t['nan']}], inf_times_s: [{t['inf']}], "
-            f"stuck_windows_s: [[{t['stuck']}, {t['stuck'] + WINDOW_S}]], "
-            f"outage_windows_s: [[{t['outage']}, {t['outage'] + WINDOW_S}]], dropout_times_s: [{t['dropout']}], "
-            f"time_tag_offset_s: 0.5, time_tag_windows_s: [[{t['time_tag']}, {t['time_tag'] + WINDOW_S}]], "
-            + extra + "}")
+    return (
+        "{" + f"outlier_times_s: [{t['outlier']}], nan_times_s: [{t['nan']}], inf_times_s: [{t['inf']}], "
+        f"stuck_windows_s: [[{t['stuck']}, {t['stuck'] + WINDOW_S}]], "
+        f"outage_windows_s: [[{t['outage']}, {t['outage'] + WINDOW_S}]], dropout_times_s: [{t['dropout']}], "
+        f"time_tag_offset_s: 0.5, time_tag_windows_s: [[{t['time_tag']}, {t['time_tag'] + WINDOW_S}]], " + extra + "}"
+    )
 
 
 SURVIVAL_SCENARIO = f"""
@@ -475,10 +547,13 @@ plant: !RigidBodyConfig {{inertia_kg_m2: [100.0, 200.0, 200.0], initial_rate_deg
                           disturbance_torque_N_m: [0.0, 0.0, 0.0]}}
 sensors:
 - !GyroConfig {{name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.1, rrw_deg_per_h15: 0.1}}
-- !SensorFaultsConfig {_every_kind(
-    "name: gyro_faults, sensor: gyro, outlier_rate_deg_per_s: 0.2, saturation_deg_per_s: 0.01, "
-    f"saturation_windows_s: [[{T_KIND['saturation']}, {T_KIND['saturation'] + WINDOW_S}]], "
-    f"bias_jump_times_s: [{T_KIND['bias_jump']}], bias_jumps_deg_per_h: [[20.0, -10.0, 10.0]]")}
+- !SensorFaultsConfig {
+    _every_kind(
+        "name: gyro_faults, sensor: gyro, outlier_rate_deg_per_s: 0.2, saturation_deg_per_s: 0.01, "
+        f"saturation_windows_s: [[{T_KIND['saturation']}, {T_KIND['saturation'] + WINDOW_S}]], "
+        f"bias_jump_times_s: [{T_KIND['bias_jump']}], bias_jumps_deg_per_h: [[20.0, -10.0, 10.0]]"
+    )
+}
 - !StarTrackerConfig {{name: stq, period_s: 1.0, mode: quaternion, sigma_cross_boresight_arcsec: 5.0,
                       sigma_boresight_arcsec: 50.0}}
 - !SensorFaultsConfig {_every_kind("name: stq_faults, sensor: stq, outlier_angle_deg: 1.0")}
@@ -516,8 +591,11 @@ def test_every_library_estimator_survives_every_fault_kind():
     for name in run.metadata["estimators"]:
         assert finite_outputs(run, name), name
         mine = [r for r in rows if r["estimator"] == name]
-        late = [(r["sensor"], r["kind"], r["recovery_time_s"]) for r in mine
-                if r["recovery_time_s"] is None or r["recovery_time_s"] > RECOVERY_LIMIT_S]
+        late = [
+            (r["sensor"], r["kind"], r["recovery_time_s"])
+            for r in mine
+            if r["recovery_time_s"] is None or r["recovery_time_s"] > RECOVERY_LIMIT_S
+        ]
         assert not late, (name, late)
         seen = {r["kind"] for r in mine if r["seen"]}
         reads = consumed_sensors(run.scenario, name)
@@ -539,12 +617,16 @@ def test_fault_campaign_script_short_run(tmp_path, load_script, diagram_builds):
     import json
 
     script = load_script("fault_campaign")
-    assert script.main(["--seeds", "1", "--duration", "560", "--workers", "1", "--no-figure",
-                        "--out", str(tmp_path)]) == 0
+    assert (
+        script.main(["--seeds", "1", "--duration", "560", "--workers", "1", "--no-figure", "--out", str(tmp_path)]) == 0
+    )
     assert diagram_builds == ["fault_campaign"]
     with open(tmp_path / "results.json") as f:
         results = json.load(f, parse_constant=lambda c: pytest.fail(f"results.json holds {c}"))
-    assert [(e["sensor"], e["kind"]) for e in results["per_seed"][0]["events"]] == [("gyro", "outlier"), ("gyro", "nan")]
+    assert [(e["sensor"], e["kind"]) for e in results["per_seed"][0]["events"]] == [
+        ("gyro", "outlier"),
+        ("gyro", "nan"),
+    ]
     assert all(results["verdicts"]["claims"].values()), results["verdicts"]
     gates = results["gates"]
     assert gates["single"] == "none" and gates["single_gated"] == "chi2 16.27" and gates["decentralized"] == "-"

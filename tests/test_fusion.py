@@ -37,8 +37,9 @@ def qmul(p, q):
     """Hamilton product (broadcasts over leading axes)."""
     p, q = np.asarray(p, float), np.asarray(q, float)
     pw, pv, qw, qv = p[..., :1], p[..., 1:], q[..., :1], q[..., 1:]
-    return np.concatenate([pw * qw - np.sum(pv * qv, axis=-1, keepdims=True),
-                           pw * qv + qw * pv + np.cross(pv, qv)], axis=-1)
+    return np.concatenate(
+        [pw * qw - np.sum(pv * qv, axis=-1, keepdims=True), pw * qv + qw * pv + np.cross(pv, qv)], axis=-1
+    )
 
 
 def qconj(q):
@@ -63,9 +64,13 @@ def qlog(q):
 def rotmat(q):
     """Attitude matrix R(q): R(q_AB) v_B = v_A."""
     w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def eig_average(qs, w):
@@ -103,7 +108,7 @@ def tau_int(x, c=5.0):
     acf /= acf[0]
     tau = 1.0
     for m in range(1, n):
-        tau = 1.0 + 2.0 * acf[1:m + 1].sum()
+        tau = 1.0 + 2.0 * acf[1 : m + 1].sum()
         if m >= c * tau:
             break
     return max(tau, 1.0)
@@ -229,8 +234,9 @@ def test_star_tracker_average_covariance_matches_sampled_errors_unequal_weights(
     n = 4000
     d = rng.normal(size=(n, 3, 3)) * sigmas  # [sample, tracker, sensor axis]
     q_IS = qmul(qmul(q_IB, np.array(q_BS)), qexp(d))  # (n, 3, 4)
-    meas = np.concatenate([np.broadcast_to(0.1 * np.arange(n)[:, None, None], (n, 3, 1)),
-                           np.ones((n, 3, 1)), q_IS], axis=-1)
+    meas = np.concatenate(
+        [np.broadcast_to(0.1 * np.arange(n)[:, None, None], (n, 3, 1)), np.ones((n, 3, 1)), q_IS], axis=-1
+    )
     out = np.array([_fix_trackers(sys_, ctx, names, m) for m in meas])
     assert np.all(out[:, 1] == 1.0)
     errs = qlog(qmul(qconj(q_IB), out[:, 2:]))
@@ -246,8 +252,12 @@ def test_scenario_st_avg_covariance_structure():
     covariance_B = diag((sb^2 + sc^2)/4, (sb^2 + sc^2)/4, sc^2/2)."""
     sd = ScenarioDiagram(apply_overrides(load("cubesat_dual_star_tracker"), ["duration_s=1", "scoring.score_from_s=0"]))
     sb, sc = 50 * ARCSEC, 5 * ARCSEC
-    np.testing.assert_allclose(sd.sensors["st_avg"].covariance_B,
-                               np.diag([(sb**2 + sc**2) / 4, (sb**2 + sc**2) / 4, sc**2 / 2]), rtol=1e-9, atol=1e-12 * sb**2)
+    np.testing.assert_allclose(
+        sd.sensors["st_avg"].covariance_B,
+        np.diag([(sb**2 + sc**2) / 4, (sb**2 + sc**2) / 4, sc**2 / 2]),
+        rtol=1e-9,
+        atol=1e-12 * sb**2,
+    )
 
 
 # =====================================================================================
@@ -290,7 +300,9 @@ def test_estimate_fusion_three_sources_unequal_weights(model):
     _fix_sources(sys_, ctx, names, q, second, P, status)
     out = _outputs(sys_, ctx)
     c = w if model == "conservative" else w**2
-    np.testing.assert_allclose(out["covariance"].reshape(6, 6), sum(ci * Pi for ci, Pi in zip(c, P, strict=True)), rtol=1e-12)
+    np.testing.assert_allclose(
+        out["covariance"].reshape(6, 6), sum(ci * Pi for ci, Pi in zip(c, P, strict=True)), rtol=1e-12
+    )
     assert_same_rotation(out["q_IB_hat"], eig_average(q, w))
     np.testing.assert_allclose(out["bias_B_hat"], sum(wi * s for wi, s in zip(w, second, strict=True)), rtol=1e-12)
     assert out["status"][0] == 7.0 and out["status"][1] == 33.0 and out["status"][2] == 6.0
@@ -342,15 +354,13 @@ def test_estimate_fusion_tracked_cross_covariance_recursion():
         return w1**2 * P[0] + w2**2 * P[1] + w1 * w2 * (P12 + P12.T)
 
     # No source step yet (step count 0 = applied 0): initialization sets P12 = P0.
-    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status,
-                 [_lin(np.eye(6), np.zeros((6, 6)), np.eye(6), 0)] * 2)
+    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status, [_lin(np.eye(6), np.zeros((6, 6)), np.eye(6), 0)] * 2)
     sys_.ExecuteInitializationEvents(ctx)
     np.testing.assert_array_equal(ctx.get_discrete_state(0).value(), np.r_[P0.ravel(), 0.0])
     np.testing.assert_allclose(sys_.GetOutputPort("covariance").Eval(ctx).reshape(6, 6), fused(P0), rtol=1e-12)
     # One step taken by both sources: advanced once.
     P12_1 = A1 @ (Phi1 @ P0 @ Phi2.T + Q) @ A2.T
-    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status,
-                 [_lin(Phi1, Q, A1, 1), _lin(Phi2, Q, A2, 1)])
+    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status, [_lin(Phi1, Q, A1, 1), _lin(Phi2, Q, A2, 1)])
     out = _outputs(sys_, ctx)
     np.testing.assert_allclose(out["covariance"].reshape(6, 6), fused(P12_1), rtol=1e-12)
     assert_same_rotation(out["q_IB_hat"], eig_average(q, [w1, w2]))
@@ -362,12 +372,10 @@ def test_estimate_fusion_tracked_cross_covariance_recursion():
     # Second step with other matrices: advanced from the stored P12_1.
     Phi1b, A2b = Phi2.T, A1.T
     P12_2 = A1 @ (Phi1b @ P12_1 @ Phi2.T + Q) @ A2b.T
-    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status,
-                 [_lin(Phi1b, Q, A1, 2), _lin(Phi2, Q, A2b, 2)])
+    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status, [_lin(Phi1b, Q, A1, 2), _lin(Phi2, Q, A2b, 2)])
     np.testing.assert_allclose(sys_.GetOutputPort("covariance").Eval(ctx).reshape(6, 6), fused(P12_2), rtol=1e-12)
     # Sources at different steps: no consistent cross covariance -> NaN.
-    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status,
-                 [_lin(Phi1b, Q, A1, 3), _lin(Phi2, Q, A2b, 2)])
+    _fix_sources(sys_, ctx, ["m1", "m2"], q, second, P, status, [_lin(Phi1b, Q, A1, 3), _lin(Phi2, Q, A2b, 2)])
     assert np.all(np.isnan(sys_.GetOutputPort("covariance").Eval(ctx)))
 
 
@@ -396,8 +404,12 @@ def dual_run():
 def _scored(run, name):
     e = estimator_errors(run, name)
     m = e["t"] >= SCORE_FROM_S
-    return {"err": np.concatenate([e["dtheta"], e["second_err"]], axis=1)[m], "P": e["P"][m], "nees": e["nees"][m],
-            "q_hat": e["q_hat"][m]}
+    return {
+        "err": np.concatenate([e["dtheta"], e["second_err"]], axis=1)[m],
+        "P": e["P"][m],
+        "nees": e["nees"][m],
+        "q_hat": e["q_hat"][m],
+    }
 
 
 def _fusion_name(model):
@@ -438,8 +450,9 @@ def test_decentralized_covariance_models_through_estimate_fusion(dual_run):
         for m in MODELS[1:]:
             np.testing.assert_array_equal(res[m][k]["q_hat"], res["tracked"][k]["q_hat"])
             np.testing.assert_array_equal(res[m][k]["err"], res["tracked"][k]["err"])
-        np.testing.assert_allclose(res["conservative"][k]["P"], 0.5 * (branches[0][k]["P"] + branches[1][k]["P"]),
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            res["conservative"][k]["P"], 0.5 * (branches[0][k]["P"] + branches[1][k]["P"]), rtol=1e-12
+        )
         D = res["conservative"][k]["P"] - res["tracked"][k]["P"]
         scale = np.trace(res["tracked"][k]["P"], axis1=1, axis2=2)
         assert np.all(np.linalg.eigvalsh(D).min(axis=1) >= -1e-9 * scale)
@@ -459,8 +472,7 @@ def test_decentralized_covariance_models_through_estimate_fusion(dual_run):
     err = [x["err"] for x in res["conservative"]]
     ms = np.concatenate(err).__pow__(2).mean(axis=0)
     n_eff = np.array([n_effective([e[:, i] ** 2 for e in err]) for i in range(6)])
-    var_reported = {m: np.concatenate([x["P"].diagonal(axis1=1, axis2=2) for x in res[m]]).mean(axis=0)
-                    for m in MODELS}
+    var_reported = {m: np.concatenate([x["P"].diagonal(axis1=1, axis2=2) for x in res[m]]).mean(axis=0) for m in MODELS}
     assert np.all(ms <= var_reported["conservative"] * (1 + 3 * np.sqrt(2 / n_eff))), ms / var_reported["conservative"]
     # Independent: the shared gyro makes the bias errors of the branches strongly
     # correlated, so on the bias axes the true variance is ~2x what it reports.
@@ -511,8 +523,10 @@ def test_decentralized_fusion_leaves_out_a_branch_whose_tracker_never_delivered(
     branch to round-off, the covariance exactly)."""
     from drake_att.analysis.metrics import estimator_errors
 
-    s = apply_overrides(load("cubesat_dual_star_tracker"),
-                        ["duration_s=60", "scoring.score_from_s=10", "sensors.st2.outage_windows_s=[[-1.0, 1000.0]]"])
+    s = apply_overrides(
+        load("cubesat_dual_star_tracker"),
+        ["duration_s=60", "scoring.score_from_s=10", "sensors.st2.outage_windows_s=[[-1.0, 1000.0]]"],
+    )
     run = ScenarioDiagram(s).simulate(1)
     dec, single, dead = (estimator_errors(run, n) for n in ("decentralized", "single", "single_st2"))
     assert int(dead["status"][-1, 1]) == 0 and int(single["status"][-1, 1]) > 50
@@ -527,8 +541,10 @@ def test_centralized_mekf_keeps_updating_with_the_tracker_that_is_fine():
     1 + 1) with st1's own covariance, so the centralized MEKF skips nothing (it used to lose
     every step of the outage), and its errors stay consistent with its covariance (NEES over
     the outage within the 99.9% chi-square band of 6 dof times the steps, conservatively)."""
-    s = apply_overrides(load("cubesat_dual_star_tracker"),
-                        ["duration_s=60", "scoring.score_from_s=10", "sensors.st2.outage_windows_s=[[10.0, 50.0]]"])
+    s = apply_overrides(
+        load("cubesat_dual_star_tracker"),
+        ["duration_s=60", "scoring.score_from_s=10", "sensors.st2.outage_windows_s=[[10.0, 50.0]]"],
+    )
     run = ScenarioDiagram(s).simulate(1)
     cen = estimator_errors(run, "centralized")
     assert int(cen["status"][-1, 2]) == 0 and int(cen["status"][-1, 1]) == 60  # t = 0..59
@@ -539,11 +555,14 @@ def test_centralized_mekf_keeps_updating_with_the_tracker_that_is_fine():
     assert nees.sum() < stats.chi2.ppf(0.999, 3 * out.sum()), nees.mean()
 
 
-@pytest.mark.parametrize("override, field", [
-    ("estimators.single_st2.coning_correction=true", "coning_correction"),
-    ("estimators.single_st2.initial_attitude_sigma_deg=4.0", "initial_attitude_sigma_deg"),
-    ("estimators.single_st2.initial_bias_deg_per_h=[1.0, 0.0, 0.0]", "initial_bias_deg_per_h"),
-])
+@pytest.mark.parametrize(
+    "override, field",
+    [
+        ("estimators.single_st2.coning_correction=true", "coning_correction"),
+        ("estimators.single_st2.initial_attitude_sigma_deg=4.0", "initial_attitude_sigma_deg"),
+        ("estimators.single_st2.initial_bias_deg_per_h=[1.0, 0.0, 0.0]", "initial_bias_deg_per_h"),
+    ],
+)
 def test_tracked_fusion_refuses_sources_that_do_not_propagate_alike(override, field):
     """The tracked cross-covariance recursion is the two filters' model of their common error
     only if both propagate alike from the same start. A source with another coning setting
@@ -560,6 +579,8 @@ def test_tracked_fusion_refuses_sources_that_do_not_propagate_alike(override, fi
 def test_tracked_fusion_accepts_another_gyro_noise_tuning_of_one_branch():
     """A gyro-noise tuning is a context parameter (a sweep may change one branch's): accepted,
     the common noise of the cross term being the first source's."""
-    s = apply_overrides(load("cubesat_dual_star_tracker"), ["estimators.single_st2.arw_deg_per_rt_h=2.0",
-                                                            "estimators.single_st2.rrw_deg_per_h15=60.0"])
+    s = apply_overrides(
+        load("cubesat_dual_star_tracker"),
+        ["estimators.single_st2.arw_deg_per_rt_h=2.0", "estimators.single_st2.rrw_deg_per_h15=60.0"],
+    )
     assert [e.covariance_model for e in s.estimators if e.name == "decentralized"] == ["tracked"]

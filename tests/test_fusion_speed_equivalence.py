@@ -49,7 +49,9 @@ class _OldStarTrackerAverage(StarTrackerAverage):
         out = np.empty(6)
         q_avg, flag = np.array([1.0, 0.0, 0.0, 0.0]), 0.0
         if fine.all():
-            q_B = np.array([rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS, strict=True)])
+            q_B = np.array(
+                [rot.quat_multiply(m[2:], rot.quat_conjugate(q)) for m, q in zip(meas, self.q_BS, strict=True)]
+            )
             q_avg, flag = average_quaternions(q_B, self.weights), 1.0
         elif fine.any():
             idx = np.flatnonzero(fine)
@@ -76,10 +78,14 @@ class _OldEstimateFusion(EstimateFusion):
             return w / w.sum()
 
     def _calc_q(self, context, output):
-        output.SetFromVector(average_quaternions(np.array(self._eval(context, "q_IB_hat")), self.active_weights(context)))
+        output.SetFromVector(
+            average_quaternions(np.array(self._eval(context, "q_IB_hat")), self.active_weights(context))
+        )
 
     def _calc_second(self, context, output):
-        output.SetFromVector(np.einsum("i,ij->j", self.active_weights(context), np.array(self._eval(context, "second"))))
+        output.SetFromVector(
+            np.einsum("i,ij->j", self.active_weights(context), np.array(self._eval(context, "second")))
+        )
 
     def _cross_covariance(self, context):
         x = context.get_discrete_state(self._cross_group).value()
@@ -88,7 +94,7 @@ class _OldEstimateFusion(EstimateFusion):
         if l1[108] != l2[108]:
             return np.full((6, 6), np.nan), applied
         if l1[108] > applied:
-            Phi1, Q, A1 = (l1[k * 36:(k + 1) * 36].reshape(6, 6) for k in range(3))
+            Phi1, Q, A1 = (l1[k * 36 : (k + 1) * 36].reshape(6, 6) for k in range(3))
             Phi2, A2 = l2[:36].reshape(6, 6), l2[72:108].reshape(6, 6)
             P12 = A1 @ (Phi1 @ P12 @ Phi2.T + Q) @ A2.T
         return P12, l1[108]
@@ -188,8 +194,18 @@ def _tracker_rows(rng, q_BS):
         q = qmul(qmul(q_IB, qb), qexp(rng.normal(size=3) * spread))
         q = q * rng.choice([-1.0, 1.0]) * rng.choice([1.0] * 6 + [1.0 + 1e-9, 3.0, 1e-3, 1e-60, 1e60])
         flag = rng.choice([1.0] * 8 + [0.0, 0.4, 0.6, 2.0, NAN, INF])
-        dt = rng.choice([0.0] * 8 + [0.5 * TIME_TOLERANCE_S, -0.5 * TIME_TOLERANCE_S, 2 * TIME_TOLERANCE_S,
-                                     -2 * TIME_TOLERANCE_S, 1.0, NAN, INF])
+        dt = rng.choice(
+            [0.0] * 8
+            + [
+                0.5 * TIME_TOLERANCE_S,
+                -0.5 * TIME_TOLERANCE_S,
+                2 * TIME_TOLERANCE_S,
+                -2 * TIME_TOLERANCE_S,
+                1.0,
+                NAN,
+                INF,
+            ]
+        )
         row = np.r_[t + dt, flag, q]
         u = rng.random()
         if u < 0.06:  # a non-finite entry in a sample flagged valid
@@ -217,8 +233,9 @@ def _compare_measurement(new, old, what):
         _assert_same_quaternion(new[2:], old[2:], what)
 
 
-@pytest.mark.parametrize("n, weights", [(2, [1.0, 1.0]), (2, [1.0, 3.0]), (3, [1.0, 3.0, 2.0]), (3, [0.0, 1.0, 2.0]),
-                                        (3, [0.0, 0.0, 1.0])])
+@pytest.mark.parametrize(
+    "n, weights", [(2, [1.0, 1.0]), (2, [1.0, 3.0]), (3, [1.0, 3.0, 2.0]), (3, [0.0, 1.0, 2.0]), (3, [0.0, 0.0, 1.0])]
+)
 def test_star_tracker_average_equals_the_previous_implementation(n, weights):
     """400 random samples per configuration (with dropouts, NaN/inf, misaligned times,
     either sign, non-unit norms, zero quaternions); every flag value the old code produced
@@ -240,8 +257,9 @@ def test_star_tracker_average_equals_the_previous_implementation(n, weights):
     # The random inputs reached every outcome: none fine, all fine, every subset (but those
     # of two or more trackers with zero weight sum, which raise).
     w = np.asarray(weights)
-    subsets = [m for m in range(1, (1 << n) - 1)
-               if m.bit_count() == 1 or w[[i for i in range(n) if m >> i & 1]].sum() > 0]
+    subsets = [
+        m for m in range(1, (1 << n) - 1) if m.bit_count() == 1 or w[[i for i in range(n) if m >> i & 1]].sum() > 0
+    ]
     assert flags_seen >= {0.0, 1.0} | {1.0 + m for m in subsets}, flags_seen
 
 
@@ -292,7 +310,9 @@ def _random_spd(rng, scale):
 def _fusions(n, weights, model):
     names = [f"e{i}" for i in range(n)]
     period = 1.0 if model == "tracked" else None
-    new, old = (cls("fusion", names, weights, "bias_B_hat", model, period) for cls in (EstimateFusion, _OldEstimateFusion))
+    new, old = (
+        cls("fusion", names, weights, "bias_B_hat", model, period) for cls in (EstimateFusion, _OldEstimateFusion)
+    )
     return names, (new, new.CreateDefaultContext()), (old, old.CreateDefaultContext())
 
 
@@ -308,9 +328,14 @@ def _source_inputs(rng, n, tracked):
         q = q * rng.choice([-1.0, 1.0]) * rng.choice([1.0] * 6 + [1.0 + 1e-9, 3.0, 1e-3, 1e-60, 1e60])
         used = rng.choice([0.0, 0.0, 1.0, 37.0, NAN])
         dt = rng.choice([0.0] * 6 + [0.5 * TIME_TOLERANCE_S, 2 * TIME_TOLERANCE_S, NAN])
-        inputs.append({"q_IB_hat": q, "second": rng.normal(size=3) * 10.0 ** rng.integers(-6, 1),
-                       "covariance": _random_spd(rng, 10.0 ** rng.integers(-4, 0)).ravel(),
-                       "status": np.r_[t + dt, used, float(rng.integers(0, 5)), rng.normal()]})
+        inputs.append(
+            {
+                "q_IB_hat": q,
+                "second": rng.normal(size=3) * 10.0 ** rng.integers(-6, 1),
+                "covariance": _random_spd(rng, 10.0 ** rng.integers(-4, 0)).ravel(),
+                "status": np.r_[t + dt, used, float(rng.integers(0, 5)), rng.normal()],
+            }
+        )
     state = None
     if tracked:
         applied = float(rng.integers(0, 5))
@@ -330,16 +355,28 @@ def _fix(sys_, ctx, names, inputs, state):
         ctx.SetDiscreteState(0, state)
 
 
-_COMPARE = {"q_IB_hat": lambda new, old, what: _assert_same_quaternion(new, old, what),
-            "bias_B_hat": _assert_close_to_magnitude, "covariance": _assert_close_to_magnitude,
-            "status": _assert_exactly_equal}
+_COMPARE = {
+    "q_IB_hat": lambda new, old, what: _assert_same_quaternion(new, old, what),
+    "bias_B_hat": _assert_close_to_magnitude,
+    "covariance": _assert_close_to_magnitude,
+    "status": _assert_exactly_equal,
+}
 
 
-@pytest.mark.parametrize("n, weights, model", [
-    (2, [1.0, 1.0], "tracked"), (2, [1.0, 3.0], "tracked"), (2, [0.0, 1.0], "tracked"),
-    (2, [1.0, 1.0], "conservative"), (2, [2.0, 1.0], "independent"), (2, [0.0, 1.0], "conservative"),
-    (3, [1.0, 2.0, 5.0], "conservative"), (3, [1.0, 2.0, 5.0], "independent"), (3, [0.0, 2.0, 5.0], "independent"),
-])
+@pytest.mark.parametrize(
+    "n, weights, model",
+    [
+        (2, [1.0, 1.0], "tracked"),
+        (2, [1.0, 3.0], "tracked"),
+        (2, [0.0, 1.0], "tracked"),
+        (2, [1.0, 1.0], "conservative"),
+        (2, [2.0, 1.0], "independent"),
+        (2, [0.0, 1.0], "conservative"),
+        (3, [1.0, 2.0, 5.0], "conservative"),
+        (3, [1.0, 2.0, 5.0], "independent"),
+        (3, [0.0, 2.0, 5.0], "independent"),
+    ],
+)
 def test_estimate_fusion_equals_the_previous_implementation(n, weights, model):
     """300 random input sets per configuration: all four outputs and active_weights equal
     the old code's (quaternion and covariances to 1e-12, status exactly); the cases reached
@@ -357,8 +394,12 @@ def test_estimate_fusion_equals_the_previous_implementation(n, weights, model):
         _fix(old, ctx_old, names, inputs, state)
         what = f"trial {trial}"
         for name in OUTPUTS:
-            _assert_same_outcome(_eval_or_error(new.GetOutputPort(name), ctx_new),
-                                 _eval_or_error(old.GetOutputPort(name), ctx_old), _COMPARE[name], f"{what} {name}")
+            _assert_same_outcome(
+                _eval_or_error(new.GetOutputPort(name), ctx_new),
+                _eval_or_error(old.GetOutputPort(name), ctx_old),
+                _COMPARE[name],
+                f"{what} {name}",
+            )
         w_new, w_old = new.active_weights(ctx_new), old.active_weights(ctx_old)
         assert (w_new is new.weights) == (w_old is old.weights), what
         np.testing.assert_allclose(w_new, w_old, rtol=1e-15, atol=0.0, equal_nan=True, err_msg=what)
@@ -373,8 +414,11 @@ def test_estimate_fusion_equals_the_previous_implementation(n, weights, model):
             if trial % 50 == 0:
                 new.ExecuteInitializationEvents(ctx_new)
                 old.ExecuteInitializationEvents(ctx_old)
-                _assert_exactly_equal(ctx_new.get_discrete_state(0).value(), ctx_old.get_discrete_state(0).value(),
-                                      f"{what} initialization")
+                _assert_exactly_equal(
+                    ctx_new.get_discrete_state(0).value(),
+                    ctx_old.get_discrete_state(0).value(),
+                    f"{what} initialization",
+                )
     assert {"all", "some", "none"} <= reached, reached
     # Zero weight on a source that is the only active one: the old code raised (NaN weights).
     assert ("raises" in reached) == (weights[0] == 0.0), reached
@@ -394,8 +438,11 @@ def test_estimate_fusion_nominal_evaluations_take_the_lean_path(monkeypatch):
             _fix(old, ctx_old, names, inputs, state)
             expected = {k: old.GetOutputPort(k).Eval(ctx_old).copy() for k in OUTPUTS}
             with monkeypatch.context() as m:
-                m.setattr(fusion, "average_quaternions",
-                          lambda *a, **k: pytest.fail("the checked average_quaternions was called"))
+                m.setattr(
+                    fusion,
+                    "average_quaternions",
+                    lambda *a, **k: pytest.fail("the checked average_quaternions was called"),
+                )
                 _fix(new, ctx_new, names, inputs, state)
                 for k in OUTPUTS:
                     _COMPARE[k](new.GetOutputPort(k).Eval(ctx_new), expected[k], f"{model} {trial} {k}")
@@ -423,7 +470,9 @@ def test_estimate_fusion_packed_output_equals_the_four_contract_ports(model):
                 lin = np.r_[np.eye(6).ravel(), 1e-3 * np.eye(6).ravel(), np.eye(6).ravel(), [float(k % 3)]]
                 fusion.GetInputPort(f"{s}_linearization").FixValue(context, lin)
         try:
-            parts = [fusion.GetOutputPort(p).Eval(context).copy() for p in ("q_IB_hat", "bias_B_hat", "covariance", "status")]
+            parts = [
+                fusion.GetOutputPort(p).Eval(context).copy() for p in ("q_IB_hat", "bias_B_hat", "covariance", "status")
+            ]
         except ValueError:
             continue  # the zero-weight corner (see the fusion tests): both paths raise
         packed = fusion.GetOutputPort("estimate_state").Eval(context)

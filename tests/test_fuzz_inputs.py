@@ -34,17 +34,79 @@ from test_hostile_inputs import BOMB, S, call_cli, message_problems, snapshot
 pytestmark = pytest.mark.timeout(300)
 
 SCENARIO_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "drake_att", "scenarios")
-SHIPPED = {f[:-5]: open(os.path.join(SCENARIO_DIR, f), encoding="utf-8").read()
-           for f in sorted(os.listdir(SCENARIO_DIR)) if f.endswith(".yaml")}
+SHIPPED = {
+    f[:-5]: open(os.path.join(SCENARIO_DIR, f), encoding="utf-8").read()
+    for f in sorted(os.listdir(SCENARIO_DIR))
+    if f.endswith(".yaml")
+}
 
 NASTY = [
-    "1e300", "1.0e300", "-1e300", "-1", "0", "-0.0", "1e-300", "nan", ".nan", ".inf", "-.inf", "inf",
-    "''", '""', "null", "~", "true", "no", "x" * 5000, "'" + "y" * 3000 + "'",
-    "!!python/object:os.system", "!!python/object/apply:os.system ['touch PWNED']", "!!python/name:os.system",
-    "!foo 1", "!!binary aGVsbG8=", "*undefined_alias", "&a", "&a [*a]", "[", "{", "]", "}", "[1, 2, 3]", "{a: 1}",
-    "[[[[[[[[", "'unterminated", '"unterminated', "- a", ":", ": :", "|", ">", "@", "`", "%TAG", "---", "...",
-    "0x7fffffffffffffff", "99999999999999999999999", "9" * 5000, "1_000", "0o777", "2001-12-14",
-    "Ünïcødé", "姿勢", "\u202e", "\ufeff", "\x00", "a\x00b", "\x07", "\t", "\r", "\udcff", "\\", "../../x", "/",
+    "1e300",
+    "1.0e300",
+    "-1e300",
+    "-1",
+    "0",
+    "-0.0",
+    "1e-300",
+    "nan",
+    ".nan",
+    ".inf",
+    "-.inf",
+    "inf",
+    "''",
+    '""',
+    "null",
+    "~",
+    "true",
+    "no",
+    "x" * 5000,
+    "'" + "y" * 3000 + "'",
+    "!!python/object:os.system",
+    "!!python/object/apply:os.system ['touch PWNED']",
+    "!!python/name:os.system",
+    "!foo 1",
+    "!!binary aGVsbG8=",
+    "*undefined_alias",
+    "&a",
+    "&a [*a]",
+    "[",
+    "{",
+    "]",
+    "}",
+    "[1, 2, 3]",
+    "{a: 1}",
+    "[[[[[[[[",
+    "'unterminated",
+    '"unterminated',
+    "- a",
+    ":",
+    ": :",
+    "|",
+    ">",
+    "@",
+    "`",
+    "%TAG",
+    "---",
+    "...",
+    "0x7fffffffffffffff",
+    "99999999999999999999999",
+    "9" * 5000,
+    "1_000",
+    "0o777",
+    "2001-12-14",
+    "Ünïcødé",
+    "姿勢",
+    "\u202e",
+    "\ufeff",
+    "\x00",
+    "a\x00b",
+    "\x07",
+    "\t",
+    "\r",
+    "\udcff",
+    "\\",
+    "../../x",
+    "/",
 ]
 _TOKEN = st.one_of(st.sampled_from(NASTY), st.sampled_from(NASTY), st.text(max_size=20))
 _SCALAR_LINE = re.compile(r"^(\s*-?\s*[A-Za-z_][A-Za-z0-9_]*:[ \t]+)(\S.*)$")
@@ -73,8 +135,9 @@ def mutated_yaml(draw):
                 j = draw(st.sampled_from(candidates))
                 lines[j] = _SCALAR_LINE.sub(lambda m: m.group(1) + draw(_TOKEN), lines[j])
         else:
-            candidates = [j for j, line in enumerate(lines)
-                          if _NUMBER.search(line) and not line.lstrip().startswith("#")]
+            candidates = [
+                j for j, line in enumerate(lines) if _NUMBER.search(line) and not line.lstrip().startswith("#")
+            ]
             if candidates:
                 j = draw(st.sampled_from(candidates))
                 spans = [m.span() for m in _NUMBER.finditer(lines[j])]
@@ -84,22 +147,71 @@ def mutated_yaml(draw):
 
 
 _PATHS = [
-    "name", "description", "plugins", "duration_s", "seed", "simulation", "simulation.integration_scheme",
-    "simulation.max_step_size_s", "simulation.accuracy", "simulation.use_error_control", "orbit", "orbit.altitude_km",
-    "orbit.inclination_deg", "orbit.raan_deg", "plant", "plant.inertia_kg_m2", "plant.initial_attitude_rpy_deg",
-    "plant.initial_rate_deg_per_s", "plant.disturbance_torque_N_m", "sensors", "sensors.gyro", "sensors.0",
-    "sensors.1", "sensors.2", "sensors.gyro.period_s", "sensors.gyro.sample_rate_hz", "sensors.gyro.arw_deg_per_rt_h",
-    "sensors.gyro.rrw_deg_per_h15", "sensors.gyro.initial_bias_deg_per_h", "sensors.gyro.misalignment_urad",
-    "sensors.gyro.scale_factor_error_ppm", "sensors.gyro.name", "sensors.st1", "sensors.st1.period_s",
-    "sensors.st1.mode", "sensors.st1.mounting", "sensors.st1.mounting.psi_phi_theta_deg",
-    "sensors.st1.sigma_boresight_arcsec", "sensors.st1.sigma_cross_boresight_arcsec", "sensors.st1.name",
-    "estimators", "estimators.single", "estimators.0", "estimators.single.period_s", "estimators.single.gyro",
-    "estimators.single.star_trackers", "estimators.single.star_trackers.0",
+    "name",
+    "description",
+    "plugins",
+    "duration_s",
+    "seed",
+    "simulation",
+    "simulation.integration_scheme",
+    "simulation.max_step_size_s",
+    "simulation.accuracy",
+    "simulation.use_error_control",
+    "orbit",
+    "orbit.altitude_km",
+    "orbit.inclination_deg",
+    "orbit.raan_deg",
+    "plant",
+    "plant.inertia_kg_m2",
+    "plant.initial_attitude_rpy_deg",
+    "plant.initial_rate_deg_per_s",
+    "plant.disturbance_torque_N_m",
+    "sensors",
+    "sensors.gyro",
+    "sensors.0",
+    "sensors.1",
+    "sensors.2",
+    "sensors.gyro.period_s",
+    "sensors.gyro.sample_rate_hz",
+    "sensors.gyro.arw_deg_per_rt_h",
+    "sensors.gyro.rrw_deg_per_h15",
+    "sensors.gyro.initial_bias_deg_per_h",
+    "sensors.gyro.misalignment_urad",
+    "sensors.gyro.scale_factor_error_ppm",
+    "sensors.gyro.name",
+    "sensors.st1",
+    "sensors.st1.period_s",
+    "sensors.st1.mode",
+    "sensors.st1.mounting",
+    "sensors.st1.mounting.psi_phi_theta_deg",
+    "sensors.st1.sigma_boresight_arcsec",
+    "sensors.st1.sigma_cross_boresight_arcsec",
+    "sensors.st1.name",
+    "estimators",
+    "estimators.single",
+    "estimators.0",
+    "estimators.single.period_s",
+    "estimators.single.gyro",
+    "estimators.single.star_trackers",
+    "estimators.single.star_trackers.0",
     "estimators.single.initial_attitude_rpy_deg",
-    "estimators.single.initial_attitude_sigma_deg", "estimators.single.initial_bias_sigma_deg_per_h",
-    "estimators.single.innovation_gate_probability", "estimators.single.name", "scoring", "scoring.score_from_s",
-    "scoring.convergence_threshold_deg", "bogus", "sensors.bogus.period_s", "estimators.99.period_s",
-    "plant.bogus", "", ".", "..", "duration_s.x", "sensors.-1", "näme",
+    "estimators.single.initial_attitude_sigma_deg",
+    "estimators.single.initial_bias_sigma_deg_per_h",
+    "estimators.single.innovation_gate_probability",
+    "estimators.single.name",
+    "scoring",
+    "scoring.score_from_s",
+    "scoring.convergence_threshold_deg",
+    "bogus",
+    "sensors.bogus.period_s",
+    "estimators.99.period_s",
+    "plant.bogus",
+    "",
+    ".",
+    "..",
+    "duration_s.x",
+    "sensors.-1",
+    "näme",
 ]
 _VALUE = st.one_of(
     _TOKEN,
@@ -162,8 +274,14 @@ def test_check_of_a_mutated_shipped_yaml_exits_0_or_2(mutated, tmp_path, capfd):
         problems = _problems(call, folder, before)
     finally:
         os.chdir(previous)
-    assert not problems, (f"mutation of {name}.yaml:\n  - " + "\n  - ".join(problems) + "\n--- s.yaml ---\n"
-                          + text[:3000] + "\n" + call.describe())
+    assert not problems, (
+        f"mutation of {name}.yaml:\n  - "
+        + "\n  - ".join(problems)
+        + "\n--- s.yaml ---\n"
+        + text[:3000]
+        + "\n"
+        + call.describe()
+    )
 
 
 @settings(_FUZZ, max_examples=80)

@@ -41,10 +41,12 @@ def test_gate_thresholds_and_bad_settings():
     assert g.rejects(16.3, 3) and not g.rejects(16.2, 3) and g.rejects(float("nan"), 3)
     assert InnovationGate.of(9.0).threshold(6) == 9.0 and not InnovationGate.of(None).enabled
     assert not InnovationGate().rejects(1e300, 3) and InnovationGate().rejects(float("inf"), 3)
-    for kwargs, field in (({"probability": 1.0}, "innovation_gate_probability"),
-                          ({"probability": -0.1}, "innovation_gate_probability"),
-                          ({"chi2": 0.0}, "innovation_gate_chi2"),
-                          ({"chi2": 9.0, "probability": 0.9}, "innovation gate")):
+    for kwargs, field in (
+        ({"probability": 1.0}, "innovation_gate_probability"),
+        ({"probability": -0.1}, "innovation_gate_probability"),
+        ({"chi2": 0.0}, "innovation_gate_chi2"),
+        ({"chi2": 9.0, "probability": 0.9}, "innovation gate"),
+    ):
         with pytest.raises(ValueError, match=field):
             InnovationGate(**kwargs)
 
@@ -91,8 +93,9 @@ def test_gate_rejects_nominal_measurements_at_its_stated_rate(probability):
 def test_default_gate_rejects_injected_outliers_an_ungated_filter_takes():
     """Every 50th sample carries a 0.05 deg error (a 5"/50" tracker): the MEKF with the
     default gate rejects all of them; the ungated one takes them."""
-    gated, _ = _nominal_run(InnovationGate(probability=DEFAULT_GATE_PROBABILITY), 2000, seed=5, outlier_every=50,
-                            outlier_deg=0.05)
+    gated, _ = _nominal_run(
+        InnovationGate(probability=DEFAULT_GATE_PROBABILITY), 2000, seed=5, outlier_every=50, outlier_deg=0.05
+    )
     ungated, _ = _nominal_run(InnovationGate(), 2000, seed=5, outlier_every=50, outlier_deg=0.05)
     outliers = np.arange(49, 2000, 50)
     assert not np.any(gated[outliers]) and np.all(ungated[outliers])

@@ -130,7 +130,7 @@ def _set_value(text: str, key: str, occurrence: int, value: str) -> str:
     matches = list(pattern.finditer(text))
     assert len(matches) > occurrence, (key, occurrence)  # the base text changed: fix the table
     m = matches[occurrence]
-    return text[: m.start()] + f"{m.group(1)} {value}" + text[m.end():]
+    return text[: m.start()] + f"{m.group(1)} {value}" + text[m.end() :]
 
 
 def _sub(text: str, old: str, new: str) -> str:
@@ -197,9 +197,18 @@ def _under(path: str, prefix: str) -> bool:
 
 _REAL_HOME = os.path.expanduser("~")
 # Caches a library may legitimately write to outside the test's folder.
-_CACHE_DIRS = tuple(os.path.realpath(p) + os.sep for p in filter(None, [
-    os.path.join(_REAL_HOME, ".cache"), os.path.join(_REAL_HOME, ".config", "matplotlib"),
-    os.environ.get("MPLCONFIGDIR"), os.environ.get("NUMBA_CACHE_DIR")]))
+_CACHE_DIRS = tuple(
+    os.path.realpath(p) + os.sep
+    for p in filter(
+        None,
+        [
+            os.path.join(_REAL_HOME, ".cache"),
+            os.path.join(_REAL_HOME, ".config", "matplotlib"),
+            os.environ.get("MPLCONFIGDIR"),
+            os.environ.get("NUMBA_CACHE_DIR"),
+        ],
+    )
+)
 _WRITE_FLAGS = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_TRUNC | os.O_APPEND
 
 
@@ -225,13 +234,27 @@ class _Tripwire:
         for path in paths:
             if self.outside(path):
                 self.escapes.append(f"{op}({os.fsdecode(path)!r})")
-                raise PermissionError(errno.EACCES, f"hostile-input tripwire: {op} outside the test folder",
-                                      os.fsdecode(path))
+                raise PermissionError(
+                    errno.EACCES, f"hostile-input tripwire: {op} outside the test folder", os.fsdecode(path)
+                )
 
     @contextlib.contextmanager
     def active(self):
-        real = {name: getattr(os, name) for name in ("rename", "replace", "remove", "unlink", "rmdir", "mkdir",
-                                                      "open", "symlink", "link", "truncate")}
+        real = {
+            name: getattr(os, name)
+            for name in (
+                "rename",
+                "replace",
+                "remove",
+                "unlink",
+                "rmdir",
+                "mkdir",
+                "open",
+                "symlink",
+                "link",
+                "truncate",
+            )
+        }
         real_open, real_rmtree = builtins.open, shutil.rmtree
         t = self
 
@@ -240,6 +263,7 @@ class _Tripwire:
                 if not (k.get("src_dir_fd") or k.get("dst_dir_fd")):
                     t.guard(name, src, dst)
                 return real[name](src, dst, *a, **k)
+
             return f
 
         def one(name):
@@ -247,6 +271,7 @@ class _Tripwire:
                 if k.get("dir_fd") is None:
                     t.guard(name, path)
                 return real[name](path, *a, **k)
+
             return f
 
         def mkdir(path, *a, **k):
@@ -337,11 +362,13 @@ class Call:
     simulated: list
 
     def describe(self) -> str:
-        return (f"argv={_short(self.argv)}\nexit code: {self.code!r}  ({self.seconds:.2f} s)\n"
-                + (f"main() RAISED: {self.raised[-3000:]}\n" if self.raised else "")
-                + (f"writes outside the test folder: {self.escapes}\n" if self.escapes else "")
-                + (f"simulation started: {self.simulated}\n" if self.simulated else "")
-                + f"--- stderr (tail) ---\n{self.err[-2500:]}\n--- stdout (tail) ---\n{self.out[-800:]}")
+        return (
+            f"argv={_short(self.argv)}\nexit code: {self.code!r}  ({self.seconds:.2f} s)\n"
+            + (f"main() RAISED: {self.raised[-3000:]}\n" if self.raised else "")
+            + (f"writes outside the test folder: {self.escapes}\n" if self.escapes else "")
+            + (f"simulation started: {self.simulated}\n" if self.simulated else "")
+            + f"--- stderr (tail) ---\n{self.err[-2500:]}\n--- stdout (tail) ---\n{self.out[-800:]}"
+        )
 
 
 def _short(argv) -> list:
@@ -473,8 +500,9 @@ def case(case_id: str, *argv, **kw) -> None:
 
 def _check_yaml(case_id: str, text, needles, code=2, **kw) -> None:
     """``drake-att check s.yaml`` with ``text`` (str or bytes) as s.yaml."""
-    case(case_id, "check", "s.yaml", needles=tuple(needles), code=code, files={"s.yaml": text},
-         ok_line=(code == 0), **kw)
+    case(
+        case_id, "check", "s.yaml", needles=tuple(needles), code=code, files={"s.yaml": text}, ok_line=(code == 0), **kw
+    )
 
 
 def _check_set(case_id: str, setting: str, needles, code=2, scenario=S, **kw) -> None:
@@ -486,21 +514,44 @@ def _check_set(case_id: str, setting: str, needles, code=2, scenario=S, **kw) ->
 for _name in SHIPPED:
     case(f"check-ok-shipped-{_name}", "check", _name, code=0, ok_line=True)
 _check_yaml("check-ok-base-yaml", BASE, (), code=0)
-_check_yaml("check-ok-legit-anchor-alias", _sub(_sub(BASE, "  initial_attitude_rpy_deg: [0.0, 0.0, 0.0]",
-                                                     "  initial_attitude_rpy_deg: &zero [0.0, 0.0, 0.0]"),
-                                                "  initial_bias_deg_per_h: [0.0, 0.0, 0.0]",
-                                                "  initial_bias_deg_per_h: *zero"), (), code=0)
+_check_yaml(
+    "check-ok-legit-anchor-alias",
+    _sub(
+        _sub(BASE, "  initial_attitude_rpy_deg: [0.0, 0.0, 0.0]", "  initial_attitude_rpy_deg: &zero [0.0, 0.0, 0.0]"),
+        "  initial_bias_deg_per_h: [0.0, 0.0, 0.0]",
+        "  initial_bias_deg_per_h: *zero",
+    ),
+    (),
+    code=0,
+)
 _check_yaml("check-ok-crlf-line-endings", BASE.replace("\n", "\r\n").encode(), (), code=0)
-_check_yaml("check-ok-unicode-description", _set_value(BASE, "description", 0, "'Ünïcødé ✓ 姿勢推定 – ok'"), (),
-            code=0)
+_check_yaml("check-ok-unicode-description", _set_value(BASE, "description", 0, "'Ünïcødé ✓ 姿勢推定 – ok'"), (), code=0)
 _check_yaml("check-ok-or-refused-utf8-bom", b"\xef\xbb\xbf" + BASE.encode(), (), code=(0, 2))
-for _i, _setting in enumerate(["duration_s=600", "sensors.st1.sigma_boresight_arcsec=20",
-                               "estimators.single.initial_attitude_sigma_deg=1", "orbit.altitude_km=35786",
-                               "name=my_run-2", "plant.inertia_kg_m2=[1, 2, 2.5]", "seed=4294967295",
-                               "description=Ünïcødé ✓"]):
+for _i, _setting in enumerate(
+    [
+        "duration_s=600",
+        "sensors.st1.sigma_boresight_arcsec=20",
+        "estimators.single.initial_attitude_sigma_deg=1",
+        "orbit.altitude_km=35786",
+        "name=my_run-2",
+        "plant.inertia_kg_m2=[1, 2, 2.5]",
+        "seed=4294967295",
+        "description=Ünïcødé ✓",
+    ]
+):
     _check_set(f"check-ok-set-{_setting.split('=')[0]}", _setting, (), code=0)
-case("run-ok-base-yaml", "run", "s.yaml", "--out", "fresh", "--no-figures", "--quiet", code=0,
-     files={"s.yaml": BASE}, changes=("fresh",))
+case(
+    "run-ok-base-yaml",
+    "run",
+    "s.yaml",
+    "--out",
+    "fresh",
+    "--no-figures",
+    "--quiet",
+    code=0,
+    files={"s.yaml": BASE},
+    changes=("fresh",),
+)
 
 # ---- YAML files: syntax ----------------------------------------------------------------------
 _check_yaml("yaml-syntax-unclosed-flow-list", "name: x\nduration_s: [1, 2\n", ("s.yaml",))
@@ -515,63 +566,90 @@ _check_yaml("yaml-syntax-directive-garbage", "%YAML 9.9\n%TAG ! !\n---\nname: x\
 
 # ---- YAML files: tags (never executed; a refused tag is exit 2 naming the file) -----------------
 _PWN = "touch @ROOT@/PWNED"
-_check_yaml("yaml-tag-python-object-apply", _set_value(BASE, "name", 0, f'!!python/object/apply:os.system ["{_PWN}"]'),
-            ("s.yaml",))
-_check_yaml("yaml-tag-python-object-new", _set_value(BASE, "name", 0, f'!!python/object/new:os.system ["{_PWN}"]'),
-            ("s.yaml",))
+_check_yaml(
+    "yaml-tag-python-object-apply",
+    _set_value(BASE, "name", 0, f'!!python/object/apply:os.system ["{_PWN}"]'),
+    ("s.yaml",),
+)
+_check_yaml(
+    "yaml-tag-python-object-new", _set_value(BASE, "name", 0, f'!!python/object/new:os.system ["{_PWN}"]'), ("s.yaml",)
+)
 _check_yaml("yaml-tag-python-name", _set_value(BASE, "duration_s", 0, "!!python/name:os.system"), ("s.yaml",))
 _check_yaml("yaml-tag-python-module", _set_value(BASE, "duration_s", 0, "!!python/module:os"), ("s.yaml",))
 _check_yaml("yaml-tag-python-object-top-level", "!!python/object:os.system {}\n", ("s.yaml",))
 _check_yaml("yaml-tag-foo-on-scalar", _set_value(BASE, "duration_s", 0, "!foo 20"), ("s.yaml", "foo"))
 _check_yaml("yaml-tag-foo-on-list", _set_value(BASE, "inertia_kg_m2", 0, "!foo [1, 1, 1]"), ("s.yaml", "foo"))
-_check_yaml("yaml-tag-unknown-plant", _sub(BASE, "plant: !RigidBodyConfig", "plant: !NoSuchPlantConfig"),
-            ("NoSuchPlantConfig",))
+_check_yaml(
+    "yaml-tag-unknown-plant", _sub(BASE, "plant: !RigidBodyConfig", "plant: !NoSuchPlantConfig"), ("NoSuchPlantConfig",)
+)
 _check_yaml("yaml-tag-unknown-sensor", _sub(BASE, "- !GyroConfig", "- !NoSuchSensorConfig"), ("NoSuchSensorConfig",))
-_check_yaml("yaml-tag-unknown-estimator", _sub(BASE, "- !MekfConfig", "- !NoSuchEstimatorConfig"),
-            ("NoSuchEstimatorConfig",))
+_check_yaml(
+    "yaml-tag-unknown-estimator", _sub(BASE, "- !MekfConfig", "- !NoSuchEstimatorConfig"), ("NoSuchEstimatorConfig",)
+)
 _check_yaml("yaml-tag-sensor-type-as-estimator", _sub(BASE, "- !MekfConfig", "- !GyroConfig"), ("estimators",))
-_check_yaml("yaml-tag-estimator-type-as-plant", _sub(BASE, "plant: !RigidBodyConfig", "plant: !MekfConfig"),
-            ("plant",))
+_check_yaml("yaml-tag-estimator-type-as-plant", _sub(BASE, "plant: !RigidBodyConfig", "plant: !MekfConfig"), ("plant",))
 _check_yaml("yaml-tag-binary-name", _set_value(BASE, "name", 0, "!!binary aGVsbG8="), ("name",))
 _check_yaml("yaml-tag-set-plugins", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: !!set {a, b}\n"), ("plugins",))
-_check_yaml("yaml-tag-timestamp-duration", _set_value(BASE, "duration_s", 0, "2001-12-14t21:59:43.10-05:00"),
-            ("duration_s",))
+_check_yaml(
+    "yaml-tag-timestamp-duration", _set_value(BASE, "duration_s", 0, "2001-12-14t21:59:43.10-05:00"), ("duration_s",)
+)
 
 # ---- YAML files: anchors, aliases, bombs -----------------------------------------------------
 _check_yaml("yaml-alias-undefined", _set_value(BASE, "duration_s", 0, "*nope"), ("s.yaml",))
-_check_yaml("yaml-alias-recursive-description", _set_value(BASE, "description", 0, "&r [*r]"), ("s.yaml",),
-            max_s=3.0)
-_check_yaml("yaml-alias-recursive-plugins", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: &r [*r]\n"), ("s.yaml",),
-            max_s=3.0)
-_check_yaml("yaml-merge-key-into-plant", _sub(BASE, "  inertia_kg_m2: [0.042, 0.042, 0.0067]\n",
-                                              "  <<: {bogus_merged: 1}\n  inertia_kg_m2: [0.042, 0.042, 0.0067]\n"),
-            ("s.yaml",))
+_check_yaml("yaml-alias-recursive-description", _set_value(BASE, "description", 0, "&r [*r]"), ("s.yaml",), max_s=3.0)
+_check_yaml(
+    "yaml-alias-recursive-plugins", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: &r [*r]\n"), ("s.yaml",), max_s=3.0
+)
+_check_yaml(
+    "yaml-merge-key-into-plant",
+    _sub(
+        BASE,
+        "  inertia_kg_m2: [0.042, 0.042, 0.0067]\n",
+        "  <<: {bogus_merged: 1}\n  inertia_kg_m2: [0.042, 0.042, 0.0067]\n",
+    ),
+    ("s.yaml",),
+)
 _check_yaml("yaml-bomb-in-plugins", _sub(BASE, "seed: 1\n", f"seed: 1\nplugins: {BOMB}\n"), ("s.yaml",), max_s=3.0)
 _check_yaml("yaml-bomb-name-next-to-unknown-field", f"bogus: {BOMB}\nname: *a8\n", ("s.yaml",), max_s=3.0)
 _check_yaml("yaml-bomb-in-description", _set_value(BASE, "description", 0, BOMB), ("s.yaml",), max_s=3.0)
-_check_yaml("yaml-bomb-in-sensors", _sub(BASE, "sensors:\n", f"sensors: {BOMB}\nx_sensors:\n"), ("s.yaml",),
-            max_s=3.0)
+_check_yaml("yaml-bomb-in-sensors", _sub(BASE, "sensors:\n", f"sensors: {BOMB}\nx_sensors:\n"), ("s.yaml",), max_s=3.0)
 _check_yaml("yaml-bomb-as-inertia", _set_value(BASE, "inertia_kg_m2", 0, BOMB), ("s.yaml",), max_s=3.0)
 _check_yaml("yaml-bomb-top-level-list", BOMB + "\n", ("s.yaml",), max_s=3.0)
 
 # ---- YAML files: sizes, depth, encodings, binary, empty ----------------------------------------
-_check_yaml("yaml-size-2MiB-of-comments", BASE + ("# " + "x" * 98 + "\n") * (2 * 2**20 // 100 + 1), ("s.yaml",),
-            max_s=2.0)
-_check_yaml("yaml-size-2MiB-description", _set_value(BASE, "description", 0, "'" + "d" * (2 * 2**20) + "'"),
-            ("s.yaml",), max_s=2.0)
-case("yaml-size-100MiB-sparse", "check", "big.yaml", needles=("big.yaml",), max_s=2.0,
-     setup=lambda ctx: _sparse(ctx.path("big.yaml"), 100 * 2**20))
+_check_yaml(
+    "yaml-size-2MiB-of-comments", BASE + ("# " + "x" * 98 + "\n") * (2 * 2**20 // 100 + 1), ("s.yaml",), max_s=2.0
+)
+_check_yaml(
+    "yaml-size-2MiB-description",
+    _set_value(BASE, "description", 0, "'" + "d" * (2 * 2**20) + "'"),
+    ("s.yaml",),
+    max_s=2.0,
+)
+case(
+    "yaml-size-100MiB-sparse",
+    "check",
+    "big.yaml",
+    needles=("big.yaml",),
+    max_s=2.0,
+    setup=lambda ctx: _sparse(ctx.path("big.yaml"), 100 * 2**20),
+)
 case("yaml-size-dev-zero", "check", "/dev/zero", needles=("/dev/zero",), max_s=3.0)
 case("yaml-size-dev-null", "check", "/dev/null", needles=("/dev/null",))
 _check_yaml("yaml-huge-string-field-600k", _set_value(BASE, "mode", 0, "'" + "z" * 600_000 + "'"), ("mode",))
 _check_yaml("yaml-huge-unknown-key-200k", BASE + "k" * 200_000 + ": 1\n", ("s.yaml",))
 _check_yaml("yaml-huge-number-5000-digits", _set_value(BASE, "duration_s", 0, "9" * 5000), ("duration_s",))
-_check_yaml("yaml-huge-list-20k", _set_value(BASE, "inertia_kg_m2", 0, "[" + ", ".join(["1.0"] * 20_000) + "]"),
-            ("inertia_kg_m2",))
-_check_yaml("yaml-deep-nested-lists-10000", _set_value(BASE, "description", 0, _nested_lists(10_000)), ("s.yaml",),
-            max_s=5.0)
-_check_yaml("yaml-deep-nested-maps-10000", _set_value(BASE, "description", 0, _nested_maps(10_000)), ("s.yaml",),
-            max_s=5.0)
+_check_yaml(
+    "yaml-huge-list-20k",
+    _set_value(BASE, "inertia_kg_m2", 0, "[" + ", ".join(["1.0"] * 20_000) + "]"),
+    ("inertia_kg_m2",),
+)
+_check_yaml(
+    "yaml-deep-nested-lists-10000", _set_value(BASE, "description", 0, _nested_lists(10_000)), ("s.yaml",), max_s=5.0
+)
+_check_yaml(
+    "yaml-deep-nested-maps-10000", _set_value(BASE, "description", 0, _nested_maps(10_000)), ("s.yaml",), max_s=5.0
+)
 _check_yaml("yaml-deep-nested-lists-top-level", _nested_lists(10_000) + "\n", ("s.yaml",), max_s=5.0)
 _check_yaml("yaml-deep-block-indent-1000", "".join(" " * i + "a:\n" for i in range(1000)), ("s.yaml",), max_s=5.0)
 _check_yaml("yaml-encoding-latin1", _set_value(BASE, "description", 0, "café").encode("latin-1"), ("s.yaml",))
@@ -592,33 +670,45 @@ _check_yaml("yaml-top-level-string", "just a sentence\n", ("s.yaml",))
 _check_yaml("yaml-top-level-list", "- 1\n- 2\n", ("s.yaml",))
 case("yaml-file-is-a-folder", "check", "thesis", needles=("thesis",))
 case("yaml-file-missing", "check", "no_such_file.yaml", needles=("no_such_file.yaml",))
-case("yaml-file-dangling-symlink", "check", "dangling.yaml", needles=("dangling.yaml",),
-     setup=lambda ctx: os.symlink(ctx.path("nowhere.yaml"), ctx.path("dangling.yaml")))
+case(
+    "yaml-file-dangling-symlink",
+    "check",
+    "dangling.yaml",
+    needles=("dangling.yaml",),
+    setup=lambda ctx: os.symlink(ctx.path("nowhere.yaml"), ctx.path("dangling.yaml")),
+)
 
 # ---- YAML files: wrong types at every level (systematic) ---------------------------------------
 # (label, key, occurrence in BASE, kind) -> wrong values per kind; the message names the key.
 _FIELDS = [
-    ("duration_s", "duration_s", 0, "F"), ("seed", "seed", 0, "I"), ("name", "name", 0, "N"),
+    ("duration_s", "duration_s", 0, "F"),
+    ("seed", "seed", 0, "I"),
+    ("name", "name", 0, "N"),
     ("description", "description", 0, "S"),
     ("simulation.integration_scheme", "integration_scheme", 0, "E"),
     ("simulation.use_error_control", "use_error_control", 0, "B"),
     ("simulation.max_step_size_s", "max_step_size_s", 0, "F"),
-    ("orbit.altitude_km", "altitude_km", 0, "F"), ("orbit.inclination_deg", "inclination_deg", 0, "F"),
+    ("orbit.altitude_km", "altitude_km", 0, "F"),
+    ("orbit.inclination_deg", "inclination_deg", 0, "F"),
     ("plant.inertia_kg_m2", "inertia_kg_m2", 0, "V"),
     ("plant.initial_attitude_rpy_deg", "initial_attitude_rpy_deg", 0, "V"),
     ("plant.initial_rate_deg_per_s", "initial_rate_deg_per_s", 0, "V"),
     ("plant.disturbance_torque_N_m", "disturbance_torque_N_m", 0, "V"),
-    ("sensors.gyro.name", "name", 1, "N"), ("sensors.gyro.period_s", "period_s", 0, "F"),
+    ("sensors.gyro.name", "name", 1, "N"),
+    ("sensors.gyro.period_s", "period_s", 0, "F"),
     ("sensors.gyro.sample_rate_hz", "sample_rate_hz", 0, "F"),
     ("sensors.gyro.arw_deg_per_rt_h", "arw_deg_per_rt_h", 0, "F"),
     ("sensors.gyro.rrw_deg_per_h15", "rrw_deg_per_h15", 0, "F"),
     ("sensors.gyro.initial_bias_deg_per_h", "initial_bias_deg_per_h", 0, "V"),
-    ("sensors.st1.name", "name", 2, "N"), ("sensors.st1.period_s", "period_s", 1, "F"),
+    ("sensors.st1.name", "name", 2, "N"),
+    ("sensors.st1.period_s", "period_s", 1, "F"),
     ("sensors.st1.mode", "mode", 0, "E"),
     ("sensors.st1.sigma_cross_boresight_arcsec", "sigma_cross_boresight_arcsec", 0, "F"),
     ("sensors.st1.sigma_boresight_arcsec", "sigma_boresight_arcsec", 0, "F"),
-    ("estimators.single.name", "name", 3, "N"), ("estimators.single.period_s", "period_s", 2, "F"),
-    ("estimators.single.gyro", "gyro", 0, "E"), ("estimators.single.star_trackers", "star_trackers", 0, "L"),
+    ("estimators.single.name", "name", 3, "N"),
+    ("estimators.single.period_s", "period_s", 2, "F"),
+    ("estimators.single.gyro", "gyro", 0, "E"),
+    ("estimators.single.star_trackers", "star_trackers", 0, "L"),
     ("estimators.single.initial_attitude_rpy_deg", "initial_attitude_rpy_deg", 1, "V"),
     ("estimators.single.initial_bias_deg_per_h", "initial_bias_deg_per_h", 1, "V"),
     ("estimators.single.initial_attitude_sigma_deg", "initial_attitude_sigma_deg", 0, "F"),
@@ -642,10 +732,14 @@ for _label, _key, _occ, _kind in _FIELDS:
 
 # ---- YAML files: physical ranges -----------------------------------------------------------
 for _label, _key, _occ, _value in [
-    ("duration_s-1e300", "duration_s", 0, "1.0e300"), ("duration_s-inf", "duration_s", 0, ".inf"),
-    ("duration_s-negative", "duration_s", 0, "-1.0"), ("duration_s-zero", "duration_s", 0, "0.0"),
-    ("seed-negative", "seed", 0, "-1"), ("seed-2e20", "seed", 0, "99999999999999999999"),
-    ("orbit.altitude_km-1e300", "altitude_km", 0, "1.0e300"), ("orbit.altitude_km-negative", "altitude_km", 0, "-5.0"),
+    ("duration_s-1e300", "duration_s", 0, "1.0e300"),
+    ("duration_s-inf", "duration_s", 0, ".inf"),
+    ("duration_s-negative", "duration_s", 0, "-1.0"),
+    ("duration_s-zero", "duration_s", 0, "0.0"),
+    ("seed-negative", "seed", 0, "-1"),
+    ("seed-2e20", "seed", 0, "99999999999999999999"),
+    ("orbit.altitude_km-1e300", "altitude_km", 0, "1.0e300"),
+    ("orbit.altitude_km-negative", "altitude_km", 0, "-5.0"),
     ("plant.inertia_kg_m2-1e300", "inertia_kg_m2", 0, "[1.0e300, 1.0e300, 1.0e300]"),
     ("plant.inertia_kg_m2-negative", "inertia_kg_m2", 0, "[-1.0, 1.0, 1.0]"),
     ("plant.inertia_kg_m2-triangle", "inertia_kg_m2", 0, "[1.0, 1.0, 100.0]"),
@@ -670,56 +764,88 @@ for _label, _key, _occ, _value in [
     _check_yaml(f"yaml-range-{_label}", _set_value(BASE, _key, _occ, _value), (_needle,))
 
 # ---- YAML files: sections, unknown keys at nested levels, duplicates, references ---------------
-_check_yaml("yaml-section-simulation-scalar", re.sub(r"simulation:\n(  .*\n)+", "simulation: 5\n", BASE),
-            ("simulation",))
+_check_yaml(
+    "yaml-section-simulation-scalar", re.sub(r"simulation:\n(  .*\n)+", "simulation: 5\n", BASE), ("simulation",)
+)
 _check_yaml("yaml-section-orbit-list", re.sub(r"orbit:\n(  .*\n)+", "orbit: [1, 2]\n", BASE), ("orbit",))
-_check_yaml("yaml-section-plant-scalar", re.sub(r"plant: !RigidBodyConfig\n(  .*\n)+", "plant: 5\n", BASE),
-            ("plant",))
-_check_yaml("yaml-section-sensors-scalar", re.sub(r"sensors:\n(- .*\n|  .*\n)+", "sensors: 5\n", BASE),
-            ("sensors",))
-_check_yaml("yaml-section-sensors-mapping", re.sub(r"sensors:\n(- .*\n|  .*\n)+", "sensors: {gyro: 1}\n", BASE),
-            ("sensors",))
-_check_yaml("yaml-section-sensors-list-of-numbers", re.sub(r"sensors:\n(- .*\n|  .*\n)+", "sensors: [5, 6]\n", BASE),
-            ("sensors",))
+_check_yaml("yaml-section-plant-scalar", re.sub(r"plant: !RigidBodyConfig\n(  .*\n)+", "plant: 5\n", BASE), ("plant",))
+_check_yaml("yaml-section-sensors-scalar", re.sub(r"sensors:\n(- .*\n|  .*\n)+", "sensors: 5\n", BASE), ("sensors",))
+_check_yaml(
+    "yaml-section-sensors-mapping", re.sub(r"sensors:\n(- .*\n|  .*\n)+", "sensors: {gyro: 1}\n", BASE), ("sensors",)
+)
+_check_yaml(
+    "yaml-section-sensors-list-of-numbers",
+    re.sub(r"sensors:\n(- .*\n|  .*\n)+", "sensors: [5, 6]\n", BASE),
+    ("sensors",),
+)
 _check_yaml("yaml-section-sensors-missing", re.sub(r"sensors:\n(- .*\n|  .*\n)+", "", BASE), ("gyro",))
-_check_yaml("yaml-section-estimators-empty", re.sub(r"estimators:\n(- .*\n|  .*\n)+", "estimators:\n", BASE),
-            ("estimators",))
-_check_yaml("yaml-section-estimators-scalar", re.sub(r"estimators:\n(- .*\n|  .*\n)+", "estimators: 5\n", BASE),
-            ("estimators",))
+_check_yaml(
+    "yaml-section-estimators-empty", re.sub(r"estimators:\n(- .*\n|  .*\n)+", "estimators:\n", BASE), ("estimators",)
+)
+_check_yaml(
+    "yaml-section-estimators-scalar", re.sub(r"estimators:\n(- .*\n|  .*\n)+", "estimators: 5\n", BASE), ("estimators",)
+)
 _check_yaml("yaml-section-scoring-list", re.sub(r"scoring:\n(  .*\n)+", "scoring: [1]\n", BASE), ("scoring",))
 _check_yaml("yaml-unknown-top-level", BASE + "bogus_top: 1\n", ("bogus_top",))
-_check_yaml("yaml-unknown-in-simulation", _sub(BASE, "simulation:\n", "simulation:\n  bogus_sim: 1\n"),
-            ("simulation", "bogus_sim"))
+_check_yaml(
+    "yaml-unknown-in-simulation",
+    _sub(BASE, "simulation:\n", "simulation:\n  bogus_sim: 1\n"),
+    ("simulation", "bogus_sim"),
+)
 _check_yaml("yaml-unknown-in-orbit", _sub(BASE, "orbit:\n", "orbit:\n  bogus_orbit: 1\n"), ("orbit", "bogus_orbit"))
-_check_yaml("yaml-unknown-in-plant", _sub(BASE, "plant: !RigidBodyConfig\n",
-                                          "plant: !RigidBodyConfig\n  bogus_plant: 1\n"),
-            ("plant", "bogus_plant"))
-_check_yaml("yaml-unknown-in-gyro", _sub(BASE, "  name: gyro\n", "  name: gyro\n  bogus_gyro: 1\n"),
-            ("sensors", "bogus_gyro"))
-_check_yaml("yaml-unknown-in-mounting", _sub(BASE, "{psi_phi_theta_deg: [-90.0, 45.0, -90.0]}",
-                                             "{psi_phi_theta_deg: [-90.0, 45.0, -90.0], bogus_mount: 1}"),
-            ("mounting", "bogus_mount"))
-_check_yaml("yaml-unknown-in-estimator", _sub(BASE, "  name: single\n", "  name: single\n  bogus_est: 1\n"),
-            ("estimators", "bogus_est"))
-_check_yaml("yaml-unknown-in-scoring", _sub(BASE, "scoring:\n", "scoring:\n  bogus_score: 1\n"),
-            ("scoring", "bogus_score"))
+_check_yaml(
+    "yaml-unknown-in-plant",
+    _sub(BASE, "plant: !RigidBodyConfig\n", "plant: !RigidBodyConfig\n  bogus_plant: 1\n"),
+    ("plant", "bogus_plant"),
+)
+_check_yaml(
+    "yaml-unknown-in-gyro", _sub(BASE, "  name: gyro\n", "  name: gyro\n  bogus_gyro: 1\n"), ("sensors", "bogus_gyro")
+)
+_check_yaml(
+    "yaml-unknown-in-mounting",
+    _sub(
+        BASE, "{psi_phi_theta_deg: [-90.0, 45.0, -90.0]}", "{psi_phi_theta_deg: [-90.0, 45.0, -90.0], bogus_mount: 1}"
+    ),
+    ("mounting", "bogus_mount"),
+)
+_check_yaml(
+    "yaml-unknown-in-estimator",
+    _sub(BASE, "  name: single\n", "  name: single\n  bogus_est: 1\n"),
+    ("estimators", "bogus_est"),
+)
+_check_yaml(
+    "yaml-unknown-in-scoring", _sub(BASE, "scoring:\n", "scoring:\n  bogus_score: 1\n"), ("scoring", "bogus_score")
+)
 _check_yaml("yaml-unknown-non-string-key", BASE + "[1, 2]: 3\n", ("s.yaml",))
 _check_yaml("yaml-unknown-null-key", BASE + "~: 3\n", ("s.yaml",))
 _check_yaml("yaml-duplicate-top-level", BASE + "duration_s: 3.0\n", ("duration_s",))
-_check_yaml("yaml-duplicate-in-plant", _sub(BASE, "  inertia_kg_m2: [0.042, 0.042, 0.0067]\n",
-                                            "  inertia_kg_m2: [0.042, 0.042, 0.0067]\n"
-                                            "  inertia_kg_m2: [1.0, 1.0, 1.0]\n"),
-            ("inertia_kg_m2",))
-_check_yaml("yaml-duplicate-in-gyro", _sub(BASE, "  arw_deg_per_rt_h: 0.56\n",
-                                           "  arw_deg_per_rt_h: 0.56\n  arw_deg_per_rt_h: 0.0\n"),
-            ("arw_deg_per_rt_h",))
+_check_yaml(
+    "yaml-duplicate-in-plant",
+    _sub(
+        BASE,
+        "  inertia_kg_m2: [0.042, 0.042, 0.0067]\n",
+        "  inertia_kg_m2: [0.042, 0.042, 0.0067]\n  inertia_kg_m2: [1.0, 1.0, 1.0]\n",
+    ),
+    ("inertia_kg_m2",),
+)
+_check_yaml(
+    "yaml-duplicate-in-gyro",
+    _sub(BASE, "  arw_deg_per_rt_h: 0.56\n", "  arw_deg_per_rt_h: 0.56\n  arw_deg_per_rt_h: 0.0\n"),
+    ("arw_deg_per_rt_h",),
+)
 _check_yaml("yaml-duplicate-sensor-names", _sub(BASE, "  name: st1\n", "  name: gyro\n"), ("name",))
 _check_yaml("yaml-duplicate-estimator-sensor-name", _sub(BASE, "  name: single\n", "  name: st1\n"), ("name",))
 _check_yaml("yaml-reference-unknown-gyro", _sub(BASE, "  gyro: gyro\n", "  gyro: no_such_gyro\n"), ("no_such_gyro",))
-_check_yaml("yaml-reference-tracker-is-gyro", _sub(BASE, "  star_trackers: [st1]\n", "  star_trackers: [gyro]\n"),
-            ("star_trackers",))
-_check_yaml("yaml-plugins-missing-module", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: [no_such_plugin_xyz]\n"),
-            ("no_such_plugin_xyz",))
+_check_yaml(
+    "yaml-reference-tracker-is-gyro",
+    _sub(BASE, "  star_trackers: [st1]\n", "  star_trackers: [gyro]\n"),
+    ("star_trackers",),
+)
+_check_yaml(
+    "yaml-plugins-missing-module",
+    _sub(BASE, "seed: 1\n", "seed: 1\nplugins: [no_such_plugin_xyz]\n"),
+    ("no_such_plugin_xyz",),
+)
 _check_yaml("yaml-plugins-path-like", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: ['../../evil']\n"), ("evil",))
 _check_yaml("yaml-plugins-not-a-list", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: 5\n"), ("plugins",))
 _check_yaml("yaml-plugins-empty-name", _sub(BASE, "seed: 1\n", "seed: 1\nplugins: ['']\n"), ("plugins",))
@@ -741,8 +867,18 @@ for _id, _text, _needles in [
     ("altitude-1e300", _set_value(BASE, "altitude_km", 0, "1.0e300"), ("altitude_km",)),
     ("estimators-empty", re.sub(r"estimators:\n(- .*\n|  .*\n)+", "estimators:\n", BASE), ("estimators",)),
 ]:
-    case(f"run-yaml-{_id}", "run", "s.yaml", "--out", "r", "--no-figures", "--quiet", needles=_needles,
-         files={"s.yaml": _text}, max_s=(3.0 if _id in ("bomb", "2MiB") else None))
+    case(
+        f"run-yaml-{_id}",
+        "run",
+        "s.yaml",
+        "--out",
+        "r",
+        "--no-figures",
+        "--quiet",
+        needles=_needles,
+        files={"s.yaml": _text},
+        max_s=(3.0 if _id in ("bomb", "2MiB") else None),
+    )
 
 # ---- --set strings (on the shipped single-tracker scenario) ------------------------------------
 for _id, _setting, _needles in [
@@ -855,26 +991,51 @@ for _id, _setting, _needles in [
     ("huge-path-100k", "p" * 100_000 + "=1", ("--set",)),
 ]:
     _check_set(f"set-{_id}", _setting, _needles, max_s=(3.0 if "bomb" in _id or "deep" in _id else None))
-_check_set("set-fault-outlier-rate-1e300", "sensors.gyro_faults.outlier_rate_deg_per_s=1.0e300",
-           ("outlier_rate_deg_per_s",), scenario="fault_campaign")
-_check_set("set-num-particles-1e9", "estimators.gyroless_pf.num_particles=1000000000", ("num_particles",),
-           scenario="s0_gyroless_pf", max_s=3.0)
-_check_set("set-num-particles-zero", "estimators.gyroless_pf.num_particles=0", ("num_particles",),
-           scenario="s0_gyroless_pf")
-_check_set("set-num-particles-float", "estimators.gyroless_pf.num_particles=2.5", ("num_particles",),
-           scenario="s0_gyroless_pf")
-_check_set("set-num-particles-hex-huge", "estimators.gyroless_pf.num_particles=0x7fffffffffffffff",
-           ("num_particles",), scenario="s0_gyroless_pf", max_s=3.0)
+_check_set(
+    "set-fault-outlier-rate-1e300",
+    "sensors.gyro_faults.outlier_rate_deg_per_s=1.0e300",
+    ("outlier_rate_deg_per_s",),
+    scenario="fault_campaign",
+)
+_check_set(
+    "set-num-particles-1e9",
+    "estimators.gyroless_pf.num_particles=1000000000",
+    ("num_particles",),
+    scenario="s0_gyroless_pf",
+    max_s=3.0,
+)
+_check_set(
+    "set-num-particles-zero", "estimators.gyroless_pf.num_particles=0", ("num_particles",), scenario="s0_gyroless_pf"
+)
+_check_set(
+    "set-num-particles-float", "estimators.gyroless_pf.num_particles=2.5", ("num_particles",), scenario="s0_gyroless_pf"
+)
+_check_set(
+    "set-num-particles-hex-huge",
+    "estimators.gyroless_pf.num_particles=0x7fffffffffffffff",
+    ("num_particles",),
+    scenario="s0_gyroless_pf",
+    max_s=3.0,
+)
 case("set-missing-value", "check", S, "--set", needles=("--set",))
 # A mapping for a section sets (or replaces) its fields: valid or refused, never a traceback.
 _check_set("set-plant-mapping-valid-fields", "plant={inertia_kg_m2: [1, 1, 1]}", (), code=(0, 2))
-case("set-several-last-bad", "check", S, "--set", "sensors.st1.sigma_boresight_arcsec=20", "--set", "seed=one",
-     needles=("seed",))
+case(
+    "set-several-last-bad",
+    "check",
+    S,
+    "--set",
+    "sensors.st1.sigma_boresight_arcsec=20",
+    "--set",
+    "seed=one",
+    needles=("seed",),
+)
 # The same through `run` (refused before any simulation; never a result folder)
 for _id, _setting, _needles in [
-    ("open-bracket", "duration_s=[", ("--set",)), ("python-tag", "duration_s=!!python/object/apply:os.system [x]",
-                                                  ("duration_s",)),
-    ("foo-tag", "duration_s=!foo 20", ("duration_s",)), ("name-null", "name=null", ("name",)),
+    ("open-bracket", "duration_s=[", ("--set",)),
+    ("python-tag", "duration_s=!!python/object/apply:os.system [x]", ("duration_s",)),
+    ("foo-tag", "duration_s=!foo 20", ("duration_s",)),
+    ("name-null", "name=null", ("name",)),
     ("altitude-1e300", "orbit.altitude_km=1.0e300", ("orbit.altitude_km",)),
     ("arw-1e300", "sensors.gyro.arw_deg_per_rt_h=1e300", ("arw_deg_per_rt_h",)),
     ("rrw-1e300", "sensors.gyro.rrw_deg_per_h15=1e300", ("rrw_deg_per_h15",)),
@@ -889,12 +1050,36 @@ for _cmd in ("montecarlo", "compare"):
         ("bomb", _sub(BASE, "seed: 1\n", f"seed: 1\nplugins: {BOMB}\n"), ("s.yaml",)),
         ("nested-unknown", _sub(BASE, "  name: gyro\n", "  name: gyro\n  bogus_gyro: 1\n"), ("bogus_gyro",)),
     ]:
-        case(f"{_cmd}-yaml-{_id}", _cmd, "s.yaml", "--runs", "1", "--workers", "1", "--quiet", "--out", "camp_new",
-             needles=_needles, files={"s.yaml": _text}, max_s=(3.0 if _id == "bomb" else None))
+        case(
+            f"{_cmd}-yaml-{_id}",
+            _cmd,
+            "s.yaml",
+            "--runs",
+            "1",
+            "--workers",
+            "1",
+            "--quiet",
+            "--out",
+            "camp_new",
+            needles=_needles,
+            files={"s.yaml": _text},
+            max_s=(3.0 if _id == "bomb" else None),
+        )
 case("check-seed-text", "check", S, "--seed", "abc", needles=("--seed",))
 case("check-seed-negative", "check", S, "--seed=-1", needles=("seed",))
-case("run-set-num-particles-1e9", "run", "s0_gyroless_pf", "--set", "estimators.gyroless_pf.num_particles=1000000000",
-     "--out", "r", "--no-figures", "--quiet", needles=("num_particles",), max_s=3.0)
+case(
+    "run-set-num-particles-1e9",
+    "run",
+    "s0_gyroless_pf",
+    "--set",
+    "estimators.gyroless_pf.num_particles=1000000000",
+    "--out",
+    "r",
+    "--no-figures",
+    "--quiet",
+    needles=("num_particles",),
+    max_s=3.0,
+)
 
 # ---- CLI options ---------------------------------------------------------------------------
 _MC = ("montecarlo", S, *TINY_SET, "--quiet", "--out", "mcnew")
@@ -931,58 +1116,102 @@ for _id, _argv, _needles in [
     ("montecarlo-runs-huge", (*_MC, "--workers", "1", "--runs", str(10**12)), ("--runs",)),
     ("montecarlo-runs-float", (*_MC, "--workers", "1", "--runs", "2.5"), ("--runs",)),
     ("montecarlo-runs-text", (*_MC, "--workers", "1", "--runs", "many"), ("--runs",)),
-    ("montecarlo-first-seed-negative", (*_MC, "--workers", "1", "--runs", "1", "--first-seed", "-1"),
-     ("--first-seed",)),
-    ("montecarlo-first-seed-2-to-32", (*_MC, "--workers", "1", "--runs", "1", "--first-seed", str(2**32)),
-     ("--first-seed",)),
-    ("montecarlo-first-seed-overflow", (*_MC, "--workers", "1", "--runs", "2", "--first-seed", str(2**32 - 1)),
-     ("--first-seed",)),
+    (
+        "montecarlo-first-seed-negative",
+        (*_MC, "--workers", "1", "--runs", "1", "--first-seed", "-1"),
+        ("--first-seed",),
+    ),
+    (
+        "montecarlo-first-seed-2-to-32",
+        (*_MC, "--workers", "1", "--runs", "1", "--first-seed", str(2**32)),
+        ("--first-seed",),
+    ),
+    (
+        "montecarlo-first-seed-overflow",
+        (*_MC, "--workers", "1", "--runs", "2", "--first-seed", str(2**32 - 1)),
+        ("--first-seed",),
+    ),
     ("montecarlo-first-seed-text", (*_MC, "--workers", "1", "--runs", "1", "--first-seed", "one"), ("--first-seed",)),
     ("montecarlo-workers-zero", (*_MC, "--runs", "1", "--workers", "0"), ("--workers",)),
     ("montecarlo-workers-negative", (*_MC, "--runs", "1", "--workers", "-3"), ("--workers",)),
     ("montecarlo-workers-text", (*_MC, "--runs", "1", "--workers", "many"), ("--workers",)),
-    ("montecarlo-workers-with-scheduler", (*_MC, "--runs", "1", "--workers", "2", "--scheduler",
-                                           "tcp://127.0.0.1:8786"),
-     ("--workers",)),
+    (
+        "montecarlo-workers-with-scheduler",
+        (*_MC, "--runs", "1", "--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"),
+        ("--workers",),
+    ),
     ("montecarlo-scheduler-http", (*_MC_SCHED, "http://127.0.0.1:8787"), ("--scheduler",)),
     ("montecarlo-scheduler-https", (*_MC_SCHED, "https://example.invalid/"), ("--scheduler",)),
     ("montecarlo-scheduler-file-url", (*_MC_SCHED, "file:///etc/passwd"), ("--scheduler",)),
     ("montecarlo-scheduler-empty", (*_MC_SCHED, ""), ("--scheduler",)),
     ("montecarlo-scheduler-garbage", (*_MC_SCHED, "not an address"), ("--scheduler",)),
-    ("montecarlo-scheduler-bad-port", (*_MC_SCHED, "tcp://127.0.0.1:notaport"),
-     ("--scheduler",)),
-    ("montecarlo-scheduler-port-99999", (*_MC_SCHED, "tcp://127.0.0.1:99999"),
-     ("--scheduler",)),
-    ("montecarlo-scheduler-huge", (*_MC_SCHED, "tcp://" + "a" * 100_000 + ":1"),
-     ("--scheduler",)),
-    ("montecarlo-connect-timeout-negative", (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1",
-                                            "--connect-timeout", "-1"), ("--connect-timeout",)),
-    ("montecarlo-connect-timeout-nan", (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1",
-                                       "--connect-timeout", "nan"), ("--connect-timeout",)),
-    ("montecarlo-connect-timeout-inf", (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1",
-                                       "--connect-timeout", "inf"), ("--connect-timeout",)),
-    ("montecarlo-connect-timeout-1e400", (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1",
-                                         "--connect-timeout", "1e400"), ("--connect-timeout",)),
-    ("montecarlo-connect-timeout-text", (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1",
-                                        "--connect-timeout", "soon"), ("--connect-timeout",)),
-    ("montecarlo-estimators-unknown", (*_MC, "--workers", "1", "--runs", "1", "--estimators", "no_such_est"),
-     ("no_such_est",)),
+    ("montecarlo-scheduler-bad-port", (*_MC_SCHED, "tcp://127.0.0.1:notaport"), ("--scheduler",)),
+    ("montecarlo-scheduler-port-99999", (*_MC_SCHED, "tcp://127.0.0.1:99999"), ("--scheduler",)),
+    ("montecarlo-scheduler-huge", (*_MC_SCHED, "tcp://" + "a" * 100_000 + ":1"), ("--scheduler",)),
+    (
+        "montecarlo-connect-timeout-negative",
+        (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "-1"),
+        ("--connect-timeout",),
+    ),
+    (
+        "montecarlo-connect-timeout-nan",
+        (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "nan"),
+        ("--connect-timeout",),
+    ),
+    (
+        "montecarlo-connect-timeout-inf",
+        (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "inf"),
+        ("--connect-timeout",),
+    ),
+    (
+        "montecarlo-connect-timeout-1e400",
+        (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "1e400"),
+        ("--connect-timeout",),
+    ),
+    (
+        "montecarlo-connect-timeout-text",
+        (*_MC, "--runs", "1", "--scheduler", "tcp://127.0.0.1:1", "--connect-timeout", "soon"),
+        ("--connect-timeout",),
+    ),
+    (
+        "montecarlo-estimators-unknown",
+        (*_MC, "--workers", "1", "--runs", "1", "--estimators", "no_such_est"),
+        ("no_such_est",),
+    ),
     ("montecarlo-estimators-empty", (*_MC, "--workers", "1", "--runs", "1", "--estimators", ","), ("--estimators",)),
-    ("montecarlo-estimators-duplicate", (*_MC, "--workers", "1", "--runs", "1", "--estimators", "single,single"),
-     ("--estimators",)),
-    ("montecarlo-estimators-huge", (*_MC, "--workers", "1", "--runs", "1", "--estimators", "e" * 100_000),
-     ("--estimators",)),
-    ("montecarlo-scenario-unknown", ("montecarlo", "no_such_scenario", "--runs", "1", "--workers", "1"),
-     ("no_such_scenario",)),
+    (
+        "montecarlo-estimators-duplicate",
+        (*_MC, "--workers", "1", "--runs", "1", "--estimators", "single,single"),
+        ("--estimators",),
+    ),
+    (
+        "montecarlo-estimators-huge",
+        (*_MC, "--workers", "1", "--runs", "1", "--estimators", "e" * 100_000),
+        ("--estimators",),
+    ),
+    (
+        "montecarlo-scenario-unknown",
+        ("montecarlo", "no_such_scenario", "--runs", "1", "--workers", "1"),
+        ("no_such_scenario",),
+    ),
     ("compare-no-scenario", ("compare", "--runs", "1", "--workers", "1"), ("SCENARIO",)),
     ("compare-duplicate-scenario", ("compare", S, S, "--runs", "1", "--workers", "1"), (S,)),
-    ("compare-unknown-scenario", ("compare", "no_such_scenario", "--runs", "1", "--workers", "1"),
-     ("no_such_scenario",)),
-    ("compare-estimators-unknown-source", (*_CMP, "--runs", "1", "--workers", "1", "--estimators",
-                                          "no_such_scenario:single"), ("no_such_scenario",)),
+    (
+        "compare-unknown-scenario",
+        ("compare", "no_such_scenario", "--runs", "1", "--workers", "1"),
+        ("no_such_scenario",),
+    ),
+    (
+        "compare-estimators-unknown-source",
+        (*_CMP, "--runs", "1", "--workers", "1", "--estimators", "no_such_scenario:single"),
+        ("no_such_scenario",),
+    ),
     ("compare-runs-zero", (*_CMP, "--runs", "0", "--workers", "1"), ("--runs",)),
-    ("compare-scheduler-http", (*_CMP, "--runs", "1", "--connect-timeout", "2", "--scheduler",
-                                "http://127.0.0.1:8787"), ("--scheduler",)),
+    (
+        "compare-scheduler-http",
+        (*_CMP, "--runs", "1", "--connect-timeout", "2", "--scheduler", "http://127.0.0.1:8787"),
+        ("--scheduler",),
+    ),
     ("debug-run-user-error", ("run", "no_such_scenario", "--debug"), ("no_such_scenario",)),
     ("debug-check-user-error", ("check", "no_such_scenario", "--debug"), ("no_such_scenario",)),
     ("debug-score-user-error", ("score", "no_such_folder", "--debug"), ("no_such_folder",)),
@@ -999,8 +1228,18 @@ def _closed_port() -> int:
         return s.getsockname()[1]
 
 
-case("opt-montecarlo-scheduler-nothing-listening", *_MC, "--runs", "1", "--scheduler",
-     f"tcp://127.0.0.1:{_closed_port()}", "--connect-timeout", "2", needles=("--scheduler",), max_s=30.0)
+case(
+    "opt-montecarlo-scheduler-nothing-listening",
+    *_MC,
+    "--runs",
+    "1",
+    "--scheduler",
+    f"tcp://127.0.0.1:{_closed_port()}",
+    "--connect-timeout",
+    "2",
+    needles=("--scheduler",),
+    max_s=30.0,
+)
 
 
 # ---- result folders read by `score` -------------------------------------------------------------
@@ -1075,8 +1314,11 @@ def _name_plugin_in_config(path: str, module: str) -> None:
     with open(path) as f:
         text = f.read()
     with open(path, "w") as f:
-        f.write(re.sub(r"^plugins:.*$", f"plugins: [{module}]", text, count=1, flags=re.M)
-                if re.search(r"^plugins:", text, re.M) else f"plugins: [{module}]\n" + text)
+        f.write(
+            re.sub(r"^plugins:.*$", f"plugins: [{module}]", text, count=1, flags=re.M)
+            if re.search(r"^plugins:", text, re.M)
+            else f"plugins: [{module}]\n" + text
+        )
 
 
 def _config_with_plugin(ctx: Ctx, folder: str, module: str) -> None:
@@ -1087,6 +1329,7 @@ def _config_with_plugin(ctx: Ctx, folder: str, module: str) -> None:
 def _no_marker(*names):
     def expect(ctx: Ctx, c: Call) -> list[str]:
         return [f"{n} exists: the payload ran" for n in names if os.path.lexists(ctx.path(n))]
+
     return expect
 
 
@@ -1098,6 +1341,7 @@ def _edit_config(old_new: Callable[[str], str]):
         data = old_new(text)
         with open(path, "wb") as f:
             f.write(data if isinstance(data, bytes) else data.encode())
+
     return setup
 
 
@@ -1106,6 +1350,7 @@ def _remove(rel):
         _copy_run(ctx)
         target = ctx.path("res", rel)
         shutil.rmtree(target) if os.path.isdir(target) else os.remove(target)
+
     return setup
 
 
@@ -1116,6 +1361,7 @@ def _replace_file(rel, data: bytes | Callable[[bytes], bytes], folder=_copy_run)
         old = open(path, "rb").read() if os.path.isfile(path) else b""
         with open(path, "wb") as f:
             f.write(data(old) if callable(data) else data)
+
     return setup
 
 
@@ -1123,6 +1369,7 @@ def _npz_edit(edit: Callable[[Ctx, dict], dict], rel="log.npz", folder=_copy_run
     def setup(ctx: Ctx) -> None:
         base = folder(ctx)
         _rewrite_npz(os.path.join(base, rel), lambda arrays: edit(ctx, arrays))
+
     return setup
 
 
@@ -1174,35 +1421,89 @@ for _id, _argv, _needles, _kw in [
     ("log-garbage", _SCORE, ("log.npz",), {"setup": _replace_file("log.npz", b"garbage" * 100)}),
     ("log-empty", _SCORE, ("log.npz",), {"setup": _replace_file("log.npz", b"")}),
     ("log-is-a-folder", _SCORE, ("log.npz",), {"setup": _log_is_folder}),
-    ("log-zip-of-text", _SCORE, ("log.npz",), {"setup": _replace_file(
-        "log.npz", lambda b: _zip_bytes({"t.npy": b"not an array"}))}),
-    ("log-pickled-object-array", _SCORE, ("log.npz",), {"setup": _npz_edit(_first_pickled),
-                                                         "expect": _no_marker("UNPICKLED")}),
+    (
+        "log-zip-of-text",
+        _SCORE,
+        ("log.npz",),
+        {"setup": _replace_file("log.npz", lambda b: _zip_bytes({"t.npy": b"not an array"}))},
+    ),
+    (
+        "log-pickled-object-array",
+        _SCORE,
+        ("log.npz",),
+        {"setup": _npz_edit(_first_pickled), "expect": _no_marker("UNPICKLED")},
+    ),
     ("log-missing-array", _SCORE, ("log.npz",), {"setup": _npz_edit(_drop_first)}),
     ("log-array-wrong-shape", _SCORE, ("log.npz",), {"setup": _npz_edit(_first_reshaped)}),
     ("log-array-of-strings", _SCORE, ("log.npz",), {"setup": _npz_edit(_first_strings)}),
     ("log-header-claims-8TB", _SCORE, ("log.npz",), {"setup": _npz_with_huge_header, "max_s": 5.0}),
-    ("config-python-tag", _SCORE, ("config.yaml",), {"setup": _edit_config(
-        lambda t: re.sub(r"^name:.*$", 'name: !!python/object/apply:os.system ["touch PWNED"]', t, count=1,
-                         flags=re.M))}),
-    ("config-foo-tag", _SCORE, ("config.yaml",), {"setup": _edit_config(
-        lambda t: re.sub(r"^duration_s:.*$", "duration_s: !foo 2", t, count=1, flags=re.M))}),
+    (
+        "config-python-tag",
+        _SCORE,
+        ("config.yaml",),
+        {
+            "setup": _edit_config(
+                lambda t: re.sub(
+                    r"^name:.*$", 'name: !!python/object/apply:os.system ["touch PWNED"]', t, count=1, flags=re.M
+                )
+            )
+        },
+    ),
+    (
+        "config-foo-tag",
+        _SCORE,
+        ("config.yaml",),
+        {"setup": _edit_config(lambda t: re.sub(r"^duration_s:.*$", "duration_s: !foo 2", t, count=1, flags=re.M))},
+    ),
     ("config-binary", _SCORE, ("config.yaml",), {"setup": _edit_config(lambda t: bytes(range(256)) * 8)}),
-    ("config-latin1", _SCORE, ("config.yaml",), {"setup": _edit_config(
-        lambda t: t.encode() + "# café\n".encode("latin-1"))}),
+    (
+        "config-latin1",
+        _SCORE,
+        ("config.yaml",),
+        {"setup": _edit_config(lambda t: t.encode() + "# café\n".encode("latin-1"))},
+    ),
     ("config-empty", _SCORE, ("config.yaml",), {"setup": _edit_config(lambda t: "")}),
-    ("config-bomb", _SCORE, ("config.yaml",), {"setup": _edit_config(
-        lambda t: re.sub(r"^plugins:.*$", f"plugins: {BOMB}", t, count=1, flags=re.M)), "max_s": 3.0}),
-    ("config-2MiB", _SCORE, ("config.yaml",), {"setup": _edit_config(lambda t: t + "#" * (2 * 2**20) + "\n"),
-                                                 "max_s": 2.0}),
+    (
+        "config-bomb",
+        _SCORE,
+        ("config.yaml",),
+        {
+            "setup": _edit_config(lambda t: re.sub(r"^plugins:.*$", f"plugins: {BOMB}", t, count=1, flags=re.M)),
+            "max_s": 3.0,
+        },
+    ),
+    (
+        "config-2MiB",
+        _SCORE,
+        ("config.yaml",),
+        {"setup": _edit_config(lambda t: t + "#" * (2 * 2**20) + "\n"), "max_s": 2.0},
+    ),
     ("config-unknown-field", _SCORE, ("config.yaml",), {"setup": _edit_config(lambda t: t + "bogus_top: 1\n")}),
-    ("config-duration-five", _SCORE, ("config.yaml",), {"setup": _edit_config(
-        lambda t: re.sub(r"^duration_s:.*$", "duration_s: five", t, count=1, flags=re.M))}),
-    ("config-plugin-missing-module", _SCORE, ("no_such_plugin_xyz",), {"setup": _edit_config(
-        lambda t: "plugins: [no_such_plugin_xyz]\n" + re.sub(r"^plugins:.*\n", "", t, flags=re.M))}),
-    ("config-plugin-in-the-folder", _SCORE, ("evil_plugin_score", "--allow-plugins"), {
-        "setup": lambda ctx: _config_with_plugin(ctx, _copy_run(ctx), "evil_plugin_score"),
-        "expect": _no_marker("PLUGIN_WAS_IMPORTED")}),
+    (
+        "config-duration-five",
+        _SCORE,
+        ("config.yaml",),
+        {"setup": _edit_config(lambda t: re.sub(r"^duration_s:.*$", "duration_s: five", t, count=1, flags=re.M))},
+    ),
+    (
+        "config-plugin-missing-module",
+        _SCORE,
+        ("no_such_plugin_xyz",),
+        {
+            "setup": _edit_config(
+                lambda t: "plugins: [no_such_plugin_xyz]\n" + re.sub(r"^plugins:.*\n", "", t, flags=re.M)
+            )
+        },
+    ),
+    (
+        "config-plugin-in-the-folder",
+        _SCORE,
+        ("evil_plugin_score", "--allow-plugins"),
+        {
+            "setup": lambda ctx: _config_with_plugin(ctx, _copy_run(ctx), "evil_plugin_score"),
+            "expect": _no_marker("PLUGIN_WAS_IMPORTED"),
+        },
+    ),
     ("out-under-a-file", (*_SCORE, "--out", "notes.txt/m.json"), ("m.json",), {"setup": _copy_run}),
     ("out-is-a-folder", (*_SCORE, "--out", "thesis"), ("thesis",), {"setup": _copy_run}),
     ("out-empty", (*_SCORE, "--out", ""), ("--out",), {"setup": _copy_run}),
@@ -1264,27 +1565,70 @@ for _id, _setup, _needles, _code, _kw in [
     ("campaign-json-null", _campaign_edit("campaign.json", b"null\n"), ("mcres",), 2, {}),
     ("campaign-json-garbage", _campaign_edit("campaign.json", b"{not json"), ("mcres",), 2, {}),
     ("campaign-json-binary", _campaign_edit("campaign.json", bytes(range(256))), ("mcres",), 2, {}),
-    ("config-edited", _campaign_edit("config.yaml", lambda b: b.replace(b"duration_s: 2.0", b"duration_s: 3.0")),
-     ("mcres",), 2, {}),
-    ("config-python-tag", _campaign_edit("config.yaml", lambda b: re.sub(
-        rb"(?m)^name:.*$", b'name: !!python/object/apply:os.system ["touch PWNED"]', b, count=1)), ("mcres",), 2, {}),
-    ("config-plugin-in-the-folder", _campaign_config_plugin, ("mcres",), 2,
-     {"expect": _no_marker("PLUGIN_WAS_IMPORTED")}),
+    (
+        "config-edited",
+        _campaign_edit("config.yaml", lambda b: b.replace(b"duration_s: 2.0", b"duration_s: 3.0")),
+        ("mcres",),
+        2,
+        {},
+    ),
+    (
+        "config-python-tag",
+        _campaign_edit(
+            "config.yaml",
+            lambda b: re.sub(rb"(?m)^name:.*$", b'name: !!python/object/apply:os.system ["touch PWNED"]', b, count=1),
+        ),
+        ("mcres",),
+        2,
+        {},
+    ),
+    (
+        "config-plugin-in-the-folder",
+        _campaign_config_plugin,
+        ("mcres",),
+        2,
+        {"expect": _no_marker("PLUGIN_WAS_IMPORTED")},
+    ),
     ("runs-is-a-file", _runs_is_file, ("runs",), 2, {}),
     ("run-file-extra-array", _campaign_npz(_extra_key), ("seed_1",), (0, 2), {}),
     ("run-file-missing-array", _campaign_npz(_drop_first), ("seed_1",), (0, 2), {}),
     ("run-file-edited-array", _campaign_npz(_first_reshaped), ("seed_1",), (0, 2), {}),
-    ("run-file-pickled-object-array", _campaign_npz(_first_pickled), ("seed_1",), (0, 2),
-     {"expect": _no_marker("UNPICKLED")}),
-    ("run-file-truncated", _campaign_edit(os.path.join("runs", "seed_1.npz"), lambda b: b[: len(b) // 2]),
-     ("seed_1",), (0, 2), {}),
+    (
+        "run-file-pickled-object-array",
+        _campaign_npz(_first_pickled),
+        ("seed_1",),
+        (0, 2),
+        {"expect": _no_marker("UNPICKLED")},
+    ),
+    (
+        "run-file-truncated",
+        _campaign_edit(os.path.join("runs", "seed_1.npz"), lambda b: b[: len(b) // 2]),
+        ("seed_1",),
+        (0, 2),
+        {},
+    ),
     ("run-file-is-a-folder", _run_file_is_folder, ("seed_1",), (0, 2), {}),
     ("failed-txt-100k-line", _huge_failed_txt, (), (0, 2), {}),
 ]:
-    case(f"resume-{_id}", *_RESUME, needles=_needles, code=_code, setup=_setup,
-         changes=(("mcres",) if _code != 2 else ()), **_kw)
-case("resume-existing-campaign-without-resume", "montecarlo", S, *MC_TINY, "--out", "mcres", needles=("--resume",),
-     setup=_copy_campaign)
+    case(
+        f"resume-{_id}",
+        *_RESUME,
+        needles=_needles,
+        code=_code,
+        setup=_setup,
+        changes=(("mcres",) if _code != 2 else ()),
+        **_kw,
+    )
+case(
+    "resume-existing-campaign-without-resume",
+    "montecarlo",
+    S,
+    *MC_TINY,
+    "--out",
+    "mcres",
+    needles=("--resume",),
+    setup=_copy_campaign,
+)
 case("resume-into-user-folder", "montecarlo", S, *MC_TINY, "--out", "thesis", "--resume", needles=("thesis",))
 
 
@@ -1293,6 +1637,7 @@ def _mkdirs(*rels):
     def setup(ctx: Ctx) -> None:
         for rel in rels:
             os.makedirs(ctx.path(rel), exist_ok=True)
+
     return setup
 
 
@@ -1305,12 +1650,14 @@ def _home(with_file: bool = True, sub: str = "home"):
                 f.write("# a user's shell settings\n")
         os.makedirs(ctx.path("work"), exist_ok=True)
         ctx.monkeypatch.setenv("HOME", home)
+
     return setup
 
 
 def _symlink(target_rel: str, link_rel: str):
     def setup(ctx: Ctx) -> None:
         os.symlink(ctx.path(target_rel), ctx.path(link_rel))
+
     return setup
 
 
@@ -1320,6 +1667,7 @@ def _ours_plus(extra: str | None):
         if extra:
             with open(ctx.path("prev", extra), "w") as f:
                 f.write("the user's own notes\n")
+
     return setup
 
 
@@ -1338,8 +1686,10 @@ def _full_disk(ctx: Ctx) -> None:
 
     def statvfs(path):
         s = real(path)
-        return os.statvfs_result((s.f_bsize, s.f_frsize, s.f_blocks, 0, 0, s.f_files, s.f_ffree, s.f_favail,
-                                  s.f_flag, s.f_namemax))
+        return os.statvfs_result(
+            (s.f_bsize, s.f_frsize, s.f_blocks, 0, 0, s.f_files, s.f_ffree, s.f_favail, s.f_flag, s.f_namemax)
+        )
+
     ctx.monkeypatch.setattr(os, "statvfs", statvfs)
 
 
@@ -1351,8 +1701,11 @@ def _stale_staging(ctx: Ctx) -> None:
 
 
 def _stale_gone(ctx: Ctx, c: Call) -> list[str]:
-    left = [n for n in (".rstale.writing-abcd1234", ".rstale.replaced-efgh5678", ".other.writing-zz99yy88")
-            if os.path.lexists(ctx.path(n))]
+    left = [
+        n
+        for n in (".rstale.writing-abcd1234", ".rstale.replaced-efgh5678", ".other.writing-zz99yy88")
+        if os.path.lexists(ctx.path(n))
+    ]
     return [f"stale staging folders of ours left behind: {left}"] if left else []
 
 
@@ -1366,32 +1719,38 @@ def _lock(name: str, live: bool):
             child.wait()
         with open(ctx.path(f".{name}.lock"), "w") as f:
             f.write(f"{child.pid} {socket.gethostname()}\n")
+
     return setup
 
 
 def _lock_gone(name):
     def expect(ctx: Ctx, c: Call) -> list[str]:
         return [f".{name}.lock left behind"] if os.path.lexists(ctx.path(f".{name}.lock")) else []
+
     return expect
 
 
 def _has_manifest(rel):
     def expect(ctx: Ctx, c: Call) -> list[str]:
         return [] if os.path.isfile(ctx.path(rel, "manifest.json")) else [f"{rel}/manifest.json was not written"]
+
     return expect
 
 
 def _one_safe_folder(out_rel):
     """Exit 0: ``out_rel`` (the default ``out/``) holds exactly one new folder, named by one
     harmless path component."""
+
     def expect(ctx: Ctx, c: Call) -> list[str]:
         if c.code != 0:
             return []
         out = ctx.path(out_rel)
         names = os.listdir(out) if os.path.isdir(out) else []
         bad = [n for n in names if n.startswith(".") or len(n) > 255 or "\\" in n or "\x00" in n]
-        return ([f"{out_rel}/ holds {names!r}, expected one result folder"] if len(names) != 1 else []) + \
-               ([f"unsafe output names {bad!r}"] if bad else [])
+        return ([f"{out_rel}/ holds {names!r}, expected one result folder"] if len(names) != 1 else []) + (
+            [f"unsafe output names {bad!r}"] if bad else []
+        )
+
     return expect
 
 
@@ -1404,8 +1763,12 @@ for _id, _argv, _needles, _kw in [
     ("user-folder-hidden-file-only", ("--out", "keep"), ("keep",), {"files": {"keep/.gitkeep": ""}}),
     ("foreign-manifest", ("--out", "fm"), ("fm",), {"setup": _foreign_manifest}),
     ("ours-plus-a-user-file", ("--out", "prev"), ("prev",), {"setup": _ours_plus("my_notes.txt")}),
-    ("symlink-to-user-folder", ("--out", "link_to_thesis"), ("link_to_thesis",),
-     {"setup": _symlink("thesis", "link_to_thesis")}),
+    (
+        "symlink-to-user-folder",
+        ("--out", "link_to_thesis"),
+        ("link_to_thesis",),
+        {"setup": _symlink("thesis", "link_to_thesis")},
+    ),
     ("current-folder-dot", ("--out", "."), ("--out",), {}),
     ("current-folder-empty-dot", ("--out", "."), ("--out",), {"setup": _mkdirs("empty"), "cwd": "empty"}),
     ("current-folder-by-name", ("--out", "../work"), ("--out",), {"setup": _mkdirs("work"), "cwd": "work"}),
@@ -1416,23 +1779,45 @@ for _id, _argv, _needles, _kw in [
     ("home-folder", ("--out", "@ROOT@/home"), ("--out",), {"setup": _home(), "cwd": "work"}),
     ("home-folder-empty", ("--out", "@ROOT@/home"), ("--out",), {"setup": _home(with_file=False), "cwd": "work"}),
     ("home-folder-tilde", ("--out", "~"), ("--out",), {"setup": _home(), "cwd": "work"}),
-    ("ancestor-of-home", ("--out", "@ROOT@/users"), ("--out",), {"setup": _home(with_file=False, sub="users/me"),
-                                                                 "cwd": "work"}),
+    (
+        "ancestor-of-home",
+        ("--out", "@ROOT@/users"),
+        ("--out",),
+        {"setup": _home(with_file=False, sub="users/me"), "cwd": "work"},
+    ),
     ("under-a-file", ("--out", "notes.txt/sub"), ("notes.txt",), {}),
     ("deep-under-a-file", ("--out", "notes.txt/a/b/c"), ("notes.txt",), {}),
     ("is-a-file", ("--out", "notes.txt"), ("notes.txt",), {}),
     ("empty-string", ("--out", ""), ("--out",), {}),
     ("nul-in-path", ("--out", "a\x00b"), ("--out",), {}),
     ("full-disk", ("--out", "results_full"), ("results_full",), {"setup": _full_disk}),
-    ("locked-by-a-live-writer", ("--out", "rlocked"), ("rlocked",), {"setup": _lock("rlocked", live=True),
-                                                                      "max_s": 10.0}),
+    (
+        "locked-by-a-live-writer",
+        ("--out", "rlocked"),
+        ("rlocked",),
+        {"setup": _lock("rlocked", live=True), "max_s": 10.0},
+    ),
     ("name-too-long", ("--out", "x" * 300), ("--out",), {"may_simulate": True}),
 ]:
     case(f"out-run-{_id}", "run", S, *TINY, *_argv, needles=_needles, **_kw)
-case("out-run-default-out-is-a-file", "run", "s.yaml", "--no-figures", "--quiet", needles=("out",),
-     files={"s.yaml": BASE, "out": "a file named out\n"})
-case("out-run-default-target-is-user-folder", "run", "s.yaml", "--no-figures", "--quiet", needles=("hostile_seed1",),
-     files={"s.yaml": BASE, "out/hostile_seed1/thesis.txt": "precious\n"})
+case(
+    "out-run-default-out-is-a-file",
+    "run",
+    "s.yaml",
+    "--no-figures",
+    "--quiet",
+    needles=("out",),
+    files={"s.yaml": BASE, "out": "a file named out\n"},
+)
+case(
+    "out-run-default-target-is-user-folder",
+    "run",
+    "s.yaml",
+    "--no-figures",
+    "--quiet",
+    needles=("hostile_seed1",),
+    files={"s.yaml": BASE, "out/hostile_seed1/thesis.txt": "precious\n"},
+)
 for _id, _argv, _needles, _kw in [
     ("user-folder", ("--out", "thesis"), ("thesis",), {}),
     ("current-folder", ("--out", "."), ("--out",), {}),
@@ -1449,35 +1834,128 @@ for _id, _argv, _needles, _kw in [
     ("filesystem-root", ("--out", "/"), ("--out",), {}),
     ("under-a-file", ("--out", "notes.txt/cmp"), ("notes.txt",), {}),
 ]:
-    case(f"out-compare-{_id}", "compare", S, "--runs", "1", "--workers", "1", *TINY_SET, "--quiet", *_argv,
-         needles=_needles, **_kw)
+    case(
+        f"out-compare-{_id}",
+        "compare",
+        S,
+        "--runs",
+        "1",
+        "--workers",
+        "1",
+        *TINY_SET,
+        "--quiet",
+        *_argv,
+        needles=_needles,
+        **_kw,
+    )
 
 # Successful writes: only the output folder changes.
 case("out-ok-new-folder", "run", S, *TINY, "--out", "fresh", code=0, changes=("fresh",), expect=_has_manifest("fresh"))
-case("out-ok-nested-new-folder", "run", S, *TINY, "--out", "a/b/c", code=0, changes=("a",),
-     expect=_has_manifest("a/b/c"))
-case("out-ok-empty-folder", "run", S, *TINY, "--out", "emptyout", code=0, setup=_mkdirs("emptyout"),
-     changes=("emptyout",), expect=_has_manifest("emptyout"))
-case("out-ok-replaces-our-previous-run", "run", S, *TINY, "--out", "prev", code=0, setup=_ours_plus(None),
-     changes=("prev",), expect=_has_manifest("prev"))
-case("out-ok-stale-staging-removed", "run", S, *TINY, "--out", "rstale", code=0, setup=_stale_staging,
-     changes=("rstale", ".rstale.writing-abcd1234", ".rstale.replaced-efgh5678", ".other.writing-zz99yy88"),
-     expect=lambda ctx, c: _stale_gone(ctx, c) + _has_manifest("rstale")(ctx, c))
-case("out-ok-dead-writer-lock-taken-over", "run", S, *TINY, "--out", "rdead", code=0, setup=_lock("rdead", live=False),
-     changes=("rdead", ".rdead.lock"), expect=_lock_gone("rdead"))
+case(
+    "out-ok-nested-new-folder", "run", S, *TINY, "--out", "a/b/c", code=0, changes=("a",), expect=_has_manifest("a/b/c")
+)
+case(
+    "out-ok-empty-folder",
+    "run",
+    S,
+    *TINY,
+    "--out",
+    "emptyout",
+    code=0,
+    setup=_mkdirs("emptyout"),
+    changes=("emptyout",),
+    expect=_has_manifest("emptyout"),
+)
+case(
+    "out-ok-replaces-our-previous-run",
+    "run",
+    S,
+    *TINY,
+    "--out",
+    "prev",
+    code=0,
+    setup=_ours_plus(None),
+    changes=("prev",),
+    expect=_has_manifest("prev"),
+)
+case(
+    "out-ok-stale-staging-removed",
+    "run",
+    S,
+    *TINY,
+    "--out",
+    "rstale",
+    code=0,
+    setup=_stale_staging,
+    changes=("rstale", ".rstale.writing-abcd1234", ".rstale.replaced-efgh5678", ".other.writing-zz99yy88"),
+    expect=lambda ctx, c: _stale_gone(ctx, c) + _has_manifest("rstale")(ctx, c),
+)
+case(
+    "out-ok-dead-writer-lock-taken-over",
+    "run",
+    S,
+    *TINY,
+    "--out",
+    "rdead",
+    code=0,
+    setup=_lock("rdead", live=False),
+    changes=("rdead", ".rdead.lock"),
+    expect=_lock_gone("rdead"),
+)
 # A scenario name is one sanitized component of out/<name>_seed<N>: never a write outside out/.
-for _id, _name in [("dotdot-dotdot", "../../escaped"), ("dotdot", "../escaped"), ("slash", "a/b"),
-                   ("backslash", "a\\\\b"), ("only-dotdot", ".."), ("only-dot", "."), ("hidden", ".hidden"),
-                   ("absolute", "@ROOT@/abs_escaped"), ("nul", "a\\0b"), ("long-190", "n" * 190),
-                   ("long-5000", "n" * 5000),
-                   ("newline", "a\\nb"), ("tilde", "~")]:
-    case(f"out-name-{_id}", "run", S, *TINY, "--set", f'name="{_name}"', code=(0, 2), setup=_mkdirs("work/deep"),
-         cwd="work/deep", changes=("work/deep/out",), expect=_one_safe_folder("work/deep/out"))
-case("out-name-dotdot-in-yaml-file", "run", "s.yaml", "--no-figures", "--quiet", code=(0, 2),
-     files={"work/deep/s.yaml": _set_value(BASE, "name", 0, "../../escaped")}, cwd="work/deep",
-     changes=("work/deep/out",), expect=_one_safe_folder("work/deep/out"))
-case("out-name-dotdot-montecarlo", "montecarlo", S, *MC_TINY, "--set", "name=../../escaped", code=(0, 2),
-     setup=_mkdirs("work/deep"), cwd="work/deep", changes=("work/deep/out",), expect=_one_safe_folder("work/deep/out"))
+for _id, _name in [
+    ("dotdot-dotdot", "../../escaped"),
+    ("dotdot", "../escaped"),
+    ("slash", "a/b"),
+    ("backslash", "a\\\\b"),
+    ("only-dotdot", ".."),
+    ("only-dot", "."),
+    ("hidden", ".hidden"),
+    ("absolute", "@ROOT@/abs_escaped"),
+    ("nul", "a\\0b"),
+    ("long-190", "n" * 190),
+    ("long-5000", "n" * 5000),
+    ("newline", "a\\nb"),
+    ("tilde", "~"),
+]:
+    case(
+        f"out-name-{_id}",
+        "run",
+        S,
+        *TINY,
+        "--set",
+        f'name="{_name}"',
+        code=(0, 2),
+        setup=_mkdirs("work/deep"),
+        cwd="work/deep",
+        changes=("work/deep/out",),
+        expect=_one_safe_folder("work/deep/out"),
+    )
+case(
+    "out-name-dotdot-in-yaml-file",
+    "run",
+    "s.yaml",
+    "--no-figures",
+    "--quiet",
+    code=(0, 2),
+    files={"work/deep/s.yaml": _set_value(BASE, "name", 0, "../../escaped")},
+    cwd="work/deep",
+    changes=("work/deep/out",),
+    expect=_one_safe_folder("work/deep/out"),
+)
+case(
+    "out-name-dotdot-montecarlo",
+    "montecarlo",
+    S,
+    *MC_TINY,
+    "--set",
+    "name=../../escaped",
+    code=(0, 2),
+    setup=_mkdirs("work/deep"),
+    cwd="work/deep",
+    changes=("work/deep/out",),
+    expect=_one_safe_folder("work/deep/out"),
+)
 
 assert len(CASES) >= 150, len(CASES)
 
@@ -1610,7 +2088,8 @@ def test_debug_shows_the_traceback_of_an_internal_error(command, tmp_path, capfd
     _inject_internal_error(monkeypatch)
     c = call_cli([*_INTERNAL[command], "--debug"], capfd, root, refuse_simulation=False)
     shown = (c.raised is not None and "injected internal failure" in c.raised) or (
-        c.code == 1 and "Traceback" in c.err and "injected internal failure" in c.err)
+        c.code == 1 and "Traceback" in c.err and "injected internal failure" in c.err
+    )
     assert shown, "--debug must re-raise or print the traceback of an internal error\n" + c.describe()
 
 
@@ -1621,8 +2100,15 @@ ENV = dict(os.environ, MPLBACKEND="Agg")
 
 
 def _cli(args, cwd, preexec_fn=None, timeout=120):
-    return subprocess.run([sys.executable, "-m", "drake_att.cli", *args], capture_output=True, text=True, cwd=cwd,
-                          env=ENV, preexec_fn=preexec_fn, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "drake_att.cli", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        env=ENV,
+        preexec_fn=preexec_fn,
+        timeout=timeout,
+    )
 
 
 def _completed_problems(r, code, needles=()) -> list[str]:
@@ -1646,8 +2132,10 @@ def test_score_of_a_downloaded_folder_never_imports_its_plugin(where, tmp_path, 
     root = os.path.realpath(str(tmp_path))
     folder = _plugin_result_folder(root, result_folders, "evil_plugin")
     before = snapshot(root)
-    r = _cli(["score", "."] if where == "inside-the-folder" else ["score", "downloaded"],
-             cwd=folder if where == "inside-the-folder" else root)
+    r = _cli(
+        ["score", "."] if where == "inside-the-folder" else ["score", "downloaded"],
+        cwd=folder if where == "inside-the-folder" else root,
+    )
     problems = _completed_problems(r, 2, ("evil_plugin", "--allow-plugins"))
     if os.path.exists(os.path.join(root, "PLUGIN_WAS_IMPORTED")):
         problems.append("the plug-in module of a downloaded folder was imported (it ran code)")
@@ -1664,13 +2152,15 @@ def test_score_allow_plugins_is_the_explicit_opt_in(tmp_path, result_folders):
     r = _cli(["score", ".", "--allow-plugins"], cwd=folder)
     assert "Traceback" not in r.stderr, r.stderr[-2500:]
     assert os.path.exists(os.path.join(root, "PLUGIN_WAS_IMPORTED")), (
-        "--allow-plugins did not import the plug-in\n" + r.stderr[-2500:])
+        "--allow-plugins did not import the plug-in\n" + r.stderr[-2500:]
+    )
 
 
 def _file_size_limit(nbytes: int):
     def limit():
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (nbytes, nbytes))
+
     return limit
 
 
@@ -1711,13 +2201,20 @@ def _start_run_and_wait_for_the_simulation(root: str) -> subprocess.Popen:
     """``drake-att run cubesat_dual_star_tracker --out r`` in a fresh interpreter, returned once
     its progress line shows the simulation running (SIGINT/SIGTERM at their defaults, as a
     terminal user's process has)."""
+
     def defaults():
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
-    proc = subprocess.Popen([sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r",
-                             "--no-figures"], cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=ENV, preexec_fn=defaults)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "drake_att.cli", "run", "cubesat_dual_star_tracker", "--out", "r", "--no-figures"],
+        cwd=root,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        preexec_fn=defaults,
+    )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
         line = proc.stderr.readline()

@@ -69,8 +69,9 @@ TOL_DEG = 0.01
 
 # -- the independent reference model ---------------------------------------------------------
 def geometry(count: int, pattern_seed: int) -> ScreenCameraGeometry:
-    return ScreenCameraGeometry(random_star_pattern(count, SCREEN, H, pattern_seed), H, R0_B, FOCAL,
-                                (DETECTOR, DETECTOR), PITCH)
+    return ScreenCameraGeometry(
+        random_star_pattern(count, SCREEN, H, pattern_seed), H, R0_B, FOCAL, (DETECTOR, DETECTOR), PITCH
+    )
 
 
 def error_angle(R_a, R_b) -> float:
@@ -338,8 +339,14 @@ def test_frames_the_solver_cannot_use_are_rejected_held_and_counted():
     xy = good.centroids_m
     rng = np.random.default_rng(7)
     half = 0.5 * DETECTOR
-    bad_frames = [np.zeros((0, 2)), xy[:1], np.repeat(xy[:1], 3, axis=0), np.vstack([xy, xy]),
-                  rng.uniform(-half, half, (30, 2)), xy[:2]]
+    bad_frames = [
+        np.zeros((0, 2)),
+        xy[:1],
+        np.repeat(xy[:1], 3, axis=0),
+        np.vstack([xy, xy]),
+        rng.uniform(-half, half, (30, 2)),
+        xy[:2],
+    ]
     state = s.initial_state(q_of(R_true), 0.01 * DEG)
     assert state.tracking
     state, info = s.update(state, CameraCentroids(0.0, True, xy, FOCAL, 0.0), rng)
@@ -605,8 +612,9 @@ def test_solver_covariance_bounds_its_error_under_centroid_noise(method):
     sigma = 0.1 * PITCH
     nees = []
     for _ in range(300):
-        noisy = CameraCentroids(0.0, True, exact.centroids_m + sigma * rng.normal(size=exact.centroids_m.shape),
-                                FOCAL, sigma)
+        noisy = CameraCentroids(
+            0.0, True, exact.centroids_m + sigma * rng.normal(size=exact.centroids_m.shape), FOCAL, sigma
+        )
         sol = s.solve(noisy, R_true)
         assert sol.solved and sol.identified >= 40  # measured >= 45 of 50
         d = error_vectors(sol.R_BI[None], R_true)[0]
@@ -630,8 +638,9 @@ def camera_frames(noise: CameraNoise, seed, n_frames: int, rpy_deg=(2.0, 3.0, 0.
     frames = []
     for k in range(n_frames):
         f = out.Eval(ctx)
-        frames.append(CameraCentroids(f.time_s, f.valid, np.array(f.centroids_m), f.focal_length_m, f.sigma_m,
-                                      f.quantization_m))
+        frames.append(
+            CameraCentroids(f.time_s, f.valid, np.array(f.centroids_m), f.focal_length_m, f.sigma_m, f.quantization_m)
+        )
         ctx.SetTime(k * period)
         ctx.SetDiscreteState(cam.EvalUniquePeriodicDiscreteUpdate(ctx))
     R_IB = RotationMatrix(rot.quat_to_rotmat(q))
@@ -708,8 +717,9 @@ def test_camera_dropout_rate_and_outage_windows():
     n = len(dropped)
     assert abs(dropped.mean() - 0.3) < 4 * math.sqrt(0.3 * 0.7 / n)
     assert abs(np.corrcoef(dropped[:-1], dropped[1:])[0, 1]) < 4 / math.sqrt(n)
-    frames, _, _, _ = camera_frames(CameraNoise.make("camera", 0.0, 0.0, 0.0, [(1.0, 2.0), (3.0, 3.5)]), SEED_A, 30,
-                                    period=0.25)
+    frames, _, _, _ = camera_frames(
+        CameraNoise.make("camera", 0.0, 0.0, 0.0, [(1.0, 2.0), (3.0, 3.5)]), SEED_A, 30, period=0.25
+    )
     times = np.array([f.time_s for f in frames])
     np.testing.assert_array_equal(times, 0.25 * np.arange(30))  # exact in binary: the edges are hit
     invalid = [f.time_s for f in frames if not f.valid]
@@ -775,8 +785,9 @@ def test_the_solver_stops_once_the_attitude_no_longer_changes():
     for k in range(100):
         geom = geometry(50, k + 1)
         R_true = rpy_deg_to_R_BI(rng.uniform(-8, 8, 3))
-        s = IndoorStarTrackerSolver(geom, TOL_DEG, initialization="given", max_iterations=10,
-                                    convergence_tolerance_rad=1e-9)
+        s = IndoorStarTrackerSolver(
+            geom, TOL_DEG, initialization="given", max_iterations=10, convergence_tolerance_rad=1e-9
+        )
         sol = s.solve(frame_of(geom, R_true)[1], R_true)
         attitudes = [R_true] + [h.R_BI for h in sol.history]
         changes = [error_angle(a, b) for a, b in itertools.pairwise(attitudes)]
@@ -803,20 +814,33 @@ def test_bad_geometry_inputs_are_refused_naming_the_field_and_the_rule():
     from drake_att.screen_geometry import check_geometry_inputs
 
     stars = random_star_pattern(5, SCREEN, H, 1)
-    ok = dict(stars_I=stars, h_m=H, R0_B=R0_B, focal_length_m=FOCAL, detector_size_m=(DETECTOR, DETECTOR),
-              pixel_pitch_m=PITCH)
+    ok = dict(
+        stars_I=stars, h_m=H, R0_B=R0_B, focal_length_m=FOCAL, detector_size_m=(DETECTOR, DETECTOR), pixel_pitch_m=PITCH
+    )
     cases = [
         (lambda: random_star_pattern(0, SCREEN, H, 1), "star_count: got 0", "must be an integer >= 1"),
-        (lambda: ScreenCameraGeometry(**{**ok, "stars_I": stars + [0.0, 0.0, 0.01]}), "stars_I: ",
-         "every star must satisfy p . s = h = 2.0 m"),
+        (
+            lambda: ScreenCameraGeometry(**{**ok, "stars_I": stars + [0.0, 0.0, 0.01]}),
+            "stars_I: ",
+            "every star must satisfy p . s = h = 2.0 m",
+        ),
         (lambda: ScreenCameraGeometry(**{**ok, "R0_B": [0.0, 0.0]}), "R0_B: ", "need 3 finite numbers (m)"),
-        (lambda: ScreenCameraGeometry(**{**ok, "R0_B": [0.0, 0.0, -2.5]}), "R0_B: ",
-         "the camera must be between the rotation centre plane and the screen"),
-        (lambda: ScreenCameraGeometry(**{**ok, "detector_size_m": (DETECTOR,)}), "detector_size_m: ",
-         "need (width, height) (m)"),
+        (
+            lambda: ScreenCameraGeometry(**{**ok, "R0_B": [0.0, 0.0, -2.5]}),
+            "R0_B: ",
+            "the camera must be between the rotation centre plane and the screen",
+        ),
+        (
+            lambda: ScreenCameraGeometry(**{**ok, "detector_size_m": (DETECTOR,)}),
+            "detector_size_m: ",
+            "need (width, height) (m)",
+        ),
         (lambda: ScreenCameraGeometry(**{**ok, "pixel_pitch_m": 0.0}), "pixel_pitch_m: ", "must be > 0"),
-        (lambda: check_geometry_inputs("cam", SCREEN, H, 2.5), "cam.camera_to_screen_mm: got 2500",
-         "must be in (0, h = 2000.0] mm"),
+        (
+            lambda: check_geometry_inputs("cam", SCREEN, H, 2.5),
+            "cam.camera_to_screen_mm: got 2500",
+            "must be in (0, h = 2000.0] mm",
+        ),
     ]
     for call, field, rule in cases:
         with pytest.raises(ValueError) as e:

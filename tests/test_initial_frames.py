@@ -92,11 +92,13 @@ def R_of_quat_wxyz(q):
     q = np.asarray(q, dtype=float)
     assert q.shape == (4,) and abs(np.linalg.norm(q) - 1.0) < TOL, q
     w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def angle_deg(R_a, R_b):
@@ -107,8 +109,10 @@ def angle_deg(R_a, R_b):
 def assert_attitude(q_library, R_expected, what, tol=TOL):
     R = R_of_quat_wxyz(q_library)
     err = np.max(np.abs(R - R_expected))
-    assert err <= tol, (f"{what}: the library's initial attitude is {angle_deg(R, R_expected):.6g} deg from the one "
-                        f"computed from the YAML (max matrix entry error {err:.3g})")
+    assert err <= tol, (
+        f"{what}: the library's initial attitude is {angle_deg(R, R_expected):.6g} deg from the one "
+        f"computed from the YAML (max matrix entry error {err:.3g})"
+    )
 
 
 # ------------------------------------------------------------------------------------------
@@ -136,8 +140,9 @@ def field_value(raw: dict, loaded, field: str):
     """The YAML's value of ``field``, or the loaded config's (the dataclass default) when the
     file leaves it out; a value the file gives must be the one the loader kept."""
     if field in raw:
-        assert np.allclose(np.asarray(raw[field], dtype=float), np.asarray(getattr(loaded, field), dtype=float),
-                           rtol=0, atol=0), field
+        assert np.allclose(
+            np.asarray(raw[field], dtype=float), np.asarray(getattr(loaded, field), dtype=float), rtol=0, atol=0
+        ), field
         return raw[field]
     return getattr(loaded, field)
 
@@ -153,8 +158,10 @@ class Expected:
         if orbit is None:
             self.R_ref = np.eye(3)
         else:
-            inc, raan, u0 = (float(field_value(orbit, self.scenario.orbit, f))
-                             for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg"))
+            inc, raan, u0 = (
+                float(field_value(orbit, self.scenario.orbit, f))
+                for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg")
+            )
             self.R_ref = R_IO_lvlh(inc, raan, u0)
         plant = self.raw.get("plant", {})
         tag = plant.get("!tag", type(self.scenario.plant).__name__)
@@ -206,7 +213,8 @@ def particle_tolerance(config, num_particles) -> float:
 def test_oracle_rpy_matches_pydrake_roll_pitch_yaw():
     rng = np.random.default_rng(23)
     for rpy in [[30.0, 0, 0], [0, 30.0, 0], [0, 0, 30.0], [-45.0, 45.0, 155.0], [90.0, 0.0, 90.0]] + list(
-            rng.uniform(-180, 180, (20, 3))):
+        rng.uniform(-180, 180, (20, 3))
+    ):
         R_drake = RollPitchYaw(np.asarray(rpy, dtype=float) * DEG).ToRotationMatrix().matrix()
         np.testing.assert_allclose(R_from_rpy_deg(rpy), R_drake, rtol=0, atol=1e-15)
     # roll, pitch and yaw are about x, y, z: yaw 90 takes x to y; roll 90 takes y to z.
@@ -229,8 +237,9 @@ def test_oracle_lvlh_axes():
 # Every shipped scenario
 # ------------------------------------------------------------------------------------------
 def test_every_shipped_scenario_is_covered():
-    assert len(SCENARIOS) >= 10 and {"s1_cqe", "cubesat_dual_star_tracker", "s2_indoor_dynamic",
-                                     "s4_lie_group"} <= set(SCENARIOS)
+    assert len(SCENARIOS) >= 10 and {"s1_cqe", "cubesat_dual_star_tracker", "s2_indoor_dynamic", "s4_lie_group"} <= set(
+        SCENARIOS
+    )
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
@@ -261,8 +270,9 @@ def test_initial_truth_and_estimates(name):
 
 
 PARTICLE_FILTER_TAGS = ("BootstrapPfConfig", "EkpfConfig", "GyrolessPfConfig")
-WITH_PARTICLE_FILTERS = [n for n in SCENARIOS
-                         if any(e.get("!tag") in PARTICLE_FILTER_TAGS for e in raw_yaml(n).get("estimators", []))]
+WITH_PARTICLE_FILTERS = [
+    n for n in SCENARIOS if any(e.get("!tag") in PARTICLE_FILTER_TAGS for e in raw_yaml(n).get("estimators", []))
+]
 
 
 @pytest.mark.parametrize("name", WITH_PARTICLE_FILTERS)
@@ -277,8 +287,9 @@ def test_particle_filter_cloud_centre(name):
     pfs = [n for n, s in sd.estimators.items() if is_particle_filter(s)]
     assert pfs
     tiny = 1e-10  # deg: a spread of ~2e-12 rad
-    context = sd.create_context(exp.scenario.seed,
-                                overrides=[f"estimators.{n}.initial_attitude_sigma_deg={tiny}" for n in pfs])
+    context = sd.create_context(
+        exp.scenario.seed, overrides=[f"estimators.{n}.initial_attitude_sigma_deg={tiny}" for n in pfs]
+    )
     for n in pfs:
         system = sd.estimators[n]
         sub = system.GetMyContextFromRoot(context)
@@ -296,13 +307,16 @@ def test_particle_filter_cloud_centre(name):
 # ------------------------------------------------------------------------------------------
 # The composition itself, for orbits and angles no shipped scenario uses
 # ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("orbit_deg, rpy_deg", [
-    ((97.5, 0.0, 0.0), (2.0, -2.0, 2.0)),
-    ((51.6, 120.0, 35.0), (-45.0, 45.0, 155.0)),
-    ((0.0, 0.0, 0.0), (10.0, 20.0, 30.0)),
-    ((180.0, -30.0, 200.0), (170.0, -80.0, -120.0)),
-    ((63.4, 275.0, -90.0), (0.0, 0.0, 0.0)),
-])
+@pytest.mark.parametrize(
+    "orbit_deg, rpy_deg",
+    [
+        ((97.5, 0.0, 0.0), (2.0, -2.0, 2.0)),
+        ((51.6, 120.0, 35.0), (-45.0, 45.0, 155.0)),
+        ((0.0, 0.0, 0.0), (10.0, 20.0, 30.0)),
+        ((180.0, -30.0, 200.0), (170.0, -80.0, -120.0)),
+        ((63.4, 275.0, -90.0), (0.0, 0.0, 0.0)),
+    ],
+)
 def test_attitude_from_rpy_deg_with_any_orbit(orbit_deg, rpy_deg):
     """``attitude_from_rpy_deg`` (what the plant and every estimator plug-in call) is
     ``R_IO(0) R(rpy)`` for any inclination, RAAN and argument of latitude (the shipped
@@ -310,10 +324,14 @@ def test_attitude_from_rpy_deg_with_any_orbit(orbit_deg, rpy_deg):
     u would go unseen)."""
     base = library.load("s1_cqe")
     inc, raan, u0 = orbit_deg
-    scenario = dataclasses.replace(base, orbit=dataclasses.replace(
-        base.orbit, inclination_deg=inc, raan_deg=raan, arg_latitude0_deg=u0))
-    assert_attitude(attitude_from_rpy_deg(scenario, rpy_deg), R_IO_lvlh(inc, raan, u0) @ R_from_rpy_deg(rpy_deg),
-                    f"orbit {orbit_deg}, rpy {rpy_deg}")
+    scenario = dataclasses.replace(
+        base, orbit=dataclasses.replace(base.orbit, inclination_deg=inc, raan_deg=raan, arg_latitude0_deg=u0)
+    )
+    assert_attitude(
+        attitude_from_rpy_deg(scenario, rpy_deg),
+        R_IO_lvlh(inc, raan, u0) @ R_from_rpy_deg(rpy_deg),
+        f"orbit {orbit_deg}, rpy {rpy_deg}",
+    )
     no_orbit = dataclasses.replace(base, orbit=None)
     assert_attitude(attitude_from_rpy_deg(no_orbit, rpy_deg), R_from_rpy_deg(rpy_deg), f"no orbit, rpy {rpy_deg}")
 
@@ -326,11 +344,22 @@ def test_overridden_initial_attitudes(name):
     sd = diagram_for(exp.scenario)
     truth_rpy, est_rpy = [12.0, -7.0, 33.0], [-60.0, 25.0, -140.0]
     est_name = next(n for n, s in sd.estimators.items() if isinstance(s, EstimatorSystem))
-    context = sd.create_context(exp.scenario.seed, overrides=[
-        f"plant.initial_attitude_rpy_deg={truth_rpy}", f"estimators.{est_name}.initial_attitude_rpy_deg={est_rpy}"])
+    context = sd.create_context(
+        exp.scenario.seed,
+        overrides=[
+            f"plant.initial_attitude_rpy_deg={truth_rpy}",
+            f"estimators.{est_name}.initial_attitude_rpy_deg={est_rpy}",
+        ],
+    )
     truth_context = sd.truth.GetMyContextFromRoot(context)
-    assert_attitude(sd.truth.GetOutputPort("q_IB").Eval(truth_context), exp.R_ref @ R_from_rpy_deg(truth_rpy),
-                    f"{name}: overridden truth")
+    assert_attitude(
+        sd.truth.GetOutputPort("q_IB").Eval(truth_context),
+        exp.R_ref @ R_from_rpy_deg(truth_rpy),
+        f"{name}: overridden truth",
+    )
     system = sd.estimators[est_name]
-    assert_attitude(system.GetOutputPort("q_IB_hat").Eval(system.GetMyContextFromRoot(context)),
-                    exp.R_ref @ R_from_rpy_deg(est_rpy), f"{name}: overridden {est_name}")
+    assert_attitude(
+        system.GetOutputPort("q_IB_hat").Eval(system.GetMyContextFromRoot(context)),
+        exp.R_ref @ R_from_rpy_deg(est_rpy),
+        f"{name}: overridden {est_name}",
+    )

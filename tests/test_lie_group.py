@@ -342,7 +342,7 @@ def test_s4_consistent_filter_converges_as_the_paper_and_the_literal_one_does_no
     consistent = run_s4("consistent", s4_truth_400)
     first = int(np.flatnonzero(consistent <= 0.005)[0]) + 1
     assert 140 <= first <= 150, first
-    assert np.all(consistent[first - 1:] <= 0.005)
+    assert np.all(consistent[first - 1 :] <= 0.005)
     assert consistent[-1] < 1e-4  # and it keeps converging (noise-free)
     literal = run_s4("paper_literal", s4_truth_400)
     assert np.all(literal > 10.0)
@@ -429,7 +429,6 @@ def test_rate_block_is_the_gyro_noise_and_the_cross_block_follows_the_updates():
     assert np.allclose(P6[3:, 3:], arw**2 / dt * np.eye(3))
     assert np.allclose(P6[:3, 3:], arw**2 * np.eye(3))
     assert np.allclose(P6[:3, :3], (1e-6 * dt + arw**2 * dt) * np.eye(3))
-
 
 
 # =============================================================================================
@@ -530,7 +529,10 @@ def test_bias_mode_measurement_jacobians_match_finite_differences():
         return core.measurement_model(state, quaternion_sample(R_hat @ drake_exp(dx[:3]), cov_S))[0]
 
     eps = 1e-6
-    for h, m in ((h_vectors, stars(R_hat, refs, q_BS=Q_BS_TEST, R_SB=R_SB)), (h_quaternion, quaternion_sample(R_hat, cov_S))):
+    for h, m in (
+        (h_vectors, stars(R_hat, refs, q_BS=Q_BS_TEST, R_SB=R_SB)),
+        (h_quaternion, quaternion_sample(R_hat, cov_S)),
+    ):
         z0, H, _ = core.measurement_model(state, m)
         assert H.shape == (z0.size, 6)
         H_fd = np.column_stack([(h(eps * e) - h(-eps * e)) / (2 * eps) for e in np.eye(6)])
@@ -650,8 +652,9 @@ def simulate_farrenkopf_run(rng, core, n_steps, checks, P0, dt=1.0, substeps=10,
             b = b + RRW * math.sqrt(h) * rng.normal(size=3)
         R = R @ expm_series(w * dt)
         state = core.predict(state, acc / dt, dt)
-        state, info = core.update(state, stars(R, refs, noise=sigma * rng.normal(size=(len(refs), 3)), t=k * dt,
-                                               sigma=sigma))
+        state, info = core.update(
+            state, stars(R, refs, noise=sigma * rng.normal(size=(len(refs), 3)), t=k * dt, sigma=sigma)
+        )
         assert info.accepted
         if k in checks:
             e = np.concatenate([error_vector(state.R_IB, R), b - state.bias_B])
@@ -706,16 +709,31 @@ def test_bias_mode_equals_the_mekf_to_round_off():
         w = 0.05 * np.array([math.cos(0.01 * k), math.sin(0.013 * k), 0.5])
         R = R @ drake_exp(w)
         w_meas = w + b + arw * rng.normal(size=3)
-        s_lie, s_mekf, s_nb = lie.predict(s_lie, w_meas, 1.0), mekf.predict(s_mekf, w_meas, 1.0), no_bias.predict(s_nb, w_meas, 1.0)
+        s_lie, s_mekf, s_nb = (
+            lie.predict(s_lie, w_meas, 1.0),
+            mekf.predict(s_mekf, w_meas, 1.0),
+            no_bias.predict(s_nb, w_meas, 1.0),
+        )
         if k % 2:
             m = quaternion_sample(R, C_S, delta_S=np.sqrt(np.diag(C_S)) * rng.normal(size=3), t=k)
         else:
             m = stars(R, noise=1e-4 * rng.normal(size=(2, 3)), q_BS=Q_BS_TEST, R_SB=R_BS_TEST.T, t=k, sigma=1e-4)
-        (s_lie, i_lie), (s_mekf, i_mekf), (s_nb, _) = lie.update(s_lie, m), mekf.update(s_mekf, m), no_bias.update(s_nb, m)
+        (s_lie, i_lie), (s_mekf, i_mekf), (s_nb, _) = (
+            lie.update(s_lie, m),
+            mekf.update(s_mekf, m),
+            no_bias.update(s_nb, m),
+        )
         R_mekf = RotationMatrix(Quaternion(s_mekf.q_IB / np.linalg.norm(s_mekf.q_IB))).matrix()
         d = np.sqrt(np.outer(np.diag(s_mekf.P), np.diag(s_mekf.P)))
-        worst = np.maximum(worst, [error_angle(s_lie.R_IB, R_mekf), np.abs(s_lie.bias_B - s_mekf.bias_B).max(),
-                                   np.abs((s_lie.P - s_mekf.P) / d).max(), abs(i_lie.nis - i_mekf.nis) / (1 + i_mekf.nis)])
+        worst = np.maximum(
+            worst,
+            [
+                error_angle(s_lie.R_IB, R_mekf),
+                np.abs(s_lie.bias_B - s_mekf.bias_B).max(),
+                np.abs((s_lie.P - s_mekf.P) / d).max(),
+                abs(i_lie.nis - i_mekf.nis) / (1 + i_mekf.nis),
+            ],
+        )
         gap_no_bias = max(gap_no_bias, error_angle(s_nb.R_IB, R_mekf))
     assert worst[0] < 1e-10, worst  # rad (measured ~1e-12: the first, ill-conditioned updates)
     assert worst[1] < 1e-11, worst  # rad/s (measured ~2e-13)
@@ -767,8 +785,15 @@ def test_plugin_bias_mode_on_quaternion_and_vector_trackers_equals_the_mekf_plug
     sd = plugin_diagram
     assert sd.estimators["lg_q"].second_output_name == "bias_B_hat"
     assert sd.estimators["lg_q_no_bias"].second_output_name == "w_IB_B_hat"
-    for overrides in ([], ["estimators.lg_q.initial_bias_sigma_deg_per_h=5", "estimators.mekf_q.initial_bias_sigma_deg_per_h=5",
-                           "estimators.lg_v.arw_deg_per_rt_h=0.3", "estimators.mekf_v.arw_deg_per_rt_h=0.3"]):
+    for overrides in (
+        [],
+        [
+            "estimators.lg_q.initial_bias_sigma_deg_per_h=5",
+            "estimators.mekf_q.initial_bias_sigma_deg_per_h=5",
+            "estimators.lg_v.arw_deg_per_rt_h=0.3",
+            "estimators.mekf_v.arw_deg_per_rt_h=0.3",
+        ],
+    ):
         run = sd.simulate(4, overrides=overrides)
         assert run.metadata["estimators"]["lg_q"]["second_kind"] == "gyro_bias"
         assert run.metadata["estimators"]["lg_q"]["true_bias"] is not None
@@ -823,10 +848,16 @@ def test_bad_arguments_are_refused_naming_the_field_and_the_rule():
     """Each refusal names its field first and says what is allowed."""
     cases = [
         (lambda: LieGroupFilter(estimate_gyro_bias=1), "estimate_gyro_bias: ", "must be True or False"),
-        (lambda: LieGroupFilter(estimate_gyro_bias=True, formulation="paper_literal"), "estimate_gyro_bias: ",
-         "needs formulation='consistent'"),
-        (lambda: LieGroupFilter(gyro_rrw_rad_per_s15=1e-6), "gyro_rrw_rad_per_s15: ",
-         "the rate random walk is modelled only with estimate_gyro_bias=True"),
+        (
+            lambda: LieGroupFilter(estimate_gyro_bias=True, formulation="paper_literal"),
+            "estimate_gyro_bias: ",
+            "needs formulation='consistent'",
+        ),
+        (
+            lambda: LieGroupFilter(gyro_rrw_rad_per_s15=1e-6),
+            "gyro_rrw_rad_per_s15: ",
+            "the rate random walk is modelled only with estimate_gyro_bias=True",
+        ),
         (lambda: LieGroupFilter(formulation="literal"), "formulation: ", "allowed: "),
         (lambda: LieGroupFilter(step_s=0.0), "step_s: ", "must be > 0"),
         (lambda: LieGroupFilter(Q_v=-1.0), "Q_v: ", "must be >= 0"),

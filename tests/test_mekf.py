@@ -103,8 +103,11 @@ def van_loan_process_noise(arw, rrw, dt, w=(0.0, 0.0, 0.0)):
 
 def paper_s3_R_SB(psi_deg, phi_deg, theta_deg):
     """Sensor-from-body rotation of paper S3's eq. 7 angles: Rz(psi) Rx(phi) Ry(theta)."""
-    R = (RotationMatrix.MakeZRotation(psi_deg * DEG) @ RotationMatrix.MakeXRotation(phi_deg * DEG)
-         @ RotationMatrix.MakeYRotation(theta_deg * DEG))
+    R = (
+        RotationMatrix.MakeZRotation(psi_deg * DEG)
+        @ RotationMatrix.MakeXRotation(phi_deg * DEG)
+        @ RotationMatrix.MakeYRotation(theta_deg * DEG)
+    )
     return R.matrix()
 
 
@@ -203,8 +206,8 @@ def assert_consistent_with_power(errors_by_run, score_from_s, P_dare, A_dare):
         sd = averaged_quadratic_form_sd(P_dare, A_dare, W, times, runs)
         mean = float(values.mean())
         power = min(
-            scipy.stats.norm.cdf((abs(expected / c - expected) - N_SIGMA_BAND * sd) / (sd / c))
-            for c in (0.8, 1.2))
+            scipy.stats.norm.cdf((abs(expected / c - expected) - N_SIGMA_BAND * sd) / (sd / c)) for c in (0.8, 1.2)
+        )
         out[name] = (mean, sd, power)
         assert abs(mean - expected) < N_SIGMA_BAND * sd, (name, mean, expected, sd)
         if name != "nees_bias":
@@ -221,10 +224,14 @@ def paper_eq7_quaternion(psi_deg, phi_deg, theta_deg):
     c = lambda a: np.cos(0.5 * a * DEG)  # noqa: E731
     s = lambda a: np.sin(0.5 * a * DEG)  # noqa: E731
     th, ph, ps = theta_deg, phi_deg, psi_deg
-    return np.array([c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
-                     c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
-                     s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
-                     s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps)])
+    return np.array(
+        [
+            c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
+            c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
+            s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
+            s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps),
+        ]
+    )
 
 
 # -- discretization and core updates -----------------------------------------------------
@@ -242,8 +249,7 @@ def test_process_noise_equals_van_loan_integral_for_non_rotating_error_frame(dt)
     closed form, which the reference model below uses, agrees with it too)."""
     Q_vanloan = van_loan_process_noise(ARW, RRW, dt)
     np.testing.assert_allclose(process_noise(ARW, RRW, dt), Q_vanloan, rtol=1e-9, atol=1e-24)
-    np.testing.assert_allclose(reference_process_noise(ARW, RRW, dt), Q_vanloan,
-                               rtol=1e-9, atol=1e-24)
+    np.testing.assert_allclose(reference_process_noise(ARW, RRW, dt), Q_vanloan, rtol=1e-9, atol=1e-24)
 
 
 def test_quaternion_update_reduces_error_and_handles_anisotropic_mounted_sensor():
@@ -342,9 +348,16 @@ def test_predict_is_exact_rotation_and_covariance_propagation():
     core = MultiplicativeEKF(ARW, RRW)
     q0 = pd_quat(AngleAxis(0.7, np.array([1.0, -2.0, 2.0]) / 3.0).quaternion())
     bias = np.array([2e-5, -1e-5, 3e-5])
-    A = np.array([[2.0, 0.3, -0.1, 0.2, 0.0, 0.1], [0.3, 1.5, 0.2, 0.0, -0.1, 0.0],
-                  [-0.1, 0.2, 1.0, 0.1, 0.0, 0.3], [0.2, 0.0, 0.1, 1.2, 0.1, 0.0],
-                  [0.0, -0.1, 0.0, 0.1, 0.9, 0.2], [0.1, 0.0, 0.3, 0.0, 0.2, 1.1]])
+    A = np.array(
+        [
+            [2.0, 0.3, -0.1, 0.2, 0.0, 0.1],
+            [0.3, 1.5, 0.2, 0.0, -0.1, 0.0],
+            [-0.1, 0.2, 1.0, 0.1, 0.0, 0.3],
+            [0.2, 0.0, 0.1, 1.2, 0.1, 0.0],
+            [0.0, -0.1, 0.0, 0.1, 0.9, 0.2],
+            [0.1, 0.0, 0.3, 0.0, 0.2, 1.1],
+        ]
+    )
     scale = np.array([1e-3] * 3 + [1e-5] * 3)
     P0 = (A @ A.T) * np.outer(scale, scale)
     state = MekfState(q0, bias, P0)
@@ -369,8 +382,16 @@ def _mounted_update_problem():
     anisotropic noise covariance, and a measurement whose residual is a known z."""
     q_hat = pd_quat(AngleAxis(1.1, np.array([0.0, 0.6, 0.8])).quaternion())
     q_BS = pd_quat(AngleAxis(2.0, np.array([2.0, -1.0, 2.0]) / 3.0).quaternion())
-    L = np.array([[3.0, 0, 0, 0, 0, 0], [1.0, 2.0, 0, 0, 0, 0], [-0.5, 0.7, 2.5, 0, 0, 0],
-                  [0.4, 0.0, 0.2, 1.0, 0, 0], [0.0, -0.3, 0.1, 0.2, 1.5, 0], [0.2, 0.1, 0.0, -0.1, 0.3, 0.8]])
+    L = np.array(
+        [
+            [3.0, 0, 0, 0, 0, 0],
+            [1.0, 2.0, 0, 0, 0, 0],
+            [-0.5, 0.7, 2.5, 0, 0, 0],
+            [0.4, 0.0, 0.2, 1.0, 0, 0],
+            [0.0, -0.3, 0.1, 0.2, 1.5, 0],
+            [0.2, 0.1, 0.0, -0.1, 0.3, 0.8],
+        ]
+    )
     scale = np.array([1e-4] * 3 + [1e-6] * 3)
     P = (L @ L.T) * np.outer(scale, scale)
     M = np.array([[1.0, 0.2, 0.0], [0.2, 1.5, 0.3], [0.0, 0.3, 8.0]])
@@ -428,8 +449,9 @@ def test_gate_accepts_nis_equal_to_it_and_small_gates_are_valid():
             MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=gate)
 
 
-@pytest.mark.parametrize("arw, rrw, field", [(-1e-6, 1e-9, "arw"), (np.nan, 1e-9, "arw"),
-                                              (1e-6, -1e-9, "rrw"), (1e-6, np.inf, "rrw")])
+@pytest.mark.parametrize(
+    "arw, rrw, field", [(-1e-6, 1e-9, "arw"), (np.nan, 1e-9, "arw"), (1e-6, -1e-9, "rrw"), (1e-6, np.inf, "rrw")]
+)
 def test_invalid_gyro_noise_names_the_field(arw, rrw, field):
     """A negative or non-finite ARW/RRW is refused with a message that starts with the field."""
     with pytest.raises(ValueError, match=rf"^{field}: got"):
@@ -507,10 +529,16 @@ def _steady_state_problem(name):
     return Phi, Q, H, R
 
 
-@pytest.mark.parametrize("name", [
-    "mekf_rotating_mounted_anisotropic", "mekf_full_sensor_covariance", "mekf_two_vectors",
-    "unstable_4_state", "high_grade_gyro_half_arcsec_tracker",
-])
+@pytest.mark.parametrize(
+    "name",
+    [
+        "mekf_rotating_mounted_anisotropic",
+        "mekf_full_sensor_covariance",
+        "mekf_two_vectors",
+        "unstable_4_state",
+        "high_grade_gyro_half_arcsec_tracker",
+    ],
+)
 def test_steady_state_covariance_matches_scipy_dare(name):
     """a-priori P = scipy.linalg.solve_discrete_are(Phi', H', Q, R) and a-posteriori
     (I - K H) P: every entry within 1e-8 of sigma_i sigma_j (the doubling solver stops at a
@@ -570,9 +598,12 @@ scoring:
 
 def slow_scenario_reference_problem(dt=1.0):
     """(Phi, Q, H, R) of the slow scenario from the paper's numbers, independently."""
-    return (reference_transition(np.zeros(3), dt), reference_process_noise(ARW, RRW, dt),
-            quaternion_sensor_H(paper_s3_R_SB(-90.0, 45.0, -90.0)),
-            np.diag((np.array([5.0, 5.0, 50.0]) * ARCSEC) ** 2))
+    return (
+        reference_transition(np.zeros(3), dt),
+        reference_process_noise(ARW, RRW, dt),
+        quaternion_sensor_H(paper_s3_R_SB(-90.0, 45.0, -90.0)),
+        np.diag((np.array([5.0, 5.0, 50.0]) * ARCSEC) ** 2),
+    )
 
 
 SLOW_RUNS = 12
@@ -589,8 +620,7 @@ def slow_scenario():
 @pytest.fixture(scope="module")
 def slow_monte_carlo(slow_scenario):
     """Aligned errors of SLOW_RUNS seeds (shared by the steady-state and NEES tests)."""
-    return [estimator_errors(slow_scenario.simulate(seed=seed), "mekf")
-            for seed in range(SLOW_RUNS)]
+    return [estimator_errors(slow_scenario.simulate(seed=seed), "mekf") for seed in range(SLOW_RUNS)]
 
 
 def test_steady_state_covariance_matches_independent_dare(slow_monte_carlo):
@@ -682,8 +712,7 @@ def test_dropouts_are_skipped_counted_and_covariance_follows_riccati_recursion()
         worst = max(worst, np.max(np.abs(e["P"][k] - P) / np.outer(sig, sig)))
     assert worst < 1e-8, worst
     scored = t_est >= 100.0
-    z = np.concatenate([e["dtheta"], e["second_err"]], axis=1)[scored] / np.sqrt(
-        np.einsum("nii->ni", e["P"][scored]))
+    z = np.concatenate([e["dtheta"], e["second_err"]], axis=1)[scored] / np.sqrt(np.einsum("nii->ni", e["P"][scored]))
     assert np.max(np.abs(z)) < 4.5, np.max(np.abs(z))
 
 
@@ -693,9 +722,9 @@ def test_invalid_measurement_values_are_skipped_not_crashing():
 
     core = MultiplicativeEKF(ARW, RRW)
     init = core.initial_state([1.0, 0, 0, 0], np.zeros(3), 1 * DEG, 10 * DEG_PER_H)
-    est = MekfEstimator("mekf", 1.0, core, init,
-                        [QuaternionSensorModel("st", np.array([1.0, 0, 0, 0]),
-                                               np.eye(3) * (10 * ARCSEC) ** 2)])
+    est = MekfEstimator(
+        "mekf", 1.0, core, init, [QuaternionSensorModel("st", np.array([1.0, 0, 0, 0]), np.eye(3) * (10 * ARCSEC) ** 2)]
+    )
     ctx = est.CreateDefaultContext()
     est.GetInputPort("gyro_measurement").FixValue(ctx, [0.0, 1.0, 0.0, 0.0, 0.0])
     for meas in ([0.0, 1.0, np.nan, 0, 0, 0], [0.0, 0.0, 1.0, 0, 0, 0]):
@@ -814,14 +843,13 @@ def test_mekf_with_mounted_vector_tracker_is_consistent():
     axes 0.98 / 0.99 / 1.06, sd 0.027 / 0.027 / 0.026; bias block 2.76, 0.18.  Power
     against a 20% covariance error >= 0.95 (6-dof, attitude, per axis), 0.08 (bias block)."""
     sd = ScenarioDiagram(load_scenario(text=VECTOR_SCENARIO))
-    errors = [estimator_errors(sd.simulate(seed=seed), "mekf")
-              for seed in range(VECTOR_RUNS)]
+    errors = [estimator_errors(sd.simulate(seed=seed), "mekf") for seed in range(VECTOR_RUNS)]
     R_SB = RotationMatrix(RollPitchYaw(np.array([0.0, 90.0, 20.0]) * DEG)).matrix().T
     R_BI = RotationMatrix(RollPitchYaw(np.array([10.0, -5.0, 30.0]) * DEG)).matrix().T
     H = vector_sensor_H(R_SB, R_BI, np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
     _, P_dare, A_dare = dare_steady_state(
-        reference_transition(np.zeros(3), 1.0), reference_process_noise(ARW, RRW, 1.0), H,
-        (100e-6) ** 2 * np.eye(6))
+        reference_transition(np.zeros(3), 1.0), reference_process_noise(ARW, RRW, 1.0), H, (100e-6) ** 2 * np.eye(6)
+    )
     assert_consistent_with_power(errors, 50.0, P_dare, A_dare)
 
 
@@ -830,8 +858,14 @@ def _hamilton(a, b):
     """Hamilton product of wxyz quaternions (written here)."""
     aw, ax, ay, az = a
     bw, bx, by, bz = b
-    return np.array([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw])
+    return np.array(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
 
 
 class _ConingMotion:
@@ -932,8 +966,17 @@ def test_coning_state_first_step_held_rate_and_updates():
     s_plain, s = plain.initial_state(q0, bias, *sigmas), coned.initial_state(q0, bias, *sigmas)
     assert s_plain.previous_gyro is None and len(plain.to_vector(s_plain)) == 43
     np.testing.assert_array_equal(s.previous_gyro, np.zeros(4))
-    rates = [np.array(w) for w in ([0.05, -0.02, 0.08], [0.06, -0.01, 0.07], [0.06, -0.01, 0.07],
-                                   [0.04, 0.01, 0.09], [0.03, 0.02, 0.08], [0.02, 0.04, 0.07])]
+    rates = [
+        np.array(w)
+        for w in (
+            [0.05, -0.02, 0.08],
+            [0.06, -0.01, 0.07],
+            [0.06, -0.01, 0.07],
+            [0.04, 0.01, 0.09],
+            [0.03, 0.02, 0.08],
+            [0.02, 0.04, 0.07],
+        )
+    ]
     corrected = [False, True, False, False, True, True]  # first step; held (3rd) and the one after
     dt, prev = 0.5, None
     for w, expect_correction in zip(rates, corrected, strict=True):
@@ -954,10 +997,8 @@ def test_coning_state_first_step_held_rate_and_updates():
     first_plain = plain.predict(s_plain, rates[0], dt)
     first = coned.predict(coned.initial_state(q0, bias, *sigmas), rates[0], dt)
     np.testing.assert_array_equal(first.q_IB, first_plain.q_IB)
-    np.testing.assert_allclose(first.P, first_plain.P, rtol=1e-13,
-                               atol=1e-13 * np.max(np.abs(first.P)))
-    updated, info = coned.update_quaternion(s, s.q_IB, [1.0, 0.0, 0.0, 0.0],
-                                            np.full(3, 10 * ARCSEC))
+    np.testing.assert_allclose(first.P, first_plain.P, rtol=1e-13, atol=1e-13 * np.max(np.abs(first.P)))
+    updated, info = coned.update_quaternion(s, s.q_IB, [1.0, 0.0, 0.0, 0.0], np.full(3, 10 * ARCSEC))
     assert info.accepted
     np.testing.assert_array_equal(updated.previous_gyro, s.previous_gyro)
     np.testing.assert_array_equal(coned.reacquire(s, info).previous_gyro, s.previous_gyro)
@@ -980,8 +1021,15 @@ def test_coning_correction_in_the_estimator_system_around_a_missing_gyro_sample(
     est = MekfEstimator("mekf", 1.0, core, core.initial_state(q0, bias, 1 * DEG, 10 * DEG_PER_H))
     ctx = est.CreateDefaultContext()
     assert est.filter_state(ctx).shape == (47,)
-    rates = [[0.01, 0.0, 0.0], [0.05, -0.02, 0.08], [0.06, -0.01, 0.07], None, [0.04, 0.01, 0.09],
-             [0.03, 0.02, 0.08], [0.02, 0.04, 0.07]]
+    rates = [
+        [0.01, 0.0, 0.0],
+        [0.05, -0.02, 0.08],
+        [0.06, -0.01, 0.07],
+        None,
+        [0.04, 0.01, 0.09],
+        [0.03, 0.02, 0.08],
+        [0.02, 0.04, 0.07],
+    ]
     corrected = [None, False, True, False, False, True, True]  # t = 0: no step; then as above
     q, prev, held = q0, None, None
     for k, (w, expect) in enumerate(zip(rates, corrected, strict=True)):
@@ -1054,7 +1102,7 @@ def _coning_bias_drift_deg_h(rate_deg_s, T=1.0):
     (``dw_x/dt = k w_y w_z``, ``dw_y/dt = -k w_x w_z``, ``k = (I_t - I_z) / I_t``)."""
     w = rate_deg_s / math.sqrt(3.0) * DEG
     k = (0.042 - 0.0067) / 0.042
-    return -T**2 / 12.0 * k * w * (2.0 * w * w) / DEG_PER_H
+    return -(T**2) / 12.0 * k * w * (2.0 * w * w) / DEG_PER_H
 
 
 @pytest.mark.slow
@@ -1127,11 +1175,20 @@ def test_tracked_fusion_of_coning_corrected_mekfs_stays_consistent_in_a_fast_tum
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
 
-    s = apply_overrides(load("cubesat_dual_star_tracker"), [
-        "duration_s=300", "scoring.score_from_s=100", "simulation.use_error_control=true",
-        "simulation.integration_scheme=runge_kutta5", "simulation.max_step_size_s=1.0",
-        "plant.initial_rate_deg_per_s=[-5.0,5.0,5.0]", "plant.disturbance_torque_N_m=[0.0,0.0,0.0]",
-        "estimators.single.coning_correction=true", "estimators.single_st2.coning_correction=true"])
+    s = apply_overrides(
+        load("cubesat_dual_star_tracker"),
+        [
+            "duration_s=300",
+            "scoring.score_from_s=100",
+            "simulation.use_error_control=true",
+            "simulation.integration_scheme=runge_kutta5",
+            "simulation.max_step_size_s=1.0",
+            "plant.initial_rate_deg_per_s=[-5.0,5.0,5.0]",
+            "plant.disturbance_torque_N_m=[0.0,0.0,0.0]",
+            "estimators.single.coning_correction=true",
+            "estimators.single_st2.coning_correction=true",
+        ],
+    )
     sd = ScenarioDiagram(s)
     names = ("single", "single_st2", "decentralized")
     nees = {n: [] for n in names}

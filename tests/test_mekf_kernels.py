@@ -72,8 +72,7 @@ def test_quaternion_update_equals_numpy_reference(gate):
         q_BS = rot.quat_normalize(rng.normal(size=4))
         err = rng.normal(scale=10 ** rng.uniform(-6, -1), size=3)
         q_meas = rot.quat_multiply(rot.quat_multiply(s.q_IB, q_BS), rot.rotvec_to_quat(err))
-        noise = (rng.uniform(1e-6, 1e-3, size=3) if rng.uniform() < 0.5
-                 else np.diag(rng.uniform(1e-12, 1e-6, size=3)))
+        noise = rng.uniform(1e-6, 1e-3, size=3) if rng.uniform() < 0.5 else np.diag(rng.uniform(1e-12, 1e-6, size=3))
         a, ia = fast.update_quaternion(s, q_meas, q_BS, noise)
         b, ib = ref.update_quaternion(s, q_meas, q_BS, noise)
         assert ia.accepted == ib.accepted
@@ -128,11 +127,13 @@ def test_process_noise_and_transition_equal_the_reference():
     rng = np.random.default_rng(5)
     for _ in range(200):
         arw, rrw, dt = 10 ** rng.uniform(-7, -3), 10 ** rng.uniform(-9, -5), 10 ** rng.uniform(-3, 1)
-        np.testing.assert_allclose(process_noise(arw, rrw, dt), reference_process_noise(arw, rrw, dt), rtol=1e-14,
-                                   atol=0.0)
+        np.testing.assert_allclose(
+            process_noise(arw, rrw, dt), reference_process_noise(arw, rrw, dt), rtol=1e-14, atol=0.0
+        )
         w = rng.normal(scale=10 ** rng.uniform(-7, 0), size=3)
-        np.testing.assert_allclose(transition_matrix(w, dt), reference_transition_matrix(w, dt), rtol=1e-13,
-                                   atol=1e-15 * dt)
+        np.testing.assert_allclose(
+            transition_matrix(w, dt), reference_transition_matrix(w, dt), rtol=1e-13, atol=1e-15 * dt
+        )
 
 
 def test_only_the_library_step_runs_as_one_compiled_call():

@@ -36,10 +36,14 @@ PLANT = "rigid_body_plant"
 def qmul(p, q):
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    return np.array([pw * qw - px * qx - py * qy - pz * qz,
-                     pw * qx + px * qw + py * qz - pz * qy,
-                     pw * qy - px * qz + py * qw + pz * qx,
-                     pw * qz + px * qy - py * qx + pz * qw])
+    return np.array(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ]
+    )
 
 
 def qexp(phi):
@@ -53,9 +57,13 @@ def qexp(phi):
 
 def rotmat(q):
     w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def rodrigues(phi):
@@ -110,25 +118,46 @@ def truth_signals(t_grid, with_rate=True):
 
 def estimator_signals(name, t_log, status, q_hat, second, P, second_name="bias_B_hat"):
     t_log = np.asarray(t_log, dtype=float)
-    return {f"{name}/status": (t_log, np.asarray(status, dtype=float)),
-            f"{name}/q_IB_hat": (t_log, np.asarray(q_hat, dtype=float)),
-            f"{name}/{second_name}": (t_log, np.asarray(second, dtype=float)),
-            f"{name}/covariance": (t_log, np.asarray(P, dtype=float).reshape(len(t_log), 36))}
+    return {
+        f"{name}/status": (t_log, np.asarray(status, dtype=float)),
+        f"{name}/q_IB_hat": (t_log, np.asarray(q_hat, dtype=float)),
+        f"{name}/{second_name}": (t_log, np.asarray(second, dtype=float)),
+        f"{name}/covariance": (t_log, np.asarray(P, dtype=float).reshape(len(t_log), 36)),
+    }
 
 
 def make_run(signals, scenario=None, estimators=None):
     """A RunLog with the metadata ScenarioDiagram writes (RunLog.metadata), spelled out here:
     ``estimators`` maps name -> (second output port, gyro whose bias is the truth or None)."""
     kinds = {"bias_B_hat": "gyro_bias", "w_IB_B_hat": "body_rate"}
-    meta = {"schema": 1, "scenario": "tiny", "seed": 7, "wall_time_s": 1.25, "signals": list(signals),
-            "truth": {"attitude": f"{PLANT}/q_IB", "rate": f"{PLANT}/w_IB_B"},
-            "estimators": {name: {"second_kind": kinds[second],
-                                  "true_bias": None if gyro is None else f"{gyro}/bias_B",
-                                  "signals": {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
-                                              "covariance": f"{name}/covariance", "status": f"{name}/status"}}
-                           for name, (second, gyro) in (estimators or {}).items()}}
-    return RunLog(scenario=scenario if scenario is not None else cfg.Scenario(), seed=7,
-                  wall_time_s=1.25, signals=signals, metadata=meta)
+    meta = {
+        "schema": 1,
+        "scenario": "tiny",
+        "seed": 7,
+        "wall_time_s": 1.25,
+        "signals": list(signals),
+        "truth": {"attitude": f"{PLANT}/q_IB", "rate": f"{PLANT}/w_IB_B"},
+        "estimators": {
+            name: {
+                "second_kind": kinds[second],
+                "true_bias": None if gyro is None else f"{gyro}/bias_B",
+                "signals": {
+                    "attitude": f"{name}/q_IB_hat",
+                    "second": f"{name}/{second}",
+                    "covariance": f"{name}/covariance",
+                    "status": f"{name}/status",
+                },
+            }
+            for name, (second, gyro) in (estimators or {}).items()
+        },
+    }
+    return RunLog(
+        scenario=scenario if scenario is not None else cfg.Scenario(),
+        seed=7,
+        wall_time_s=1.25,
+        signals=signals,
+        metadata=meta,
+    )
 
 
 def errors_of(run, name, second_name, gyro):
@@ -177,9 +206,9 @@ def test_convergence_time_last_crossing_gives_next_sample_time():
     t = 10.0 + 0.5 * np.arange(10)  # 10.0, 10.5, ..., 14.5
     thr = 0.25
     d = np.full((10, 3), 0.1)
-    d[0, 0] = 0.3    # outside (also makes the first sample outside)
-    d[2, 1] = -0.4   # outside on the negative side
-    d[5, 2] = 0.26   # last outside sample -> converged from sample 6
+    d[0, 0] = 0.3  # outside (also makes the first sample outside)
+    d[2, 1] = -0.4  # outside on the negative side
+    d[5, 2] = 0.26  # last outside sample -> converged from sample 6
     assert metrics.convergence_time(t, d, thr) == t[6] == 13.0
     # moving the last excursion by one sample moves the answer by one sample
     d2 = d.copy()
@@ -205,8 +234,8 @@ def test_convergence_time_sample_exactly_at_threshold_counts_as_within():
     t = np.arange(6.0)
     thr = 0.25  # exactly representable
     d = np.zeros((6, 3))
-    d[1, 0] = 0.3            # outside
-    d[2:, 1] = -thr          # exactly at the bound from sample 2 on: within
+    d[1, 0] = 0.3  # outside
+    d[2:, 1] = -thr  # exactly at the bound from sample 2 on: within
     assert metrics.convergence_time(t, d, thr) == 2.0
     d[-1, 2] = np.nextafter(thr, 1.0)  # one ulp above the bound at the end: never
     assert metrics.convergence_time(t, d, thr) is None
@@ -229,11 +258,11 @@ def test_convergence_time_is_per_axis():
     t = np.arange(8.0)
     thr = 0.1
     d = np.zeros((8, 3))
-    d[:, 0] = 0.05   # x always within
+    d[:, 0] = 0.05  # x always within
     d[:, 2] = -0.05  # z always within
-    d[4, 1] = 0.2    # y alone outside at sample 4
+    d[4, 1] = 0.2  # y alone outside at sample 4
     assert metrics.convergence_time(t, d, thr) == 5.0
-    d[7, 2] = 0.2    # z alone outside at the end: one axis keeps it unconverged
+    d[7, 2] = 0.2  # z alone outside at the end: one axis keeps it unconverged
     assert metrics.convergence_time(t, d, thr) is None
 
 
@@ -261,8 +290,16 @@ def test_attitude_error_convention_matches_design():
         R_err = rotmat(q_hat_for(ti, di)).T @ rotmat(q_true_at(ti))
         np.testing.assert_allclose(R_err, rodrigues(di), atol=1e-14)
     sig = truth_signals(t)
-    sig.update(estimator_signals("mekf", t, [[ti, 0, 0, 0] for ti in t], [q_hat_for(ti, di) for ti, di in zip(t, d, strict=True)],
-                                 np.zeros((3, 3)), [np.eye(6)] * 3))
+    sig.update(
+        estimator_signals(
+            "mekf",
+            t,
+            [[ti, 0, 0, 0] for ti in t],
+            [q_hat_for(ti, di) for ti, di in zip(t, d, strict=True)],
+            np.zeros((3, 3)),
+            [np.eye(6)] * 3,
+        )
+    )
     errs = errors_of(make_run(sig), "mekf", "bias_B_hat", None)
     np.testing.assert_allclose(errs["dtheta"], np.array(d), rtol=0, atol=1e-12)
     # q_hat and -q_hat are the same attitude: the error must not depend on the sign.
@@ -323,8 +360,14 @@ def test_nan_and_negative_estimate_times_are_dropped():
 def test_estimate_time_without_truth_sample_raises_naming_it():
     t_log = np.arange(4.0)
     t_est = np.array([0.0, 1.0, 2.5, 3.0])  # truth only at whole seconds
-    sig = estimator_signals("mekf", t_log, [[te, 0, 0, 0] for te in t_est], [q_true_at(te) for te in t_est],
-                            np.zeros((4, 3)), [np.eye(6)] * 4)
+    sig = estimator_signals(
+        "mekf",
+        t_log,
+        [[te, 0, 0, 0] for te in t_est],
+        [q_true_at(te) for te in t_est],
+        np.zeros((4, 3)),
+        [np.eye(6)] * 4,
+    )
     sig.update(truth_signals(t_log))
     with pytest.raises(ValueError, match=r"mekf.*2\.5"):
         errors_of(make_run(sig), "mekf", "bias_B_hat", None)
@@ -350,30 +393,42 @@ def test_samples_without_an_estimate_time_are_not_scored():
     np.testing.assert_allclose(errs["dtheta"], 0.0, atol=1e-12)
 
 
-@pytest.mark.parametrize("t_truth, missing", [
-    (np.arange(4.0), r"4\."),        # truth stops at 3 s, an estimate at 4 s (after the last sample)
-    (np.arange(1.0, 6.0), r"0\."),   # truth starts at 1 s, an estimate at 0 s (before the first)
-])
+@pytest.mark.parametrize(
+    "t_truth, missing",
+    [
+        (np.arange(4.0), r"4\."),  # truth stops at 3 s, an estimate at 4 s (after the last sample)
+        (np.arange(1.0, 6.0), r"0\."),  # truth starts at 1 s, an estimate at 0 s (before the first)
+    ],
+)
 def test_estimate_time_outside_the_truth_log_raises_naming_it(t_truth, missing):
     """An estimate time beyond either end of the truth log is a missing truth sample too:
     the same ValueError naming the estimator and the time (not an IndexError from the
     search past the end)."""
     t_est = np.arange(5.0)
-    sig = estimator_signals("mekf", t_est, [[te, 0, 0, 0] for te in t_est], [q_true_at(te) for te in t_est],
-                            np.zeros((5, 3)), [np.eye(6)] * 5)
+    sig = estimator_signals(
+        "mekf",
+        t_est,
+        [[te, 0, 0, 0] for te in t_est],
+        [q_true_at(te) for te in t_est],
+        np.zeros((5, 3)),
+        [np.eye(6)] * 5,
+    )
     sig.update(truth_signals(t_truth))
     with pytest.raises(ValueError, match=r"mekf: no truth sample at estimate times \[" + missing):
         errors_of(make_run(sig), "mekf", "bias_B_hat", None)
 
 
-@pytest.mark.parametrize("signal, width, what", [
-    ("mekf/status", 5, "mekf status"),
-    ("mekf/q_IB_hat", 3, "mekf attitude"),          # a rotation vector logged for a quaternion
-    ("mekf/bias_B_hat", 4, "mekf second quantity"),
-    ("mekf/covariance", 9, "mekf covariance"),      # a 3x3 attitude-only covariance
-    (f"{PLANT}/q_IB", 3, "truth attitude"),
-    ("gyro/bias_B", 2, "mekf true bias"),
-])
+@pytest.mark.parametrize(
+    "signal, width, what",
+    [
+        ("mekf/status", 5, "mekf status"),
+        ("mekf/q_IB_hat", 3, "mekf attitude"),  # a rotation vector logged for a quaternion
+        ("mekf/bias_B_hat", 4, "mekf second quantity"),
+        ("mekf/covariance", 9, "mekf covariance"),  # a 3x3 attitude-only covariance
+        (f"{PLANT}/q_IB", 3, "truth attitude"),
+        ("gyro/bias_B", 2, "mekf true bias"),
+    ],
+)
 def test_signal_with_wrong_number_of_components_raises_naming_it(signal, width, what):
     """A logged signal with the wrong number of components per sample is rejected, naming
     the estimator's quantity and the signal key, instead of being scored (a 5-column status
@@ -423,8 +478,9 @@ def test_truth_and_true_bias_are_the_signals_the_metadata_names():
     run.metadata["estimators"]["mekf"]["true_bias"] = "decoy/bias_B"
     errs = metrics.estimator_errors(run, "mekf")
     np.testing.assert_array_equal(errs["q_true"], decoy_q[t_expected.astype(int)])
-    np.testing.assert_allclose(errs["second_err"], [e2_at(ti) + 40.0 * DEG_PER_H_ for ti in t_expected],
-                               rtol=1e-9, atol=1e-20)
+    np.testing.assert_allclose(
+        errs["second_err"], [e2_at(ti) + 40.0 * DEG_PER_H_ for ti in t_expected], rtol=1e-9, atol=1e-20
+    )
 
 
 def test_scoring_a_run_without_metadata_says_so():
@@ -456,8 +512,15 @@ def _nees_log(P_list, second_name="bias_B_hat"):
     n = len(P_list)
     t = np.arange(float(n))
     truth2 = (lambda ti: bias_true_at(ti)) if second_name == "bias_B_hat" else w_true_at
-    sig = estimator_signals("est", t, [[ti, 0, 0, 0] for ti in t], [q_hat_for(ti, d_at(ti)) for ti in t],
-                            [truth2(ti) - e2_at(ti) for ti in t], P_list, second_name)
+    sig = estimator_signals(
+        "est",
+        t,
+        [[ti, 0, 0, 0] for ti in t],
+        [q_hat_for(ti, d_at(ti)) for ti in t],
+        [truth2(ti) - e2_at(ti) for ti in t],
+        P_list,
+        second_name,
+    )
     sig.update(truth_signals(t))
     sig.update(gyro_signals(t_end=float(n)))
     return make_run(sig), t
@@ -478,8 +541,9 @@ def test_nees_six_dof_hand_computed_and_singular_sample_is_nan():
     e = [np.r_[d_at(ti), e2_at(ti)] for ti in t]
     expected0 = sum(e[0][i] ** 2 / diag[i] for i in range(6))
     # 2x2 inverse: [[b, -c], [-c, a]] / (ab - c^2)
-    expected1 = ((b * e[1][0] ** 2 - 2 * c * e[1][0] * e[1][3] + a * e[1][3] ** 2) / (a * b - c * c)
-                 + sum(e[1][i] ** 2 / diag[i] for i in (1, 2, 4, 5)))
+    expected1 = (b * e[1][0] ** 2 - 2 * c * e[1][0] * e[1][3] + a * e[1][3] ** 2) / (a * b - c * c) + sum(
+        e[1][i] ** 2 / diag[i] for i in (1, 2, 4, 5)
+    )
     expected3 = sum(e[3][i] ** 2 / (4.0 * diag[i]) for i in range(6))
     assert errs["nees_dof"] == 6
     np.testing.assert_allclose(errs["nees"][[0, 1, 3]], [expected0, expected1, expected3], rtol=1e-9)
@@ -490,7 +554,7 @@ def test_nees_six_dof_for_rate_estimators():
     diag = np.array([1e-6, 4e-6, 2.25e-6, 1e-12, 4e-12, 9e-12])
     run, t = _nees_log([np.diag(diag)] * 3, second_name="w_IB_B_hat")
     errs = errors_of(run, "est", "w_IB_B_hat", None)
-    expected = [sum(v ** 2 / s for v, s in zip(np.r_[d_at(ti), e2_at(ti)], diag, strict=True)) for ti in t]
+    expected = [sum(v**2 / s for v, s in zip(np.r_[d_at(ti), e2_at(ti)], diag, strict=True)) for ti in t]
     np.testing.assert_allclose(errs["nees"], expected, rtol=1e-9)
 
 
@@ -522,20 +586,25 @@ def test_nees_three_dof_without_bias_truth_uses_attitude_block_only():
 # ----------------------------------------------------------------------------------------
 def _errors_dict(t, d_deg, second=None, nees=None, status=None, P=None):
     n = len(t)
-    return {"t": np.asarray(t, dtype=float), "dtheta": np.asarray(d_deg, dtype=float) * DEG_,
-            "second_err": None if second is None else np.asarray(second, dtype=float),
-            "P": np.asarray(P) if P is not None else np.tile(np.eye(6), (n, 1, 1)),
-            "nees": np.asarray(nees if nees is not None else np.ones(n), dtype=float),
-            "nees_dof": 6 if second is not None else 3,
-            "status": np.asarray(status if status is not None else [[ti, 0, 0, 0] for ti in t], dtype=float)}
+    return {
+        "t": np.asarray(t, dtype=float),
+        "dtheta": np.asarray(d_deg, dtype=float) * DEG_,
+        "second_err": None if second is None else np.asarray(second, dtype=float),
+        "P": np.asarray(P) if P is not None else np.tile(np.eye(6), (n, 1, 1)),
+        "nees": np.asarray(nees if nees is not None else np.ones(n), dtype=float),
+        "nees_dof": 6 if second is not None else 3,
+        "status": np.asarray(status if status is not None else [[ti, 0, 0, 0] for ti in t], dtype=float),
+    }
 
 
-D_DEG = [[0.9, -0.5, 0.3],    # t = 0 (before score_from_s)
-         [0.2, 0.1, -0.04],   # t = 1
-         [0.03, -0.02, 0.01],  # t = 2  (== score_from_s)
-         [-0.01, 0.04, -0.02],  # t = 3
-         [0.02, 0.01, 0.03],  # t = 4
-         [-0.04, -0.03, 0.02]]  # t = 5
+D_DEG = [
+    [0.9, -0.5, 0.3],  # t = 0 (before score_from_s)
+    [0.2, 0.1, -0.04],  # t = 1
+    [0.03, -0.02, 0.01],  # t = 2  (== score_from_s)
+    [-0.01, 0.04, -0.02],  # t = 3
+    [0.02, 0.01, 0.03],  # t = 4
+    [-0.04, -0.03, 0.02],
+]  # t = 5
 
 
 def _rms(rows, axis):
@@ -547,21 +616,26 @@ def test_score_rmse_mae_total_over_stable_stage():
     m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
     scored = D_DEG[2:]
     np.testing.assert_allclose(m["attitude_rmse_deg"], [_rms(scored, i) for i in range(3)], rtol=1e-12)
-    np.testing.assert_allclose(m["attitude_mae_deg"], [sum(abs(r[i]) for r in scored) / 4 for i in range(3)],
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        m["attitude_mae_deg"], [sum(abs(r[i]) for r in scored) / 4 for i in range(3)], rtol=1e-12
+    )
     total = math.sqrt(sum(x * x for r in scored for x in r) / len(scored))
     assert m["attitude_rmse_total_deg"] == pytest.approx(total, rel=1e-12)
     # total RMSE is not the mean of per-axis RMSEs; check it is the root of their squares' sum
-    assert m["attitude_rmse_total_deg"] == pytest.approx(math.sqrt(sum(v * v for v in m["attitude_rmse_deg"])),
-                                                         rel=1e-12)
+    assert m["attitude_rmse_total_deg"] == pytest.approx(
+        math.sqrt(sum(v * v for v in m["attitude_rmse_deg"])), rel=1e-12
+    )
     assert m["samples_scored"] == 4 and m["scored_from_s"] == 2.0
 
 
-@pytest.mark.parametrize("t2, included", [
-    (2.0, True),                                        # exactly at score_from_s
-    (2.0 - 0.5 * metrics.TIME_MATCH_TOLERANCE_S, True),  # float jitter of a logged time
-    (2.0 - 1e-3, False),                                # just before: not scored
-])
+@pytest.mark.parametrize(
+    "t2, included",
+    [
+        (2.0, True),  # exactly at score_from_s
+        (2.0 - 0.5 * metrics.TIME_MATCH_TOLERANCE_S, True),  # float jitter of a logged time
+        (2.0 - 1e-3, False),  # just before: not scored
+    ],
+)
 def test_score_from_s_boundary(t2, included):
     t = np.array([0.0, 1.0, t2, 3.0, 4.0, 5.0])
     m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
@@ -584,8 +658,7 @@ def test_score_bias_rmse_in_deg_per_h():
     t = np.arange(6.0)
     b_deg_h = [[50, -50, 50], [9, 8, 7], [1.5, -2.0, 0.5], [-0.5, 1.0, 2.5], [1.0, 0.0, -1.5], [2.0, -1.0, 0.5]]
     second = np.array(b_deg_h) * DEG_PER_H_
-    m = metrics.score_estimator(_errors_dict(t, D_DEG, second=second), cfg.ScoringConfig(score_from_s=2.0),
-                                "gyro_bias")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG, second=second), cfg.ScoringConfig(score_from_s=2.0), "gyro_bias")
     np.testing.assert_allclose(m["bias_rmse_deg_per_h"], [_rms(b_deg_h[2:], i) for i in range(3)], rtol=1e-12)
     assert m["rate_rmse_deg_per_s"] is None
 
@@ -594,8 +667,7 @@ def test_score_rate_rmse_in_deg_per_s():
     t = np.arange(6.0)
     w_deg_s = [[5, 5, 5], [1, 1, 1], [1e-3, -2e-3, 3e-3], [2e-3, 0.0, -1e-3], [-1e-3, 1e-3, 1e-3], [0.0, 2e-3, 0.0]]
     second = np.array(w_deg_s) * DEG_
-    m = metrics.score_estimator(_errors_dict(t, D_DEG, second=second), cfg.ScoringConfig(score_from_s=2.0),
-                                "body_rate")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG, second=second), cfg.ScoringConfig(score_from_s=2.0), "body_rate")
     np.testing.assert_allclose(m["rate_rmse_deg_per_s"], [_rms(w_deg_s[2:], i) for i in range(3)], rtol=1e-12)
     assert m["bias_rmse_deg_per_h"] is None
 
@@ -634,12 +706,11 @@ def test_score_convergence_time_uses_all_samples_and_degree_threshold():
     """The threshold is in degrees (0.05 deg), the series is in rad; convergence is judged
     over every sample, not only the scored ones: D_DEG leaves 0.05 deg after t = 1."""
     t = np.arange(6.0)
-    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=4.0,
-                                                                         convergence_threshold_deg=0.05),
-                                "gyro_bias")
+    m = metrics.score_estimator(
+        _errors_dict(t, D_DEG), cfg.ScoringConfig(score_from_s=4.0, convergence_threshold_deg=0.05), "gyro_bias"
+    )
     assert m["convergence_time_s"] == 2.0
-    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(convergence_threshold_deg=0.035),
-                                "gyro_bias")
+    m = metrics.score_estimator(_errors_dict(t, D_DEG), cfg.ScoringConfig(convergence_threshold_deg=0.035), "gyro_bias")
     assert m["convergence_time_s"] is None  # |-0.04| deg at the last sample
 
 
@@ -651,22 +722,39 @@ def tiny_metrics():
     """Four estimators on one truth: two MEKFs on two gyros, a fusion whose first source is
     the second MEKF (scored against gyro g2's bias), and a gyroless PF (rate)."""
     scenario = cfg.Scenario(
-        name="tiny", duration_s=5.0,
-        estimators=[MekfConfig(name="mekf1", gyro="g1"), MekfConfig(name="mekf2", gyro="g2"),
-                    EstimateFusionConfig(name="fusion", sources=["mekf2", "mekf1"]),
-                    GyrolessPfConfig(name="gpf")],
-        scoring=cfg.ScoringConfig(score_from_s=2.0, convergence_threshold_deg=0.1))
+        name="tiny",
+        duration_s=5.0,
+        estimators=[
+            MekfConfig(name="mekf1", gyro="g1"),
+            MekfConfig(name="mekf2", gyro="g2"),
+            EstimateFusionConfig(name="fusion", sources=["mekf2", "mekf1"]),
+            GyrolessPfConfig(name="gpf"),
+        ],
+        scoring=cfg.ScoringConfig(score_from_s=2.0, convergence_threshold_deg=0.1),
+    )
     sig = truth_signals(np.arange(6.0))
     sig.update(gyro_signals("g1", offset=0.0))
     sig.update(gyro_signals("g2", offset=40.0))  # g2's bias is 40 deg/h off g1's
-    for name, gyro_offset, second_name in (("mekf1", 0.0, "bias_B_hat"), ("mekf2", 40.0, "bias_B_hat"),
-                                           ("fusion", 40.0, "bias_B_hat"), ("gpf", None, "w_IB_B_hat")):
+    for name, gyro_offset, second_name in (
+        ("mekf1", 0.0, "bias_B_hat"),
+        ("mekf2", 40.0, "bias_B_hat"),
+        ("fusion", 40.0, "bias_B_hat"),
+        ("gpf", None, "w_IB_B_hat"),
+    ):
         s, _ = lagged_estimator(name=name, n=6, second_name=second_name, bias_offset=gyro_offset or 0.0)
         sig.update(s)
     # The metadata names each estimator's true bias (the builder's rule, tested in
     # test_score.py: a fusion is scored against its first source's gyro, here g2).
-    run = make_run(sig, scenario, {"mekf1": ("bias_B_hat", "g1"), "mekf2": ("bias_B_hat", "g2"),
-                                   "fusion": ("bias_B_hat", "g2"), "gpf": ("w_IB_B_hat", None)})
+    run = make_run(
+        sig,
+        scenario,
+        {
+            "mekf1": ("bias_B_hat", "g1"),
+            "mekf2": ("bias_B_hat", "g2"),
+            "fusion": ("bias_B_hat", "g2"),
+            "gpf": ("w_IB_B_hat", None),
+        },
+    )
     return metrics.compute_metrics(run)
 
 
@@ -695,8 +783,9 @@ def test_compute_metrics_on_tiny_scenario(tiny_metrics):
         else:
             # each bias estimator scored against its own gyro (fusion: its first source's, g2);
             # against the other gyro the error would be ~40 deg/h instead of ~0.1-0.4 deg/h
-            np.testing.assert_allclose(rec["bias_rmse_deg_per_h"], [_rms(e2, i) / DEG_PER_H_ for i in range(3)],
-                                       rtol=1e-9)
+            np.testing.assert_allclose(
+                rec["bias_rmse_deg_per_h"], [_rms(e2, i) / DEG_PER_H_ for i in range(3)], rtol=1e-9
+            )
 
 
 FLOAT = r"[-+]?\d+\.\d+(?:e[-+]\d+)?"
@@ -728,7 +817,7 @@ def _parse_table(text):
     dash = next(i for i, line in enumerate(lines) if set(line) == {"-"})
     assert lines[dash - 1].split()[0] == "estimator" and len(lines[dash]) == len(lines[dash - 1])
     rows = {}
-    for line in lines[dash + 1:]:
+    for line in lines[dash + 1 :]:
         if line.startswith("(scored"):
             break
         tok = line.split()
@@ -741,19 +830,34 @@ def _parse_table(text):
         conv, nees, used = rest
         for t in rm + ma + [tot] + (second[1] if second else []) + ([] if nees == "-" else [nees]):
             float(t)  # every number parses back
-        rows[name] = {"rm": rm, "ma": ma, "tot": tot, "second": second,
-                      "conv": None if conv == "never" else float(conv), "conv_text": conv,
-                      "nees": None if nees == "-" else nees,
-                      "used": tuple(int(x) for x in used.split("/")), "line": line}
+        rows[name] = {
+            "rm": rm,
+            "ma": ma,
+            "tot": tot,
+            "second": second,
+            "conv": None if conv == "never" else float(conv),
+            "conv_text": conv,
+            "nees": None if nees == "-" else nees,
+            "used": tuple(int(x) for x in used.split("/")),
+            "line": line,
+        }
     scored_from = float(re.search(r"scored from t >= (\S+) s", text).group(1))
     return header.groups(), rows, scored_from
 
 
 def _rec(rm, ma, tot, bias=None, rate=None, conv=None, nees=None, used=(0, 0)):
-    return {"attitude_rmse_deg": rm, "attitude_mae_deg": ma, "attitude_rmse_total_deg": tot,
-            "bias_rmse_deg_per_h": bias, "rate_rmse_deg_per_s": rate, "convergence_time_s": conv,
-            "nees_mean": nees, "scored_from_s": 100.0, "measurements_used": used[0],
-            "measurements_skipped": used[1]}
+    return {
+        "attitude_rmse_deg": rm,
+        "attitude_mae_deg": ma,
+        "attitude_rmse_total_deg": tot,
+        "bias_rmse_deg_per_h": bias,
+        "rate_rmse_deg_per_s": rate,
+        "convergence_time_s": conv,
+        "nees_mean": nees,
+        "scored_from_s": 100.0,
+        "measurements_used": used[0],
+        "measurements_skipped": used[1],
+    }
 
 
 def _check_rows(rows, est):
@@ -761,8 +865,11 @@ def _check_rows(rows, est):
     assert list(rows) == list(est)
     for name, rec in est.items():
         r = rows[name]
-        for tokens, values in ((r["rm"], rec["attitude_rmse_deg"]), (r["ma"], rec["attitude_mae_deg"]),
-                               ([r["tot"]], [rec["attitude_rmse_total_deg"]])):
+        for tokens, values in (
+            (r["rm"], rec["attitude_rmse_deg"]),
+            (r["ma"], rec["attitude_mae_deg"]),
+            ([r["tot"]], [rec["attitude_rmse_total_deg"]]),
+        ):
             for t, v in zip(tokens, values, strict=True):
                 assert_printed(t, v)
         if rec["bias_rmse_deg_per_h"] is not None:
@@ -794,7 +901,7 @@ def _check_aligned(text):
     lines = text.splitlines()
     dash = next(i for i, line in enumerate(lines) if set(line) == {"-"})
     footer = next(i for i, line in enumerate(lines) if line.startswith("(scored"))
-    header, body = lines[dash - 1], lines[dash + 1:footer]
+    header, body = lines[dash - 1], lines[dash + 1 : footer]
     assert all(len(ln) == len(header) for ln in body), [len(ln) for ln in [header, *body]]
     ends = [[m.end() for m in re.finditer(r"\S+", ln)][1:] for ln in body]  # after the name
     full = [e for e, ln in zip(ends, body, strict=True) if ln.split()[8] in ("b", "w")]
@@ -810,10 +917,24 @@ def test_format_table_shows_the_numbers_it_was_given():
     # and NEES to 3 significant digits (half a unit of the last printed digit, and a relative
     # 5e-3 at most), conv %.1f (0.05), wall %.2f (0.005).
     est = {
-        "mekf": _rec([0.01234, 0.02345, 0.03456], [0.00987, 0.01876, 0.02765], 0.04567,
-                     bias=[0.1234, 2.3456, 34.5678], conv=123.4, nees=6.12, used=(950, 12)),
-        "gyroless_pf": _rec([1.23456, 2.34567, 3.45678], [0.98765, 1.87654, 2.76543], 4.56789,
-                            rate=[1.23e-4, 4.56e-5, 7.89e-3], conv=None, nees=None, used=(1000, 0)),
+        "mekf": _rec(
+            [0.01234, 0.02345, 0.03456],
+            [0.00987, 0.01876, 0.02765],
+            0.04567,
+            bias=[0.1234, 2.3456, 34.5678],
+            conv=123.4,
+            nees=6.12,
+            used=(950, 12),
+        ),
+        "gyroless_pf": _rec(
+            [1.23456, 2.34567, 3.45678],
+            [0.98765, 1.87654, 2.76543],
+            4.56789,
+            rate=[1.23e-4, 4.56e-5, 7.89e-3],
+            conv=None,
+            nees=None,
+            used=(1000, 0),
+        ),
         "plain": _rec([0.5, 0.25, 0.125], [0.4, 0.2, 0.1], 0.57282, conv=0.0, nees=2.98, used=(3, 4)),
     }
     metrics_in = {"scenario": "tiny", "seed": 11, "duration_s": 3600.0, "wall_time_s": 12.3456, "estimators": est}
@@ -834,10 +955,24 @@ def test_format_table_sizes_to_long_names_and_numbers_spanning_decades():
     long_name = "large_error_ekf_with_long_name"
     assert len(long_name) == 30
     est = {
-        long_name: _rec([170.0, 1.2e-7, 0.00012], [150.0, 9.87e-8, 0.000101], 170.0,
-                        bias=[12345.6, 0.000987, 3.0], conv=None, nees=6.1e28, used=(123456, 7890)),
-        "ekf": _rec([1.2e-7, 170.0, 0.0123], [1e-7, 99.95, 0.01], 1.2e-7,
-                    rate=[6.1e-28, 1.0, 0.0456], conv=4999.9, nees=0.00012, used=(1, 0)),
+        long_name: _rec(
+            [170.0, 1.2e-7, 0.00012],
+            [150.0, 9.87e-8, 0.000101],
+            170.0,
+            bias=[12345.6, 0.000987, 3.0],
+            conv=None,
+            nees=6.1e28,
+            used=(123456, 7890),
+        ),
+        "ekf": _rec(
+            [1.2e-7, 170.0, 0.0123],
+            [1e-7, 99.95, 0.01],
+            1.2e-7,
+            rate=[6.1e-28, 1.0, 0.0456],
+            conv=4999.9,
+            nees=0.00012,
+            used=(1, 0),
+        ),
         "mekf": _rec([0.5, 0.25, 0.125], [0.4, 0.2, 0.1], 0.57282, conv=12.0, nees=None, used=(3, 4)),
     }
     metrics_in = {"scenario": "s", "seed": 0, "duration_s": 5000.0, "wall_time_s": 1.0, "estimators": est}
@@ -852,15 +987,24 @@ def test_format_table_sizes_to_long_names_and_numbers_spanning_decades():
 
 
 def test_format_table_name_column_is_at_least_nine_wide():
-    text = metrics.format_table({"scenario": "s", "seed": 0, "duration_s": 1.0, "wall_time_s": 1.0,
-                                 "estimators": {"a": _rec([1.0] * 3, [1.0] * 3, 1.0, bias=[1.0] * 3, conv=0.0, nees=1.0)}})
+    text = metrics.format_table(
+        {
+            "scenario": "s",
+            "seed": 0,
+            "duration_s": 1.0,
+            "wall_time_s": 1.0,
+            "estimators": {"a": _rec([1.0] * 3, [1.0] * 3, 1.0, bias=[1.0] * 3, conv=0.0, nees=1.0)},
+        }
+    )
     _check_aligned(text)
     assert text.splitlines()[1].startswith("estimator ") and text.splitlines()[3].startswith("a" + " " * 9)
 
 
 def test_format_table_footer_names_each_nees_dof():
-    est = {"mekf": dict(_rec([1.0] * 3, [1.0] * 3, 1.0, nees=6.0), nees_dof=6),
-           "ekf": dict(_rec([1.0] * 3, [1.0] * 3, 1.0, nees=3.0), nees_dof=3)}
+    est = {
+        "mekf": dict(_rec([1.0] * 3, [1.0] * 3, 1.0, nees=6.0), nees_dof=6),
+        "ekf": dict(_rec([1.0] * 3, [1.0] * 3, 1.0, nees=3.0), nees_dof=3),
+    }
     text = metrics.format_table({"scenario": "s", "seed": 0, "duration_s": 1.0, "wall_time_s": 1.0, "estimators": est})
     assert "NEES dof: 3 (ekf), 6 (mekf)" in text
 

@@ -74,10 +74,13 @@ def test_dask_local_cluster_equals_serial_bit_for_bit(tmp_path, campaign):
     diagram once) give records identical to the serial in-process run, in memory and on disk."""
     from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
-            Client(cluster) as client:
-        result = mc.run_campaign(SCENARIO, 4, overrides=SHORT, scheduler=client, out=str(tmp_path / "dask"),
-                                 progress=False, report=False)
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
+        result = mc.run_campaign(
+            SCENARIO, 4, overrides=SHORT, scheduler=client, out=str(tmp_path / "dask"), progress=False, report=False
+        )
         stats = client.run(mc.worker_stats)
     assert_records_identical(result.records, campaign.records)
     on_disk = [mc.load_record(os.path.join(tmp_path, "dask", "runs", f"seed_{s}.npz")) for s in result.seeds]
@@ -102,16 +105,22 @@ def test_interrupted_campaign_resumes_to_exactly_n_runs(tmp_path, campaign):
     with pytest.raises(mc.CampaignError, match="--resume"):
         mc.run_campaign(SCENARIO, 4, overrides=SHORT, workers=1, out=out, progress=False)
     with pytest.raises(mc.CampaignError, match="duration_s"):
-        mc.run_campaign(SCENARIO, 4, overrides=["duration_s=50", "scoring.score_from_s=20"], workers=1, out=out,
-                        resume=True, progress=False)
+        mc.run_campaign(
+            SCENARIO,
+            4,
+            overrides=["duration_s=50", "scoring.score_from_s=20"],
+            workers=1,
+            out=out,
+            resume=True,
+            progress=False,
+        )
     resumed = mc.run_campaign(SCENARIO, 4, overrides=SHORT, workers=1, out=out, resume=True, progress=False)
     assert (resumed.reused, resumed.ran) == (1, 3)  # seed 1 kept; the damaged seed 2 and seeds 3, 4 run
     assert sorted(os.listdir(os.path.join(out, "runs"))) == [f"seed_{s}.npz" for s in (1, 2, 3, 4)]
     assert_records_identical(resumed.records, campaign.records)
     assert _without_commands(resumed.summary) == _without_commands(campaign.summary)
     assert mc.check_campaign_manifest(out) == []
-    again = mc.run_campaign(SCENARIO, 4, overrides=SHORT, workers=1, out=out, resume=True, progress=False,
-                            report=False)
+    again = mc.run_campaign(SCENARIO, 4, overrides=SHORT, workers=1, out=out, resume=True, progress=False, report=False)
     assert (again.reused, again.ran) == (4, 0)
 
 
@@ -121,11 +130,31 @@ def test_ctrl_c_keeps_finished_runs_and_resume_completes(tmp_path):
     130, a message, no traceback, no worker left behind, only complete run files; the same
     command with --resume ends with exactly N runs."""
     n = 6
-    args = [sys.executable, "-m", "drake_att.cli", "montecarlo", SCENARIO, "--runs", str(n), "--set", "duration_s=120",
-            "--set", "scoring.score_from_s=20", "--out", "c"]
-    proc = subprocess.Popen(args + ["--workers", "2"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=ENV, start_new_session=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509
+    args = [
+        sys.executable,
+        "-m",
+        "drake_att.cli",
+        "montecarlo",
+        SCENARIO,
+        "--runs",
+        str(n),
+        "--set",
+        "duration_s=120",
+        "--set",
+        "scoring.score_from_s=20",
+        "--out",
+        "c",
+    ]
+    proc = subprocess.Popen(
+        args + ["--workers", "2"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # noqa: PLW1509
     runs = tmp_path / "c" / "runs"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and proc.poll() is None:
@@ -154,8 +183,15 @@ def test_ctrl_c_keeps_finished_runs_and_resume_completes(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
-    r = subprocess.run(args + ["--workers", "1", "--resume", "--quiet"], cwd=tmp_path, capture_output=True, text=True,
-                       env=ENV, timeout=300, check=False)
+    r = subprocess.run(
+        args + ["--workers", "1", "--resume", "--quiet"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=300,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert f"{n - len(done)} runs simulated, {len(done)} found complete" in r.stdout
     assert sorted(os.listdir(runs)) == sorted(f"seed_{s}.npz" for s in range(1, n + 1))
@@ -182,18 +218,49 @@ BAD = {
     "bad_set_value": (["montecarlo", SCENARIO, "--runs", "2", "--set", "duration_s=five"], "duration_s"),
     "unknown_estimator": (["montecarlo", SCENARIO, "--runs", "2", "--estimators", "nope"], "--estimators"),
     "malformed_scheduler": (["montecarlo", SCENARIO, "--runs", "2", "--scheduler", "not an address"], "--scheduler"),
-    "workers_with_scheduler": (["montecarlo", SCENARIO, "--runs", "2", "--workers", "2", "--scheduler",
-                                "tcp://127.0.0.1:8786"], "--workers"),
+    "workers_with_scheduler": (
+        ["montecarlo", SCENARIO, "--runs", "2", "--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"],
+        "--workers",
+    ),
     "out_is_a_file": (["montecarlo", SCENARIO, "--runs", "2", "--out", "taken"], "--out taken"),
     "out_has_other_files": (["montecarlo", SCENARIO, "--runs", "2", "--out", "other"], "--out other"),
-    "existing_campaign_without_resume": (["montecarlo", SCENARIO, "--runs", "2", "--set", "duration_s=60", "--set",
-                                          "scoring.score_from_s=20", "--out", "same"], "--resume"),
-    "resume_another_config": (["montecarlo", SCENARIO, "--runs", "2", "--set", "duration_s=70", "--set",
-                               "scoring.score_from_s=20", "--out", "same", "--resume"], "duration_s: 60.0"),
+    "existing_campaign_without_resume": (
+        [
+            "montecarlo",
+            SCENARIO,
+            "--runs",
+            "2",
+            "--set",
+            "duration_s=60",
+            "--set",
+            "scoring.score_from_s=20",
+            "--out",
+            "same",
+        ],
+        "--resume",
+    ),
+    "resume_another_config": (
+        [
+            "montecarlo",
+            SCENARIO,
+            "--runs",
+            "2",
+            "--set",
+            "duration_s=70",
+            "--set",
+            "scoring.score_from_s=20",
+            "--out",
+            "same",
+            "--resume",
+        ],
+        "duration_s: 60.0",
+    ),
     "compare_runs_zero": (["compare", SCENARIO, "--runs", "0"], "--runs"),
     "compare_estimator_nowhere": (["compare", SCENARIO, "--runs", "2", "--estimators", "nope"], "--estimators"),
-    "compare_source_lacks_it": (["compare", SCENARIO, "--runs", "2", "--estimators", f"{SCENARIO}:joint"],
-                                f"{SCENARIO}:joint"),
+    "compare_source_lacks_it": (
+        ["compare", SCENARIO, "--runs", "2", "--estimators", f"{SCENARIO}:joint"],
+        f"{SCENARIO}:joint",
+    ),
     "compare_same_scenario_twice": (["compare", SCENARIO, SCENARIO, "--runs", "2"], SCENARIO),
 }
 
@@ -213,9 +280,29 @@ def test_bad_campaign_input_exits_2_naming_it(tmp_path, monkeypatch, capsys, cas
 
 
 def test_unreachable_scheduler_exits_2_without_traceback(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "montecarlo", SCENARIO, "--runs", "2",
-                        "--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "1", "--out", "c"],
-                       cwd=tmp_path, capture_output=True, text=True, env=ENV, timeout=120, check=False)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "drake_att.cli",
+            "montecarlo",
+            SCENARIO,
+            "--runs",
+            "2",
+            "--scheduler",
+            "tcp://127.0.0.1:9",
+            "--connect-timeout",
+            "1",
+            "--out",
+            "c",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=120,
+        check=False,
+    )
     assert r.returncode == 2, r.stderr[-2000:]
     assert "Traceback" not in r.stderr, r.stderr[-2000:]
     last = r.stderr.strip().splitlines()[-1]
@@ -225,8 +312,17 @@ def test_unreachable_scheduler_exits_2_without_traceback(tmp_path):
 def test_campaign_folder_holds_the_report_files(campaign):
     out = campaign.out
     names = set(os.listdir(out))
-    assert {"config.yaml", "campaign.json", "summary.json", "report.html", "manifest.json", "runs",
-            "rmse_vs_bound.png", "single_errors.png", "single_consistency.png"} <= names
+    assert {
+        "config.yaml",
+        "campaign.json",
+        "summary.json",
+        "report.html",
+        "manifest.json",
+        "runs",
+        "rmse_vs_bound.png",
+        "single_errors.png",
+        "single_consistency.png",
+    } <= names
     with open(os.path.join(out, "summary.json")) as f:
         summary = json.load(f)  # strict JSON
     st = summary["statistics"]["estimators"]["single"]
@@ -247,8 +343,9 @@ def _self_contained(page: str) -> list[str]:
 
 
 CHROMIUM = campaign_report.find_chromium()
-needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="no Chromium on PATH (Debian: apt-get install chromium; "
-                                    "`make test` installs it as root)")
+needs_chromium = pytest.mark.skipif(
+    CHROMIUM is None, reason="no Chromium on PATH (Debian: apt-get install chromium; `make test` installs it as root)"
+)
 
 
 def test_report_is_self_contained_with_valid_embedded_pngs(campaign):
@@ -293,9 +390,26 @@ def test_compare_runs_every_listed_estimator_on_every_listed_scenario(tmp_path, 
     the dual-tracker scenario (it cannot run on one tracker: the cell says why). The shared
     sensors give `single` the same noise, hence the same numbers, in both scenarios."""
     out = str(tmp_path / "cmp")
-    code = cli_main(["compare", SCENARIO, "cubesat_dual_star_tracker", "--estimators",
-                     "single,cubesat_dual_star_tracker:joint", "--runs", "2", "--workers", "1", "--quiet",
-                     "--set", "duration_s=60", "--set", "scoring.score_from_s=20", "--out", out])
+    code = cli_main(
+        [
+            "compare",
+            SCENARIO,
+            "cubesat_dual_star_tracker",
+            "--estimators",
+            "single,cubesat_dual_star_tracker:joint",
+            "--runs",
+            "2",
+            "--workers",
+            "1",
+            "--quiet",
+            "--set",
+            "duration_s=60",
+            "--set",
+            "scoring.score_from_s=20",
+            "--out",
+            out,
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 0, captured.err[-3000:]
     with open(os.path.join(out, "comparison.json")) as f:

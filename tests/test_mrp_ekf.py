@@ -116,15 +116,13 @@ def test_shadow_jacobian_and_kinematics_inverse(seed):
     np.testing.assert_allclose(J, central_jacobian(rot.mrp_shadow, rho), rtol=1e-7, atol=1e-9)
     n2 = rho @ rho
     np.testing.assert_allclose(J, (2 * np.outer(rho, rho) - n2 * np.eye(3)) / n2**2, atol=1e-14)
-    np.testing.assert_allclose(mrp_kinematics_inverse(rho) @ rot.mrp_kinematics_matrix(rho),
-                               np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(mrp_kinematics_inverse(rho) @ rot.mrp_kinematics_matrix(rho), np.eye(3), atol=1e-12)
 
 
 def test_propagate_mrp_matches_ode_and_stays_in_chart():
     w = np.array([0.3, -0.2, 0.5])
     rho0 = np.array([0.5, 0.6, 0.3])  # |rho| ~ 0.84; the solution leaves the unit ball
-    sol = solve_ivp(lambda t, r: rot.mrp_kinematics_matrix(r) @ w, [0.0, 2.0], rho0,
-                    rtol=1e-12, atol=1e-12)
+    sol = solve_ivp(lambda t, r: rot.mrp_kinematics_matrix(r) @ w, [0.0, 2.0], rho0, rtol=1e-12, atol=1e-12)
     rho1 = propagate_mrp(rho0, w, 2.0)
     np.testing.assert_allclose(rho1, sol.y[:, -1], atol=1e-9)
     assert np.linalg.norm(rho1) > 1.0  # same chart as the ODE, no silent switch
@@ -136,13 +134,13 @@ def test_transition_matrix_matches_discrete_map_jacobian():
         x = np.concatenate([0.3 * rng.normal(size=3), 1e-3 * rng.normal(size=3)])
         w_meas = 0.05 * rng.normal(size=3)
         for dt in (1.0, 0.1):
+
             def step(x, w_meas=w_meas, dt=dt):
                 return np.concatenate([propagate_mrp(x[:3], w_meas - x[3:], dt), x[3:]])
 
             x_mid = np.concatenate([propagate_mrp(x[:3], w_meas - x[3:], dt / 2), x[3:]])
             Phi = discrete_transition_matrix(mrp_dynamics_jacobian(x_mid, w_meas), dt)
-            np.testing.assert_allclose(Phi, central_jacobian(step, x, 1e-7),
-                                       atol=5e-4 * dt**3 + 1e-8)
+            np.testing.assert_allclose(Phi, central_jacobian(step, x, 1e-7), atol=5e-4 * dt**3 + 1e-8)
 
 
 def test_process_noise_closed_form_at_identity():
@@ -152,7 +150,7 @@ def test_process_noise_closed_form_at_identity():
     Q = discrete_process_noise(x, F, dt, SIGMA_V, SIGMA_U)
     # rho = 0: B = I/4, so the attitude block is (1/16) of the classic angle formulas.
     np.testing.assert_allclose(np.diag(Q)[:3], (SIGMA_V**2 * dt + SIGMA_U**2 * dt**3 / 3) / 16)
-    np.testing.assert_allclose(np.diag(Q[:3, 3:]), -SIGMA_U**2 * dt**2 / 8)
+    np.testing.assert_allclose(np.diag(Q[:3, 3:]), -(SIGMA_U**2) * dt**2 / 8)
     np.testing.assert_allclose(np.diag(Q)[3:], SIGMA_U**2 * dt)
     np.testing.assert_allclose(Q, Q.T, atol=0)
 
@@ -207,8 +205,9 @@ def test_ekf_converges_from_small_error():
     q_true, b_true, ys, wms = simulate_truth(300, rng)
     q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
     core = MrpEkfCore(SIGMA_V, SIGMA_U)
-    state, q_hats, b_hats, covs, accepted = run_ekf(core, core.initial_state(q0, np.full(3, 2 * DEG / HOUR), P0_ATT),
-                                                    wms, ys)
+    state, q_hats, b_hats, covs, accepted = run_ekf(
+        core, core.initial_state(q0, np.full(3, 2 * DEG / HOUR), P0_ATT), wms, ys
+    )
     e = np.concatenate([rot.quat_error_rotvec(q_hats[-1], q_true[-1]), b_true[-1] - b_hats[-1]])
     assert e @ np.linalg.solve(covs[-1], e) < chi2.ppf(0.999, 6)
     # The covariance converged to the S0 level (not a huge P excusing any error):
@@ -255,8 +254,9 @@ def nees_monte_carlo(update_iterations):
         x, P, _, _ = ekf_update(x, P, ys[:, k], REFS, SIGMA_STAR, iterations=update_iterations)
         if k in NEES_CHECK_STEPS:
             C = mrp_to_attitude_covariance(x[:, :3], P)
-            e = np.concatenate([rot.quat_error_rotvec(rot.mrp_to_quat(x[:, :3]), q_true[:, k]),
-                                b_true[:, k] - x[:, 3:]], axis=1)
+            e = np.concatenate(
+                [rot.quat_error_rotvec(rot.mrp_to_quat(x[:, :3]), q_true[:, k]), b_true[:, k] - x[:, 3:]], axis=1
+            )
             nees[k] = float(np.sum(e * np.linalg.solve(C, e[..., None])[..., 0]))
     # The batch is the MrpEkfCore of each run (run 0 re-filtered with the core; the batched
     # IEKF's stopping test is batch-wide, so iterates agree to the 1e-12 tolerance only).
@@ -373,8 +373,14 @@ def test_missing_measurements_are_declined_and_missing_rates_refused():
 def test_constructor_validation_names_the_field(kwargs, field):
     """The core's tuning (arw, rrw, iterations) and its initial state (attitude, bias,
     covariance) are checked where they are given."""
-    args = dict(q_IB_hat0=[1, 0, 0, 0], bias_hat0=np.zeros(3), covariance0=P0_ATT,
-                arw_rad_per_rt_s=SIGMA_V, rrw_rad_per_s15=SIGMA_U, update_iterations=1)
+    args = dict(
+        q_IB_hat0=[1, 0, 0, 0],
+        bias_hat0=np.zeros(3),
+        covariance0=P0_ATT,
+        arw_rad_per_rt_s=SIGMA_V,
+        rrw_rad_per_s15=SIGMA_U,
+        update_iterations=1,
+    )
     args.update(kwargs)
     # The field as a whole word (not inside a longer identifier).
     with pytest.raises(ValueError, match=rf"(?<!\w){field}(?!\w)"):
@@ -453,7 +459,7 @@ def test_predicted_covariance_is_the_step_maps_linearization(w_meas):
     x1, P1 = ekf_predict(x0, P, w_meas, dt, 0.0, 0.0)
     np.testing.assert_allclose(x1, _exact_step(x0, w_meas, dt), rtol=0, atol=1e-15)
     P_ref = J @ P @ J.T
-    assert np.linalg.norm(P1 - P_ref) / np.linalg.norm(P_ref) < np.linalg.norm(w_meas * dt)**3
+    assert np.linalg.norm(P1 - P_ref) / np.linalg.norm(P_ref) < np.linalg.norm(w_meas * dt) ** 3
 
 
 # --------------------------------------------------------------------------------------
@@ -493,8 +499,9 @@ def test_covariance0_symmetry_is_checked_to_round_off():
         core.initial_state([1, 0, 0, 0], np.zeros(3), bad)
     ulp = P0.copy()
     ulp[0, 1] = np.nextafter(ulp[0, 1], 1.0)
-    np.testing.assert_allclose(core.estimate(core.initial_state([1, 0, 0, 0], np.zeros(3), ulp))[2], P0,
-                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        core.estimate(core.initial_state([1, 0, 0, 0], np.zeros(3), ulp))[2], P0, rtol=1e-12, atol=0
+    )
 
 
 def test_measurement_with_a_missing_component_is_skipped():
@@ -569,18 +576,22 @@ def test_core_with_mounted_sensor_matches_body_frame_vectors_and_its_nis_is_chi_
 def test_core_skips_unusable_observations_and_names_bad_arguments():
     core = MrpEkfCore(SIGMA_V, SIGMA_U, update_iterations=2)
     state = core.initial_state([1, 0, 0, 0], np.zeros(3), P0_ATT)
-    obs = VectorObservations(0.0, True, np.full((2, 3), np.nan), REFS, SIGMA_STAR,
-                             np.array([1.0, 0, 0, 0]))
+    obs = VectorObservations(0.0, True, np.full((2, 3), np.nan), REFS, SIGMA_STAR, np.array([1.0, 0, 0, 0]))
     new, info = core.update(state, obs)
     assert new is state and not info.accepted and np.isnan(info.nis)
     word = r"(?<!\w){}(?!\w)".format
-    for kwargs, field in [(dict(arw_rad_per_rt_s=0.0), "arw_rad_per_rt_s"), (dict(rrw_rad_per_s15=-1.0), "rrw_rad_per_s15"),
-                          (dict(update_iterations=0), "update_iterations")]:
+    for kwargs, field in [
+        (dict(arw_rad_per_rt_s=0.0), "arw_rad_per_rt_s"),
+        (dict(rrw_rad_per_s15=-1.0), "rrw_rad_per_s15"),
+        (dict(update_iterations=0), "update_iterations"),
+    ]:
         with pytest.raises(ValueError, match=word(field)):
             MrpEkfCore(**dict(dict(arw_rad_per_rt_s=SIGMA_V), **kwargs))
-    for args, field in [(([0, 0, 0, 0], np.zeros(3), P0_ATT), "q_IB_hat0"),
-                        (([1, 0, 0, 0], np.zeros(2), P0_ATT), "bias_hat0"),
-                        (([1, 0, 0, 0], np.zeros(3), np.eye(5)), "covariance0")]:
+    for args, field in [
+        (([0, 0, 0, 0], np.zeros(3), P0_ATT), "q_IB_hat0"),
+        (([1, 0, 0, 0], np.zeros(2), P0_ATT), "bias_hat0"),
+        (([1, 0, 0, 0], np.zeros(3), np.eye(5)), "covariance0"),
+    ]:
         with pytest.raises(ValueError, match=word(field)):
             core.initial_state(*args)
     with pytest.raises(ValueError, match=word("dt")):

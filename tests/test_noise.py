@@ -45,8 +45,7 @@ def test_stream_key_is_a_128_bit_function_of_seed_words_and_stream_name():
     words = np.array(list(keys.values()), dtype=np.uint64).ravel()
     assert np.all(words >= np.uint64(2**32))
     # Seed words arrive as floats (the sensors keep them in their discrete state).
-    np.testing.assert_array_equal(stream_key(np.array([3.0, 7.0, 8.0, 9.0]), "gyro"),
-                                  stream_key([3, 7, 8, 9], "gyro"))
+    np.testing.assert_array_equal(stream_key(np.array([3.0, 7.0, 8.0, 9.0]), "gyro"), stream_key([3, 7, 8, 9], "gyro"))
 
 
 def test_counter_draws_depend_only_on_key_and_index():
@@ -144,9 +143,15 @@ def interval_moments(arw, rrw, T):
     return arw**2 / T + rrw**2 * T / 3.0, rrw**2 * T / 2.0, rrw**2 * T
 
 
-@pytest.mark.parametrize("arw, rrw, T", [
-    (1.63e-4, 1.0e-5, 1.0), (1e-3, 2e-3, 1.0), (2e-4, 2e-3, 0.5), (0.0, 3e-4, 0.2),
-])
+@pytest.mark.parametrize(
+    "arw, rrw, T",
+    [
+        (1.63e-4, 1.0e-5, 1.0),
+        (1e-3, 2e-3, 1.0),
+        (2e-4, 2e-3, 0.5),
+        (0.0, 3e-4, 0.2),
+    ],
+)
 def test_from_normals_is_the_lower_cholesky_factor_of_the_derived_covariance(arw, rrw, T):
     """(e, db) = L z with L the (unique, positive-diagonal) lower Cholesky factor of the
     interval covariance derived above: so (e, db) has exactly that covariance for z ~ N(0, I),
@@ -190,8 +195,9 @@ def test_simulate_static_is_the_interval_recursion_from_zero_bias():
         b = b + db
     np.testing.assert_allclose(out, expected, rtol=0, atol=1e-15)
     bias0 = np.array([1e-4, -2e-4, 3e-4])
-    np.testing.assert_allclose(gyro.simulate_static(n, np.random.default_rng(5), bias0=bias0),
-                               np.array(expected) + bias0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(
+        gyro.simulate_static(n, np.random.default_rng(5), bias0=bias0), np.array(expected) + bias0, rtol=0, atol=1e-15
+    )
 
 
 # ----------------------------------------------------------------------------------------
@@ -219,8 +225,9 @@ def test_allan_deviation_matches_the_cluster_average_definition():
     assert adev.shape == (20, 2)
     np.testing.assert_allclose(adev, [reference_adev(y, m) for m in ms], rtol=1e-12, atol=0)
     # A 1-D series is one column.
-    np.testing.assert_allclose(overlapping_allan_deviation(y[:, 1], dt, [0.05]), [reference_adev(y[:, 1:], 5)],
-                               rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        overlapping_allan_deviation(y[:, 1], dt, [0.05]), [reference_adev(y[:, 1:], 5)], rtol=1e-12, atol=0
+    )
 
 
 def test_allan_deviation_rejects_taus_outside_the_series():

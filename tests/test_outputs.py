@@ -63,10 +63,20 @@ def test_folder_kinds(tmp_path):
     (tmp_path / "camp_cfg" / "config.yaml").write_text("# Resolved configuration of this Monte Carlo campaign\n")
     (tmp_path / "user_cfg").mkdir()
     (tmp_path / "user_cfg" / "config.yaml").write_text("# my notes\n")
-    kinds = {name: outputs.folder_kind(str(tmp_path / name))
-             for name in ("empty", "run", "run_plus", "user", "fake", "camp", "camp_cfg", "user_cfg")}
-    assert kinds == {"empty": "empty", "run": "run", "run_plus": None, "user": None, "fake": None,
-                     "camp": "campaign", "camp_cfg": "campaign", "user_cfg": None}
+    kinds = {
+        name: outputs.folder_kind(str(tmp_path / name))
+        for name in ("empty", "run", "run_plus", "user", "fake", "camp", "camp_cfg", "user_cfg")
+    }
+    assert kinds == {
+        "empty": "empty",
+        "run": "run",
+        "run_plus": None,
+        "user": None,
+        "fake": None,
+        "camp": "campaign",
+        "camp_cfg": "campaign",
+        "user_cfg": None,
+    }
 
 
 def test_a_comparison_folder_holds_only_campaigns_and_its_own_files(tmp_path):
@@ -82,19 +92,22 @@ def test_a_comparison_folder_holds_only_campaigns_and_its_own_files(tmp_path):
 # --------------------------------------------------------------------------------------
 # check_target: refusals name the folder, leave everything unchanged
 # --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("case, needle", [
-    ("user_folder", "thesis.txt"),
-    ("run_folder_with_a_user_file", "thesis.txt"),
-    ("current_folder", "current folder"),
-    ("parent_of_current", "current folder"),
-    ("root", "root"),
-    ("home", "home"),
-    ("a_file", "existing file"),
-    ("under_a_file", "is a file"),
-    ("symlink_to_a_run", "symbolic link"),
-    ("empty_name", "name a folder"),
-    ("nul_in_name", "name a folder"),
-])
+@pytest.mark.parametrize(
+    "case, needle",
+    [
+        ("user_folder", "thesis.txt"),
+        ("run_folder_with_a_user_file", "thesis.txt"),
+        ("current_folder", "current folder"),
+        ("parent_of_current", "current folder"),
+        ("root", "root"),
+        ("home", "home"),
+        ("a_file", "existing file"),
+        ("under_a_file", "is a file"),
+        ("symlink_to_a_run", "symbolic link"),
+        ("empty_name", "name a folder"),
+        ("nul_in_name", "name a folder"),
+    ],
+)
 def test_check_target_refuses_what_is_not_ours(tmp_path, monkeypatch, case, needle):
     home = tmp_path / "home"
     home.mkdir()
@@ -108,10 +121,19 @@ def test_check_target_refuses_what_is_not_ours(tmp_path, monkeypatch, case, need
     make_run_folder(tmp_path / "run_ok")
     (tmp_path / "file").write_text("x")
     os.symlink(tmp_path / "run_ok", tmp_path / "link")
-    target = {"user_folder": str(tmp_path / "user"), "run_folder_with_a_user_file": str(tmp_path / "runx"),
-              "current_folder": ".", "parent_of_current": "..", "root": "/", "home": str(home),
-              "a_file": str(tmp_path / "file"), "under_a_file": str(tmp_path / "file" / "sub"),
-              "symlink_to_a_run": str(tmp_path / "link"), "empty_name": "", "nul_in_name": "a\x00b"}[case]
+    target = {
+        "user_folder": str(tmp_path / "user"),
+        "run_folder_with_a_user_file": str(tmp_path / "runx"),
+        "current_folder": ".",
+        "parent_of_current": "..",
+        "root": "/",
+        "home": str(home),
+        "a_file": str(tmp_path / "file"),
+        "under_a_file": str(tmp_path / "file" / "sub"),
+        "symlink_to_a_run": str(tmp_path / "link"),
+        "empty_name": "",
+        "nul_in_name": "a\x00b",
+    }[case]
     before = snapshot(tmp_path)
     with pytest.raises(OutputError) as e:
         outputs.check_target(target)
@@ -146,8 +168,9 @@ def test_campaign_kinds_are_separate_from_run_kinds(tmp_path, monkeypatch):
 # --------------------------------------------------------------------------------------
 # Names made from a scenario
 # --------------------------------------------------------------------------------------
-@pytest.mark.parametrize("name", ["../../escaped", "/etc/passwd", "a/b\\c", "..", ".", ".hidden", "x\x00y",
-                                  "é" * 300, "", "   ", "a\nb"])
+@pytest.mark.parametrize(
+    "name", ["../../escaped", "/etc/passwd", "a/b\\c", "..", ".", ".hidden", "x\x00y", "é" * 300, "", "   ", "a\nb"]
+)
 def test_safe_component_is_one_harmless_component(tmp_path, name):
     c = outputs.safe_component(name)
     assert c and len(c) <= outputs.MAX_COMPONENT
@@ -211,8 +234,7 @@ def test_stale_staging_is_removed_only_where_no_live_writer_holds_the_name(tmp_p
     finally:
         live.kill()
         live.wait()
-    assert left == sorted([".busy.lock", ".busy.writing-q1", ".res.lock", ".res.writing-not_ours!",
-                           "user.writing-abc"])
+    assert left == sorted([".busy.lock", ".busy.writing-q1", ".res.lock", ".res.writing-not_ours!", "user.writing-abc"])
 
 
 def test_replace_folder_is_atomic_and_keeps_the_old_results_on_failure(tmp_path):
@@ -224,6 +246,7 @@ def test_replace_folder_is_atomic_and_keeps_the_old_results_on_failure(tmp_path)
                 with open(os.path.join(staging, n), "w") as f:
                     f.write(n)
             return names
+
         return into
 
     outputs.replace_folder(target, write(["a.txt"]))
@@ -259,14 +282,16 @@ def test_write_file_atomic_leaves_the_old_file_when_the_write_fails(tmp_path):
     no 0-byte file and no temporary."""
     path = tmp_path / "metrics.json"
     path.write_text('{"old": true}')
-    code = ("import resource, signal, sys\n"
-            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
-            "resource.setrlimit(resource.RLIMIT_FSIZE, (100, 100))\n"
-            "from drake_att.outputs import write_file_atomic\n"
-            "try:\n"
-            f"    write_file_atomic({str(path)!r}, b'x' * 10000)\n"
-            "except OSError as e:\n"
-            "    print('refused', e.errno)\n")
+    code = (
+        "import resource, signal, sys\n"
+        "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (100, 100))\n"
+        "from drake_att.outputs import write_file_atomic\n"
+        "try:\n"
+        f"    write_file_atomic({str(path)!r}, b'x' * 10000)\n"
+        "except OSError as e:\n"
+        "    print('refused', e.errno)\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.stdout.startswith("refused"), r.stderr
     assert path.read_text() == '{"old": true}' and os.listdir(tmp_path) == ["metrics.json"]
@@ -312,7 +337,10 @@ def test_free_space_is_checked_at_its_boundary(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     need = 5 * 2**20
     usage = outputs.shutil.disk_usage(str(tmp_path))
-    for free, ok in ((need + outputs.FREE_SPACE_MARGIN_BYTES, True), (need + outputs.FREE_SPACE_MARGIN_BYTES - 1, False)):
+    for free, ok in (
+        (need + outputs.FREE_SPACE_MARGIN_BYTES, True),
+        (need + outputs.FREE_SPACE_MARGIN_BYTES - 1, False),
+    ):
         monkeypatch.setattr(outputs.shutil, "disk_usage", lambda p, f=free: usage._replace(free=f))
         if ok:
             outputs.check_target("r", need_bytes=need)

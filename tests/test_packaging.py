@@ -32,15 +32,31 @@ def test_a_hung_test_fails_fast_and_names_itself(tmp_path):
     that hangs is killed after the timeout and reported by name (here with the timeout
     lowered to 2 s for a 60 s sleep)."""
     assert _pyproject()["tool"]["pytest"]["ini_options"]["timeout"] > 0
-    (tmp_path / "test_hang.py").write_text(textwrap.dedent("""
+    (tmp_path / "test_hang.py").write_text(
+        textwrap.dedent("""
         import time
 
         def test_that_hangs():
             time.sleep(60)
-    """))
+    """)
+    )
     start = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "timeout=2",
-                           str(tmp_path / "test_hang.py")], capture_output=True, text=True, cwd=tmp_path)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-o",
+            "timeout=2",
+            str(tmp_path / "test_hang.py"),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
     elapsed = time.monotonic() - start
     assert proc.returncode != 0
     assert elapsed < 30.0, elapsed

@@ -46,8 +46,7 @@ def simulate_euler_truth(num_steps, rng, dt=1.0, substeps=10):
     for _ in range(num_steps):
         qs.append(q)
         ws.append(w)
-        ys.append(vector_measurement_model(rot.quat_to_mrp(q), REFS)
-                  + SIGMA_STAR * rng.standard_normal(6))
+        ys.append(vector_measurement_model(rot.quat_to_mrp(q), REFS) + SIGMA_STAR * rng.standard_normal(6))
         for _ in range(substeps):
             k1 = wdot(w)
             k2 = wdot(w + 0.5 * h * k1)
@@ -206,13 +205,15 @@ def test_filters_take_their_resampler():
     """A core resamples with the resampler it is given (here one that always keeps
     particle 0), when the gate it is given says so, so resampling schemes are swappable
     components; something that is not one is refused naming the argument."""
+
     class KeepFirst:
         def indices(self, weights, rng):
             return np.zeros(len(weights), dtype=np.int64)
 
     rng = np.random.default_rng(3)
-    core = BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, resampling_gate=EffectiveSampleSizeGate(1.0),
-                           resampler=KeepFirst())
+    core = BootstrapPfCore(
+        50, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, resampling_gate=EffectiveSampleSizeGate(1.0), resampler=KeepFirst()
+    )
     state = core.draw_initial_state(rng)
     first = state.particles[0].copy()
     state, info = core.update(state, observation(vector_measurement_model(np.zeros(3), REFS)), rng)
@@ -256,8 +257,10 @@ def test_weights_stay_finite_and_normalized_over_many_steps():
     ys[20, 2] = np.inf
     q0 = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
     b0 = np.full(3, 2 * DEG / HOUR)
-    cores = [BootstrapPfCore(300, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7)),
-             EkpfCore(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U)]
+    cores = [
+        BootstrapPfCore(300, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7)),
+        EkpfCore(100, q0, b0, P0_ATT, SIGMA_V, SIGMA_U),
+    ]
     initial = [core.draw_initial_state(rng) for core in cores]
     for core, state in zip(cores, initial, strict=True):
         state, _, infos = run_filter(core, state, ys, rng, wms, check=assert_weights_ok)
@@ -289,8 +292,9 @@ def _run_all_filters(seed):
     state = run_filter(ekpf, ekpf.draw_initial_state(rng), ys, rng, wms)[0]
     out += [state.particles, state.covariances, state.weights, *ekpf.estimate(state)[:2]]
     rng = np.random.default_rng(seed)
-    gpf = GyrolessPfCore(200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, attitude_process_sigma=1e-6,
-                         num_substeps=2)
+    gpf = GyrolessPfCore(
+        200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, attitude_process_sigma=1e-6, num_substeps=2
+    )
     state = gpf.draw_initial_state(rng)
     for y in ys:
         state = gpf.predict(state, None, 1.0, rng)
@@ -312,8 +316,10 @@ def test_missing_inputs_are_declined_or_refused():
     sample never reaches a core (the system holds the last valid rate,
     tests/test_particle_systems.py); a gyro core refuses one, naming the field."""
     rng = np.random.default_rng(8)
-    for core in (BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V),
-                 EkpfCore(20, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U)):
+    for core in (
+        BootstrapPfCore(50, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V),
+        EkpfCore(20, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U),
+    ):
         state = core.draw_initial_state(rng)
         before = rng.bit_generator.state
         for y in ([None] * 6, [np.nan] * 6):
@@ -337,18 +343,26 @@ def test_missing_inputs_are_declined_or_refused():
         (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6).draw_initial_state(None), "rng"),
         (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6), "covariance0"),
         (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 0.0, 1e-9), "arw_rad_per_rt_s"),
-        (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, 1e-9, proposal_iterations=0),
-         "proposal_iterations"),
+        (
+            lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6, 1e-9, proposal_iterations=0),
+            "proposal_iterations",
+        ),
         (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, -np.eye(3), TORQUE, 1e-6), "inertia"),
         (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, [1.0, 2.0], 1e-6), "torque"),
-        (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, num_substeps=0),
-         "num_substeps"),
+        (
+            lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6, num_substeps=0),
+            "num_substeps",
+        ),
         (lambda r: BootstrapPfCore(10, [0, 0, 0, 0], np.zeros(3), P0_ATT, 1e-6), "q_IB_hat0"),
         # The unit of a wrong-shape array is part of the message.
-        (lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, 1e-6),
-         r"bias_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)"),
-        (lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, INERTIA, TORQUE, 1e-6),
-         r"w_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)"),
+        (
+            lambda r: BootstrapPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, 1e-6),
+            r"bias_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)",
+        ),
+        (
+            lambda r: GyrolessPfCore(10, [1, 0, 0, 0], np.zeros(2), P0_ATT, INERTIA, TORQUE, 1e-6),
+            r"w_hat0: got \[0. 0.\]; must have shape \(3,\) \(rad/s\)",
+        ),
         (lambda r: EkpfCore(10, [1, 0, 0, 0], np.zeros(3), np.eye(5), 1e-6, 1e-9), "covariance0"),
     ],
 )
@@ -452,8 +466,13 @@ def test_bootstrap_bias_does_not_converge_without_roughening():
         rng = np.random.default_rng(32)
         core = BootstrapPfCore(1000, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(rough))
         spreads = []
-        out = run_gyro_filter(core, ys, wms, rng,
-                              check=lambda c, state, spreads=spreads: spreads.append(np.std(state.particles[:, 3:], 0)))
+        out = run_gyro_filter(
+            core,
+            ys,
+            wms,
+            rng,
+            check=lambda c, state, spreads=spreads: spreads.append(np.std(state.particles[:, 3:], 0)),
+        )
         b_err = np.array([b - bt for (_, b), bt in zip(out, b_true, strict=True)])
         results[rough] = (out, b_err, np.array(spreads))
     msn_bound = chi2.ppf(0.999, 30) / 30
@@ -500,8 +519,7 @@ def test_ekpf_attitude_is_consistent_and_near_the_ekf_optimum_over_monte_carlo()
     for _ in range(num_runs):
         d = L @ rng.standard_normal(6)
         q_true0 = rot.quat_multiply(q_hat0, rot.rotvec_to_quat(d[:3]))
-        q_true, _, ys, wms = simulate_gyro_truth(num_steps, rng, q0=q_true0,
-                                                 bias0=b_hat0 + d[3:])
+        q_true, _, ys, wms = simulate_gyro_truth(num_steps, rng, q0=q_true0, bias0=b_hat0 + d[3:])
         ekpf = EkpfCore(40, q_hat0, b_hat0, P0_ATT, SIGMA_V, SIGMA_U)
         state = run_filter(ekpf, ekpf.draw_initial_state(rng), ys, rng, wms)[0]
         q_hat, _, C_own = ekpf.estimate(state)
@@ -664,10 +682,11 @@ def test_mean_and_covariance_are_weighted_statistics_of_the_set():
     n = 40
     core = BootstrapPfCore(n, [1, 0, 0, 0], np.zeros(3), P0_ATT, SIGMA_V)
     drawn = core.draw_initial_state(rng)  # replaced below (drawn to keep this test's random numbers)
-    centers = [rot.rpy_to_quat(np.array([10.0, -20.0, 30.0]) * DEG),
-               rot.rpy_to_quat(np.array([10.0, -20.0, 35.0]) * DEG)]
-    q = np.array([_quat_mul(centers[i % 2], rot.rotvec_to_quat(0.01 * rng.standard_normal(3)))
-                  for i in range(n)])
+    centers = [
+        rot.rpy_to_quat(np.array([10.0, -20.0, 30.0]) * DEG),
+        rot.rpy_to_quat(np.array([10.0, -20.0, 35.0]) * DEG),
+    ]
+    q = np.array([_quat_mul(centers[i % 2], rot.rotvec_to_quat(0.01 * rng.standard_normal(3))) for i in range(n)])
     particles = np.concatenate([rot.quat_to_mrp(q), 1e-5 * rng.standard_normal((n, 3))], axis=1)
     w = np.where(np.arange(n) % 2 == 0, 0.8, 0.2) * rng.uniform(0.5, 1.5, n)
     w = w / w.sum()
@@ -682,8 +701,12 @@ def test_mean_and_covariance_are_weighted_statistics_of_the_set():
     np.testing.assert_allclose(q_mean * np.sign(q_mean[0]), q_hat, rtol=0, atol=1e-12)
     np.testing.assert_allclose(b_mean, b_hat, rtol=1e-12, atol=0)
     q_hat_conj = q_hat * np.array([1.0, -1.0, -1.0, -1.0])
-    e = np.array([np.concatenate([_rotvec_of(_quat_mul(q_hat_conj, qi)), bi - b_hat])
-                  for qi, bi in zip(q_set, particles[:, 3:], strict=True)])
+    e = np.array(
+        [
+            np.concatenate([_rotvec_of(_quat_mul(q_hat_conj, qi)), bi - b_hat])
+            for qi, bi in zip(q_set, particles[:, 3:], strict=True)
+        ]
+    )
     C = (e * w[:, None]).T @ e
     np.testing.assert_allclose(C_core, C, rtol=1e-9, atol=1e-12 * np.max(np.abs(C)))
     # The weights matter here: the unweighted average is far from the weighted one.
@@ -723,13 +746,11 @@ def test_gyroless_process_noise_has_the_documented_variances_and_the_cores_torqu
     pushed = GyrolessPfCore(3, q0, np.zeros(3), np.eye(6) * 1e-30, J, T, 0.0)
     state = pushed.predict(quiet.draw_initial_state(rng), None, dt, rng)
     # atol: the point-mass prior still has sigma 1e-15 per component (covariance 1e-30).
-    np.testing.assert_allclose(state.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
-                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(state.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)), rtol=0, atol=1e-14)
     q_expected = _quat_mul(q0, rot.rotvec_to_quat(T * dt**2 / 300.0))
     assert max(att_err(qi, q_expected) for qi in rot.mrp_to_quat(state.particles[:, :3])) < 1e-13
     state = quiet.predict(state, None, dt, rng)  # the zero-torque core: the rate is held
-    np.testing.assert_allclose(state.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)),
-                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(state.particles[:, 3:], np.tile(T * dt / 150.0, (3, 1)), rtol=0, atol=1e-14)
 
 
 def _ekpf_with_known_bias():
@@ -742,8 +763,7 @@ def _ekpf_with_known_bias():
     covariances = state.covariances.copy()
     covariances[:, 3:, :] = 0.0
     covariances[:, :, 3:] = 0.0
-    y = (vector_measurement_model(rot.quat_to_mrp(q0), REFS)
-         + SIGMA_STAR * np.random.default_rng(1).standard_normal(6))
+    y = vector_measurement_model(rot.quat_to_mrp(q0), REFS) + SIGMA_STAR * np.random.default_rng(1).standard_normal(6)
     return core, replace(state, covariances=covariances), y
 
 
@@ -799,9 +819,11 @@ def test_update_reports_its_particle_diagnostics_and_estimates_from_the_weighted
     rng = np.random.default_rng(14)
     q0 = rot.rpy_to_quat(np.array([1.0, 1.0, 1.0]) * DEG)
     _, _, ys, wms = simulate_gyro_truth(2, np.random.default_rng(15))
-    core = {"bootstrap": lambda: BootstrapPfCore(200, q0, np.zeros(3), P0_ATT, 2e-5),
-            "ekpf": lambda: EkpfCore(200, q0, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U),
-            "gyroless": lambda: GyrolessPfCore(200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6)}[kind]()
+    core = {
+        "bootstrap": lambda: BootstrapPfCore(200, q0, np.zeros(3), P0_ATT, 2e-5),
+        "ekpf": lambda: EkpfCore(200, q0, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U),
+        "gyroless": lambda: GyrolessPfCore(200, q0, np.zeros(3), P0_ATT, INERTIA, TORQUE, 1e-6),
+    }[kind]()
     state = core.draw_initial_state(rng)
     copies = [np.copy(a) for a in (state.particles, state.weights, state.log_weights)]
     new, info = core.update(state, observation(ys[0]), rng)

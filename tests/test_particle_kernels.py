@@ -196,8 +196,9 @@ def test_the_draw_kernel_on_given_factors_is_the_fused_steps_draw(iterations):
     y = vector_measurement_model(rot.quat_to_mrp(q_true), REFS) + 1e-4 * rng.normal(size=6)
     eps = rng.normal(size=(N, 6))
     m_post, P_post, _, _ = pk.ekf_update(x, P, y, REFS, 1e-4, switch=False, iterations=iterations)
-    x_a, P_a, inc_a = pk.ekpf_draw(x, m_post, P_post, np.linalg.cholesky(P), np.linalg.cholesky(P_post), eps, y, REFS,
-                                   1e-4)
+    x_a, P_a, inc_a = pk.ekpf_draw(
+        x, m_post, P_post, np.linalg.cholesky(P), np.linalg.cholesky(P_post), eps, y, REFS, 1e-4
+    )
     x_b, P_b, inc_b = pk.ekpf_update(x, P, eps, y, REFS, 1e-4, iterations=iterations)
     np.testing.assert_array_equal(P_a, P_b)  # the same EKF update, the same shadow switch
     assert_states_close(x_a, P_a, x_b, P_b, 1e-12)
@@ -217,8 +218,9 @@ def test_log_likelihood_and_attitude_step_equal_the_reference():
     keep = np.arange(N) != 7
     assert_log_weights_close(ll[keep], ll_ref[keep], SIGMA_STAR)
     w = rng.normal(size=(N, 3))
-    np.testing.assert_allclose(pk.propagate_attitudes(x[:, :3], w, 0.7), ref.propagate_attitudes(x[:, :3], w, 0.7),
-                               rtol=0, atol=1e-14)
+    np.testing.assert_allclose(
+        pk.propagate_attitudes(x[:, :3], w, 0.7), ref.propagate_attitudes(x[:, :3], w, 0.7), rtol=0, atol=1e-14
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -261,26 +263,34 @@ def test_filters_equal_the_reference_over_a_run(kind):
     b0 = np.full(3, 2 * DEG / HOUR)
     tol = 1e-13
     if kind == "ekpf":
+
         def make(oracle):
             return (ReferenceEkpfCore if oracle else EkpfCore)(300, q0, b0, P0_ATT, SIGMA_V, SIGMA_U)
 
         tol = 1e-10
     elif kind.startswith("ekpf iterated"):
         q_far = rot.rpy_to_quat(np.array([12.0, -10.0, 170.0]) * DEG)
+
         def make(oracle):
-            return (ReferenceEkpfCore if oracle else EkpfCore)(200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U,
-                                                               proposal_iterations=10)
+            return (ReferenceEkpfCore if oracle else EkpfCore)(
+                200, q_far, b0, P0_ATT, SIGMA_V, SIGMA_U, proposal_iterations=10
+            )
 
         tol = 1e-9
     elif kind == "bootstrap":
+
         def make(oracle):
             return (ReferenceBootstrapPfCore if oracle else BootstrapPfCore)(
-                500, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7))
+                500, q0, b0, P0_ATT, 2e-5, bias_roughening=RandomWalkRoughening(1e-7)
+            )
     else:
         P0 = np.diag([DEG**2] * 3 + [(0.001 * DEG) ** 2] * 3)
+
         def make(oracle):
             return (ReferenceGyrolessPfCore if oracle else GyrolessPfCore)(
-                500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6, attitude_process_sigma=3e-5, num_substeps=2)
+                500, q0, np.full(3, 1e-5), P0, INERTIA, TORQUE, 1e-6, attitude_process_sigma=3e-5, num_substeps=2
+            )
+
     twins = _twin_filters(make)
     resamplings = 0
     for k in range(len(ys)):
@@ -316,8 +326,9 @@ def test_singular_covariances_take_the_paired_repair_as_the_reference():
     for damage in ("zero bias block", "indefinite"):
         out = []
         for oracle in (True, False):
-            core = (ReferenceEkpfCore if oracle else EkpfCore)(16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U,
-                                                              resampling_gate=EffectiveSampleSizeGate(0.0))
+            core = (ReferenceEkpfCore if oracle else EkpfCore)(
+                16, q0, np.zeros(3), P0, SIGMA_V, SIGMA_U, resampling_gate=EffectiveSampleSizeGate(0.0)
+            )
             state = core.draw_initial_state(np.random.default_rng(5))
             covariances = state.covariances.copy()
             if damage == "zero bias block":
@@ -348,9 +359,10 @@ def test_the_mrp_ekf_core_equals_the_reference_over_a_run():
     b0 = np.full(3, 2 * DEG / HOUR)
     outliers = {30, 31, 75}
     for iterations in (1, 3):
-        cores = [cls(SIGMA_V, SIGMA_U, update_iterations=iterations,
-                     innovation_gate_chi2=InnovationGate(probability=0.999))
-                 for cls in (ReferenceMrpEkfCore, MrpEkfCore)]
+        cores = [
+            cls(SIGMA_V, SIGMA_U, update_iterations=iterations, innovation_gate_chi2=InnovationGate(probability=0.999))
+            for cls in (ReferenceMrpEkfCore, MrpEkfCore)
+        ]
         states = [c.initial_state(q0, b0, P0_ATT) for c in cores]
         rejected = 0
         for k in range(len(ys)):
@@ -365,8 +377,13 @@ def test_the_mrp_ekf_core_equals_the_reference_over_a_run():
             assert ia.accepted == ib.accepted
             rejected += not ia.accepted
             assert_states_close(b.x[None], b.P[None], a.x[None], a.P[None], 1e-10)
-            assert_innovations_close(ib.innovation[None], ib.innovation_covariance[None], ia.innovation[None],
-                                     ia.innovation_covariance[None], 1e-12)
+            assert_innovations_close(
+                ib.innovation[None],
+                ib.innovation_covariance[None],
+                ia.innovation[None],
+                ia.innovation_covariance[None],
+                1e-12,
+            )
             assert np.isclose(ib.nis, ia.nis, rtol=1e-9)
         assert rejected == len(outliers)
 
@@ -389,8 +406,11 @@ def test_a_whole_s0_scenario_run_equals_the_reference_run(monkeypatch):
     monkeypatch.setattr(filter_setups, "EkpfCore", ReferenceEkpfCore)
     monkeypatch.setattr(filter_setups, "BootstrapPfCore", ReferenceBootstrapPfCore)
     oracle = ScenarioDiagram(scenario)
-    assert {type(oracle.estimators[n].core) for n in names} == {ReferenceMrpEkfCore, ReferenceEkpfCore,
-                                                                ReferenceBootstrapPfCore}
+    assert {type(oracle.estimators[n].core) for n in names} == {
+        ReferenceMrpEkfCore,
+        ReferenceEkpfCore,
+        ReferenceBootstrapPfCore,
+    }
     reference = oracle.simulate(3, estimators=names)
     compared = 0
     for key, (_t, expected) in reference.signals.items():
@@ -434,8 +454,9 @@ def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, loca
     ignores read-only permissions); the IPython locator accepts no file outside IPython."""
     env = dict(os.environ, NUMBA_CACHE_LOCATOR_CLASSES=locator, XDG_CACHE_HOME=str(tmp_path), HOME=str(tmp_path))
     env.pop("NUMBA_CACHE_DIR", None)
-    out = subprocess.run([sys.executable, "-c", textwrap.dedent(_CHILD)], check=False, env=env, capture_output=True,
-                         text=True)
+    out = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(_CHILD)], check=False, env=env, capture_output=True, text=True
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split() == [str(caching)] and out.stderr == "", (out.stdout, out.stderr[-2000:])
     cached = [f for _, _, fs in os.walk(tmp_path) for f in fs if f.endswith((".nbi", ".nbc"))]

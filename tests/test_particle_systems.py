@@ -110,7 +110,7 @@ def test_particle_state_is_in_the_context_and_weights_stay_normalized(diagram):
         system = diagram.estimators[name]
         n = system.num_particles
         s = system.filter_state(system.GetMyContextFromRoot(context))
-        particles, w, lw = s[:6 * n].reshape(n, 6), s[6 * n:7 * n], s[7 * n:8 * n]
+        particles, w, lw = s[: 6 * n].reshape(n, 6), s[6 * n : 7 * n], s[7 * n : 8 * n]
         assert np.all(np.isfinite(particles)) and np.all(np.linalg.norm(particles[:, :3], axis=1) <= 1.0)
         assert np.all(w >= 0) and abs(w.sum() - 1.0) < 1e-12
         np.testing.assert_allclose(np.exp(lw), w, rtol=1e-9, atol=1e-300)
@@ -118,7 +118,7 @@ def test_particle_state_is_in_the_context_and_weights_stay_normalized(diagram):
         assert 1.0 <= diag[0] <= n and diag[3] == n
     ekpf = diagram.estimators["ekpf"]
     n = ekpf.num_particles
-    covs = ekpf.filter_state(ekpf.GetMyContextFromRoot(context))[8 * n:].reshape(n, 6, 6)
+    covs = ekpf.filter_state(ekpf.GetMyContextFromRoot(context))[8 * n :].reshape(n, 6, 6)
     assert np.all(np.linalg.eigvalsh(covs) > 0)
 
 
@@ -142,9 +142,15 @@ def test_interleaved_contexts_give_the_same_runs(diagram, run_seed1):
     sims = [Simulator(diagram.diagram, c) for c in (c1, c2)]
     sc = diagram.scenario.simulation
     for sim in sims:  # the integrator settings ScenarioDiagram.simulate uses
-        ApplySimulatorConfig(SimulatorConfig(integration_scheme=sc.integration_scheme,
-                                             max_step_size=sc.max_step_size_s, accuracy=sc.accuracy,
-                                             use_error_control=sc.use_error_control), sim)
+        ApplySimulatorConfig(
+            SimulatorConfig(
+                integration_scheme=sc.integration_scheme,
+                max_step_size=sc.max_step_size_s,
+                accuracy=sc.accuracy,
+                use_error_control=sc.use_error_control,
+            ),
+            sim,
+        )
     for t in (3.0, 7.0, 12.0, 16.0, 20.0):
         for sim in sims:
             sim.AdvanceTo(t)
@@ -160,10 +166,10 @@ def test_initial_particles_come_from_the_seed(diagram):
     for seed in (5, 5, 6):
         context = diagram.create_context(seed)
         Simulator(diagram.diagram, context).Initialize()
-        sets.append(bpf.filter_state(bpf.GetMyContextFromRoot(context))[:6 * bpf.num_particles])
+        sets.append(bpf.filter_state(bpf.GetMyContextFromRoot(context))[: 6 * bpf.num_particles])
     np.testing.assert_array_equal(sets[0], sets[1])
     assert not np.array_equal(sets[0], sets[2])
-    default = bpf.filter_state(bpf.CreateDefaultContext())[:6 * bpf.num_particles]
+    default = bpf.filter_state(bpf.CreateDefaultContext())[: 6 * bpf.num_particles]
     assert not np.array_equal(sets[0], default)  # drawn from the diagram's seed, not the default value
 
 
@@ -174,8 +180,14 @@ REFS = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
 def _observation(t, dirs=None, valid=True, sigma=100e-6):
-    return VectorObservations(float(t), bool(valid), REFS.copy() if dirs is None else np.asarray(dirs, float),
-                              REFS.copy(), sigma, np.array([1.0, 0.0, 0.0, 0.0]))
+    return VectorObservations(
+        float(t),
+        bool(valid),
+        REFS.copy() if dirs is None else np.asarray(dirs, float),
+        REFS.copy(),
+        sigma,
+        np.array([1.0, 0.0, 0.0, 0.0]),
+    )
 
 
 def _systems():
@@ -246,8 +258,7 @@ def test_star_sensor_mounting_is_undone():
     for dirs, q in ((y_B, np.array([1.0, 0, 0, 0])), (y_B @ R_SB.T, q_BS)):
         system = _systems()[0]
         context = system.CreateDefaultContext()
-        system.GetInputPort("vectors_st").FixValue(
-            context, VectorObservations(0.0, True, dirs, REFS.copy(), 100e-6, q))
+        system.GetInputPort("vectors_st").FixValue(context, VectorObservations(0.0, True, dirs, REFS.copy(), 100e-6, q))
         Simulator(system, context).AdvanceTo(0.5)
         out.append(system.GetOutputPort("q_IB_hat").Eval(context).copy())
     np.testing.assert_allclose(out[0], out[1], atol=1e-12)
@@ -267,8 +278,10 @@ def test_s0_plugins_are_registered_and_shipped_s0_scenarios_carry_the_paper_nois
     assert {MrpEkfConfig, BootstrapPfConfig, EkpfConfig, GyrolessPfConfig} <= registered
     arw, rrw = 0.2 * np.pi / 180 / 3600, 0.02 * np.pi / 180 / 3600**1.5
     expected = {
-        "ekf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
-        "ekpf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw), "ekpf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
+        "ekf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
+        "ekf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
+        "ekpf": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
+        "ekpf_iterated": dict(arw_rad_per_rt_s=arw, rrw_rad_per_s15=rrw),
         "bootstrap_pf": {"arw_rad_per_rt_s": 2e-5, "bias_roughening.sigma": 0.0},
         "bootstrap_pf_true_arw": {"arw_rad_per_rt_s": arw, "bias_roughening.sigma": 0.0},
         "bootstrap_pf_roughened": {"arw_rad_per_rt_s": 2e-5, "bias_roughening.sigma": 0.05 * np.pi / 180 / 3600},
@@ -297,8 +310,11 @@ def test_particle_setups_give_the_cores_their_components_and_name_bad_arguments(
     numpy's generator 0 (the value before the initialization event draws from the seed)."""
     P0 = np.eye(6) * 1e-6
     args = (1.0, "st", 10, [1, 0, 0, 0], np.zeros(3), P0)
-    setups = [bootstrap_pf_setup(*args, 1e-6, 3e-7, 0.5), ekpf_setup(*args, 1e-6, 1e-9, resample_threshold=0.5),
-              gyroless_pf_setup(*args, np.eye(3), np.zeros(3), 1e-6, resample_threshold=0.5)]
+    setups = [
+        bootstrap_pf_setup(*args, 1e-6, 3e-7, 0.5),
+        ekpf_setup(*args, 1e-6, 1e-9, resample_threshold=0.5),
+        gyroless_pf_setup(*args, np.eye(3), np.zeros(3), 1e-6, resample_threshold=0.5),
+    ]
     for setup in setups:
         assert setup.core.resampling_gate.threshold == 0.5 and setup.vector_sensors == ("st",)
         drawn = setup.core.draw_initial_state(np.random.default_rng(0))
@@ -376,8 +392,9 @@ def test_claim2_ekpf_small_error_converges_like_the_ekf():
 
 
 def test_claim1_bootstrap_bias_frozen_and_roughening_does_better():
-    sd = builder.ScenarioDiagram(_reduced("s0_particle_filters_small_error", 400, 500,
-                                          keep=("bootstrap_pf", "bootstrap_pf_roughened")))
+    sd = builder.ScenarioDiagram(
+        _reduced("s0_particle_filters_small_error", 400, 500, keep=("bootstrap_pf", "bootstrap_pf_roughened"))
+    )
     run = sd.simulate(1)
     compute_metrics(run)  # the run scores without raising
     frozen = estimator_errors(run, "bootstrap_pf")

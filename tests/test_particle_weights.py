@@ -97,8 +97,7 @@ def test_independent_measurement_model_agrees_with_the_library():
     rng = np.random.default_rng(0)
     rho = rng.normal(size=(5, 3)) * 0.3
     for r in rho:
-        np.testing.assert_allclose(_h(_R_IB_from_mrp(r)), vector_measurement_model(r, REFS),
-                                   atol=1e-14)
+        np.testing.assert_allclose(_h(_R_IB_from_mrp(r)), vector_measurement_model(r, REFS), atol=1e-14)
 
 
 # --------------------------------------------------------------------------------------
@@ -130,8 +129,13 @@ def _ekpf_with(q_c, means, covs, log_w0):
     """An EKPF core and a state with the given components."""
     n = len(means)
     core = EkpfCore(n, q_c, np.zeros(3), P0_ATT, SIGMA_V, SIGMA_U, resampling_gate=NEVER)
-    state = replace(core.draw_initial_state(np.random.default_rng(0)), particles=means.copy(),
-                    covariances=covs.copy(), log_weights=log_w0.copy(), weights=np.exp(log_w0))
+    state = replace(
+        core.draw_initial_state(np.random.default_rng(0)),
+        particles=means.copy(),
+        covariances=covs.copy(),
+        log_weights=log_w0.copy(),
+        weights=np.exp(log_w0),
+    )
     return core, state
 
 
@@ -147,8 +151,9 @@ LINEARIZATION_TOL = 1e-2
 @pytest.mark.parametrize("seed", [1, 2])
 def test_ekpf_update_weights_are_prior_times_predictive_likelihood(seed):
     q_c, y, means, covs, log_w0 = _ekpf_components(seed)
-    expected = _normalized_log(log_w0 + np.array(
-        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(means, covs, strict=True)]))
+    expected = _normalized_log(
+        log_w0 + np.array([_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(means, covs, strict=True)])
+    )
     assert np.ptp(expected) > 3.0  # the test discriminates: weights differ by e^3 and more
     assert np.ptp(log_w0) > 2.0  # ... and the prior weights matter
     results = []
@@ -157,13 +162,11 @@ def test_ekpf_update_weights_are_prior_times_predictive_likelihood(seed):
         state, info = core.update(state, observation(y), np.random.default_rng(draw_seed))
         assert info.accepted and not info.resampled
         np.testing.assert_allclose(state.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)
-        np.testing.assert_allclose(state.weights, np.exp(expected), rtol=LINEARIZATION_TOL,
-                                   atol=1e-12)
+        np.testing.assert_allclose(state.weights, np.exp(expected), rtol=LINEARIZATION_TOL, atol=1e-12)
         results.append((state.particles, state.weights))
     # Different draws (the particles moved differently), same weights.
     assert np.min(np.abs(results[0][0][:, :3] - results[1][0][:, :3])) > 0.0
-    np.testing.assert_allclose(np.log(results[0][1]), np.log(results[1][1]), rtol=0,
-                               atol=LINEARIZATION_TOL)
+    np.testing.assert_allclose(np.log(results[0][1]), np.log(results[1][1]), rtol=0, atol=LINEARIZATION_TOL)
 
 
 def test_ekpf_weights_carry_over_updates_as_product_of_predictive_likelihoods():
@@ -186,11 +189,11 @@ def test_ekpf_weights_carry_over_updates_as_product_of_predictive_likelihoods():
             state = core.predict(state, W_TRUE, 1.0, rng)
             R_true = R_true @ _rodrigues(W_TRUE)
         y = _h(R_true) + SIGMA_STAR * data.standard_normal(6)
-        expected += np.array([_log_predictive(m, P, y, SIGMA_STAR)
-                              for m, P in zip(state.particles, state.covariances, strict=True)])
+        expected += np.array(
+            [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(state.particles, state.covariances, strict=True)]
+        )
         state, info = core.update(state, observation(y), rng)
-        np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0,
-                                   atol=LINEARIZATION_TOL)
+        np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0, atol=LINEARIZATION_TOL)
         assert info.accepted and not info.resampled
     assert np.ptp(_normalized_log(expected)) > 10.0  # far from uniform: discriminates
 
@@ -249,8 +252,7 @@ def test_weights_after_k_updates_are_the_product_of_the_k_likelihoods(make):
         expected += np.array([-0.5 * np.sum((y - _h(Ri)) ** 2) / SIGMA_STAR**2 for Ri in R])
         state, info = core.update(state, observation(y), rng)
         assert info.accepted and not info.resampled
-        np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0,
-                                   atol=1e-6)
+        np.testing.assert_allclose(state.log_weights, _normalized_log(expected), rtol=0, atol=1e-6)
     assert np.ptp(_normalized_log(expected)) > 20.0  # far from uniform: discriminates
 
 
@@ -276,7 +278,11 @@ def test_ekpf_weights_with_a_zero_variance_bias_are_the_predictive_likelihood(si
     covariances[damaged, :, 3:] = 0.0
     state = replace(state, covariances=covariances)
     y = _h(_R_IB_from_mrp(_mrp(q0))) + SIGMA_STAR * np.random.default_rng(1).standard_normal(6)
-    expected = _normalized_log(state.log_weights + np.array(
-        [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(state.particles, state.covariances, strict=True)]))
+    expected = _normalized_log(
+        state.log_weights
+        + np.array(
+            [_log_predictive(m, P, y, SIGMA_STAR) for m, P in zip(state.particles, state.covariances, strict=True)]
+        )
+    )
     state, _ = core.update(state, observation(y), np.random.default_rng(2))
     np.testing.assert_allclose(state.log_weights, expected, rtol=0, atol=LINEARIZATION_TOL)

@@ -51,9 +51,17 @@ def angle_between(q_a, q_b) -> np.ndarray:
 
 def make_simulator(diagram, context, accuracy, max_step_size):
     simulator = Simulator(diagram, context)
-    ApplySimulatorConfig(SimulatorConfig(
-        integration_scheme="runge_kutta5", accuracy=accuracy, max_step_size=max_step_size,
-        use_error_control=True, target_realtime_rate=0.0, publish_every_time_step=False), simulator)
+    ApplySimulatorConfig(
+        SimulatorConfig(
+            integration_scheme="runge_kutta5",
+            accuracy=accuracy,
+            max_step_size=max_step_size,
+            use_error_control=True,
+            target_realtime_rate=0.0,
+            publish_every_time_step=False,
+        ),
+        simulator,
+    )
     simulator.Initialize()
     return simulator
 
@@ -184,8 +192,9 @@ def test_constant_torque_about_principal_axis(axis, w0_about_axis):
 def multibody_free_body_final_state(inertia_diag, q0, w0_B, t_final):
     """q_WB and w_WB_B of a MultibodyPlant free body after ``t_final`` s (gravity off)."""
     plant = MultibodyPlant(time_step=0.0)
-    body = plant.AddRigidBody("body", SpatialInertia.MakeFromCentralInertia(
-        1.0, np.zeros(3), RotationalInertia(*inertia_diag)))
+    body = plant.AddRigidBody(
+        "body", SpatialInertia.MakeFromCentralInertia(1.0, np.zeros(3), RotationalInertia(*inertia_diag))
+    )
     plant.mutable_gravity_field().set_gravity_vector([0.0, 0.0, 0.0])
     plant.Finalize()
     context = plant.CreateDefaultContext()
@@ -234,8 +243,7 @@ def test_prescribed_sinusoidal_rate_about_one_axis_is_closed_form():
     """w_x = c + A cos(f t + phi): angle = c t + A/f (sin(f t + phi) - sin phi) to 1e-11 rad
     (reached 3e-13)."""
     c, a, f, phi = 0.01, 0.2, 0.3, 0.4
-    motion = PrescribedAttitudeMotion.from_rate_profile(
-        (c, 0, 0), (a, 0, 0), (f, 0, 0), (phi, 0, 0))
+    motion = PrescribedAttitudeMotion.from_rate_profile((c, 0, 0), (a, 0, 0), (f, 0, 0), (phi, 0, 0))
     times = np.array([2.0, 7.5, 21.0, 60.0])
     q, w, integral = run_outputs(motion, times)
     angle = c * times + a / f * (np.sin(f * times + phi) - np.sin(phi))
@@ -280,8 +288,9 @@ def test_prescribed_rpy_breakpoints_body_rate_matches_rpy_rates():
     _, w, _ = run_outputs(motion, times, accuracy=1e-10, max_step=0.5)
     rpy, rates = rpy_interp(times)
     expected = rot.rpy_rates_to_body_rate(rpy, rates)
-    drake = np.array([RollPitchYaw(r).CalcAngularVelocityInChildFromRpyDt(rd)
-                      for r, rd in zip(rpy, rates, strict=True)])
+    drake = np.array(
+        [RollPitchYaw(r).CalcAngularVelocityInChildFromRpyDt(rd) for r, rd in zip(rpy, rates, strict=True)]
+    )
     assert np.allclose(w, expected, rtol=0, atol=1e-14)
     assert np.allclose(w, drake, rtol=0, atol=1e-14)
     assert np.allclose(w[-1], 0.0, atol=0)
@@ -291,17 +300,20 @@ def test_prescribed_rpy_breakpoints_body_rate_matches_rpy_rates():
 # ----------------------------------------------------------------------------------
 # Inertia validation
 # ----------------------------------------------------------------------------------
-@pytest.mark.parametrize("inertia, what", [
-    ([[10.0, 1.0, 0.0], [0.0, 20.0, 0.0], [0.0, 0.0, 30.0]], "symmetric"),
-    ([10.0, 20.0, -30.0], "positive definite"),
-    ([[10.0, 0.0, 0.0], [0.0, 20.0, 0.0], [0.0, 0.0, 0.0]], "positive definite"),
-    ([1.0, 1.0, 3.0], "triangle inequality"),
-    # Eigenvalues 1, 10, 19: 1 + 10 < 19.
-    ([[10.0, 0.0, 0.0], [0.0, 10.0, 9.0], [0.0, 9.0, 10.0]], "triangle inequality"),
-    ([10.0, np.nan, 30.0], "finite"),
-    ([10.0, 20.0, np.inf], "finite"),
-    ([10.0, 20.0], "finite"),
-])
+@pytest.mark.parametrize(
+    "inertia, what",
+    [
+        ([[10.0, 1.0, 0.0], [0.0, 20.0, 0.0], [0.0, 0.0, 30.0]], "symmetric"),
+        ([10.0, 20.0, -30.0], "positive definite"),
+        ([[10.0, 0.0, 0.0], [0.0, 20.0, 0.0], [0.0, 0.0, 0.0]], "positive definite"),
+        ([1.0, 1.0, 3.0], "triangle inequality"),
+        # Eigenvalues 1, 10, 19: 1 + 10 < 19.
+        ([[10.0, 0.0, 0.0], [0.0, 10.0, 9.0], [0.0, 9.0, 10.0]], "triangle inequality"),
+        ([10.0, np.nan, 30.0], "finite"),
+        ([10.0, 20.0, np.inf], "finite"),
+        ([10.0, 20.0], "finite"),
+    ],
+)
 def test_validate_inertia_rejects_with_field_name(inertia, what):
     with pytest.raises(ValueError, match=r"plant\.inertia_kg_m2") as info:
         validate_inertia(inertia, field="plant.inertia_kg_m2")
@@ -310,11 +322,14 @@ def test_validate_inertia_rejects_with_field_name(inertia, what):
         RigidBodyAttitudePlant(inertia)
 
 
-@pytest.mark.parametrize("inertia", [
-    [10.0, 20.0, 30.0],
-    [1.0, 1.0, 2.0],  # a thin plate: triangle inequality with equality
-    [[20.0, 1.0, 0.5], [1.0, 20.0, -2.0], [0.5, -2.0, 30.0]],
-])
+@pytest.mark.parametrize(
+    "inertia",
+    [
+        [10.0, 20.0, 30.0],
+        [1.0, 1.0, 2.0],  # a thin plate: triangle inequality with equality
+        [[20.0, 1.0, 0.5], [1.0, 20.0, -2.0], [0.5, -2.0, 30.0]],
+    ],
+)
 def test_validate_inertia_accepts_physical_bodies(inertia):
     I = validate_inertia(inertia)
     assert I.shape == (3, 3)
@@ -349,8 +364,11 @@ def test_derivatives_equal_euler_equations_in_both_forms(inertia, principal):
     context = plant.CreateDefaultContext()
     plant.SetDefaultParametersAndState(context)
     for k in range(20):
-        I = inertia if k < 10 else (np.diag(rng.uniform(5, 9, 3)) if principal else
-                                    FULL_INERTIA + np.diag(rng.uniform(0, 3, 3)))
+        I = (
+            inertia
+            if k < 10
+            else (np.diag(rng.uniform(5, 9, 3)) if principal else FULL_INERTIA + np.diag(rng.uniform(0, 3, 3)))
+        )
         plant.SetInertia(context, I)
         q, w, tau = rng.normal(size=4), rng.normal(size=3), rng.normal(size=3)
         sub = plant.GetMutableSubsystemContext(plant._symbolic, context)
@@ -387,8 +405,7 @@ def test_full_inertia_torque_free_conserves_energy_and_momentum():
 # ----------------------------------------------------------------------------------
 # Orbit / LVLH frame
 # ----------------------------------------------------------------------------------
-ORBIT = orb.CircularOrbit(500e3, inclination_rad=97.5 * DEG, raan_rad=30.0 * DEG,
-                          arg_latitude0_rad=20.0 * DEG)
+ORBIT = orb.CircularOrbit(500e3, inclination_rad=97.5 * DEG, raan_rad=30.0 * DEG, arg_latitude0_rad=20.0 * DEG)
 
 
 def test_mean_motion_500_km_matches_paper_s3():
@@ -415,10 +432,13 @@ def kepler_position_I(orbit, t):
     """Independent circular-orbit position: Rz(RAAN) Rx(i) [cos u, sin u, 0] a."""
     u = orbit.arg_latitude0_rad + orbit.mean_motion_rad_per_s * t
     O, i = orbit.raan_rad, orbit.inclination_rad
-    return orbit.semi_major_axis_m * np.array([
-        np.cos(O) * np.cos(u) - np.sin(O) * np.sin(u) * np.cos(i),
-        np.sin(O) * np.cos(u) + np.cos(O) * np.sin(u) * np.cos(i),
-        np.sin(u) * np.sin(i)])
+    return orbit.semi_major_axis_m * np.array(
+        [
+            np.cos(O) * np.cos(u) - np.sin(O) * np.sin(u) * np.cos(i),
+            np.sin(O) * np.cos(u) + np.cos(O) * np.sin(u) * np.cos(i),
+            np.sin(u) * np.sin(i),
+        ]
+    )
 
 
 @pytest.mark.parametrize("t", [0.0, 700.0, 2500.0])

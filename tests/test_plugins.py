@@ -81,8 +81,11 @@ class _TaggedLoader(yaml.SafeLoader):
 def _tagged(loader, suffix, node):
     if isinstance(node, yaml.MappingNode):
         return {**loader.construct_mapping(node, deep=True), "__tag__": suffix}
-    return loader.construct_sequence(node, deep=True) if isinstance(node, yaml.SequenceNode) \
+    return (
+        loader.construct_sequence(node, deep=True)
+        if isinstance(node, yaml.SequenceNode)
         else loader.construct_scalar(node)
+    )
 
 
 _TaggedLoader.add_multi_constructor("!", _tagged)
@@ -92,8 +95,7 @@ def _per_axis_model(arw, rrw, T):
     """Per-axis error model of a gyro-propagated filter, written from the Farrenkopf model
     (not from drake_att): e = [dtheta; dbias], e- = F e+ + w, cov(w) = Q, z = H e + v."""
     F = np.array([[1.0, -T], [0.0, 1.0]])
-    Q = np.array([[arw**2 * T + rrw**2 * T**3 / 3.0, -rrw**2 * T**2 / 2.0],
-                  [-rrw**2 * T**2 / 2.0, rrw**2 * T]])
+    Q = np.array([[arw**2 * T + rrw**2 * T**3 / 3.0, -(rrw**2) * T**2 / 2.0], [-(rrw**2) * T**2 / 2.0, rrw**2 * T]])
     return F, Q, np.array([[1.0, 0.0]])
 
 
@@ -172,9 +174,14 @@ def test_tutorial_runs_from_the_cli_and_scores_as_derived(tmp_path):
     assert st["mode"] == "quaternion" and st.get("dropout_probability", 0.0) == 0.0
 
     out = tmp_path / "out"
-    proc = subprocess.run([sys.executable, "-m", "drake_att.cli", "run", yaml_name, "--out", str(out),
-                           "--no-figures", "--quiet"], cwd=tmp_path, env=_subprocess_env(tmp_path),
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "drake_att.cli", "run", yaml_name, "--out", str(out), "--no-figures", "--quiet"],
+        cwd=tmp_path,
+        env=_subprocess_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     metrics = json.loads((out / "metrics.json").read_text())["estimators"]
     m_new, m_mekf = metrics[new["name"]], metrics[mekf["name"]]
@@ -194,10 +201,12 @@ def test_tutorial_runs_from_the_cli_and_scores_as_derived(tmp_path):
     arw = gyro["arw_deg_per_rt_h"] * DEG / 60.0  # deg/sqrt(h) -> rad/s^0.5
     rrw = gyro["rrw_deg_per_h15"] * DEG / 3600.0 / 60.0  # deg/h^1.5 -> rad/s^1.5
     # eigenvalues of the tracker's noise covariance (its body-frame version has the same)
-    variances = [(st["sigma_cross_boresight_arcsec"] * ARCSEC) ** 2] * 2 \
-        + [(st["sigma_boresight_arcsec"] * ARCSEC) ** 2]
+    variances = [(st["sigma_cross_boresight_arcsec"] * ARCSEC) ** 2] * 2 + [
+        (st["sigma_boresight_arcsec"] * ARCSEC) ** 2
+    ]
     ms_cf, ms_kf, sd_cf, _, sd_diff = _steady_state_statistics(
-        new["attitude_gain"], new["bias_gain_per_s"], arw, rrw, T, variances, n_scored)
+        new["attitude_gain"], new["bias_gain_per_s"], arw, rrw, T, variances, n_scored
+    )
     ms_new = (m_new["attitude_rmse_total_deg"] * DEG) ** 2
     ms_mekf = (m_mekf["attitude_rmse_total_deg"] * DEG) ** 2
     assert np.isfinite(ms_new) and np.isfinite(m_new["nees_mean"])
@@ -206,8 +215,11 @@ def test_tutorial_runs_from_the_cli_and_scores_as_derived(tmp_path):
     assert lo < ms_new < hi, (math.sqrt(ms_new) / ARCSEC, math.sqrt(lo) / ARCSEC, math.sqrt(hi) / ARCSEC)
     excess = ms_cf - ms_kf
     assert excess > 4 * sd_diff  # so the band below also says "worse than the MEKF"
-    assert abs((ms_new - ms_mekf) - excess) < 4 * sd_diff, ((ms_new - ms_mekf) / ARCSEC**2, excess / ARCSEC**2,
-                                                            sd_diff / ARCSEC**2)
+    assert abs((ms_new - ms_mekf) - excess) < 4 * sd_diff, (
+        (ms_new - ms_mekf) / ARCSEC**2,
+        excess / ARCSEC**2,
+        sd_diff / ARCSEC**2,
+    )
     reported = np.sum((np.asarray(m_new["attitude_3sigma_final_deg"]) / 3 * DEG) ** 2)
     assert reported == pytest.approx(ms_cf, rel=2e-3)
 
@@ -219,8 +231,14 @@ def test_tutorial_unit_tests_pass(tmp_path):
     tests = [name for name in files if name.startswith("test_")]
     assert tests, f"{TUTORIAL.name}: no test_*.py block"
     n_tests = sum(len(re.findall(r"^def test_", files[name], flags=re.MULTILINE)) for name in tests)
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *tests], cwd=tmp_path,
-                          env=_subprocess_env(tmp_path), capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *tests],
+        cwd=tmp_path,
+        env=_subprocess_env(tmp_path),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
     assert re.search(rf"\b{n_tests} passed", proc.stdout) and "skipped" not in proc.stdout, proc.stdout[-2000:]
 
@@ -268,7 +286,7 @@ estimators:
 """
 NOT_ON_ESTIMATOR_SYSTEM = {
     "EstimateFusionConfig": "EstimateFusion is not an EstimatorSystem: it averages other estimators' outputs "
-                            "(no measurement inputs); its validity and time logic is tested in tests/test_fusion.py",
+    "(no measurement inputs); its validity and time logic is tested in tests/test_fusion.py",
 }
 # The library's own estimator plug-ins (a plug-in registered by a test or a user is not the
 # library's: the suite cannot know what it is fed).
@@ -319,8 +337,14 @@ def _good(port_name, t):
     if port_name.startswith("centroids_"):
         offset = 1e-7 * np.arange(CAMERA_CENTROIDS.size).reshape(-1, 2)  # 0.02 px: noisy, not exact
         return CameraCentroids(float(t), True, CAMERA_CENTROIDS + offset, CAMERA_FOCAL_LENGTH, 0.55e-6)
-    return VectorObservations(float(t), True, REFS + 1e-4 * np.array([[0.0, 1.0, -1.0], [1.0, 0.0, 2.0]]), REFS.copy(),
-                              5000e-6, IDENTITY.copy())
+    return VectorObservations(
+        float(t),
+        True,
+        REFS + 1e-4 * np.array([[0.0, 1.0, -1.0], [1.0, 0.0, 2.0]]),
+        REFS.copy(),
+        5000e-6,
+        IDENTITY.copy(),
+    )
 
 
 def _stale(port_name, t, period):
@@ -332,23 +356,33 @@ def _corrupt(port_name, t, how):
     """An unusable sample of this instant."""
     if port_name.startswith("q_meas_"):
         q = np.array([t, 1.0, *IDENTITY])
-        q[{"nan_time": 0, "nan_flag": 1, "false_flag": 1, "nan_number": 3, "inf_number": 2}[how]] = \
+        q[{"nan_time": 0, "nan_flag": 1, "false_flag": 1, "nan_number": 3, "inf_number": 2}[how]] = (
             0.0 if how == "false_flag" else (np.inf if how == "inf_number" else np.nan)
+        )
         return q
     good = _good(port_name, t)
     if port_name.startswith("centroids_"):
         xy = good.centroids_m.copy()
         if how in ("nan_number", "inf_number"):
             xy[2, 1] = np.nan if how == "nan_number" else -np.inf
-        return CameraCentroids(np.nan if how == "nan_time" else float(t),
-                               {"nan_flag": np.nan, "false_flag": False}.get(how, True), xy, good.focal_length_m,
-                               good.sigma_m)
+        return CameraCentroids(
+            np.nan if how == "nan_time" else float(t),
+            {"nan_flag": np.nan, "false_flag": False}.get(how, True),
+            xy,
+            good.focal_length_m,
+            good.sigma_m,
+        )
     dirs = good.directions_S.copy()
     if how in ("nan_number", "inf_number"):
         dirs[1, 2] = np.nan if how == "nan_number" else -np.inf
-    return VectorObservations(np.nan if how == "nan_time" else float(t),
-                              {"nan_flag": np.nan, "false_flag": False}.get(how, True), dirs, good.references_I,
-                              good.sigma_rad, good.q_BS)
+    return VectorObservations(
+        np.nan if how == "nan_time" else float(t),
+        {"nan_flag": np.nan, "false_flag": False}.get(how, True),
+        dirs,
+        good.references_I,
+        good.sigma_rad,
+        good.q_BS,
+    )
 
 
 MEASUREMENT_CORRUPTIONS = ("nan_time", "nan_flag", "false_flag", "nan_number", "inf_number")
@@ -470,13 +504,15 @@ def test_contract_unusable_inputs_are_skipped_counted_and_change_nothing_else(co
     step, w_last = 0, _gyro_rate(0)
     for port in d.measurement_ports:
         for how in MEASUREMENT_CORRUPTIONS:
-            step, w_last = _check_unusable_step(d, step, w_last, "measurement", port,
-                                                lambda t, port=port, how=how: _corrupt(port, t, how), how)
+            step, w_last = _check_unusable_step(
+                d, step, w_last, "measurement", port, lambda t, port=port, how=how: _corrupt(port, t, how), how
+            )
     if d.has_gyro:
         for how, make in GYRO_CORRUPTIONS.items():
             w_next = _gyro_rate(step + 1)
-            step, w_last = _check_unusable_step(d, step, w_last, "gyro", "gyro_measurement",
-                                                lambda t, make=make, w=w_next: make(t, w), how)
+            step, w_last = _check_unusable_step(
+                d, step, w_last, "gyro", "gyro_measurement", lambda t, make=make, w=w_next: make(t, w), how
+            )
 
     if system.HasInputPort("gyro_measurement"):
         # A gyro input never connected: every step after the first is counted and the held
@@ -531,7 +567,7 @@ def test_contract_a_gate_never_rejects_forever(contract_diagram):
         if k < REACQUIRE_AFTER_REJECTIONS:
             assert est[46] > 16.0
     n = REACQUIRE_AFTER_REJECTIONS
-    assert counts[:n - 1] == [(1, k) for k in range(1, n)], counts
+    assert counts[: n - 1] == [(1, k) for k in range(1, n)], counts
     assert counts[n - 1] == (2, n - 1) and counts[n] == (3, n - 1) and counts[n + 1] == (4, n - 1), counts
     err = np.degrees(np.linalg.norm(rot.quat_error_rotvec(est[:4], jumped)))
     assert err < 0.1 and est[46] < 16.0, (err, est[43:47])
@@ -546,11 +582,13 @@ def test_contract_non_finite_reference_directions_are_skipped_and_counted(contra
     for port in d.measurement_ports:
         if port.startswith("vectors_"):
             for bad in (np.nan, np.inf):
+
                 def sample(t, port=port, bad=bad):
                     good = _good(port, t)
                     refs = good.references_I.copy()
                     refs[0, 1] = bad
                     return VectorObservations(good.time_s, True, good.directions_S, refs, good.sigma_rad, good.q_BS)
+
                 step, w_last = _check_unusable_step(d, step, w_last, "measurement", port, sample, f"{bad} reference")
 
 
@@ -577,15 +615,17 @@ def test_contract_same_seed_repeats_bit_for_bit_and_another_seed_differs(contrac
         # drake_att.systems.estimator_system; group 1 keeps SEED_B's seed words
         for group in (0, 2):
             same_start.context.get_mutable_discrete_state(group).SetFromVector(
-                runs[0].context.get_discrete_state(group).value())
+                runs[0].context.get_discrete_state(group).value()
+            )
         runs.append(same_start)
     histories = []
     for d in runs:
         history = []
         for k in range(4):
             t = k * d.period
-            history.append(np.concatenate([d.step(t, [t, 1.0, *_gyro_rate(k)] if d.has_gyro else None),
-                                           d.core_state()]))
+            history.append(
+                np.concatenate([d.step(t, [t, 1.0, *_gyro_rate(k)] if d.has_gyro else None), d.core_state()])
+            )
         histories.append(np.array(history))
     np.testing.assert_array_equal(histories[0], histories[1])
     assert np.all(np.isfinite(histories[0][:, :46]))
@@ -646,8 +686,9 @@ def test_every_module_imports_alone_in_a_fresh_interpreter():
     env = {**_subprocess_env(), "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}  # cheaper start-up
 
     def run(module):
-        proc = subprocess.run([sys.executable, "-c", f"import {module}"], cwd=REPO, env=env,
-                              capture_output=True, text=True, timeout=120)
+        proc = subprocess.run(
+            [sys.executable, "-c", f"import {module}"], cwd=REPO, env=env, capture_output=True, text=True, timeout=120
+        )
         return module, proc.returncode, proc.stderr
 
     with ThreadPoolExecutor(max_workers=2) as pool:
@@ -664,8 +705,13 @@ def test_registry_refuses_optional_fields_whose_default_is_not_none():
 
     from drake_att.scenarios.registry import PluginError, register_estimator
 
-    _LossyConfig = dc.make_dataclass("_LossyConfig", [("name", str, dc.field(default="lossy")),
-                                                      ("gain", typing.Optional[float], dc.field(default=0.5))])  # noqa: UP045 (schema reads typing.Optional)
+    _LossyConfig = dc.make_dataclass(
+        "_LossyConfig",
+        [
+            ("name", str, dc.field(default="lossy")),
+            ("gain", typing.Optional[float], dc.field(default=0.5)),  # noqa: UP045 (the schema reads typing.Optional)
+        ],
+    )
 
     with pytest.raises(PluginError, match=r"_LossyConfig.gain: an Optional field must default to None"):
         register_estimator(_LossyConfig, second_quantity=SecondQuantity.GYRO_BIAS)(lambda ctx, c: None)

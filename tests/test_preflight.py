@@ -19,8 +19,9 @@ from drake_att.scenarios.preflight import (
 
 
 def test_expensive_run_is_announced_with_its_event_count_and_the_smallest_period():
-    s = apply_overrides(load("cubesat_single_star_tracker"),
-                        ["sensors.gyro.period_s=0.0001", "estimators.single.period_s=0.0001"])
+    s = apply_overrides(
+        load("cubesat_single_star_tracker"), ["sensors.gyro.period_s=0.0001", "estimators.single.period_s=0.0001"]
+    )
     events, _ = event_count(s)
     # gyro and MEKF at 1e4 Hz, tracker at 10 Hz, over 5000 s
     assert events == pytest.approx(5000 * (1e4 + 1e4 + 10), rel=1e-9)
@@ -45,9 +46,20 @@ def test_shipped_scenarios_raise_no_warning():
 
 def test_an_estimator_that_never_used_a_measurement_is_announced_after_the_run(drake_att_cli, tmp_path):
     """The tracker is out for the whole run: the CLI says so after the table."""
-    proc = drake_att_cli("run", "cubesat_single_star_tracker", "--no-figures", "--quiet", "--out", str(tmp_path / "r"),
-                         "--set", "duration_s=10", "--set", "scoring.score_from_s=1",
-                         "--set", "sensors.st1.outage_windows_s=[[-1.0, 100.0]]")
+    proc = drake_att_cli(
+        "run",
+        "cubesat_single_star_tracker",
+        "--no-figures",
+        "--quiet",
+        "--out",
+        str(tmp_path / "r"),
+        "--set",
+        "duration_s=10",
+        "--set",
+        "scoring.score_from_s=1",
+        "--set",
+        "sensors.st1.outage_windows_s=[[-1.0, 100.0]]",
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "drake-att: warning: estimator 'single' used no measurement in the whole run" in proc.stderr
     assert run_warnings({"estimators": {"a": {"measurements_used": 3, "measurements_skipped": 0}}}) == []

@@ -69,13 +69,24 @@ def test_cli_progress_in_a_captured_stream_is_newline_separated_with_an_eta(drak
     """``drake-att run`` with stderr captured (not a terminal, as in a log or CI): several
     progress lines, each with the wall time so far and an ETA (the last one says done), and
     no carriage return."""
-    r = drake_att_cli("run", "cubesat_single_star_tracker", "--set", "duration_s=50", "--set", "scoring.score_from_s=10",
-                      "--no-figures", "--out", str(tmp_path / "out"))
+    r = drake_att_cli(
+        "run",
+        "cubesat_single_star_tracker",
+        "--set",
+        "duration_s=50",
+        "--set",
+        "scoring.score_from_s=10",
+        "--no-figures",
+        "--out",
+        str(tmp_path / "out"),
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     assert "\r" not in r.stderr
     lines = [ln for ln in r.stderr.splitlines() if "[cubesat_single_star_tracker seed" in ln]
     assert len(lines) == 20, r.stderr  # the 20 chunks of the simulation, one line each
-    pattern = r"  \[cubesat_single_star_tracker seed \d+\] t = +([\d.]+) / 50\.0 s \( *\d+%\)  [\d.]+ s wall  (ETA .+|done)"
+    pattern = (
+        r"  \[cubesat_single_star_tracker seed \d+\] t = +([\d.]+) / 50\.0 s \( *\d+%\)  [\d.]+ s wall  (ETA .+|done)"
+    )
     times = []
     for ln in lines:
         m = re.fullmatch(pattern, ln)

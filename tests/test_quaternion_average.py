@@ -28,8 +28,6 @@ PI = np.pi
 weights = st.floats(0.0, 10.0, allow_nan=False, allow_infinity=False)
 
 
-
-
 @st.composite
 def weight_pairs(draw):
     w1, w2 = draw(weights), draw(weights)
@@ -109,8 +107,10 @@ def test_closed_form_equals_formula_of_spec(q1, q2, w):
     assume(z > 1e-3 * (w1 + w2))
     assume(w1 * w2 == 0.0 or min(w1 - w2 + z, w2 - w1 + z) > 1e-3 * (w1 + w2))
     s = 1.0 if d >= 0 else -1.0
-    q_spec = (np.sqrt(w1 * (w1 - w2 + z) / (z * (w1 + w2 + z))) * q1
-              + s * np.sqrt(w2 * (w2 - w1 + z) / (z * (w1 + w2 + z))) * q2)
+    q_spec = (
+        np.sqrt(w1 * (w1 - w2 + z) / (z * (w1 + w2 + z))) * q1
+        + s * np.sqrt(w2 * (w2 - w1 + z) / (z * (w1 + w2 + z))) * q2
+    )
     assert abs(np.linalg.norm(q_spec) - 1.0) < 1e-10
     np.testing.assert_allclose(average_two_quaternions(q1, q2, w1, w2), q_spec, atol=1e-10)
 
@@ -156,8 +156,9 @@ def test_two_quaternion_symmetry_and_weight_scale(q1, q2, w, c):
     qa = average_two_quaternions(q1, q2, w1, w2)
     _, z = two_quat_gap(q1, q2, w1, w2)
     # Scaling both weights changes nothing (beyond rounding of the weight ratio).
-    np.testing.assert_allclose(average_two_quaternions(q1, q2, c * w1, c * w2), qa,
-                               atol=1e-14 * (w1 + w2) / max(z, 1e-300) + 1e-15)
+    np.testing.assert_allclose(
+        average_two_quaternions(q1, q2, c * w1, c * w2), qa, atol=1e-14 * (w1 + w2) / max(z, 1e-300) + 1e-15
+    )
     # Swapping (q1, w1) <-> (q2, w2) gives the same rotation.
     if z > 1e-6 * (w1 + w2):
         qs = average_two_quaternions(q2, q1, w2, w1)
@@ -209,8 +210,7 @@ def test_bi_invariance(qs, p, r, data):
     e2 = rot.quat_multiply(rot.quat_multiply(p, average_two_quaternions(Q[0], Q[1], w[0], w[1])), r)
     _, z = two_quat_gap(Q[0], Q[1], w[0], w[1])
     if z > 1e-6 * (w[0] + w[1]):
-        assert quat_dist(average_two_quaternions(q1t, q2t, w[0], w[1]), e2) <= (
-            1e-13 * (w[0] + w[1]) / z)
+        assert quat_dist(average_two_quaternions(q1t, q2t, w[0], w[1]), e2) <= (1e-13 * (w[0] + w[1]) / z)
 
 
 # ----------------------------------------------------------------------------------
@@ -266,10 +266,10 @@ def test_exactly_degenerate_cases():
     # Extreme quaternion magnitudes are normalized without overflow/underflow.
     q3 = axis_quat(np.array([0, 0, 1.0]), 0.3)
     for c in (1e-300, 1e300):
-        np.testing.assert_allclose(average_two_quaternions(c * q1, c * q3),
-                                   average_two_quaternions(q1, q3), atol=1e-15)
-        np.testing.assert_allclose(average_quaternions(np.stack([c * q1, c * q3])),
-                                   average_quaternions(np.stack([q1, q3])), atol=1e-15)
+        np.testing.assert_allclose(average_two_quaternions(c * q1, c * q3), average_two_quaternions(q1, q3), atol=1e-15)
+        np.testing.assert_allclose(
+            average_quaternions(np.stack([c * q1, c * q3])), average_quaternions(np.stack([q1, q3])), atol=1e-15
+        )
     # Nearly degenerate: tiny q1'q2 with equal weights gives a finite unit quaternion.
     for eps in (1e-8, 1e-100, 1e-170, 1e-320):
         q2e = np.array([eps, 1.0, 0.0, 0.0])
@@ -280,11 +280,9 @@ def test_exactly_degenerate_cases():
 def test_default_weights_are_equal():
     q1 = axis_quat(np.array([0.0, 0.0, 1.0]), 0.2)
     q2 = axis_quat(np.array([0.0, 0.0, 1.0]), 0.6)
-    np.testing.assert_allclose(average_two_quaternions(q1, q2),
-                               axis_quat(np.array([0.0, 0.0, 1.0]), 0.4), atol=1e-15)
+    np.testing.assert_allclose(average_two_quaternions(q1, q2), axis_quat(np.array([0.0, 0.0, 1.0]), 0.4), atol=1e-15)
     Q = np.stack([q1, q2, axis_quat(np.array([1.0, 0, 0]), 0.1)])
-    np.testing.assert_allclose(average_quaternions(Q), average_quaternions(Q, [2.0, 2.0, 2.0]),
-                               atol=1e-15)
+    np.testing.assert_allclose(average_quaternions(Q), average_quaternions(Q, [2.0, 2.0, 2.0]), atol=1e-15)
 
 
 # ----------------------------------------------------------------------------------
@@ -298,7 +296,8 @@ def _dense_argmax(a, w):
     h = grid[1] - grid[0]
     res = minimize_scalar(
         lambda p: -np.sum(w * np.cos((p - a) / 2) ** 2),
-        bounds=(grid[k] - 2 * h, grid[k] + 2 * h), method="bounded",
+        bounds=(grid[k] - 2 * h, grid[k] + 2 * h),
+        method="bounded",
         options={"xatol": 1e-12},
     )
     return res.x
@@ -345,8 +344,7 @@ def test_same_axis_equal_weights_is_exact_mean(axis, a1, delta, w):
 
 
 @FAST
-@given(unit_vectors(), st.floats(-PI, PI), st.floats(-0.5, 0.5), st.floats(0.01, 10),
-       st.floats(0.01, 10))
+@given(unit_vectors(), st.floats(-PI, PI), st.floats(-0.5, 0.5), st.floats(0.01, 10), st.floats(0.01, 10))
 def test_same_axis_weighted_mean_angle_approximation(axis, a1, delta, w1, w2):
     """Unequal weights: close to, but not exactly, the linear weighted mean angle.
 
@@ -459,8 +457,7 @@ q_ok = np.array([1.0, 0.0, 0.0, 0.0])
         (lambda: average_quaternions(np.zeros((0, 4))), ["quaternions", "(N, 4)", "(0, 4)"]),
         (lambda: average_quaternions(np.ones((3, 3))), ["quaternions", "(N, 4)", "(3, 3)"]),
         (lambda: average_quaternions(np.ones(4)), ["quaternions", "(N, 4)", "(4,)"]),
-        (lambda: average_quaternions([[1.0, 0, 0, 0], [0, 0, 0, 0]]),
-         ["quaternions[1]", "non-zero", "0."]),
+        (lambda: average_quaternions([[1.0, 0, 0, 0], [0, 0, 0, 0]]), ["quaternions[1]", "non-zero", "0."]),
         (lambda: average_quaternions([[1.0, 0, 0, np.nan]]), ["quaternions[0]", "finite", "nan"]),
         # A missing value (None, e.g. a null in a parsed log) is a NaN, not a TypeError.
         (lambda: average_quaternions([[1.0, 0, 0, None]]), ["quaternions[0]", "finite", "nan"]),
@@ -489,7 +486,6 @@ def test_invalid_inputs_raise_value_error(call, needles):
     msg = str(info.value)
     for needle in needles:
         if re.fullmatch(r"\w+(\[\d+\])?", needle):
-            assert re.search(rf"(?<!\w){re.escape(needle)}(?!\w)", msg), (
-                f"{needle!r} not a whole word in {msg!r}")
+            assert re.search(rf"(?<!\w){re.escape(needle)}(?!\w)", msg), f"{needle!r} not a whole word in {msg!r}"
         else:
             assert needle in msg, f"{needle!r} not in {msg!r}"

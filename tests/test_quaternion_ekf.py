@@ -193,16 +193,19 @@ def test_initial_state_is_the_given_attitude_and_covariance_and_a_zero_rate_of_t
     assert AdditiveQuaternionEKF.to_vector(st).shape == (AdditiveQuaternionEKF.state_size,)
 
 
-@pytest.mark.parametrize("call, field", [
-    (lambda: AdditiveQuaternionEKF(Q=-1.0), "Q"),
-    (lambda: AdditiveQuaternionEKF(R=np.full((4, 4), np.nan)), "R"),
-    (lambda: AdditiveQuaternionEKF(step_s=0.0), "step_s"),
-    (lambda: AdditiveQuaternionEKF(gyro_arw_rad_per_rt_s=-1e-4), "gyro_arw_rad_per_rt_s"),
-    (lambda: AdditiveQuaternionEKF.initial_state(P0=-1.0), "P0"),
-    (lambda: AdditiveQuaternionEKF.initial_state(initial_rate_sigma=0.0), "initial_rate_sigma"),
-    (lambda: AdditiveQuaternionEKF.initial_state(q_IB=[0.0, 0.0, 0.0, 0.0]), "q_IB"),
-    (lambda: AdditiveQuaternionEKF.from_vector(np.zeros(43)), "state vector"),
-])
+@pytest.mark.parametrize(
+    "call, field",
+    [
+        (lambda: AdditiveQuaternionEKF(Q=-1.0), "Q"),
+        (lambda: AdditiveQuaternionEKF(R=np.full((4, 4), np.nan)), "R"),
+        (lambda: AdditiveQuaternionEKF(step_s=0.0), "step_s"),
+        (lambda: AdditiveQuaternionEKF(gyro_arw_rad_per_rt_s=-1e-4), "gyro_arw_rad_per_rt_s"),
+        (lambda: AdditiveQuaternionEKF.initial_state(P0=-1.0), "P0"),
+        (lambda: AdditiveQuaternionEKF.initial_state(initial_rate_sigma=0.0), "initial_rate_sigma"),
+        (lambda: AdditiveQuaternionEKF.initial_state(q_IB=[0.0, 0.0, 0.0, 0.0]), "q_IB"),
+        (lambda: AdditiveQuaternionEKF.from_vector(np.zeros(43)), "state vector"),
+    ],
+)
 def test_bad_arguments_are_refused_naming_the_field(call, field):
     with pytest.raises(ValueError) as e:
         call()

@@ -70,8 +70,7 @@ def _dataclass_args(t) -> list:
 
 def _registered_types() -> list:
     registry.ensure_builtin_plugins()
-    return [p.config_type for kind in (registry.SENSOR, registry.ESTIMATOR)
-            for p in registry.plugins(kind).values()]
+    return [p.config_type for kind in (registry.SENSOR, registry.ESTIMATOR) for p in registry.plugins(kind).values()]
 
 
 def _slots():
@@ -79,6 +78,7 @@ def _slots():
     prefix of its fields)`` for the scenario, its sections, the three plants, every
     registered sensor and estimator config (alone in its list) and every dataclass nested
     in them (each alternative of a Union)."""
+
     def nested(t, build):
         yield t, build
         hints = typing.get_type_hints(t)
@@ -86,10 +86,12 @@ def _slots():
             if t is cfg.Scenario and f.name in ("sensors", "estimators"):
                 continue
             for sub in _dataclass_args(hints[f.name]):
+
                 def child(build=build, name=f.name, sub=sub):
                     s, obj, prefix = build()
                     setattr(obj, name, sub())
                     return s, getattr(obj, name), f"{prefix}{name}."
+
                 yield from nested(sub, child)
 
     def scenario():
@@ -98,13 +100,15 @@ def _slots():
 
     out = list(nested(cfg.Scenario, scenario))
     for t in _registered_types():
-        section = "sensors" if t in [p.config_type for p in registry.plugins(registry.SENSOR).values()] \
-            else "estimators"
+        section = (
+            "sensors" if t in [p.config_type for p in registry.plugins(registry.SENSOR).values()] else "estimators"
+        )
 
         def build(t=t, section=section):
             s, c = cfg.Scenario(), t()
             setattr(s, section, [c])
             return s, c, f"{section}[0] ({c.name})."
+
         out += list(nested(t, build))
     seen, unique = set(), []
     for t, b in out:
@@ -116,8 +120,12 @@ def _slots():
 
 def _numeric_fields():
     """``[(config type, build, field name, annotation)]`` of every numeric field."""
-    return [(t, b, f.name, typing.get_type_hints(t)[f.name]) for t, b in _slots() for f in dataclasses.fields(t)
-            if _numeric(typing.get_type_hints(t)[f.name])]
+    return [
+        (t, b, f.name, typing.get_type_hints(t)[f.name])
+        for t, b in _slots()
+        for f in dataclasses.fields(t)
+        if _numeric(typing.get_type_hints(t)[f.name])
+    ]
 
 
 NUMERIC_FIELDS = _numeric_fields()
@@ -126,8 +134,15 @@ NUMERIC_FIELDS = _numeric_fields()
 def test_every_numeric_field_of_every_config_resolves_to_a_range():
     assert len(NUMERIC_FIELDS) > 150  # the enumeration reaches every config
     types = {t for t, *_ in NUMERIC_FIELDS}
-    for t in _registered_types() + [cfg.Scenario, cfg.SimulationConfig, cfg.OrbitConfig, cfg.RigidBodyConfig,
-                                    cfg.PrescribedRateConfig, cfg.PrescribedRpyConfig, cfg.ScoringConfig]:
+    for t in _registered_types() + [
+        cfg.Scenario,
+        cfg.SimulationConfig,
+        cfg.OrbitConfig,
+        cfg.RigidBodyConfig,
+        cfg.PrescribedRateConfig,
+        cfg.PrescribedRpyConfig,
+        cfg.ScoringConfig,
+    ]:
         assert t in types, t
     assert {"RpyMounting", "PaperS3Eq7Mounting"} <= {t.__name__ for t in types}
     missing = [f"{t.__name__}.{name}" for t, _, name, _ in NUMERIC_FIELDS if range_for(t, name) is None]
@@ -156,8 +171,11 @@ def _cases():
 
 
 def _is_int_field(ann) -> bool:
-    return ann is int or typing.get_args(ann) == (int,) or (typing.get_origin(ann) is typing.Union and
-                                                              int in typing.get_args(ann))
+    return (
+        ann is int
+        or typing.get_args(ann) == (int,)
+        or (typing.get_origin(ann) is typing.Union and int in typing.get_args(ann))
+    )
 
 
 def _place(obj, name, ann, value, entry, label):
@@ -166,8 +184,10 @@ def _place(obj, name, ann, value, entry, label):
         for size in (3, 9, 6, 4, 2, 1):
             for i in range(size):
                 if entry.select(i, size) == label:
-                    fill = [min(max(1.0, entry.parts[entry.select(k, size)].lo), entry.parts[entry.select(k, size)].hi)
-                            for k in range(size)]
+                    fill = [
+                        min(max(1.0, entry.parts[entry.select(k, size)].lo), entry.parts[entry.select(k, size)].hi)
+                        for k in range(size)
+                    ]
                     fill[i] = value
                     setattr(obj, name, fill)
                     return f"[{i}]"
@@ -218,15 +238,23 @@ def test_the_issue_examples_are_refused_with_the_one_message_shape():
     gyro = GyroConfig(name="gyro", arw_deg_per_rt_h=1.0e300)
     with pytest.raises(ConfigError) as e:
         check_ranges(_scenario_with_sensors(gyro))
-    assert str(e.value) == ("sensors[0] (gyro).arw_deg_per_rt_h: got 1e+300; must be in [0, 100] deg/sqrt(h) (an angle "
-                            "random walk: 1e-4 (navigation grade) to ~10 (the noisiest MEMS))")
+    assert str(e.value) == (
+        "sensors[0] (gyro).arw_deg_per_rt_h: got 1e+300; must be in [0, 100] deg/sqrt(h) (an angle "
+        "random walk: 1e-4 (navigation grade) to ~10 (the noisiest MEMS))"
+    )
     gyro = GyroConfig(name="g", rrw_deg_per_h15=1.0e300)
-    with pytest.raises(ConfigError, match=r"^sensors\[0\] \(g\)\.rrw_deg_per_h15: got 1e\+300; must be in \[0, 1000\] "
-                                          r"deg/h\^1\.5 \("):
+    with pytest.raises(
+        ConfigError,
+        match=r"^sensors\[0\] \(g\)\.rrw_deg_per_h15: got 1e\+300; must be in \[0, 1000\] "
+        r"deg/h\^1\.5 \(",
+    ):
         check_ranges(_scenario_with_sensors(gyro))
     faults = SensorFaultsConfig(name="f", outlier_rate_deg_per_s=1.0e300)
-    with pytest.raises(ConfigError, match=r"^sensors\[1\] \(f\)\.outlier_rate_deg_per_s: got 1e\+300; must be in "
-                                          r"\[-5000, 5000\] deg/s \("):
+    with pytest.raises(
+        ConfigError,
+        match=r"^sensors\[1\] \(f\)\.outlier_rate_deg_per_s: got 1e\+300; must be in "
+        r"\[-5000, 5000\] deg/s \(",
+    ):
         check_ranges(_scenario_with_sensors(GyroConfig(), faults))
     s = _scenario_with_sensors()
     s.orbit.altitude_km = 1.0e300
@@ -242,16 +270,26 @@ def test_the_issue_examples_are_refused_with_the_one_message_shape():
     s.plant.inertia_kg_m2 = [10.0, -2.0, 0.0, -2.0, 12.0, 0.0, 0.0, 0.0, 15.0]  # negative products: physical
     check_ranges(s)
     s.estimators = [MekfConfig(name="m"), EkpfConfig(name="joint", initial_attitude_sigma_deg=1e6)]
-    with pytest.raises(ConfigError, match=r"^estimators\[1\] \(joint\)\.initial_attitude_sigma_deg: got 1000000\.0; "
-                                          r"must be in \[0, 360\] deg \("):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimators\[1\] \(joint\)\.initial_attitude_sigma_deg: got 1000000\.0; "
+        r"must be in \[0, 360\] deg \(",
+    ):
         check_ranges(s)
 
 
 def test_real_sensors_and_missions_pass():
     """A few real extremes: a fast spinner, a consumer MEMS gyro, a coarse tracker, a GEO
     mission of 30 days, a navigation-grade gyro, a 100 kHz sample period."""
-    gyro = GyroConfig(name="mems", period_s=1e-5, sample_rate_hz=1e5, arw_deg_per_rt_h=0.6, rrw_deg_per_h15=5.0,
-                          initial_bias_deg_per_h=[3600.0, -7200.0, 10.0], scale_factor_error_ppm=[5000.0, 0, 0])
+    gyro = GyroConfig(
+        name="mems",
+        period_s=1e-5,
+        sample_rate_hz=1e5,
+        arw_deg_per_rt_h=0.6,
+        rrw_deg_per_h15=5.0,
+        initial_bias_deg_per_h=[3600.0, -7200.0, 10.0],
+        scale_factor_error_ppm=[5000.0, 0, 0],
+    )
     nav = GyroConfig(name="nav", arw_deg_per_rt_h=0.001, rrw_deg_per_h15=1e-4, initial_bias_deg_per_h=[0.01] * 3)
     st = StarTrackerConfig(name="st", sigma_cross_boresight_arcsec=100.0, sigma_boresight_arcsec=600.0)
     s = _scenario_with_sensors(gyro, nav, st, estimators=[BootstrapPfConfig(num_particles=10**6)])
@@ -269,8 +307,11 @@ def test_nested_arrays_name_row_and_column_and_nan_is_refused():
     from drake_att.sensors.star_tracker_plugin import PaperS3Eq7Mounting
 
     st = StarTrackerConfig(name="st", mounting=PaperS3Eq7Mounting(psi_phi_theta_deg=[0, 400, 0]))
-    with pytest.raises(ConfigError, match=r"^sensors\[0\] \(st\)\.mounting\.psi_phi_theta_deg\[1\]: got 400; must be "
-                                          r"in \[-360, 360\] deg"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^sensors\[0\] \(st\)\.mounting\.psi_phi_theta_deg\[1\]: got 400; must be "
+        r"in \[-360, 360\] deg",
+    ):
         check_ranges(_scenario_with_sensors(st))
     s = _scenario_with_sensors()
     s.duration_s = float("nan")
@@ -291,15 +332,24 @@ def test_a_plug_in_field_without_a_range_is_refused_and_one_it_declares_is_used(
         smoothing: float = 0.5
         horizon_s: float = 10.0
 
-    with pytest.raises(ConfigError, match=r"^estimators\[0\] \(u\)\.smoothing: got 0\.5; no physical range is "
-                                          r"documented for _Untyped\.smoothing"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimators\[0\] \(u\)\.smoothing: got 0\.5; no physical range is "
+        r"documented for _Untyped\.smoothing",
+    ):
         check_ranges(cfg.Scenario(estimators=[_Untyped()]))
     check_ranges(cfg.Scenario(estimators=[_Declared()]))
-    with pytest.raises(ConfigError, match=r"^estimators\[0\] \(d\)\.smoothing: got 1\.5; must be in \[0, 1\] \(a "
-                                          r"fraction\)$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimators\[0\] \(d\)\.smoothing: got 1\.5; must be in \[0, 1\] \(a "
+        r"fraction\)$",
+    ):
         check_ranges(cfg.Scenario(estimators=[_Declared(smoothing=1.5)]))
-    with pytest.raises(ConfigError, match=r"^estimators\[0\] \(d\)\.horizon_s: got 1e\+20; must be in "
-                                          r"\[0, 2592000\] s"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimators\[0\] \(d\)\.horizon_s: got 1e\+20; must be in "
+        r"\[0, 2592000\] s",
+    ):
         check_ranges(cfg.Scenario(estimators=[_Declared(horizon_s=1e20)]))  # the unit suffix's default
 
 
@@ -312,8 +362,9 @@ def test_a_nameless_list_item_is_named_by_its_index_and_a_question_mark():
     check_ranges(cfg.Scenario(estimators=[_Nameless()]))
     with pytest.raises(ConfigError) as e:
         check_ranges(cfg.Scenario(estimators=[MekfConfig(name="m"), _Nameless(horizon_s=-1.0)]))
-    assert str(e.value) == ("estimators[1] (?).horizon_s: got -1.0; must be in [0, 2592000] s (a time within the "
-                            "longest run (30 days))")
+    assert str(e.value) == (
+        "estimators[1] (?).horizon_s: got -1.0; must be in [0, 2592000] s (a time within the longest run (30 days))"
+    )
 
 
 def test_an_array_names_the_entry_outside_even_after_an_entry_exactly_at_a_bound():
@@ -344,20 +395,28 @@ def test_a_nine_entry_inertia_checks_the_whole_diagonal_as_principal_moments():
         s.plant.inertia_kg_m2 = inertia
         with pytest.raises(ConfigError) as e:
             check_ranges(s)
-        assert str(e.value).startswith(f"plant.inertia_kg_m2[{i}]: got 1e-08; must be in [1e-7, 1e9] kg m^2 (a "
-                                       "moment of inertia"), e.value
+        assert str(e.value).startswith(
+            f"plant.inertia_kg_m2[{i}]: got 1e-08; must be in [1e-7, 1e9] kg m^2 (a moment of inertia"
+        ), e.value
         s.plant.inertia_kg_m2 = np.array(inertia).reshape(3, 3)
         with pytest.raises(ConfigError) as e:
             check_ranges(s)
-        assert str(e.value).startswith(f"plant.inertia_kg_m2[{i // 3}][{i % 3}]: got 1e-08; must be in [1e-7, 1e9] "
-                                       "kg m^2 (a moment of inertia"), e.value
+        assert str(e.value).startswith(
+            f"plant.inertia_kg_m2[{i // 3}][{i % 3}]: got 1e-08; must be in [1e-7, 1e9] kg m^2 (a moment of inertia"
+        ), e.value
     s.plant.inertia_kg_m2 = np.array([1.0, 1.0, 1e-8])  # 3 entries: all principal
-    with pytest.raises(ConfigError, match=r"^plant\.inertia_kg_m2\[2\]: got 1e-08; must be in \[1e-7, 1e9\] kg m\^2 "
-                                          r"\(a moment of inertia"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^plant\.inertia_kg_m2\[2\]: got 1e-08; must be in \[1e-7, 1e9\] kg m\^2 "
+        r"\(a moment of inertia",
+    ):
         check_ranges(s)
     s.plant.inertia_kg_m2 = np.array([[10.0, -2.0, 0.0], [-2.0, 12.0, 0.0], [0.0, 2e9, 15.0]])
-    with pytest.raises(ConfigError, match=r"^plant\.inertia_kg_m2\[2\]\[1\]: got 2000000000\.0; must be in "
-                                          r"\[-1e9, 1e9\] kg m\^2 \(a product of inertia"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^plant\.inertia_kg_m2\[2\]\[1\]: got 2000000000\.0; must be in "
+        r"\[-1e9, 1e9\] kg m\^2 \(a product of inertia",
+    ):
         check_ranges(s)
 
 
@@ -365,9 +424,24 @@ def test_bounds_are_written_exactly_and_short():
     """``1e9`` not ``1e+09`` (the docs and messages show the bounds this way)."""
     from drake_att.scenarios.ranges import _num
 
-    cases = {1e9: "1e9", 1e5: "1e5", 10000.0: "10000", 2592000.0: "2592000", 4294967295: "4294967295", 0: "0",
-             -1e6: "-1e6", 1e-6: "1e-6", 1e-16: "1e-16", 2.5e-5: "2.5e-5", 0.1: "0.1", 3.6e4: "36000",
-             1.5e20: "1.5e20", 1e16: "1e16", -1e300: "-1e300", 0.15811388300841897: "0.15811388300841897"}
+    cases = {
+        1e9: "1e9",
+        1e5: "1e5",
+        10000.0: "10000",
+        2592000.0: "2592000",
+        4294967295: "4294967295",
+        0: "0",
+        -1e6: "-1e6",
+        1e-6: "1e-6",
+        1e-16: "1e-16",
+        2.5e-5: "2.5e-5",
+        0.1: "0.1",
+        3.6e4: "36000",
+        1.5e20: "1.5e20",
+        1e16: "1e16",
+        -1e300: "-1e300",
+        0.15811388300841897: "0.15811388300841897",
+    }
     for x, text in cases.items():
         assert _num(x) == text, (x, _num(x), text)
         assert float(text) == x  # exact
@@ -387,6 +461,7 @@ def test_plug_in_arrays_and_counts_are_checked_like_lists():
     """A numeric array is checked entry by entry (a 1-entry int array too), one without a
     range is refused with the hint how to declare one unless it is empty; arrays of strings
     or bools are not numbers; a ``num_`` field is a count."""
+
     @dataclasses.dataclass
     class _Arrays:
         name: str = "a"
@@ -406,11 +481,14 @@ def test_plug_in_arrays_and_counts_are_checked_like_lists():
     assert refusal(gains=np.array([1.0, 2.0])) == (
         "estimators[0] (a).gains: got [1. 2.]; no physical range is documented for _Arrays.gains: name the field with "
         "a unit suffix (e.g. _s, _deg, _hz; see drake_att.scenarios.ranges) or declare RANGES = {'gains': (lo, hi, "
-        "unit, why)} on the config class")
-    assert refusal(horizon_s=np.array([-1])) == ("estimators[0] (a).horizon_s[0]: got -1; must be in [0, 2592000] s "
-                                                 "(a time within the longest run (30 days))")
+        "unit, why)} on the config class"
+    )
+    assert refusal(horizon_s=np.array([-1])) == (
+        "estimators[0] (a).horizon_s[0]: got -1; must be in [0, 2592000] s (a time within the longest run (30 days))"
+    )
     assert refusal(horizon_s=np.array([3, 2592001], dtype=np.int32)).startswith(
-        "estimators[0] (a).horizon_s[1]: got 2592001; must be in [0, 2592000] s")
+        "estimators[0] (a).horizon_s[1]: got 2592001; must be in [0, 2592000] s"
+    )
     assert refusal(num_stars=0) == "estimators[0] (a).num_stars: got 0; must be in [1, 1e6] (a count)"
 
 
@@ -426,21 +504,26 @@ def test_a_plug_in_split_range_sees_each_entry_index_and_its_list_size():
 
     @dataclasses.dataclass
     class _Parts:
-        RANGES: typing.ClassVar[dict] = {"mix": Split({"first": Range(0.0, 1.0, "", "the first"),
-                                                       "rest": Range(-1.0, 0.0, "", "the rest")}, select)}
+        RANGES: typing.ClassVar[dict] = {
+            "mix": Split({"first": Range(0.0, 1.0, "", "the first"), "rest": Range(-1.0, 0.0, "", "the rest")}, select)
+        }
         name: str = "p"
         mix: typing.Any = 0.5
 
-    for value, seen in [(0.5, [(0, 1)]), ([0.5, -0.5, 0.0], [(0, 3), (1, 3), (2, 3)]),
-                        ([[0.5, -0.5], [1.0]], [(0, 2), (1, 2), (0, 1)]),
-                        (np.array([[0.5, -0.5], [-0.1, 0.0]]), [(0, 4), (1, 4), (2, 4), (3, 4)])]:
+    for value, seen in [
+        (0.5, [(0, 1)]),
+        ([0.5, -0.5, 0.0], [(0, 3), (1, 3), (2, 3)]),
+        ([[0.5, -0.5], [1.0]], [(0, 2), (1, 2), (0, 1)]),
+        (np.array([[0.5, -0.5], [-0.1, 0.0]]), [(0, 4), (1, 4), (2, 4), (3, 4)]),
+    ]:
         calls.clear()
         check_ranges(cfg.Scenario(estimators=[_Parts(mix=value)]))
         assert calls == seen, (value, calls)
-    for value, message in [(-0.5, "estimators[0] (p).mix: got -0.5; must be in [0, 1] (the first)"),
-                           ([0.5, 0.5], "estimators[0] (p).mix[1]: got 0.5; must be in [-1, 0] (the rest)"),
-                           (np.array([[0.5, 0.0], [0.25, 0.0]]),
-                            "estimators[0] (p).mix[1][0]: got 0.25; must be in [-1, 0] (the rest)")]:
+    for value, message in [
+        (-0.5, "estimators[0] (p).mix: got -0.5; must be in [0, 1] (the first)"),
+        ([0.5, 0.5], "estimators[0] (p).mix[1]: got 0.5; must be in [-1, 0] (the rest)"),
+        (np.array([[0.5, 0.0], [0.25, 0.0]]), "estimators[0] (p).mix[1][0]: got 0.25; must be in [-1, 0] (the rest)"),
+    ]:
         with pytest.raises(ConfigError) as e:
             check_ranges(cfg.Scenario(estimators=[_Parts(mix=value)]))
         assert str(e.value) == message
@@ -460,8 +543,10 @@ def test_the_shipped_scenarios_pass_the_ranges_and_fit_in_8_gb():
 def test_config_reference_is_the_rendered_table():
     doc = (REPO / "docs" / "config_reference.md").read_text()
     assert "python -m drake_att.scenarios.ranges > docs/config_reference.md" in doc.splitlines()[1]
-    assert doc == render_markdown(), ("docs/config_reference.md is stale; regenerate it with "
-                                      "python -m drake_att.scenarios.ranges > docs/config_reference.md")
+    assert doc == render_markdown(), (
+        "docs/config_reference.md is stale; regenerate it with "
+        "python -m drake_att.scenarios.ranges > docs/config_reference.md"
+    )
     assert "**none**" not in doc
     for t, _, name, _ in NUMERIC_FIELDS:
         if t.__module__.startswith("drake_att."):
@@ -469,14 +554,25 @@ def test_config_reference_is_the_rendered_table():
 
 
 # What the reference shows for each annotation (a new kind of annotation: add how it reads).
-_TYPE_TEXT = {float: "float", int: "int", str: "string", bool: "bool", typing.Optional[float]: "float or null",
-              typing.Optional[str]: "string or null", typing.List[float]: "list of float",
-              typing.List[int]: "list of int", typing.List[str]: "list of string", np.ndarray: "matrix (list of rows)"}
+_TYPE_TEXT = {
+    float: "float",
+    int: "int",
+    str: "string",
+    bool: "bool",
+    typing.Optional[float]: "float or null",
+    typing.Optional[str]: "string or null",
+    typing.List[float]: "list of float",
+    typing.List[int]: "list of int",
+    typing.List[str]: "list of string",
+    np.ndarray: "matrix (list of rows)",
+}
 
 
-_HEADER = ["<!-- Generated from drake_att/scenarios/ranges.py; do not edit. Regenerate with:",
-           "     python -m drake_att.scenarios.ranges > docs/config_reference.md -->",
-           "# Scenario configuration reference"]
+_HEADER = [
+    "<!-- Generated from drake_att/scenarios/ranges.py; do not edit. Regenerate with:",
+    "     python -m drake_att.scenarios.ranges > docs/config_reference.md -->",
+    "# Scenario configuration reference",
+]
 _TABLE_HEAD = ["| Field | Type | Default | Unit | Range | Why |", "|---|---|---|---|---|---|"]
 
 
@@ -495,8 +591,9 @@ def _markdown_sections(doc: str) -> tuple:
         title, *paragraph, table = block[:-1].split("\n\n")
         assert "\n" not in title and len(paragraph) <= 1 and all("\n" not in p for p in paragraph), block[:500]
         lines = table.split("\n")
-        assert lines[:2] == _TABLE_HEAD and all(line.startswith("| `") and line.endswith(" |") for line in lines[2:]), \
+        assert lines[:2] == _TABLE_HEAD and all(line.startswith("| `") and line.endswith(" |") for line in lines[2:]), (
             table
+        )
         rows = [[c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line)[1:-1]] for line in lines[2:]]
         sections.append((title, paragraph[0] if paragraph else "", rows))
     return intro[:-1], sections
@@ -506,15 +603,22 @@ def _expected_sections() -> list:
     """``[(title, config type, path prefix)]`` in order: the scenario, its sections, the
     plants, scoring, the library's sensors then estimators (registration order), each
     config type once, at its first appearance, its nested config types right after it."""
-    top = [("Scenario (top level)", cfg.Scenario, ""), ("simulation", cfg.SimulationConfig, "simulation."),
-           ("orbit", cfg.OrbitConfig, "orbit."), ("plant: !RigidBodyConfig", cfg.RigidBodyConfig, "plant."),
-           ("plant: !PrescribedRateConfig", cfg.PrescribedRateConfig, "plant."),
-           ("plant: !PrescribedRpyConfig", cfg.PrescribedRpyConfig, "plant."),
-           ("scoring", cfg.ScoringConfig, "scoring.")]
+    top = [
+        ("Scenario (top level)", cfg.Scenario, ""),
+        ("simulation", cfg.SimulationConfig, "simulation."),
+        ("orbit", cfg.OrbitConfig, "orbit."),
+        ("plant: !RigidBodyConfig", cfg.RigidBodyConfig, "plant."),
+        ("plant: !PrescribedRateConfig", cfg.PrescribedRateConfig, "plant."),
+        ("plant: !PrescribedRpyConfig", cfg.PrescribedRpyConfig, "plant."),
+        ("scoring", cfg.ScoringConfig, "scoring."),
+    ]
     registry.ensure_builtin_plugins()
     for kind, label in ((registry.SENSOR, "sensors"), (registry.ESTIMATOR, "estimators")):
-        top += [(f"{label}: !{tag}", p.config_type, f"{label}[i].") for tag, p in registry.plugins(kind).items()
-                if p.module.startswith("drake_att.")]
+        top += [
+            (f"{label}: !{tag}", p.config_type, f"{label}[i].")
+            for tag, p in registry.plugins(kind).items()
+            if p.module.startswith("drake_att.")
+        ]
     out, seen = [], set()
 
     def add(title, t, prefix):
@@ -545,19 +649,23 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
     type, its default (read back equal to the dataclass's), the unit, exact bounds and why
     of its range; sections, lists of sections and non-numeric fields marked as such."""
     intro, sections = _markdown_sections(render_markdown())
-    assert intro.startswith("Every field of a scenario (`drake_att/scenarios/*.yaml`, `--set PATH=VALUE`) and of the "
-                            "library's sensor and estimator configs: its type, default, unit and the physically "
-                            "plausible range `drake_att.scenarios.ranges.check_ranges` enforces"), intro
+    assert intro.startswith(
+        "Every field of a scenario (`drake_att/scenarios/*.yaml`, `--set PATH=VALUE`) and of the "
+        "library's sensor and estimator configs: its type, default, unit and the physically "
+        "plausible range `drake_att.scenarios.ranges.check_ranges` enforces"
+    ), intro
     assert not re.search(r"\. [a-z]", intro), intro  # sentences start with a capital (or code)
     with pytest.raises(ConfigError) as e:  # its example is the message check_ranges gives
         check_ranges(_scenario_with_sensors(GyroConfig(name="gyro", arw_deg_per_rt_h=1e300)))
     why = range_for(GyroConfig, "arw_deg_per_rt_h").why
     assert str(e.value).endswith(f" ({why})")
-    example = f"{str(e.value)[:-len(why) - 3]} (...)"
-    assert ("(which also check signs, shapes, names and consistency: a value inside the range may still be refused "
-            f"by them). A number outside its range is refused naming the field, e.g. `{example}`. `sensors[i]` / "
-            "`estimators[i]` stand for the item's index (messages add its name). Lists and matrices: every entry is "
-            "in the range. Ranges are closed intervals.") in intro, (example, intro)
+    example = f"{str(e.value)[: -len(why) - 3]} (...)"
+    assert (
+        "(which also check signs, shapes, names and consistency: a value inside the range may still be refused "
+        f"by them). A number outside its range is refused naming the field, e.g. `{example}`. `sensors[i]` / "
+        "`estimators[i]` stand for the item's index (messages add its name). Lists and matrices: every entry is "
+        "in the range. Ranges are closed intervals."
+    ) in intro, (example, intro)
     assert intro.endswith("Ranges are closed intervals."), intro
 
     expected = _expected_sections()
@@ -573,8 +681,9 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
             entry = range_for(t, f.name)
             parts = list(entry.parts.items()) if isinstance(entry, Split) else [(None, entry)]
             want += [(f, label, r) for label, r in parts] if _numeric(hints[f.name]) else [(f, None, None)]
-        assert [r[0] for r in rows] == [f"`{prefix}{f.name}" + (f" ({label})" if label else "") + "`"
-                                        for f, label, _ in want], title
+        assert [r[0] for r in rows] == [
+            f"`{prefix}{f.name}" + (f" ({label})" if label else "") + "`" for f, label, _ in want
+        ], title
         for cells, (f, _label, r) in zip(rows, want, strict=True):
             ann = hints[f.name]
             where = f"{title}: {cells}"
@@ -587,8 +696,9 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
             assert cells[2].startswith("`") and cells[2].endswith("`"), where
             default_text = cells[2][1:-1]
             if subs:
-                assert cells[1:] == [" or ".join(f"!{s.__name__}" for s in subs), cells[2], "", "(a section)", ""], \
+                assert cells[1:] == [" or ".join(f"!{s.__name__}" for s in subs), cells[2], "", "(a section)", ""], (
                     where
+                )
                 assert default_text == ("null" if default is None else f"!{type(default).__name__}"), where
                 continue
             if t is cfg.Scenario and f.name in ("sensors", "estimators"):
@@ -664,12 +774,13 @@ def test_the_reference_rows_of_a_plug_in_config():
     from drake_att.scenarios.ranges import _rows
 
     rows, nested = _rows(_Toy, "estimators[i].", set())
-    assert rows == [("estimators[i].name", "string", "'toy'", "", "(not numeric)", ""),
-                    ("estimators[i].smoothing", "float", "0.5", "", "**none**", ""),
-                    ("estimators[i].inner", "!_Inner", "!_Inner", "", "(a section)", ""),
-                    ("estimators[i].spare", "!_Inner", "null", "", "(a section)", ""),
-                    ("estimators[i].window_s", "float", "2", "s", "[0, 2592000]",
-                     "a time within the longest run (30 days)")]
+    assert rows == [
+        ("estimators[i].name", "string", "'toy'", "", "(not numeric)", ""),
+        ("estimators[i].smoothing", "float", "0.5", "", "**none**", ""),
+        ("estimators[i].inner", "!_Inner", "!_Inner", "", "(a section)", ""),
+        ("estimators[i].spare", "!_Inner", "null", "", "(a section)", ""),
+        ("estimators[i].window_s", "float", "2", "s", "[0, 2592000]", "a time within the longest run (30 days)"),
+    ]
     assert nested == [(_Inner, "estimators[i].inner."), (_Inner, "estimators[i].spare.")]
     assert _rows(_Toy, "", {_Inner})[1] == []
     rows, nested = _rows(cfg.Scenario, "", set())
@@ -688,16 +799,18 @@ def test_the_reference_layout_of_nested_sections_written_out(monkeypatch):
     assert head.split("\n")[:3] == _HEADER
     table = "| Field | Type | Default | Unit | Range | Why |\n|---|---|---|---|---|---|\n"
     assert body == (
-        "toy: !_Toy\n\n" + table
-        + "| `toy.name` | string | `'toy'` |  | (not numeric) |  |\n"
+        "toy: !_Toy\n\n" + table + "| `toy.name` | string | `'toy'` |  | (not numeric) |  |\n"
         "| `toy.smoothing` | float | `0.5` |  | **none** |  |\n"
         "| `toy.inner` | !_Inner | `!_Inner` |  | (a section) |  |\n"
         "| `toy.spare` | !_Inner | `null` |  | (a section) |  |\n"
         "| `toy.window_s` | float | `2` | s | [0, 2592000] | a time within the longest run (30 days) |\n"
-        "\n## toy.inner: !_Inner\n\nInner part, first paragraph.\n\n" + table
+        "\n## toy.inner: !_Inner\n\nInner part, first paragraph.\n\n"
+        + table
         + "| `toy.inner.tilt_deg` | float | `1` | deg | [-360, 360] | an angle: one turn either way |\n"
-        "\n## other\n\nAnother section.\n\n" + table
-        + "| `other.ratio` | float | `0.5` |  | [0, 1] | numerator \\| denominator |\n")
+        "\n## other\n\nAnother section.\n\n"
+        + table
+        + "| `other.ratio` | float | `0.5` |  | [0, 1] | numerator \\| denominator |\n"
+    )
 
 
 def test_the_reference_writes_defaults_and_types_as_yaml_reads_them():
@@ -706,21 +819,66 @@ def test_the_reference_writes_defaults_and_types_as_yaml_reads_them():
     from drake_att.scenarios.ranges import _default_text, _is_numeric_type, _type_name
 
     texts = {f.name: _default_text(f) for f in dataclasses.fields(_Defaults)}
-    assert texts == {"required_s": "(required)", "small": "1e-7", "month_s": "2592000", "count": "3", "off": "false",
-                     "on": "true", "nothing": "null", "label": "'x'", "pair": "[1, null]", "gains": "[0.5, 1, 1e6]",
-                     "empty": "[]", "matrix": "[[1, 2.5], [-3, 4]]", "flags": "[true, false]", "inner": "!_Inner",
-                     "one": "[2]", "count64": "7"}
-    numeric = [float, int, np.ndarray, typing.Optional[float], typing.List[float], typing.List[int],
-               typing.List[typing.List[float]], typing.Optional[typing.List[float]], typing.Union[str, int]]
-    other = [bool, str, type(None), typing.Optional[str], typing.List[str], typing.List, typing.List[bool], _Inner,
-             typing.Optional[_Inner], typing.List[typing.Any], complex]
+    assert texts == {
+        "required_s": "(required)",
+        "small": "1e-7",
+        "month_s": "2592000",
+        "count": "3",
+        "off": "false",
+        "on": "true",
+        "nothing": "null",
+        "label": "'x'",
+        "pair": "[1, null]",
+        "gains": "[0.5, 1, 1e6]",
+        "empty": "[]",
+        "matrix": "[[1, 2.5], [-3, 4]]",
+        "flags": "[true, false]",
+        "inner": "!_Inner",
+        "one": "[2]",
+        "count64": "7",
+    }
+    numeric = [
+        float,
+        int,
+        np.ndarray,
+        typing.Optional[float],
+        typing.List[float],
+        typing.List[int],
+        typing.List[typing.List[float]],
+        typing.Optional[typing.List[float]],
+        typing.Union[str, int],
+    ]
+    other = [
+        bool,
+        str,
+        type(None),
+        typing.Optional[str],
+        typing.List[str],
+        typing.List,
+        typing.List[bool],
+        _Inner,
+        typing.Optional[_Inner],
+        typing.List[typing.Any],
+        complex,
+    ]
     assert [t for t in numeric if not _is_numeric_type(t)] == []
     assert [t for t in other if _is_numeric_type(t)] == []
-    names = {float: "float", int: "int", str: "string", bool: "bool", type(None): "null",
-             np.ndarray: "matrix (list of rows)", _Inner: "!_Inner", typing.Optional[float]: "float or null",
-             typing.Optional[_Inner]: "!_Inner or null", typing.List[typing.List[float]]: "list of list of float",
-             typing.List: "list", typing.Union[str, int, None]: "string or int or null", complex: "complex",
-             "ForwardRef": "ForwardRef"}
+    names = {
+        float: "float",
+        int: "int",
+        str: "string",
+        bool: "bool",
+        type(None): "null",
+        np.ndarray: "matrix (list of rows)",
+        _Inner: "!_Inner",
+        typing.Optional[float]: "float or null",
+        typing.Optional[_Inner]: "!_Inner or null",
+        typing.List[typing.List[float]]: "list of list of float",
+        typing.List: "list",
+        typing.Union[str, int, None]: "string or int or null",
+        complex: "complex",
+        "ForwardRef": "ForwardRef",
+    }
     assert {t: _type_name(t) for t in names} == names
 
 
@@ -746,8 +904,11 @@ def test_a_sensor_listed_twice_in_an_mekf_is_refused_naming_the_list():
     with pytest.raises(ConfigError) as e:
         cfg.load_scenario(text=_DUPLICATES % ("[st1, st1]", "[m1, m2]"))
     assert str(e.value) == "estimators[0] (m1).star_trackers: got ['st1', 'st1']; each sensor may be listed once"
-    with pytest.raises(ConfigError, match=r"^estimators\[0\] \(m1\)\.star_trackers: got \['st1', 'st2', 'st1'\]; "
-                                          "each sensor may be listed once$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimators\[0\] \(m1\)\.star_trackers: got \['st1', 'st2', 'st1'\]; "
+        "each sensor may be listed once$",
+    ):
         cfg.load_scenario(text=_DUPLICATES % ("[st1, st2, st1]", "[m1, m2]"))
     cfg.load_scenario(text=_DUPLICATES % ("[st1, st2]", "[m1, m2]"))
 
@@ -796,8 +957,11 @@ def test_a_billion_particles_are_refused_in_milliseconds_naming_num_particles():
     assert "more than the 23 GB available; at most ~2" in message  # ~23e9 / 1000 bytes
     # this machine's memory (a terabyte would be needed)
     if (preflight.available_memory_bytes() or math.inf) < 1e12:
-        with pytest.raises(ConfigError, match=r"num_particles: got 1000000000; needs ~1,000 GB .* more than this "
-                                              r"machine's"):
+        with pytest.raises(
+            ConfigError,
+            match=r"num_particles: got 1000000000; needs ~1,000 GB .* more than this "
+            r"machine's",
+        ):
             preflight.check_memory(s)
     # parallel runs multiply the need
     small = cfg.load_scenario(text=_PF.format(n=10**6, duration=5.0))
@@ -810,8 +974,11 @@ def test_log_dominated_runs_name_the_period_that_sets_the_logs():
     s = copy.deepcopy(cfg.load_scenario(text=_LOGS.format(duration=10.0)))
     s.sensors[0].period_s = s.sensors[1].period_s = 1e-5
     s.duration_s = 2e6
-    with pytest.raises(ConfigError, match=r"^sensors\[0\] \(gyro\)\.period_s: got 1e-05; the run needs ~[\d,]+ GB, "
-                                          r"mostly logs of ~.* over duration_s = 2e\+06 .*use a longer period"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^sensors\[0\] \(gyro\)\.period_s: got 1e-05; the run needs ~[\d,]+ GB, "
+        r"mostly logs of ~.* over duration_s = 2e\+06 .*use a longer period",
+    ):
         preflight.check_memory(s, available_bytes=16e9)
     # the raw log size, written out: 5 loggers at 0.005 s over 10 s = 2001 samples each, widths
     # q 4, w 3, gyro 5, bias 3, tracker 6, each with its times; and what a run logs
@@ -854,8 +1021,9 @@ def test_the_estimate_is_within_a_factor_2_of_the_measured_peak():
     (VmHWM reset before each) is within a factor 2 of :func:`memory_estimate`."""
     logs, pf = _LOGS.format(duration=400.0), _PF.format(n=150000, duration=5.0)
     texts = {"warm": [_LOGS.format(duration=1.0), _PF.format(n=10, duration=2.0)], "measure": [logs, pf]}
-    proc = subprocess.run([sys.executable, "-c", _MEASURE], input=json.dumps(texts), capture_output=True, text=True,
-                          timeout=300, cwd=REPO)
+    proc = subprocess.run(
+        [sys.executable, "-c", _MEASURE], input=json.dumps(texts), capture_output=True, text=True, timeout=300, cwd=REPO
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     measured = json.loads(proc.stdout.strip().splitlines()[-1])
     for text, peak in zip((logs, pf), measured, strict=True):

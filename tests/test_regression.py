@@ -82,8 +82,13 @@ def _split_diverged(recorded: dict, now: dict):
             nees = metrics.get("nees_mean")
             if isinstance(nees, float) and nees > DIVERGED_NEES and name in now.get(seed, {}).get("estimators", {}):
                 for key in COVARIANCE_METRICS:
-                    pairs.append((f"/{seed}/estimators/{name}/{key}", metrics.pop(key, None),
-                                  now[seed]["estimators"][name].pop(key, None)))
+                    pairs.append(
+                        (
+                            f"/{seed}/estimators/{name}/{key}",
+                            metrics.pop(key, None),
+                            now[seed]["estimators"][name].pop(key, None),
+                        )
+                    )
     return recorded, now, pairs
 
 
@@ -109,10 +114,22 @@ def test_shipped_scenario_metrics_are_unchanged(record, name):
 
 
 def test_only_a_diverged_filters_covariance_metrics_get_the_wider_tolerance():
-    rec = {"1": {"estimators": {"a": {"nees_mean": 1e27, "attitude_3sigma_final_deg": [1e-3], "rmse": 5.0},
-                                "b": {"nees_mean": 6.0, "attitude_3sigma_final_deg": [1e-3], "rmse": 5.0}}}}
-    now = {"1": {"estimators": {"a": {"nees_mean": 3e26, "attitude_3sigma_final_deg": [1.000000001e-3], "rmse": 5.0},
-                                "b": {"nees_mean": 6.0, "attitude_3sigma_final_deg": [1.0001e-3], "rmse": 5.0}}}}
+    rec = {
+        "1": {
+            "estimators": {
+                "a": {"nees_mean": 1e27, "attitude_3sigma_final_deg": [1e-3], "rmse": 5.0},
+                "b": {"nees_mean": 6.0, "attitude_3sigma_final_deg": [1e-3], "rmse": 5.0},
+            }
+        }
+    }
+    now = {
+        "1": {
+            "estimators": {
+                "a": {"nees_mean": 3e26, "attitude_3sigma_final_deg": [1.000000001e-3], "rmse": 5.0},
+                "b": {"nees_mean": 6.0, "attitude_3sigma_final_deg": [1.0001e-3], "rmse": 5.0},
+            }
+        }
+    }
     r, n, pairs = _split_diverged(rec, now)
     assert [p for p, _, _ in pairs] == ["/1/estimators/a/nees_mean", "/1/estimators/a/attitude_3sigma_final_deg"]
     assert _close_enough(pairs[1][1], pairs[1][2], DIVERGED_RTOL)

@@ -45,14 +45,35 @@ def transient_run():
     s_bias = np.where(t < 5.0, 100.0, 0.2) * DEG_PER_H_
     P = np.array([np.diag([a * a] * 3 + [b * b] * 3) for a, b in zip(s_att, s_bias, strict=True)]).reshape(len(t), 36)
     status = np.column_stack([t, np.arange(len(t)), np.zeros(len(t)), np.zeros(len(t))])
-    signals = {"plant/q_IB": (t, q_true), "plant/w_IB_B": (t, np.zeros((len(t), 3))),
-               "gyro/bias_B": (t, bias_true), f"{NAME}/q_IB_hat": (t, q_hat),
-               f"{NAME}/bias_B_hat": (t, bias_hat), f"{NAME}/covariance": (t, P), f"{NAME}/status": (t, status)}
-    meta = {"schema": 1, "scenario": SCENARIO, "seed": SEED, "wall_time_s": 0.5, "signals": list(signals),
-            "truth": {"attitude": "plant/q_IB", "rate": "plant/w_IB_B"},
-            "estimators": {NAME: {"second_kind": "gyro_bias", "true_bias": "gyro/bias_B",
-                                  "signals": {"attitude": f"{NAME}/q_IB_hat", "second": f"{NAME}/bias_B_hat",
-                                              "covariance": f"{NAME}/covariance", "status": f"{NAME}/status"}}}}
+    signals = {
+        "plant/q_IB": (t, q_true),
+        "plant/w_IB_B": (t, np.zeros((len(t), 3))),
+        "gyro/bias_B": (t, bias_true),
+        f"{NAME}/q_IB_hat": (t, q_hat),
+        f"{NAME}/bias_B_hat": (t, bias_hat),
+        f"{NAME}/covariance": (t, P),
+        f"{NAME}/status": (t, status),
+    }
+    meta = {
+        "schema": 1,
+        "scenario": SCENARIO,
+        "seed": SEED,
+        "wall_time_s": 0.5,
+        "signals": list(signals),
+        "truth": {"attitude": "plant/q_IB", "rate": "plant/w_IB_B"},
+        "estimators": {
+            NAME: {
+                "second_kind": "gyro_bias",
+                "true_bias": "gyro/bias_B",
+                "signals": {
+                    "attitude": f"{NAME}/q_IB_hat",
+                    "second": f"{NAME}/bias_B_hat",
+                    "covariance": f"{NAME}/covariance",
+                    "status": f"{NAME}/status",
+                },
+            }
+        },
+    }
     run = RunLog(scenario=cfg.Scenario(name=SCENARIO), seed=SEED, wall_time_s=0.5, signals=signals, metadata=meta)
     err = metrics.estimator_errors(run, NAME)["dtheta"][:, 2] / DEG_
     np.testing.assert_allclose(err, _yaw_error_deg(t), atol=1e-9)  # the run is what it claims
@@ -104,6 +125,7 @@ def test_no_stable_figure_without_a_stable_stage(transient_run):
 
 # --- y-limits, second row, figure size of the per-run error figures --------------------------
 
+
 def test_zero_error_axis_shows_the_whole_three_sigma_band(transient_run):
     """The fixture's roll and pitch errors are exactly zero: their plots show the whole
     +-3 sigma band (540 deg at the start), not a sliver around zero."""
@@ -148,21 +170,40 @@ def _steady_run(second_kind):
     truth2 = np.tile([1.0, -2.0, 3.0], (n, 1)) * unit
     hat2 = truth2 - err * unit
     s2 = 2.0 * err / 3.0 * unit  # 3 sigma = 2 x error
-    P = np.tile(np.diag([(DEG_ / 3.0) ** 2] * 3 + list(s2 ** 2)).reshape(36), (n, 1))
+    P = np.tile(np.diag([(DEG_ / 3.0) ** 2] * 3 + list(s2**2)).reshape(36), (n, 1))
     status = np.column_stack([t, np.arange(n), np.zeros(n), np.zeros(n)])
     q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     second = "bias_B_hat" if second_kind == "gyro_bias" else "w_IB_B_hat"
-    signals = {"plant/q_IB": (t, q), "plant/w_IB_B": (t, truth2 if second_kind == "body_rate" else np.zeros((n, 3))),
-               f"{NAME}/q_IB_hat": (t, q), f"{NAME}/{second}": (t, hat2), f"{NAME}/covariance": (t, P),
-               f"{NAME}/status": (t, status)}
+    signals = {
+        "plant/q_IB": (t, q),
+        "plant/w_IB_B": (t, truth2 if second_kind == "body_rate" else np.zeros((n, 3))),
+        f"{NAME}/q_IB_hat": (t, q),
+        f"{NAME}/{second}": (t, hat2),
+        f"{NAME}/covariance": (t, P),
+        f"{NAME}/status": (t, status),
+    }
     if second_kind == "gyro_bias":
         signals["gyro/bias_B"] = (t, truth2)
-    meta = {"schema": 1, "scenario": SCENARIO, "seed": SEED, "wall_time_s": 0.5, "signals": list(signals),
-            "truth": {"attitude": "plant/q_IB", "rate": "plant/w_IB_B"},
-            "estimators": {NAME: {"second_kind": second_kind,
-                                  "true_bias": "gyro/bias_B" if second_kind == "gyro_bias" else None,
-                                  "signals": {"attitude": f"{NAME}/q_IB_hat", "second": f"{NAME}/{second}",
-                                              "covariance": f"{NAME}/covariance", "status": f"{NAME}/status"}}}}
+    meta = {
+        "schema": 1,
+        "scenario": SCENARIO,
+        "seed": SEED,
+        "wall_time_s": 0.5,
+        "signals": list(signals),
+        "truth": {"attitude": "plant/q_IB", "rate": "plant/w_IB_B"},
+        "estimators": {
+            NAME: {
+                "second_kind": second_kind,
+                "true_bias": "gyro/bias_B" if second_kind == "gyro_bias" else None,
+                "signals": {
+                    "attitude": f"{NAME}/q_IB_hat",
+                    "second": f"{NAME}/{second}",
+                    "covariance": f"{NAME}/covariance",
+                    "status": f"{NAME}/status",
+                },
+            }
+        },
+    }
     return RunLog(scenario=cfg.Scenario(name=SCENARIO), seed=SEED, wall_time_s=0.5, signals=signals, metadata=meta), err
 
 
@@ -215,11 +256,17 @@ def test_plot_estimator_writes_into_the_output_folder(transient_run, tmp_path, m
 
 # --- plot_error_grid (paper-style comparison figure) ---------------------------------------
 
+
 def _grid_series():
     t = np.arange(11.0)
-    return {n: {"t": t, "dtheta": np.outer(t, [1.0, 2.0, 3.0]) * k * DEG_ / 10,
-                "second_err": np.outer(t, [3.0, 2.0, 1.0]) * k * DEG_PER_H_}
-            for k, n in ((1, "ekf"), (2, "ukf"))}
+    return {
+        n: {
+            "t": t,
+            "dtheta": np.outer(t, [1.0, 2.0, 3.0]) * k * DEG_ / 10,
+            "second_err": np.outer(t, [3.0, 2.0, 1.0]) * k * DEG_PER_H_,
+        }
+        for k, n in ((1, "ekf"), (2, "ukf"))
+    }
 
 
 @pytest.fixture
@@ -244,8 +291,15 @@ def grid_figure(monkeypatch):
 
 def test_error_grid_plots_each_estimator_on_each_axis(grid_figure, tmp_path):
     series = _grid_series()
-    path, fig = grid_figure(series, ["ekf", "ukf"], str(tmp_path / "grid.png"), "comparison",
-                            second_scale=DEG_PER_H_, second_unit="deg/h", second_label="gyro bias error")
+    path, fig = grid_figure(
+        series,
+        ["ekf", "ukf"],
+        str(tmp_path / "grid.png"),
+        "comparison",
+        second_scale=DEG_PER_H_,
+        second_unit="deg/h",
+        second_label="gyro bias error",
+    )
     assert path == str(tmp_path / "grid.png")
     assert _png_size(path) == (1650, 770)  # 15 x 7 in at 110 dpi
     assert tuple(fig.get_size_inches()) == pytest.approx((15.0, 7.0))
@@ -268,8 +322,15 @@ def test_error_grid_plots_each_estimator_on_each_axis(grid_figure, tmp_path):
 
 
 def test_error_grid_time_range_keeps_both_ends_and_fixed_limits_apply_to_their_row(grid_figure, tmp_path):
-    _, fig = grid_figure(_grid_series(), ["ekf"], str(tmp_path / "g.png"), "t", t_range=(2.0, 5.0),
-                         att_ylim=(-1.0, 2.0), sec_ylim=(-3.0, 4.0))
+    _, fig = grid_figure(
+        _grid_series(),
+        ["ekf"],
+        str(tmp_path / "g.png"),
+        "t",
+        t_range=(2.0, 5.0),
+        att_ylim=(-1.0, 2.0),
+        sec_ylim=(-3.0, 4.0),
+    )
     axes = np.array(fig.axes).reshape(2, 3)
     for a in fig.axes:
         np.testing.assert_array_equal(a.get_lines()[0].get_xdata(), [2.0, 3.0, 4.0, 5.0])
@@ -278,6 +339,7 @@ def test_error_grid_time_range_keeps_both_ends_and_fixed_limits_apply_to_their_r
 
 
 # --- diagram graph, strict JSON, result folder and its manifest ------------------------------
+
 
 def _tiny_diagram():
     from pydrake.systems.framework import DiagramBuilder
@@ -305,17 +367,30 @@ def test_diagram_graph_is_rendered_as_svg_when_graphviz_is_installed(tmp_path):
 
 
 def test_strict_json_nulls_non_finite_numbers_and_keeps_the_rest():
-    value = {"a": 1.5, "b": float("nan"), "c": [float("inf"), -2.0, (float("-inf"), 0.0)], "d": 3, "e": "x",
-             "f": {"g": np.float64(0.25), "h": np.float64("nan")}}
-    assert report.strict_json(value) == {"a": 1.5, "b": None, "c": [None, -2.0, [None, 0.0]], "d": 3, "e": "x",
-                                         "f": {"g": 0.25, "h": None}}
+    value = {
+        "a": 1.5,
+        "b": float("nan"),
+        "c": [float("inf"), -2.0, (float("-inf"), 0.0)],
+        "d": 3,
+        "e": "x",
+        "f": {"g": np.float64(0.25), "h": np.float64("nan")},
+    }
+    assert report.strict_json(value) == {
+        "a": 1.5,
+        "b": None,
+        "c": [None, -2.0, [None, 0.0]],
+        "d": 3,
+        "e": "x",
+        "f": {"g": 0.25, "h": None},
+    }
 
 
 def test_write_metrics_json_writes_strict_indented_json(tmp_path):
     path = str(tmp_path / "metrics.json")
     assert report.write_metrics_json({"rms": 0.5, "nees": float("nan"), "n": [1, float("inf")]}, path) == path
     assert (tmp_path / "metrics.json").read_bytes() == (
-        b'{\n  "rms": 0.5,\n  "nees": null,\n  "n": [\n    1,\n    null\n  ]\n}')
+        b'{\n  "rms": 0.5,\n  "nees": null,\n  "n": [\n    1,\n    null\n  ]\n}'
+    )
 
 
 def _sha256(data):
@@ -336,8 +411,11 @@ def test_manifest_lists_each_file_with_its_size_and_sha256(transient_run, tmp_pa
     assert path == str(tmp_path / "manifest.json")
     import json
 
-    assert json.loads((tmp_path / "manifest.json").read_bytes()) == {"scenario": SCENARIO, "seed": SEED,
-                                                                     "files": expected}
+    assert json.loads((tmp_path / "manifest.json").read_bytes()) == {
+        "scenario": SCENARIO,
+        "seed": SEED,
+        "files": expected,
+    }
 
 
 def test_write_results_writes_a_complete_folder_a_same_size_edit_is_detected(transient_run, tmp_path, monkeypatch):
@@ -356,7 +434,9 @@ def test_write_results_writes_a_complete_folder_a_same_size_edit_is_detected(tra
     assert "diagram.dot" in names and not any(n.endswith(".png") for n in names)  # no figures asked
     assert sorted(p.name for p in out.iterdir()) == sorted(names)
     assert list(elsewhere.iterdir()) == []
-    assert json.loads((out / "metrics.json").read_bytes()) == {"estimators": {NAME: {"rms_deg": 0.01, "nees_mean": None}}}
+    assert json.loads((out / "metrics.json").read_bytes()) == {
+        "estimators": {NAME: {"rms_deg": 0.01, "nees_mean": None}}
+    }
     assert (out / "config.yaml").read_text().startswith(f"# Resolved configuration of this run (seed {SEED}).\n")
     with np.load(out / "log.npz") as npz:
         for key, (t, v) in transient_run.signals.items():
@@ -366,8 +446,9 @@ def test_write_results_writes_a_complete_folder_a_same_size_edit_is_detected(tra
         assert json.loads(str(npz["metadata"]))["seed"] == SEED
     manifest = json.loads((out / "manifest.json").read_bytes())
     assert (manifest["scenario"], manifest["seed"]) == (SCENARIO, SEED)
-    assert manifest["files"] == [{"file": n, "bytes": (out / n).stat().st_size, "sha256": _sha256((out / n).read_bytes())}
-                                 for n in names[:-1]]
+    assert manifest["files"] == [
+        {"file": n, "bytes": (out / n).stat().st_size, "sha256": _sha256((out / n).read_bytes())} for n in names[:-1]
+    ]
     assert report.check_manifest(str(out)) == []
     data = bytearray((out / "metrics.json").read_bytes())
     data[data.index(b"0.01") + 3] = ord("2")  # 0.01 -> 0.02: same size, other content

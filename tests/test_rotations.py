@@ -33,8 +33,6 @@ PI = np.pi
 # ----------------------------------------------------------------------------------
 
 
-
-
 def vectors(scale=10.0):
     x = st.floats(-scale, scale, allow_nan=False)
     return st.tuples(x, x, x).map(np.array)
@@ -145,9 +143,7 @@ def test_quat_multiply_composition(p, q, r):
     np.testing.assert_allclose(pq, drake_quat(p).multiply(drake_quat(q)).wxyz(), atol=1e-15)
     np.testing.assert_allclose(rot.quat_to_rotmat(pq), drake_R(p) @ drake_R(q), atol=1e-14)
     # Associativity and identity.
-    np.testing.assert_allclose(
-        rot.quat_multiply(pq, r), rot.quat_multiply(p, rot.quat_multiply(q, r)), atol=1e-15
-    )
+    np.testing.assert_allclose(rot.quat_multiply(pq, r), rot.quat_multiply(p, rot.quat_multiply(q, r)), atol=1e-15)
     np.testing.assert_array_equal(rot.quat_multiply(p, rot.quat_identity()), p)
     np.testing.assert_array_equal(rot.quat_multiply(rot.quat_identity(), p), p)
 
@@ -240,9 +236,7 @@ def test_rotvec_round_trip(axis, angle):
     q = rot.rotvec_to_quat(phi)
     np.testing.assert_allclose(rot.quat_to_rotvec(q), phi, rtol=0, atol=1e-14)
     np.testing.assert_allclose(rot.quat_to_rotvec(-q), phi, rtol=0, atol=1e-14)
-    np.testing.assert_allclose(
-        rot.rotmat_to_rotvec(rot.rotvec_to_rotmat(phi)), phi, rtol=0, atol=1e-13
-    )
+    np.testing.assert_allclose(rot.rotmat_to_rotvec(rot.rotvec_to_rotmat(phi)), phi, rtol=0, atol=1e-13)
 
 
 @FAST
@@ -252,11 +246,9 @@ def test_rotvec_small_angles(axis, angle):
     phi = angle * axis
     q = rot.rotvec_to_quat(phi)
     # Reference without cancellation: sin(a/2)/a is accurate for a > 0.
-    np.testing.assert_allclose(q[1:], np.sin(angle / 2) / angle * phi, rtol=0,
-                               atol=1e-15 * angle)
+    np.testing.assert_allclose(q[1:], np.sin(angle / 2) / angle * phi, rtol=0, atol=1e-15 * angle)
     assert abs(q[0] - np.cos(angle / 2)) <= 1e-16
-    np.testing.assert_allclose(q, AngleAxis(angle, axis).quaternion().wxyz(), rtol=0,
-                               atol=1e-16)
+    np.testing.assert_allclose(q, AngleAxis(angle, axis).quaternion().wxyz(), rtol=0, atol=1e-16)
     # quat -> rotvec keeps the relative accuracy of the tiny vector.
     np.testing.assert_allclose(rot.quat_to_rotvec(q), phi, rtol=0, atol=1e-14 * angle)
     # Rotation matrix: R = I + (sin a / a) K + (2 sin^2(a/2) / a^2) K^2 (no cancellation).
@@ -281,8 +273,14 @@ def _expm_minus_identity(phi):
 
 
 # Angles straddling the series switch (1e-4 rad) and deep inside the series branch.
-THRESHOLD_ANGLES = [1e-8, 0.5 * rot._SMALL_ANGLE, rot._SMALL_ANGLE * (1 - 1e-12),
-                    rot._SMALL_ANGLE, rot._SMALL_ANGLE * (1 + 1e-12), 2 * rot._SMALL_ANGLE]
+THRESHOLD_ANGLES = [
+    1e-8,
+    0.5 * rot._SMALL_ANGLE,
+    rot._SMALL_ANGLE * (1 - 1e-12),
+    rot._SMALL_ANGLE,
+    rot._SMALL_ANGLE * (1 + 1e-12),
+    2 * rot._SMALL_ANGLE,
+]
 
 
 @pytest.mark.parametrize("batched", [False, True], ids=["scalar", "batched"])
@@ -307,8 +305,9 @@ def test_rotvec_series_threshold_is_continuous(batched):
         np.testing.assert_allclose(q[1:], np.sin(a / 2) / a * phi, rtol=0, atol=1e-15 * a)
         assert abs(q[0] - np.cos(a / 2)) <= 1.2e-16  # one ulp of a number just below 1
         np.testing.assert_allclose(R - np.eye(3), _expm_minus_identity(phi), rtol=0, atol=1e-16)
-        np.testing.assert_allclose(R, RotationMatrix(AngleAxis(a, axis)).matrix(), rtol=0,
-                                   atol=2.3e-16)  # Drake's own rounding adds ~1 ulp
+        np.testing.assert_allclose(
+            R, RotationMatrix(AngleAxis(a, axis)).matrix(), rtol=0, atol=2.3e-16
+        )  # Drake's own rounding adds ~1 ulp
 
 
 def test_batched_zero_rotation_is_exact_identity_without_fp_errors():
@@ -328,8 +327,7 @@ def test_batched_zero_rotation_is_exact_identity_without_fp_errors():
         np.testing.assert_array_equal(Rs[i], np.eye(3))
         np.testing.assert_array_equal(back[i], np.zeros(3))
     # The non-zero member is unaffected by its zero neighbours (closed form, ~eps accuracy).
-    np.testing.assert_allclose(Rs[1] - np.eye(3), _expm_minus_identity(phis[1]), rtol=0,
-                               atol=1e-15)
+    np.testing.assert_allclose(Rs[1] - np.eye(3), _expm_minus_identity(phis[1]), rtol=0, atol=1e-15)
     a = np.linalg.norm(phis[1])
     q_ref = np.concatenate([[np.cos(a / 2)], np.sin(a / 2) / a * phis[1]])
     np.testing.assert_allclose(qs[1], q_ref, rtol=0, atol=1e-16)
@@ -392,8 +390,7 @@ def test_quat_propagate(q, w, dt1, dt2):
     R_step = RotationMatrix(AngleAxis(wn * dt1, axis / np.linalg.norm(axis))).matrix()
     np.testing.assert_allclose(rot.quat_to_rotmat(q1), drake_R(q) @ R_step, atol=1e-14)
     # Exact for constant rate: semigroup property.
-    np.testing.assert_allclose(rot.quat_propagate(q1, w, dt2),
-                               rot.quat_propagate(q, w, dt1 + dt2), atol=1e-14)
+    np.testing.assert_allclose(rot.quat_propagate(q1, w, dt2), rot.quat_propagate(q, w, dt1 + dt2), atol=1e-14)
 
 
 @MEDIUM
@@ -459,8 +456,7 @@ def test_mrp_shadow(p):
     assert abs(np.linalg.norm(ps) * np.sqrt(n2) - 1.0) < 1e-14
     # Same rotation: the shadow set gives exactly -q.
     np.testing.assert_allclose(rot.mrp_to_quat(ps), -rot.mrp_to_quat(p), rtol=0, atol=1e-14)
-    np.testing.assert_allclose(rot.mrp_to_rotmat(ps), rot.mrp_to_rotmat(p), rtol=0,
-                               atol=1e-13 * (1 + n2 + 1 / n2))
+    np.testing.assert_allclose(rot.mrp_to_rotmat(ps), rot.mrp_to_rotmat(p), rtol=0, atol=1e-13 * (1 + n2 + 1 / n2))
     np.testing.assert_allclose(rot.mrp_shadow(ps), p, rtol=1e-14, atol=1e-300)
 
 
@@ -542,8 +538,7 @@ def test_grp_round_trip(a, f, q):
 def test_grp_special_cases(q):
     qc = rot.quat_canonical(q)
     # a = 1, f = 1: MRPs.
-    np.testing.assert_allclose(rot.quat_to_grp(q, 1.0, 1.0), rot.quat_to_mrp(q), rtol=1e-15,
-                               atol=0)
+    np.testing.assert_allclose(rot.quat_to_grp(q, 1.0, 1.0), rot.quat_to_mrp(q), rtol=1e-15, atol=0)
     # a = 1, f = 4: |p| = 4 tan(theta / 4) ~ theta (+ theta^3 / 48).
     theta = np.linalg.norm(rot.quat_to_rotvec(q))
     p4 = rot.quat_to_grp(q, 1.0, 4.0)
@@ -553,8 +548,7 @@ def test_grp_special_cases(q):
         assert abs(np.linalg.norm(p4) - theta) <= theta**3 / 48 * 1.01 + 1e-15
     # a = 0, f = 1: Gibbs vector q_vec / q_w = tan(theta / 2) n.
     if qc[0] > 1e-3:
-        np.testing.assert_allclose(rot.quat_to_grp(q, 0.0, 1.0), qc[1:] / qc[0], rtol=1e-15,
-                                   atol=0)
+        np.testing.assert_allclose(rot.quat_to_grp(q, 0.0, 1.0), qc[1:] / qc[0], rtol=1e-15, atol=0)
         g = rot.quat_to_grp(q, 0.0, 1.0)
         np.testing.assert_allclose(rot.grp_to_quat(g, 0.0, 1.0), qc, rtol=0, atol=1e-14)
 
@@ -593,9 +587,11 @@ def test_rpy_to_quat_matches_drake(rpy):
     np.testing.assert_allclose(q, r.ToQuaternion().wxyz(), rtol=0, atol=1e-15)
     np.testing.assert_allclose(rot.quat_to_rotmat(q), r.ToRotationMatrix().matrix(), atol=1e-14)
     # R = Rz(yaw) Ry(pitch) Rx(roll).
-    R = (RotationMatrix.MakeZRotation(rpy[2]).matrix()
-         @ RotationMatrix.MakeYRotation(rpy[1]).matrix()
-         @ RotationMatrix.MakeXRotation(rpy[0]).matrix())
+    R = (
+        RotationMatrix.MakeZRotation(rpy[2]).matrix()
+        @ RotationMatrix.MakeYRotation(rpy[1]).matrix()
+        @ RotationMatrix.MakeXRotation(rpy[0]).matrix()
+    )
     np.testing.assert_allclose(rot.quat_to_rotmat(q), R, atol=1e-14)
 
 
@@ -628,8 +624,9 @@ def test_quat_to_rpy_at_and_near_gimbal_lock(pitch, offset):
     pitch is within 2e-8 rad of the truth, and they agree with Drake's RollPitchYaw on the
     rotation (compared as rotations: at the lock only yaw -+ roll is defined)."""
     rng = np.random.default_rng(int(offset * 1e15) % 1000 + (pitch > 0))
-    cases = [np.array([0.3, pitch, 0.2])] + [np.array([rng.uniform(-PI, PI), pitch, rng.uniform(-PI, PI)])
-                                              for _ in range(50)]
+    cases = [np.array([0.3, pitch, 0.2])] + [
+        np.array([rng.uniform(-PI, PI), pitch, rng.uniform(-PI, PI)]) for _ in range(50)
+    ]
     for rpy in cases:
         rpy[1] -= np.sign(pitch) * offset
         q = rot.rpy_to_quat(rpy)
@@ -645,9 +642,7 @@ def test_quat_to_rpy_at_and_near_gimbal_lock(pitch, offset):
 @given(rpy_any, vectors(2.0))
 def test_rpy_rates_to_body_rate(rpy, rpy_dot):
     w = rot.rpy_rates_to_body_rate(rpy, rpy_dot)
-    np.testing.assert_allclose(
-        w, RollPitchYaw(rpy).CalcAngularVelocityInChildFromRpyDt(rpy_dot), rtol=0, atol=1e-14
-    )
+    np.testing.assert_allclose(w, RollPitchYaw(rpy).CalcAngularVelocityInChildFromRpyDt(rpy_dot), rtol=0, atol=1e-14)
     # Finite difference of the rotation: w_B = vee(R^T R_dot).
     h = 1e-6
     Rp = rot.quat_to_rotmat(rot.rpy_to_quat(rpy + h * rpy_dot))
@@ -696,12 +691,9 @@ BATCH_CASES = {
     "quat_to_rotvec": (rot.quat_to_rotvec, lambda r, s: (_rand_quats(r, s),)),
     "rotvec_to_rotmat": (rot.rotvec_to_rotmat, lambda r, s: (_rand_vecs(r, s, 2.0),)),
     "rotvec_to_rotmat_small": (rot.rotvec_to_rotmat, lambda r, s: (_rand_vecs(r, s, 1e-6),)),
-    "rotmat_to_rotvec": (rot.rotmat_to_rotvec,
-                         lambda r, s: (rot.quat_to_rotmat(_rand_quats(r, s)),)),
-    "quat_propagate": (lambda q, w: rot.quat_propagate(q, w, 0.3),
-                       lambda r, s: (_rand_quats(r, s), _rand_vecs(r, s))),
-    "quat_error_rotvec": (rot.quat_error_rotvec,
-                          lambda r, s: (_rand_quats(r, s), _rand_quats(r, s))),
+    "rotmat_to_rotvec": (rot.rotmat_to_rotvec, lambda r, s: (rot.quat_to_rotmat(_rand_quats(r, s)),)),
+    "quat_propagate": (lambda q, w: rot.quat_propagate(q, w, 0.3), lambda r, s: (_rand_quats(r, s), _rand_vecs(r, s))),
+    "quat_error_rotvec": (rot.quat_error_rotvec, lambda r, s: (_rand_quats(r, s), _rand_quats(r, s))),
     "quat_to_mrp": (rot.quat_to_mrp, lambda r, s: (_rand_quats(r, s),)),
     "mrp_to_quat": (rot.mrp_to_quat, lambda r, s: (_rand_vecs(r, s, 2.0),)),
     "mrp_shadow": (rot.mrp_shadow, lambda r, s: (_rand_vecs(r, s, 2.0),)),
@@ -709,15 +701,15 @@ BATCH_CASES = {
     "mrp_to_rotmat": (rot.mrp_to_rotmat, lambda r, s: (_rand_vecs(r, s, 2.0),)),
     "mrp_kinematics_matrix": (rot.mrp_kinematics_matrix, lambda r, s: (_rand_vecs(r, s),)),
     "quat_to_grp": (lambda q: rot.quat_to_grp(q, 1.0, 4.0), lambda r, s: (_rand_quats(r, s),)),
-    "quat_to_grp_gibbs": (lambda q: rot.quat_to_grp(q, 0.0, 1.0),
-                          lambda r, s: (_rand_quats(r, s) + [3.0, 0, 0, 0],)),  # w > 0
+    "quat_to_grp_gibbs": (
+        lambda q: rot.quat_to_grp(q, 0.0, 1.0),
+        lambda r, s: (_rand_quats(r, s) + [3.0, 0, 0, 0],),
+    ),  # w > 0
     "grp_to_quat": (lambda p: rot.grp_to_quat(p, 1.0, 4.0), lambda r, s: (_rand_vecs(r, s),)),
-    "grp_to_quat_gibbs": (lambda p: rot.grp_to_quat(p, 0.0, 1.0),
-                          lambda r, s: (_rand_vecs(r, s, 3.0),)),
+    "grp_to_quat_gibbs": (lambda p: rot.grp_to_quat(p, 0.0, 1.0), lambda r, s: (_rand_vecs(r, s, 3.0),)),
     "rpy_to_quat": (rot.rpy_to_quat, lambda r, s: (_rand_rpy(r, s),)),
     "quat_to_rpy": (rot.quat_to_rpy, lambda r, s: (rot.rpy_to_quat(_rand_rpy(r, s)),)),
-    "rpy_rates_to_body_rate": (rot.rpy_rates_to_body_rate,
-                               lambda r, s: (_rand_rpy(r, s), _rand_vecs(r, s))),
+    "rpy_rates_to_body_rate": (rot.rpy_rates_to_body_rate, lambda r, s: (_rand_rpy(r, s), _rand_vecs(r, s))),
 }
 
 
@@ -729,7 +721,7 @@ def test_batched_equals_loop(name, seed, shape):
     args = make(np.random.default_rng(seed), shape)
     out = fn(*args)
     n = int(np.prod(shape))
-    flat_args = [a.reshape((n,) + a.shape[len(shape):]) for a in args]
+    flat_args = [a.reshape((n,) + a.shape[len(shape) :]) for a in args]
     loop = np.stack([fn(*(a[i] for a in flat_args)) for i in range(n)])
     assert out.shape == shape + loop.shape[1:]
     # numpy's SIMD ufunc loops (sin, arctan2, ...) on arrays may differ from the 0-d path by
@@ -758,19 +750,20 @@ def test_single_precision_input_is_computed_in_double():
     phi = rng.normal(size=(200, 3)).astype(np.float32)
     q4 = rng.normal(size=(200, 4)).astype(np.float32)
     eps = np.finfo(float).eps
-    for fn, x in ((rot.rotvec_to_quat, phi), (rot.quat_normalize, q4),
-                  (rot.rotmat_to_quat, rot.quat_to_rotmat(q4).astype(np.float32))):
+    for fn, x in (
+        (rot.rotvec_to_quat, phi),
+        (rot.quat_normalize, q4),
+        (rot.rotmat_to_quat, rot.quat_to_rotmat(q4).astype(np.float32)),
+    ):
         q = fn(x)
         assert q.dtype == np.float64
         np.testing.assert_array_equal(q, fn(x.astype(np.float64)))
         assert np.max(np.abs(np.linalg.norm(q, axis=-1) - 1.0)) <= 4 * eps
-    for fn, x in ((rot.rotvec_to_rotmat, phi), (rot.quat_to_rotmat, q4),
-                  (rot.mrp_to_rotmat, 0.3 * phi)):
+    for fn, x in ((rot.rotvec_to_rotmat, phi), (rot.quat_to_rotmat, q4), (rot.mrp_to_rotmat, 0.3 * phi)):
         R = fn(x)
         assert R.dtype == np.float64
         np.testing.assert_array_equal(R, fn(x.astype(np.float64)))
-        np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape),
-                                   rtol=0, atol=1e-14)
+        np.testing.assert_allclose(R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), rtol=0, atol=1e-14)
 
 
 def test_broadcasting_single_against_batch():
@@ -779,13 +772,10 @@ def test_broadcasting_single_against_batch():
     q = _rand_quats(rng, ())
     v = _rand_vecs(rng, ())
     vs = _rand_vecs(rng, (5,))
-    np.testing.assert_allclose(rot.quat_multiply(q, qs),
-                               np.stack([rot.quat_multiply(q, x) for x in qs]), atol=1e-16)
-    np.testing.assert_allclose(rot.quat_multiply(qs, q),
-                               np.stack([rot.quat_multiply(x, q) for x in qs]), atol=1e-16)
-    np.testing.assert_allclose(rot.quat_rotate(qs, v),
-                               np.stack([rot.quat_rotate(x, v) for x in qs]), atol=1e-15)
-    np.testing.assert_allclose(rot.quat_rotate(q, vs),
-                               np.stack([rot.quat_rotate(q, x) for x in vs]), atol=1e-15)
-    np.testing.assert_allclose(rot.quat_propagate(qs, v, 0.5),
-                               np.stack([rot.quat_propagate(x, v, 0.5) for x in qs]), atol=1e-16)
+    np.testing.assert_allclose(rot.quat_multiply(q, qs), np.stack([rot.quat_multiply(q, x) for x in qs]), atol=1e-16)
+    np.testing.assert_allclose(rot.quat_multiply(qs, q), np.stack([rot.quat_multiply(x, q) for x in qs]), atol=1e-16)
+    np.testing.assert_allclose(rot.quat_rotate(qs, v), np.stack([rot.quat_rotate(x, v) for x in qs]), atol=1e-15)
+    np.testing.assert_allclose(rot.quat_rotate(q, vs), np.stack([rot.quat_rotate(q, x) for x in vs]), atol=1e-15)
+    np.testing.assert_allclose(
+        rot.quat_propagate(qs, v, 0.5), np.stack([rot.quat_propagate(x, v, 0.5) for x in qs]), atol=1e-16
+    )

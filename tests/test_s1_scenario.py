@@ -40,9 +40,16 @@ def test_mcns_equals_cqe_without_multiplicative_noise(s1):
     """SPEC's sanity check on the diagram: zeta = 0 and S = 0 (zeta_variance 0, correlation 0)
     make CQE-MCNS's estimates identical to the CQE's (to round-off: the MCNS adds its zero
     terms in another order; 1e-12 relative is ~1e4 ulp of headroom over 600 s)."""
-    run = s1.simulate(2, overrides=["duration_s=600", "scoring.score_from_s=300",
-                                    "sensors.multiplicative_noise.zeta_variance=0.0",
-                                    "sensors.multiplicative_noise.correlation=0.0"], estimators=["cqe", "cqe_mcns"])
+    run = s1.simulate(
+        2,
+        overrides=[
+            "duration_s=600",
+            "scoring.score_from_s=300",
+            "sensors.multiplicative_noise.zeta_variance=0.0",
+            "sensors.multiplicative_noise.correlation=0.0",
+        ],
+        estimators=["cqe", "cqe_mcns"],
+    )
     for port in ("q_IB_hat", "bias_B_hat", "covariance"):
         a, b = run.values(f"cqe/{port}"), run.values(f"cqe_mcns/{port}")
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * np.max(np.abs(a)))
@@ -72,8 +79,18 @@ def test_cli_lists_and_runs_s1(tmp_path, drake_att_cli):
     listed = drake_att_cli("list")
     assert listed.returncode == 0 and "s1_cqe" in listed.stdout
     out = tmp_path / "s1"
-    run = drake_att_cli("run", "s1_cqe", "--set", "duration_s=300", "--set", "scoring.score_from_s=100",
-                        "--no-figures", "--quiet", "--out", str(out))
+    run = drake_att_cli(
+        "run",
+        "s1_cqe",
+        "--set",
+        "duration_s=300",
+        "--set",
+        "scoring.score_from_s=100",
+        "--no-figures",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["estimators"]) == {"cqe", "cqe_mcns", "mekf"}

@@ -50,8 +50,9 @@ def test_static_truth_is_at_rest_at_zero_attitude(static):
     np.testing.assert_allclose(q, np.tile([1.0, 0.0, 0.0, 0.0], (len(q), 1)), atol=1e-15)
 
 
-@pytest.mark.parametrize("offset, stars, solved", [(0.0, 7, True), (3.0, 3, True), (-3.0, 3, True),
-                                                   (6.0, 0, False), (-6.0, 0, False)])
+@pytest.mark.parametrize(
+    "offset, stars, solved", [(0.0, 7, True), (3.0, 3, True), (-3.0, 3, True), (6.0, 0, False), (-6.0, 0, False)]
+)
 def test_table1_on_the_diagram(static, offset, stars, solved):
     """Table 1's set-up on the scenario's screen (pattern seed 18): one iteration from A0 =
     offset on all three axes identifies the paper's 7 / 3 / 3 stars and fails at +-6 deg; a
@@ -66,8 +67,9 @@ def test_table1_on_the_diagram(static, offset, stars, solved):
     else:
         assert status[-1, 2] >= 1  # skipped and counted
         # The held estimate is the initial guess, not a silent wrong solution.
-        assert err == pytest.approx(np.degrees(np.linalg.norm(rot.quat_to_rotvec(rot.rpy_to_quat(
-            np.radians([offset] * 3))))), rel=1e-9)
+        assert err == pytest.approx(
+            np.degrees(np.linalg.norm(rot.quat_to_rotvec(rot.rpy_to_quat(np.radians([offset] * 3))))), rel=1e-9
+        )
 
 
 def test_iterations_contract_from_minus_two_degrees_noise_free(static):
@@ -75,9 +77,13 @@ def test_iterations_contract_from_minus_two_degrees_noise_free(static):
     iteration down to round-off, and the stars identified rise to all 7."""
     errs, stars = [], []
     for k in range(1, 5):
-        run = static.simulate(overrides=[f"estimators.{EST}.initial_attitude_rpy_deg=[-2.0,-2.0,-2.0]",
-                                         f"estimators.{EST}.max_iterations={k}",
-                                         f"estimators.{EST}.convergence_tolerance_arcsec=0.0"])
+        run = static.simulate(
+            overrides=[
+                f"estimators.{EST}.initial_attitude_rpy_deg=[-2.0,-2.0,-2.0]",
+                f"estimators.{EST}.max_iterations={k}",
+                f"estimators.{EST}.convergence_tolerance_arcsec=0.0",
+            ]
+        )
         e, d = _first_frame(run)
         errs.append(e)
         stars.append(int(d[1]))
@@ -90,8 +96,11 @@ def test_naive_matching_fails_under_tilt_where_the_corrected_one_succeeds(static
     """The table tilted 6 deg in roll and pitch, exact A0: the corrected matching identifies
     all 7 stars and returns the truth; the classic (naive) matching, blind to the camera's
     offset, identifies fewer than 3 and the frame is skipped."""
-    over = ["plant.initial_attitude_rpy_deg=[6.0,6.0,0.0]", f"estimators.{EST}.initial_attitude_rpy_deg=[6.0,6.0,0.0]",
-            f"estimators.{EST}.max_iterations=10"]
+    over = [
+        "plant.initial_attitude_rpy_deg=[6.0,6.0,0.0]",
+        f"estimators.{EST}.initial_attitude_rpy_deg=[6.0,6.0,0.0]",
+        f"estimators.{EST}.max_iterations=10",
+    ]
     err, diag = _first_frame(static.simulate(overrides=over + [f"estimators.{EST}.identification=corrected"]))
     assert int(diag[1]) == 7 and err < 1e-9
     err, diag = _first_frame(static.simulate(overrides=over + [f"estimators.{EST}.identification=naive"]))

@@ -63,8 +63,12 @@ def test_consistent_filter_nees_in_band_over_20_seeds_when_truth_matches_its_mod
     NEES over 20 seeds at t = 60, 120, 180 s lies in its two-sided 99% chi-square band
     (60 dof / 20)."""
     arw = float(np.sqrt(5e-5) * RAD_PER_RT_S_IN_DEG_PER_RT_H)
-    over = ["sensors.st.sigma_vector_urad=125000.0", f"sensors.gyro.arw_deg_per_rt_h={arw!r}", "duration_s=181",
-            "scoring.score_from_s=60"]
+    over = [
+        "sensors.st.sigma_vector_urad=125000.0",
+        f"sensors.gyro.arw_deg_per_rt_h={arw!r}",
+        "duration_s=181",
+        "scoring.score_from_s=60",
+    ]
     checks = (60.0, 120.0, 180.0)
     nees = np.empty((20, len(checks)))
     for k, seed in enumerate(range(1, 21)):
@@ -84,8 +88,18 @@ def test_cli_lists_and_runs_s4(tmp_path, drake_att_cli):
     listed = drake_att_cli("list")
     assert listed.returncode == 0 and "s4_lie_group" in listed.stdout
     out = tmp_path / "s4"
-    run = drake_att_cli("run", "s4_lie_group", "--set", "duration_s=200", "--set", "scoring.score_from_s=100",
-                        "--no-figures", "--quiet", "--out", str(out))
+    run = drake_att_cli(
+        "run",
+        "s4_lie_group",
+        "--set",
+        "duration_s=200",
+        "--set",
+        "scoring.score_from_s=100",
+        "--no-figures",
+        "--quiet",
+        "--out",
+        str(out),
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["estimators"]) == {"lie_group", "lie_group_paper_literal", "quaternion_ekf"}
@@ -120,11 +134,16 @@ def test_consistent_filter_converges_from_120_deg_in_any_direction_and_the_liter
         q_hat0 = rot.quat_multiply(q0, rot.rotvec_to_quat(np.radians(120.0) * axis))
         rpy = [float(a) for a in np.degrees(rot.quat_to_rpy(q_hat0))]
         over = [f"estimators.{n}.initial_attitude_rpy_deg={rpy}" for n in ("lie_group", "lie_group_paper_literal")]
-        run = s4.simulate(1, overrides=over + ["duration_s=400", "scoring.score_from_s=300"],
-                          estimators=["lie_group", "lie_group_paper_literal"])
+        run = s4.simulate(
+            1,
+            overrides=over + ["duration_s=400", "scoring.score_from_s=300"],
+            estimators=["lie_group", "lie_group_paper_literal"],
+        )
         q_start = rot.rpy_to_quat(np.radians(rpy))  # what the override gives the filters
         assert np.degrees(np.linalg.norm(rot.quat_error_rotvec(q_start, q0))) == pytest.approx(120.0, abs=1e-6)
-        final = {n: np.degrees(np.abs(estimator_errors(run, n)["dtheta"][-1])) for n in
-                 ("lie_group", "lie_group_paper_literal")}
+        final = {
+            n: np.degrees(np.abs(estimator_errors(run, n)["dtheta"][-1]))
+            for n in ("lie_group", "lie_group_paper_literal")
+        }
         assert final["lie_group"].max() < 0.005, (axis, final)
         assert np.linalg.norm(final["lie_group_paper_literal"]) > 1.0, (axis, final)

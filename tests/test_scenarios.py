@@ -29,19 +29,22 @@ def test_base_scenario_loads_and_round_trips():
     assert dump_scenario(again) == dump_scenario(s)
 
 
-@pytest.mark.parametrize("override, field, value", [
-    ("sensors.st1.sigma_boresight_arcsec=-1", "sigma_boresight_arcsec", "-1"),
-    ("sensors.gyro.period_s=0", "period_s", "0"),
-    ("estimators.mekf.star_trackers=[st9]", "star_trackers", "st9"),
-    ("estimators.mekf.gyro=nogyro", "gyro", "nogyro"),
-    ("plant.inertia_kg_m2=[1.0, -2.0, 2.0]", "inertia_kg_m2", "-2.0"),
-    ("plant.inertia_kg_m2=[1.0, 1.0, 5.0]", "inertia_kg_m2", "triangle"),
-    ("duration_s=-5", "duration_s", "-5"),
-    ("sensors.st1.dropout_probability=1.0", "dropout_probability", "1.0"),
-    ("sensors.st1.mode=camera", "mode", "camera"),
-    ("estimators.mekf.period_s=0.5", "period_s", "0.5"),
-    ("simulation.integration_scheme=magic", "integration_scheme", "magic"),
-])
+@pytest.mark.parametrize(
+    "override, field, value",
+    [
+        ("sensors.st1.sigma_boresight_arcsec=-1", "sigma_boresight_arcsec", "-1"),
+        ("sensors.gyro.period_s=0", "period_s", "0"),
+        ("estimators.mekf.star_trackers=[st9]", "star_trackers", "st9"),
+        ("estimators.mekf.gyro=nogyro", "gyro", "nogyro"),
+        ("plant.inertia_kg_m2=[1.0, -2.0, 2.0]", "inertia_kg_m2", "-2.0"),
+        ("plant.inertia_kg_m2=[1.0, 1.0, 5.0]", "inertia_kg_m2", "triangle"),
+        ("duration_s=-5", "duration_s", "-5"),
+        ("sensors.st1.dropout_probability=1.0", "dropout_probability", "1.0"),
+        ("sensors.st1.mode=camera", "mode", "camera"),
+        ("estimators.mekf.period_s=0.5", "period_s", "0.5"),
+        ("simulation.integration_scheme=magic", "integration_scheme", "magic"),
+    ],
+)
 def test_invalid_values_name_the_field_and_the_value(override, field, value):
     with pytest.raises(ConfigError) as info:
         apply_overrides(load_scenario(text=BASE), [override])
@@ -72,8 +75,10 @@ def test_duplicate_sensor_name_is_an_error():
 
 
 def test_overrides_by_name_and_index():
-    s = apply_overrides(load_scenario(text=BASE), ["sensors.st1.sigma_boresight_arcsec=20",
-                                                   "estimators.0.initial_attitude_sigma_deg=2", "seed=7"])
+    s = apply_overrides(
+        load_scenario(text=BASE),
+        ["sensors.st1.sigma_boresight_arcsec=20", "estimators.0.initial_attitude_sigma_deg=2", "seed=7"],
+    )
     assert s.sensors[1].sigma_boresight_arcsec == 20.0
     assert s.estimators[0].initial_attitude_sigma_deg == 2.0
     assert s.seed == 7
@@ -184,11 +189,14 @@ def test_cli_list(capsys):
     assert DEFAULT_SCENARIO in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("plant_yaml", [
-    "plant: !PrescribedRateConfig {constant_deg_per_s: [0.0, 0.05, 0.0], amplitude_deg_per_s: [0.01, 0.0, 0.0],"
-    " frequency_rad_per_s: [0.1, 0.0, 0.0]}",
-    "plant: !PrescribedRpyConfig {times_s: [0.0, 20.0, 60.0], rpy_deg: [[2.0, 3.0, 0.5], [2.0, 3.0, 0.5], [4.0, 7.0, 0.9]]}",
-])
+@pytest.mark.parametrize(
+    "plant_yaml",
+    [
+        "plant: !PrescribedRateConfig {constant_deg_per_s: [0.0, 0.05, 0.0], amplitude_deg_per_s: [0.01, 0.0, 0.0],"
+        " frequency_rad_per_s: [0.1, 0.0, 0.0]}",
+        "plant: !PrescribedRpyConfig {times_s: [0.0, 20.0, 60.0], rpy_deg: [[2.0, 3.0, 0.5], [2.0, 3.0, 0.5], [4.0, 7.0, 0.9]]}",
+    ],
+)
 def test_kinematic_truth_scenarios_run_end_to_end(plant_yaml):
     """Prescribed (kinematic) truth drives the same sensors and MEKF; the filter tracks it."""
     from drake_att.analysis.metrics import compute_metrics, estimator_errors
@@ -227,7 +235,10 @@ def test_monte_carlo_pool_matches_in_process_runs():
     local = run_seeds(s, [1, 2, 3], workers=1)
     for a, b in zip(pooled, local, strict=True):
         assert a["metrics"]["seed"] == b["metrics"]["seed"]
-        assert a["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] == b["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"]
+        assert (
+            a["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"]
+            == b["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"]
+        )
     assert "series" in pooled[1] and "series" not in pooled[0]
     mean, std = metric_mean_std(pooled, "attitude_rmse_deg", "mekf")
     per_seed = np.array([r["metrics"]["estimators"]["mekf"]["attitude_rmse_deg"] for r in pooled])
@@ -243,18 +254,22 @@ def test_estimator_plugins_start_from_the_configured_estimate_in_si():
     from drake_att.scenarios.builder import ScenarioDiagram
 
     bias_deg_h = [3.0, -2.0, 1.5]
-    s = load_scenario(text=BASE.replace(
-        "!MekfConfig {name: mekf, period_s: 1.0, gyro: gyro, star_trackers: [st1]}",
-        "!MekfConfig {name: mekf, period_s: 1.0, gyro: gyro, star_trackers: [st1], initial_bias_deg_per_h: "
-        "[3.0, -2.0, 1.5], initial_attitude_rpy_deg: [0.0, 0.0, 10.0], initial_attitude_sigma_deg: 2.0, "
-        "initial_bias_sigma_deg_per_h: 4.0}"))
+    s = load_scenario(
+        text=BASE.replace(
+            "!MekfConfig {name: mekf, period_s: 1.0, gyro: gyro, star_trackers: [st1]}",
+            "!MekfConfig {name: mekf, period_s: 1.0, gyro: gyro, star_trackers: [st1], initial_bias_deg_per_h: "
+            "[3.0, -2.0, 1.5], initial_attitude_rpy_deg: [0.0, 0.0, 10.0], initial_attitude_sigma_deg: 2.0, "
+            "initial_bias_sigma_deg_per_h: 4.0}",
+        )
+    )
     sd = ScenarioDiagram(s)
     est = sd.estimators["mekf"]
     x = est.estimate_vector(est.CreateDefaultContext())
     np.testing.assert_allclose(x[4:7], np.array(bias_deg_h) * np.pi / 180 / 3600, rtol=1e-15)
     np.testing.assert_allclose(x[:4], [np.cos(np.radians(5.0)), 0.0, 0.0, np.sin(np.radians(5.0))], atol=1e-15)
-    np.testing.assert_allclose(np.diag(x[7:43].reshape(6, 6)),
-                               [np.radians(2.0) ** 2] * 3 + [(4.0 * np.pi / 180 / 3600) ** 2] * 3, rtol=1e-14)
+    np.testing.assert_allclose(
+        np.diag(x[7:43].reshape(6, 6)), [np.radians(2.0) ** 2] * 3 + [(4.0 * np.pi / 180 / 3600) ** 2] * 3, rtol=1e-14
+    )
 
 
 @pytest.mark.parametrize("seed", [-1, 2**32, 99999999999999999999, 2.0, True, "3"])
@@ -291,10 +306,27 @@ def test_truth_going_non_finite_fails_loudly_and_writes_nothing(tmp_path):
     import sys
 
     out = tmp_path / "nan"
-    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "run", "cubesat_single_star_tracker", "--set",
-                        "plant.initial_rate_deg_per_s=[5000,1000,0]", "--set", "duration_s=20", "--set",
-                        "scoring.score_from_s=5", "--quiet", "--no-figures", "--out", str(out)],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "drake_att.cli",
+            "run",
+            "cubesat_single_star_tracker",
+            "--set",
+            "plant.initial_rate_deg_per_s=[5000,1000,0]",
+            "--set",
+            "duration_s=20",
+            "--set",
+            "scoring.score_from_s=5",
+            "--quiet",
+            "--no-figures",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2
     assert "the truth signal 'rigid_body_plant/q_IB' is not finite from t =" in r.stderr
     assert "Traceback" not in r.stderr and not out.exists()
@@ -335,7 +367,9 @@ def test_an_estimate_going_non_finite_fails_the_run_naming_it(monkeypatch, compi
             return new, Phi, Q
 
         monkeypatch.setattr(mekf.MultiplicativeEKF, "predict_linearized", poisoned)
-    sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=20", "scoring.score_from_s=1"]))
+    sd = ScenarioDiagram(
+        apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=20", "scoring.score_from_s=1"])
+    )
     with pytest.raises(NonFiniteRunError, match=r"the estimate 'single/q_IB_hat' is not finite from t = "):
         sd.simulate(1)
     assert steps["left"] <= 0  # the poison was reached
@@ -347,23 +381,26 @@ def test_metrics_json_is_strict_json_with_null_for_non_finite_numbers(tmp_path):
 
     from drake_att.analysis.report import write_metrics_json
 
-    path = write_metrics_json({"a": float("nan"), "b": [1.0, float("inf"), -float("inf")], "c": {"d": 2.5}},
-                              str(tmp_path / "m.json"))
+    path = write_metrics_json(
+        {"a": float("nan"), "b": [1.0, float("inf"), -float("inf")], "c": {"d": 2.5}}, str(tmp_path / "m.json")
+    )
 
     def refuse(name):
         raise ValueError(f"non-strict JSON constant {name}")
 
-    assert json.loads(open(path).read(), parse_constant=refuse) == {"a": None, "b": [1.0, None, None],
-                                                                     "c": {"d": 2.5}}
+    assert json.loads(open(path).read(), parse_constant=refuse) == {"a": None, "b": [1.0, None, None], "c": {"d": 2.5}}
 
 
-@pytest.mark.parametrize("text, message", [
-    ("", "the scenario is empty"),
-    ("- 1\n- 2\n", "got a YAML list at the top level"),
-    ("name: x\nduration_s: 5.0\nduration_s: 6.0\n", r"duplicate key 'duration_s' at line 3 \(first at line 2\)"),
-    ("name: x\nbogus_key: 1\n", r"unknown field\(s\) \['bogus_key'\]; allowed: \['name', "),
-    ("name: x\nduration_s: [\n", "invalid YAML"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("", "the scenario is empty"),
+        ("- 1\n- 2\n", "got a YAML list at the top level"),
+        ("name: x\nduration_s: 5.0\nduration_s: 6.0\n", r"duplicate key 'duration_s' at line 3 \(first at line 2\)"),
+        ("name: x\nbogus_key: 1\n", r"unknown field\(s\) \['bogus_key'\]; allowed: \['name', "),
+        ("name: x\nduration_s: [\n", "invalid YAML"),
+    ],
+)
 def test_bad_scenario_files_are_refused_with_a_message(text, message):
     """What used to be tracebacks or silent (a duplicate key kept the last value): a message
     naming the file and what is wrong."""
@@ -373,14 +410,19 @@ def test_bad_scenario_files_are_refused_with_a_message(text, message):
         load_scenario(text=text)
 
 
-@pytest.mark.parametrize("override, section", [("plant=5", "plant"), ("sensors.st1=5", "sensors.st1"),
-                                               ("estimators.single=[1, 2]", "estimators.single")])
+@pytest.mark.parametrize(
+    "override, section",
+    [("plant=5", "plant"), ("sensors.st1=5", "sensors.st1"), ("estimators.single=[1, 2]", "estimators.single")],
+)
 def test_overriding_a_whole_section_with_a_value_names_its_fields(override, section):
     from drake_att.scenarios.config import ConfigError, apply_overrides
     from drake_att.scenarios.library import load
 
-    with pytest.raises(ConfigError, match=rf"--set {section}: got .*; {section} is a section \(\w+Config\): set one "
-                                          r"of its fields"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"--set {section}: got .*; {section} is a section \(\w+Config\): set one "
+        r"of its fields",
+    ):
         apply_overrides(load("cubesat_single_star_tracker"), [override])
 
 
@@ -390,9 +432,25 @@ def test_out_naming_an_existing_file_is_refused(tmp_path):
 
     f = tmp_path / "a_file"
     f.write_text("keep me")
-    r = subprocess.run([sys.executable, "-m", "drake_att.cli", "run", "cubesat_single_star_tracker", "--set",
-                        "duration_s=5", "--set", "scoring.score_from_s=1", "--quiet", "--no-figures", "--out", str(f)],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "drake_att.cli",
+            "run",
+            "cubesat_single_star_tracker",
+            "--set",
+            "duration_s=5",
+            "--set",
+            "scoring.score_from_s=1",
+            "--quiet",
+            "--no-figures",
+            "--out",
+            str(f),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "is an existing file, not a folder" in r.stderr and "Traceback" not in r.stderr
     assert f.read_text() == "keep me"
 
@@ -430,8 +488,9 @@ def test_a_failed_write_leaves_the_previous_results_untouched(tmp_path, monkeypa
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
 
-    sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"),
-                                         ["duration_s=5", "scoring.score_from_s=1"]))
+    sd = ScenarioDiagram(
+        apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=5", "scoring.score_from_s=1"])
+    )
     run = sd.simulate(1)
     out = tmp_path / "r"
     report.write_results(sd, run, compute_metrics(run), str(out), figures=False)
@@ -456,14 +515,17 @@ def test_result_folder_carries_a_manifest_of_its_files(tmp_path):
     from drake_att.scenarios.config import apply_overrides
     from drake_att.scenarios.library import load
 
-    sd = ScenarioDiagram(apply_overrides(load("cubesat_single_star_tracker"),
-                                         ["duration_s=5", "scoring.score_from_s=1"]))
+    sd = ScenarioDiagram(
+        apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=5", "scoring.score_from_s=1"])
+    )
     run = sd.simulate(1)
     out = tmp_path / "r"
     written = report.write_results(sd, run, compute_metrics(run), str(out), figures=False)
     manifest = json.loads((out / "manifest.json").read_text())
     assert (manifest["scenario"], manifest["seed"]) == ("cubesat_single_star_tracker", 1)
-    assert sorted(e["file"] for e in manifest["files"]) == sorted(p.name for p in out.iterdir() if p.name != "manifest.json")
+    assert sorted(e["file"] for e in manifest["files"]) == sorted(
+        p.name for p in out.iterdir() if p.name != "manifest.json"
+    )
     assert written[-1].endswith("manifest.json")
     assert report.check_manifest(str(out)) == []
     (out / "metrics.json").write_text("{}")
@@ -481,19 +543,34 @@ def test_default_folder_of_a_modified_run_differs_from_the_unmodified_one(tmp_pa
 
     outs = []
     for duration in (5, 6):
-        r = _cli("run", "cubesat_single_star_tracker", "--no-figures", "--quiet", "--set", f"duration_s={duration}",
-                 "--set", "scoring.score_from_s=1", cwd=tmp_path)
+        r = _cli(
+            "run",
+            "cubesat_single_star_tracker",
+            "--no-figures",
+            "--quiet",
+            "--set",
+            f"duration_s={duration}",
+            "--set",
+            "scoring.score_from_s=1",
+            cwd=tmp_path,
+        )
         assert r.returncode == 0, r.stderr[-1000:]
         outs.append(re.search(r"Wrote \d+ files to (\S+)/", r.stdout).group(1))
     assert outs[0] != outs[1] and all(o.startswith("out/cubesat_single_star_tracker_seed1_") for o in outs)
     assert all((tmp_path / o / "metrics.json").is_file() for o in outs)
 
 
-@pytest.mark.parametrize("item, message", [
-    ("!GyroConfig {name: g, bogus: 1}", r"sensors\[0\] \(g, !GyroConfig\): unknown field\(s\) \['bogus'\]; allowed: "
-                                        r"\['name', 'period_s'"),
-    ("!NopeConfig {name: g}", r"sensors\[0\]: unknown type !NopeConfig; registered: \["),
-])
+@pytest.mark.parametrize(
+    "item, message",
+    [
+        (
+            "!GyroConfig {name: g, bogus: 1}",
+            r"sensors\[0\] \(g, !GyroConfig\): unknown field\(s\) \['bogus'\]; allowed: "
+            r"\['name', 'period_s'",
+        ),
+        ("!NopeConfig {name: g}", r"sensors\[0\]: unknown type !NopeConfig; registered: \["),
+    ],
+)
 def test_unknown_field_or_type_in_a_list_item_names_the_item_and_what_is_allowed(item, message):
     from drake_att.scenarios.config import ConfigError, load_scenario
 

@@ -84,14 +84,22 @@ def test_metadata_names_the_truth_each_kind_and_each_estimators_gyro(result):
     assert (meta["schema"], meta["scenario"], meta["seed"]) == (1, "score_mix", 4)
     assert meta["wall_time_s"] == _metrics(os.path.join(result, "metrics.json"))["wall_time_s"]
     assert meta["truth"] == {"attitude": "rigid_body_plant/q_IB", "rate": "rigid_body_plant/w_IB_B"}
-    expected = {"mekf1": ("gyro_bias", "g1/bias_B", "bias_B_hat"), "mekf2": ("gyro_bias", "g2/bias_B", "bias_B_hat"),
-                "fusion": ("gyro_bias", "g2/bias_B", "bias_B_hat"), "gpf": ("body_rate", None, "w_IB_B_hat")}
+    expected = {
+        "mekf1": ("gyro_bias", "g1/bias_B", "bias_B_hat"),
+        "mekf2": ("gyro_bias", "g2/bias_B", "bias_B_hat"),
+        "fusion": ("gyro_bias", "g2/bias_B", "bias_B_hat"),
+        "gpf": ("body_rate", None, "w_IB_B_hat"),
+    }
     assert list(meta["estimators"]) == list(expected)
     for name, (kind, bias, second) in expected.items():
         e = meta["estimators"][name]
         assert (e["second_kind"], e["true_bias"]) == (kind, bias), name
-        signals = {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
-                   "covariance": f"{name}/covariance", "status": f"{name}/status"}
+        signals = {
+            "attitude": f"{name}/q_IB_hat",
+            "second": f"{name}/{second}",
+            "covariance": f"{name}/covariance",
+            "status": f"{name}/status",
+        }
         if name != "fusion":  # estimators with measurement inputs also log their innovations
             signals["innovations"] = f"{name}/innovations"
             assert e["inputs"] == ["st"], name
@@ -209,19 +217,30 @@ BAD_INPUTS = {
     "log not an npz": (lambda out: _garbage(out, "log.npz"), "log.npz", "not an .npz archive"),
     "metadata naming an unlogged signal": (
         lambda out: _with_metadata(out, lambda m: m["truth"].update(attitude="nowhere/q_IB")),
-        "log.npz", "truth.attitude = 'nowhere/q_IB' is not a logged signal"),
+        "log.npz",
+        "truth.attitude = 'nowhere/q_IB' is not a logged signal",
+    ),
     "metadata naming a truth of the wrong kind": (
         lambda out: _with_metadata(out, lambda m: m["truth"].update(attitude="g1/bias_B")),
-        "log.npz", "truth attitude 'g1/bias_B': expected 4 components per sample"),
-    "metadata of another schema": (lambda out: _with_metadata(out, lambda m: m.update(schema=99)),
-                                   "log.npz", "schema 99"),
+        "log.npz",
+        "truth attitude 'g1/bias_B': expected 4 components per sample",
+    ),
+    "metadata of another schema": (
+        lambda out: _with_metadata(out, lambda m: m.update(schema=99)),
+        "log.npz",
+        "schema 99",
+    ),
     "config not YAML of a scenario": (lambda out: _garbage(out, "config.yaml"), "config.yaml", "not a valid scenario"),
     "config with an invalid value": (
         lambda out: _edit_config(out, "duration_s: 40.0", "duration_s: -5.0"),
-        "config.yaml", "duration_s"),
+        "config.yaml",
+        "duration_s",
+    ),
     "config of another scenario": (
         lambda out: _edit_config(out, "name: score_mix", "name: other"),
-        "log.npz", "the log is of scenario 'score_mix', the configuration is 'other'"),
+        "log.npz",
+        "the log is of scenario 'score_mix', the configuration is 'other'",
+    ),
 }
 
 

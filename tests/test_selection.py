@@ -13,18 +13,26 @@ from drake_att.scenarios.library import load
 from drake_att.scenarios.selection import fused_sources, with_estimators, with_fused_sources
 
 # f2 fuses f1 and c; f1 fuses a and b; a, b, c fuse nothing.
-CONFIGS = {"f2": SimpleNamespace(sources=["f1", "c"]), "f1": SimpleNamespace(sources=["a", "b"]),
-           "a": SimpleNamespace(), "b": SimpleNamespace(), "c": SimpleNamespace()}
+CONFIGS = {
+    "f2": SimpleNamespace(sources=["f1", "c"]),
+    "f1": SimpleNamespace(sources=["a", "b"]),
+    "a": SimpleNamespace(),
+    "b": SimpleNamespace(),
+    "c": SimpleNamespace(),
+}
 
 
 @pytest.mark.timeout(10)
-@pytest.mark.parametrize("names, expected", [
-    (["f2"], ["f2", "f1", "c", "a", "b"]),  # level by level: f2; its sources f1, c; f1's a, b
-    (["f1"], ["f1", "a", "b"]),
-    (["a", "f1"], ["a", "f1", "b"]),        # a already listed: once
-    (["c", "c", "a"], ["c", "a"]),          # duplicates once, order kept
-    ([], []),
-])
+@pytest.mark.parametrize(
+    "names, expected",
+    [
+        (["f2"], ["f2", "f1", "c", "a", "b"]),  # level by level: f2; its sources f1, c; f1's a, b
+        (["f1"], ["f1", "a", "b"]),
+        (["a", "f1"], ["a", "f1", "b"]),  # a already listed: once
+        (["c", "c", "a"], ["c", "a"]),  # duplicates once, order kept
+        ([], []),
+    ],
+)
 def test_a_selection_gains_every_source_of_its_fusions_breadth_first_once(names, expected):
     assert with_fused_sources(CONFIGS, names) == expected
     assert fused_sources(CONFIGS["f1"]) == ["a", "b"] and fused_sources(CONFIGS["a"]) == []
@@ -47,8 +55,11 @@ def test_a_selection_is_a_copy_in_the_scenarios_order():
 def test_a_bad_selection_is_refused_naming_the_field_and_the_choices():
     s = load("cubesat_dual_star_tracker")
     names = [e.name for e in s.estimators]
-    with pytest.raises(ConfigError, match=r"^estimators: got 'single'; choose a list of names from .*\(empty: sensors "
-                                          r"only\)$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^estimators: got 'single'; choose a list of names from .*\(empty: sensors "
+        r"only\)$",
+    ):
         with_estimators(s, "single")  # a string, not a list of names
     with pytest.raises(ConfigError, match=r"^--estimators: got \['ghost'\]; choose a list of names from"):
         with_estimators(s, ["ghost"], field="--estimators")

@@ -175,8 +175,14 @@ def sample_times(period: float, seed: int = 0) -> list[float]:
     ks = [0, 1, 2, 3, 10, 254, 255, 256, 257, 258, 511, 512, 513, 1000, 3000, 2999, 255, 0, 4]
     times = [0.0, 1e-13, 1e-10, 1e-6]
     for k in ks:
-        times += [k * period, k * period - 0.5 * period, k * period + 1e-12, k * period - 1e-12,
-                  k * period + 0.25 * period, (k - 1) * period + period]
+        times += [
+            k * period,
+            k * period - 0.5 * period,
+            k * period + 1e-12,
+            k * period - 1e-12,
+            k * period + 0.25 * period,
+            (k - 1) * period + period,
+        ]
     rng = np.random.default_rng(seed)
     times += list(rng.uniform(0.0, 600 * period, 150))
     times += list(np.arange(0.0, 300 * period, 0.37 * period))  # ascending through a block boundary
@@ -198,11 +204,19 @@ def seed_uniform(seed: int) -> np.ndarray:
 # Star tracker
 # ----------------------------------------------------------------------------------
 def make_tracker(mode="quaternion", period=0.1, **noise):
-    kwargs = {"sigma_cross_boresight_rad": 2e-4, "sigma_boresight_rad": 1e-3, "dropout_probability": 0.2,
-              "outage_windows_s": ((3.0, 7.5), (25.55, 25.65))}
+    kwargs = {
+        "sigma_cross_boresight_rad": 2e-4,
+        "sigma_boresight_rad": 1e-3,
+        "dropout_probability": 0.2,
+        "outage_windows_s": ((3.0, 7.5), (25.55, 25.65)),
+    }
     if mode == "vectors":
-        kwargs = {"sigma_vector_rad": 3e-4, "dropout_probability": 0.2, "outage_windows_s": ((3.0, 7.5),),
-                  "references_I": [[1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [-0.3, 0.2, 0.9]]}
+        kwargs = {
+            "sigma_vector_rad": 3e-4,
+            "dropout_probability": 0.2,
+            "outage_windows_s": ((3.0, 7.5),),
+            "references_I": [[1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [-0.3, 0.2, 0.9]],
+        }
     kwargs.update(noise)
     return StarTracker("st_eq", period, q_BS=(0.8, -0.3, 0.4, 0.2), mode=mode, **kwargs)
 
@@ -257,8 +271,13 @@ def test_star_tracker_follows_parameter_and_seed_changes_in_one_context():
     oracle, rng, times = OldStarTracker(st), np.random.default_rng(5), sample_times(0.1, 5)[:80]
     check_tracker_quaternion(st, context, oracle, times, rng)
     before = st.get_output_port().Eval(context).copy()
-    st.set_noise(context, sigma_cross_boresight_rad=5e-3, sigma_boresight_rad=1e-4, dropout_probability=0.5,
-                 outage_windows_s=((0.05, 1.0),))
+    st.set_noise(
+        context,
+        sigma_cross_boresight_rad=5e-3,
+        sigma_boresight_rad=1e-4,
+        dropout_probability=0.5,
+        outage_windows_s=((0.05, 1.0),),
+    )
     after = st.get_output_port().Eval(context).copy()
     assert not np.array_equal(before, after)
     check_tracker_quaternion(st, context, oracle, times, rng)
@@ -316,8 +335,14 @@ def test_star_tracker_vector_output_with_the_noise_input_connected():
     context = initialized_context(st, 2)
     noise_rng = np.random.default_rng(21)
     noises = noise_rng.normal(scale=1e-3, size=(2000, 9))
-    check_vectors(st, context, OldStarTracker(st), sample_times(0.1, 2), np.random.default_rng(2),
-                  noise_port_values=lambda i: noises[i])
+    check_vectors(
+        st,
+        context,
+        OldStarTracker(st),
+        sample_times(0.1, 2),
+        np.random.default_rng(2),
+        noise_port_values=lambda i: noises[i],
+    )
 
 
 # ----------------------------------------------------------------------------------
@@ -325,9 +350,14 @@ def test_star_tracker_vector_output_with_the_noise_input_connected():
 # ----------------------------------------------------------------------------------
 GYRO_MODELS = {
     "plain": {"arw_rad_per_rt_s": 3e-5, "rrw_rad_per_s15": 2e-7, "initial_bias_rad_per_s": (1e-4, -2e-4, 5e-5)},
-    "errors": {"arw_rad_per_rt_s": 3e-5, "rrw_rad_per_s15": 2e-7, "initial_bias_rad_per_s": (1e-4, -2e-4, 5e-5),
-               "initial_bias_sigma_rad_per_s": 1e-4, "scale_factor_error": (1e-4, -3e-4, 2e-4),
-               "misalignment": [[0.0, 1e-3, -2e-3], [5e-4, 0.0, 1e-3], [-1e-3, 2e-3, 0.0]]},
+    "errors": {
+        "arw_rad_per_rt_s": 3e-5,
+        "rrw_rad_per_s15": 2e-7,
+        "initial_bias_rad_per_s": (1e-4, -2e-4, 5e-5),
+        "initial_bias_sigma_rad_per_s": 1e-4,
+        "scale_factor_error": (1e-4, -3e-4, 2e-4),
+        "misalignment": [[0.0, 1e-3, -2e-3], [5e-4, 0.0, 1e-3], [-1e-3, 2e-3, 0.0]],
+    },
     "scale_only": {"arw_rad_per_rt_s": 1e-5, "rrw_rad_per_s15": 0.0, "scale_factor_error": (1e-3, 0.0, 0.0)},
     "noiseless": {"arw_rad_per_rt_s": 0.0, "rrw_rad_per_s15": 0.0},
 }
@@ -372,16 +402,18 @@ def test_gyro_outputs_equal_earlier_implementation(model_name, seed):
 @pytest.mark.parametrize("model_name", ["plain", "errors"])
 def test_gyro_outputs_with_scale_error_connected(model_name):
     outputs, context = make_gyro_outputs(0.25, model_name, 5)
-    check_gyro(outputs, context, OldGyroOutputs(outputs), sample_times(0.25, 5), np.random.default_rng(5),
-               scale_error=True)
+    check_gyro(
+        outputs, context, OldGyroOutputs(outputs), sample_times(0.25, 5), np.random.default_rng(5), scale_error=True
+    )
 
 
 @pytest.mark.parametrize("model_name", ["plain", "errors"])
 def test_gyro_outputs_with_the_integral_unconnected(model_name):
     """Without ``w_IB_B_integral`` the output uses the rate input at every sample."""
     outputs, context = make_gyro_outputs(1.0 / 3.0, model_name, 6)
-    check_gyro(outputs, context, OldGyroOutputs(outputs), sample_times(1.0 / 3.0, 6), np.random.default_rng(6),
-               integral=False)
+    check_gyro(
+        outputs, context, OldGyroOutputs(outputs), sample_times(1.0 / 3.0, 6), np.random.default_rng(6), integral=False
+    )
 
 
 def test_gyro_negative_zero_rate_with_identity_sensor_matrix():
@@ -433,8 +465,9 @@ def test_gyro_follows_model_and_seed_changes_and_contexts():
             gyro.GetInputPort("w_IB_B").FixValue(context, rng.normal(size=3))
             gyro.GetInputPort("w_IB_B_integral").FixValue(context, rng.normal(size=3))
             context.SetTime(t)
-            np.testing.assert_array_equal(gyro.GetOutputPort("gyro_measurement").Eval(context),
-                                          oracle.measurement(sub), err_msg=f"t = {t!r}")
+            np.testing.assert_array_equal(
+                gyro.GetOutputPort("gyro_measurement").Eval(context), oracle.measurement(sub), err_msg=f"t = {t!r}"
+            )
             np.testing.assert_array_equal(gyro.GetOutputPort("bias_B").Eval(context), oracle.bias(sub))
 
     a = context_for(1)

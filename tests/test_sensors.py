@@ -66,7 +66,8 @@ TUMBLE_PHI = np.array([0.2, 1.0, 0.0])
 def tumbling_truth():
     """Prescribed motion with a rate that changes in direction and size."""
     return PrescribedAttitudeMotion.from_rate_profile(
-        TUMBLE_C, TUMBLE_A, TUMBLE_F, TUMBLE_PHI, q_IB0=rot.rpy_to_quat([0.1, 0.2, 0.3]))
+        TUMBLE_C, TUMBLE_A, TUMBLE_F, TUMBLE_PHI, q_IB0=rot.rpy_to_quat([0.1, 0.2, 0.3])
+    )
 
 
 class SensorRig:
@@ -94,8 +95,7 @@ class SensorRig:
             if self.truth.HasInputPort("torque_B"):
                 torque = builder.AddSystem(ConstantVectorSource(np.zeros(3)))
                 builder.Connect(torque.get_output_port(), self.truth.GetInputPort("torque_B"))
-            ports = {name: self.truth.GetOutputPort(name)
-                     for name in ("q_IB", "w_IB_B", "w_IB_B_integral")}
+            ports = {name: self.truth.GetOutputPort(name) for name in ("q_IB", "w_IB_B", "w_IB_B_integral")}
         for sensor in sensors:
             builder.AddSystem(sensor)
             for name, port in ports.items():
@@ -122,9 +122,16 @@ class SensorRig:
 
     def simulator(self, context):
         simulator = Simulator(self.diagram, context)
-        ApplySimulatorConfig(SimulatorConfig(
-            integration_scheme="runge_kutta5", accuracy=1e-10, max_step_size=self.max_step_size,
-            target_realtime_rate=0.0, publish_every_time_step=False), simulator)
+        ApplySimulatorConfig(
+            SimulatorConfig(
+                integration_scheme="runge_kutta5",
+                accuracy=1e-10,
+                max_step_size=self.max_step_size,
+                target_realtime_rate=0.0,
+                publish_every_time_step=False,
+            ),
+            simulator,
+        )
         simulator.Initialize()
         return simulator
 
@@ -214,22 +221,35 @@ def brute_force_window_statistics(arw, rrw, interval_s, rate_hz, num_windows, rn
     return total / m, b
 
 
-@pytest.mark.parametrize("arw, rrw, interval_s", [
-    (PAPER_ARW, PAPER_RRW, 1.0), (1e-3, 2e-3, 1.0), (2e-4, 2e-3, 0.5), (3e-4, 1e-6, 0.01),
-])
+@pytest.mark.parametrize(
+    "arw, rrw, interval_s",
+    [
+        (PAPER_ARW, PAPER_RRW, 1.0),
+        (1e-3, 2e-3, 1.0),
+        (2e-4, 2e-3, 0.5),
+        (3e-4, 1e-6, 0.01),
+    ],
+)
 def test_interval_covariance_equals_continuous_model_derivation(arw, rrw, interval_s):
     """FarrenkopfGyroNoise.interval_covariance() is the derived 2x2 moment matrix (to
     rounding) for ARW-only-like, balanced and RRW-dominated cases."""
     var_e, cov_ed, var_d = farrenkopf_interval_moments(arw, rrw, interval_s)
-    np.testing.assert_allclose(FarrenkopfGyroNoise(arw, rrw, interval_s).interval_covariance(),
-                               [[var_e, cov_ed], [cov_ed, var_d]], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        FarrenkopfGyroNoise(arw, rrw, interval_s).interval_covariance(),
+        [[var_e, cov_ed], [cov_ed, var_d]],
+        rtol=1e-12,
+        atol=0,
+    )
 
 
-@pytest.mark.parametrize("arw, rrw, interval_s", [
-    (PAPER_ARW, PAPER_RRW, 1.0),  # paper S3: ARW-dominated, cov(e, db) tiny
-    (1e-3, 2e-3, 1.0),  # balanced: K^2 T / 3 is 57% of var(e), corr(e, db) = 0.65
-    (2e-4, 2e-3, 0.5),  # RRW-dominated: K^2 T / 3 is 89% of var(e), corr(e, db) = 0.82
-])
+@pytest.mark.parametrize(
+    "arw, rrw, interval_s",
+    [
+        (PAPER_ARW, PAPER_RRW, 1.0),  # paper S3: ARW-dominated, cov(e, db) tiny
+        (1e-3, 2e-3, 1.0),  # balanced: K^2 T / 3 is 57% of var(e), corr(e, db) = 0.65
+        (2e-4, 2e-3, 0.5),  # RRW-dominated: K^2 T / 3 is 89% of var(e), corr(e, db) = 0.82
+    ],
+)
 def test_interval_covariance_matches_brute_force_300hz_model(arw, rrw, interval_s):
     """6e4 windows of 300 Hz samples of the paper-S3 discrete model: sample var(e),
     cov(e, db), var(db) agree with the continuous-model derivation
@@ -280,10 +300,13 @@ def test_drake_gyro_static_statistics():
     assert np.all(np.abs(cross) < 4.0 / np.sqrt(n))
 
 
-@pytest.mark.parametrize("arw, rrw, period", [
-    (1e-3, 2e-3, 0.5),  # balanced: K^2 T / 3 is 25% of var(e)
-    (2e-4, 2e-3, 1.0),  # RRW-dominated: K^2 T / 3 is 97% of var(e)
-])
+@pytest.mark.parametrize(
+    "arw, rrw, period",
+    [
+        (1e-3, 2e-3, 0.5),  # balanced: K^2 T / 3 is 25% of var(e)
+        (2e-4, 2e-3, 1.0),  # RRW-dominated: K^2 T / 3 is 97% of var(e)
+    ],
+)
 def test_drake_gyro_noise_and_bias_increments_match_continuous_model(arw, rrw, period):
     """Static Drake Gyro over 2000 s (4000 or 2000 intervals x 3 axes): with b_k the logged
     bias_B at t_k, e_k = w_meas(t_k) - b_{k-1} and db_k = b_k - b_{k-1} have the moments
@@ -294,8 +317,7 @@ def test_drake_gyro_noise_and_bias_increments_match_continuous_model(arw, rrw, p
     (n = 12000) and 27 / 40 SE in the RRW-dominated one (n = 6000)."""
     bias0 = np.array([1e-3, -2e-3, 3e-3])
     gyro = Gyro("gyro", period, arw, rrw, bias0)
-    rig = SensorRig(None, [gyro], [("meas", gyro, "gyro_measurement", period),
-                                   ("bias", gyro, "bias_B", period)])
+    rig = SensorRig(None, [gyro], [("meas", gyro, "gyro_measurement", period), ("bias", gyro, "bias_B", period)])
     logs = rig.run(seed=5, duration_s=2000.0)
     t, meas = logs["meas"]
     _, bias = logs["bias"]
@@ -323,8 +345,7 @@ def test_gyro_scale_factor_and_misalignment_zero_noise():
     m = np.array([[0.0, 1e-3, -2e-3], [3e-3, 0.0, 1e-3], [-1e-3, 2e-3, 0.0]])
     bias0 = np.array([1e-4, 2e-4, -3e-4])
     gyro = Gyro("gyro", 0.25, 0.0, 0.0, bias0, scale_factor_error=sf, misalignment=m)
-    rig = SensorRig(PrescribedAttitudeMotion.from_rate_profile(w), [gyro],
-                    [("meas", gyro, "gyro_measurement", 0.25)])
+    rig = SensorRig(PrescribedAttitudeMotion.from_rate_profile(w), [gyro], [("meas", gyro, "gyro_measurement", 0.25)])
     t, meas = rig.run(seed=1, duration_s=10.0)["meas"]
     expected = (np.eye(3) + np.diag(sf) + m) @ w + bias0
     assert len(t) == 41
@@ -340,9 +361,15 @@ def test_gyro_mean_rate_on_prescribed_rotation_is_exact_interval_mean():
     c, a, f, p = TUMBLE_C, TUMBLE_A, TUMBLE_F, TUMBLE_PHI
     period = 0.5
     gyro = Gyro("gyro", period, 0.0, 0.0)
-    rig = SensorRig(tumbling_truth(), [gyro], [
-        ("meas", gyro, "gyro_measurement", period), ("w", "truth", "w_IB_B", period),
-        ("integral", "truth", "w_IB_B_integral", period)])
+    rig = SensorRig(
+        tumbling_truth(),
+        [gyro],
+        [
+            ("meas", gyro, "gyro_measurement", period),
+            ("w", "truth", "w_IB_B", period),
+            ("integral", "truth", "w_IB_B_integral", period),
+        ],
+    )
     logs = rig.run(seed=1, duration_s=30.0)
     t, meas = logs["meas"]
     _, w_inst = logs["w"]
@@ -365,19 +392,30 @@ def test_gyro_mean_rate_on_tumbling_rigid_body():
     period = 1.0
     fine = period / 20
     gyro = Gyro("gyro", period, 0.0, 0.0)
-    rig = SensorRig(RigidBodyAttitudePlant(np.diag([10.0, 20.0, 30.0])), [gyro], [
-        ("meas", gyro, "gyro_measurement", period), ("w", "truth", "w_IB_B", fine),
-        ("integral", "truth", "w_IB_B_integral", period)])
+    rig = SensorRig(
+        RigidBodyAttitudePlant(np.diag([10.0, 20.0, 30.0])),
+        [gyro],
+        [
+            ("meas", gyro, "gyro_measurement", period),
+            ("w", "truth", "w_IB_B", fine),
+            ("integral", "truth", "w_IB_B_integral", period),
+        ],
+    )
     logs = rig.run(seed=1, duration_s=60.0, q_IB0=[1.0, 0.0, 0.0, 0.0], w_IB_B0=[0.3, 0.05, -0.2])
     t, meas = logs["meas"]
     _, integral = logs["integral"]
     _, w = logs["w"]
     assert np.max(np.abs(meas[1:, 2:] - np.diff(integral, axis=0) / period)) < 1e-15
     w = w[: 20 * (len(t) - 1) + 1]
-    simpson = np.array([
-        (w[k] + 4.0 * w[k + 1:k + 20:2].sum(axis=0) + 2.0 * w[k + 2:k + 19:2].sum(axis=0)
-         + w[k + 20]) * fine / 3.0 / period
-        for k in range(0, len(w) - 1, 20)])
+    simpson = np.array(
+        [
+            (w[k] + 4.0 * w[k + 1 : k + 20 : 2].sum(axis=0) + 2.0 * w[k + 2 : k + 19 : 2].sum(axis=0) + w[k + 20])
+            * fine
+            / 3.0
+            / period
+            for k in range(0, len(w) - 1, 20)
+        ]
+    )
     assert np.max(np.abs(meas[1:, 2:] - simpson)) < 1e-9
     assert np.max(np.abs(meas[1:, 2:] - w[20::20])) > 1e-3  # not the rate at t_k
 
@@ -407,9 +445,12 @@ def test_star_tracker_quaternion_noise_is_anisotropic_in_sensor_frame():
     period = 0.01
     sigmas = np.array([5.0, 5.0, 50.0]) * ARCSEC
     st = StarTracker("st1", period, Q_BS_ST1, "quaternion", sigmas[0], sigmas[2])
-    rig = SensorRig(tumbling_truth(), [st], [
-        ("meas", st, "star_tracker_measurement", period), ("q", "truth", "q_IB", period)],
-        max_step_size=period)
+    rig = SensorRig(
+        tumbling_truth(),
+        [st],
+        [("meas", st, "star_tracker_measurement", period), ("q", "truth", "q_IB", period)],
+        max_step_size=period,
+    )
     logs = rig.run(seed=3, duration_s=100.0)
     t, meas = logs["meas"]
     _, q_IB = logs["q"]
@@ -473,14 +514,19 @@ def test_star_tracker_vector_mode_residual_statistics():
 def noisy_rig():
     """Tumbling truth + noisy gyro (random initial bias) + two trackers (one with drop-outs)."""
     gyro = Gyro("gyro", 0.1, PAPER_ARW, PAPER_RRW, PAPER_BIAS, initial_bias_sigma_rad_per_s=1e-4)
-    st1 = StarTracker("st1", 0.1, Q_BS_ST1, "quaternion", 5 * ARCSEC, 50 * ARCSEC,
-                      dropout_probability=0.2)
+    st1 = StarTracker("st1", 0.1, Q_BS_ST1, "quaternion", 5 * ARCSEC, 50 * ARCSEC, dropout_probability=0.2)
     st2 = StarTracker("st2", 0.1, Q_BS_ST2, "quaternion", 5 * ARCSEC, 50 * ARCSEC)
-    rig = SensorRig(tumbling_truth(), [gyro, st1, st2], [
-        ("gyro", gyro, "gyro_measurement", 0.1), ("bias", gyro, "bias_B", 0.1),
-        ("st1", st1, "star_tracker_measurement", 0.1),
-        ("st2", st2, "star_tracker_measurement", 0.1),
-        ("q", "truth", "q_IB", 0.1)])
+    rig = SensorRig(
+        tumbling_truth(),
+        [gyro, st1, st2],
+        [
+            ("gyro", gyro, "gyro_measurement", 0.1),
+            ("bias", gyro, "bias_B", 0.1),
+            ("st1", st1, "star_tracker_measurement", 0.1),
+            ("st2", st2, "star_tracker_measurement", 0.1),
+            ("q", "truth", "q_IB", 0.1),
+        ],
+    )
     return rig
 
 
@@ -526,8 +572,7 @@ def test_outage_windows_invalidate_exactly_their_samples():
     """Outages (10.05, 20.05) and (33.33, 35.02) s with no drop-outs: valid == 0 for every
     sample inside a window (10.1 .. 20.0 and 33.4 .. 35.0 s), 1 for every sample outside."""
     windows = [(10.05, 20.05), (33.33, 35.02)]
-    st = StarTracker("st", 0.1, Q_BS_ST1, "quaternion", 5 * ARCSEC, 50 * ARCSEC,
-                     outage_windows_s=windows)
+    st = StarTracker("st", 0.1, Q_BS_ST1, "quaternion", 5 * ARCSEC, 50 * ARCSEC, outage_windows_s=windows)
     rig = SensorRig(tumbling_truth(), [st], [("meas", st, "star_tracker_measurement", 0.1)])
     t, meas = rig.run(seed=4, duration_s=50.0)["meas"]
     inside = np.zeros(len(t), dtype=bool)
@@ -547,8 +592,11 @@ def test_star_tracker_measurement_of_t_is_truth_at_t():
     q0 = rot.rpy_to_quat([0.3, 0.2, -0.1])
     period = 0.1
     st = StarTracker("st", period, Q_BS_ST1, "quaternion", 0.0, 0.0)
-    rig = SensorRig(PrescribedAttitudeMotion.from_rate_profile(w, q_IB0=q0), [st], [
-        ("meas", st, "star_tracker_measurement", period), ("q", "truth", "q_IB", period)])
+    rig = SensorRig(
+        PrescribedAttitudeMotion.from_rate_profile(w, q_IB0=q0),
+        [st],
+        [("meas", st, "star_tracker_measurement", period), ("q", "truth", "q_IB", period)],
+    )
     logs = rig.run(seed=2, duration_s=20.0)
     t, meas = logs["meas"]
     _, q_IB = logs["q"]
@@ -603,24 +651,28 @@ def test_sensor_noise_does_not_depend_on_how_often_outputs_are_evaluated():
 
     def make(fine_logging):
         gyro = Gyro("gyro", period, PAPER_ARW, 1e-4, PAPER_BIAS, initial_bias_sigma_rad_per_s=1e-4)
-        st = StarTracker("st1", period, Q_BS_ST1, "quaternion", 5 * ARCSEC, 50 * ARCSEC,
-                         dropout_probability=0.2)
-        stv = StarTracker("stv", period, Q_BS_ST2, "vectors",
-                          references_I=[[1.0, 0, 0], [0, 1.0, 1.0]], sigma_vector_rad=1e-4)
-        logs = [("gyro", gyro, "gyro_measurement", period), ("bias", gyro, "bias_B", period),
-                ("st", st, "star_tracker_measurement", period)]
+        st = StarTracker("st1", period, Q_BS_ST1, "quaternion", 5 * ARCSEC, 50 * ARCSEC, dropout_probability=0.2)
+        stv = StarTracker(
+            "stv", period, Q_BS_ST2, "vectors", references_I=[[1.0, 0, 0], [0, 1.0, 1.0]], sigma_vector_rad=1e-4
+        )
+        logs = [
+            ("gyro", gyro, "gyro_measurement", period),
+            ("bias", gyro, "bias_B", period),
+            ("st", st, "star_tracker_measurement", period),
+        ]
         if fine_logging:
             logs += [(key + "_fine", system, port, 0.013) for key, system, port, _ in logs]
         return SensorRig(None, [gyro, st, stv], logs, max_step_size=period), gyro, st, stv
 
     rig, gyro, st, stv = make(False)
-    ports = [(gyro, "gyro_measurement"), (st, "star_tracker_measurement"),
-             (stv, "vector_observations")]
+    ports = [(gyro, "gyro_measurement"), (st, "star_tracker_measurement"), (stv, "vector_observations")]
     a = rig.run(seed=21, duration_s=duration)
     dense_stops = np.arange(0.0137, duration, 0.0137)
     b_evals, b_context = _sensor_outputs_by_stamp(rig, ports, 21, duration, dense_stops, 3)
-    b = {key: (logger.FindLog(b_context).sample_times(), logger.FindLog(b_context).data().T)
-         for key, logger in rig.loggers.items()}
+    b = {
+        key: (logger.FindLog(b_context).sample_times(), logger.FindLog(b_context).data().T)
+        for key, logger in rig.loggers.items()
+    }
     sparse_stops = (np.arange(round(duration / period)) + 0.5) * period
     c_evals, _ = _sensor_outputs_by_stamp(rig, ports, 21, duration, sparse_stops, 1)
     for key in a:
@@ -635,8 +687,7 @@ def test_sensor_noise_does_not_depend_on_how_often_outputs_are_evaluated():
     common = set(b_evals["vector_observations"]) & set(c_evals["vector_observations"])
     assert len(common) >= round(duration / period)
     for stamp in common:
-        assert np.array_equal(b_evals["vector_observations"][stamp],
-                              c_evals["vector_observations"][stamp])
+        assert np.array_equal(b_evals["vector_observations"][stamp], c_evals["vector_observations"][stamp])
     # The noise is really there (else equality would be trivial): gyro spread ~ ARW/sqrt(T),
     # the tracker's validity pattern has drop-outs.
     assert np.std(a["gyro"][1][:, 2:] - PAPER_BIAS) > 0.5 * PAPER_ARW / np.sqrt(period)
@@ -660,17 +711,20 @@ def test_sensor_noise_does_not_depend_on_how_often_outputs_are_evaluated():
 # ----------------------------------------------------------------------------------
 # Bad input
 # ----------------------------------------------------------------------------------
-@pytest.mark.parametrize("kwargs, field", [
-    (dict(period_s=0.0), "g.period_s"),
-    (dict(period_s=-0.1), "g.period_s"),
-    (dict(period_s=np.nan), "g.period_s"),
-    (dict(arw_rad_per_rt_s=-1e-4), "arw"),
-    (dict(rrw_rad_per_s15=-1e-6), "rrw"),
-    (dict(initial_bias_rad_per_s=(1.0, 2.0)), "g.initial_bias"),
-    (dict(initial_bias_sigma_rad_per_s=-1.0), "g.initial_bias_sigma"),
-    (dict(scale_factor_error=(0.0, np.nan, 0.0)), "g.scale_factor_error"),
-    (dict(misalignment=np.eye(3) * 1e-3), "g.misalignment"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(period_s=0.0), "g.period_s"),
+        (dict(period_s=-0.1), "g.period_s"),
+        (dict(period_s=np.nan), "g.period_s"),
+        (dict(arw_rad_per_rt_s=-1e-4), "arw"),
+        (dict(rrw_rad_per_s15=-1e-6), "rrw"),
+        (dict(initial_bias_rad_per_s=(1.0, 2.0)), "g.initial_bias"),
+        (dict(initial_bias_sigma_rad_per_s=-1.0), "g.initial_bias_sigma"),
+        (dict(scale_factor_error=(0.0, np.nan, 0.0)), "g.scale_factor_error"),
+        (dict(misalignment=np.eye(3) * 1e-3), "g.misalignment"),
+    ],
+)
 def test_gyro_rejects_bad_input(kwargs, field):
     args = dict(name="g", period_s=0.1, arw_rad_per_rt_s=1e-4, rrw_rad_per_s15=1e-6)
     args.update(kwargs)
@@ -678,21 +732,24 @@ def test_gyro_rejects_bad_input(kwargs, field):
         Gyro(**args)
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    (dict(period_s=0.0), "s.period_s"),
-    (dict(period_s=-1.0), "s.period_s"),
-    (dict(sigma_cross_boresight_rad=-1e-5), "s.sigma_cross_boresight"),
-    (dict(sigma_boresight_rad=-1e-5), "s.sigma_boresight"),
-    (dict(sigma_vector_rad=-1e-5), "s.sigma_vector"),
-    (dict(dropout_probability=1.0), "s.dropout_probability"),
-    (dict(dropout_probability=1.5), "s.dropout_probability"),
-    (dict(dropout_probability=-0.1), "s.dropout_probability"),
-    (dict(mode="euler"), "s.mode"),
-    (dict(q_BS=(0.0, 0.0, 0.0, 0.0)), "s.q_BS"),
-    (dict(outage_windows_s=[(5.0, 5.0)]), "s.outage_windows_s"),
-    (dict(mode="vectors"), "s.references_I"),
-    (dict(mode="vectors", references_I=[[0.0, 0.0, 0.0]]), "s.references_I"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        (dict(period_s=0.0), "s.period_s"),
+        (dict(period_s=-1.0), "s.period_s"),
+        (dict(sigma_cross_boresight_rad=-1e-5), "s.sigma_cross_boresight"),
+        (dict(sigma_boresight_rad=-1e-5), "s.sigma_boresight"),
+        (dict(sigma_vector_rad=-1e-5), "s.sigma_vector"),
+        (dict(dropout_probability=1.0), "s.dropout_probability"),
+        (dict(dropout_probability=1.5), "s.dropout_probability"),
+        (dict(dropout_probability=-0.1), "s.dropout_probability"),
+        (dict(mode="euler"), "s.mode"),
+        (dict(q_BS=(0.0, 0.0, 0.0, 0.0)), "s.q_BS"),
+        (dict(outage_windows_s=[(5.0, 5.0)]), "s.outage_windows_s"),
+        (dict(mode="vectors"), "s.references_I"),
+        (dict(mode="vectors", references_I=[[0.0, 0.0, 0.0]]), "s.references_I"),
+    ],
+)
 def test_star_tracker_rejects_bad_input(kwargs, field):
     args = dict(name="s", period_s=0.1)
     args.update(kwargs)
@@ -701,8 +758,7 @@ def test_star_tracker_rejects_bad_input(kwargs, field):
 
 
 def test_noise_model_rejects_bad_input():
-    cases = ((dict(arw=-1.0), "arw"), (dict(rrw=np.nan), "rrw"),
-             (dict(interval_s=0.0), "interval_s"))
+    cases = ((dict(arw=-1.0), "arw"), (dict(rrw=np.nan), "rrw"), (dict(interval_s=0.0), "interval_s"))
     for kwargs, field in cases:
         args = dict(arw=1e-4, rrw=1e-6, interval_s=1.0)
         args.update(kwargs)

@@ -25,8 +25,13 @@ from drake_att.systems.estimator_system import EstimatorSetup
 
 SEED = 2
 S3_SHORT = ["duration_s=40", "scoring.score_from_s=10"]
-S0_SHORT = ["duration_s=30", "scoring.score_from_s=10", "estimators.bootstrap_pf.num_particles=50",
-            "estimators.bootstrap_pf_roughened.num_particles=50", "estimators.ekpf.num_particles=20"]
+S0_SHORT = [
+    "duration_s=30",
+    "scoring.score_from_s=10",
+    "estimators.bootstrap_pf.num_particles=50",
+    "estimators.bootstrap_pf_roughened.num_particles=50",
+    "estimators.ekpf.num_particles=20",
+]
 
 
 def _metrics(run) -> dict:
@@ -64,20 +69,29 @@ def s0():
 
 S3_SWEEPS = {
     "filter initial covariance (+ the tracked fusion's P12 follows)": [
-        f"estimators.{n}.initial_attitude_sigma_deg=0.05" for n in ("single", "centralized", "single_st2", "joint")],
+        f"estimators.{n}.initial_attitude_sigma_deg=0.05" for n in ("single", "centralized", "single_st2", "joint")
+    ],
     # (the tracked fusion needs its two sources to start alike: both change)
-    "filter initial estimate": ["estimators.single.initial_attitude_rpy_deg=[1.0, -2.0, 3.0]",
-                                "estimators.single_st2.initial_attitude_rpy_deg=[1.0, -2.0, 3.0]",
-                                "estimators.joint.initial_bias_deg_per_h=[5.0, 5.0, 5.0]"],
+    "filter initial estimate": [
+        "estimators.single.initial_attitude_rpy_deg=[1.0, -2.0, 3.0]",
+        "estimators.single_st2.initial_attitude_rpy_deg=[1.0, -2.0, 3.0]",
+        "estimators.joint.initial_bias_deg_per_h=[5.0, 5.0, 5.0]",
+    ],
     "filter tuning and gate": ["estimators.single.arw_deg_per_rt_h=2.0", "estimators.joint.innovation_gate_chi2=16.0"],
-    "gyro noise (filters that default to it follow)": ["sensors.gyro.arw_deg_per_rt_h=1.5",
-                                                       "sensors.gyro.rrw_deg_per_h15=60.0",
-                                                       "sensors.gyro.initial_bias_deg_per_h=[3.0, -4.0, 5.0]"],
-    "tracker noise (the average's derived covariance follows)": ["sensors.st1.sigma_cross_boresight_arcsec=20.0",
-                                                                 "sensors.st2.sigma_boresight_arcsec=120.0"],
+    "gyro noise (filters that default to it follow)": [
+        "sensors.gyro.arw_deg_per_rt_h=1.5",
+        "sensors.gyro.rrw_deg_per_h15=60.0",
+        "sensors.gyro.initial_bias_deg_per_h=[3.0, -4.0, 5.0]",
+    ],
+    "tracker noise (the average's derived covariance follows)": [
+        "sensors.st1.sigma_cross_boresight_arcsec=20.0",
+        "sensors.st2.sigma_boresight_arcsec=120.0",
+    ],
     "tracker availability": ["sensors.st2.dropout_probability=0.3", "sensors.st1.outage_windows_s=[[5.0, 15.0]]"],
-    "plant initial conditions": ["plant.initial_rate_deg_per_s=[0.2, -0.1, 0.3]",
-                                 "plant.initial_attitude_rpy_deg=[10.0, 0.0, -5.0]"],
+    "plant initial conditions": [
+        "plant.initial_rate_deg_per_s=[0.2, -0.1, 0.3]",
+        "plant.initial_attitude_rpy_deg=[10.0, 0.0, -5.0]",
+    ],
 }
 
 
@@ -88,8 +102,9 @@ def test_context_sweep_equals_a_diagram_built_with_the_override(s3, kind):
     fresh = ScenarioDiagram(apply_overrides(s3.scenario, over)).simulate(SEED)
     _assert_same_metrics(_metrics(fresh), _metrics(swept), kind)
     default = _metrics(s3.simulate(SEED))
-    assert default["estimators"]["single"] != _metrics(swept)["estimators"]["single"] or "fusion" in kind, \
+    assert default["estimators"]["single"] != _metrics(swept)["estimators"]["single"] or "fusion" in kind, (
         f"{kind}: the override changed nothing (the test would not see a parameter that is ignored)"
+    )
     # The run carries the scenario it used.
     assert dump_scenario(swept.scenario) == dump_scenario(apply_overrides(s3.scenario, over))
 
@@ -97,16 +112,26 @@ def test_context_sweep_equals_a_diagram_built_with_the_override(s3, kind):
 def test_sweep_leaves_no_trace_in_later_runs(s3):
     """Contexts are independent: a default run after a sweep equals the first default run."""
     before = _metrics(s3.simulate(SEED))
-    s3.simulate(SEED, overrides=["sensors.gyro.arw_deg_per_rt_h=3.0", "estimators.single.initial_attitude_sigma_deg=9",
-                                 "estimators.single_st2.initial_attitude_sigma_deg=9"])
+    s3.simulate(
+        SEED,
+        overrides=[
+            "sensors.gyro.arw_deg_per_rt_h=3.0",
+            "estimators.single.initial_attitude_sigma_deg=9",
+            "estimators.single_st2.initial_attitude_sigma_deg=9",
+        ],
+    )
     _assert_same_metrics(before, _metrics(s3.simulate(SEED)))
 
 
 def test_particle_filter_sweep_equals_a_fresh_diagram(s0):
     """Random cores: the initial particle set is drawn from the context's core at
     initialization, so a swept initial covariance / threshold / noise is honoured."""
-    over = ["estimators.bootstrap_pf.initial_attitude_sigma_deg=0.3", "estimators.ekpf.resample_threshold=0.9",
-            "estimators.ekf.update_iterations=3", "sensors.st.sigma_vector_urad=200.0"]
+    over = [
+        "estimators.bootstrap_pf.initial_attitude_sigma_deg=0.3",
+        "estimators.ekpf.resample_threshold=0.9",
+        "estimators.ekf.update_iterations=3",
+        "sensors.st.sigma_vector_urad=200.0",
+    ]
     swept = s0.simulate(SEED, overrides=over)
     fresh = ScenarioDiagram(apply_overrides(s0.scenario, over)).simulate(SEED)
     _assert_same_metrics(_metrics(fresh), _metrics(swept))
@@ -147,14 +172,17 @@ def test_switched_off_estimator_does_nothing(s3):
     assert x_on[44] > 0 and x_on[43] == pytest.approx(5.0)
 
 
-@pytest.mark.parametrize("overrides, field", [
-    (["estimators.centralized.star_trackers=[st1]"], "estimators.centralized.star_trackers"),
-    (["estimators.joint.star_trackers=[st2, st1]"], "estimators.joint.star_trackers"),
-    (["sensors.st1.period_s=0.2", "sensors.st2.period_s=0.2"], "sensors.st1.period_s"),
-    (["sensors.gyro.sample_rate_hz=100"], "sensors.gyro.sample_rate_hz"),
-    (["plant.inertia_kg_m2=[1.0, 2.0, 3.0]"], "plant.inertia_kg_m2"),
-    (["orbit.altitude_km=700"], "orbit"),
-])
+@pytest.mark.parametrize(
+    "overrides, field",
+    [
+        (["estimators.centralized.star_trackers=[st1]"], "estimators.centralized.star_trackers"),
+        (["estimators.joint.star_trackers=[st2, st1]"], "estimators.joint.star_trackers"),
+        (["sensors.st1.period_s=0.2", "sensors.st2.period_s=0.2"], "sensors.st1.period_s"),
+        (["sensors.gyro.sample_rate_hz=100"], "sensors.gyro.sample_rate_hz"),
+        (["plant.inertia_kg_m2=[1.0, 2.0, 3.0]"], "plant.inertia_kg_m2"),
+        (["orbit.altitude_km=700"], "orbit"),
+    ],
+)
 def test_structural_override_is_refused_naming_the_field(s3, overrides, field):
     """Valid overrides that would need another diagram: refused, naming the field."""
     with pytest.raises(ConfigError) as e:
@@ -185,21 +213,27 @@ def test_set_filter_refuses_a_structural_change(s3):
         system.set_filter(context, EstimatorSetup(core, init, 1.0, gyro="gyro"))
     model = system.filter_model(context)
     with pytest.raises(ValueError, match=r"period_s \(1.0 -> 2.0\)"):
-        system.set_filter(context, EstimatorSetup(model.core, model.initial_state, 2.0,
-                                                  quaternion_sensors=model.quaternion_sensors))
+        system.set_filter(
+            context, EstimatorSetup(model.core, model.initial_state, 2.0, quaternion_sensors=model.quaternion_sensors)
+        )
 
 
 @pytest.mark.slow
-def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(tmp_path, monkeypatch, diagram_builds,
-                                                                          load_script):
+def test_reproduction_scripts_build_one_diagram_per_scenario_per_process(
+    tmp_path, monkeypatch, diagram_builds, load_script
+):
     """The S0 script (three scenarios: Monte Carlo, EKF initial-error sweep, per-filter
     timing) and the S3 script's P0 sweep, run in this process (one worker), construct
     exactly one ScenarioDiagram per scenario."""
     built = diagram_builds
     monkeypatch.setenv("MPLBACKEND", "Agg")
     s0 = load_script("particle_filters")
-    assert s0.main(["--seeds", "1", "--particles", "8", "--duration", "6", "--workers", "1",
-                    "--out", str(tmp_path / "s0")]) == 0
+    assert (
+        s0.main(
+            ["--seeds", "1", "--particles", "8", "--duration", "6", "--workers", "1", "--out", str(tmp_path / "s0")]
+        )
+        == 0
+    )
     assert sorted(built) == sorted(s0.SCENARIOS.values()), built
 
     built.clear()

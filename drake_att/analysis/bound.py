@@ -242,8 +242,9 @@ def bound_sources(scenario, name: str) -> dict:
             raise NoBound(f"{c.name} reads a camera ({c.camera}): the camera's measurement model is not in the bound")
         gyro = getattr(c, "gyro", None)
         if not gyro:
-            raise NoBound(f"{c.name} uses no gyro (its rate comes from a dynamics model); the bound is for "
-                          "gyro-driven estimation")
+            raise NoBound(
+                f"{c.name} uses no gyro (its rate comes from a dynamics model); the bound is for gyro-driven estimation"
+            )
         gyros.add(gyro)
         names = list(getattr(c, "star_trackers", None) or [getattr(c, "star_tracker", None)])
         if not all(names):
@@ -272,19 +273,27 @@ def bound_sources(scenario, name: str) -> dict:
                 raw.append(sensors[e])
     for s in scenario.sensors:
         if isinstance(s, SensorFaultsConfig) and s.sensor in read:
-            raise NoBound(f"fault injection on {s.sensor} ({s.name}): faulted samples are not Gaussian; "
-                          "the bound is for fault-free data")
+            raise NoBound(
+                f"fault injection on {s.sensor} ({s.name}): faulted samples are not Gaussian; "
+                "the bound is for fault-free data"
+            )
         if isinstance(s, ScaleFactorStarNoiseConfig) and (s.gyro in read or s.star_tracker in read):
-            raise NoBound(f"{s.name}: the gyro's per-step scale-factor error correlated with the star noise "
-                          "(paper S1) is not in the bound's model")
+            raise NoBound(
+                f"{s.name}: the gyro's per-step scale-factor error correlated with the star noise "
+                "(paper S1) is not in the bound's model"
+            )
     notes = []
     if np.any(np.asarray(gyro.scale_factor_error_ppm) != 0) or np.any(np.asarray(gyro.misalignment_urad) != 0):
-        notes.append(f"{gyro_name}'s scale-factor / misalignment errors are deterministic and not in the bound "
-                     "(estimators that do not model them sit above it)")
+        notes.append(
+            f"{gyro_name}'s scale-factor / misalignment errors are deterministic and not in the bound "
+            "(estimators that do not model them sit above it)"
+        )
     for t in raw:
         if t.mode == "vectors" and t.dropout_probability > 0:
-            notes.append(f"{t.name}: vector-mode samples are not logged; the bound assumes none was dropped "
-                         f"(dropout_probability {t.dropout_probability}: the bound is slightly optimistic)")
+            notes.append(
+                f"{t.name}: vector-mode samples are not logged; the bound assumes none was dropped "
+                f"(dropout_probability {t.dropout_probability}: the bound is slightly optimistic)"
+            )
     prior = next((c for c in configs if hasattr(c, "initial_attitude_sigma_deg")), configs[0])
     return {"gyro": gyro, "trackers": raw, "prior_config": prior, "notes": notes}
 
@@ -297,11 +306,16 @@ def prior_covariance(sources: dict) -> tuple[np.ndarray, str]:
     where = f"{c.name}'s initial sigmas"
     if att is None or bias is None:
         where = f"{c.name} gives no initial sigma for " + ", ".join(
-            n for n, v in (("the attitude (1 rad used)", att), ("the bias (max(|b0|, sigma_b0, 1 deg/h) used)", bias))
-            if v is None)
+            n
+            for n, v in (("the attitude (1 rad used)", att), ("the bias (max(|b0|, sigma_b0, 1 deg/h) used)", bias))
+            if v is None
+        )
     att_rad = 1.0 if att is None else att * DEG
-    bias_rad = (max(float(np.max(np.abs(gyro.initial_bias_deg_per_h))), gyro.initial_bias_sigma_deg_per_h, 1.0)
-                if bias is None else bias) * DEG_PER_H
+    bias_rad = (
+        max(float(np.max(np.abs(gyro.initial_bias_deg_per_h))), gyro.initial_bias_sigma_deg_per_h, 1.0)
+        if bias is None
+        else bias
+    ) * DEG_PER_H
     return np.diag([att_rad**2] * 3 + [bias_rad**2] * 3), where
 
 
@@ -323,8 +337,11 @@ def run_bound(run, name: str, prior_scale: float = 1.0) -> BoundResult:
     Raises :class:`NoBound` where none is defined (the reason: no gyro, a camera, faults,
     a log without the gyro's or the trackers' samples or the truth at the gyro's instants)."""
     model = bound_model(run, name)
-    return BoundResult(model["t"], covariance_recursion(prior_scale * model["P0"], model["transitions"],
-                                                        model["noises"], model["measurements"]), model["info"])
+    return BoundResult(
+        model["t"],
+        covariance_recursion(prior_scale * model["P0"], model["transitions"], model["noises"], model["measurements"]),
+        model["info"],
+    )
 
 
 def bound_model(run, name: str) -> dict:
@@ -344,13 +361,23 @@ def bound_model(run, name: str) -> dict:
             counts[st.name] = _vector_tracker_measurements(st, grid, q_true, measurements)
     P0, prior_from = prior_covariance(src)
     info = {
-        "gyro": gyro.name, "trackers": [t.name for t in src["trackers"]],
-        "grid_period_s": float(gyro.period_s), "prior": prior_from,
-        "gyro_arw_deg_per_rt_h": gyro.arw_deg_per_rt_h, "gyro_rrw_deg_per_h15": gyro.rrw_deg_per_h15,
-        "tracker_samples": counts, "notes": list(src["notes"]),
+        "gyro": gyro.name,
+        "trackers": [t.name for t in src["trackers"]],
+        "grid_period_s": float(gyro.period_s),
+        "prior": prior_from,
+        "gyro_arw_deg_per_rt_h": gyro.arw_deg_per_rt_h,
+        "gyro_rrw_deg_per_h15": gyro.rrw_deg_per_h15,
+        "tracker_samples": counts,
+        "notes": list(src["notes"]),
     }
-    return {"t": grid, "P0": P0, "transitions": transitions, "noises": noises, "measurements": measurements,
-            "info": info}
+    return {
+        "t": grid,
+        "P0": P0,
+        "transitions": transitions,
+        "noises": noises,
+        "measurements": measurements,
+        "info": info,
+    }
 
 
 def _gyro_grid(run, gyro) -> np.ndarray:
@@ -365,8 +392,10 @@ def _gyro_grid(run, gyro) -> np.ndarray:
     grid, g = grid[keep], g[keep]
     gyro_ok = (np.abs(g[:, 0] - grid) <= TIME_TOLERANCE_S) & (g[:, 1] > 0.5) & np.all(np.isfinite(g[:, 2:]), axis=1)
     if not np.all(gyro_ok[1:]):
-        raise NoBound(f"{gyro.name} delivered {int(np.sum(~gyro_ok[1:]))} unusable samples; the bound assumes "
-                      "a gyro sample for every interval")
+        raise NoBound(
+            f"{gyro.name} delivered {int(np.sum(~gyro_ok[1:]))} unusable samples; the bound assumes "
+            "a gyro sample for every interval"
+        )
     return grid
 
 
@@ -419,8 +448,9 @@ def _quaternion_tracker_measurements(run, st, grid, measurements) -> dict:
     first = np.r_[True, np.diff(t_meas) > TIME_TOLERANCE_S]
     t_s, ok_s = t_meas[first], ok[first]
     H = np.hstack([R_SB, np.zeros((3, 3))])
-    sig = np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
-                    st.sigma_boresight_arcsec]) * ARCSEC
+    sig = (
+        np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec, st.sigma_boresight_arcsec]) * ARCSEC
+    )
     R = np.diag(sig**2)
     on_grid = _sample_index(t_s, grid)
     n_used = 0

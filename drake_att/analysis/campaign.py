@@ -122,8 +122,10 @@ class CampaignProgress(Progress):
         frac = total_done / self.total_runs if self.total_runs else 1.0
         prefix = f"  [{self.label}] " if self.label else "  "
         reused = f" ({self.already_done} from before)" if self.already_done else ""
-        return (f"{prefix}{total_done} / {self.total_runs} runs{reused} ({frac:4.0%})  "
-                f"{format_duration(elapsed)} wall  {eta}")
+        return (
+            f"{prefix}{total_done} / {self.total_runs} runs{reused} ({frac:4.0%})  "
+            f"{format_duration(elapsed)} wall  {eta}"
+        )
 
     def run_done(self) -> None:
         self.done += 1
@@ -140,8 +142,10 @@ def campaign_seeds(runs: int, first_seed: int = 1) -> list[int]:
     if isinstance(first_seed, bool) or not isinstance(first_seed, (int, np.integer)) or not 0 <= first_seed <= SEED_MAX:
         raise CampaignError(f"--first-seed: got {first_seed!r}; must be an integer in [0, {SEED_MAX}]")
     if first_seed + runs - 1 > SEED_MAX:
-        raise CampaignError(f"--runs: got {runs} from --first-seed {first_seed}; the last seed "
-                            f"{first_seed + runs - 1} exceeds {SEED_MAX} (Drake's 32-bit seed)")
+        raise CampaignError(
+            f"--runs: got {runs} from --first-seed {first_seed}; the last seed "
+            f"{first_seed + runs - 1} exceeds {SEED_MAX} (Drake's 32-bit seed)"
+        )
     return list(range(int(first_seed), int(first_seed) + int(runs)))
 
 
@@ -177,10 +181,23 @@ def default_summarize(records, scenario, **kwargs) -> dict:
     return ensemble.summarize(records, scenario, **kwargs)
 
 
-def run_campaign(scenario, runs: int, first_seed: int = 1, *, workers: int | None = None, scheduler=None,
-                 out: str | None = None, resume: bool = False, overrides=(), estimators=None,
-                 record: Callable | None = None, report: bool = True, progress: bool = True,
-                 connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S, stream=None) -> CampaignResult:
+def run_campaign(
+    scenario,
+    runs: int,
+    first_seed: int = 1,
+    *,
+    workers: int | None = None,
+    scheduler=None,
+    out: str | None = None,
+    resume: bool = False,
+    overrides=(),
+    estimators=None,
+    record: Callable | None = None,
+    report: bool = True,
+    progress: bool = True,
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+    stream=None,
+) -> CampaignResult:
     """A Monte Carlo campaign: ``runs`` seeds from ``first_seed`` (``drake-att montecarlo``).
 
     Args:
@@ -269,8 +286,9 @@ class _CampaignRuns:
             return
         self.layout = _valid_layout((info or {}).get("record_layout"))
         if os.path.isdir(os.path.join(out, RUNS_DIR)):
-            self.records, self.failed, bad = _load_existing(out, self.seeds,
-                                                            _record_check(self.record, self.resolved, self.layout))
+            self.records, self.failed, bad = _load_existing(
+                out, self.seeds, _record_check(self.record, self.resolved, self.layout)
+            )
             for path, why in bad:
                 print(f"drake-att: {_shown(path)}: {why}; its run is redone", file=stream or sys.stderr)
         self.reused, self.failed_reused = len(self.records), len(self.failed)
@@ -305,16 +323,29 @@ class _CampaignRuns:
         """The campaign's result without its summary and wall time (the counts checked)."""
         seeds = self.seeds
         ordered = [self.records[s] for s in seeds if s in self.records]
-        result = CampaignResult(self.resolved, seeds, ordered, {s: self.failed[s] for s in seeds if s in self.failed},
-                                None, self.out, self.ran, self.reused, 0.0, failed_reused=self.failed_reused)
+        result = CampaignResult(
+            self.resolved,
+            seeds,
+            ordered,
+            {s: self.failed[s] for s in seeds if s in self.failed},
+            None,
+            self.out,
+            self.ran,
+            self.reused,
+            0.0,
+            failed_reused=self.failed_reused,
+        )
         if result.ran + result.reused + len(result.failed) != len(seeds):  # a bug, not a user's error
-            raise RuntimeError(f"campaign counts do not add up: {result.ran} ran + {result.reused} reused + "
-                               f"{len(result.failed)} failed != {len(seeds)} seeds")
+            raise RuntimeError(
+                f"campaign counts do not add up: {result.ran} ran + {result.reused} reused + "
+                f"{len(result.failed)} failed != {len(seeds)} seeds"
+            )
         return result
 
 
-def _run_pending(runs: _CampaignRuns, yaml_text: str, workers, scheduler, connect_timeout_s: float, progress: bool,
-                 stream) -> None:
+def _run_pending(
+    runs: _CampaignRuns, yaml_text: str, workers, scheduler, connect_timeout_s: float, progress: bool, stream
+) -> None:
     """Runs the pending seeds into ``runs`` (:func:`map_runs`), with the campaign folder created
     first; a failure takes back what the folder got from this call. The progress line (with
     ``progress``, on ``stream``) is closed and a cluster this call connected to shut down,
@@ -329,11 +360,20 @@ def _run_pending(runs: _CampaignRuns, yaml_text: str, workers, scheduler, connec
         if runs.out is not None:
             created = _create_folder(runs.out, yaml_text)
             runs.write_campaign_file()
-        bar = runs.bar = CampaignProgress(len(runs.seeds), runs.reused + runs.failed_reused, f"{runs.resolved.name}",
-                                          stream=stream) if progress else None
-        map_runs(runs.resolved, pending, runs.record, workers=workers,
-                 scheduler=executor[0] if executor else scheduler, on_result=runs.on_result,
-                 connect_timeout_s=connect_timeout_s)
+        bar = runs.bar = (
+            CampaignProgress(len(runs.seeds), runs.reused + runs.failed_reused, f"{runs.resolved.name}", stream=stream)
+            if progress
+            else None
+        )
+        map_runs(
+            runs.resolved,
+            pending,
+            runs.record,
+            workers=workers,
+            scheduler=executor[0] if executor else scheduler,
+            on_result=runs.on_result,
+            connect_timeout_s=connect_timeout_s,
+        )
     except BaseException:
         if runs.out is not None:
             _remove_created(runs.out, created)
@@ -351,10 +391,16 @@ def _campaign_summary(result: CampaignResult, record: Callable, scenario, overri
     # The worst runs' re-run command: the campaign's resolved config.yaml says everything
     # (--set, --estimators); without a folder, the scenario and the overrides.
     out = result.out
-    where = ({"scenario_arg": os.path.join(out, CONFIG_FILE)} if out is not None else
-             {"scenario_arg": scenario if isinstance(scenario, str) else None, "overrides": list(overrides)})
-    return (default_summarize(result.records, result.scenario, **where)
-            if result.records and record is default_record else None)
+    where = (
+        {"scenario_arg": os.path.join(out, CONFIG_FILE)}
+        if out is not None
+        else {"scenario_arg": scenario if isinstance(scenario, str) else None, "overrides": list(overrides)}
+    )
+    return (
+        default_summarize(result.records, result.scenario, **where)
+        if result.records and record is default_record
+        else None
+    )
 
 
 def _write_report_and_manifest(result: CampaignResult, out: str, runs: _CampaignRuns) -> None:
@@ -365,5 +411,9 @@ def _write_report_and_manifest(result: CampaignResult, out: str, runs: _Campaign
     seeds = result.seeds
     result.files = campaign_report.write_campaign_report(result, executor=runs.executor_text)
     run_files = [_run_path(out, s) for s in seeds if s in runs.records] + [_failed_path(out, s) for s in result.failed]
-    write_campaign_manifest(out, [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)]
-                            + result.files + run_files, result.scenario.name, seeds)
+    write_campaign_manifest(
+        out,
+        [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)] + result.files + run_files,
+        result.scenario.name,
+        seeds,
+    )

@@ -88,8 +88,9 @@ def _load_existing(out: str, seeds, check: Callable | None = None) -> tuple[dict
     try:
         names = os.listdir(runs)
     except OSError as e:
-        raise CampaignError(f"--resume {_shown(out)}: its {RUNS_DIR} folder cannot be read "
-                            f"({_one_line(e.strerror or e, 80)})") from None
+        raise CampaignError(
+            f"--resume {_shown(out)}: its {RUNS_DIR} folder cannot be read ({_one_line(e.strerror or e, 80)})"
+        ) from None
     for name in names:
         if name.startswith(".") and ".tmp-" in name:  # a write that was interrupted
             try:
@@ -100,8 +101,10 @@ def _load_existing(out: str, seeds, check: Callable | None = None) -> tuple[dict
         path, fpath = _run_path(out, seed), _failed_path(out, seed)
         for p in (path, fpath):
             if os.path.isdir(p) and not os.path.islink(p):  # a run's result could not be written there
-                raise CampaignError(f"--resume {_shown(out)}: {_shown(p)} is a folder, not a run file; move it "
-                                    "away, or name another --out")
+                raise CampaignError(
+                    f"--resume {_shown(out)}: {_shown(p)} is a folder, not a run file; move it "
+                    "away, or name another --out"
+                )
         if os.path.lexists(path):
             if not os.path.isfile(path):  # a link to nothing, a FIFO (reading it would block), a device
                 bad.append((path, "unreadable (not a regular file)"))
@@ -159,12 +162,15 @@ def _inspect_folder(out: str, yaml_text: str, record: Callable, resume: bool) ->
     try:
         entries = os.listdir(out)
     except OSError as e:
-        raise CampaignError(f"--out {shown}: cannot be read ({_one_line(e.strerror or e, 80)}); name another "
-                            "folder") from None
+        raise CampaignError(
+            f"--out {shown}: cannot be read ({_one_line(e.strerror or e, 80)}); name another folder"
+        ) from None
     if not has_config and not has_campaign:
         if [n for n in entries if not n.startswith(".")]:
-            raise CampaignError(f"--out {shown}: is a folder with other files in it (no {CONFIG_FILE} of a campaign); "
-                                "name a new or empty folder")
+            raise CampaignError(
+                f"--out {shown}: is a folder with other files in it (no {CONFIG_FILE} of a campaign); "
+                "name a new or empty folder"
+            )
         return "new", None
     info = _read_campaign_file(cpath) if has_campaign else None
     if os.path.lexists(runs) and not os.path.isdir(runs):
@@ -183,25 +189,34 @@ def _inspect_folder(out: str, yaml_text: str, record: Callable, resume: bool) ->
     if not resume:
         n_failed = len([n for n in saved if n.endswith(".failed.txt")])
         runs_text = f"{len(saved) - n_failed} runs" + (f", {n_failed} failed" if n_failed else "")
-        raise CampaignError(f"--out {shown}: holds a campaign already ({runs_text}); add --resume to continue it, or "
-                            "name another folder")
+        raise CampaignError(
+            f"--out {shown}: holds a campaign already ({runs_text}); add --resume to continue it, or "
+            "name another folder"
+        )
     if not has_config:
-        raise CampaignError(f"--resume {shown}: {CONFIG_FILE} is missing, so the configuration of its runs is unknown; "
-                            "name another --out")
+        raise CampaignError(
+            f"--resume {shown}: {CONFIG_FILE} is missing, so the configuration of its runs is unknown; "
+            "name another --out"
+        )
     old = _read_small_file(config_path, "the campaign's configuration (YAML written by drake-att); name another --out")
     old_yaml = old.split("\n", 1)[1] if old.startswith("#") else old
     if old_yaml != yaml_text:
         try:
             cfg._preparse(old_yaml, _shown(config_path))  # parse only: imports nothing the file names
         except Exception as e:  # noqa: BLE001 - any failure to parse it says the file is not a scenario
-            raise CampaignError(f"--resume {shown}: {_shown(config_path)} is not a scenario ({_one_line(e, 160)}); "
-                                "name another --out") from None
-        raise CampaignError(f"--resume {shown}: the campaign there ran another configuration "
-                            f"({_first_difference(old_yaml, yaml_text)}, in {_shown(config_path)}); give the same "
-                            "scenario, --set and --estimators, or another --out")
+            raise CampaignError(
+                f"--resume {shown}: {_shown(config_path)} is not a scenario ({_one_line(e, 160)}); name another --out"
+            ) from None
+        raise CampaignError(
+            f"--resume {shown}: the campaign there ran another configuration "
+            f"({_first_difference(old_yaml, yaml_text)}, in {_shown(config_path)}); give the same "
+            "scenario, --set and --estimators, or another --out"
+        )
     if info is not None and info.get("record") != record_name(record):
-        raise CampaignError(f"--resume {shown}: the campaign there saved records of "
-                            f"{_one_line(repr(info.get('record')), 120)}, this request {record_name(record)}")
+        raise CampaignError(
+            f"--resume {shown}: the campaign there saved records of "
+            f"{_one_line(repr(info.get('record')), 120)}, this request {record_name(record)}"
+        )
     return "resume", info
 
 
@@ -242,9 +257,15 @@ def _remove_created(out: str, created: list[str]) -> None:
 def _write_campaign_file(out, scenario, seeds, record, executor: str, layout=None) -> str:
     import drake_att
 
-    info = {"scenario": scenario.name, "first_seed": seeds[0], "runs": len(seeds), "seeds": [seeds[0], seeds[-1]],
-            **_campaign_identity(cfg.dump_scenario(scenario), record), "drake_att": drake_att.__version__,
-            "executor": executor}
+    info = {
+        "scenario": scenario.name,
+        "first_seed": seeds[0],
+        "runs": len(seeds),
+        "seeds": [seeds[0], seeds[-1]],
+        **_campaign_identity(cfg.dump_scenario(scenario), record),
+        "drake_att": drake_att.__version__,
+        "executor": executor,
+    }
     if layout is not None:
         info["record_layout"] = layout
     return write_text_atomic(os.path.join(out, CAMPAIGN_FILE), json.dumps(info, indent=1) + "\n")
@@ -255,8 +276,15 @@ def write_campaign_manifest(out: str, files, scenario_name: str, seeds) -> str:
     relative to ``out`` so the runs in ``runs/`` are listed too), written last."""
     from drake_att.analysis.report import manifest_entries
 
-    text = json.dumps({"scenario": scenario_name, "seeds": [seeds[0], seeds[-1]], "runs": len(seeds),
-                       "files": manifest_entries(out, files)}, indent=1)
+    text = json.dumps(
+        {
+            "scenario": scenario_name,
+            "seeds": [seeds[0], seeds[-1]],
+            "runs": len(seeds),
+            "files": manifest_entries(out, files),
+        },
+        indent=1,
+    )
     return write_text_atomic(os.path.join(out, MANIFEST_FILE), text)
 
 

@@ -80,8 +80,10 @@ def _npz_arrays(record, seed: int) -> dict:
     for key, value in record.items():
         a = np.asarray(value)
         if a.dtype == object:
-            raise TypeError(f"seed {seed}: record entry {key!r} is not a plain numpy array (dtype object); "
-                            "records are saved without pickles")
+            raise TypeError(
+                f"seed {seed}: record entry {key!r} is not a plain numpy array (dtype object); "
+                "records are saved without pickles"
+            )
         arrays[key] = a
     return arrays
 
@@ -152,10 +154,18 @@ def _valid_layout(value) -> dict | None:
     if not isinstance(value, dict) or not value:
         return None
     for key, entry in value.items():
-        if not (isinstance(key, str) and isinstance(entry, list) and len(entry) == 3 and isinstance(entry[0], str)
-                and isinstance(entry[1], int) and not isinstance(entry[1], bool) and 0 <= entry[1] <= 32
-                and isinstance(entry[2], list) and len(entry[2]) == max(entry[1] - 1, 0)
-                and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in entry[2])):
+        if not (
+            isinstance(key, str)
+            and isinstance(entry, list)
+            and len(entry) == 3
+            and isinstance(entry[0], str)
+            and isinstance(entry[1], int)
+            and not isinstance(entry[1], bool)
+            and 0 <= entry[1] <= 32
+            and isinstance(entry[2], list)
+            and len(entry[2]) == max(entry[1] - 1, 0)
+            and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0 for d in entry[2])
+        ):
             return None
     return value
 
@@ -191,16 +201,37 @@ def _is_kind(a, kinds: str, ndim: int) -> bool:
 # The default record's documented structure (drake_att.analysis.ensemble): dtype kinds of its
 # scalars, and per estimator ``<name>__<suffix>``: (dtype kinds, ndim, columns or None).
 _FLOAT, _INT, _STR = "f", "iu", "U"
-_RECORD_SCALARS = {"schema": _INT, "scenario": _STR, "seed": _INT, "duration_s": _FLOAT, "score_from_s": _FLOAT,
-                   "convergence_threshold_deg": _FLOAT, "metrics_json": _STR}
+_RECORD_SCALARS = {
+    "schema": _INT,
+    "scenario": _STR,
+    "seed": _INT,
+    "duration_s": _FLOAT,
+    "score_from_s": _FLOAT,
+    "convergence_threshold_deg": _FLOAT,
+    "metrics_json": _STR,
+}
 _PER_ESTIMATOR = {
-    "t": (_FLOAT, 1, None), "dtheta": (_FLOAT, 2, 3), "sigma": (_FLOAT, 2, 6), "nees": (_FLOAT, 1, None),
-    "second_kind": (_STR, 0, None), "nees_dof": (_INT, 0, None), "window_n": (_INT, 0, None),
-    "window_ms": (_FLOAT, 1, None), "window_ms_second": (_FLOAT, 1, None), "window_nees_sum": (_FLOAT, 0, None),
-    "window_nees_n": (_INT, 0, None), "convergence_time_s": (_FLOAT, 0, None), "inputs": (_STR, 1, None),
-    "nis_source": (_STR, 0, None), "bound_json": (_STR, 0, None)}
-_OPTIONAL_PER_ESTIMATOR = {"second_err": (_FLOAT, 2, 3), "bound_sigma": (_FLOAT, 2, 6),
-                           "bound_window_var": (_FLOAT, 1, None)}
+    "t": (_FLOAT, 1, None),
+    "dtheta": (_FLOAT, 2, 3),
+    "sigma": (_FLOAT, 2, 6),
+    "nees": (_FLOAT, 1, None),
+    "second_kind": (_STR, 0, None),
+    "nees_dof": (_INT, 0, None),
+    "window_n": (_INT, 0, None),
+    "window_ms": (_FLOAT, 1, None),
+    "window_ms_second": (_FLOAT, 1, None),
+    "window_nees_sum": (_FLOAT, 0, None),
+    "window_nees_n": (_INT, 0, None),
+    "convergence_time_s": (_FLOAT, 0, None),
+    "inputs": (_STR, 1, None),
+    "nis_source": (_STR, 0, None),
+    "bound_json": (_STR, 0, None),
+}
+_OPTIONAL_PER_ESTIMATOR = {
+    "second_err": (_FLOAT, 2, 3),
+    "bound_sigma": (_FLOAT, 2, 6),
+    "bound_window_var": (_FLOAT, 1, None),
+}
 
 
 def _text(record: dict, key: str) -> str:
@@ -255,8 +286,11 @@ def _run_scalars_problem(record: dict, scenario: cfg.Scenario, seed: int) -> str
         return f"it holds seed {int(record['seed'])}, not {seed}"
     if _text(record, "scenario") != scenario.name:
         return f"it holds scenario {_one_line(repr(_text(record, 'scenario')), 80)}, not {scenario.name!r}"
-    for key, value in (("duration_s", scenario.duration_s), ("score_from_s", scenario.scoring.score_from_s),
-                       ("convergence_threshold_deg", scenario.scoring.convergence_threshold_deg)):
+    for key, value in (
+        ("duration_s", scenario.duration_s),
+        ("score_from_s", scenario.scoring.score_from_s),
+        ("convergence_threshold_deg", scenario.scoring.convergence_threshold_deg),
+    ):
         if not abs(float(record[key]) - float(value)) <= 1e-9 * max(1.0, abs(float(value))):
             return f"{key} {float(record[key])!r}, the campaign's configuration has {float(value)!r}"
     if not _is_json_object(record, "metrics_json"):
@@ -275,8 +309,12 @@ def _estimator_names_problem(record: dict, names: list) -> str | None:
 
 def _estimator_problem(record: dict, p: str, expected: set) -> str | None:
     """The arrays of the estimator whose keys start with ``p`` (their keys added to ``expected``)."""
-    return (_estimator_kinds_problem(record, p, expected) or _estimator_shapes_problem(record, p)
-            or _estimator_values_problem(record, p) or _nis_problem(record, p, expected))
+    return (
+        _estimator_kinds_problem(record, p, expected)
+        or _estimator_shapes_problem(record, p)
+        or _estimator_values_problem(record, p)
+        or _nis_problem(record, p, expected)
+    )
 
 
 def _estimator_kinds_problem(record: dict, p: str, expected: set) -> str | None:
@@ -290,7 +328,7 @@ def _estimator_kinds_problem(record: dict, p: str, expected: set) -> str | None:
             return f"key {key!r} is missing"
         a = record[key]
         if not _is_kind(a, kinds, ndim) or (cols is not None and a.shape[1] != cols):
-            want = ("str" if kinds == _STR else "int" if kinds == _INT else "float")
+            want = "str" if kinds == _STR else "int" if kinds == _INT else "float"
             want += " scalar" if ndim == 0 else f" array of shape (n{', ' + str(cols) if cols else ''})"
             return f"{key!r}: got a {_got(record, key)}; expected a {want}"
         expected.add(key)
@@ -317,8 +355,9 @@ def _estimator_values_problem(record: dict, p: str) -> str | None:
     if not (np.all(np.isfinite(t)) and np.all(np.diff(t) >= 0)):
         return f"'{p}t' is not a finite, increasing time series"
     if _text(record, p + "second_kind") not in ("gyro_bias", "body_rate"):
-        return (f"'{p}second_kind' is {_one_line(repr(_text(record, p + 'second_kind')), 60)}, not gyro_bias or "
-                "body_rate")
+        return (
+            f"'{p}second_kind' is {_one_line(repr(_text(record, p + 'second_kind')), 60)}, not gyro_bias or body_rate"
+        )
     if int(record[p + "nees_dof"]) < 1:
         return f"'{p}nees_dof' is {int(record[p + 'nees_dof'])}; a NEES has at least 1 degree of freedom"
     source = _text(record, p + "nis_source")

@@ -93,15 +93,20 @@ def _y_scale(ax, span_factor: float = 20.0, values=None) -> None:
 
     if values is None:
         # data lines only (not axhline / axvline, whose coordinates are partly axes fractions)
-        values = np.concatenate([np.asarray(line.get_ydata(), dtype=float) for line in ax.get_lines()
-                                 if line.get_transform() == ax.transData] or [np.zeros(0)])
+        values = np.concatenate(
+            [
+                np.asarray(line.get_ydata(), dtype=float)
+                for line in ax.get_lines()
+                if line.get_transform() == ax.transData
+            ]
+            or [np.zeros(0)]
+        )
     y = np.array([np.nan if v is None else v for v in np.ravel(np.asarray(values, dtype=object))], dtype=float)
     y = y[np.isfinite(y) & (y > 0)]
     if y.size and y.max() / y.min() > span_factor:
         ax.set_yscale("log")
         decades = np.log10(y.max() / y.min())
-        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0) if decades <= 2.5 else (1.0,),
-                                              numticks=10))
+        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0) if decades <= 2.5 else (1.0,), numticks=10))
         ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         ax.yaxis.set_minor_formatter(NullFormatter())
 
@@ -123,35 +128,65 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
     t, idx = common_times(records, name)
     d = _stack(records, f"{name}__dtheta", idx) / DEG  # (N, n, 3)
     sig = _stack(records, f"{name}__sigma", idx)[:, :, :3] / DEG
-    filt3 = 3 * np.sqrt(np.mean(sig ** 2, axis=0))  # the filters' RMS sigma over runs
+    filt3 = 3 * np.sqrt(np.mean(sig**2, axis=0))  # the filters' RMS sigma over runs
     k = smoothing_window(len(records), len(t))
-    ens3 = 3 * np.sqrt(_moving_mean(np.mean(d ** 2, axis=0), k))  # the ensemble's RMS error
+    ens3 = 3 * np.sqrt(_moving_mean(np.mean(d**2, axis=0), k))  # the ensemble's RMS error
     bound3 = None
     if all(f"{name}__bound_sigma" in r for r in records):
         b = _stack(records, f"{name}__bound_sigma", idx)[:, :, :3] / DEG
-        bound3 = 3 * np.sqrt(np.mean(b ** 2, axis=0))
+        bound3 = 3 * np.sqrt(np.mean(b**2, axis=0))
     N = len(records)
     drawn = min(N, MAX_RUNS_DRAWN)
     window = t >= score_from_s - 1e-6
-    rows = [("whole run", np.ones_like(t, dtype=bool))] + ([(f"t ≥ {score_from_s:g} s (scored)", window)]
-                                                         if score_from_s > 0 and np.any(window) else [])
+    rows = [("whole run", np.ones_like(t, dtype=bool))] + (
+        [(f"t ≥ {score_from_s:g} s (scored)", window)] if score_from_s > 0 and np.any(window) else []
+    )
     fig = Figure(figsize=(15, 3.6 * len(rows) + 0.6))
-    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.08 if len(rows) > 1 else 0.14, top=0.9 if len(rows) > 1 else 0.84,
-                        wspace=0.22, hspace=0.38)
+    fig.subplots_adjust(
+        left=0.06,
+        right=0.99,
+        bottom=0.08 if len(rows) > 1 else 0.14,
+        top=0.9 if len(rows) > 1 else 0.84,
+        wspace=0.22,
+        hspace=0.38,
+    )
     ax = fig.subplots(len(rows), 3, squeeze=False)
     for r, (label, sel) in enumerate(rows):
         for i in range(3):
             a = ax[r, i]
             for k in range(drawn):
-                a.plot(t[sel], d[k, sel, i], lw=0.5, alpha=0.45, color="tab:blue",
-                       label=f"error, {drawn} of {N} runs" if k == 0 else None)
+                a.plot(
+                    t[sel],
+                    d[k, sel, i],
+                    lw=0.5,
+                    alpha=0.45,
+                    color="tab:blue",
+                    label=f"error, {drawn} of {N} runs" if k == 0 else None,
+                )
             for sign in (1, -1):
-                a.plot(t[sel], sign * filt3[sel, i], "r--", lw=1.0, label="filter ±3σ (RMS over runs)" if sign > 0 else None)
-                a.plot(t[sel], sign * ens3[sel, i], color="k", lw=1.0,
-                       label=f"ensemble ±3·RMS error (runs x {k} samples)" if sign > 0 else None)
+                a.plot(
+                    t[sel],
+                    sign * filt3[sel, i],
+                    "r--",
+                    lw=1.0,
+                    label="filter ±3σ (RMS over runs)" if sign > 0 else None,
+                )
+                a.plot(
+                    t[sel],
+                    sign * ens3[sel, i],
+                    color="k",
+                    lw=1.0,
+                    label=f"ensemble ±3·RMS error (runs x {k} samples)" if sign > 0 else None,
+                )
                 if bound3 is not None:
-                    a.plot(t[sel], sign * bound3[sel, i], color="tab:green", ls=":", lw=1.4,
-                           label="Cramér–Rao bound ±3σ" if sign > 0 else None)
+                    a.plot(
+                        t[sel],
+                        sign * bound3[sel, i],
+                        color="tab:green",
+                        ls=":",
+                        lw=1.4,
+                        label="Cramér–Rao bound ±3σ" if sign > 0 else None,
+                    )
             lim = _sym_limit(d[:, sel, i], 1e-9)
             if r > 0 or lim < 1e-3:
                 lim = max(lim, min(_sym_limit(filt3[sel, i], 1e-9), 3 * lim))
@@ -196,8 +231,9 @@ def consistency_figure(records, name: str, stats: dict, title: str):
     nis_inputs = [(i, n) for i, n in enumerate(inputs) if f"{name}__nis{i}__t" in records[0]]
     nrows = 1 + (1 if nis_inputs else 0)
     fig = Figure(figsize=(13, 3.6 * nrows + 0.6))
-    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.08 if nrows > 1 else 0.14, top=0.9 if nrows > 1 else 0.84,
-                        hspace=0.38)
+    fig.subplots_adjust(
+        left=0.07, right=0.99, bottom=0.08 if nrows > 1 else 0.14, top=0.9 if nrows > 1 else 0.84, hspace=0.38
+    )
     ax = fig.subplots(nrows, 1, squeeze=False)[:, 0]
     a = ax[0]
     t = np.array(h["t"], dtype=float)
@@ -206,14 +242,28 @@ def consistency_figure(records, name: str, stats: dict, title: str):
     band = stats["anees_band_95"]
     a.plot(t, anees, lw=0.8, label=f"ANEES over {stats['n_runs']} runs (dof {dof})")
     if band[0] is not None:
-        a.fill_between(t, band[0], band[1], color="tab:green", alpha=0.2,
-                       label=f"95% band at one instant [{band[0]:.3g}, {band[1]:.3g}]")
+        a.fill_between(
+            t,
+            band[0],
+            band[1],
+            color="tab:green",
+            alpha=0.2,
+            label=f"95% band at one instant [{band[0]:.3g}, {band[1]:.3g}]",
+        )
     a.axhline(dof, color="k", lw=0.8, ls="--", label=f"consistent: {dof}")
     if stats.get("anees") is not None:
-        a.axhline(stats["anees"], color="tab:red", lw=0.8, ls=":",
-                  label=f"window ANEES {stats['anees']:.3g}" + (
-                      f", window band [{stats['anees_window_band_95'][0]:.3g}, {stats['anees_window_band_95'][1]:.3g}]"
-                      if stats.get("anees_window_band_95") else ""))
+        a.axhline(
+            stats["anees"],
+            color="tab:red",
+            lw=0.8,
+            ls=":",
+            label=f"window ANEES {stats['anees']:.3g}"
+            + (
+                f", window band [{stats['anees_window_band_95'][0]:.3g}, {stats['anees_window_band_95'][1]:.3g}]"
+                if stats.get("anees_window_band_95")
+                else ""
+            ),
+        )
     a.axvline(float(records[0]["score_from_s"]), color="gray", lw=0.8)
     _y_scale(a, 20.0, np.r_[anees, [v for v in band if v is not None], dof])
     a.set_ylabel("ANEES")
@@ -260,17 +310,34 @@ def rmse_vs_bound_figure(summary: dict, title: str):
         cis = list(s["attitude_rmse_ci95_deg"]) + [s["attitude_rmse_total_ci95_deg"]]
         x = np.arange(4) + (j - (len(names) - 1) / 2) * width
         v = np.array([np.nan if q is None else q for q in vals])
-        err = np.array([[v[k] - c[0], c[1] - v[k]] if c is not None and c[0] is not None else [0, 0]
-                        for k, c in enumerate(cis)]).T
+        err = np.array(
+            [[v[k] - c[0], c[1] - v[k]] if c is not None and c[0] is not None else [0, 0] for k, c in enumerate(cis)]
+        ).T
         a.bar(x, v, width, yerr=err, capsize=2, label=n)
         bd = s["bound"]
         if bd["defined"] and bd["attitude_rmse_bound_deg"] is not None:
             bv = list(bd["attitude_rmse_bound_deg"]) + [bd["attitude_rmse_total_bound_deg"]]
-            a.scatter(x, bv, marker="D", s=22, facecolor="white", edgecolor="k", zorder=3,
-                      label="Cramér–Rao bound" if j == 0 else None)
-    _y_scale(a, 20.0, [q for n in names for q in list(ests[n]["attitude_rmse_deg"])
-                        + [ests[n]["attitude_rmse_total_deg"]]
-                        + list(ests[n]["bound"]["attitude_rmse_bound_deg"] or [])])
+            a.scatter(
+                x,
+                bv,
+                marker="D",
+                s=22,
+                facecolor="white",
+                edgecolor="k",
+                zorder=3,
+                label="Cramér–Rao bound" if j == 0 else None,
+            )
+    _y_scale(
+        a,
+        20.0,
+        [
+            q
+            for n in names
+            for q in list(ests[n]["attitude_rmse_deg"])
+            + [ests[n]["attitude_rmse_total_deg"]]
+            + list(ests[n]["bound"]["attitude_rmse_bound_deg"] or [])
+        ],
+    )
     a.set_xticks(np.arange(4), groups)
     a.set_ylabel("RMSE over the scoring window (deg)")
     a.set_title("window RMSE with 95% CI; diamonds: the bound", fontsize=10)
@@ -281,17 +348,22 @@ def rmse_vs_bound_figure(summary: dict, title: str):
         t = np.array(h["t"], dtype=float)
         r = np.array([[np.nan if q is None else q for q in row] for row in h["attitude_rmse_deg"]], dtype=float)
         k = smoothing_window(ests[n]["n_runs"], len(t))
-        line = b.plot(t, np.sqrt(_moving_mean(np.sum(r ** 2, axis=1), k)), lw=0.9, label=n)[0]
+        line = b.plot(t, np.sqrt(_moving_mean(np.sum(r**2, axis=1), k)), lw=0.9, label=n)[0]
         if h.get("bound_attitude_sigma_deg") is not None:
-            bs = np.array([[np.nan if q is None else q for q in row] for row in h["bound_attitude_sigma_deg"]], dtype=float)
-            b.plot(t, np.sqrt(np.sum(bs ** 2, axis=1)), lw=1.2, ls=":", color=line.get_color())
+            bs = np.array(
+                [[np.nan if q is None else q for q in row] for row in h["bound_attitude_sigma_deg"]], dtype=float
+            )
+            b.plot(t, np.sqrt(np.sum(bs**2, axis=1)), lw=1.2, ls=":", color=line.get_color())
     b.plot([], [], "k:", lw=1.2, label="its bound (dotted, same color)")
     b.axvline(summary["score_from_s"], color="gray", lw=0.8)
     b.set_xlabel("time (s)")
     b.set_ylabel("total attitude error (deg)")
-    b.set_title("RMS of |dθ| over runs (and a moving window of "
-                f"{smoothing_window(summary['n_runs'], len(ests[names[0]]['history']['t']))} points) vs the bound's "
-                "total σ", fontsize=10)
+    b.set_title(
+        "RMS of |dθ| over runs (and a moving window of "
+        f"{smoothing_window(summary['n_runs'], len(ests[names[0]]['history']['t']))} points) vs the bound's "
+        "total σ",
+        fontsize=10,
+    )
     b.grid(True, which="major", alpha=0.3)
     _y_scale(b, 5.0)
     b.legend(fontsize=7, ncol=2, loc="best")
@@ -302,9 +374,21 @@ def rmse_vs_bound_figure(summary: dict, title: str):
 # ----------------------------------------------------------------------------------------
 # Tables
 # ----------------------------------------------------------------------------------------
-TABLE_COLUMNS = ["estimator", "RMSE x / y / z (deg)", "95% CI total", "RMSE total (deg)", "bias RMSE x/y/z (deg/h)",
-                 "ANEES (dof)", "95% band (window)", "NIS mean / dof per input", "converged", "median conv. (s)",
-                 "bound total (deg)", "RMSE / bound x / y / z", "worst seeds"]
+TABLE_COLUMNS = [
+    "estimator",
+    "RMSE x / y / z (deg)",
+    "95% CI total",
+    "RMSE total (deg)",
+    "bias RMSE x/y/z (deg/h)",
+    "ANEES (dof)",
+    "95% band (window)",
+    "NIS mean / dof per input",
+    "converged",
+    "median conv. (s)",
+    "bound total (deg)",
+    "RMSE / bound x / y / z",
+    "worst seeds",
+]
 
 
 def summary_rows(summary: dict) -> list[list[str]]:
@@ -314,37 +398,57 @@ def summary_rows(summary: dict) -> list[list[str]]:
         second = s["bias_rmse_deg_per_h"] if s["second_kind"] == "gyro_bias" else None
         band = s.get("anees_window_band_95") or s["anees_band_95"]
         ok = s.get("anees_in_window_band") if s.get("anees_window_band_95") else s.get("anees_in_band")
-        nis = "; ".join(f"{k} {_g(v['mean'])}/{_g(v['mean_dof'], '.0f')}" + ("" if v["in_band"] else " (out of band)")
-                        for k, v in s["nis"].items()) or "–"
+        nis = (
+            "; ".join(
+                f"{k} {_g(v['mean'])}/{_g(v['mean_dof'], '.0f')}" + ("" if v["in_band"] else " (out of band)")
+                for k, v in s["nis"].items()
+            )
+            or "–"
+        )
         conv = s["convergence"]
         bd = s["bound"]
-        rows.append([
-            n, " / ".join(_g(v) for v in s["attitude_rmse_deg"]), _ci(s["attitude_rmse_total_ci95_deg"]),
-            _g(s["attitude_rmse_total_deg"]), "–" if second is None else " / ".join(_g(v) for v in second),
-            f"{_g(s['anees'])} ({s['nees_dof']})", _ci(band) + ("" if ok is None else (" in" if ok else " OUT")), nis,
-            f"{conv['n_converged']}/{s['n_runs']}",
-            "–" if conv["time_s"] is None else _g(conv["time_s"]["median"]),
-            _g(bd["attitude_rmse_total_bound_deg"]) if bd["defined"] else "none",
-            " / ".join(_g(v) for v in bd["ratio"]) if bd["defined"] and bd["ratio"] else "–",
-            ", ".join(str(w["seed"]) for w in s["worst_runs"][:3])])
+        rows.append(
+            [
+                n,
+                " / ".join(_g(v) for v in s["attitude_rmse_deg"]),
+                _ci(s["attitude_rmse_total_ci95_deg"]),
+                _g(s["attitude_rmse_total_deg"]),
+                "–" if second is None else " / ".join(_g(v) for v in second),
+                f"{_g(s['anees'])} ({s['nees_dof']})",
+                _ci(band) + ("" if ok is None else (" in" if ok else " OUT")),
+                nis,
+                f"{conv['n_converged']}/{s['n_runs']}",
+                "–" if conv["time_s"] is None else _g(conv["time_s"]["median"]),
+                _g(bd["attitude_rmse_total_bound_deg"]) if bd["defined"] else "none",
+                " / ".join(_g(v) for v in bd["ratio"]) if bd["defined"] and bd["ratio"] else "–",
+                ", ".join(str(w["seed"]) for w in s["worst_runs"][:3]),
+            ]
+        )
     return rows
 
 
 def format_campaign_table(result) -> str:
     """The campaign's table as text (what ``drake-att montecarlo`` prints)."""
-    head = (f"Monte Carlo {result.scenario.name}: {len(result.records)} runs"
-            + (f" ({len(result.failed)} failed)" if result.failed else "")
-            + f", seeds {result.seeds[0]}..{result.seeds[-1]}")
+    head = (
+        f"Monte Carlo {result.scenario.name}: {len(result.records)} runs"
+        + (f" ({len(result.failed)} failed)" if result.failed else "")
+        + f", seeds {result.seeds[0]}..{result.seeds[-1]}"
+    )
     if not result.summary:
         return head + "\n(no completed run)"
     keep = [0, 1, 3, 2, 5, 6, 8, 10, 11]
     table = [[TABLE_COLUMNS[k] for k in keep]] + [[row[k] for k in keep] for row in summary_rows(result.summary)]
     widths = [max(len(r[c]) for r in table) for c in range(len(keep))]
-    lines = [head, "  ".join(h.ljust(w) for h, w in zip(table[0], widths, strict=True)),
-             "  ".join("-" * w for w in widths)]
+    lines = [
+        head,
+        "  ".join(h.ljust(w) for h, w in zip(table[0], widths, strict=True)),
+        "  ".join("-" * w for w in widths),
+    ]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in table[1:]]
-    lines.append(f"(window t >= {result.summary['score_from_s']:g} s; ANEES band: 95% of the window average, 'in'/'OUT'; "
-                 "bound: posterior Cramér–Rao, total RMS over the window)")
+    lines.append(
+        f"(window t >= {result.summary['score_from_s']:g} s; ANEES band: 95% of the window average, 'in'/'OUT'; "
+        "bound: posterior Cramér–Rao, total RMS over the window)"
+    )
     return "\n".join(lines)
 
 
@@ -374,18 +478,27 @@ def _table_html(header, rows) -> str:
         cls = ' class="out"' if " OUT" in c or "out of band" in c else ""
         return f"<td{cls}>{html.escape(c)}</td>"
 
-    return ("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr>"
-            + "".join("<tr>" + "".join(cell(c) for c in r) + "</tr>" for r in rows) + "</table>")
+    return (
+        "<table><tr>"
+        + "".join(f"<th>{html.escape(h)}</th>" for h in header)
+        + "</tr>"
+        + "".join("<tr>" + "".join(cell(c) for c in r) + "</tr>" for r in rows)
+        + "</table>"
+    )
 
 
 def _figure_html(path: str, caption: str) -> str:
-    return (f'<figure><img src="{_png_uri(path)}" alt="{html.escape(os.path.basename(path))}">'
-            f"<figcaption>{html.escape(os.path.basename(path))}: {html.escape(caption)}</figcaption></figure>")
+    return (
+        f'<figure><img src="{_png_uri(path)}" alt="{html.escape(os.path.basename(path))}">'
+        f"<figcaption>{html.escape(os.path.basename(path))}: {html.escape(caption)}</figcaption></figure>"
+    )
 
 
 def _page(title: str, body: str) -> str:
-    return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
-            f"<style>{CSS}</style></head><body>\n{body}\n</body></html>\n")
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+        f"<style>{CSS}</style></head><body>\n{body}\n</body></html>\n"
+    )
 
 
 def write_campaign_report(result, executor: str = "") -> list[str]:
@@ -401,29 +514,68 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
 
     out = result.out
     scenario = result.scenario
-    campaign = {"scenario": scenario.name, "runs": len(result.seeds), "completed": len(result.records),
-                "failed": {str(s): m for s, m in result.failed.items()}, "first_seed": result.seeds[0],
-                "last_seed": result.seeds[-1], "executor": executor, "runs_simulated_by_last_call": result.simulated,
-                "runs_reused_from_disk": result.reused, "wall_time_s_of_last_call": round(result.wall_time_s, 3),
-                "duration_s": scenario.duration_s, "config": "config.yaml", "runs_folder": "runs/"}
-    files = [write_text_atomic(os.path.join(out, SUMMARY_FILE), json.dumps(
-        strict_json({"campaign": campaign, "statistics": result.summary}), indent=1, allow_nan=False) + "\n")]
+    campaign = {
+        "scenario": scenario.name,
+        "runs": len(result.seeds),
+        "completed": len(result.records),
+        "failed": {str(s): m for s, m in result.failed.items()},
+        "first_seed": result.seeds[0],
+        "last_seed": result.seeds[-1],
+        "executor": executor,
+        "runs_simulated_by_last_call": result.simulated,
+        "runs_reused_from_disk": result.reused,
+        "wall_time_s_of_last_call": round(result.wall_time_s, 3),
+        "duration_s": scenario.duration_s,
+        "config": "config.yaml",
+        "runs_folder": "runs/",
+    }
+    files = [
+        write_text_atomic(
+            os.path.join(out, SUMMARY_FILE),
+            json.dumps(strict_json({"campaign": campaign, "statistics": result.summary}), indent=1, allow_nan=False)
+            + "\n",
+        )
+    ]
     figures = []
     summary, records = result.summary, result.records
     if summary:
         sf = summary["score_from_s"]
-        figures.append((_save(rmse_vs_bound_figure(summary, f"{scenario.name}: RMSE vs the Cramér–Rao bound "
-                                                   f"({len(records)} runs)"), os.path.join(out, "rmse_vs_bound.png")),
-                        "window RMSE with 95% CI per axis and total, with the bound; RMSE per instant vs the bound."))
+        figures.append(
+            (
+                _save(
+                    rmse_vs_bound_figure(
+                        summary, f"{scenario.name}: RMSE vs the Cramér–Rao bound ({len(records)} runs)"
+                    ),
+                    os.path.join(out, "rmse_vs_bound.png"),
+                ),
+                "window RMSE with 95% CI per axis and total, with the bound; RMSE per instant vs the bound.",
+            )
+        )
         for n, s in summary["estimators"].items():
-            figures.append((_save(error_ensemble_figure(records, n, sf, f"{scenario.name}: {n}, attitude error of "
-                                                        f"{len(records)} runs"), os.path.join(out, f"{n}_errors.png")),
-                            (f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
-                             "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
-                             "when defined); top: the whole run, bottom: the scoring window.")))
-            figures.append((_save(consistency_figure(records, n, s, f"{scenario.name}: {n}, consistency"),
-                                  os.path.join(out, f"{n}_consistency.png")),
-                            f"{n}: ANEES per instant over the runs with its 95% band, and NIS / dof per input."))
+            figures.append(
+                (
+                    _save(
+                        error_ensemble_figure(
+                            records, n, sf, f"{scenario.name}: {n}, attitude error of {len(records)} runs"
+                        ),
+                        os.path.join(out, f"{n}_errors.png"),
+                    ),
+                    (
+                        f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
+                        "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
+                        "when defined); top: the whole run, bottom: the scoring window."
+                    ),
+                )
+            )
+            figures.append(
+                (
+                    _save(
+                        consistency_figure(records, n, s, f"{scenario.name}: {n}, consistency"),
+                        os.path.join(out, f"{n}_consistency.png"),
+                    ),
+                    f"{n}: ANEES per instant over the runs with its 95% band, and NIS / dof per input.",
+                )
+            )
     files += [p for p, _ in figures]
     page = _campaign_html(result, campaign, figures, dump_scenario(scenario))
     files.append(write_text_atomic(os.path.join(out, "report.html"), page))
@@ -433,50 +585,95 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
 def _campaign_html(result, campaign, figures, yaml_text) -> str:
     s = result.summary
     title = f"Monte Carlo: {result.scenario.name}, {len(result.records)} runs"
-    facts = [("scenario", result.scenario.name), ("description", " ".join(result.scenario.description.split())),
-             ("runs", f"{campaign['completed']} completed of {campaign['runs']} (seeds {campaign['first_seed']}.."
-                      f"{campaign['last_seed']})" + (f", {len(result.failed)} failed" if result.failed else "")),
-             ("simulated time per run", f"{result.scenario.duration_s:g} s"),
-             ("scoring window", f"t ≥ {result.scenario.scoring.score_from_s:g} s"),
-             ("executed on", campaign["executor"] or "–"),
-             ("last call", (f"{result.simulated} runs simulated, {result.reused + result.failed_reused} read from "
-                            "runs/, "
-                            f"{result.wall_time_s:.1f} s wall"))]
-    body = [f"<h1>{html.escape(title)}</h1>",
-            "<table class='facts'>" + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
-                                              for k, v in facts) + "</table>"]
+    facts = [
+        ("scenario", result.scenario.name),
+        ("description", " ".join(result.scenario.description.split())),
+        (
+            "runs",
+            f"{campaign['completed']} completed of {campaign['runs']} (seeds {campaign['first_seed']}.."
+            f"{campaign['last_seed']})" + (f", {len(result.failed)} failed" if result.failed else ""),
+        ),
+        ("simulated time per run", f"{result.scenario.duration_s:g} s"),
+        ("scoring window", f"t ≥ {result.scenario.scoring.score_from_s:g} s"),
+        ("executed on", campaign["executor"] or "–"),
+        (
+            "last call",
+            (
+                f"{result.simulated} runs simulated, {result.reused + result.failed_reused} read from "
+                "runs/, "
+                f"{result.wall_time_s:.1f} s wall"
+            ),
+        ),
+    ]
+    body = [
+        f"<h1>{html.escape(title)}</h1>",
+        "<table class='facts'>"
+        + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in facts)
+        + "</table>",
+    ]
     if result.failed:
-        body.append("<h2>Failed runs</h2><ul>" + "".join(
-            f"<li>seed {s_}: {html.escape(m)}</li>" for s_, m in result.failed.items()) + "</ul>")
+        body.append(
+            "<h2>Failed runs</h2><ul>"
+            + "".join(f"<li>seed {s_}: {html.escape(m)}</li>" for s_, m in result.failed.items())
+            + "</ul>"
+        )
     if s:
         body.append("<h2>Summary</h2>" + _table_html(TABLE_COLUMNS, summary_rows(s)))
-        body.append("<p>RMSE over the scoring window pooled over runs; the 95% CI is for the total. ANEES: mean NEES "
-                    "over runs and window samples, with the 95% band of a window average of a consistent filter "
-                    "(‘OUT’: outside it). NIS: mean NIS per update attempt in the window / its mean dimension. "
-                    "Bound: the posterior Cramér–Rao bound on each run's true trajectory with the true sensor noise; "
-                    "RMSE / bound ≥ 1 for any estimator up to sampling error.</p>")
+        body.append(
+            "<p>RMSE over the scoring window pooled over runs; the 95% CI is for the total. ANEES: mean NEES "
+            "over runs and window samples, with the 95% band of a window average of a consistent filter "
+            "(‘OUT’: outside it). NIS: mean NIS per update attempt in the window / its mean dimension. "
+            "Bound: the posterior Cramér–Rao bound on each run's true trajectory with the true sensor noise; "
+            "RMSE / bound ≥ 1 for any estimator up to sampling error.</p>"
+        )
         body.append("<h2>Figures</h2>" + "".join(_figure_html(p, c) for p, c in figures))
         rows = []
         for n, e in s["estimators"].items():
             bd = e["bound"]
-            rows.append([n, "yes" if bd["defined"] else f"no: {bd['reason']}",
-                         " / ".join(_g(v) for v in bd["attitude_rmse_bound_deg"]) if bd["attitude_rmse_bound_deg"] else "–",
-                         "; ".join(_ci(c) for c in bd["ratio_ci95"]) if bd["ratio_ci95"] else "–",
-                         " / ".join(_g(v) for v in bd["bias_ratio"]) if bd["bias_ratio"] else "–",
-                         _g(bd["prior_sensitivity"])])
-        body.append("<h2>The Cramér–Rao bound</h2>" + _table_html(
-            ["estimator", "defined", "bound RMS x / y / z (deg)", "RMSE / bound 95% CI x; y; z", "bias RMSE / bound",
-             "prior sensitivity"], rows))
-        rows = [[n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]), w["command"]]
-                for n, e in s["estimators"].items() for w in e["worst_runs"]]
-        body.append("<h2>Worst runs</h2><p>Largest total attitude RMSE per estimator; the command repeats the run "
-                    "bit for bit (the campaign's resolved config).</p>"
-                    + _table_html(["estimator", "seed", "RMSE total (deg)", "repeat it"], rows))
-        body.append("<h2>Methods</h2><ul>" + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
-                                                    for k, v in s["methods"].items()) + "</ul>")
-    body.append("<h2>Files</h2><p><code>summary.json</code> (every number above), <code>config.yaml</code> (the "
-                "resolved configuration), <code>runs/seed_&lt;seed&gt;.npz</code> (one record per run: "
-                "<code>drake_att.analysis.ensemble</code>), the PNGs, <code>manifest.json</code>.</p>")
+            rows.append(
+                [
+                    n,
+                    "yes" if bd["defined"] else f"no: {bd['reason']}",
+                    " / ".join(_g(v) for v in bd["attitude_rmse_bound_deg"]) if bd["attitude_rmse_bound_deg"] else "–",
+                    "; ".join(_ci(c) for c in bd["ratio_ci95"]) if bd["ratio_ci95"] else "–",
+                    " / ".join(_g(v) for v in bd["bias_ratio"]) if bd["bias_ratio"] else "–",
+                    _g(bd["prior_sensitivity"]),
+                ]
+            )
+        body.append(
+            "<h2>The Cramér–Rao bound</h2>"
+            + _table_html(
+                [
+                    "estimator",
+                    "defined",
+                    "bound RMS x / y / z (deg)",
+                    "RMSE / bound 95% CI x; y; z",
+                    "bias RMSE / bound",
+                    "prior sensitivity",
+                ],
+                rows,
+            )
+        )
+        rows = [
+            [n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]), w["command"]]
+            for n, e in s["estimators"].items()
+            for w in e["worst_runs"]
+        ]
+        body.append(
+            "<h2>Worst runs</h2><p>Largest total attitude RMSE per estimator; the command repeats the run "
+            "bit for bit (the campaign's resolved config).</p>"
+            + _table_html(["estimator", "seed", "RMSE total (deg)", "repeat it"], rows)
+        )
+        body.append(
+            "<h2>Methods</h2><ul>"
+            + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in s["methods"].items())
+            + "</ul>"
+        )
+    body.append(
+        "<h2>Files</h2><p><code>summary.json</code> (every number above), <code>config.yaml</code> (the "
+        "resolved configuration), <code>runs/seed_&lt;seed&gt;.npz</code> (one record per run: "
+        "<code>drake_att.analysis.ensemble</code>), the PNGs, <code>manifest.json</code>.</p>"
+    )
     body.append(f"<h2>Resolved configuration</h2><pre>{html.escape(yaml_text)}</pre>")
     return _page(title, "\n".join(body))
 
@@ -496,15 +693,24 @@ def comparison_cells(result) -> list[dict]:
         if st is not None:
             bd = st["bound"]
             band = st.get("anees_window_band_95") or st["anees_band_95"]
-            cell.update({
-                "runs": st["n_runs"], "attitude_rmse_total_deg": st["attitude_rmse_total_deg"],
-                "attitude_rmse_total_ci95_deg": st["attitude_rmse_total_ci95_deg"],
-                "attitude_rmse_deg": st["attitude_rmse_deg"], "anees": st["anees"], "nees_dof": st["nees_dof"],
-                "anees_band_95": band, "anees_in_band": bool(band[0] <= st["anees"] <= band[1])
-                if st["anees"] is not None and band and band[0] is not None else None,
-                "bound_total_deg": bd["attitude_rmse_total_bound_deg"], "ratio_to_bound_total": bd["ratio_total"],
-                "bound_reason": bd["reason"],
-                "converged": f"{st['convergence']['n_converged']}/{st['n_runs']}"})
+            cell.update(
+                {
+                    "runs": st["n_runs"],
+                    "attitude_rmse_total_deg": st["attitude_rmse_total_deg"],
+                    "attitude_rmse_total_ci95_deg": st["attitude_rmse_total_ci95_deg"],
+                    "attitude_rmse_deg": st["attitude_rmse_deg"],
+                    "anees": st["anees"],
+                    "nees_dof": st["nees_dof"],
+                    "anees_band_95": band,
+                    "anees_in_band": bool(band[0] <= st["anees"] <= band[1])
+                    if st["anees"] is not None and band and band[0] is not None
+                    else None,
+                    "bound_total_deg": bd["attitude_rmse_total_bound_deg"],
+                    "ratio_to_bound_total": bd["ratio_total"],
+                    "bound_reason": bd["reason"],
+                    "converged": f"{st['convergence']['n_converged']}/{st['n_runs']}",
+                }
+            )
         tm = result.timing.get((scen, est))
         if tm is not None:
             cell["ms_per_step"] = tm["ms_per_step"]
@@ -513,25 +719,47 @@ def comparison_cells(result) -> list[dict]:
     return cells
 
 
-COMPARISON_COLUMNS = ["scenario", "estimator", "runs", "RMSE total (deg)", "95% CI", "RMSE x / y / z (deg)",
-                      "ANEES (dof)", "95% band", "RMSE / bound", "ms / step", "converged", "note"]
+COMPARISON_COLUMNS = [
+    "scenario",
+    "estimator",
+    "runs",
+    "RMSE total (deg)",
+    "95% CI",
+    "RMSE x / y / z (deg)",
+    "ANEES (dof)",
+    "95% band",
+    "RMSE / bound",
+    "ms / step",
+    "converged",
+    "note",
+]
 
 
 def comparison_rows(cells) -> list[list[str]]:
     rows = []
     for c in cells:
         if "attitude_rmse_total_deg" not in c:
-            rows.append([c["scenario"], c["estimator"], "–", "n/a", "", "", "", "", "", "", "",
-                         c["why"] or "no completed run"])
+            rows.append(
+                [c["scenario"], c["estimator"], "–", "n/a", "", "", "", "", "", "", "", c["why"] or "no completed run"]
+            )
             continue
-        rows.append([c["scenario"], c["estimator"], str(c["runs"]), _g(c["attitude_rmse_total_deg"]),
-                     _ci(c["attitude_rmse_total_ci95_deg"]), " / ".join(_g(v) for v in c["attitude_rmse_deg"]),
-                     f"{_g(c['anees'])} ({c['nees_dof']})",
-                     _ci(c["anees_band_95"]) + ("" if c["anees_in_band"] is None else
-                                                (" in" if c["anees_in_band"] else " OUT")),
-                     _g(c["ratio_to_bound_total"]) if c["ratio_to_bound_total"] is not None else "no bound",
-                     _g(c.get("ms_per_step"), ".3f") if c.get("ms_per_step") is not None else "–", c["converged"],
-                     "" if c["ratio_to_bound_total"] is not None else (c.get("bound_reason") or "")])
+        rows.append(
+            [
+                c["scenario"],
+                c["estimator"],
+                str(c["runs"]),
+                _g(c["attitude_rmse_total_deg"]),
+                _ci(c["attitude_rmse_total_ci95_deg"]),
+                " / ".join(_g(v) for v in c["attitude_rmse_deg"]),
+                f"{_g(c['anees'])} ({c['nees_dof']})",
+                _ci(c["anees_band_95"])
+                + ("" if c["anees_in_band"] is None else (" in" if c["anees_in_band"] else " OUT")),
+                _g(c["ratio_to_bound_total"]) if c["ratio_to_bound_total"] is not None else "no bound",
+                _g(c.get("ms_per_step"), ".3f") if c.get("ms_per_step") is not None else "–",
+                c["converged"],
+                "" if c["ratio_to_bound_total"] is not None else (c.get("bound_reason") or ""),
+            ]
+        )
     return rows
 
 
@@ -558,9 +786,17 @@ def comparison_figure(cells, title: str):
     colors = [f"C{scen_colors.setdefault(c['scenario'], len(scen_colors)) % 10}" for c in ran]
     a = ax[0, 0]
     v = np.array([c["attitude_rmse_total_deg"] or np.nan for c in ran])
-    err = np.array([[c["attitude_rmse_total_deg"] - c["attitude_rmse_total_ci95_deg"][0],
-                     c["attitude_rmse_total_ci95_deg"][1] - c["attitude_rmse_total_deg"]]
-                    if c["attitude_rmse_total_ci95_deg"] else [0, 0] for c in ran]).T.reshape(2, -1)
+    err = np.array(
+        [
+            [
+                c["attitude_rmse_total_deg"] - c["attitude_rmse_total_ci95_deg"][0],
+                c["attitude_rmse_total_ci95_deg"][1] - c["attitude_rmse_total_deg"],
+            ]
+            if c["attitude_rmse_total_ci95_deg"]
+            else [0, 0]
+            for c in ran
+        ]
+    ).T.reshape(2, -1)
     a.bar(x, v, yerr=err, capsize=3, color=colors)
     bound = [c["bound_total_deg"] if c["bound_total_deg"] is not None else np.nan for c in ran]
     a.scatter(x, bound, marker="D", s=28, facecolor="white", edgecolor="k", zorder=3)
@@ -579,8 +815,9 @@ def comparison_figure(cells, title: str):
     a.set_ylabel("ANEES / dof")
     a.set_title("consistency: ANEES / dof (1 = consistent; black lines: 95% band)", fontsize=10)
     a = ax[1, 0]
-    a.bar(x, [c["ratio_to_bound_total"] if c["ratio_to_bound_total"] is not None else np.nan for c in ran],
-          color=colors)
+    a.bar(
+        x, [c["ratio_to_bound_total"] if c["ratio_to_bound_total"] is not None else np.nan for c in ran], color=colors
+    )
     a.axhline(1.0, color="k", ls="--", lw=0.8)
     a.set_ylabel("RMSE / bound")
     a.set_title("ratio to the Cramér–Rao bound (1 = efficient; no bar: no bound)", fontsize=10)
@@ -591,9 +828,15 @@ def comparison_figure(cells, title: str):
     for a in ax.ravel():
         a.set_xticks(x, [c["estimator"] for c in ran], fontsize=8, rotation=20, ha="right")
         a.grid(True, axis="y", which="both", alpha=0.3)
-    fig.legend(handles=[Patch(color=f"C{i % 10}", label=n) for n, i in scen_colors.items()], loc="upper center",
-               ncol=min(4, len(scen_colors)), fontsize=9, bbox_to_anchor=(0.5, 0.955), title="scenario",
-               title_fontsize=8)
+    fig.legend(
+        handles=[Patch(color=f"C{i % 10}", label=n) for n, i in scen_colors.items()],
+        loc="upper center",
+        ncol=min(4, len(scen_colors)),
+        fontsize=9,
+        bbox_to_anchor=(0.5, 0.955),
+        title="scenario",
+        title_fontsize=8,
+    )
     fig.suptitle(title, y=0.995)
     return fig
 
@@ -610,23 +853,45 @@ def write_comparison(result) -> list[str]:
     out = result.out
     cells = comparison_cells(result)
     runs = max((c.summary["n_runs"] for c in result.campaigns.values() if c.summary), default=0)
-    title = f"Comparison: {len(result.plan.scenarios)} scenarios x {len(result.plan.estimators)} estimators, {runs} runs"
-    files = [write_text_atomic(os.path.join(out, "comparison.json"), json.dumps(strict_json(
-        {"scenarios": [s.name for s in result.plan.scenarios], "estimators": result.plan.estimators,
-         "cells": cells, "campaign_folders": {n: n + "/" for n in result.campaigns}}), indent=1, allow_nan=False) + "\n")]
+    title = (
+        f"Comparison: {len(result.plan.scenarios)} scenarios x {len(result.plan.estimators)} estimators, {runs} runs"
+    )
+    files = [
+        write_text_atomic(
+            os.path.join(out, "comparison.json"),
+            json.dumps(
+                strict_json(
+                    {
+                        "scenarios": [s.name for s in result.plan.scenarios],
+                        "estimators": result.plan.estimators,
+                        "cells": cells,
+                        "campaign_folders": {n: n + "/" for n in result.campaigns},
+                    }
+                ),
+                indent=1,
+                allow_nan=False,
+            )
+            + "\n",
+        )
+    ]
     rows = comparison_rows(cells)
     md = ["| " + " | ".join(COMPARISON_COLUMNS) + " |", "|" + "---|" * len(COMPARISON_COLUMNS)]
     md += ["| " + " | ".join(r) + " |" for r in rows]
     files.append(write_text_atomic(os.path.join(out, "comparison.md"), f"# {title}\n\n" + "\n".join(md) + "\n"))
     png = _save(comparison_figure(cells, title), os.path.join(out, "comparison.png"))
     files.append(png)
-    body = [f"<h1>{html.escape(title)}</h1>",
-            ("<p>Every listed estimator on every listed scenario: the estimators of one scenario run in one diagram "
-             "per seed, on the same truth and the same sensor noise. RMSE over each scenario's scoring window, "
-             "pooled over runs (95% CI); ANEES with the 95% band of a window average; RMSE / the posterior "
-             "Cramér–Rao bound; time per estimator step from one run with that estimator alone (and its sources) "
-             "minus the sensors-only run. Each scenario's own report: <code>&lt;scenario&gt;/report.html</code>.</p>"),
-            _table_html(COMPARISON_COLUMNS, rows), _figure_html(png, title)]
+    body = [
+        f"<h1>{html.escape(title)}</h1>",
+        (
+            "<p>Every listed estimator on every listed scenario: the estimators of one scenario run in one diagram "
+            "per seed, on the same truth and the same sensor noise. RMSE over each scenario's scoring window, "
+            "pooled over runs (95% CI); ANEES with the 95% band of a window average; RMSE / the posterior "
+            "Cramér–Rao bound; time per estimator step from one run with that estimator alone (and its sources) "
+            "minus the sensors-only run. Each scenario's own report: <code>&lt;scenario&gt;/report.html</code>.</p>"
+        ),
+        _table_html(COMPARISON_COLUMNS, rows),
+        _figure_html(png, title),
+    ]
     files.append(write_text_atomic(os.path.join(out, "comparison.html"), _page(title, "\n".join(body))))
     return files
 
@@ -646,8 +911,14 @@ def find_chromium() -> str | None:
     return None
 
 
-def render_in_browser(html_path: str, png_path: str, width: int = 1400, height: int = 3000, chromium: str | None = None,
-                      timeout_s: float = 120.0) -> list[str]:
+def render_in_browser(
+    html_path: str,
+    png_path: str,
+    width: int = 1400,
+    height: int = 3000,
+    chromium: str | None = None,
+    timeout_s: float = 120.0,
+) -> list[str]:
     """Render ``html_path`` in headless Chromium, screenshot it to ``png_path`` and return
     the page's console messages (Chromium's ``CONSOLE`` log lines: script errors,
     ``console.*`` calls). RuntimeError when Chromium is missing or fails."""
@@ -656,10 +927,24 @@ def render_in_browser(html_path: str, png_path: str, width: int = 1400, height: 
         raise RuntimeError("no Chromium found (Debian: apt-get install chromium)")
     html_path, png_path = os.path.abspath(html_path), os.path.abspath(png_path)
     with tempfile.TemporaryDirectory(prefix="drake-att-chromium-") as profile:
-        cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update", "--disable-sync",
-               "--hide-scrollbars", f"--user-data-dir={profile}", "--enable-logging=stderr", "--v=0",
-               f"--screenshot={png_path}", f"--window-size={width},{height}", "file://" + html_path]
+        cmd = [
+            chromium,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--hide-scrollbars",
+            f"--user-data-dir={profile}",
+            "--enable-logging=stderr",
+            "--v=0",
+            f"--screenshot={png_path}",
+            f"--window-size={width},{height}",
+            "file://" + html_path,
+        ]
         try:
             p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
         except subprocess.TimeoutExpired:

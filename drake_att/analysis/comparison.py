@@ -99,8 +99,9 @@ def comparison_plan(scenarios, estimators=None, overrides=()) -> ComparisonPlan:
         src = load(source)
         configs = {e.name: e for e in src.estimators}
         if name not in configs:
-            raise CampaignError(f"--estimators {source}:{name}: scenario {src.name!r} has no estimator {name!r}; "
-                                f"it has {list(configs)}")
+            raise CampaignError(
+                f"--estimators {source}:{name}: scenario {src.name!r} has no estimator {name!r}; it has {list(configs)}"
+            )
         bring = [configs[n] for n in with_fused_sources(configs, [name])]  # a fusion brings its sources
         transplants[name] = (bring[::-1], src.plugins)
     cells, resolved = {}, []
@@ -130,8 +131,10 @@ def comparison_plan(scenarios, estimators=None, overrides=()) -> ComparisonPlan:
         if configs:
             resolved.append(_with_estimators(s, configs, plugins))
     if not any(why is None for why in cells.values()):
-        raise CampaignError("--estimators: no listed estimator runs on any listed scenario: "
-                            + "; ".join(f"{s} x {e}: {why}" for (s, e), why in cells.items()))
+        raise CampaignError(
+            "--estimators: no listed estimator runs on any listed scenario: "
+            + "; ".join(f"{s} x {e}: {why}" for (s, e), why in cells.items())
+        )
     return ComparisonPlan(resolved, columns, cells)
 
 
@@ -154,10 +157,21 @@ class ComparisonResult:
     files: list = field(default_factory=list)
 
 
-def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, workers: int | None = None,
-                   scheduler=None, out: str | None = None, resume: bool = False, progress: bool = True,
-                   connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S, record: Callable | None = None,
-                   timing_repeats: int = 3, stream=None) -> ComparisonResult:
+def run_comparison(
+    plan: ComparisonPlan,
+    runs: int,
+    first_seed: int = 1,
+    *,
+    workers: int | None = None,
+    scheduler=None,
+    out: str | None = None,
+    resume: bool = False,
+    progress: bool = True,
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+    record: Callable | None = None,
+    timing_repeats: int = 3,
+    stream=None,
+) -> ComparisonResult:
     """Run :func:`comparison_plan`'s scenarios (``drake-att compare``): one campaign each
     (``<out>/<scenario>/``, resumable), then per scenario one timing run per estimator
     (that estimator and its sources alone, minus the sensors-only run; the fastest of
@@ -186,22 +200,40 @@ def run_comparison(plan: ComparisonPlan, runs: int, first_seed: int = 1, *, work
         for scenario in plan.scenarios:
             sub = None if out is None else os.path.join(out, safe_component(scenario.name))
             campaigns[scenario.name] = run_campaign(
-                scenario, runs, first_seed, workers=workers, scheduler=scheduler, out=sub, resume=resume,
-                record=record, progress=progress, connect_timeout_s=connect_timeout_s, stream=stream)
+                scenario,
+                runs,
+                first_seed,
+                workers=workers,
+                scheduler=scheduler,
+                out=sub,
+                resume=resume,
+                record=record,
+                progress=progress,
+                connect_timeout_s=connect_timeout_s,
+                stream=stream,
+            )
             names = [e for e in plan.estimators if plan.cells.get((scenario.name, e), "") is None]
             selections = [()] + [_selection_with_sources(scenario, e) for e in names]
             seeds = [min(first_seed + k, SEED_MAX) for k in range(timing_repeats)]
             jobs = [(seed, sel) for sel in selections for seed in seeds]
-            walls = map_runs(scenario, jobs, timing_record, workers=workers, scheduler=scheduler,
-                             connect_timeout_s=connect_timeout_s)
-            fastest = [min(walls[k * len(seeds):(k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])
-                       for k in range(len(selections))]
+            walls = map_runs(
+                scenario, jobs, timing_record, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s
+            )
+            fastest = [
+                min(walls[k * len(seeds) : (k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])
+                for k in range(len(selections))
+            ]
             base = fastest[0]["wall_time_s"]
             for e, sel, w in zip(names, selections[1:], fastest[1:], strict=True):
                 steps = w["steps"][e]
-                timing[(scenario.name, e)] = {"selection": list(sel), "steps": steps, "wall_s": w["wall_time_s"],
-                                              "baseline_wall_s": base, "repeats": len(seeds),
-                                              "ms_per_step": 1e3 * (w["wall_time_s"] - base) / max(steps, 1)}
+                timing[(scenario.name, e)] = {
+                    "selection": list(sel),
+                    "steps": steps,
+                    "wall_s": w["wall_time_s"],
+                    "baseline_wall_s": base,
+                    "repeats": len(seeds),
+                    "ms_per_step": 1e3 * (w["wall_time_s"] - base) / max(steps, 1),
+                }
     except BaseException:
         for path in created:  # empty folders only: a campaign that saved runs keeps them
             try:

@@ -61,13 +61,17 @@ def check_connect_timeout(value) -> float:
     number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
     seconds = float(value) if number else float("nan")
     if not (np.isfinite(seconds) and 0.0 < seconds <= MAX_CONNECT_TIMEOUT_S):
-        raise CampaignError(f"--connect-timeout: got {describe(value)}; must be a finite number of seconds > 0 and at "
-                            f"most {MAX_CONNECT_TIMEOUT_S:g}")
+        raise CampaignError(
+            f"--connect-timeout: got {describe(value)}; must be a finite number of seconds > 0 and at "
+            f"most {MAX_CONNECT_TIMEOUT_S:g}"
+        )
     return seconds
 
 
-_SCHEDULER_ALLOWED = ("expected a Dask scheduler address tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786, what "
-                      "`dask scheduler` prints), or 'serial'")
+_SCHEDULER_ALLOWED = (
+    "expected a Dask scheduler address tcp://HOST:PORT (e.g. tcp://10.0.0.5:8786, what "
+    "`dask scheduler` prints), or 'serial'"
+)
 _HOST_NAME = re.compile(r"[A-Za-z0-9_](?:[A-Za-z0-9_.-]{0,252})|\[[0-9A-Fa-f:.]{2,45}\]")
 
 
@@ -86,12 +90,18 @@ def check_scheduler_address(address: str) -> str:
     if not sep:
         scheme, rest = "tcp", text
     if scheme.lower() != "tcp":
-        hint = (" (tls:// needs certificates drake-att has no options for: reach a remote scheduler through an SSH "
-                "tunnel to tcp://localhost:8786)" if scheme.lower() == "tls" else
-                " (http:// is the scheduler's dashboard, not the scheduler)" if scheme.lower() in ("http", "https")
-                else "")
-        raise CampaignError(f"--scheduler: got {describe(address)}; the scheme {_shown(scheme)}:// is not supported: "
-                            f"{_SCHEDULER_ALLOWED}{hint}")
+        hint = (
+            " (tls:// needs certificates drake-att has no options for: reach a remote scheduler through an SSH "
+            "tunnel to tcp://localhost:8786)"
+            if scheme.lower() == "tls"
+            else " (http:// is the scheduler's dashboard, not the scheduler)"
+            if scheme.lower() in ("http", "https")
+            else ""
+        )
+        raise CampaignError(
+            f"--scheduler: got {describe(address)}; the scheme {_shown(scheme)}:// is not supported: "
+            f"{_SCHEDULER_ALLOWED}{hint}"
+        )
     host, _, port = rest.rpartition(":")
     if not _HOST_NAME.fullmatch(host) or not re.fullmatch(r"[0-9]{1,5}", port) or not 0 < int(port) < 65536:
         raise CampaignError(f"--scheduler: got {describe(address)}; {_SCHEDULER_ALLOWED}")
@@ -114,8 +124,13 @@ def local_cluster(workers: int):
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None  # inherited by the spawned workers
     try:
-        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                            silence_logs=logging.CRITICAL)
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=":0",
+            silence_logs=logging.CRITICAL,
+        )
     finally:
         if main:
             signal.signal(signal.SIGINT, previous)
@@ -180,8 +195,11 @@ def _probe_scheduler(address: str, timeout_s: float, shown: str) -> None:
     advice = "is `dask scheduler` running there and reachable?"
     stage, error = box["stage"], box.get("error")
     if thread.is_alive():
-        what = ("no TCP connection (the host name did not resolve, or no answer)" if stage == "tcp" else
-                "something accepted the connection but no Dask scheduler answered")
+        what = (
+            "no TCP connection (the host name did not resolve, or no answer)"
+            if stage == "tcp"
+            else "something accepted the connection but no Dask scheduler answered"
+        )
         raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s ({what}); {advice}")
     if error is None:
         reply = box.get("reply")
@@ -189,24 +207,31 @@ def _probe_scheduler(address: str, timeout_s: float, shown: str) -> None:
         if kind == "Scheduler":
             return
         if isinstance(kind, str) and kind:
-            raise CampaignError(f"{where}: is a Dask {_one_line(kind, 40)}, not a scheduler; give the address "
-                                "`dask scheduler` prints")
+            raise CampaignError(
+                f"{where}: is a Dask {_one_line(kind, 40)}, not a scheduler; give the address `dask scheduler` prints"
+            )
         raise CampaignError(f"{where}: answers, but not as a Dask scheduler; give the address `dask scheduler` prints")
     if stage == "tcp" and isinstance(error, socket.gaierror):
         raise CampaignError(f"{where}: cannot connect: unknown host ({_error_text(error)}); {advice}")
     if stage == "tcp" and isinstance(error, ConnectionRefusedError):
         raise CampaignError(f"{where}: cannot connect: nothing listens there (connection refused); {advice}")
     if stage == "tcp" and isinstance(error, (TimeoutError, socket.timeout)):
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s (no answer: host down, wrong address "
-                            f"or a firewall?); {advice}")
+        raise CampaignError(
+            f"{where}: cannot connect within {timeout_s:g} s (no answer: host down, wrong address "
+            f"or a firewall?); {advice}"
+        )
     if stage == "tcp":
         raise CampaignError(f"{where}: cannot connect ({_error_text(error)}); {advice}")
     if isinstance(error, (TimeoutError, asyncio.TimeoutError)):
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s: something accepts connections there "
-                            "but no Dask scheduler answered (another program on that port?); give the address "
-                            "`dask scheduler` prints")
-    raise CampaignError(f"{where}: cannot connect: something accepts connections there but does not speak Dask's "
-                        f"protocol ({_error_text(error)}); give the address `dask scheduler` prints")
+        raise CampaignError(
+            f"{where}: cannot connect within {timeout_s:g} s: something accepts connections there "
+            "but no Dask scheduler answered (another program on that port?); give the address "
+            "`dask scheduler` prints"
+        )
+    raise CampaignError(
+        f"{where}: cannot connect: something accepts connections there but does not speak Dask's "
+        f"protocol ({_error_text(error)}); give the address `dask scheduler` prints"
+    )
 
 
 @functools.cache
@@ -266,11 +291,15 @@ def connect_scheduler(address: str, connect_timeout_s: float = DEFAULT_CONNECT_T
     try:
         client = _deadline_client_class()(address, timeout=left(), set_as_default=False)
     except TimeoutError:
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s (no answer from the scheduler); is "
-                            "`dask scheduler` running there and reachable?") from None
+        raise CampaignError(
+            f"{where}: cannot connect within {timeout_s:g} s (no answer from the scheduler); is "
+            "`dask scheduler` running there and reachable?"
+        ) from None
     except OSError as e:
-        raise CampaignError(f"{where}: cannot connect within {timeout_s:g} s ({_error_text(e)}); is `dask scheduler` "
-                            "running there and reachable?") from None
+        raise CampaignError(
+            f"{where}: cannot connect within {timeout_s:g} s ({_error_text(e)}); is `dask scheduler` "
+            "running there and reachable?"
+        ) from None
     except Exception as e:  # noqa: BLE001 - e.g. the scheduler refused this client (versions): reported, one line
         raise CampaignError(f"{where}: the scheduler refused the connection ({_error_text(e)})") from None
     # What follows talks to a scheduler that answered; a watchdog still closes the client
@@ -288,17 +317,21 @@ def connect_scheduler(address: str, connect_timeout_s: float = DEFAULT_CONNECT_T
         try:
             client.wait_for_workers(1, timeout=left())
         except Exception:  # noqa: BLE001 - TimeoutError, or the watchdog closed the client
-            raise CampaignError(f"{where}: no workers connected within {timeout_s:g} s; start some with "
-                                f"`dask worker {address}`") from None
+            raise CampaignError(
+                f"{where}: no workers connected within {timeout_s:g} s; start some with `dask worker {address}`"
+            ) from None
         mine = _worker_versions()
         try:
             theirs = client.run(_worker_versions)
         except Exception as e:  # noqa: BLE001 - the worker's own error, reported with the address
             if fired.is_set():
-                raise CampaignError(f"{where}: the workers did not answer the version check within {timeout_s:g} s"
-                                    ) from None
-            raise CampaignError(f"{where}: a worker cannot run drake_att ({_error_text(e)}); install the same "
-                                "drake_att on every worker machine") from None
+                raise CampaignError(
+                    f"{where}: the workers did not answer the version check within {timeout_s:g} s"
+                ) from None
+            raise CampaignError(
+                f"{where}: a worker cannot run drake_att ({_error_text(e)}); install the same "
+                "drake_att on every worker machine"
+            ) from None
         if fired.is_set():
             raise CampaignError(f"{where}: the scheduler stopped answering within {timeout_s:g} s")
     except BaseException:
@@ -310,8 +343,11 @@ def connect_scheduler(address: str, connect_timeout_s: float = DEFAULT_CONNECT_T
         raise CampaignError(f"{where}: the scheduler stopped answering within {timeout_s:g} s")
     for worker, versions in theirs.items():
         if versions != mine:
-            warnings.warn(f"worker {worker} runs {versions}, this process {mine}: results may differ from a "
-                          "local run of the same seeds", stacklevel=3)
+            warnings.warn(
+                f"worker {worker} runs {versions}, this process {mine}: results may differ from a "
+                "local run of the same seeds",
+                stacklevel=3,
+            )
     return client
 
 
@@ -324,8 +360,12 @@ def _worker_versions() -> dict:
 
     import drake_att
 
-    return {"drake_att": drake_att.__version__, "drake": getattr(pydrake, "__version__", "?"),
-            "numpy": np.__version__, "python": sys.version.split()[0]}
+    return {
+        "drake_att": drake_att.__version__,
+        "drake": getattr(pydrake, "__version__", "?"),
+        "numpy": np.__version__,
+        "python": sys.version.split()[0],
+    }
 
 
 def _connect(workers, scheduler, connect_timeout_s):
@@ -350,9 +390,11 @@ def _shut_down(client, cluster, owned, futures) -> None:
     for q in quiet:
         q.setLevel(logging.CRITICAL)
     try:
-        for step in ([lambda: client.cancel([f for f in futures if not f.done()])]
-                     + ([client.close] if owned else [])
-                     + ([cluster.close] if owned and cluster is not None else [])):
+        for step in (
+            [lambda: client.cancel([f for f in futures if not f.done()])]
+            + ([client.close] if owned else [])
+            + ([cluster.close] if owned and cluster is not None else [])
+        ):
             try:
                 step()
             except Exception:  # noqa: BLE001, S110 - shutting down after an error or Ctrl-C: the first error matters

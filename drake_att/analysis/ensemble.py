@@ -156,7 +156,7 @@ def _nis_samples(run, name: str, errors: dict) -> tuple[str, list[str], list[tup
             out.append((t[first], v[first], d[first].astype(np.int32)))
         while len(inputs) < len(out):
             inputs.append(f"input{len(inputs)}")
-        return "innovations", inputs[:len(out)], out
+        return "innovations", inputs[: len(out)], out
     try:
         inputs, dims = _input_names(run.scenario, name)
     except StopIteration:
@@ -179,8 +179,11 @@ def per_run_record(run) -> dict:
     scoring = scenario.scoring
     names = list(run.metadata["estimators"])
     rec = {
-        "schema": np.array(RECORD_SCHEMA), "scenario": _str(scenario.name), "seed": np.array(int(run.seed)),
-        "duration_s": np.array(float(scenario.duration_s)), "score_from_s": np.array(float(scoring.score_from_s)),
+        "schema": np.array(RECORD_SCHEMA),
+        "scenario": _str(scenario.name),
+        "seed": np.array(int(run.seed)),
+        "duration_s": np.array(float(scenario.duration_s)),
+        "score_from_s": np.array(float(scoring.score_from_s)),
         "convergence_threshold_deg": np.array(float(scoring.convergence_threshold_deg)),
         "estimators": np.array(names, dtype=str),
         "metrics_json": _str(json.dumps(strict_json(met.compute_metrics(run)), allow_nan=False)),
@@ -200,9 +203,12 @@ def per_run_record(run) -> dict:
         rec[p + "nees"] = e["nees"].astype(np.float32)
         rec[p + "nees_dof"] = np.array(int(e["nees_dof"]))
         rec[p + "window_n"] = np.array(int(np.sum(m)))
-        rec[p + "window_ms"] = (np.mean(e["dtheta"][m] ** 2, axis=0) if np.any(m) else np.full(3, np.nan))
-        rec[p + "window_ms_second"] = (np.mean(e["second_err"][m] ** 2, axis=0)
-                                       if e["second_err"] is not None and np.any(m) else np.full(3, np.nan))
+        rec[p + "window_ms"] = np.mean(e["dtheta"][m] ** 2, axis=0) if np.any(m) else np.full(3, np.nan)
+        rec[p + "window_ms_second"] = (
+            np.mean(e["second_err"][m] ** 2, axis=0)
+            if e["second_err"] is not None and np.any(m)
+            else np.full(3, np.nan)
+        )
         nees_w = e["nees"][m]
         finite = np.isfinite(nees_w)
         rec[p + "window_nees_sum"] = np.array(float(np.sum(nees_w[finite])))
@@ -219,8 +225,11 @@ def per_run_record(run) -> dict:
         if e["second_kind"] == "gyro_bias":
             sigma, window, info = bound_for_estimator(run, name, t, scoring.score_from_s, cache)
         else:
-            sigma, window, info = None, None, {"reason": f"{name} estimates the body rate, not a gyro bias: "
-                                                         "no gyro-driven bound"}
+            sigma, window, info = (
+                None,
+                None,
+                {"reason": f"{name} estimates the body rate, not a gyro bias: no gyro-driven bound"},
+            )
         if sigma is not None:
             rec[p + "bound_sigma"] = sigma.astype(np.float32)
             rec[p + "bound_window_var"] = np.full(6, np.nan) if window is None else np.asarray(window, dtype=np.float64)
@@ -269,9 +278,13 @@ def t_q(probability: float, dof: int) -> float:
     if dof == 2:
         return (2.0 * probability - 1.0) / math.sqrt(2.0 * probability * (1.0 - probability))
     z, v = _normal_quantile(probability), float(dof)
-    return (z + (z**3 + z) / (4 * v) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * v**2)
-            + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * v**3)
-            + (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / (92160 * v**4))
+    return (
+        z
+        + (z**3 + z) / (4 * v)
+        + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * v**2)
+        + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * v**3)
+        + (79 * z**9 + 776 * z**7 + 1482 * z**5 - 1920 * z**3 - 945 * z) / (92160 * v**4)
+    )
 
 
 def anees_band(n_runs: int, dof: int, probability: float = 0.95, samples_per_run: float = 1.0) -> list[float]:
@@ -374,19 +387,19 @@ def common_times(records, name):
 # ---------------------------------------------------------------------------------------------
 METHODS = {
     "rmse": "RMSE over the scoring window t >= score_from_s, pooled over runs: sqrt(mean over runs of each run's "
-            "mean square error)",
+    "mean square error)",
     "rmse_ci": "95% CI: Student's t on the mean over runs of the per-run mean squares (runs are independent; no "
-               "model of the correlation in time needed), lower end clipped at 0, square-rooted",
+    "model of the correlation in time needed), lower end clipped at 0, square-rooted",
     "anees": "mean NEES over runs and window samples; anees_band_95 = chi2(N dof)/N 2.5%/97.5% quantiles (one "
-             "instant); anees_window_band_95 = the same with N n_eff samples, n_eff = window samples / integrated "
-             "autocorrelation time of the NEES (estimated from the ensemble)",
+    "instant); anees_window_band_95 = the same with N n_eff samples, n_eff = window samples / integrated "
+    "autocorrelation time of the NEES (estimated from the ensemble)",
     "nis": "mean NIS per update attempt in the window; band chi2(D)/M quantiles, M attempts, D = sum of their "
-           "dimensions (innovations of a consistent filter are white)",
+    "dimensions (innovations of a consistent filter are white)",
     "convergence": "convergence time: first estimate time after which every attitude axis stays within "
-                   "convergence_threshold_deg until the end (metrics.convergence_time); converged = has one",
+    "convergence_threshold_deg until the end (metrics.convergence_time); converged = has one",
     "bound": "posterior Cramer-Rao bound of gyro-driven attitude determination on each run's true trajectory with "
-             "the true sensor noise (drake_att.analysis.bound); RMS over the window = sqrt(mean bound variance), "
-             "pooled over runs; ratio = RMSE / bound",
+    "the true sensor noise (drake_att.analysis.bound); RMS over the window = sqrt(mean bound variance), "
+    "pooled over runs; ratio = RMSE / bound",
 }
 
 
@@ -445,8 +458,12 @@ def _nees_consistency(records, p: str, dof: int, band, nees, win) -> dict:
     nsum = sum(float(r[p + "window_nees_sum"]) for r in records)
     ncount = sum(int(r[p + "window_nees_n"]) for r in records)
     anees = nsum / ncount if ncount else None
-    out = {"nees_dof": dof, "anees": _f(anees), "anees_band_95": _fl(band),
-           "anees_in_band": None if anees is None else bool(band[0] <= anees <= band[1])}
+    out = {
+        "nees_dof": dof,
+        "anees": _f(anees),
+        "anees_band_95": _fl(band),
+        "anees_in_band": None if anees is None else bool(band[0] <= anees <= band[1]),
+    }
     tau = integrated_autocorrelation_time(nees[:, win]) if np.sum(win) >= 4 else None
     out["nees_correlation_time_samples"] = _f(tau)
     if tau is not None and anees is not None:
@@ -482,8 +499,14 @@ def _nis_consistency(records, p: str, score_from: float) -> dict:
         D = float(np.sum(d))
         nb = [chi2_q(0.025, D) / v.size, chi2_q(0.975, D) / v.size]
         mean = float(np.mean(v))
-        nis[input_name] = {"source": str(records[0][p + "nis_source"]), "count": int(v.size), "mean": _f(mean),
-                           "mean_dof": _f(D / v.size), "band_95": _fl(nb), "in_band": bool(nb[0] <= mean <= nb[1])}
+        nis[input_name] = {
+            "source": str(records[0][p + "nis_source"]),
+            "count": int(v.size),
+            "mean": _f(mean),
+            "mean_dof": _f(D / v.size),
+            "band_95": _fl(nb),
+            "in_band": bool(nb[0] <= mean <= nb[1]),
+        }
     return nis
 
 
@@ -492,10 +515,18 @@ def _convergence(records, p: str, seeds) -> dict:
     conv = np.array([float(r[p + "convergence_time_s"]) for r in records])
     ok = np.isfinite(conv)
     return {
-        "fraction_converged": _f(np.mean(ok)) if len(records) else None, "n_converged": int(np.sum(ok)),
-        "time_s": None if not np.any(ok) else {
-            "min": _f(np.min(conv[ok])), "p10": _f(np.percentile(conv[ok], 10)), "median": _f(np.median(conv[ok])),
-            "mean": _f(np.mean(conv[ok])), "p90": _f(np.percentile(conv[ok], 90)), "max": _f(np.max(conv[ok]))},
+        "fraction_converged": _f(np.mean(ok)) if len(records) else None,
+        "n_converged": int(np.sum(ok)),
+        "time_s": None
+        if not np.any(ok)
+        else {
+            "min": _f(np.min(conv[ok])),
+            "p10": _f(np.percentile(conv[ok], 10)),
+            "median": _f(np.median(conv[ok])),
+            "mean": _f(np.mean(conv[ok])),
+            "p90": _f(np.percentile(conv[ok], 90)),
+            "max": _f(np.max(conv[ok])),
+        },
         "time_s_by_seed": {str(s): _f(c) for s, c in zip(seeds, conv, strict=True)},
     }
 
@@ -504,10 +535,15 @@ def _worst_runs(ms, seeds, worst: int, command) -> list:
     """The ``worst`` runs of the largest total attitude mean square ``ms`` (N, 3), largest first."""
     total = ms.sum(axis=1)
     order = [i for i in np.argsort(-np.where(np.isfinite(total), total, -np.inf), kind="stable")][:worst]
-    return [{"seed": seeds[i], "attitude_rmse_total_deg": _f(math.sqrt(total[i]) / DEG)
-             if np.isfinite(total[i]) else None,
-             "attitude_rmse_deg": _fl(np.sqrt(ms[i]) / DEG),
-             "command": command(seeds[i])} for i in order]
+    return [
+        {
+            "seed": seeds[i],
+            "attitude_rmse_total_deg": _f(math.sqrt(total[i]) / DEG) if np.isfinite(total[i]) else None,
+            "attitude_rmse_deg": _fl(np.sqrt(ms[i]) / DEG),
+            "command": command(seeds[i]),
+        }
+        for i in order
+    ]
 
 
 def _bound_comparison(records, p: str, ms, ms2, kind: str, rmse_ci95_deg) -> dict:
@@ -516,9 +552,19 @@ def _bound_comparison(records, p: str, ms, ms2, kind: str, rmse_ci95_deg) -> dic
     has no bound."""
     infos = [json.loads(str(r[p + "bound_json"])) for r in records]
     has = [p + "bound_window_var" in r for r in records]
-    bound: dict = {"defined": bool(all(has)), "reason": None, "attitude_rmse_bound_deg": None,
-                   "attitude_rmse_total_bound_deg": None, "ratio": None, "ratio_ci95": None, "ratio_total": None,
-                   "bias_rmse_bound_deg_per_h": None, "bias_ratio": None, "prior_sensitivity": None, "info": None}
+    bound: dict = {
+        "defined": bool(all(has)),
+        "reason": None,
+        "attitude_rmse_bound_deg": None,
+        "attitude_rmse_total_bound_deg": None,
+        "ratio": None,
+        "ratio_ci95": None,
+        "ratio_total": None,
+        "bias_rmse_bound_deg_per_h": None,
+        "bias_ratio": None,
+        "prior_sensitivity": None,
+        "info": None,
+    }
     if not all(has):
         bound["reason"] = next((i.get("reason") for i, h in zip(infos, has, strict=True) if not h), None)
         return bound
@@ -530,8 +576,10 @@ def _bound_comparison(records, p: str, ms, ms2, kind: str, rmse_ci95_deg) -> dic
         bound["attitude_rmse_total_bound_deg"] = _f(b_tot / DEG)
         rm = np.sqrt(ms.mean(axis=0))
         bound["ratio"] = _fl(rm / b_att)
-        bound["ratio_ci95"] = [None if c is None else [_f(c[0] * DEG / b), _f(c[1] * DEG / b)]
-                               for c, b in zip(rmse_ci95_deg, b_att, strict=True)]
+        bound["ratio_ci95"] = [
+            None if c is None else [_f(c[0] * DEG / b), _f(c[1] * DEG / b)]
+            for c, b in zip(rmse_ci95_deg, b_att, strict=True)
+        ]
         bound["ratio_total"] = _f(math.sqrt(ms.sum(axis=1).mean()) / b_tot)
         b_bias = np.sqrt(bv[:, 3:].mean(axis=0))
         bound["bias_rmse_bound_deg_per_h"] = _fl(b_bias / DEG_PER_H)
@@ -552,18 +600,28 @@ def _history(records, p: str, t_common, idx, nees, band, max_history_points: int
     n = len(t_common)
     keep = np.unique(np.linspace(0, n - 1, min(n, max_history_points)).round().astype(int)) if n else np.zeros(0, int)
     d = np.array([np.asarray(r[p + "dtheta"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])  # (N, n, 3)
-    hist = {"t": _fl(t_common[keep]),
-            "attitude_rmse_deg": [_fl(row) for row in np.sqrt(np.mean(d[:, keep] ** 2, axis=0)) / DEG],
-            "anees": _fl(_nanmean0(nees[:, keep])),
-            "anees_band_95": _fl(band), "bound_attitude_sigma_deg": None}
+    hist = {
+        "t": _fl(t_common[keep]),
+        "attitude_rmse_deg": [_fl(row) for row in np.sqrt(np.mean(d[:, keep] ** 2, axis=0)) / DEG],
+        "anees": _fl(_nanmean0(nees[:, keep])),
+        "anees_band_95": _fl(band),
+        "bound_attitude_sigma_deg": None,
+    }
     if all(p + "bound_sigma" in r for r in records):
         bs = np.array([np.asarray(r[p + "bound_sigma"], dtype=float)[i] for r, i in zip(records, idx, strict=True)])
         hist["bound_attitude_sigma_deg"] = [_fl(row) for row in np.sqrt(np.mean(bs[:, keep, :3] ** 2, axis=0)) / DEG]
     return hist
 
 
-def summarize(records: list[dict], scenario, worst: int = 5, max_history_points: int = 1000,
-              command_prefix: str = "drake-att run", scenario_arg: str | None = None, overrides=()) -> dict:
+def summarize(
+    records: list[dict],
+    scenario,
+    worst: int = 5,
+    max_history_points: int = 1000,
+    command_prefix: str = "drake-att run",
+    scenario_arg: str | None = None,
+    overrides=(),
+) -> dict:
     """Ensemble statistics of ``records`` (:func:`per_run_record` of each run of ``scenario``;
     keys: the module docstring). JSON-able: plain floats, lists, dicts; None, never NaN.
 
@@ -589,12 +647,16 @@ def summarize(records: list[dict], scenario, worst: int = 5, max_history_points:
     scoring = scenario.scoring
     for r in records:
         if abs(float(r["score_from_s"]) - scoring.score_from_s) > _TOL:
-            raise ValueError(f"seed {int(r['seed'])}: scored from {float(r['score_from_s'])} s, the scenario from "
-                             f"{scoring.score_from_s} s: records of another configuration?")
+            raise ValueError(
+                f"seed {int(r['seed'])}: scored from {float(r['score_from_s'])} s, the scenario from "
+                f"{scoring.score_from_s} s: records of another configuration?"
+            )
         if [str(x) for x in np.atleast_1d(r["estimators"])] != names:
             raise ValueError(f"seed {int(r['seed'])}: estimators differ from the first record's {names}")
     return {
-        "scenario": scenario.name, "n_runs": len(records), "seeds": [int(r["seed"]) for r in records],
+        "scenario": scenario.name,
+        "n_runs": len(records),
+        "seeds": [int(r["seed"]) for r in records],
         "score_from_s": float(scoring.score_from_s),
         "convergence_threshold_deg": float(scoring.convergence_threshold_deg),
         "methods": dict(METHODS),

@@ -104,9 +104,18 @@ def _run_jobs_locked(yaml_text: str, jobs, record: Callable) -> list:
     return out
 
 
-def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int | None = None, scheduler=None,
-             chunk_size: int = 1, on_result: Callable | None = None, raise_failures: bool = False,
-             connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> list:
+def map_runs(
+    scenario,
+    jobs,
+    record: Callable = metrics_record,
+    *,
+    workers: int | None = None,
+    scheduler=None,
+    chunk_size: int = 1,
+    on_result: Callable | None = None,
+    raise_failures: bool = False,
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+) -> list:
     """Run ``scenario`` for every job and return the records in job order.
 
     Args:
@@ -130,8 +139,10 @@ def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int 
     (:func:`~drake_att.analysis.dask_connection.connect_scheduler`).
     """
     connect_timeout_s = check_connect_timeout(connect_timeout_s)
-    jobs = [(int(j), None) if isinstance(j, (int, np.integer)) else (int(j[0]), None if j[1] is None else tuple(j[1]))
-            for j in jobs]
+    jobs = [
+        (int(j), None) if isinstance(j, (int, np.integer)) else (int(j[0]), None if j[1] is None else tuple(j[1]))
+        for j in jobs
+    ]
     yaml_text = cfg.dump_scenario(scenario)
     index = {}
     for i, job in enumerate(jobs):
@@ -156,9 +167,9 @@ def map_runs(scenario, jobs, record: Callable = metrics_record, *, workers: int 
         raise CampaignError(f"--workers: got {workers}; must be a positive integer")
     if _is_serial(workers, scheduler):
         for k in range(0, len(unique), max(1, chunk_size)):
-            deliver(_run_jobs(yaml_text, unique[k:k + chunk_size], record))
+            deliver(_run_jobs(yaml_text, unique[k : k + chunk_size], record))
         return results
-    chunks = [unique[k:k + chunk_size] for k in range(0, len(unique), max(1, chunk_size))]
+    chunks = [unique[k : k + chunk_size] for k in range(0, len(unique), max(1, chunk_size))]
     n_workers = min(workers or os.cpu_count() or 1, len(chunks))
     from distributed import as_completed
 
@@ -180,8 +191,9 @@ def run_seeds(scenario, seeds, workers: int | None = None, keep_series_for=(), s
     ``seeds``, through :func:`map_runs` (``workers=1``: in this process).
     A run that goes non-finite raises its ``NonFiniteRunError``."""
     record = functools.partial(metrics_and_series_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
-    return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,
-                    raise_failures=True)
+    return map_runs(
+        scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler, raise_failures=True
+    )
 
 
 def metric_mean_std(results: list[dict], key: str, estimator: str) -> tuple[np.ndarray, np.ndarray]:
@@ -197,8 +209,7 @@ def _is_serial(workers, scheduler) -> bool:
 
 
 def _check_workers(workers) -> None:
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
-                                or workers < 1):
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
         raise CampaignError(f"--workers: got {describe(workers)}; must be a positive integer")
 
 

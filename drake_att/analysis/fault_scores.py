@@ -129,8 +129,19 @@ def fault_events(run) -> list[FaultEvent]:
             name = flt.FAULT_NAMES[int(c)]
             if c == flt.FAULT_DROPOUT and np.any(mags[i:j] == 1.0):
                 name = "outage"  # an outage window (magnitude 1), not a single drop-out
-            events.append(FaultEvent(injector, sensor, kind, int(c), name, float(t[i]), float(t[j - 1]),
-                                     t[i:j].copy(), float(np.max(np.abs(mags[i:j])))))
+            events.append(
+                FaultEvent(
+                    injector,
+                    sensor,
+                    kind,
+                    int(c),
+                    name,
+                    float(t[i]),
+                    float(t[j - 1]),
+                    t[i:j].copy(),
+                    float(np.max(np.abs(mags[i:j]))),
+                )
+            )
             i = j
     return sorted(events, key=lambda e: (e.t_start, e.sensor))
 
@@ -191,10 +202,16 @@ def finite_outputs(run, estimator: str) -> bool:
     return all(np.all(np.isfinite(run.values(keys[k]))) for k in ("attitude", "second", "covariance"))
 
 
-def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_FACTOR,
-                       pre_fault_window_s: float = PRE_FAULT_WINDOW_S, hold_s: float = HOLD_S,
-                       min_hold_s: float = MIN_HOLD_S, detection_nis: float = DETECTION_NIS,
-                       bound_floor_deg: float = 0.0) -> list[dict]:
+def score_fault_events(
+    run,
+    estimators=None,
+    recovery_factor: float = RECOVERY_FACTOR,
+    pre_fault_window_s: float = PRE_FAULT_WINDOW_S,
+    hold_s: float = HOLD_S,
+    min_hold_s: float = MIN_HOLD_S,
+    detection_nis: float = DETECTION_NIS,
+    bound_floor_deg: float = 0.0,
+) -> list[dict]:
     """One row per (event, estimator) (see the module docstring), events by start time;
     ``bound_floor_deg``: the recovery bound is at least this (deg).
 
@@ -226,11 +243,28 @@ def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_F
         for k, e in enumerate(events):
             later = starts[starts > e.t_start + TIME_TOLERANCE_S]
             window_end = float(later.min()) if len(later) else t_run_end
-            row = {"estimator": name, "sensor": e.sensor, "sensor_kind": e.sensor_kind, "kind": e.kind,
-                   "code": e.code, "t_start": e.t_start, "t_end": e.t_end, "magnitude": e.magnitude,
-                   "window_end": window_end, "seen": False, "steps": 0, "detected": 0, "rejected": 0,
-                   "accepted": 0, "ignored": 0, "peak_error_deg": None, "pre_fault_rms_deg": None,
-                   "bound_deg": None, "recovery_time_s": None, "nees_after_recovery": None}
+            row = {
+                "estimator": name,
+                "sensor": e.sensor,
+                "sensor_kind": e.sensor_kind,
+                "kind": e.kind,
+                "code": e.code,
+                "t_start": e.t_start,
+                "t_end": e.t_end,
+                "magnitude": e.magnitude,
+                "window_end": window_end,
+                "seen": False,
+                "steps": 0,
+                "detected": 0,
+                "rejected": 0,
+                "accepted": 0,
+                "ignored": 0,
+                "peak_error_deg": None,
+                "pre_fault_rms_deg": None,
+                "bound_deg": None,
+                "recovery_time_s": None,
+                "nees_after_recovery": None,
+            }
             hit = _at(t, e.samples) if e.sensor in consumed else np.zeros(len(t), dtype=bool)
             for i in np.flatnonzero(hit):
                 rejected = d_skipped[i] > base_skipped
@@ -262,7 +296,7 @@ def score_fault_events(run, estimators=None, recovery_factor: float = RECOVERY_F
                     span = after[j:][t[after[j:]] < hold_end - TIME_TOLERANCE_S]
                     if np.all(angle[span] <= bound):
                         row["recovery_time_s"] = float(max(t[i] - e.t_end, 0.0))
-                        tail = nees[i:after[-1] + 1]
+                        tail = nees[i : after[-1] + 1]
                         tail = tail[np.isfinite(tail)]
                         row["nees_after_recovery"] = float(np.mean(tail)) if len(tail) else None
                         break
@@ -281,10 +315,26 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
     for rows in rows_per_run:
         for r in rows:
             key = (r["sensor"], r["kind"], r["estimator"])
-            g = groups.setdefault(key, {"sensor": r["sensor"], "sensor_kind": r["sensor_kind"], "kind": r["kind"],
-                                        "estimator": r["estimator"], "events": 0, "seen": 0, "steps": 0,
-                                        "detected": 0, "rejected": 0, "accepted": 0, "ignored": 0, "recovered": 0,
-                                        "peak_error_deg": None, "recovery_time_s": None, "_nees": []})
+            g = groups.setdefault(
+                key,
+                {
+                    "sensor": r["sensor"],
+                    "sensor_kind": r["sensor_kind"],
+                    "kind": r["kind"],
+                    "estimator": r["estimator"],
+                    "events": 0,
+                    "seen": 0,
+                    "steps": 0,
+                    "detected": 0,
+                    "rejected": 0,
+                    "accepted": 0,
+                    "ignored": 0,
+                    "recovered": 0,
+                    "peak_error_deg": None,
+                    "recovery_time_s": None,
+                    "_nees": [],
+                },
+            )
             g["t_first"] = min(g.get("t_first", np.inf), r["t_start"])
             order.setdefault(r["estimator"], len(order))
             g["events"] += 1
@@ -311,18 +361,35 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
 # ----------------------------------------------------------------------------------------
 def fault_campaign_record(run, keep_series_for=()) -> dict:
     """What :func:`run_fault_campaign` keeps of one run (computed in the worker)."""
-    out = {"seed": int(run.seed), "wall_time_s": float(run.wall_time_s), "rows": score_fault_events(run),
-           "finite": {n: bool(finite_outputs(run, n)) for n in run.metadata["estimators"]},
-           "events": [{"injector": e.injector, "sensor": e.sensor, "sensor_kind": e.sensor_kind, "kind": e.kind,
-                       "code": e.code, "t_start": e.t_start, "t_end": e.t_end, "magnitude": e.magnitude}
-                      for e in fault_events(run)]}
+    out = {
+        "seed": int(run.seed),
+        "wall_time_s": float(run.wall_time_s),
+        "rows": score_fault_events(run),
+        "finite": {n: bool(finite_outputs(run, n)) for n in run.metadata["estimators"]},
+        "events": [
+            {
+                "injector": e.injector,
+                "sensor": e.sensor,
+                "sensor_kind": e.sensor_kind,
+                "kind": e.kind,
+                "code": e.code,
+                "t_start": e.t_start,
+                "t_end": e.t_end,
+                "magnitude": e.magnitude,
+            }
+            for e in fault_events(run)
+        ],
+    }
     if run.seed in keep_series_for:
         out["series"] = {}
         for name in run.metadata["estimators"]:
             err = estimator_errors(run, name)
             sigma = np.sqrt(np.maximum(np.einsum("nii->n", err["P"][:, :3, :3]), 0.0))
-            out["series"][name] = {"t": err["t"], "error_deg": np.linalg.norm(err["dtheta"], axis=1) / DEG,
-                                   "sigma_deg": sigma / DEG}
+            out["series"][name] = {
+                "t": err["t"],
+                "error_deg": np.linalg.norm(err["dtheta"], axis=1) / DEG,
+                "sigma_deg": sigma / DEG,
+            }
     return out
 
 
@@ -340,10 +407,25 @@ def run_fault_campaign(scenario, seeds, workers: int | None = None, keep_series_
     from drake_att.analysis.executor import map_runs
 
     record = functools.partial(fault_campaign_record, keep_series_for=frozenset(int(s) for s in keep_series_for))
-    return map_runs(scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler,
-                    raise_failures=True)
+    return map_runs(
+        scenario, [int(s) for s in seeds], record, workers=workers, scheduler=scheduler, raise_failures=True
+    )
 
 
-__all__ = ["FaultEvent", "fault_injectors", "fault_events", "consumed_sensors", "attitude_nees", "finite_outputs",
-           "score_fault_events", "summarize_fault_scores", "run_fault_campaign", "fault_campaign_record", "DETECTION_NIS", "RECOVERY_FACTOR", "PRE_FAULT_WINDOW_S",
-           "HOLD_S", "MIN_HOLD_S"]
+__all__ = [
+    "FaultEvent",
+    "fault_injectors",
+    "fault_events",
+    "consumed_sensors",
+    "attitude_nees",
+    "finite_outputs",
+    "score_fault_events",
+    "summarize_fault_scores",
+    "run_fault_campaign",
+    "fault_campaign_record",
+    "DETECTION_NIS",
+    "RECOVERY_FACTOR",
+    "PRE_FAULT_WINDOW_S",
+    "HOLD_S",
+    "MIN_HOLD_S",
+]

@@ -39,8 +39,10 @@ def _align(t_query, t_ref, what):
     idx = np.clip(idx, 0, len(t_ref) - 1)
     bad = np.abs(t_ref[idx] - t_query) > TIME_MATCH_TOLERANCE_S
     if np.any(bad):
-        raise ValueError(f"{what}: no truth sample at estimate times {t_query[bad][:3]} s "
-                         "(truth must be logged at every estimate time)")
+        raise ValueError(
+            f"{what}: no truth sample at estimate times {t_query[bad][:3]} s "
+            "(truth must be logged at every estimate time)"
+        )
     return idx
 
 
@@ -48,8 +50,10 @@ def _metadata(run) -> dict:
     """The run's metadata (ValueError if it has none)."""
     meta = getattr(run, "metadata", None)
     if not meta:
-        raise ValueError("the run carries no metadata (which signal is the truth, how each estimator is scored): "
-                         "use a RunLog from ScenarioDiagram.simulate() or RunLog.load()")
+        raise ValueError(
+            "the run carries no metadata (which signal is the truth, how each estimator is scored): "
+            "use a RunLog from ScenarioDiagram.simulate() or RunLog.load()"
+        )
     return meta
 
 
@@ -109,9 +113,18 @@ def estimator_errors(run, name: str) -> dict:
     ok = np.linalg.matrix_rank(Pe) == Pe.shape[-1]
     if np.any(ok):
         nees[ok] = np.einsum("ni,ni->n", e[ok], np.linalg.solve(Pe[ok], e[ok][..., None])[..., 0])
-    return {"t": t_est, "dtheta": dtheta, "second_err": second_err, "P": P, "nees": nees,
-            "nees_dof": e.shape[1], "status": status[sel], "q_hat": q_hat, "q_true": q_true,
-            "second_kind": kind}
+    return {
+        "t": t_est,
+        "dtheta": dtheta,
+        "second_err": second_err,
+        "P": P,
+        "nees": nees,
+        "nees_dof": e.shape[1],
+        "status": status[sel],
+        "q_hat": q_hat,
+        "q_true": q_true,
+        "second_kind": kind,
+    }
 
 
 def convergence_time(t, dtheta, threshold_rad) -> float | None:
@@ -160,11 +173,15 @@ def compute_metrics(run) -> dict:
     """Metrics of every estimator of a run (in its metadata's order), scored by
     ``run.scenario.scoring``; needs only the :class:`RunLog` (no Drake systems)."""
     scenario = run.scenario
-    result = {"scenario": scenario.name, "seed": run.seed, "duration_s": scenario.duration_s,
-              "wall_time_s": run.wall_time_s, "estimators": {}}
+    result = {
+        "scenario": scenario.name,
+        "seed": run.seed,
+        "duration_s": scenario.duration_s,
+        "wall_time_s": run.wall_time_s,
+        "estimators": {},
+    }
     for name, spec in _metadata(run)["estimators"].items():
-        result["estimators"][name] = score_estimator(estimator_errors(run, name), scenario.scoring,
-                                                     spec["second_kind"])
+        result["estimators"][name] = score_estimator(estimator_errors(run, name), scenario.scoring, spec["second_kind"])
     return result
 
 
@@ -186,10 +203,16 @@ def format_table(metrics: dict) -> str:  # pragma: no mutate block (presentation
     num, trio = 9, 3 * 9 + 2
     second_hdr = "bias (deg/h) | rate (deg/s) RMSE"
     sw = max(len(second_hdr) + 1, trio + 2)
-    lines = [(f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
-              f"  wall {metrics['wall_time_s']:.2f} s")]
-    hdr = (f"{'estimator':<{nw}} {'RMSE x/y/z (deg)':>{trio}} {'MAE x/y/z (deg)':>{trio}} {'RMSE tot':>{num}} "
-           f"{second_hdr:>{sw}} {'conv (s)':>{num}} {'NEES':>{num}} {'used/skipped':>13}")
+    lines = [
+        (
+            f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
+            f"  wall {metrics['wall_time_s']:.2f} s"
+        )
+    ]
+    hdr = (
+        f"{'estimator':<{nw}} {'RMSE x/y/z (deg)':>{trio}} {'MAE x/y/z (deg)':>{trio}} {'RMSE tot':>{num}} "
+        f"{second_hdr:>{sw}} {'conv (s)':>{num}} {'NEES':>{num}} {'used/skipped':>13}"
+    )
     lines += [hdr, "-" * len(hdr)]
     for name, m in ests.items():
         rm = " ".join(f"{_g(v):>{num}}" for v in m["attitude_rmse_deg"])
@@ -202,8 +225,10 @@ def format_table(metrics: dict) -> str:  # pragma: no mutate block (presentation
             br = "-"
         conv = "never" if m["convergence_time_s"] is None else f"{m['convergence_time_s']:.1f}"
         used = f"{m['measurements_used']}/{m['measurements_skipped']}"
-        lines.append(f"{name:<{nw}} {rm:>{trio}} {ma:>{trio}} {_g(m['attitude_rmse_total_deg']):>{num}} {br:>{sw}} "
-                     f"{conv:>{num}} {_g(m['nees_mean']):>{num}} {used:>13}")
+        lines.append(
+            f"{name:<{nw}} {rm:>{trio}} {ma:>{trio}} {_g(m['attitude_rmse_total_deg']):>{num}} {br:>{sw}} "
+            f"{conv:>{num}} {_g(m['nees_mean']):>{num}} {used:>13}"
+        )
     first = next(iter(ests.values()), {"scored_from_s": 0.0})
     dofs = {}
     for name, m in ests.items():
@@ -212,7 +237,9 @@ def format_table(metrics: dict) -> str:  # pragma: no mutate block (presentation
         dof_text = f"NEES dof = {next(iter(dofs), 6)}"
     else:
         dof_text = "NEES dof: " + ", ".join(f"{d} ({', '.join(names)})" for d, names in sorted(dofs.items()))
-    lines.append(f"(scored from t >= {first['scored_from_s']:.0f} s; b = gyro-bias RMSE x/y/z in deg/h, "
-                 f"w = body-rate RMSE in deg/s; {dof_text};\n used/skipped = measurement updates applied / "
-                 "invalid or rejected measurements skipped)")
+    lines.append(
+        f"(scored from t >= {first['scored_from_s']:.0f} s; b = gyro-bias RMSE x/y/z in deg/h, "
+        f"w = body-rate RMSE in deg/s; {dof_text};\n used/skipped = measurement updates applied / "
+        "invalid or rejected measurements skipped)"
+    )
     return "\n".join(lines)

@@ -19,6 +19,7 @@ def _error_ylim(err, three_sigma, floor):
     inside (the initial transient too, never clipped), and the +-3 sigma lines as well unless
     they exceed 3x the largest error (then they run off the plot, the error stays readable;
     an error that is exactly zero shows the whole +-3 sigma)."""
+
     def peak(x):
         x = np.abs(np.asarray(x, dtype=float))
         x = x[np.isfinite(x)]
@@ -100,9 +101,18 @@ def plot_estimator(run, name, out_dir, score_from_s=0.0) -> list[str]:
 AXIS_NAMES = ["roll (x)", "pitch (y)", "yaw (z)"]
 
 
-def plot_error_grid(series: dict, names, path: str, title: str, second_scale: float = DEG,
-                    second_unit: str = "deg/s", second_label: str = "gyro bias error", t_range=None,
-                    att_ylim=None, sec_ylim=None) -> str:
+def plot_error_grid(
+    series: dict,
+    names,
+    path: str,
+    title: str,
+    second_scale: float = DEG,
+    second_unit: str = "deg/s",
+    second_label: str = "gyro bias error",
+    t_range=None,
+    att_ylim=None,
+    sec_ylim=None,
+) -> str:
     """Paper-style figure comparing estimators: per-axis attitude error (top row, deg) and
     bias or rate error (bottom row, ``second_unit`` = SI / ``second_scale``) versus time.
 
@@ -192,8 +202,11 @@ def write_results(scenario_diagram, run, metrics: dict, out_dir: str, figures: b
     if os.path.lexists(out_dir):
         outputs.check_target(out_dir)
     return outputs.replace_folder(
-        out_dir, lambda staging: [os.path.basename(f)
-                                  for f in _write_results_into(scenario_diagram, run, metrics, staging, figures)])
+        out_dir,
+        lambda staging: [
+            os.path.basename(f) for f in _write_results_into(scenario_diagram, run, metrics, staging, figures)
+        ],
+    )
 
 
 def _write_results_into(scenario_diagram, run, metrics: dict, out_dir: str, figures: bool) -> list[str]:
@@ -226,8 +239,9 @@ def manifest_entries(out_dir: str, files) -> list[dict]:
     for path in files:
         with open(path, "rb") as f:
             data = f.read()
-        entries.append({"file": os.path.relpath(path, out_dir), "bytes": len(data),
-                        "sha256": hashlib.sha256(data).hexdigest()})
+        entries.append(
+            {"file": os.path.relpath(path, out_dir), "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        )
     return entries
 
 
@@ -253,8 +267,9 @@ def write_manifest(out_dir: str, files, run) -> str:
     written last, so a folder with a manifest that matches its files is a complete result."""
     path = os.path.join(out_dir, MANIFEST)
     with open(path, "w") as f:
-        json.dump({"scenario": run.scenario.name, "seed": run.seed, "files": manifest_entries(out_dir, files)},
-                  f, indent=1)
+        json.dump(
+            {"scenario": run.scenario.name, "seed": run.seed, "files": manifest_entries(out_dir, files)}, f, indent=1
+        )
     return path
 
 

@@ -45,8 +45,12 @@ def metrics_and_series_record(run, keep_series_for=()) -> dict:
         series = {}
         for name in run.metadata["estimators"]:
             err = estimator_errors(run, name)
-            series[name] = {"t": err["t"], "dtheta": err["dtheta"], "second_err": err["second_err"],
-                            "sigma": np.sqrt(np.maximum(np.einsum("nii->ni", err["P"]), 0.0))}
+            series[name] = {
+                "t": err["t"],
+                "dtheta": err["dtheta"],
+                "second_err": err["second_err"],
+                "sigma": np.sqrt(np.maximum(np.einsum("nii->ni", err["P"]), 0.0)),
+            }
         out["series"] = series
     return out
 

@@ -44,14 +44,32 @@ def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.bias_roughening_deg_per_h_per_rt_s", c.bias_roughening_deg_per_h_per_rt_s)
 
 
-@register_estimator(BootstrapPfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_bootstrap_pf,
-                    parameters=("attitude_process_noise_deg_per_rt_h", "bias_roughening_deg_per_h_per_rt_s",
-                                "resample_threshold", *common.INITIAL_GYRO_MODE_FIELDS))
+@register_estimator(
+    BootstrapPfConfig,
+    second_quantity=SecondQuantity.GYRO_BIAS,
+    validate=validate_bootstrap_pf,
+    parameters=(
+        "attitude_process_noise_deg_per_rt_h",
+        "bias_roughening_deg_per_h_per_rt_s",
+        "resample_threshold",
+        *common.INITIAL_GYRO_MODE_FIELDS,
+    ),
+)
 def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
     g = ctx.sensor_configs[c.gyro]
-    arw_deg = g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None \
-        else c.attitude_process_noise_deg_per_rt_h
+    arw_deg = (
+        g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None else c.attitude_process_noise_deg_per_rt_h
+    )
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return bootstrap_pf_setup(c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw_deg * ARW_DEG_PER_RT_H,
-                              bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
-                              resample_threshold=c.resample_threshold, gyro=c.gyro)
+    return bootstrap_pf_setup(
+        c.period_s,
+        c.star_tracker,
+        c.num_particles,
+        q0,
+        b0,
+        P0,
+        arw_deg * ARW_DEG_PER_RT_H,
+        bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
+        resample_threshold=c.resample_threshold,
+        gyro=c.gyro,
+    )

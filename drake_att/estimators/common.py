@@ -16,8 +16,12 @@ def require_sensor(checks, path: str, field: str, name: str, kind: str):
     out = checks.sensor_output(name)
     if out is None or out.kind != kind:
         have = sorted(n for n in checks.sensors if checks.sensor_output(n).kind == kind)
-        label = {"gyro": "gyro", "vectors": "vector-mode star tracker", "quaternion": "quaternion star tracker",
-                 "camera": "camera"}[kind]
+        label = {
+            "gyro": "gyro",
+            "vectors": "vector-mode star tracker",
+            "quaternion": "quaternion star tracker",
+            "camera": "camera",
+        }[kind]
         cfg.fail(f"{path}.{field}", name, f"unknown {label}; {label}s listed before: {have}")
     return checks.sensors[name]
 
@@ -26,19 +30,27 @@ def check_period_multiple(path: str, period_s: float, sensor_name: str, sensor_p
     """The filter's steps and the sensor's samples must coincide: one period a whole multiple
     of the other (a filter uses a sample only at its own instant; e.g. paper S1 steps at the
     1 s gyro and updates at every 10 s star sample)."""
+
     def whole(r):
         return abs(r - round(r)) <= 1e-9 and round(r) >= 1
 
     if not (whole(period_s / sensor_period_s) or whole(sensor_period_s / period_s)):
-        cfg.fail(f"{path}.period_s", period_s,
-                 f"must be a whole multiple or a whole fraction of {sensor_name!r}'s period ({sensor_period_s} s): "
-                 "the filter uses a sample only at its own instant")
+        cfg.fail(
+            f"{path}.period_s",
+            period_s,
+            f"must be a whole multiple or a whole fraction of {sensor_name!r}'s period ({sensor_period_s} s): "
+            "the filter uses a sample only at its own instant",
+        )
 
 
 def check_gyro_period(path: str, period_s: float, gyro) -> None:
     if abs(gyro.period_s - period_s) > 1e-9:
-        cfg.fail(f"{path}.period_s", period_s, f"must equal the period of gyro {gyro.name!r} ({gyro.period_s} s): "
-                 "the gyro delivers the mean rate over one filter step")
+        cfg.fail(
+            f"{path}.period_s",
+            period_s,
+            f"must equal the period of gyro {gyro.name!r} ({gyro.period_s} s): "
+            "the gyro delivers the mean rate over one filter step",
+        )
 
 
 def filter_gyro_noise_deg(c, gyro):
@@ -55,8 +67,12 @@ def filter_gyro_noise(ctx, c):
 
 
 # The initial-estimate fields of gyro-mode filters: context parameters (sweepable per run).
-INITIAL_GYRO_MODE_FIELDS = ("initial_attitude_rpy_deg", "initial_bias_deg_per_h", "initial_attitude_sigma_deg",
-                            "initial_bias_sigma_deg_per_h")
+INITIAL_GYRO_MODE_FIELDS = (
+    "initial_attitude_rpy_deg",
+    "initial_bias_deg_per_h",
+    "initial_attitude_sigma_deg",
+    "initial_bias_sigma_deg_per_h",
+)
 
 
 def check_initial_attitude(path: str, c) -> None:
@@ -87,8 +103,12 @@ def check_innovation_gate(path: str, c) -> None:
         cfg.check_positive(f"{path}.innovation_gate_chi2", c.innovation_gate_chi2)
     p = cfg.check_finite(f"{path}.innovation_gate_probability", c.innovation_gate_probability)
     if not 0.0 <= p < 1.0:
-        cfg.fail(f"{path}.innovation_gate_probability", p, "must be in [0, 1) (0: no gate; default "
-                 f"{DEFAULT_GATE_PROBABILITY}: 0.1% of nominal measurements rejected)")
+        cfg.fail(
+            f"{path}.innovation_gate_probability",
+            p,
+            "must be in [0, 1) (0: no gate; default "
+            f"{DEFAULT_GATE_PROBABILITY}: 0.1% of nominal measurements rejected)",
+        )
 
 
 def innovation_gate(c) -> InnovationGate:
@@ -114,14 +134,23 @@ def initial_gyro_mode_estimate(ctx, c):
     """``(q0, b0 (rad/s), P0 (6, 6))`` from the config's attitude/bias and their sigmas."""
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
     b0 = np.asarray(c.initial_bias_deg_per_h, dtype=float) * DEG_PER_H
-    P0 = np.diag([(c.initial_attitude_sigma_deg * DEG) ** 2] * 3
-                 + [(c.initial_bias_sigma_deg_per_h * DEG_PER_H) ** 2] * 3)
+    P0 = np.diag(
+        [(c.initial_attitude_sigma_deg * DEG) ** 2] * 3 + [(c.initial_bias_sigma_deg_per_h * DEG_PER_H) ** 2] * 3
+    )
     return q0, b0, P0
 
 
-def validate_vector_filter(path: str, c, checks, uses_gyro: bool = True, integer_fields=(),
-                           resampling: bool = False, filter_gyro_noise: bool = False, initial_bias: bool = True,
-                           initial_sigma: bool = True):
+def validate_vector_filter(
+    path: str,
+    c,
+    checks,
+    uses_gyro: bool = True,
+    integer_fields=(),
+    resampling: bool = False,
+    filter_gyro_noise: bool = False,
+    initial_bias: bool = True,
+    initial_sigma: bool = True,
+):
     """Checks shared by filters fed by one vector-mode tracker (and a gyro): paper S0's.
 
     Args:
@@ -161,5 +190,9 @@ def validate_filter_gyro_noise(path: str, c, gyro) -> None:
             cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
     arw, _ = filter_gyro_noise_deg(c, gyro)
     if not arw > 0:
-        cfg.fail(f"{path}.arw_deg_per_rt_h", arw, f"the filter needs an ARW > 0 (deg/sqrt(h)); gyro {gyro.name!r} has "
-                 f"{gyro.arw_deg_per_rt_h!r} and the filter sets none")
+        cfg.fail(
+            f"{path}.arw_deg_per_rt_h",
+            arw,
+            f"the filter needs an ARW > 0 (deg/sqrt(h)); gyro {gyro.name!r} has "
+            f"{gyro.arw_deg_per_rt_h!r} and the filter sets none",
+        )

@@ -71,12 +71,18 @@ def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
         source = checks.sensors.get(c.multiplicative_noise)
         if not isinstance(source, ScaleFactorStarNoiseConfig):
             have = sorted(n for n, s in checks.sensors.items() if isinstance(s, ScaleFactorStarNoiseConfig))
-            cfg.fail(f"{path}.multiplicative_noise", c.multiplicative_noise,
-                     f"must name a !ScaleFactorStarNoiseConfig listed before it (have {have}); empty: the plain CQE")
+            cfg.fail(
+                f"{path}.multiplicative_noise",
+                c.multiplicative_noise,
+                f"must name a !ScaleFactorStarNoiseConfig listed before it (have {have}); empty: the plain CQE",
+            )
         if (source.gyro, source.star_tracker) != (c.gyro, c.star_tracker):
-            cfg.fail(f"{path}.multiplicative_noise", c.multiplicative_noise,
-                     f"drives gyro {source.gyro!r} and tracker {source.star_tracker!r}; this filter reads "
-                     f"{c.gyro!r} and {c.star_tracker!r}")
+            cfg.fail(
+                f"{path}.multiplicative_noise",
+                c.multiplicative_noise,
+                f"drives gyro {source.gyro!r} and tracker {source.star_tracker!r}; this filter reads "
+                f"{c.gyro!r} and {c.star_tracker!r}",
+            )
         if c.assumed_correlation is not None:
             try:
                 _assumed_model(c, source).cross_covariance(1.0, len(checks.sensors[c.star_tracker].references_I))
@@ -93,16 +99,37 @@ def _assumed_model(c: CubatureQuaternionConfig, source: ScaleFactorStarNoiseConf
     return MultiplicativeNoiseModel.make(model.zeta_variance, c.assumed_correlation, model.scale_per_zeta)
 
 
-@register_estimator(CubatureQuaternionConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_cubature,
-                    parameters=("assumed_correlation", "arw_deg_per_rt_h", "rrw_deg_per_h15", "grp_a", "grp_f",
-                                "update_iterations", "zeta_gate_sigmas", "zeta_state_correlation", *common.GATE_FIELDS,
-                                *common.INITIAL_GYRO_MODE_FIELDS))
+@register_estimator(
+    CubatureQuaternionConfig,
+    second_quantity=SecondQuantity.GYRO_BIAS,
+    validate=validate_cubature,
+    parameters=(
+        "assumed_correlation",
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        "grp_a",
+        "grp_f",
+        "update_iterations",
+        "zeta_gate_sigmas",
+        "zeta_state_correlation",
+        *common.GATE_FIELDS,
+        *common.INITIAL_GYRO_MODE_FIELDS,
+    ),
+)
 def build_cubature(ctx, c: CubatureQuaternionConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise(ctx, c)
     model = _assumed_model(c, ctx.sensor_configs[c.multiplicative_noise]) if c.multiplicative_noise else None
-    core = CubatureQuaternionEstimator(arw, rrw, c.grp_a, c.grp_f, common.innovation_gate(c), model,
-                                       c.zeta_gate_sigmas if c.zeta_gate_sigmas > 0 else None, c.update_iterations,
-                                       zeta_state_correlation=c.zeta_state_correlation)
+    core = CubatureQuaternionEstimator(
+        arw,
+        rrw,
+        c.grp_a,
+        c.grp_f,
+        common.innovation_gate(c),
+        model,
+        c.zeta_gate_sigmas if c.zeta_gate_sigmas > 0 else None,
+        c.update_iterations,
+        zeta_state_correlation=c.zeta_state_correlation,
+    )
     q0, b0, _ = common.initial_gyro_mode_estimate(ctx, c)
     init = core.initial_state(q0, b0, c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
     return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))

@@ -35,15 +35,41 @@ class EkpfConfig:
 
 
 def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
-    common.validate_vector_filter(path, c, checks, integer_fields=("num_particles", "proposal_iterations"),
-                                  resampling=True, filter_gyro_noise=True)
+    common.validate_vector_filter(
+        path,
+        c,
+        checks,
+        integer_fields=("num_particles", "proposal_iterations"),
+        resampling=True,
+        filter_gyro_noise=True,
+    )
 
 
-@register_estimator(EkpfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_ekpf,
-                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "proposal_iterations", "resample_threshold",
-                                *common.INITIAL_GYRO_MODE_FIELDS))
+@register_estimator(
+    EkpfConfig,
+    second_quantity=SecondQuantity.GYRO_BIAS,
+    validate=validate_ekpf,
+    parameters=(
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        "proposal_iterations",
+        "resample_threshold",
+        *common.INITIAL_GYRO_MODE_FIELDS,
+    ),
+)
 def build_ekpf(ctx, c: EkpfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return ekpf_setup(c.period_s, c.star_tracker, c.num_particles, q0, b0, P0, arw, rrw,
-                      proposal_iterations=c.proposal_iterations, resample_threshold=c.resample_threshold, gyro=c.gyro)
+    return ekpf_setup(
+        c.period_s,
+        c.star_tracker,
+        c.num_particles,
+        q0,
+        b0,
+        P0,
+        arw,
+        rrw,
+        proposal_iterations=c.proposal_iterations,
+        resample_threshold=c.resample_threshold,
+        gyro=c.gyro,
+    )

@@ -46,9 +46,12 @@ def plant_dynamics(scenario, c: GyrolessPfConfig, path: str | None = None):
     inertia, torque = list(c.inertia_kg_m2), list(c.disturbance_torque_N_m)
     if not inertia or not torque:
         if not isinstance(p, cfg.RigidBodyConfig):
-            cfg.fail(f"{path or c.name}.inertia_kg_m2", inertia,
-                     f"empty (= the plant's), but the plant is a {type(p).__name__}, which has no inertia/torque; "
-                     "give inertia_kg_m2 and disturbance_torque_N_m explicitly")
+            cfg.fail(
+                f"{path or c.name}.inertia_kg_m2",
+                inertia,
+                f"empty (= the plant's), but the plant is a {type(p).__name__}, which has no inertia/torque; "
+                "give inertia_kg_m2 and disturbance_torque_N_m explicitly",
+            )
         inertia = inertia or list(p.inertia_kg_m2)
         torque = torque or list(p.disturbance_torque_N_m)
     I = np.asarray(inertia, dtype=float)
@@ -57,8 +60,15 @@ def plant_dynamics(scenario, c: GyrolessPfConfig, path: str | None = None):
 
 
 def validate_gyroless_pf(path: str, c: GyrolessPfConfig, checks) -> None:
-    common.validate_vector_filter(path, c, checks, uses_gyro=False, integer_fields=("num_particles", "num_substeps"),
-                                  resampling=True, initial_bias=False)
+    common.validate_vector_filter(
+        path,
+        c,
+        checks,
+        uses_gyro=False,
+        integer_fields=("num_particles", "num_substeps"),
+        resampling=True,
+        initial_bias=False,
+    )
     cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
     cfg.check_nonnegative(f"{path}.rate_process_noise_deg_per_s_per_rt_s", c.rate_process_noise_deg_per_s_per_rt_s)
     cfg.check_vector(f"{path}.initial_rate_deg_per_s", c.initial_rate_deg_per_s, 3)
@@ -75,17 +85,39 @@ def validate_gyroless_pf(path: str, c: GyrolessPfConfig, checks) -> None:
         raise cfg.ConfigError(str(e)) from e
 
 
-@register_estimator(GyrolessPfConfig, second_quantity=SecondQuantity.BODY_RATE, validate=validate_gyroless_pf,
-                    parameters=("inertia_kg_m2", "disturbance_torque_N_m", "rate_process_noise_deg_per_s_per_rt_s",
-                                "attitude_process_noise_deg_per_rt_h", "num_substeps", "resample_threshold",
-                                "initial_attitude_rpy_deg", "initial_rate_deg_per_s", "initial_attitude_sigma_deg",
-                                "initial_rate_sigma_deg_per_s"))
+@register_estimator(
+    GyrolessPfConfig,
+    second_quantity=SecondQuantity.BODY_RATE,
+    validate=validate_gyroless_pf,
+    parameters=(
+        "inertia_kg_m2",
+        "disturbance_torque_N_m",
+        "rate_process_noise_deg_per_s_per_rt_s",
+        "attitude_process_noise_deg_per_rt_h",
+        "num_substeps",
+        "resample_threshold",
+        "initial_attitude_rpy_deg",
+        "initial_rate_deg_per_s",
+        "initial_attitude_sigma_deg",
+        "initial_rate_sigma_deg_per_s",
+    ),
+)
 def build_gyroless_pf(ctx, c: GyrolessPfConfig):
     inertia, torque = plant_dynamics(ctx.scenario, c)
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
     w0 = np.asarray(c.initial_rate_deg_per_s, dtype=float) * DEG
     P0 = np.diag([(c.initial_attitude_sigma_deg * DEG) ** 2] * 3 + [(c.initial_rate_sigma_deg_per_s * DEG) ** 2] * 3)
-    return gyroless_pf_setup(c.period_s, c.star_tracker, c.num_particles, q0, w0, P0, inertia, torque,
-                             c.rate_process_noise_deg_per_s_per_rt_s * DEG,
-                             attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
-                             num_substeps=c.num_substeps, resample_threshold=c.resample_threshold)
+    return gyroless_pf_setup(
+        c.period_s,
+        c.star_tracker,
+        c.num_particles,
+        q0,
+        w0,
+        P0,
+        inertia,
+        torque,
+        c.rate_process_noise_deg_per_s_per_rt_s * DEG,
+        attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
+        num_substeps=c.num_substeps,
+        resample_threshold=c.resample_threshold,
+    )

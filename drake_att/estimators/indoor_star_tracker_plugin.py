@@ -108,26 +108,37 @@ def validate_indoor_star_tracker(path: str, c: IndoorStarTrackerConfig, checks) 
         common.check_innovation_gate(path, c)
     else:
         if camera.period_s - c.period_s > 1e-9:
-            cfg.fail(f"{path}.period_s", c.period_s, f"without a gyro it must be a whole multiple of the camera's "
-                     f"period ({camera.period_s} s): the solver has nothing to do between frames")
+            cfg.fail(
+                f"{path}.period_s",
+                c.period_s,
+                f"without a gyro it must be a whole multiple of the camera's "
+                f"period ({camera.period_s} s): the solver has nothing to do between frames",
+            )
         for f in _MEKF_FIELDS:
             if getattr(c, f) is not None:
                 cfg.fail(f"{path}.{f}", getattr(c, f), "is an MEKF setting: it needs a gyro (set 'gyro')")
     cfg.check_positive(f"{path}.tolerance_deg", c.tolerance_deg)
-    for f, allowed in (("identification", IDENTIFICATIONS), ("attitude_method", ATTITUDE_METHODS),
-                       ("initialization", INITIALIZATIONS)):
+    for f, allowed in (
+        ("identification", IDENTIFICATIONS),
+        ("attitude_method", ATTITUDE_METHODS),
+        ("initialization", INITIALIZATIONS),
+    ):
         if getattr(c, f) not in allowed:
             cfg.fail(f"{path}.{f}", getattr(c, f), f"allowed: {list(allowed)}")
-    common.check_integers_at_least_one(path, c, "max_iterations", "max_lost_frames", "pso_particles",
-                                       "pso_max_generations")
+    common.check_integers_at_least_one(
+        path, c, "max_iterations", "max_lost_frames", "pso_particles", "pso_max_generations"
+    )
     cfg.check_nonnegative(f"{path}.convergence_tolerance_arcsec", c.convergence_tolerance_arcsec)
     common.check_initial_attitude(path, c)
     cfg.check_positive(f"{path}.sigma_floor_urad", c.sigma_floor_urad)
     cfg.check_finite(f"{path}.camera_offset_error_mm", c.camera_offset_error_mm)
     offset = camera.h_mm - camera.camera_to_screen_mm + c.camera_offset_error_mm
     if not 0.0 <= offset < camera.h_mm:
-        cfg.fail(f"{path}.camera_offset_error_mm", c.camera_offset_error_mm,
-                 f"the modelled offset |R0| = {offset} mm must be in [0, h = {camera.h_mm}) mm")
+        cfg.fail(
+            f"{path}.camera_offset_error_mm",
+            c.camera_offset_error_mm,
+            f"the modelled offset |R0| = {offset} mm must be in [0, h = {camera.h_mm}) mm",
+        )
     for f in ("pso_inertia", "pso_c1", "pso_c2"):
         cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
     for f in ("pso_v_max_deg", "pso_search_range_deg"):
@@ -154,22 +165,62 @@ def solver_for(ctx, c: IndoorStarTrackerConfig) -> IndoorStarTrackerSolver:
     camera = ctx.sensor_configs[c.camera]
     photo = camera_geometry(camera).project(np.eye(3))[1]
     model = camera_geometry(replace(camera, camera_to_screen_mm=camera.camera_to_screen_mm - c.camera_offset_error_mm))
-    swarm = SwarmSettings(c.pso_particles, c.pso_inertia, c.pso_c1, c.pso_c2, c.pso_v_max_deg, c.pso_max_generations,
-                          c.pso_search_range_deg, c.pso_stop_fraction)
-    return IndoorStarTrackerSolver(model, c.tolerance_deg, c.identification, c.attitude_method, c.max_iterations,
-                                   c.convergence_tolerance_arcsec * ARCSEC, c.initialization, swarm, c.max_lost_frames,
-                                   c.sigma_floor_urad * 1e-6, catalogue_centroids_m=photo)
+    swarm = SwarmSettings(
+        c.pso_particles,
+        c.pso_inertia,
+        c.pso_c1,
+        c.pso_c2,
+        c.pso_v_max_deg,
+        c.pso_max_generations,
+        c.pso_search_range_deg,
+        c.pso_stop_fraction,
+    )
+    return IndoorStarTrackerSolver(
+        model,
+        c.tolerance_deg,
+        c.identification,
+        c.attitude_method,
+        c.max_iterations,
+        c.convergence_tolerance_arcsec * ARCSEC,
+        c.initialization,
+        swarm,
+        c.max_lost_frames,
+        c.sigma_floor_urad * 1e-6,
+        catalogue_centroids_m=photo,
+    )
 
 
-@register_estimator(IndoorStarTrackerConfig, second_quantity=indoor_second_quantity,
-                    validate=validate_indoor_star_tracker,
-                    parameters=("tolerance_deg", "identification", "attitude_method", "max_iterations",
-                                "convergence_tolerance_arcsec", "initialization", "initial_attitude_rpy_deg",
-                                "initial_attitude_sigma_deg", "max_lost_frames", "sigma_floor_urad",
-                                "camera_offset_error_mm", "pso_particles",
-                                "pso_inertia", "pso_c1", "pso_c2", "pso_v_max_deg", "pso_max_generations",
-                                "pso_search_range_deg", "pso_stop_fraction", "arw_deg_per_rt_h", "rrw_deg_per_h15",
-                                "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h", *common.GATE_FIELDS))
+@register_estimator(
+    IndoorStarTrackerConfig,
+    second_quantity=indoor_second_quantity,
+    validate=validate_indoor_star_tracker,
+    parameters=(
+        "tolerance_deg",
+        "identification",
+        "attitude_method",
+        "max_iterations",
+        "convergence_tolerance_arcsec",
+        "initialization",
+        "initial_attitude_rpy_deg",
+        "initial_attitude_sigma_deg",
+        "max_lost_frames",
+        "sigma_floor_urad",
+        "camera_offset_error_mm",
+        "pso_particles",
+        "pso_inertia",
+        "pso_c1",
+        "pso_c2",
+        "pso_v_max_deg",
+        "pso_max_generations",
+        "pso_search_range_deg",
+        "pso_stop_fraction",
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        "initial_bias_deg_per_h",
+        "initial_bias_sigma_deg_per_h",
+        *common.GATE_FIELDS,
+    ),
+)
 def build_indoor_star_tracker(ctx, c: IndoorStarTrackerConfig) -> EstimatorSetup:
     solver = solver_for(ctx, c)
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
@@ -178,8 +229,13 @@ def build_indoor_star_tracker(ctx, c: IndoorStarTrackerConfig) -> EstimatorSetup
         return EstimatorSetup(solver, solver_state, c.period_s, camera_sensors=(c.camera,))
     arw, rrw = common.filter_gyro_noise(ctx, c)
     mekf = MultiplicativeEKF(arw, rrw, common.innovation_gate(c))
-    mekf_state = mekf.initial_state(q0, np.asarray(c.initial_bias_deg_per_h, dtype=float) * DEG_PER_H,
-                                    c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
+    mekf_state = mekf.initial_state(
+        q0,
+        np.asarray(c.initial_bias_deg_per_h, dtype=float) * DEG_PER_H,
+        c.initial_attitude_sigma_deg * DEG,
+        c.initial_bias_sigma_deg_per_h * DEG_PER_H,
+    )
     core = IndoorStarTrackerMekf(solver, mekf)
-    return EstimatorSetup(core, core.initial_state(mekf_state, solver_state), c.period_s, gyro=c.gyro,
-                          camera_sensors=(c.camera,))
+    return EstimatorSetup(
+        core, core.initial_state(mekf_state, solver_state), c.period_s, gyro=c.gyro, camera_sensors=(c.camera,)
+    )

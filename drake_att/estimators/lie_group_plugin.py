@@ -89,18 +89,28 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
     out = checks.sensor_output(c.star_tracker)
     if out is None or out.kind not in TRACKER_KINDS:
         have = sorted(n for n in checks.sensors if checks.sensor_output(n).kind in TRACKER_KINDS)
-        cfg.fail(f"{path}.star_tracker", c.star_tracker, f"unknown star tracker (vector or quaternion mode); "
-                 f"star trackers listed before: {have}")
+        cfg.fail(
+            f"{path}.star_tracker",
+            c.star_tracker,
+            f"unknown star tracker (vector or quaternion mode); star trackers listed before: {have}",
+        )
     common.check_period_multiple(path, c.period_s, c.star_tracker, out.period_s)
     if c.formulation not in FORMULATIONS:
         cfg.fail(f"{path}.formulation", c.formulation, f"allowed: {list(FORMULATIONS)}")
     if c.formulation != "consistent" and out.kind == "quaternion":
-        cfg.fail(f"{path}.formulation", c.formulation, f"star tracker {c.star_tracker!r} is in quaternion mode: "
-                 "the paper's literal update is defined for star vectors only; use 'consistent'")
+        cfg.fail(
+            f"{path}.formulation",
+            c.formulation,
+            f"star tracker {c.star_tracker!r} is in quaternion mode: "
+            "the paper's literal update is defined for star vectors only; use 'consistent'",
+        )
     common.check_flags(path, c, "estimate_gyro_bias")
     if c.estimate_gyro_bias and c.formulation != "consistent":
-        cfg.fail(f"{path}.estimate_gyro_bias", c.estimate_gyro_bias,
-                 f"the bias state needs formulation 'consistent' (got {c.formulation!r})")
+        cfg.fail(
+            f"{path}.estimate_gyro_bias",
+            c.estimate_gyro_bias,
+            f"the bias state needs formulation 'consistent' (got {c.formulation!r})",
+        )
     cfg.check_vector(f"{path}.initial_attitude_rpy_deg", c.initial_attitude_rpy_deg, 3)
     cfg.check_positive(f"{path}.initial_attitude_variance_rad2", c.initial_attitude_variance_rad2)
     if c.process_noise_rad2_per_step is not None:
@@ -110,8 +120,11 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
     common.check_innovation_gate(path, c)
     if c.estimate_gyro_bias:
         if c.gyro_arw_deg_per_rt_h is not None:
-            cfg.fail(f"{path}.gyro_arw_deg_per_rt_h", c.gyro_arw_deg_per_rt_h,
-                     "is the no-bias filter's ARW; with estimate_gyro_bias set arw_deg_per_rt_h (and rrw_deg_per_h15)")
+            cfg.fail(
+                f"{path}.gyro_arw_deg_per_rt_h",
+                c.gyro_arw_deg_per_rt_h,
+                "is the no-bias filter's ARW; with estimate_gyro_bias set arw_deg_per_rt_h (and rrw_deg_per_h15)",
+            )
         for f in ("arw_deg_per_rt_h", "rrw_deg_per_h15"):
             if getattr(c, f) is not None:
                 cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
@@ -121,8 +134,12 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
             cfg.check_nonnegative(f"{path}.gyro_arw_deg_per_rt_h", c.gyro_arw_deg_per_rt_h)
         for f in ("arw_deg_per_rt_h", "rrw_deg_per_h15"):
             if getattr(c, f) is not None:
-                cfg.fail(f"{path}.{f}", getattr(c, f), "is used only with estimate_gyro_bias: true (without a bias "
-                         "state the filter's gyro ARW is gyro_arw_deg_per_rt_h)")
+                cfg.fail(
+                    f"{path}.{f}",
+                    getattr(c, f),
+                    "is used only with estimate_gyro_bias: true (without a bias "
+                    "state the filter's gyro ARW is gyro_arw_deg_per_rt_h)",
+                )
 
 
 def lie_group_second_quantity(c: LieGroupConfig, checks) -> SecondQuantity:
@@ -130,12 +147,25 @@ def lie_group_second_quantity(c: LieGroupConfig, checks) -> SecondQuantity:
     return SecondQuantity.GYRO_BIAS if c.estimate_gyro_bias else SecondQuantity.BODY_RATE
 
 
-@register_estimator(LieGroupConfig, second_quantity=lie_group_second_quantity, validate=validate_lie_group,
-                    parameters=("formulation", "initial_attitude_rpy_deg", "initial_attitude_variance_rad2",
-                                "process_noise_rad2_per_step", "star_noise_variance_rad2", "star_noise_from_tracker",
-                                "gyro_arw_deg_per_rt_h",
-                                *common.GATE_FIELDS, "arw_deg_per_rt_h", "rrw_deg_per_h15",
-                                "initial_bias_deg_per_h", "initial_bias_sigma_deg_per_h"))
+@register_estimator(
+    LieGroupConfig,
+    second_quantity=lie_group_second_quantity,
+    validate=validate_lie_group,
+    parameters=(
+        "formulation",
+        "initial_attitude_rpy_deg",
+        "initial_attitude_variance_rad2",
+        "process_noise_rad2_per_step",
+        "star_noise_variance_rad2",
+        "star_noise_from_tracker",
+        "gyro_arw_deg_per_rt_h",
+        *common.GATE_FIELDS,
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        "initial_bias_deg_per_h",
+        "initial_bias_sigma_deg_per_h",
+    ),
+)
 def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
     if c.estimate_gyro_bias:
         arw, rrw = common.filter_gyro_noise(ctx, c)
@@ -143,10 +173,16 @@ def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
         arw = None if c.gyro_arw_deg_per_rt_h is None else c.gyro_arw_deg_per_rt_h * ARW_DEG_PER_RT_H
         rrw = None
     Q_v = None if c.star_noise_from_tracker else c.star_noise_variance_rad2
-    core = LieGroupFilter(Q_w=c.process_noise_rad2_per_step, Q_v=Q_v,
-                          formulation=c.formulation, step_s=c.period_s, gyro_arw_rad_per_rt_s=arw,
-                          innovation_gate_chi2=common.innovation_gate(c), estimate_gyro_bias=c.estimate_gyro_bias,
-                          gyro_rrw_rad_per_s15=rrw)
+    core = LieGroupFilter(
+        Q_w=c.process_noise_rad2_per_step,
+        Q_v=Q_v,
+        formulation=c.formulation,
+        step_s=c.period_s,
+        gyro_arw_rad_per_rt_s=arw,
+        innovation_gate_chi2=common.innovation_gate(c),
+        estimate_gyro_bias=c.estimate_gyro_bias,
+        gyro_rrw_rad_per_s15=rrw,
+    )
     q0 = attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg)
     if c.estimate_gyro_bias:
         P0 = np.diag([c.initial_attitude_variance_rad2] * 3 + [(c.initial_bias_sigma_deg_per_h * DEG_PER_H) ** 2] * 3)
@@ -154,6 +190,7 @@ def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
     else:
         init = core.initial_state(q0, c.initial_attitude_variance_rad2)
     if ctx.sensor_output(c.star_tracker).kind == "quaternion":
-        return EstimatorSetup(core, init, c.period_s, gyro=c.gyro,
-                              quaternion_sensors=(ctx.quaternion_model(c.star_tracker),))
+        return EstimatorSetup(
+            core, init, c.period_s, gyro=c.gyro, quaternion_sensors=(ctx.quaternion_model(c.star_tracker),)
+        )
     return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))

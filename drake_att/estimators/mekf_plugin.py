@@ -70,17 +70,29 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
     common.check_flags(path, c, "coning_correction")
 
 
-@register_estimator(MekfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mekf,
-                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", *common.GATE_FIELDS,
-                                *common.INITIAL_GYRO_MODE_FIELDS))
+@register_estimator(
+    MekfConfig,
+    second_quantity=SecondQuantity.GYRO_BIAS,
+    validate=validate_mekf,
+    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", *common.GATE_FIELDS, *common.INITIAL_GYRO_MODE_FIELDS),
+)
 def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
-    core = MultiplicativeEKF(arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, common.innovation_gate(c),
-                             coning_correction=c.coning_correction)
-    init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
-                              np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
-                              c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
+    core = MultiplicativeEKF(
+        arw * ARW_DEG_PER_RT_H, rrw * RRW_DEG_PER_H_15, common.innovation_gate(c), coning_correction=c.coning_correction
+    )
+    init = core.initial_state(
+        attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
+        np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
+        c.initial_attitude_sigma_deg * DEG,
+        c.initial_bias_sigma_deg_per_h * DEG_PER_H,
+    )
     quaternion = [n for n in c.star_trackers if ctx.sensor_output(n).kind == "quaternion"]
-    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro,
-                          quaternion_sensors=tuple(ctx.quaternion_model(n) for n in quaternion),
-                          vector_sensors=tuple(n for n in c.star_trackers if n not in quaternion))
+    return EstimatorSetup(
+        core,
+        init,
+        c.period_s,
+        gyro=c.gyro,
+        quaternion_sensors=tuple(ctx.quaternion_model(n) for n in quaternion),
+        vector_sensors=tuple(n for n in c.star_trackers if n not in quaternion),
+    )

@@ -41,11 +41,30 @@ def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
     common.check_innovation_gate(path, c)
 
 
-@register_estimator(MrpEkfConfig, second_quantity=SecondQuantity.GYRO_BIAS, validate=validate_mrp_ekf,
-                    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "update_iterations", *common.GATE_FIELDS,
-                                *common.INITIAL_GYRO_MODE_FIELDS))
+@register_estimator(
+    MrpEkfConfig,
+    second_quantity=SecondQuantity.GYRO_BIAS,
+    validate=validate_mrp_ekf,
+    parameters=(
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        "update_iterations",
+        *common.GATE_FIELDS,
+        *common.INITIAL_GYRO_MODE_FIELDS,
+    ),
+)
 def build_mrp_ekf(ctx, c: MrpEkfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return mrp_ekf_setup(c.period_s, c.star_tracker, q0, b0, P0, arw, rrw, c.update_iterations, gyro=c.gyro,
-                         innovation_gate=common.innovation_gate(c))
+    return mrp_ekf_setup(
+        c.period_s,
+        c.star_tracker,
+        q0,
+        b0,
+        P0,
+        arw,
+        rrw,
+        c.update_iterations,
+        gyro=c.gyro,
+        innovation_gate=common.innovation_gate(c),
+    )

@@ -55,13 +55,29 @@ def validate_quaternion_ekf(path: str, c: QuaternionEkfConfig, checks) -> None:
     common.check_innovation_gate(path, c)
 
 
-@register_estimator(QuaternionEkfConfig, second_quantity=SecondQuantity.BODY_RATE, validate=validate_quaternion_ekf,
-                    parameters=("initial_attitude_rpy_deg", "initial_quaternion_variance", "process_noise_per_step",
-                                "measurement_noise", "gyro_arw_deg_per_rt_h", *common.GATE_FIELDS))
+@register_estimator(
+    QuaternionEkfConfig,
+    second_quantity=SecondQuantity.BODY_RATE,
+    validate=validate_quaternion_ekf,
+    parameters=(
+        "initial_attitude_rpy_deg",
+        "initial_quaternion_variance",
+        "process_noise_per_step",
+        "measurement_noise",
+        "gyro_arw_deg_per_rt_h",
+        *common.GATE_FIELDS,
+    ),
+)
 def build_quaternion_ekf(ctx, c: QuaternionEkfConfig) -> EstimatorSetup:
     arw = None if c.gyro_arw_deg_per_rt_h is None else c.gyro_arw_deg_per_rt_h * ARW_DEG_PER_RT_H
-    core = AdditiveQuaternionEKF(Q=c.process_noise_per_step, R=c.measurement_noise, step_s=c.period_s,
-                                 gyro_arw_rad_per_rt_s=arw, innovation_gate_chi2=common.innovation_gate(c))
-    init = core.initial_state(attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg),
-                              c.initial_quaternion_variance)
+    core = AdditiveQuaternionEKF(
+        Q=c.process_noise_per_step,
+        R=c.measurement_noise,
+        step_s=c.period_s,
+        gyro_arw_rad_per_rt_s=arw,
+        innovation_gate_chi2=common.innovation_gate(c),
+    )
+    init = core.initial_state(
+        attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg), c.initial_quaternion_variance
+    )
     return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))

@@ -53,8 +53,12 @@ def rotvec_to_quat(x, y, z):
 @jit
 def quat_multiply(pw, px, py, pz, qw, qx, qy, qz):
     """rotations.quat_multiply (Hamilton product ``p ⊗ q``)."""
-    return (pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw)
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
 
 
 __all__ = ["CACHING", "jit", "rotvec_to_quat", "quat_multiply"]

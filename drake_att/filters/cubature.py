@@ -75,8 +75,9 @@ _XI6 = cubature_rule(STATE_DIM)[0]
 _W6 = 1.0 / math.sqrt(2 * STATE_DIM)
 _XI6W = _XI6 * _W6  # orthonormal columns: _XI6W' _XI6W = I
 # Hamilton product as a bilinear form: (p ⊗ q)_i = sum_jk _HAMILTON[i, j, k] p_j q_k.
-_HAMILTON = np.array([[rot.quat_multiply(np.eye(4)[j], np.eye(4)[k]) for k in range(4)]
-                      for j in range(4)]).transpose(2, 0, 1)
+_HAMILTON = np.array([[rot.quat_multiply(np.eye(4)[j], np.eye(4)[k]) for k in range(4)] for j in range(4)]).transpose(
+    2, 0, 1
+)
 _HAMILTON_FLAT = np.ascontiguousarray(_HAMILTON.reshape(4, 16).T)  # (16, 4)
 
 
@@ -170,10 +171,19 @@ class CubatureQuaternionEstimator(GatedCore):
     is_random = False
     state_size = 54
 
-    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, grp_a: float = 1.0, grp_f: float = 4.0,
-                 innovation_gate_chi2=None, noise_model: MultiplicativeNoiseModel | None = None,
-                 zeta_gate_sigmas: float | None = 4.0, update_iterations: int = 10,
-                 iteration_tolerance: float = 1e-2, zeta_state_correlation: bool = False):
+    def __init__(
+        self,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        grp_a: float = 1.0,
+        grp_f: float = 4.0,
+        innovation_gate_chi2=None,
+        noise_model: MultiplicativeNoiseModel | None = None,
+        zeta_gate_sigmas: float | None = 4.0,
+        update_iterations: int = 10,
+        iteration_tolerance: float = 1e-2,
+        zeta_state_correlation: bool = False,
+    ):
         self.arw = check_nonnegative("arw", arw_rad_per_rt_s)
         self.rrw = check_nonnegative("rrw", rrw_rad_per_s15)
         self.grp_a = check_finite("grp_a", grp_a)
@@ -213,8 +223,9 @@ class CubatureQuaternionEstimator(GatedCore):
             L = self._lq_cache[dt] = _process_noise_sqrt(self.arw, self.rrw, dt, self.c)
         return L
 
-    def initial_state(self, q_IB, bias_B, attitude_sigma_rad=None, bias_sigma_rad_per_s=None,
-                      covariance0=None) -> CubatureState:
+    def initial_state(
+        self, q_IB, bias_B, attitude_sigma_rad=None, bias_sigma_rad_per_s=None, covariance0=None
+    ) -> CubatureState:
         """State at ``q_IB`` (4), ``bias_B`` (3) with per-axis (or scalar) 1-sigmas (rotation
         vector, rad; bias, rad/s) or a full 6x6 ``covariance0`` of ``[dtheta_B; dbias]``."""
         q = check_quaternion("q_IB", q_IB)
@@ -222,8 +233,12 @@ class CubatureQuaternionEstimator(GatedCore):
         if covariance0 is None:
             if attitude_sigma_rad is None or bias_sigma_rad_per_s is None:
                 fail("covariance0", covariance0, "give covariance0 or both attitude and bias sigmas")
-            sig = np.concatenate([np.broadcast_to(np.asarray(attitude_sigma_rad, dtype=float), 3),
-                                  np.broadcast_to(np.asarray(bias_sigma_rad_per_s, dtype=float), 3)])
+            sig = np.concatenate(
+                [
+                    np.broadcast_to(np.asarray(attitude_sigma_rad, dtype=float), 3),
+                    np.broadcast_to(np.asarray(bias_sigma_rad_per_s, dtype=float), 3),
+                ]
+            )
             if not np.all(np.isfinite(sig)) or np.any(sig <= 0.0):
                 fail("sigmas", sig, "must be finite and > 0")
             P = np.diag(sig**2)
@@ -248,8 +263,16 @@ class CubatureQuaternionEstimator(GatedCore):
 
     @staticmethod
     def to_vector(state: CubatureState) -> np.ndarray:
-        return np.concatenate([state.q_ref, state.dp, state.bias_B, np.asarray(state.sqrt_P).ravel(),
-                               [state.zeta_mean, state.zeta_var_reduction], state.zeta_cross])
+        return np.concatenate(
+            [
+                state.q_ref,
+                state.dp,
+                state.bias_B,
+                np.asarray(state.sqrt_P).ravel(),
+                [state.zeta_mean, state.zeta_var_reduction],
+                state.zeta_cross,
+            ]
+        )
 
     @staticmethod
     def from_vector(vector) -> CubatureState:
@@ -307,13 +330,16 @@ class CubatureQuaternionEstimator(GatedCore):
     def update(self, state: CubatureState, measurement, rng=None) -> tuple[CubatureState, UpdateInfo]:
         """Update with :class:`~drake_att.contract.VectorObservations` (the contract's entry point)."""
         if not isinstance(measurement, VectorObservations):
-            raise TypeError(f"{type(self).__name__}.update: got a {type(measurement).__name__}; "
-                            "allowed: VectorObservations")
-        return self.update_vectors(state, measurement.directions_S, measurement.references_I,
-                                   measurement.sigma_rad, measurement.q_BS)
+            raise TypeError(
+                f"{type(self).__name__}.update: got a {type(measurement).__name__}; allowed: VectorObservations"
+            )
+        return self.update_vectors(
+            state, measurement.directions_S, measurement.references_I, measurement.sigma_rad, measurement.q_BS
+        )
 
-    def update_vectors(self, state: CubatureState, directions_S, references_I, sigma_rad: float,
-                       q_BS=(1.0, 0.0, 0.0, 0.0)) -> tuple[CubatureState, UpdateInfo]:
+    def update_vectors(
+        self, state: CubatureState, directions_S, references_I, sigma_rad: float, q_BS=(1.0, 0.0, 0.0, 0.0)
+    ) -> tuple[CubatureState, UpdateInfo]:
         """Update with ``m`` measured directions (m, 3, sensor frame) of inertial references (m, 3)."""
         rejected = UpdateInfo(None, None, float("nan"), False)
         measurement = _vector_measurement(directions_S, references_I, q_BS, sigma_rad)
@@ -353,7 +379,9 @@ class CubatureQuaternionEstimator(GatedCore):
                     raise np.linalg.LinAlgError("innovation covariance not positive definite")
             except np.linalg.LinAlgError:
                 if j == 0:  # the paper's update itself is impossible: reject
-                    return state, UpdateInfo(y.ravel() - z_bar, Zc.T @ Zc + (sigma * sigma) * eye_m, float("nan"), False)
+                    return state, UpdateInfo(
+                        y.ravel() - z_bar, Zc.T @ Zc + (sigma * sigma) * eye_m, float("nan"), False
+                    )
                 break  # a relinearization is impossible: keep the last iterate
             HL0, nu, Pzz, Lz = HL0_j, nu_j, Pzz_j, Lz_j
             w_nu = np.linalg.solve(Lz, nu)
@@ -378,8 +406,9 @@ class CubatureQuaternionEstimator(GatedCore):
         new = CubatureState(q_ref, np.zeros(3), xj[3:], Lj, M, D, cross)
         return new, UpdateInfo(nu, Pzz, nis, True)
 
-    def _zeta_moments(self, Lz: np.ndarray, w_nu: np.ndarray, K: np.ndarray, sigma: float,
-                      m: int) -> tuple[float, float, np.ndarray]:
+    def _zeta_moments(
+        self, Lz: np.ndarray, w_nu: np.ndarray, K: np.ndarray, sigma: float, m: int
+    ) -> tuple[float, float, np.ndarray]:
         """``(M, D, Cov([dp; beta], zeta | D))`` of the multiplicative noise after an update with
         innovation covariance factor ``Lz``, whitened innovation ``w_nu`` and gain ``K``
         (``(0, 0, 0)`` without a noise model or when ``M`` is gated out)."""
@@ -398,8 +427,9 @@ class CubatureQuaternionEstimator(GatedCore):
         return M, D, cross
 
 
-def _vector_measurement(directions_S, references_I, q_BS,
-                        sigma_rad) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
+def _vector_measurement(
+    directions_S, references_I, q_BS, sigma_rad
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float] | None:
     """``(directions (m, 3), references (m, 3), q_BS (4,), sigma)`` as floats, or None when they
     cannot make an update: not numbers, wrong or unequal shapes, not finite, a negative sigma
     or a zero ``q_BS``."""
@@ -410,9 +440,16 @@ def _vector_measurement(directions_S, references_I, q_BS,
         sigma = float(sigma_rad)
     except (TypeError, ValueError):
         return None
-    if (y.ndim != 2 or y.shape[1] != 3 or y.shape != refs.shape or y.shape[0] < 1 or q.shape != (4,)
-            or not (np.all(np.isfinite(y)) and np.all(np.isfinite(refs)) and np.all(np.isfinite(q)))
-            or not (math.isfinite(sigma) and sigma >= 0.0) or not float(q @ q) > 1e-18):
+    if (
+        y.ndim != 2
+        or y.shape[1] != 3
+        or y.shape != refs.shape
+        or y.shape[0] < 1
+        or q.shape != (4,)
+        or not (np.all(np.isfinite(y)) and np.all(np.isfinite(refs)) and np.all(np.isfinite(q)))
+        or not (math.isfinite(sigma) and sigma >= 0.0)
+        or not float(q @ q) > 1e-18
+    ):
         return None
     return y, refs, q, sigma
 
@@ -425,14 +462,38 @@ class CubatureQuaternionEstimatorMCNS(CubatureQuaternionEstimator):
     :meth:`MultiplicativeNoiseModel.paper`).
     """
 
-    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, grp_a: float = 1.0, grp_f: float = 4.0,
-                 innovation_gate_chi2=None, noise_model: MultiplicativeNoiseModel | None = None,
-                 zeta_gate_sigmas: float | None = 4.0, update_iterations: int = 10,
-                 iteration_tolerance: float = 1e-2, zeta_state_correlation: bool = False):
-        super().__init__(arw_rad_per_rt_s, rrw_rad_per_s15, grp_a, grp_f, innovation_gate_chi2,
-                         MultiplicativeNoiseModel.paper() if noise_model is None else noise_model, zeta_gate_sigmas,
-                         update_iterations, iteration_tolerance, zeta_state_correlation)
+    def __init__(
+        self,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        grp_a: float = 1.0,
+        grp_f: float = 4.0,
+        innovation_gate_chi2=None,
+        noise_model: MultiplicativeNoiseModel | None = None,
+        zeta_gate_sigmas: float | None = 4.0,
+        update_iterations: int = 10,
+        iteration_tolerance: float = 1e-2,
+        zeta_state_correlation: bool = False,
+    ):
+        super().__init__(
+            arw_rad_per_rt_s,
+            rrw_rad_per_s15,
+            grp_a,
+            grp_f,
+            innovation_gate_chi2,
+            MultiplicativeNoiseModel.paper() if noise_model is None else noise_model,
+            zeta_gate_sigmas,
+            update_iterations,
+            iteration_tolerance,
+            zeta_state_correlation,
+        )
 
 
-__all__ = ["cubature_rule", "cubature_points", "triangularize", "CubatureState", "CubatureQuaternionEstimator",
-           "CubatureQuaternionEstimatorMCNS"]
+__all__ = [
+    "cubature_rule",
+    "cubature_points",
+    "triangularize",
+    "CubatureState",
+    "CubatureQuaternionEstimator",
+    "CubatureQuaternionEstimatorMCNS",
+]

@@ -188,8 +188,17 @@ def inflated(state, factor: float, field: str = "P", square_root: bool = False, 
     return replace(state, **{field: new})
 
 
-__all__ = ["DEFAULT_GATE_PROBABILITY", "REACQUIRE_AFTER_REJECTIONS", "chi2_cdf", "chi2_quantile", "InnovationGate",
-           "reacquire_factor", "inflation_factor", "capped_factor", "inflated"]
+__all__ = [
+    "DEFAULT_GATE_PROBABILITY",
+    "REACQUIRE_AFTER_REJECTIONS",
+    "chi2_cdf",
+    "chi2_quantile",
+    "InnovationGate",
+    "reacquire_factor",
+    "inflation_factor",
+    "capped_factor",
+    "inflated",
+]
 
 
 class GatedCore:

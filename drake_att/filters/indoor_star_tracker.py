@@ -101,8 +101,9 @@ class AngleMatcher:
         pair = np.repeat(np.arange(len(theta)), counts)
         cat = np.repeat(lo - (np.cumsum(counts) - counts), counts) + np.arange(total)
         oi, ok, cj, cl = i[pair], k[pair], self._j[cat], self._l[cat]
-        votes = np.bincount(np.concatenate([oi * m + cj, oi * m + cl, ok * m + cj, ok * m + cl]),
-                            minlength=n * m).reshape(n, m)
+        votes = np.bincount(
+            np.concatenate([oi * m + cj, oi * m + cl, ok * m + cj, ok * m + cl]), minlength=n * m
+        ).reshape(n, m)
         best = np.argmax(votes, axis=1)
         top = votes[np.arange(n), best]
         second = np.partition(votes, m - 2, axis=1)[:, m - 2] if m >= 2 else np.zeros(n)
@@ -135,6 +136,7 @@ class AngleMatcher:
 
 def triad(b1, b2, r1, r2) -> np.ndarray:
     """TRIAD (paper eq.): ``A = M_obs M_ref^T`` with ``b1 = A r1`` exact (``A = R_BI``)."""
+
     def frame(v1, v2):
         t2 = np.cross(v1, v2)
         t2 = t2 / np.linalg.norm(t2)
@@ -248,8 +250,9 @@ class SwarmSettings:
             fail("pso.stop_fraction", self.stop_fraction, "must be in (0, 1]")
 
 
-def particle_swarm_search(fitness, centre_rpy_deg, settings: SwarmSettings, n_observed: int,
-                          rng: np.random.Generator) -> SwarmResult:
+def particle_swarm_search(
+    fitness, centre_rpy_deg, settings: SwarmSettings, n_observed: int, rng: np.random.Generator
+) -> SwarmResult:
     """Minimize ``fitness(rpy_deg)`` (minus the stars identified from that ``A0``) by the
     paper's particle swarm (see :class:`SwarmSettings`)."""
     s = settings
@@ -302,8 +305,7 @@ class IndoorSolverState:
     diagnostics: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
 
-DIAGNOSTIC_NAMES = ("stars_observed", "stars_identified", "iterations", "swarm_generations", "swarm_searches",
-                    "solved")
+DIAGNOSTIC_NAMES = ("stars_observed", "stars_identified", "iterations", "swarm_generations", "swarm_searches", "solved")
 _UNKNOWN_RATE_SIGMA = math.radians(10.0)  # rad/s: the rate's 1-sigma before two consecutive solutions
 
 
@@ -338,11 +340,20 @@ class IndoorStarTrackerSolver:
     state_size = 4 + 36 + 3 + 4 + len(DIAGNOSTIC_NAMES)
     diagnostic_names = DIAGNOSTIC_NAMES
 
-    def __init__(self, geometry: ScreenCameraGeometry, tolerance_deg: float = 0.02,
-                 identification: str = "corrected", attitude_method: str = "triad", max_iterations: int = 10,
-                 convergence_tolerance_rad: float = 1e-9, initialization: str = "swarm",
-                 swarm: SwarmSettings = SwarmSettings(), max_lost_frames: int = 5, sigma_floor_rad: float = 1e-9,
-                 catalogue_centroids_m=None):
+    def __init__(
+        self,
+        geometry: ScreenCameraGeometry,
+        tolerance_deg: float = 0.02,
+        identification: str = "corrected",
+        attitude_method: str = "triad",
+        max_iterations: int = 10,
+        convergence_tolerance_rad: float = 1e-9,
+        initialization: str = "swarm",
+        swarm: SwarmSettings = SwarmSettings(),
+        max_lost_frames: int = 5,
+        sigma_floor_rad: float = 1e-9,
+        catalogue_centroids_m=None,
+    ):
         if identification not in IDENTIFICATIONS:
             fail("identification", identification, f"allowed: {list(IDENTIFICATIONS)}")
         if attitude_method not in ATTITUDE_METHODS:
@@ -360,8 +371,11 @@ class IndoorStarTrackerSolver:
         self.sigma_floor_rad = check_positive("sigma_floor_rad", sigma_floor_rad)
         self.catalogue_ids, r_I, b0 = geometry.catalogue(catalogue_centroids_m)
         if len(self.catalogue_ids) < MIN_IDENTIFIED:
-            fail("geometry", f"{len(self.catalogue_ids)} stars in view at zero attitude",
-                 f"the catalogue needs >= {MIN_IDENTIFIED}")
+            fail(
+                "geometry",
+                f"{len(self.catalogue_ids)} stars in view at zero attitude",
+                f"the catalogue needs >= {MIN_IDENTIFIED}",
+            )
         self.catalogue_I = b0 if identification == "naive" else r_I
         self.matcher = AngleMatcher(self.catalogue_I, math.radians(check_positive("tolerance_deg", tolerance_deg)))
 
@@ -395,8 +409,9 @@ class IndoorStarTrackerSolver:
         """Per-star noise (rad) of the compared directions
         (docs/derivations/indoor_star_tracker.md)."""
         q = float(getattr(frame, "quantization_m", 0.0))
-        sigma = max(math.sqrt(float(frame.sigma_m) ** 2 + q * q / 12.0) / float(frame.focal_length_m),
-                    self.sigma_floor_rad)
+        sigma = max(
+            math.sqrt(float(frame.sigma_m) ** 2 + q * q / 12.0) / float(frame.focal_length_m), self.sigma_floor_rad
+        )
         if self.identification == "naive":
             return np.full(len(b_B), sigma)
         g = self.geometry
@@ -428,8 +443,9 @@ class IndoorStarTrackerSolver:
     def acquire(self, frame: CameraCentroids, centre_rpy_deg, rng: np.random.Generator) -> SwarmResult:
         """The swarm search for an ``A0`` around ``centre_rpy_deg``."""
         b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
-        return particle_swarm_search(lambda x: -self.count_identified(b, rpy_deg_to_R_BI(x)), centre_rpy_deg,
-                                     self.swarm, len(b), rng)
+        return particle_swarm_search(
+            lambda x: -self.count_identified(b, rpy_deg_to_R_BI(x)), centre_rpy_deg, self.swarm, len(b), rng
+        )
 
     # -- the filter-core protocol --------------------------------------------------------------
     def initial_state(self, q_IB, attitude_sigma_rad: float) -> IndoorSolverState:
@@ -438,8 +454,12 @@ class IndoorStarTrackerSolver:
         P = np.zeros((6, 6))
         P[:3, :3] = np.eye(3) * check_positive("attitude_sigma_rad", attitude_sigma_rad) ** 2
         P[3:, 3:] = np.eye(3) * _UNKNOWN_RATE_SIGMA**2
-        return IndoorSolverState(rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB, dtype=float))), P,
-                                 np.zeros(3), tracking=self.initialization == "given")
+        return IndoorSolverState(
+            rot.quat_canonical(rot.quat_normalize(np.asarray(q_IB, dtype=float))),
+            P,
+            np.zeros(3),
+            tracking=self.initialization == "given",
+        )
 
     def predict(self, state: IndoorSolverState, w_meas_B, dt: float, rng=None) -> IndoorSolverState:
         """Hold the last solution; its attitude covariance grows as the table may turn at the
@@ -455,13 +475,15 @@ class IndoorStarTrackerSolver:
     def _turn_covariance(state: IndoorSolverState) -> np.ndarray:
         return np.outer(state.w_IB_B, state.w_IB_B) + state.covariance[3:, 3:]
 
-    def update(self, state: IndoorSolverState, measurement, rng=None, guess_q_IB=None
-               ) -> tuple[IndoorSolverState, UpdateInfo]:
+    def update(
+        self, state: IndoorSolverState, measurement, rng=None, guess_q_IB=None
+    ) -> tuple[IndoorSolverState, UpdateInfo]:
         """Solve one frame: ``A0`` is ``guess_q_IB`` (a fused filter's prediction), else the
         held solution while tracking, else the swarm search around the held attitude."""
         if not isinstance(measurement, CameraCentroids):
-            raise TypeError(f"IndoorStarTrackerSolver.update: got a {type(measurement).__name__}; "
-                            "allowed: CameraCentroids")
+            raise TypeError(
+                f"IndoorStarTrackerSolver.update: got a {type(measurement).__name__}; allowed: CameraCentroids"
+            )
         n_obs = len(np.asarray(measurement.centroids_m).reshape(-1, 2))
         searches = state.diagnostics[4]
         generations = 0
@@ -479,8 +501,10 @@ class IndoorStarTrackerSolver:
         if not sol.solved:
             failures = state.failures + 1
             tracking = state.tracking and failures < self.max_lost_frames
-            return (replace(state, failures=failures, tracking=tracking, diagnostics=diag),
-                    UpdateInfo(None, None, float("nan"), False))
+            return (
+                replace(state, failures=failures, tracking=tracking, diagnostics=diag),
+                UpdateInfo(None, None, float("nan"), False),
+            )
         q = rot.quat_canonical(rot.rotmat_to_quat(sol.R_BI.T))
         t = float(measurement.time_s)
         P = np.zeros((6, 6))
@@ -508,18 +532,29 @@ class IndoorStarTrackerSolver:
     def to_vector(state: IndoorSolverState) -> np.ndarray:
         """``[q_IB (4), covariance (36), w_IB_B (3), t_solution, tracking, failures, held_s,
         diagnostics (6)]``."""
-        return np.concatenate([state.q_IB, np.ravel(state.covariance), state.w_IB_B,
-                               [state.t_solution, float(state.tracking), float(state.failures), state.held_s],
-                               state.diagnostics])
+        return np.concatenate(
+            [
+                state.q_IB,
+                np.ravel(state.covariance),
+                state.w_IB_B,
+                [state.t_solution, float(state.tracking), float(state.failures), state.held_s],
+                state.diagnostics,
+            ]
+        )
 
     @staticmethod
     def from_vector(vector) -> IndoorSolverState:
         v = np.asarray(vector, dtype=float)
-        return IndoorSolverState(v[:4].copy(), v[4:40].reshape(6, 6).copy(), v[40:43].copy(), t_solution=float(v[43]),
-                                 tracking=bool(v[44] > 0.5), failures=int(v[45]), held_s=float(v[46]),
-                                 diagnostics=v[47:53].copy())
-
-
+        return IndoorSolverState(
+            v[:4].copy(),
+            v[4:40].reshape(6, 6).copy(),
+            v[40:43].copy(),
+            t_solution=float(v[43]),
+            tracking=bool(v[44] > 0.5),
+            failures=int(v[45]),
+            held_s=float(v[46]),
+            diagnostics=v[47:53].copy(),
+        )
 
 
 @dataclass(frozen=True)
@@ -589,7 +624,25 @@ class IndoorStarTrackerMekf:
         return IndoorMekfState(self.mekf.from_vector(v[:n]), self.solver.from_vector(v[n:]))
 
 
-__all__ = ["IDENTIFICATIONS", "ATTITUDE_METHODS", "MIN_IDENTIFIED", "rpy_deg_to_R_BI", "R_BI_to_rpy_deg",
-           "rotation_angle", "AngleMatcher", "triad", "triad_covariance", "svd_attitude", "IterationRecord",
-           "Solution", "SwarmResult", "SwarmSettings", "particle_swarm_search", "IndoorSolverState",
-           "DIAGNOSTIC_NAMES", "IndoorStarTrackerSolver", "IndoorMekfState", "IndoorStarTrackerMekf"]
+__all__ = [
+    "IDENTIFICATIONS",
+    "ATTITUDE_METHODS",
+    "MIN_IDENTIFIED",
+    "rpy_deg_to_R_BI",
+    "R_BI_to_rpy_deg",
+    "rotation_angle",
+    "AngleMatcher",
+    "triad",
+    "triad_covariance",
+    "svd_attitude",
+    "IterationRecord",
+    "Solution",
+    "SwarmResult",
+    "SwarmSettings",
+    "particle_swarm_search",
+    "IndoorSolverState",
+    "DIAGNOSTIC_NAMES",
+    "IndoorStarTrackerSolver",
+    "IndoorMekfState",
+    "IndoorStarTrackerMekf",
+]

@@ -164,24 +164,42 @@ class LieGroupFilter(GatedCore):
     is_random = False
     state_size = STATE_SIZE_NO_BIAS
 
-    def __init__(self, Q_w=None, Q_v=None, formulation: str = "consistent", step_s: float = 1.0,
-                 gyro_arw_rad_per_rt_s: float | None = None, innovation_gate_chi2=None,
-                 estimate_gyro_bias: bool = False, gyro_rrw_rad_per_s15: float | None = None):
+    def __init__(
+        self,
+        Q_w=None,
+        Q_v=None,
+        formulation: str = "consistent",
+        step_s: float = 1.0,
+        gyro_arw_rad_per_rt_s: float | None = None,
+        innovation_gate_chi2=None,
+        estimate_gyro_bias: bool = False,
+        gyro_rrw_rad_per_s15: float | None = None,
+    ):
         if formulation not in FORMULATIONS:
             fail("formulation", formulation, f"allowed: {list(FORMULATIONS)}")
         check_positive("step_s", step_s)
-        for name, value in (("Q_v", Q_v), ("gyro_arw_rad_per_rt_s", gyro_arw_rad_per_rt_s),
-                            ("gyro_rrw_rad_per_s15", gyro_rrw_rad_per_s15)):
+        for name, value in (
+            ("Q_v", Q_v),
+            ("gyro_arw_rad_per_rt_s", gyro_arw_rad_per_rt_s),
+            ("gyro_rrw_rad_per_s15", gyro_rrw_rad_per_s15),
+        ):
             if value is not None:
                 check_nonnegative(name, value)
         if not isinstance(estimate_gyro_bias, (bool, np.bool_)):
             fail("estimate_gyro_bias", estimate_gyro_bias, "must be True or False")
         if estimate_gyro_bias and formulation != "consistent":
-            fail("estimate_gyro_bias", True, f"with formulation={formulation!r}: the bias state needs "
-                 "formulation='consistent' (the paper's literal pairing does not converge)")
+            fail(
+                "estimate_gyro_bias",
+                True,
+                f"with formulation={formulation!r}: the bias state needs "
+                "formulation='consistent' (the paper's literal pairing does not converge)",
+            )
         if gyro_rrw_rad_per_s15 is not None and not estimate_gyro_bias:
-            fail("gyro_rrw_rad_per_s15", gyro_rrw_rad_per_s15, "the rate random walk is modelled only with "
-                 "estimate_gyro_bias=True")
+            fail(
+                "gyro_rrw_rad_per_s15",
+                gyro_rrw_rad_per_s15,
+                "the rate random walk is modelled only with estimate_gyro_bias=True",
+            )
         self.estimate_gyro_bias = bool(estimate_gyro_bias)
         if Q_w is None:
             Q_w = 0.0 if self.estimate_gyro_bias else DEFAULT_Q_W
@@ -223,14 +241,17 @@ class LieGroupFilter(GatedCore):
         if bias_B is not None:
             fail("P0", np.shape(P0), "with bias_B a bias state needs a 6x6 P0 (covariance of [dtheta_B; dbias_B])")
         check_positive("initial_rate_sigma", initial_rate_sigma)
-        return LieGroupState(R, check_variance_matrix("P0", P0, 3), np.zeros(3), initial_rate_sigma**2 * _EYE3, np.zeros((3, 3)))
+        return LieGroupState(
+            R, check_variance_matrix("P0", P0, 3), np.zeros(3), initial_rate_sigma**2 * _EYE3, np.zeros((3, 3))
+        )
 
     @staticmethod
     def to_vector(state) -> np.ndarray:
         if isinstance(state, LieGroupBiasState):
             return np.concatenate([np.ravel(state.R_IB), state.bias_B, np.ravel(state.P)])
-        return np.concatenate([np.ravel(state.R_IB), np.ravel(state.P), state.w_B, np.ravel(state.P_w),
-                               np.ravel(state.C)])
+        return np.concatenate(
+            [np.ravel(state.R_IB), np.ravel(state.P), state.w_B, np.ravel(state.P_w), np.ravel(state.C)]
+        )
 
     @staticmethod
     def from_vector(vector):
@@ -239,16 +260,21 @@ class LieGroupFilter(GatedCore):
         if v.shape == (STATE_SIZE_BIAS,):
             return LieGroupBiasState(v[0:9].reshape(3, 3), v[9:12], v[12:48].reshape(6, 6))
         if v.shape != (STATE_SIZE_NO_BIAS,):
-            raise ValueError(f"LieGroupFilter state vector: got shape {v.shape}; need ({STATE_SIZE_NO_BIAS},) "
-                             f"or ({STATE_SIZE_BIAS},) with a gyro-bias state")
-        return LieGroupState(v[0:9].reshape(3, 3), v[9:18].reshape(3, 3), v[18:21], v[21:30].reshape(3, 3),
-                             v[30:39].reshape(3, 3))
+            raise ValueError(
+                f"LieGroupFilter state vector: got shape {v.shape}; need ({STATE_SIZE_NO_BIAS},) "
+                f"or ({STATE_SIZE_BIAS},) with a gyro-bias state"
+            )
+        return LieGroupState(
+            v[0:9].reshape(3, 3), v[9:18].reshape(3, 3), v[18:21], v[21:30].reshape(3, 3), v[30:39].reshape(3, 3)
+        )
 
     def _check_state(self, state) -> None:
         if isinstance(state, LieGroupBiasState) != self.estimate_gyro_bias:
             need = "LieGroupBiasState (initial_state with a 6x6 P0)" if self.estimate_gyro_bias else "LieGroupState"
-            raise TypeError(f"LieGroupFilter(estimate_gyro_bias={self.estimate_gyro_bias}): got a "
-                            f"{type(state).__name__}; need a {need}")
+            raise TypeError(
+                f"LieGroupFilter(estimate_gyro_bias={self.estimate_gyro_bias}): got a "
+                f"{type(state).__name__}; need a {need}"
+            )
 
     def reacquire(self, state, info):
         """The state with its covariance inflated after repeated gate rejections (the rule of
@@ -351,8 +377,10 @@ class LieGroupFilter(GatedCore):
             return z, H, R_meas
         if isinstance(measurement, QuaternionSample):
             if self.formulation != "consistent":
-                raise TypeError("LieGroupFilter.update: formulation='paper_literal' has only the paper's vector "
-                                "update (eqs 26-32); a QuaternionSample needs formulation='consistent'")
+                raise TypeError(
+                    "LieGroupFilter.update: formulation='paper_literal' has only the paper's vector "
+                    "update (eqs 26-32); a QuaternionSample needs formulation='consistent'"
+                )
             q_BS = np.asarray(measurement.q_BS, dtype=float)
             R_BS = rot.quat_to_rotmat(q_BS)
             q_IB_meas = rot.quat_multiply(np.asarray(measurement.q_IS_meas, dtype=float), rot.quat_conjugate(q_BS))
@@ -365,8 +393,9 @@ class LieGroupFilter(GatedCore):
             H = np.zeros((3, n))
             H[:, :3] = _EYE3
             return z, H, 0.5 * (R_meas + R_meas.T)
-        raise TypeError(f"LieGroupFilter.update: got a {type(measurement).__name__}; "
-                        "allowed: VectorObservations, QuaternionSample")
+        raise TypeError(
+            f"LieGroupFilter.update: got a {type(measurement).__name__}; allowed: VectorObservations, QuaternionSample"
+        )
 
     def update(self, state, measurement, rng=None):
         """Update with a :class:`~drake_att.contract.VectorObservations` (m >= 1 stars) or a
@@ -399,5 +428,15 @@ class LieGroupFilter(GatedCore):
         return new, UpdateInfo(z, S, nis, True)
 
 
-__all__ = ["LieGroupState", "LieGroupBiasState", "LieGroupFilter", "FORMULATIONS", "rate_error_model",
-           "orthonormalize", "DEFAULT_INITIAL_RATE_SIGMA", "DEFAULT_Q_W", "STATE_SIZE_NO_BIAS", "STATE_SIZE_BIAS"]
+__all__ = [
+    "LieGroupState",
+    "LieGroupBiasState",
+    "LieGroupFilter",
+    "FORMULATIONS",
+    "rate_error_model",
+    "orthonormalize",
+    "DEFAULT_INITIAL_RATE_SIGMA",
+    "DEFAULT_Q_W",
+    "STATE_SIZE_NO_BIAS",
+    "STATE_SIZE_BIAS",
+]

@@ -136,8 +136,13 @@ class MultiplicativeEKF(GatedCore):
     is_random = False
     state_size = 43  # per instance: 47 with the coning correction
 
-    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, innovation_gate_chi2=None,
-                 coning_correction: bool = False):
+    def __init__(
+        self,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        innovation_gate_chi2=None,
+        coning_correction: bool = False,
+    ):
         self.arw = check_nonnegative("arw", arw_rad_per_rt_s)
         self.rrw = check_nonnegative("rrw", rrw_rad_per_s15)
         self.gate = InnovationGate.of(innovation_gate_chi2)
@@ -156,8 +161,16 @@ class MultiplicativeEKF(GatedCore):
         cls = type(self)
         return not self.coning_correction and all(
             getattr(cls, name) is getattr(MultiplicativeEKF, name)
-            for name in ("predict", "predict_linearized", "process_noise", "update", "update_quaternion", "reacquire",
-                         "ungated"))
+            for name in (
+                "predict",
+                "predict_linearized",
+                "process_noise",
+                "update",
+                "update_quaternion",
+                "reacquire",
+                "ungated",
+            )
+        )
 
     def process_noise(self, dt: float) -> np.ndarray:
         """:func:`process_noise` for this filter's gyro model (cached per ``dt``)."""
@@ -171,8 +184,11 @@ class MultiplicativeEKF(GatedCore):
     def initial_state(self, q_IB, bias_B, attitude_sigma_rad, bias_sigma_rad_per_s) -> MekfState:
         """State with diagonal covariance from per-axis (or scalar) 1-sigmas (and, with the
         coning correction, no previous gyro increment)."""
-        P = np.diag(np.concatenate([np.broadcast_to(attitude_sigma_rad, 3) ** 2,
-                                    np.broadcast_to(bias_sigma_rad_per_s, 3) ** 2]).astype(float))
+        P = np.diag(
+            np.concatenate(
+                [np.broadcast_to(attitude_sigma_rad, 3) ** 2, np.broadcast_to(bias_sigma_rad_per_s, 3) ** 2]
+            ).astype(float)
+        )
         previous = np.zeros(PREVIOUS_GYRO_SIZE) if self.coning_correction else None
         return MekfState(rot.quat_normalize(q_IB), np.asarray(bias_B, dtype=float).copy(), P, previous)
 
@@ -186,10 +202,17 @@ class MultiplicativeEKF(GatedCore):
         if isinstance(measurement, QuaternionSample):
             return self.update_quaternion(state, measurement.q_IS_meas, measurement.q_BS, measurement.covariance_S)
         if isinstance(measurement, VectorObservations):
-            return self.update_vectors(state, np.asarray(measurement.directions_S), measurement.references_I,
-                                       measurement.sigma_rad, measurement.q_BS)
-        raise TypeError(f"MultiplicativeEKF.update: got a {type(measurement).__name__}; "
-                        "allowed: QuaternionSample, VectorObservations")
+            return self.update_vectors(
+                state,
+                np.asarray(measurement.directions_S),
+                measurement.references_I,
+                measurement.sigma_rad,
+                measurement.q_BS,
+            )
+        raise TypeError(
+            f"MultiplicativeEKF.update: got a {type(measurement).__name__}; "
+            "allowed: QuaternionSample, VectorObservations"
+        )
 
     def reacquire(self, state, info):
         """The state with its covariance inflated after repeated gate rejections (the rule of
@@ -238,8 +261,9 @@ class MultiplicativeEKF(GatedCore):
             phi = w_hat * dt
         Q = self.process_noise(dt)
         q, P, Phi = np.empty(4), np.empty((6, 6)), np.empty((6, 6))
-        _kernels.predict(np.asarray(state.q_IB, dtype=float), np.asarray(state.P, dtype=float), w_hat, phi,
-                         float(dt), Q, q, P, Phi)
+        _kernels.predict(
+            np.asarray(state.q_IB, dtype=float), np.asarray(state.P, dtype=float), w_hat, phi, float(dt), Q, q, P, Phi
+        )
         return MekfState(q, state.bias_B, P, previous), Phi, Q
 
     def _update(self, state: MekfState, z, H, R):
@@ -271,9 +295,21 @@ class MultiplicativeEKF(GatedCore):
         q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
         z, S, I_KH = np.empty(3), np.empty((3, 3)), np.empty((6, 6))
         outcome, nis = _kernels.update_quaternion(
-            np.asarray(state.q_IB, dtype=float), np.asarray(state.bias_B, dtype=float),
-            np.asarray(state.P, dtype=float), np.asarray(q_IS_meas, dtype=float), np.asarray(q_BS, dtype=float),
-            R_SB, R, self.gate.threshold(3), q, b, P, z, S, I_KH)
+            np.asarray(state.q_IB, dtype=float),
+            np.asarray(state.bias_B, dtype=float),
+            np.asarray(state.P, dtype=float),
+            np.asarray(q_IS_meas, dtype=float),
+            np.asarray(q_BS, dtype=float),
+            R_SB,
+            R,
+            self.gate.threshold(3),
+            q,
+            b,
+            P,
+            z,
+            S,
+            I_KH,
+        )
         if outcome != _kernels.ACCEPTED:
             return state, UpdateInfo(z, S, nis, False)
         return MekfState(q, b, P, state.previous_gyro), UpdateInfo(z, S, nis, True, I_KH)
@@ -291,8 +327,9 @@ class MultiplicativeEKF(GatedCore):
             model = self._model_cache[key] = (R, np.ascontiguousarray(rot.quat_to_rotmat(q_BS).T))
         return model
 
-    def update_vectors(self, state: MekfState, directions_S, references_I, sigma_rad: float,
-                       q_BS=(1.0, 0.0, 0.0, 0.0)) -> tuple[MekfState, UpdateInfo]:
+    def update_vectors(
+        self, state: MekfState, directions_S, references_I, sigma_rad: float, q_BS=(1.0, 0.0, 0.0, 0.0)
+    ) -> tuple[MekfState, UpdateInfo]:
         """Update with ``m`` measured directions (m, 3) of inertial references (m, 3)."""
         directions_S = np.asarray(directions_S, dtype=float)
         references_I = np.asarray(references_I, dtype=float)
@@ -307,8 +344,9 @@ class MultiplicativeEKF(GatedCore):
         return self._update(state, z, H, R)
 
 
-def steady_state_covariance(Phi, Q, H, R, max_iterations: int = 100,
-                            rtol: float = 1e-13) -> tuple[np.ndarray, np.ndarray]:
+def steady_state_covariance(
+    Phi, Q, H, R, max_iterations: int = 100, rtol: float = 1e-13
+) -> tuple[np.ndarray, np.ndarray]:
     """A-priori and a-posteriori steady-state covariances of an LTI Kalman filter.
 
     Solves the filter Riccati equation ``P = Phi P Phi' - Phi P H' (H P H' + R)^-1 H P Phi' + Q``
@@ -343,8 +381,10 @@ def steady_state_covariance(Phi, Q, H, R, max_iterations: int = 100,
         if converged:
             break
     else:
-        raise ValueError(f"steady_state_covariance: no convergence in max_iterations={max_iterations} "
-                         "doubling steps (is (Phi, H) detectable and (Phi, Q) stabilizable?)")
+        raise ValueError(
+            f"steady_state_covariance: no convergence in max_iterations={max_iterations} "
+            "doubling steps (is (Phi, H) detectable and (Phi, Q) stabilizable?)"
+        )
     if not np.all(np.isfinite(X)):
         raise ValueError("steady_state_covariance: non-finite solution (check Phi, Q, H, R)")
     P = X
@@ -353,5 +393,13 @@ def steady_state_covariance(Phi, Q, H, R, max_iterations: int = 100,
     return P, (eye - K @ H) @ P
 
 
-__all__ = ["MekfState", "UpdateInfo", "MultiplicativeEKF", "process_noise", "transition_matrix",
-           "coning_rotation_vector", "steady_state_covariance", "PREVIOUS_GYRO_SIZE"]
+__all__ = [
+    "MekfState",
+    "UpdateInfo",
+    "MultiplicativeEKF",
+    "process_noise",
+    "transition_matrix",
+    "coning_rotation_vector",
+    "steady_state_covariance",
+    "PREVIOUS_GYRO_SIZE",
+]

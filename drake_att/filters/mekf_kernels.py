@@ -44,8 +44,8 @@ def process_noise(arw, rrw, dt, Q):
     """Discrete process-noise covariance of ``[dtheta; dbias]`` over ``dt`` into ``Q`` (6x6):
     Farrenkopf's model with ARW ``arw`` (rad/s^0.5) and RRW ``rrw`` (rad/s^1.5)."""
     sv2, su2 = arw * arw, rrw * rrw
-    a = sv2 * dt + su2 * dt ** 3 / 3.0
-    c = -su2 * dt ** 2 / 2.0
+    a = sv2 * dt + su2 * dt**3 / 3.0
+    c = -su2 * dt**2 / 2.0
     d = su2 * dt
     for i in range(6):
         for j in range(6):
@@ -237,10 +237,35 @@ def warm_up() -> None:
     P = np.eye(6)
     out4, out6, out66 = np.empty(4), np.empty(6), np.empty((6, 6))
     predict(q, P, np.zeros(3), np.zeros(3), 1.0, np.eye(6), out4, out66, np.empty((6, 6)))
-    update_quaternion(q, np.zeros(3), P, q, q, np.eye(3), np.eye(3), math.inf, out4, np.empty(3), out66,
-                      np.empty(3), np.empty((3, 3)), np.empty((6, 6)))
+    update_quaternion(
+        q,
+        np.zeros(3),
+        P,
+        q,
+        q,
+        np.eye(3),
+        np.eye(3),
+        math.inf,
+        out4,
+        np.empty(3),
+        out66,
+        np.empty(3),
+        np.empty((3, 3)),
+        np.empty((6, 6)),
+    )
     del out6
 
 
-__all__ = ["fixed_product", "matmul66", "process_noise", "transition", "inverse3", "predict", "update_quaternion", "warm_up", "ACCEPTED",
-           "REJECTED_BY_GATE", "SINGULAR"]
+__all__ = [
+    "fixed_product",
+    "matmul66",
+    "process_noise",
+    "transition",
+    "inverse3",
+    "predict",
+    "update_quaternion",
+    "warm_up",
+    "ACCEPTED",
+    "REJECTED_BY_GATE",
+    "SINGULAR",
+]

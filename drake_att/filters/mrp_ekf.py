@@ -64,8 +64,9 @@ def body_frame_vectors(observations) -> tuple[np.ndarray | None, np.ndarray, flo
     """
     U = check_reference_vectors("ref_vectors_I", observations.references_I)
     sigma = check_positive("sigma", observations.sigma_rad)
-    y_S = measurement_or_none("directions_S", observations.directions_S, (U.shape[0], 3),
-                              " (one direction per reference vector)")
+    y_S = measurement_or_none(
+        "directions_S", observations.directions_S, (U.shape[0], 3), " (one direction per reference vector)"
+    )
     if y_S is None:
         return None, U, sigma
     q_BS = np.asarray(observations.q_BS, dtype=float)
@@ -152,8 +153,13 @@ class MrpEkfCore(GatedCore):
     is_random = False
     state_size = 42
 
-    def __init__(self, arw_rad_per_rt_s: float, rrw_rad_per_s15: float = 0.0, update_iterations: int = 1,
-                 innovation_gate_chi2=None):
+    def __init__(
+        self,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float = 0.0,
+        update_iterations: int = 1,
+        innovation_gate_chi2=None,
+    ):
         self.gate = InnovationGate.of(innovation_gate_chi2)
         self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
         self.rrw_rad_per_s15 = check_positive("rrw_rad_per_s15", rrw_rad_per_s15, allow_zero=True)
@@ -174,8 +180,9 @@ class MrpEkfCore(GatedCore):
     def predict(self, state: MrpEkfState, w_meas_B, dt: float, rng=None) -> MrpEkfState:
         """The state propagated over ``dt`` (s) > 0 with the mean measured rate ``w_meas_B``."""
         dt = check_positive("dt", dt)
-        x, P = _kernels.ekf_predict(state.x[None], state.P[None], gyro_rate(w_meas_B), dt, self.arw_rad_per_rt_s,
-                                    self.rrw_rad_per_s15)
+        x, P = _kernels.ekf_predict(
+            state.x[None], state.P[None], gyro_rate(w_meas_B), dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15
+        )
         return MrpEkfState(x[0], P[0])
 
     def update(self, state: MrpEkfState, observations, rng=None) -> tuple[MrpEkfState, UpdateInfo]:
@@ -184,8 +191,9 @@ class MrpEkfCore(GatedCore):
         y_B, U, sigma = body_frame_vectors(observations)
         if y_B is None:
             return state, UpdateInfo(None, None, float("nan"), False)
-        x, P, innovations, covariances = _kernels.ekf_update(state.x[None], state.P[None], y_B, U, sigma,
-                                                             iterations=self.update_iterations)
+        x, P, innovations, covariances = _kernels.ekf_update(
+            state.x[None], state.P[None], y_B, U, sigma, iterations=self.update_iterations
+        )
         innov, S = innovations[0], covariances[0]
         nis = float(innov @ np.linalg.solve(S, innov))
         if self.gate.rejects(nis, len(innov)):

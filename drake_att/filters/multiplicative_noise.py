@@ -79,8 +79,12 @@ class MultiplicativeNoiseModel:
     scale_per_zeta: float
 
     @classmethod
-    def make(cls, zeta_variance: float = PAPER_ZETA_VARIANCE, correlation: float = PAPER_CORRELATION,
-             scale_per_zeta: float = DEFAULT_SCALE_PER_ZETA) -> MultiplicativeNoiseModel:
+    def make(
+        cls,
+        zeta_variance: float = PAPER_ZETA_VARIANCE,
+        correlation: float = PAPER_CORRELATION,
+        scale_per_zeta: float = DEFAULT_SCALE_PER_ZETA,
+    ) -> MultiplicativeNoiseModel:
         """Checked constructor (ValueError naming the field)."""
         q = check_nonnegative("zeta_variance", zeta_variance)
         rho = check_finite("correlation", correlation)
@@ -88,9 +92,11 @@ class MultiplicativeNoiseModel:
             fail("correlation", correlation, "must be in (-1, 1)")
         kappa = check_nonnegative("scale_per_zeta", scale_per_zeta)
         if kappa * math.sqrt(q) >= 0.1:
-            fail("scale_per_zeta", scale_per_zeta,
-                 f"kappa sqrt(zeta_variance) must be < 0.1 (1 + kappa zeta > 0 with certainty; "
-                 f"zeta_variance = {q})")
+            fail(
+                "scale_per_zeta",
+                scale_per_zeta,
+                f"kappa sqrt(zeta_variance) must be < 0.1 (1 + kappa zeta > 0 with certainty; zeta_variance = {q})",
+            )
         return cls(q, rho, kappa)
 
     @classmethod
@@ -199,9 +205,19 @@ def star_directions(q_IB, references_I, q_BS=(1.0, 0.0, 0.0, 0.0)) -> np.ndarray
     return np.einsum("...ji,mj->...mi", R_IS, np.asarray(references_I, dtype=float))
 
 
-def reference_step(q_IB, bias_B, w_mean_B, dt: float, z, gyro_noise: FarrenkopfGyroNoise,
-                   model: MultiplicativeNoiseModel, references_I=None, star_sigma_rad: float = 0.0,
-                   q_BS=(1.0, 0.0, 0.0, 0.0), star_sample: bool = False) -> ReferenceStep:
+def reference_step(
+    q_IB,
+    bias_B,
+    w_mean_B,
+    dt: float,
+    z,
+    gyro_noise: FarrenkopfGyroNoise,
+    model: MultiplicativeNoiseModel,
+    references_I=None,
+    star_sigma_rad: float = 0.0,
+    q_BS=(1.0, 0.0, 0.0, 0.0),
+    star_sample: bool = False,
+) -> ReferenceStep:
     """One step of the reference truth, from the row of normals ``z`` (length ``7 + 3m``).
 
     Args:
@@ -249,9 +265,19 @@ class ReferenceRun:
     star_sigma_rad: float
 
 
-def simulate_reference(q_IB, w_mean_B, dt: float, normals, gyro_noise: FarrenkopfGyroNoise,
-                       model: MultiplicativeNoiseModel, bias0_B, references_I, star_sigma_rad: float,
-                       star_every: int, q_BS=(1.0, 0.0, 0.0, 0.0)) -> ReferenceRun:
+def simulate_reference(
+    q_IB,
+    w_mean_B,
+    dt: float,
+    normals,
+    gyro_noise: FarrenkopfGyroNoise,
+    model: MultiplicativeNoiseModel,
+    bias0_B,
+    references_I,
+    star_sigma_rad: float,
+    star_every: int,
+    q_BS=(1.0, 0.0, 0.0, 0.0),
+) -> ReferenceRun:
     """A whole run of :func:`reference_step`, vectorized (the same numbers).
 
     Args:
@@ -286,6 +312,16 @@ def simulate_reference(q_IB, w_mean_B, dt: float, normals, gyro_noise: Farrenkop
     return ReferenceRun(t, q_IB, bias, w_meas, zeta, steps, dirs, refs, rot.quat_normalize(q_BS), float(star_sigma_rad))
 
 
-__all__ = ["MultiplicativeNoiseModel", "ReferenceStep", "ReferenceRun", "reference_step", "simulate_reference",
-           "star_directions", "normals_per_step", "PAPER_ZETA_VARIANCE", "PAPER_CROSS_COVARIANCE",
-           "PAPER_CORRELATION", "DEFAULT_SCALE_PER_ZETA"]
+__all__ = [
+    "MultiplicativeNoiseModel",
+    "ReferenceStep",
+    "ReferenceRun",
+    "reference_step",
+    "simulate_reference",
+    "star_directions",
+    "normals_per_step",
+    "PAPER_ZETA_VARIANCE",
+    "PAPER_CROSS_COVARIANCE",
+    "PAPER_CORRELATION",
+    "DEFAULT_SCALE_PER_ZETA",
+]

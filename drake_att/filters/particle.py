@@ -239,16 +239,19 @@ def _paired_cholesky(P_prior, P_post):
         pairs = [np.linalg.eigh(0.5 * (P + np.swapaxes(P, -1, -2))) for P in (P_prior, P_post)]
         largest = np.maximum(pairs[0][0][..., -1:], pairs[1][0][..., -1:])  # eigh: ascending
         floor = 1e-12 * np.maximum(largest, 1e-300)
-        return tuple(np.linalg.cholesky((vecs * np.maximum(vals, floor)[..., None, :]) @ np.swapaxes(vecs, -1, -2))
-                     for vals, vecs in pairs)
+        return tuple(
+            np.linalg.cholesky((vecs * np.maximum(vals, floor)[..., None, :]) @ np.swapaxes(vecs, -1, -2))
+            for vals, vecs in pairs
+        )
 
 
 def _repaired_proposal_step(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int):
     """The EKPF's measurement step when a Cholesky factor of some ``P-`` or ``P+`` failed: every
     particle's EKF update, both factors repaired together (:func:`_paired_cholesky`), then the
     kernels' draw and weights (:func:`drake_att.filters.particle_kernels.ekpf_draw`) on them."""
-    m_post, P_post, _, _ = _kernels.ekf_update(m_prior, P_prior, y, ref_vectors_I, sigma, switch=False,
-                                               iterations=iterations)
+    m_post, P_post, _, _ = _kernels.ekf_update(
+        m_prior, P_prior, y, ref_vectors_I, sigma, switch=False, iterations=iterations
+    )
     L_prior, L_post = _paired_cholesky(P_prior, P_post)
     return _kernels.ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, ref_vectors_I, sigma)
 
@@ -317,8 +320,7 @@ class _ParticleCore:
     is_random = True
     _has_covariances = False
 
-    def __init__(self, num_particles, q_IB_hat0, second0, covariance0, second_field: str, resampling_gate,
-                 resampler):
+    def __init__(self, num_particles, q_IB_hat0, second0, covariance0, second_field: str, resampling_gate, resampler):
         self.num_particles = check_int("num_particles", num_particles, 1)
         self.resampling_gate = _component("resampling_gate", resampling_gate, "should_resample")
         self.resampler = _component("resampler", resampler, "indices")
@@ -347,7 +349,7 @@ class _ParticleCore:
         lw = state.log_weights + log_increment
         degenerate = not np.any(np.isfinite(lw))
         weights, log_weights = normalize_log_weights(lw)
-        ess = float(1.0 / np.sum(weights ** 2))
+        ess = float(1.0 / np.sum(weights**2))
         estimate_set = None
         resampled = bool(self.resampling_gate.should_resample(ess, self.num_particles))
         if resampled:
@@ -357,9 +359,12 @@ class _ParticleCore:
             if covariances is not None:
                 covariances = covariances[idx]
             weights, log_weights = self._uniform()
-        return (ParticleSetState(particles, weights, log_weights, covariances, estimate_set),
-                UpdateInfo(None, None, float("nan"), True, effective_sample_size=ess, resampled=resampled,
-                           degenerate=degenerate))
+        return (
+            ParticleSetState(particles, weights, log_weights, covariances, estimate_set),
+            UpdateInfo(
+                None, None, float("nan"), True, effective_sample_size=ess, resampled=resampled, degenerate=degenerate
+            ),
+        )
 
     def update(self, state: ParticleSetState, observations, rng: np.random.Generator):
         """Bootstrap update with a :class:`~drake_att.contract.VectorObservations` sample:
@@ -388,9 +393,10 @@ class _ParticleCore:
     def from_vector(self, vector) -> ParticleSetState:
         n = self.num_particles
         s = np.asarray(vector, dtype=float)
-        covariances = np.array(s[8 * n:]).reshape(n, 6, 6) if self._has_covariances else None
-        return ParticleSetState(np.array(s[:6 * n]).reshape(n, 6), np.array(s[6 * n:7 * n]),
-                                np.array(s[7 * n:8 * n]), covariances)
+        covariances = np.array(s[8 * n :]).reshape(n, 6, 6) if self._has_covariances else None
+        return ParticleSetState(
+            np.array(s[: 6 * n]).reshape(n, 6), np.array(s[6 * n : 7 * n]), np.array(s[7 * n : 8 * n]), covariances
+        )
 
 
 class BootstrapPfCore(_ParticleCore):
@@ -424,9 +430,18 @@ class BootstrapPfCore(_ParticleCore):
     second_quantity = SecondQuantity.GYRO_BIAS
     uses_gyro = True
 
-    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float, *,
-                 bias_roughening=RandomWalkRoughening(), resampling_gate=EffectiveSampleSizeGate(),
-                 resampler=SystematicResampler()):
+    def __init__(
+        self,
+        num_particles: int,
+        q_IB_hat0,
+        bias_hat0,
+        covariance0,
+        arw_rad_per_rt_s: float,
+        *,
+        bias_roughening=RandomWalkRoughening(),
+        resampling_gate=EffectiveSampleSizeGate(),
+        resampler=SystematicResampler(),
+    ):
         super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler)
         self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s, allow_zero=True)
         self.bias_roughening = _component("bias_roughening", bias_roughening, "apply")
@@ -475,9 +490,19 @@ class EkpfCore(_ParticleCore):
     uses_gyro = True
     _has_covariances = True
 
-    def __init__(self, num_particles: int, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
-                 rrw_rad_per_s15: float, *, proposal_iterations: int = 1, resampling_gate=EffectiveSampleSizeGate(),
-                 resampler=SystematicResampler()):
+    def __init__(
+        self,
+        num_particles: int,
+        q_IB_hat0,
+        bias_hat0,
+        covariance0,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        *,
+        proposal_iterations: int = 1,
+        resampling_gate=EffectiveSampleSizeGate(),
+        resampler=SystematicResampler(),
+    ):
         super().__init__(num_particles, q_IB_hat0, bias_hat0, covariance0, "bias_hat0", resampling_gate, resampler)
         self.proposal_iterations = check_int("proposal_iterations", proposal_iterations, 1)
         self.arw_rad_per_rt_s = check_positive("arw_rad_per_rt_s", arw_rad_per_rt_s)
@@ -489,8 +514,9 @@ class EkpfCore(_ParticleCore):
         dt = check_positive("dt", dt)
         if rng is not None:
             _check_rng(rng)
-        particles, covariances = _kernels.ekf_predict(state.particles, state.covariances, gyro_rate(w_meas_B), dt,
-                                                      self.arw_rad_per_rt_s, self.rrw_rad_per_s15)
+        particles, covariances = _kernels.ekf_predict(
+            state.particles, state.covariances, gyro_rate(w_meas_B), dt, self.arw_rad_per_rt_s, self.rrw_rad_per_s15
+        )
         return ParticleSetState(particles, state.weights, state.log_weights, covariances)
 
     def update(self, state: ParticleSetState, observations, rng: np.random.Generator):
@@ -501,11 +527,13 @@ class EkpfCore(_ParticleCore):
         if y is None:
             return state, _DECLINED
         eps = rng.standard_normal((self.num_particles, 6))
-        step = _kernels.ekpf_update(state.particles, state.covariances, eps, y, U, sigma,
-                                    iterations=self.proposal_iterations)
+        step = _kernels.ekpf_update(
+            state.particles, state.covariances, eps, y, U, sigma, iterations=self.proposal_iterations
+        )
         if step is None:  # a Cholesky factor failed
-            step = _repaired_proposal_step(state.particles, state.covariances, eps, y, U, sigma,
-                                           self.proposal_iterations)
+            step = _repaired_proposal_step(
+                state.particles, state.covariances, eps, y, U, sigma, self.proposal_iterations
+            )
         particles, covariances, log_increment = step
         return self._reweighted(state, particles, covariances, log_increment, rng)
 
@@ -537,9 +565,21 @@ class GyrolessPfCore(_ParticleCore):
     second_quantity = SecondQuantity.BODY_RATE
     uses_gyro = False
 
-    def __init__(self, num_particles: int, q_IB_hat0, w_hat0, covariance0, inertia, torque,
-                 rate_process_sigma: float, *, attitude_process_sigma: float = 0.0, num_substeps: int = 1,
-                 resampling_gate=EffectiveSampleSizeGate(), resampler=SystematicResampler()):
+    def __init__(
+        self,
+        num_particles: int,
+        q_IB_hat0,
+        w_hat0,
+        covariance0,
+        inertia,
+        torque,
+        rate_process_sigma: float,
+        *,
+        attitude_process_sigma: float = 0.0,
+        num_substeps: int = 1,
+        resampling_gate=EffectiveSampleSizeGate(),
+        resampler=SystematicResampler(),
+    ):
         super().__init__(num_particles, q_IB_hat0, w_hat0, covariance0, "w_hat0", resampling_gate, resampler)
         self.inertia = check_covariance("inertia", inertia, 3)
         self.inertia_inverse = np.linalg.inv(self.inertia)
@@ -558,8 +598,9 @@ class GyrolessPfCore(_ParticleCore):
         dtheta = None  # the attitude noise, applied after the deterministic step, drawn first
         if self.attitude_process_sigma > 0.0:
             dtheta = rng.standard_normal((n, 3)) * (self.attitude_process_sigma * np.sqrt(dt))
-        rho, w = _kernels.gyroless_propagate(state.particles[:, :3], state.particles[:, 3:], I, I_inv, T, h,
-                                             self.num_substeps, dtheta)
+        rho, w = _kernels.gyroless_propagate(
+            state.particles[:, :3], state.particles[:, 3:], I, I_inv, T, h, self.num_substeps, dtheta
+        )
         if self.rate_process_sigma > 0.0:
             w = w + rng.standard_normal((n, 3)) * (self.rate_process_sigma * np.sqrt(dt))
         particles = np.empty_like(state.particles)

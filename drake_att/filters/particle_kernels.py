@@ -305,9 +305,11 @@ def _w_dot(w0, w1, w2, I, Iinv, T):
     c0 = T[0] - (w1 * a2 - w2 * a1)
     c1 = T[1] - (w2 * a0 - w0 * a2)
     c2 = T[2] - (w0 * a1 - w1 * a0)
-    return (c0 * Iinv[0, 0] + c1 * Iinv[0, 1] + c2 * Iinv[0, 2],
-            c0 * Iinv[1, 0] + c1 * Iinv[1, 1] + c2 * Iinv[1, 2],
-            c0 * Iinv[2, 0] + c1 * Iinv[2, 1] + c2 * Iinv[2, 2])
+    return (
+        c0 * Iinv[0, 0] + c1 * Iinv[0, 1] + c2 * Iinv[0, 2],
+        c0 * Iinv[1, 0] + c1 * Iinv[1, 1] + c2 * Iinv[1, 2],
+        c0 * Iinv[2, 0] + c1 * Iinv[2, 1] + c2 * Iinv[2, 2],
+    )
 
 
 @_jit
@@ -354,8 +356,9 @@ def gyroless_propagate(rho, w, inertia, inertia_inverse, torque, h: float, num_s
     """
     use = dtheta is not None
     d = _f64(dtheta) if use else np.zeros((0, 3))
-    return _gyroless_propagate(_f64(rho), _f64(w), _f64(inertia), _f64(inertia_inverse), _f64(torque),
-                               float(h), int(num_substeps), d, use)
+    return _gyroless_propagate(
+        _f64(rho), _f64(w), _f64(inertia), _f64(inertia_inverse), _f64(torque), float(h), int(num_substeps), d, use
+    )
 
 
 # ----------------------------------------------------------------------------------
@@ -537,8 +540,9 @@ def ekf_predict(x, P, w_meas, dt: float, sigma_v: float, sigma_u: float):
         ``(x_pred, P_pred)``, shadow switch applied.
     """
     dt = float(dt)
-    return _ekf_predict(_f64(x), _f64(P), _f64(w_meas), dt, 0.5 * dt, 0.5 * dt ** 2, dt ** 3 / 3.0,
-                        float(sigma_v) ** 2, float(sigma_u) ** 2)
+    return _ekf_predict(
+        _f64(x), _f64(P), _f64(w_meas), dt, 0.5 * dt, 0.5 * dt**2, dt**3 / 3.0, float(sigma_v) ** 2, float(sigma_u) ** 2
+    )
 
 
 @_jit
@@ -637,9 +641,19 @@ def _ekf_gain(x, xj, Pb, y, U, sigma2, x_next, Hr, Kt, w):
 
 @_jit
 def _gain_scratch(nm):
-    return (np.empty((nm, W)), np.empty((nm, nm, W)), np.empty((nm, nm, W)), np.empty((nm, W)), np.empty((nm, W)),
-            np.empty(W, np.bool_), np.empty(nm), np.empty((nm, 3)), np.empty((3, 3)), np.empty((nm, nm)),
-            np.empty((nm, 6)))
+    return (
+        np.empty((nm, W)),
+        np.empty((nm, nm, W)),
+        np.empty((nm, nm, W)),
+        np.empty((nm, W)),
+        np.empty((nm, W)),
+        np.empty(W, np.bool_),
+        np.empty(nm),
+        np.empty((nm, 3)),
+        np.empty((3, 3)),
+        np.empty((nm, nm)),
+        np.empty((nm, 6)),
+    )
 
 
 @_jit
@@ -787,8 +801,9 @@ def _ekf_update(x, P, y, U, sigma2, iterations, tol, switch):
     return x_post, P_post, zs, Ss, ok
 
 
-def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True, iterations: int = 1,
-               iteration_tolerance: float = 1e-12):
+def ekf_update(
+    x, P, y, ref_vectors_I, sigma: float, switch: bool = True, iterations: int = 1, iteration_tolerance: float = 1e-12
+):
     """Every particle's EKF measurement update of ``(N, 6)`` states and ``(N, 6, 6)`` covariances
     with ``y`` ``(3m,)``: Joseph form; iterated when ``iterations > 1`` (Gauss-Newton, relinearized
     at the latest iterate, all iterates in the prior's MRP chart), the batch stopping when no
@@ -803,16 +818,44 @@ def ekf_update(x, P, y, ref_vectors_I, sigma: float, switch: bool = True, iterat
         numpy.linalg.LinAlgError: an exactly singular innovation covariance.
     """
     x_post, P_post, innovation, S, ok = _ekf_update(
-        _f64(x), _f64(P), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2, int(iterations),
-        float(iteration_tolerance), bool(switch))
+        _f64(x),
+        _f64(P),
+        _f64(y),
+        _f64(ref_vectors_I),
+        float(sigma) ** 2,
+        int(iterations),
+        float(iteration_tolerance),
+        bool(switch),
+    )
     if not ok:
         raise np.linalg.LinAlgError("Singular matrix")
     return x_post, P_post, innovation, S
 
 
 @_jit(inline="always")  # compiled into each caller: as a call, it cost the fused step ~5% (measured)
-def _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP,
-                    x_out, P_out, log_increment):
+def _draw_and_weigh(
+    count,
+    ix,
+    mb,
+    m_post,
+    eb,
+    Pn,
+    L_post,
+    L_prior,
+    inv_prior,
+    y,
+    U,
+    sigma2,
+    xb,
+    z,
+    s,
+    h1,
+    T,
+    TP,
+    x_out,
+    P_out,
+    log_increment,
+):
     """The proposal step of a block, given the lower Cholesky factors ``L_post`` of ``P+`` and
     ``L_prior`` of ``P-`` (6, 6, W) and the reciprocals of ``L_prior``'s pivots: the draw
     ``x = m+ + L+ eps``, the log-weight increment ``log p(y | x) + log N(x; m-, P-) -
@@ -886,8 +929,9 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
     Ks = np.empty((0 if one_pass else n, nm, 6))
     m_posts = m_prior
     if not one_pass:
-        m_posts, ok_all = _ekf_iterate(m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks, np.empty((0, nm)),
-                                       np.empty((0, nm, nm)))
+        m_posts, ok_all = _ekf_iterate(
+            m_prior, P_prior, y, U, sigma2, iterations, tol, Hs, Ks, np.empty((0, nm)), np.empty((0, nm, nm))
+        )
         if not ok_all:
             return x_out, P_out, log_increment, 2
     for i0 in range(0, n, W):
@@ -905,13 +949,35 @@ def _ekpf_update(m_prior, P_prior, eps, y, U, sigma2, iterations, tol):
         _joseph(Pb, Hr, Kt, sigma2, IKH, M, Pn)
         if not (_cholesky_lanes(Pn, L_post, inv_post, 6, ok) and _cholesky_lanes(Pb, L_prior, inv_prior, 6, ok)):
             return x_out, P_out, log_increment, 1
-        _draw_and_weigh(count, ix, mb, m_post, eb, Pn, L_post, L_prior, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP,
-                        x_out, P_out, log_increment)
+        _draw_and_weigh(
+            count,
+            ix,
+            mb,
+            m_post,
+            eb,
+            Pn,
+            L_post,
+            L_prior,
+            inv_prior,
+            y,
+            U,
+            sigma2,
+            xb,
+            z,
+            s,
+            h1,
+            T,
+            TP,
+            x_out,
+            P_out,
+            log_increment,
+        )
     return x_out, P_out, log_increment, 0
 
 
-def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int = 1,
-                iteration_tolerance: float = 1e-12):
+def ekpf_update(
+    m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iterations: int = 1, iteration_tolerance: float = 1e-12
+):
     """The EKPF's measurement step before the reweighting: every particle's EKF update
     ``(m+, P+)`` (as :func:`ekf_update`, no shadow switch), the lower Cholesky factors ``L+``,
     ``L-`` of ``P+`` and ``P-``, then :func:`ekpf_draw`'s draw, weight increment and shadow switch,
@@ -926,8 +992,15 @@ def ekpf_update(m_prior, P_prior, eps, y, ref_vectors_I, sigma: float, iteration
         numpy.linalg.LinAlgError: an exactly singular innovation covariance.
     """
     x, P, log_increment, status = _ekpf_update(
-        _f64(m_prior), _f64(P_prior), _f64(eps), _f64(y), _f64(ref_vectors_I), float(sigma) ** 2, int(iterations),
-        float(iteration_tolerance))
+        _f64(m_prior),
+        _f64(P_prior),
+        _f64(eps),
+        _f64(y),
+        _f64(ref_vectors_I),
+        float(sigma) ** 2,
+        int(iterations),
+        float(iteration_tolerance),
+    )
     if status == 2:
         raise np.linalg.LinAlgError("Singular matrix")
     return None if status == 1 else (x, P, log_increment)
@@ -944,7 +1017,14 @@ def _ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, U, sigma2):
     Pn, Lpo, Lpr = np.empty((6, 6, W)), np.empty((6, 6, W)), np.empty((6, 6, W))
     inv_prior = np.empty((6, W))
     nm = y.shape[0]
-    xb, z, s, h1, T, TP = np.empty((6, W)), np.empty((6, W)), np.empty(W), np.empty(nm), np.empty((3, 3)), np.empty((6, 6))
+    xb, z, s, h1, T, TP = (
+        np.empty((6, W)),
+        np.empty((6, W)),
+        np.empty(W),
+        np.empty(nm),
+        np.empty((3, 3)),
+        np.empty((6, 6)),
+    )
     for i0 in range(0, n, W):
         count = _block(i0, n, ix)
         _gather(ix, m_prior, mb)
@@ -956,8 +1036,29 @@ def _ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, U, sigma2):
         for a in range(6):
             for j in range(W):
                 inv_prior[a, j] = 1.0 / Lpr[a, a, j]
-        _draw_and_weigh(count, ix, mb, mpb, eb, Pn, Lpo, Lpr, inv_prior, y, U, sigma2, xb, z, s, h1, T, TP, x_out, P_out,
-                        log_increment)
+        _draw_and_weigh(
+            count,
+            ix,
+            mb,
+            mpb,
+            eb,
+            Pn,
+            Lpo,
+            Lpr,
+            inv_prior,
+            y,
+            U,
+            sigma2,
+            xb,
+            z,
+            s,
+            h1,
+            T,
+            TP,
+            x_out,
+            P_out,
+            log_increment,
+        )
     return x_out, P_out, log_increment
 
 
@@ -971,8 +1072,17 @@ def ekpf_draw(m_prior, m_post, P_post, L_prior, L_post, eps, y, ref_vectors_I, s
     Returns:
         ``(x (N, 6), P (N, 6, 6), log_increment (N,))``.
     """
-    return _ekpf_draw(_f64(m_prior), _f64(m_post), _f64(P_post), _f64(L_prior), _f64(L_post), _f64(eps), _f64(y),
-                      _f64(ref_vectors_I), float(sigma) ** 2)
+    return _ekpf_draw(
+        _f64(m_prior),
+        _f64(m_post),
+        _f64(P_post),
+        _f64(L_prior),
+        _f64(L_post),
+        _f64(eps),
+        _f64(y),
+        _f64(ref_vectors_I),
+        float(sigma) ** 2,
+    )
 
 
 CACHING = _compiled.CACHING  # after every kernel's decoration: False if none could be cached

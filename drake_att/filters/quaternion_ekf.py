@@ -114,24 +114,28 @@ class AdditiveQuaternionEKF(GatedCore):
     is_random = False
     state_size = 44
 
-    def __init__(self, Q=1e-5, R=0.01, step_s: float = 1.0, gyro_arw_rad_per_rt_s: float | None = None,
-                 innovation_gate_chi2=None):
+    def __init__(
+        self, Q=1e-5, R=0.01, step_s: float = 1.0, gyro_arw_rad_per_rt_s: float | None = None, innovation_gate_chi2=None
+    ):
         self.Q = check_variance_matrix("Q", Q, 4)
         self.R = check_variance_matrix("R", R, 4)
         self.step_s = check_positive("step_s", step_s)
-        self.arw = None if gyro_arw_rad_per_rt_s is None else check_nonnegative("gyro_arw_rad_per_rt_s",
-                                                                                  gyro_arw_rad_per_rt_s)
+        self.arw = (
+            None if gyro_arw_rad_per_rt_s is None else check_nonnegative("gyro_arw_rad_per_rt_s", gyro_arw_rad_per_rt_s)
+        )
         self.gate = InnovationGate.of(innovation_gate_chi2)
 
     @staticmethod
-    def initial_state(q_IB=(1.0, 0.0, 0.0, 0.0), P0=1.0,
-                      initial_rate_sigma: float = DEFAULT_INITIAL_RATE_SIGMA) -> QuaternionEkfState:
+    def initial_state(
+        q_IB=(1.0, 0.0, 0.0, 0.0), P0=1.0, initial_rate_sigma: float = DEFAULT_INITIAL_RATE_SIGMA
+    ) -> QuaternionEkfState:
         """State from ``q_IB`` (4, normalized) and ``P0`` (scalar variance or 4x4); paper:
         ``[1, 0, 0, 0]`` and ``I4``.  The rate block starts at 0 with ``initial_rate_sigma``."""
         q = check_quaternion("q_IB", q_IB)
         check_positive("initial_rate_sigma", initial_rate_sigma)
-        return QuaternionEkfState(q, check_variance_matrix("P0", P0, 4), np.zeros(3),
-                                  initial_rate_sigma**2 * np.eye(3), np.zeros((4, 3)))
+        return QuaternionEkfState(
+            q, check_variance_matrix("P0", P0, 4), np.zeros(3), initial_rate_sigma**2 * np.eye(3), np.zeros((4, 3))
+        )
 
     @staticmethod
     def to_vector(state: QuaternionEkfState) -> np.ndarray:
@@ -142,8 +146,9 @@ class AdditiveQuaternionEKF(GatedCore):
         v = np.asarray(vector, dtype=float)
         if v.shape != (44,):
             raise ValueError(f"AdditiveQuaternionEKF state vector: got shape {v.shape}; need (44,)")
-        return QuaternionEkfState(v[0:4], v[4:20].reshape(4, 4), v[20:23], v[23:32].reshape(3, 3),
-                                  v[32:44].reshape(4, 3))
+        return QuaternionEkfState(
+            v[0:4], v[4:20].reshape(4, 4), v[20:23], v[23:32].reshape(3, 3), v[32:44].reshape(4, 3)
+        )
 
     def reacquire(self, state, info):
         """The state with its covariance inflated after repeated gate rejections (the rule of
@@ -189,8 +194,9 @@ class AdditiveQuaternionEKF(GatedCore):
     def update(self, state: QuaternionEkfState, measurement, rng=None) -> tuple[QuaternionEkfState, UpdateInfo]:
         """Update with a :class:`~drake_att.contract.VectorObservations` (m >= 2 stars)."""
         if not isinstance(measurement, VectorObservations):
-            raise TypeError(f"AdditiveQuaternionEKF.update: got a {type(measurement).__name__}; "
-                            "allowed: VectorObservations")
+            raise TypeError(
+                f"AdditiveQuaternionEKF.update: got a {type(measurement).__name__}; allowed: VectorObservations"
+            )
         R_BS = rot.quat_to_rotmat(measurement.q_BS)
         d_S = np.atleast_2d(np.asarray(measurement.directions_S, dtype=float))
         q_meas = wahba_quaternion(d_S @ R_BS.T, measurement.references_I)
@@ -223,5 +229,11 @@ class AdditiveQuaternionEKF(GatedCore):
         return new, UpdateInfo(z, S, nis, True)
 
 
-__all__ = ["QuaternionEkfState", "AdditiveQuaternionEKF", "wahba_quaternion", "transition_matrix",
-           "right_matrix", "xi_matrix"]
+__all__ = [
+    "QuaternionEkfState",
+    "AdditiveQuaternionEKF",
+    "wahba_quaternion",
+    "transition_matrix",
+    "right_matrix",
+    "xi_matrix",
+]

@@ -67,7 +67,8 @@ def _check_truth_finite(signals: dict, keys, scenario_name: str, seed: int) -> N
                 f"{scenario_name} seed {seed}: the truth signal {key!r} is not finite from t = {t[i]:g} s "
                 f"(last finite value {x[i - 1].tolist() if i else 'none'}); the plant's initial conditions, inertia, "
                 "torque or integrator step are out of range for this run (see the scenario's plant and simulation "
-                "settings). Nothing was scored.")
+                "settings). Nothing was scored."
+            )
 
 
 def _check_estimates_finite(signals: dict, run_scenario, scenario_name: str, seed: int, second_names: dict) -> None:
@@ -83,7 +84,8 @@ def _check_estimates_finite(signals: dict, run_scenario, scenario_name: str, see
             if i is not None:
                 raise NonFiniteRunError(
                     f"{scenario_name} seed {seed}: the estimate {key!r} is not finite from t = {t[i]:g} s (its core "
-                    "produced NaN or inf: a bug or a diverged filter, see its tuning and inputs). Nothing was scored.")
+                    "produced NaN or inf: a bug or a diverged filter, see its tuning and inputs). Nothing was scored."
+                )
 
 
 def _same(a, b) -> bool:
@@ -123,9 +125,15 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
     scenario = sd.scenario if scenario is None else scenario
     configs = {e.name: e for e in scenario.estimators}
     truth = sd.truth.get_name()
-    meta = {"schema": RunLog.METADATA_SCHEMA, "scenario": scenario.name, "seed": int(seed),
-            "wall_time_s": float(wall_time_s), "signals": list(signal_keys),
-            "truth": {"attitude": f"{truth}/q_IB", "rate": f"{truth}/w_IB_B"}, "estimators": {}}
+    meta = {
+        "schema": RunLog.METADATA_SCHEMA,
+        "scenario": scenario.name,
+        "seed": int(seed),
+        "wall_time_s": float(wall_time_s),
+        "signals": list(signal_keys),
+        "truth": {"attitude": f"{truth}/q_IB", "rate": f"{truth}/w_IB_B"},
+        "estimators": {},
+    }
     for c in scenario.estimators:
         system = sd.estimators[c.name]
         quantity = SecondQuantity.from_port_name(system.second_output_name)
@@ -137,10 +145,16 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
         name = system.get_name()
         meta["estimators"][c.name] = {
             "second_kind": quantity.kind,
-            "true_bias": (f"{sd.sensors[gyro].get_name()}/bias_B"
-                          if quantity is SecondQuantity.GYRO_BIAS and gyro else None),
-            "signals": {"attitude": f"{name}/q_IB_hat", "second": f"{name}/{second}",
-                        "covariance": f"{name}/covariance", "status": f"{name}/status"}}
+            "true_bias": (
+                f"{sd.sensors[gyro].get_name()}/bias_B" if quantity is SecondQuantity.GYRO_BIAS and gyro else None
+            ),
+            "signals": {
+                "attitude": f"{name}/q_IB_hat",
+                "second": f"{name}/{second}",
+                "covariance": f"{name}/covariance",
+                "status": f"{name}/status",
+            },
+        }
         if f"{name}/innovations" in signal_keys:
             meta["estimators"][c.name]["signals"]["innovations"] = f"{name}/innovations"
             meta["estimators"][c.name]["inputs"] = list(system.input_names)
@@ -190,8 +204,9 @@ class RunLog:
         """Raise ValueError saying what is missing or inconsistent in ``meta``."""
         if not isinstance(meta, dict):
             raise ValueError(f"metadata: expected a JSON object, got {type(meta).__name__}")
-        missing = [k for k in ("schema", "scenario", "seed", "wall_time_s", "signals", "truth", "estimators")
-                   if k not in meta]
+        missing = [
+            k for k in ("schema", "scenario", "seed", "wall_time_s", "signals", "truth", "estimators") if k not in meta
+        ]
         if missing:
             raise ValueError(f"metadata: missing {missing}")
         if meta["schema"] != RunLog.METADATA_SCHEMA:
@@ -209,11 +224,15 @@ class RunLog:
             if not isinstance(e, dict) or not isinstance(e.get("signals"), dict):
                 raise ValueError(f"metadata: estimators.{name} must be an object with a 'signals' object")
             if e.get("second_kind") not in ("gyro_bias", "body_rate"):
-                raise ValueError(f"metadata: estimators.{name}.second_kind {e.get('second_kind')!r} is neither "
-                                 "'gyro_bias' nor 'body_rate'")
-            refs += [(f"estimators.{name}.signals.{k}", e["signals"].get(k))
-                     for k in ("attitude", "second", "covariance", "status")
-                     + (("innovations",) if "innovations" in e["signals"] else ())]
+                raise ValueError(
+                    f"metadata: estimators.{name}.second_kind {e.get('second_kind')!r} is neither "
+                    "'gyro_bias' nor 'body_rate'"
+                )
+            refs += [
+                (f"estimators.{name}.signals.{k}", e["signals"].get(k))
+                for k in ("attitude", "second", "covariance", "status")
+                + (("innovations",) if "innovations" in e["signals"] else ())
+            ]
             if e.get("true_bias") is not None:
                 refs.append((f"estimators.{name}.true_bias", e["true_bias"]))
         for where, key in refs:
@@ -227,8 +246,10 @@ class RunLog:
         import json
 
         if "metadata" not in npz:
-            raise ValueError("no 'metadata' entry (a log written before runs carried their metadata?); "
-                             "re-run the scenario to score it")
+            raise ValueError(
+                "no 'metadata' entry (a log written before runs carried their metadata?); "
+                "re-run the scenario to score it"
+            )
         try:
             meta = json.loads(str(npz["metadata"]))
         except ValueError as e:
@@ -289,13 +310,17 @@ def check_npz_arrays(npz_path: str, available_bytes: float | None = None) -> int
                     raise ValueError(f"{info.filename} is not a numpy array ({e})") from None
             claimed = int(np.prod(shape, dtype=object)) * dtype.itemsize
             if claimed > info.file_size:
-                raise ValueError(f"{info.filename} claims {claimed} bytes of data but holds {info.file_size}; the "
-                                 "file is damaged or forged")
+                raise ValueError(
+                    f"{info.filename} claims {claimed} bytes of data but holds {info.file_size}; the "
+                    "file is damaged or forged"
+                )
             total += claimed
     available = available_memory_bytes() if available_bytes is None else available_bytes
     if available and total > 0.5 * available:
-        raise ValueError(f"its arrays take {total / 2**30:.1f} GiB, more than half of the {available / 2**30:.1f} GiB "
-                         "of memory available")
+        raise ValueError(
+            f"its arrays take {total / 2**30:.1f} GiB, more than half of the {available / 2**30:.1f} GiB "
+            "of memory available"
+        )
     return total
 
 
@@ -324,13 +349,16 @@ class ScenarioDiagram:
             truth = RigidBodyAttitudePlant(I if I.size == 3 else I.reshape(3, 3))
             builder.AddSystem(truth)
             torque_N_m = np.asarray(p.disturbance_torque_N_m, dtype=float)
-            torque = builder.AddNamedSystem("disturbance_torque",
-                                            ConstantVectorSource(torque_N_m))  # type: ignore[arg-type]  # pydrake stub
+            torque = builder.AddNamedSystem("disturbance_torque", ConstantVectorSource(torque_N_m))  # type: ignore[arg-type]  # pydrake stub
             builder.Connect(torque.get_output_port(), truth.GetInputPort("torque_B"))
         elif isinstance(p, cfg.PrescribedRateConfig):
             truth = PrescribedAttitudeMotion.from_rate_profile(
-                np.asarray(p.constant_deg_per_s) * DEG, np.asarray(p.amplitude_deg_per_s) * DEG,
-                p.frequency_rad_per_s, np.asarray(p.phase_deg) * DEG, attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg))
+                np.asarray(p.constant_deg_per_s) * DEG,
+                np.asarray(p.amplitude_deg_per_s) * DEG,
+                p.frequency_rad_per_s,
+                np.asarray(p.phase_deg) * DEG,
+                attitude_from_rpy_deg(scenario, p.initial_attitude_rpy_deg),
+            )
             builder.AddSystem(truth)
         else:
             truth = PrescribedAttitudeMotion.from_rpy_breakpoints(p.times_s, np.asarray(p.rpy_deg) * DEG)
@@ -348,7 +376,8 @@ class ScenarioDiagram:
         AddRandomInputs(RANDOM_SOURCE_SAMPLING_INTERVAL_S, builder)
 
         periods = [self.estimator_period(e.name) for e in scenario.estimators] + [
-            ctx.sensor_output(s.name).period_s for s in scenario.sensors]
+            ctx.sensor_output(s.name).period_s for s in scenario.sensors
+        ]
         self.truth_log_period_s = min(periods) if periods else 1.0
         self.loggers: dict[str, VectorLogSink] = {}
 
@@ -360,7 +389,7 @@ class ScenarioDiagram:
         log(truth, "w_IB_B", self.truth_log_period_s)
         for s in scenario.sensors:
             logged = plugin_for(s).logged_ports
-            for port, period in (logged(s) if logged is not None else []):
+            for port, period in logged(s) if logged is not None else []:
                 log(self.sensors[s.name], port, ctx.sensor_output(s.name).period_s if period is None else period)
         self._packed_estimators = {}
         for e in scenario.estimators:
@@ -409,8 +438,11 @@ class ScenarioDiagram:
             scenario = cfg.apply_overrides(scenario, overrides)
             structural = self._structural_changes(self._normalized_scenario(), scenario)
             if structural:
-                raise cfg.ConfigError("these overrides change the diagram, not just its parameters: "
-                                      + "; ".join(structural) + ". Build a new ScenarioDiagram for them.")
+                raise cfg.ConfigError(
+                    "these overrides change the diagram, not just its parameters: "
+                    + "; ".join(structural)
+                    + ". Build a new ScenarioDiagram for them."
+                )
         if estimators is not None:
             scenario = with_estimators(scenario, estimators)
         return scenario
@@ -429,16 +461,22 @@ class ScenarioDiagram:
             if f.name in self._RUN_FIELDS or _same(a, b):
                 continue
             if f.name == "plant":
-                out += [f"plant.{p} (the plant's structure; may change: {list(self._PLANT_CONTEXT_FIELDS)})"
-                        for p in _changed_fields(a, b) if type(a) is not type(b) or p not in self._PLANT_CONTEXT_FIELDS]
+                out += [
+                    f"plant.{p} (the plant's structure; may change: {list(self._PLANT_CONTEXT_FIELDS)})"
+                    for p in _changed_fields(a, b)
+                    if type(a) is not type(b) or p not in self._PLANT_CONTEXT_FIELDS
+                ]
             elif f.name in ("sensors", "estimators"):
                 if [x.name for x in a] != [x.name for x in b] or [type(x) for x in a] != [type(x) for x in b]:
                     out.append(f"{f.name} (the list of {f.name} or their types)")
                     continue
                 for x, y in zip(a, b, strict=True):
                     allowed = plugin_for(x).parameters
-                    out += [f"{f.name}.{x.name}.{p} (may change: {list(allowed)})"
-                            for p in _changed_fields(x, y) if p not in allowed]
+                    out += [
+                        f"{f.name}.{x.name}.{p} (may change: {list(allowed)})"
+                        for p in _changed_fields(x, y)
+                        if p not in allowed
+                    ]
             else:
                 out.append(f"{f.name}")
         return out
@@ -500,10 +538,17 @@ class ScenarioDiagram:
         context = self.create_context(seed, overrides, estimators)
         simulator = Simulator(self.diagram, context)
         sc = scenario.simulation
-        ApplySimulatorConfig(SimulatorConfig(
-            integration_scheme=sc.integration_scheme, max_step_size=sc.max_step_size_s,
-            accuracy=sc.accuracy, use_error_control=sc.use_error_control,
-            target_realtime_rate=0.0, publish_every_time_step=False), simulator)
+        ApplySimulatorConfig(
+            SimulatorConfig(
+                integration_scheme=sc.integration_scheme,
+                max_step_size=sc.max_step_size_s,
+                accuracy=sc.accuracy,
+                use_error_control=sc.use_error_control,
+                target_realtime_rate=0.0,
+                publish_every_time_step=False,
+            ),
+            simulator,
+        )
         start = time.perf_counter()
         simulator.Initialize()
         duration = scenario.duration_s
@@ -520,7 +565,8 @@ class ScenarioDiagram:
         wall = time.perf_counter() - start
         signals = {}
         dropped = {self.estimators[e.name].get_name() for e in self.scenario.estimators} - {
-            self.estimators[e.name].get_name() for e in scenario.estimators}
+            self.estimators[e.name].get_name() for e in scenario.estimators
+        }
         for key, logger in self.loggers.items():
             name = key.split("/", 1)[0]
             if name in dropped:
@@ -534,8 +580,13 @@ class ScenarioDiagram:
                 signals[key] = (t, x)
         truth = self.truth.get_name()
         _check_truth_finite(signals, (f"{truth}/q_IB", f"{truth}/w_IB_B"), scenario.name, seed)
-        _check_estimates_finite(signals, scenario, scenario.name, seed,
-                                {name: getattr(system, "second_output_name", None) for name, system in self.estimators.items()})
+        _check_estimates_finite(
+            signals,
+            scenario,
+            scenario.name,
+            seed,
+            {name: getattr(system, "second_output_name", None) for name, system in self.estimators.items()},
+        )
         return RunLog(scenario, seed, wall, signals, run_metadata(self, seed, wall, signals, scenario))
 
 
@@ -550,4 +601,3 @@ def diagram_for(scenario: cfg.Scenario) -> ScenarioDiagram:
     if key not in _DIAGRAMS:
         _DIAGRAMS[key] = ScenarioDiagram(cfg.load_scenario(text=key))
     return _DIAGRAMS[key]
-

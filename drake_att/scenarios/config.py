@@ -18,8 +18,6 @@ relative to the inertial frame.  Body rates are always ``w_IB_B`` (inertial rate
 axes).
 """
 
-
-
 import dataclasses
 import os
 import typing
@@ -168,15 +166,19 @@ def _check_node_graph(root, where: str) -> None:
                 children = []
             total = 1 + sum(size[id(c)] for c in children)
             if total > MAX_YAML_NODES:
-                raise ConfigError(f"{where}: its YAML expands to more than {MAX_YAML_NODES} nodes (aliases of "
-                                  "aliases?); a scenario is far smaller - refused")
+                raise ConfigError(
+                    f"{where}: its YAML expands to more than {MAX_YAML_NODES} nodes (aliases of "
+                    "aliases?); a scenario is far smaller - refused"
+                )
             size[key] = total
             continue
         if key in size:
             continue
         if key in on_path:
-            raise ConfigError(f"{where}: line {node.start_mark.line + 1}: a YAML alias refers to its own anchor "
-                              "(a recursive structure); a scenario cannot hold one")
+            raise ConfigError(
+                f"{where}: line {node.start_mark.line + 1}: a YAML alias refers to its own anchor "
+                "(a recursive structure); a scenario cannot hold one"
+            )
         on_path.add(key)
         stack.append((node, True))
         if isinstance(node, yaml.SequenceNode):
@@ -200,8 +202,10 @@ def load_yaml_text(text: str, where: str, loader=None):
             self.depth += 1
             try:
                 if self.depth > MAX_YAML_DEPTH:
-                    raise ConfigError(f"{where}: its YAML is nested more than {MAX_YAML_DEPTH} levels deep; a "
-                                      "scenario is far flatter - refused")
+                    raise ConfigError(
+                        f"{where}: its YAML is nested more than {MAX_YAML_DEPTH} levels deep; a "
+                        "scenario is far flatter - refused"
+                    )
                 return super().compose_node(parent, index)
             finally:
                 self.depth -= 1
@@ -275,11 +279,15 @@ def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
             for key_node, _ in node.value:
                 key = self.construct_object(key_node, deep=deep)
                 if not isinstance(key, (str, int, float, bool)) and key is not None:
-                    raise ConfigError(f"{where}: line {key_node.start_mark.line + 1}: a mapping key must be a name, "
-                                      f"not a {type(key).__name__}")
+                    raise ConfigError(
+                        f"{where}: line {key_node.start_mark.line + 1}: a mapping key must be a name, "
+                        f"not a {type(key).__name__}"
+                    )
                 if key in seen:
-                    raise ConfigError(f"{where}: duplicate key {key!r} at line {key_node.start_mark.line + 1} "
-                                      f"(first at line {seen[key] + 1}); each key may appear once")
+                    raise ConfigError(
+                        f"{where}: duplicate key {key!r} at line {key_node.start_mark.line + 1} "
+                        f"(first at line {seen[key] + 1}); each key may appear once"
+                    )
                 seen[key] = key_node.start_mark.line
             return super().construct_mapping(node, deep=deep)
 
@@ -288,8 +296,10 @@ def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
             mapping = loader.construct_mapping(node, deep=True)
             mapping[_TAG_KEY] = suffix
             return mapping
-        raise ConfigError(f"{where}: line {node.start_mark.line + 1}: YAML tag {node.tag!r} on a value; tags only "
-                          "name the type of a section (e.g. !RigidBodyConfig, !MekfConfig {...}) and never run code")
+        raise ConfigError(
+            f"{where}: line {node.start_mark.line + 1}: YAML tag {node.tag!r} on a value; tags only "
+            "name the type of a section (e.g. !RigidBodyConfig, !MekfConfig {...}) and never run code"
+        )
 
     def _int_or_text(loader, node):
         try:
@@ -302,18 +312,23 @@ def _preparse(text: str, where: str = "scenario") -> tuple[list, dict]:
     _Loader.add_multi_constructor("tag:", _untagged)
     data = load_yaml_text(text, where, _Loader)
     if data is None:
-        raise ConfigError(f"{where}: the scenario is empty; it needs at least a name and a plant, sensors and "
-                          "estimators (see drake_att/scenarios/*.yaml)")
+        raise ConfigError(
+            f"{where}: the scenario is empty; it needs at least a name and a plant, sensors and "
+            "estimators (see drake_att/scenarios/*.yaml)"
+        )
     if not isinstance(data, dict):
-        raise ConfigError(f"{where}: got a YAML {type(data).__name__} at the top level; a scenario is a mapping "
-                          f"of the fields {[f.name for f in dataclasses.fields(Scenario)]}")
+        raise ConfigError(
+            f"{where}: got a YAML {type(data).__name__} at the top level; a scenario is a mapping "
+            f"of the fields {[f.name for f in dataclasses.fields(Scenario)]}"
+        )
     tag = data.pop(_TAG_KEY, None)
     if tag is not None:
         raise ConfigError(f"{where}: the top level has the tag !{tag}; a scenario's top level has no tag")
     unknown = [k for k in data if k not in {f.name for f in dataclasses.fields(Scenario)}]
     if unknown:
-        raise ConfigError(f"{where}: unknown field(s) {_short(unknown)}; allowed: "
-                          f"{[f.name for f in dataclasses.fields(Scenario)]}")
+        raise ConfigError(
+            f"{where}: unknown field(s) {_short(unknown)}; allowed: {[f.name for f in dataclasses.fields(Scenario)]}"
+        )
     plugins = data.get("plugins", [])
     if plugins is None:
         plugins = []
@@ -360,15 +375,21 @@ def _check_raw_choice(value, args: tuple, path: str) -> None:
     if len(options) == 1:
         return _check_raw(value, options[0], path)
     if not isinstance(value, dict):
-        fail(path, value, "must be a section (a mapping), tagged with its type: one of "
-             f"{['!' + o.__name__ for o in options]}")
+        fail(
+            path,
+            value,
+            f"must be a section (a mapping), tagged with its type: one of {['!' + o.__name__ for o in options]}",
+        )
     tag = value.get(_TAG_KEY)
     if tag is None:
         return _check_raw(value, options[0], path)
     chosen = next((o for o in options if o.__name__ == tag), None)
     if chosen is None:
-        fail(path, "!" + tag, f"allowed types: {['!' + o.__name__ for o in options]} (a plug-in's type needs "
-             "its module in plugins:)")
+        fail(
+            path,
+            "!" + tag,
+            f"allowed types: {['!' + o.__name__ for o in options]} (a plug-in's type needs its module in plugins:)",
+        )
     return _check_raw(value, chosen, path)
 
 
@@ -393,8 +414,11 @@ def _check_raw_list(value, args: tuple, path: str) -> None:
         fail(path, value, "must be a list" + (" (write [] for none)" if value is None else ""))
     (item_type,) = args or (typing.Any,)
     section = path in ("sensors", "estimators")
-    options = [a for a in typing.get_args(item_type) if isinstance(a, type)] \
-        if typing.get_origin(item_type) is Union else [item_type]
+    options = (
+        [a for a in typing.get_args(item_type) if isinstance(a, type)]
+        if typing.get_origin(item_type) is Union
+        else [item_type]
+    )
     for i, item in enumerate(value):
         tag = item.get(_TAG_KEY) if section and isinstance(item, dict) else None
         if tag is None:
@@ -402,9 +426,11 @@ def _check_raw_list(value, args: tuple, path: str) -> None:
             continue
         chosen = next((o for o in options if o.__name__ == tag), None)
         if chosen is None:
-            raise ConfigError(f"{path}[{i}]: unknown type !{tag[:100]}; registered: "
-                              f"{['!' + o.__name__ for o in options]} (a plug-in module must be listed in "
-                              "plugins:)")
+            raise ConfigError(
+                f"{path}[{i}]: unknown type !{tag[:100]}; registered: "
+                f"{['!' + o.__name__ for o in options]} (a plug-in module must be listed in "
+                "plugins:)"
+            )
         name = item.get("name")
         _check_raw(item, chosen, f"{path}[{i}] ({name[:60] if isinstance(name, str) else '?'}, !{tag})")
 
@@ -520,8 +546,9 @@ def apply_overrides(scenario: Scenario, overrides: typing.Sequence[str]) -> Scen
         path, raw = item.split("=", 1)
         path = path.strip()
         if not path or any(not part for part in path.split(".")):
-            raise ConfigError(f"--set {_short(item)}: expected PATH=VALUE with a dotted field path, e.g. "
-                              "sensors.st1.period_s=0.5")
+            raise ConfigError(
+                f"--set {_short(item)}: expected PATH=VALUE with a dotted field path, e.g. sensors.st1.period_s=0.5"
+            )
         value = load_yaml_text(raw, f"--set {_short(path, 100)}")
         _set_path(scenario, path, value)
     # Round-trip through the typed loader so types and unknown keys are checked again.
@@ -551,14 +578,16 @@ def _set_path(root, path: str, value) -> None:
     if dataclasses.is_dataclass(current) and isinstance(value, dict):
         for key, v in value.items():
             if not isinstance(key, str):
-                raise ConfigError(f"--set {path}: got the key {_short(key, 60)}; keys are field names of "
-                                  f"{type(current).__name__}")
+                raise ConfigError(
+                    f"--set {path}: got the key {_short(key, 60)}; keys are field names of {type(current).__name__}"
+                )
             _set_path(root, f"{path}.{key}", v)
         return
     if value is None:
         if isinstance(target, list) or not _optional(_field_types(type(target))[last]):
-            raise ConfigError(f"--set {path}: got null; this field must have a value (null only unsets optional "
-                              "fields such as orbit)")
+            raise ConfigError(
+                f"--set {path}: got null; this field must have a value (null only unsets optional fields such as orbit)"
+            )
         setattr(target, last, None)
         return
     _refuse_section(current, value, path)
@@ -577,8 +606,10 @@ def _refuse_section(current, value, path):
     a scalar or a list from ``--set``: set its fields."""
     if dataclasses.is_dataclass(current) and not isinstance(value, dict):
         fields = [f.name for f in dataclasses.fields(current)]
-        raise ConfigError(f"--set {path}: got {_short(value)}; {path} is a section ({type(current).__name__}): set "
-                          f"one of its fields, e.g. --set {path}.{fields[-1]}=...; fields: {fields}")
+        raise ConfigError(
+            f"--set {path}: got {_short(value)}; {path} is a section ({type(current).__name__}): set "
+            f"one of its fields, e.g. --set {path}.{fields[-1]}=...; fields: {fields}"
+        )
 
 
 def _child(obj, key, path):
@@ -713,8 +744,7 @@ class ValidationContext:
 
 def validate(s: Scenario) -> None:
     """Check every value of a scenario; raise :class:`ConfigError` on the first bad one."""
-    if not isinstance(s.name, str) or not s.name.strip() or len(s.name) > 200 \
-            or any(ord(c) < 32 for c in s.name):
+    if not isinstance(s.name, str) or not s.name.strip() or len(s.name) > 200 or any(ord(c) < 32 for c in s.name):
         fail("name", s.name, "must be a non-empty text of at most 200 characters without control characters")
     if not isinstance(s.description, str):
         fail("description", s.description, "must be a text string")
@@ -722,8 +752,18 @@ def validate(s: Scenario) -> None:
     validation.check_seed("seed", s.seed, ConfigError)
     check_positive("simulation.max_step_size_s", s.simulation.max_step_size_s)
     check_positive("simulation.accuracy", s.simulation.accuracy)
-    schemes = {"runge_kutta2", "runge_kutta3", "runge_kutta5", "bogacki_shampine3", "radau1", "radau3",
-               "explicit_euler", "semi_explicit_euler", "implicit_euler", "velocity_implicit_euler"}
+    schemes = {
+        "runge_kutta2",
+        "runge_kutta3",
+        "runge_kutta5",
+        "bogacki_shampine3",
+        "radau1",
+        "radau3",
+        "explicit_euler",
+        "semi_explicit_euler",
+        "implicit_euler",
+        "velocity_implicit_euler",
+    }
     if s.simulation.integration_scheme not in schemes:
         fail("simulation.integration_scheme", s.simulation.integration_scheme, f"allowed: {sorted(schemes)}")
     if s.orbit is not None:
@@ -745,14 +785,23 @@ def validate(s: Scenario) -> None:
         check_vector("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
         check_vector("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
     elif isinstance(p, PrescribedRateConfig):
-        for f in ("initial_attitude_rpy_deg", "constant_deg_per_s", "amplitude_deg_per_s",
-                  "frequency_rad_per_s", "phase_deg"):
+        for f in (
+            "initial_attitude_rpy_deg",
+            "constant_deg_per_s",
+            "amplitude_deg_per_s",
+            "frequency_rad_per_s",
+            "phase_deg",
+        ):
             check_vector(f"plant.{f}", getattr(p, f), 3)
     elif isinstance(p, PrescribedRpyConfig):
         if s.orbit is not None:
-            fail("orbit", "set", "a PrescribedRpyConfig truth is roll/pitch/yaw relative to the inertial frame, while "
-                 "with an orbit every estimate starts relative to the orbit frame; remove orbit (or use another "
-                 "plant)")
+            fail(
+                "orbit",
+                "set",
+                "a PrescribedRpyConfig truth is roll/pitch/yaw relative to the inertial frame, while "
+                "with an orbit every estimate starts relative to the orbit frame; remove orbit (or use another "
+                "plant)",
+            )
         if len(p.times_s) < 2 or np.ndim(p.rpy_deg) != 2 or len(p.rpy_deg) != len(p.times_s):
             fail("plant.times_s", p.times_s, "need >= 2 breakpoints and one rpy_deg row per time")
         for i in range(1, len(p.times_s)):
@@ -787,4 +836,3 @@ def validate(s: Scenario) -> None:
     from drake_att.scenarios.ranges import check_ranges
 
     check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
-

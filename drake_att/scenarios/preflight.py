@@ -87,17 +87,21 @@ def preflight_warnings(scenario) -> list[str]:
         step = min([sim.max_step_size_s] + [p for _, p in periods])
         rate = peak_rate_deg_per_s(scenario.plant)
         if rate * step > MAX_FIXED_STEP_ANGLE_DEG:
-            out.append(f"simulation: a fixed {step:g} s {sim.integration_scheme} step at the truth's peak rate "
-                       f"~{rate:.3g} deg/s turns the body {rate * step:.2g} deg per step (more than "
-                       f"{MAX_FIXED_STEP_ANGLE_DEG} deg: the truth drifts by arcseconds); set "
-                       "simulation.use_error_control=true or a smaller simulation.max_step_size_s")
+            out.append(
+                f"simulation: a fixed {step:g} s {sim.integration_scheme} step at the truth's peak rate "
+                f"~{rate:.3g} deg/s turns the body {rate * step:.2g} deg per step (more than "
+                f"{MAX_FIXED_STEP_ANGLE_DEG} deg: the truth drifts by arcseconds); set "
+                "simulation.use_error_control=true or a smaller simulation.max_step_size_s"
+            )
     events, periods = event_count(scenario)
     wall = events * SECONDS_PER_EVENT
     if wall > EXPENSIVE_WALL_S:
         smallest = min(periods, key=lambda x: x[1])
-        out.append(f"scenario {scenario.name!r}: ~{events:.3g} discrete events over {scenario.duration_s:g} s, roughly "
-                   f"{_human(wall)} of wall time; the smallest period is {smallest[0]} = {smallest[1]:g} s "
-                   "(check the periods or the duration)")
+        out.append(
+            f"scenario {scenario.name!r}: ~{events:.3g} discrete events over {scenario.duration_s:g} s, roughly "
+            f"{_human(wall)} of wall time; the smallest period is {smallest[0]} = {smallest[1]:g} s "
+            "(check the periods or the duration)"
+        )
     for s in scenario.sensors:
         refs = getattr(s, "references_I", None)
         if getattr(s, "mode", None) != "vectors" or refs is None:
@@ -106,16 +110,21 @@ def preflight_warnings(scenario) -> list[str]:
         r = r / np.linalg.norm(r, axis=1, keepdims=True)
         spread = max((float(np.linalg.norm(np.cross(r[0], v))) for v in r[1:]), default=0.0)
         if spread < 1e-6:
-            out.append(f"sensors.{s.name}.references_I: got {r.tolist()}; all parallel (or a single direction): "
-                       "the attitude about that direction is unobservable from this tracker")
+            out.append(
+                f"sensors.{s.name}.references_I: got {r.tolist()}; all parallel (or a single direction): "
+                "the attitude about that direction is unobservable from this tracker"
+            )
     return out
 
 
 def run_warnings(metrics: dict) -> list[str]:
     """Messages after a run: estimators that used no measurement."""
-    return [f"estimator {name!r} used no measurement in the whole run ({m['measurements_skipped']} skipped): its "
-            "estimate is the prediction from its initial state"
-            for name, m in metrics["estimators"].items() if m.get("measurements_used", 1) == 0]
+    return [
+        f"estimator {name!r} used no measurement in the whole run ({m['measurements_skipped']} skipped): its "
+        "estimate is the prediction from its initial state"
+        for name, m in metrics["estimators"].items()
+        if m.get("measurements_used", 1) == 0
+    ]
 
 
 # --------------------------------------------------------------------------------------
@@ -139,9 +148,13 @@ DEFAULT_PARTICLE_BYTES = 6400  # a plug-in's particle filter: a margin above the
 LOG_COPIES = 3
 # Widths of the logged sensor ports (drake_att.contract, drake_att.systems.fault_injector); a
 # plug-in's port not listed here counts DEFAULT_PORT_WIDTH numbers.
-PORT_WIDTHS = {"gyro_measurement": GYRO_MEASUREMENT_SIZE, "bias_B": 3,
-               "star_tracker_measurement": QUATERNION_MEASUREMENT_SIZE, "fault_truth": 9,  # fault_injector.FAULT_TRUTH_SIZE
-               "stars_in_view": 1}
+PORT_WIDTHS = {
+    "gyro_measurement": GYRO_MEASUREMENT_SIZE,
+    "bias_B": 3,
+    "star_tracker_measurement": QUATERNION_MEASUREMENT_SIZE,
+    "fault_truth": 9,  # fault_injector.FAULT_TRUTH_SIZE
+    "stars_in_view": 1,
+}
 DEFAULT_PORT_WIDTH = 16
 # An estimator logs its packed estimate (47: attitude, second vector, covariance, status),
 # its innovations (3 per measurement input) and its diagnostics (at most ~8 numbers).
@@ -238,10 +251,10 @@ def _loggers(scenario) -> list:
     out += [(truth_path, period, w, "the truth's attitude and rate") for w in TRUTH_WIDTHS]
     for (path, period, item), s in zip(items, scenario.sensors, strict=False):  # items: sensors, then estimators
         logged = plugin_for(s).logged_ports
-        for port, p in (logged(s) if logged is not None else []):
+        for port, p in logged(s) if logged is not None else []:
             q = period if p is None else float(p)
             out.append((period_field(path, q, item), q, PORT_WIDTHS.get(port, DEFAULT_PORT_WIDTH), f"{s.name}/{port}"))
-    for path, period, e in items[len(scenario.sensors):]:
+    for path, period, e in items[len(scenario.sensors) :]:
         inputs: set[str] = set()
         for f in dataclasses.fields(e):
             v = getattr(e, f.name)
@@ -254,17 +267,28 @@ def _loggers(scenario) -> list:
 
 def log_bytes(scenario) -> float:
     """The raw bytes of a run's logs (float64 times and samples of every logger, one copy)."""
-    return sum((math.floor(scenario.duration_s / q) + 1) * (w + 1) * 8.0
-               for _, q, w, _ in _loggers(scenario) if math.isfinite(q) and q > 0)
+    return sum(
+        (math.floor(scenario.duration_s / q) + 1) * (w + 1) * 8.0
+        for _, q, w, _ in _loggers(scenario)
+        if math.isfinite(q) and q > 0
+    )
 
 
 def result_bytes(scenario) -> int:
     """An upper bound of a run's result folder: its logs uncompressed (the packed estimates
     are split into four signals, each with its times), plus ~1 MB of figures and tables per
     estimator and 1 MB more."""
-    return int(log_bytes(scenario) + 8.0 * 3 * sum(
-        math.floor(scenario.duration_s / q) + 1 for _, q, _, what in _loggers(scenario)
-        if what.endswith("'s estimate") and math.isfinite(q) and q > 0) + 1e6 * (len(scenario.estimators) + 1))
+    return int(
+        log_bytes(scenario)
+        + 8.0
+        * 3
+        * sum(
+            math.floor(scenario.duration_s / q) + 1
+            for _, q, _, what in _loggers(scenario)
+            if what.endswith("'s estimate") and math.isfinite(q) and q > 0
+        )
+        + 1e6 * (len(scenario.estimators) + 1)
+    )
 
 
 def memory_estimate(scenario) -> MemoryEstimate:
@@ -277,8 +301,11 @@ def memory_estimate(scenario) -> MemoryEstimate:
         n = getattr(e, "num_particles", None)
         if isinstance(n, (int, np.integer)) and not isinstance(n, bool):
             per = PARTICLE_BYTES.get(type(e).__name__, DEFAULT_PARTICLE_BYTES)
-            parts.append(MemoryPart(f"estimators[{i}] ({e.name}).num_particles", int(n), float(n) * per,
-                                    f"~{per} bytes per particle"))
+            parts.append(
+                MemoryPart(
+                    f"estimators[{i}] ({e.name}).num_particles", int(n), float(n) * per, f"~{per} bytes per particle"
+                )
+            )
     logs: dict[str, tuple[float, float, int]] = {}  # period field -> (period, bytes, samples)
     for path, q, w, _ in _loggers(scenario):
         if math.isfinite(q) and q > 0:
@@ -286,8 +313,9 @@ def memory_estimate(scenario) -> MemoryEstimate:
             value, b, n = logs.get(path, (q, 0.0, 0))
             logs[path] = (value, b + samples * (w + 1) * 8.0 * LOG_COPIES, n + samples)
     for path, (value, b, samples) in logs.items():
-        parts.append(MemoryPart(path, value, b, f"logs of ~{samples:.3g} samples over duration_s = "
-                                f"{scenario.duration_s:g}"))
+        parts.append(
+            MemoryPart(path, value, b, f"logs of ~{samples:.3g} samples over duration_s = {scenario.duration_s:g}")
+        )
     return MemoryEstimate(sum(p.bytes for p in parts), parts)
 
 
@@ -324,7 +352,17 @@ def check_memory(scenario, available_bytes: float | None = None, processes: int 
         per = part.bytes / part.value
         others = (estimate.total_bytes - part.bytes) * max(1, int(processes))
         fit = max(0, int((available - others) / max(1, int(processes)) / per))
-        fail(part.path, part.value, f"needs ~{_human_bytes(need)}{runs} ({part.what}), more than {where} "
-             f"{_human_bytes(available)} available; at most ~{fit:,} particles fit", ConfigError)
-    fail(part.path, part.value, f"the run needs ~{_human_bytes(need)}{runs}, mostly {part.what} at this period, more "
-         f"than {where} {_human_bytes(available)} available; use a longer period or a shorter duration_s", ConfigError)
+        fail(
+            part.path,
+            part.value,
+            f"needs ~{_human_bytes(need)}{runs} ({part.what}), more than {where} "
+            f"{_human_bytes(available)} available; at most ~{fit:,} particles fit",
+            ConfigError,
+        )
+    fail(
+        part.path,
+        part.value,
+        f"the run needs ~{_human_bytes(need)}{runs}, mostly {part.what} at this period, more "
+        f"than {where} {_human_bytes(available)} available; use a longer period or a shorter duration_s",
+        ConfigError,
+    )

@@ -41,8 +41,19 @@ import numpy as np
 from drake_att import validation
 from drake_att.validation import ConfigError
 
-__all__ = ["Range", "Split", "BY_CLASS", "BY_FIELD", "BY_PREFIX", "BY_SUFFIX", "range_for", "check_ranges",
-           "render_markdown", "DAY_S", "MAX_DURATION_S"]
+__all__ = [
+    "Range",
+    "Split",
+    "BY_CLASS",
+    "BY_FIELD",
+    "BY_PREFIX",
+    "BY_SUFFIX",
+    "range_for",
+    "check_ranges",
+    "render_markdown",
+    "DAY_S",
+    "MAX_DURATION_S",
+]
 
 DAY_S = 86400.0
 MAX_DURATION_S = 30 * DAY_S  # a month of attitude history
@@ -59,8 +70,10 @@ class Range:
 
     def __post_init__(self):
         if not (np.isfinite(self.lo) and np.isfinite(self.hi) and self.lo <= self.hi):
-            raise ValueError(f"Range: got [{self.lo}, {self.hi}]; bounds must be finite with lo <= hi (a range is "
-                             "what a real sensor or mission can have)")
+            raise ValueError(
+                f"Range: got [{self.lo}, {self.hi}]; bounds must be finite with lo <= hi (a range is "
+                "what a real sensor or mission can have)"
+            )
 
     def allowed(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
@@ -92,8 +105,9 @@ def _num(x: float) -> str:
 # --------------------------------------------------------------------------------------
 _ANGLE = Range(-360.0, 360.0, "deg", "an angle: one turn either way")
 _SIGMA_ANGLE = Range(0.0, 360.0, "deg", "a 1-sigma angle: beyond a turn means nothing")
-_RATE = Range(-5000.0, 5000.0, "deg/s", "a body rate: beyond the widest MEMS gyro (4000 deg/s); spinners turn at "
-              "up to ~600 deg/s")
+_RATE = Range(
+    -5000.0, 5000.0, "deg/s", "a body rate: beyond the widest MEMS gyro (4000 deg/s); spinners turn at up to ~600 deg/s"
+)
 _TIME = Range(0.0, MAX_DURATION_S, "s", "a time within the longest run (30 days)")
 _PROBABILITY = Range(0.0, 1.0, "", "a probability")
 _FRACTION = Range(0.0, 1.0, "", "a fraction")
@@ -112,39 +126,52 @@ def _inertia_part(index: int, size: int) -> str:
     return "principal" if size == 3 or index in (0, 4, 8) else "product"
 
 
-_INERTIA = Split({"principal": Range(1e-7, 1e9, "kg m^2", "a moment of inertia: from a gram-scale chip satellite "
-                                     "(~1e-6) to beyond the ISS (~1e8)"),
-                  "product": Range(-1e9, 1e9, "kg m^2", "a product of inertia (off-diagonal, either sign)")},
-                 _inertia_part, "principal moments (3 entries, or the diagonal of 9) and products of inertia")
+_INERTIA = Split(
+    {
+        "principal": Range(
+            1e-7,
+            1e9,
+            "kg m^2",
+            "a moment of inertia: from a gram-scale chip satellite (~1e-6) to beyond the ISS (~1e8)",
+        ),
+        "product": Range(-1e9, 1e9, "kg m^2", "a product of inertia (off-diagonal, either sign)"),
+    },
+    _inertia_part,
+    "principal moments (3 entries, or the diagonal of 9) and products of inertia",
+)
 
 # (config class name, field name) -> range: where a field name means different things.
 BY_CLASS: dict = {
-    ("OrbitConfig", "altitude_km"): Range(100.0, 1e6, "km", "from the lowest orbit (~100 km) to beyond lunar "
-                                          "distance (384,400 km)"),
+    ("OrbitConfig", "altitude_km"): Range(
+        100.0, 1e6, "km", "from the lowest orbit (~100 km) to beyond lunar distance (384,400 km)"
+    ),
     ("OrbitConfig", "inclination_deg"): Range(0.0, 180.0, "deg", "an inclination (retrograde above 90)"),
     ("PrescribedRpyConfig", "rpy_deg"): Range(-1e6, 1e6, "deg", "unwrapped breakpoints of a multi-turn profile"),
-    ("PrescribedRpyConfig", "times_s"): Range(-MAX_DURATION_S, MAX_DURATION_S, "s",
-                                              "breakpoints around the run (before 0 allowed), 30 days either way"),
+    ("PrescribedRpyConfig", "times_s"): Range(
+        -MAX_DURATION_S, MAX_DURATION_S, "s", "breakpoints around the run (before 0 allowed), 30 days either way"
+    ),
     ("ScoringConfig", "convergence_threshold_deg"): Range(0.0, 180.0, "deg", "an attitude-error bound"),
-    ("SimulationConfig", "accuracy"): Range(1e-16, 1.0, "", "a relative accuracy: below 1e-16 is under double "
-                                            "round-off"),
+    ("SimulationConfig", "accuracy"): Range(
+        1e-16, 1.0, "", "a relative accuracy: below 1e-16 is under double round-off"
+    ),
     ("SimulationConfig", "max_step_size_s"): Range(1e-6, 1e5, "s", "an integrator step from 1 us to about a day"),
-    ("ScreenCameraConfig", "star_count"): Range(1, 1e4, "", "stars on the screen: the paper's ~50, 1e4 a dense "
-                                                "screen"),
+    ("ScreenCameraConfig", "star_count"): Range(1, 1e4, "", "stars on the screen: the paper's ~50, 1e4 a dense screen"),
     ("ScreenCameraConfig", "focal_length_mm"): Range(0.1, 1e4, "mm", "a lens: ~1 mm fisheye to a 10 m telescope"),
     ("ScreenCameraConfig", "pixels"): Range(1, 1e5, "", "detector columns and rows: the largest sensors have ~1e4"),
     ("SensorFaultsConfig", "outlier_angle_deg"): Range(0.0, 180.0, "deg", "a rotation angle"),
     ("SensorFaultsConfig", "time_tag_offset_s"): Range(-DAY_S, DAY_S, "s", "a clock offset up to a day either way"),
     ("ScaleFactorStarNoiseConfig", "zeta_variance"): Range(0.0, 1e6, "", "the variance of the unitless zeta"),
-    ("ScaleFactorStarNoiseConfig", "scale_per_zeta"): Range(0.0, 1e3, "", "scale-factor error per unit zeta "
-                                                            "(kappa sqrt(zeta_variance) < 0.1 is checked too)"),
+    ("ScaleFactorStarNoiseConfig", "scale_per_zeta"): Range(
+        0.0, 1e3, "", "scale-factor error per unit zeta (kappa sqrt(zeta_variance) < 0.1 is checked too)"
+    ),
     ("CubatureQuaternionConfig", "grp_a"): Range(0.0, 1.0, "", "the GRP parameter a"),
     ("CubatureQuaternionConfig", "grp_f"): Range(0.0, 100.0, "", "the GRP scale f (USQUE: 2 (a + 1) = 4)"),
     ("CubatureQuaternionConfig", "zeta_gate_sigmas"): Range(0.0, 1e3, "", "a gate in standard deviations"),
     ("IndoorStarTrackerConfig", "tolerance_deg"): Range(0.0, 90.0, "deg", "an identification tolerance angle"),
     ("IndoorStarTrackerConfig", "max_lost_frames"): Range(1, 1e6, "", "camera frames"),
-    ("IndoorStarTrackerConfig", "camera_offset_error_mm"): Range(-1e5, 1e5, "mm", "a laboratory length error "
-                                                                 "either way"),
+    ("IndoorStarTrackerConfig", "camera_offset_error_mm"): Range(
+        -1e5, 1e5, "mm", "a laboratory length error either way"
+    ),
     ("IndoorStarTrackerConfig", "pso_particles"): Range(1, 1e5, "", "particles of the swarm search (paper: 5)"),
     ("IndoorStarTrackerConfig", "pso_max_generations"): Range(1, 1e6, "", "generations of the swarm search"),
     ("IndoorStarTrackerConfig", "pso_inertia"): _PSO_COEFFICIENT,
@@ -169,8 +196,12 @@ BY_FIELD: dict = {
     "weights": _WEIGHTS,
     "references_I": Range(-1e6, 1e6, "", "direction components (normalized on use)"),
     "misalignment_urad": Range(-1e5, 1e5, "urad", "an axis misalignment up to 0.1 rad (5.7 deg)"),
-    "sigma_vector_urad": Range(0.0, 1e6, "urad", "a direction's 1-sigma up to 1 rad: star trackers 5-500 urad, "
-                               "sun sensors ~1e4, paper S4's tuning 1.25e5"),
+    "sigma_vector_urad": Range(
+        0.0,
+        1e6,
+        "urad",
+        "a direction's 1-sigma up to 1 rad: star trackers 5-500 urad, sun sensors ~1e4, paper S4's tuning 1.25e5",
+    ),
     "sigma_floor_urad": Range(0.0, 1e6, "urad", "a direction's 1-sigma floor, up to 1 rad"),
     "resample_threshold": Range(0.0, 1.0, "", "a fraction of the particle count"),
     "innovation_gate_chi2": Range(0.0, 1e6, "", "a chi-square threshold (a consistent filter's NIS is ~3-6)"),
@@ -190,16 +221,20 @@ BY_SUFFIX: dict = {
     "_sigma_deg": _SIGMA_ANGLE,
     "_deg_per_s": _RATE,
     "_sigma_deg_per_s": Range(0.0, 5000.0, "deg/s", "a body-rate 1-sigma (see the rates' range)"),
-    "_deg_per_h": Range(-1e5, 1e5, "deg/h", "a gyro bias: navigation grade ~0.01, consumer MEMS up to a few deg/s "
-                        "(~1e4 deg/h)"),
+    "_deg_per_h": Range(
+        -1e5, 1e5, "deg/h", "a gyro bias: navigation grade ~0.01, consumer MEMS up to a few deg/s (~1e4 deg/h)"
+    ),
     "_sigma_deg_per_h": Range(0.0, 1e5, "deg/h", "a gyro-bias 1-sigma (see the biases' range)"),
-    "_deg_per_rt_h": Range(0.0, 100.0, "deg/sqrt(h)", "an angle random walk: 1e-4 (navigation grade) to ~10 (the "
-                           "noisiest MEMS)"),
+    "_deg_per_rt_h": Range(
+        0.0, 100.0, "deg/sqrt(h)", "an angle random walk: 1e-4 (navigation grade) to ~10 (the noisiest MEMS)"
+    ),
     "_deg_per_h15": Range(0.0, 1e3, "deg/h^1.5", "a rate random walk: fibre-optic ~1e-4, MEMS up to ~10"),
-    "_deg_per_h_per_rt_s": Range(0.0, 1e4, "deg/h/sqrt(s)", "a bias random-walk tuning (1e3 deg/h^1.5 is 17 "
-                                 "deg/h/sqrt(s))"),
-    "_deg_per_s_per_rt_s": Range(0.0, 100.0, "deg/s/sqrt(s)", "a rate random-walk tuning: 100 swamps any "
-                                 "spacecraft's rate"),
+    "_deg_per_h_per_rt_s": Range(
+        0.0, 1e4, "deg/h/sqrt(s)", "a bias random-walk tuning (1e3 deg/h^1.5 is 17 deg/h/sqrt(s))"
+    ),
+    "_deg_per_s_per_rt_s": Range(
+        0.0, 100.0, "deg/s/sqrt(s)", "a rate random-walk tuning: 100 swamps any spacecraft's rate"
+    ),
     "_rad_per_s": Range(-1e5, 1e5, "rad/s", "an angular frequency up to ~16 kHz, either sign"),
     "_arcsec": Range(0.0, 3.6e4, "arcsec", "a 1-sigma or tolerance up to 10 deg (star trackers: 0.1-100 arcsec)"),
     "_urad": Range(-1e6, 1e6, "urad", "an angle up to 1 rad"),
@@ -208,8 +243,12 @@ BY_SUFFIX: dict = {
     "_rad2_per_step": _VARIANCE_RAD2,
     "_s": _TIME,
     "_times_s": _TIME,
-    "_windows_s": Range(-MAX_DURATION_S, MAX_DURATION_S, "s", "window edges within 30 days of the start (a start "
-                        "before 0: from the beginning)"),
+    "_windows_s": Range(
+        -MAX_DURATION_S,
+        MAX_DURATION_S,
+        "s",
+        "window edges within 30 days of the start (a start before 0: from the beginning)",
+    ),
     "_hz": Range(1e-5, 1e6, "Hz", "a rate from one sample a day to 1 MHz"),
     "_km": Range(0.0, 1e6, "km", "a distance up to beyond lunar distance"),
     "_m": Range(-1e9, 1e9, "m", "a length up to beyond lunar distance"),
@@ -256,9 +295,14 @@ def _is_number(v) -> bool:
 
 
 def _no_range(path, value, owner, field_name):
-    validation.fail(path, value, f"no physical range is documented for {owner.__name__}.{field_name}: name the field "
-                    "with a unit suffix (e.g. _s, _deg, _hz; see drake_att.scenarios.ranges) or declare "
-                    f"RANGES = {{{field_name!r}: (lo, hi, unit, why)}} on the config class", ConfigError)
+    validation.fail(
+        path,
+        value,
+        f"no physical range is documented for {owner.__name__}.{field_name}: name the field "
+        "with a unit suffix (e.g. _s, _deg, _hz; see drake_att.scenarios.ranges) or declare "
+        f"RANGES = {{{field_name!r}: (lo, hi, unit, why)}} on the config class",
+        ConfigError,
+    )
 
 
 def _check_number(path, value, entry, index: int = 0, size: int = 1):
@@ -283,8 +327,9 @@ def _check_field(path: str, value, owner: type, field_name: str) -> None:
         if isinstance(entry, Split):
             flat = value.ravel()
             for i, x in enumerate(flat):
-                _check_number(path + "".join(f"[{k}]" for k in np.unravel_index(i, value.shape)), x, entry, i,
-                              flat.size)
+                _check_number(
+                    path + "".join(f"[{k}]" for k in np.unravel_index(i, value.shape)), x, entry, i, flat.size
+                )
             return
         a = value.astype(float)
         bad = ~((a >= entry.lo) & (a <= entry.hi))
@@ -408,11 +453,20 @@ def _rows(config_type: type, prefix: str, seen: set) -> tuple[list, list]:
             rows.append((path, _type_name(t), _default_text(f), "", "**none**", ""))
         elif isinstance(entry, Split):
             for label, r in entry.parts.items():
-                rows.append((f"{path} ({label})", _type_name(t), _default_text(f), r.unit,
-                             f"[{_num(r.lo)}, {_num(r.hi)}]", r.why))
+                rows.append(
+                    (
+                        f"{path} ({label})",
+                        _type_name(t),
+                        _default_text(f),
+                        r.unit,
+                        f"[{_num(r.lo)}, {_num(r.hi)}]",
+                        r.why,
+                    )
+                )
         else:
-            rows.append((path, _type_name(t), _default_text(f), entry.unit, f"[{_num(entry.lo)}, {_num(entry.hi)}]",
-                         entry.why))
+            rows.append(
+                (path, _type_name(t), _default_text(f), entry.unit, f"[{_num(entry.lo)}, {_num(entry.hi)}]", entry.why)
+            )
     return rows, nested
 
 
@@ -422,8 +476,11 @@ def _sections():
     from drake_att.scenarios import config as cfg
     from drake_att.scenarios import registry
 
-    out = [("Scenario (top level)", cfg.Scenario, ""), ("simulation", cfg.SimulationConfig, "simulation."),
-           ("orbit", cfg.OrbitConfig, "orbit.")]
+    out = [
+        ("Scenario (top level)", cfg.Scenario, ""),
+        ("simulation", cfg.SimulationConfig, "simulation."),
+        ("orbit", cfg.OrbitConfig, "orbit."),
+    ]
     out += [(f"plant: !{t.__name__}", t, "plant.") for t in typing.get_args(cfg.PlantConfig)]
     out.append(("scoring", cfg.ScoringConfig, "scoring."))
     builtin = registry.BUILTIN_PLUGIN_PACKAGES
@@ -436,17 +493,21 @@ def _sections():
 
 def render_markdown() -> str:
     """``docs/config_reference.md``: every field's path, type, default, unit, range and why."""
-    lines = ["<!-- Generated from drake_att/scenarios/ranges.py; do not edit. Regenerate with:",
-             "     python -m drake_att.scenarios.ranges > docs/config_reference.md -->",
-             "# Scenario configuration reference", "",
-             "Every field of a scenario (`drake_att/scenarios/*.yaml`, `--set PATH=VALUE`) and of the library's "
-             "sensor and estimator configs: its type, default, unit and the physically plausible range "
-             "`drake_att.scenarios.ranges.check_ranges` enforces after the specific checks (which also check signs, "
-             "shapes, names and consistency: a value inside the range may still be refused by them). A number "
-             "outside its range is refused naming the field, e.g. "
-             "`sensors[0] (gyro).arw_deg_per_rt_h: got 1e+300; must be in [0, 100] deg/sqrt(h) (...)`. "
-             "`sensors[i]` / `estimators[i]` stand for the item's index (messages add its name). Lists and matrices: "
-             "every entry is in the range. Ranges are closed intervals.", ""]
+    lines = [
+        "<!-- Generated from drake_att/scenarios/ranges.py; do not edit. Regenerate with:",
+        "     python -m drake_att.scenarios.ranges > docs/config_reference.md -->",
+        "# Scenario configuration reference",
+        "",
+        "Every field of a scenario (`drake_att/scenarios/*.yaml`, `--set PATH=VALUE`) and of the library's "
+        "sensor and estimator configs: its type, default, unit and the physically plausible range "
+        "`drake_att.scenarios.ranges.check_ranges` enforces after the specific checks (which also check signs, "
+        "shapes, names and consistency: a value inside the range may still be refused by them). A number "
+        "outside its range is refused naming the field, e.g. "
+        "`sensors[0] (gyro).arw_deg_per_rt_h: got 1e+300; must be in [0, 100] deg/sqrt(h) (...)`. "
+        "`sensors[i]` / `estimators[i]` stand for the item's index (messages add its name). Lists and matrices: "
+        "every entry is in the range. Ranges are closed intervals.",
+        "",
+    ]
     seen = set()
     queue = list(_sections())
     while queue:
@@ -460,8 +521,12 @@ def render_markdown() -> str:
         if doc and not doc.startswith(f"{t.__name__}("):
             lines += [doc, ""]
         lines += ["| Field | Type | Default | Unit | Range | Why |", "|---|---|---|---|---|---|"]
-        lines += ["| " + " | ".join(c.replace("|", "\\|") if c else "" for c in
-                                   (f"`{r[0]}`", r[1], f"`{r[2]}`", r[3], r[4], r[5])) + " |" for r in rows]
+        lines += [
+            "| "
+            + " | ".join(c.replace("|", "\\|") if c else "" for c in (f"`{r[0]}`", r[1], f"`{r[2]}`", r[3], r[4], r[5]))
+            + " |"
+            for r in rows
+        ]
         lines.append("")
         queue[0:0] = [(f"{p[:-1]}: !{s.__name__}", s, p) for s, p in nested]
     return "\n".join(lines)

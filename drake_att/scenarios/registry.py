@@ -117,8 +117,10 @@ def _register(kind, config_type, build, **kwargs) -> None:
             # The YAML dump omits a None, and the load then restores the default: a None that
             # is not the default would silently become the default on every round trip
             # (overrides, saved configs, Monte Carlo workers).
-            raise PluginError(f"{kind} config {config_type.__name__}.{f.name}: an Optional field must default to "
-                              f"None (got {f.default!r}); a None set by a user would not survive a YAML round trip")
+            raise PluginError(
+                f"{kind} config {config_type.__name__}.{f.name}: an Optional field must default to "
+                f"None (got {f.default!r}); a None set by a user would not survive a YAML round trip"
+            )
     names = {f.name for f in dataclasses.fields(config_type)}
     bad = [p for p in kwargs.get("parameters", ()) if p not in names]
     if bad:
@@ -127,8 +129,10 @@ def _register(kind, config_type, build, **kwargs) -> None:
     for other_kind, plugins in _PLUGINS.items():
         existing = plugins.get(tag)
         if existing is not None and (existing.config_type is not config_type or other_kind != kind):
-            raise PluginError(f"{kind} config {tag} (module {build.__module__}): the tag {tag!r} is already "
-                              f"registered by {existing.module} as a {other_kind}; rename the config class")
+            raise PluginError(
+                f"{kind} config {tag} (module {build.__module__}): the tag {tag!r} is already "
+                f"registered by {existing.module} as a {other_kind}; rename the config class"
+            )
     _PLUGINS[kind][tag] = Plugin(kind, config_type, build, module=build.__module__, **kwargs)
 
 
@@ -154,8 +158,7 @@ def _resolve_field_types(config_type: type, kind: str, seen=None) -> None:
             stack.extend(typing.get_args(t))
 
 
-def register_estimator(config_type: type, *, second_quantity, validate: Callable | None = None,
-                       parameters=()):
+def register_estimator(config_type: type, *, second_quantity, validate: Callable | None = None, parameters=()):
     """Decorator registering ``build(ctx, config) -> EstimatorSetup | system`` for ``config_type``.
 
     Args:
@@ -169,16 +172,29 @@ def register_estimator(config_type: type, *, second_quantity, validate: Callable
     """
 
     def decorate(build):
-        _register(ESTIMATOR, config_type, build, validate=validate, second_quantity=second_quantity,
-                  parameters=tuple(parameters))
+        _register(
+            ESTIMATOR,
+            config_type,
+            build,
+            validate=validate,
+            second_quantity=second_quantity,
+            parameters=tuple(parameters),
+        )
         return build
 
     return decorate
 
 
-def register_sensor(config_type: type, *, output: Callable, validate: Callable | None = None,
-                    quaternion_model: Callable | None = None, logged_ports: Callable | None = None,
-                    parameters=(), configure: Callable | None = None):
+def register_sensor(
+    config_type: type,
+    *,
+    output: Callable,
+    validate: Callable | None = None,
+    quaternion_model: Callable | None = None,
+    logged_ports: Callable | None = None,
+    parameters=(),
+    configure: Callable | None = None,
+):
     """Decorator registering a sensor's ``build(ctx, config) -> system``.
 
     Args:
@@ -195,13 +211,22 @@ def register_sensor(config_type: type, *, output: Callable, validate: Callable |
             covariance) follow the sensors they derive from.
     """
     if parameters and configure is None:
-        raise PluginError(f"sensor config {config_type.__name__}: parameters {list(parameters)} need a configure "
-                          "function")
+        raise PluginError(
+            f"sensor config {config_type.__name__}: parameters {list(parameters)} need a configure function"
+        )
 
     def decorate(build):
-        _register(SENSOR, config_type, build, validate=validate, output=output,
-                  quaternion_model=quaternion_model, logged_ports=logged_ports, parameters=tuple(parameters),
-                  configure=configure)
+        _register(
+            SENSOR,
+            config_type,
+            build,
+            validate=validate,
+            output=output,
+            quaternion_model=quaternion_model,
+            logged_ports=logged_ports,
+            parameters=tuple(parameters),
+            configure=configure,
+        )
         return build
 
     return decorate
@@ -225,23 +250,31 @@ def load_plugins(module_names, *, new_modules: bool = True) -> None:
 
     ensure_builtin_plugins()
     for i, name in enumerate(module_names or ()):
-        if not isinstance(name, str) or not name.strip() or len(name) > 200 \
-                or not all(part.isidentifier() for part in name.split(".")):
+        if (
+            not isinstance(name, str)
+            or not name.strip()
+            or len(name) > 200
+            or not all(part.isidentifier() for part in name.split("."))
+        ):
             raise PluginError(f"plugins[{i}]: got {name!r:.200}; expected a module name such as 'my_package.my_filter'")
         if name in sys.modules:
             continue
         if not new_modules:
-            raise PluginError(f"plugins[{i}]: {name!r} is not imported; a configuration from a result folder names "
-                              "code that importing would run - pass --allow-plugins if you trust that folder and "
-                              "the module")
+            raise PluginError(
+                f"plugins[{i}]: {name!r} is not imported; a configuration from a result folder names "
+                "code that importing would run - pass --allow-plugins if you trust that folder and "
+                "the module"
+            )
         problem = plugin_origin_problem(name)
         if problem:
             raise PluginError(f"plugins[{i}]: {name!r}: {problem}")
         try:
             importlib.import_module(name)
         except Exception as e:  # report any import failure as a config error naming the module
-            raise PluginError(f"plugins[{i}]: cannot import {name!r}: {type(e).__name__}: {str(e)[:300]} "
-                              "(is its folder on PYTHONPATH?)") from e
+            raise PluginError(
+                f"plugins[{i}]: cannot import {name!r}: {type(e).__name__}: {str(e)[:300]} "
+                "(is its folder on PYTHONPATH?)"
+            ) from e
 
 
 def _trusted_roots() -> list[str]:
@@ -284,8 +317,10 @@ def plugin_origin_problem(name: str) -> str | None:
     for place in places:
         real = os.path.realpath(place)
         if not any(real == r or real.startswith(r.rstrip(os.sep) + os.sep) for r in roots):
-            return (f"found in {os.path.dirname(real)}, which is neither the current folder, a PYTHONPATH folder "
-                    "nor the installed packages; plug-ins are imported only from places you chose")
+            return (
+                f"found in {os.path.dirname(real)}, which is neither the current folder, a PYTHONPATH folder "
+                "nor the installed packages; plug-ins are imported only from places you chose"
+            )
     return None
 
 

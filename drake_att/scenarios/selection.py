@@ -35,8 +35,10 @@ def with_estimators(scenario: cfg.Scenario, names, field: str = "estimators", al
     have = [e.name for e in scenario.estimators]
     unknown = [] if isinstance(names, str) else [n for n in names if n not in have]
     if isinstance(names, str) or unknown or (not allow_empty and not list(names)):
-        raise cfg.ConfigError(f"{field}: got {names!r}; choose a list of names from {have}"
-                              + (" (empty: sensors only)" if allow_empty else ""))
+        raise cfg.ConfigError(
+            f"{field}: got {names!r}; choose a list of names from {have}"
+            + (" (empty: sensors only)" if allow_empty else "")
+        )
     names = list(names)
     keep = [e for e in scenario.estimators if e.name in names]
     for e in keep:

@@ -75,8 +75,14 @@ class SensorFaultsConfig:
 
 
 FAULT_FIELDS = tuple(f.name for f in dataclasses.fields(SensorFaultsConfig) if f.name not in ("name", "sensor"))
-_TIME_FIELDS = ("outlier_times_s", "nan_times_s", "inf_times_s", "dropout_times_s", "bias_jump_times_s",
-                "time_tag_times_s")
+_TIME_FIELDS = (
+    "outlier_times_s",
+    "nan_times_s",
+    "inf_times_s",
+    "dropout_times_s",
+    "bias_jump_times_s",
+    "time_tag_times_s",
+)
 _WINDOW_FIELDS = ("stuck_windows_s", "outage_windows_s", "saturation_windows_s", "time_tag_windows_s")
 _PROBABILITY_FIELDS = ("outlier_probability", "nan_probability", "inf_probability", "dropout_probability")
 
@@ -108,11 +114,14 @@ def validate_sensor_faults(path: str, c: SensorFaultsConfig, checks) -> None:
         o = checks.sensors[other]
         if isinstance(o, SensorFaultsConfig) and o.sensor == c.sensor:
             cfg.fail(f"{path}.sensor", c.sensor, f"{other!r} already injects faults into it (one entry per sensor)")
-    for other in names[names.index(c.sensor) + 1:]:
+    for other in names[names.index(c.sensor) + 1 :]:
         if references(checks.sensors[other], c.sensor):
-            cfg.fail(f"{path}.sensor", c.sensor,
-                     f"{other!r} (listed before this entry) reads it and would see the clean output: list this "
-                     f"entry right after {c.sensor!r}")
+            cfg.fail(
+                f"{path}.sensor",
+                c.sensor,
+                f"{other!r} (listed before this entry) reads it and would see the clean output: list this "
+                f"entry right after {c.sensor!r}",
+            )
     for f in _PROBABILITY_FIELDS:
         cfg.check_finite(f"{path}.{f}", getattr(c, f))
         if not 0.0 <= getattr(c, f) < 1.0:
@@ -139,19 +148,29 @@ def validate_sensor_faults(path: str, c: SensorFaultsConfig, checks) -> None:
             cfg.fail(f"{path}.outlier_angle_deg", size, "an attitude outlier is a rotation angle in (0, 180) deg")
     if c.saturation_deg_per_s is not None:
         if not gyro:
-            cfg.fail(f"{path}.saturation_deg_per_s", c.saturation_deg_per_s,
-                     f"only a gyro saturates; {c.sensor!r} outputs {out.kind!r}")
+            cfg.fail(
+                f"{path}.saturation_deg_per_s",
+                c.saturation_deg_per_s,
+                f"only a gyro saturates; {c.sensor!r} outputs {out.kind!r}",
+            )
         cfg.check_positive(f"{path}.saturation_deg_per_s", c.saturation_deg_per_s)
     elif np.size(c.saturation_windows_s):
         cfg.fail(f"{path}.saturation_windows_s", c.saturation_windows_s, "needs saturation_deg_per_s")
     if len(c.bias_jump_times_s) and not gyro:
-        cfg.fail(f"{path}.bias_jump_times_s", c.bias_jump_times_s, f"only a gyro has bias jumps; {c.sensor!r} "
-                 f"outputs {out.kind!r}")
+        cfg.fail(
+            f"{path}.bias_jump_times_s",
+            c.bias_jump_times_s,
+            f"only a gyro has bias jumps; {c.sensor!r} outputs {out.kind!r}",
+        )
     jumps = c.bias_jumps_deg_per_h
     if (np.size(jumps) or len(c.bias_jump_times_s)) and (
-            np.ndim(jumps) != 2 or np.shape(jumps) != (len(c.bias_jump_times_s), 3)):
-        cfg.fail(f"{path}.bias_jumps_deg_per_h", jumps,
-                 f"need one row [x, y, z] (deg/h) per bias_jump_times_s entry ({len(c.bias_jump_times_s)})")
+        np.ndim(jumps) != 2 or np.shape(jumps) != (len(c.bias_jump_times_s), 3)
+    ):
+        cfg.fail(
+            f"{path}.bias_jumps_deg_per_h",
+            jumps,
+            f"need one row [x, y, z] (deg/h) per bias_jump_times_s entry ({len(c.bias_jump_times_s)})",
+        )
     for j, row in enumerate(_rows(jumps, 3)):
         cfg.check_vector(f"{path}.bias_jumps_deg_per_h[{j}]", list(row), 3)
     cfg.check_finite(f"{path}.time_tag_offset_s", c.time_tag_offset_s)
@@ -168,18 +187,27 @@ def fault_model(c: SensorFaultsConfig, kind: str) -> FaultModel:
     saturation = math.inf if c.saturation_deg_per_s is None else c.saturation_deg_per_s * DEG
     size = c.outlier_rate_deg_per_s * DEG if kind == "gyro" else c.outlier_angle_deg * DEG
     return FaultModel.make(
-        c.name, kind,
-        outlier_probability=c.outlier_probability, outlier_times_s=tuple(c.outlier_times_s), outlier_size=size,
-        nan_probability=c.nan_probability, nan_times_s=tuple(c.nan_times_s),
-        inf_probability=c.inf_probability, inf_times_s=tuple(c.inf_times_s),
-        dropout_probability=c.dropout_probability, dropout_times_s=tuple(c.dropout_times_s),
+        c.name,
+        kind,
+        outlier_probability=c.outlier_probability,
+        outlier_times_s=tuple(c.outlier_times_s),
+        outlier_size=size,
+        nan_probability=c.nan_probability,
+        nan_times_s=tuple(c.nan_times_s),
+        inf_probability=c.inf_probability,
+        inf_times_s=tuple(c.inf_times_s),
+        dropout_probability=c.dropout_probability,
+        dropout_times_s=tuple(c.dropout_times_s),
         outage_windows_s=tuple(map(tuple, _rows(c.outage_windows_s, 2))),
         stuck_windows_s=tuple(map(tuple, _rows(c.stuck_windows_s, 2))),
-        saturation_rad_per_s=saturation, saturation_windows_s=tuple(map(tuple, _rows(c.saturation_windows_s, 2))),
+        saturation_rad_per_s=saturation,
+        saturation_windows_s=tuple(map(tuple, _rows(c.saturation_windows_s, 2))),
         bias_jump_times_s=tuple(c.bias_jump_times_s),
         bias_jumps_rad_per_s=tuple(map(tuple, _rows(c.bias_jumps_deg_per_h, 3) * DEG_PER_H)),
-        time_tag_offset_s=float(c.time_tag_offset_s), time_tag_times_s=tuple(c.time_tag_times_s),
-        time_tag_windows_s=tuple(map(tuple, _rows(c.time_tag_windows_s, 2))))
+        time_tag_offset_s=float(c.time_tag_offset_s),
+        time_tag_times_s=tuple(c.time_tag_times_s),
+        time_tag_windows_s=tuple(map(tuple, _rows(c.time_tag_windows_s, 2))),
+    )
 
 
 def faults_output(c: SensorFaultsConfig, sensor_configs) -> SensorOutput:
@@ -198,8 +226,14 @@ def configure_sensor_faults(ctx, c: SensorFaultsConfig, injector: FaultInjector,
     injector.set_model(context, fault_model(c, ctx.sensor_output(c.sensor).kind))
 
 
-@register_sensor(SensorFaultsConfig, output=faults_output, validate=validate_sensor_faults,
-                 logged_ports=faults_logged_ports, parameters=FAULT_FIELDS, configure=configure_sensor_faults)
+@register_sensor(
+    SensorFaultsConfig,
+    output=faults_output,
+    validate=validate_sensor_faults,
+    logged_ports=faults_logged_ports,
+    parameters=FAULT_FIELDS,
+    configure=configure_sensor_faults,
+)
 def build_sensor_faults(ctx, c: SensorFaultsConfig):
     out = ctx.sensor_output(c.sensor)
     injector = ctx.builder.AddSystem(FaultInjector(c.name, out.kind, out.period_s, fault_model(c, out.kind)))

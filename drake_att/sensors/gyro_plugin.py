@@ -60,19 +60,35 @@ def gyro_model_si(c: GyroConfig) -> tuple:
     """The config's noise and errors in SI, in :meth:`Gyro.set_model`'s argument order."""
     m = np.zeros((3, 3))
     m[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = np.asarray(c.misalignment_urad) * 1e-6
-    return (c.arw_deg_per_rt_h * ARW_DEG_PER_RT_H, c.rrw_deg_per_h15 * RRW_DEG_PER_H_15,
-            np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H, c.initial_bias_sigma_deg_per_h * DEG_PER_H,
-            np.asarray(c.scale_factor_error_ppm) * 1e-6, m)
+    return (
+        c.arw_deg_per_rt_h * ARW_DEG_PER_RT_H,
+        c.rrw_deg_per_h15 * RRW_DEG_PER_H_15,
+        np.asarray(c.initial_bias_deg_per_h) * DEG_PER_H,
+        c.initial_bias_sigma_deg_per_h * DEG_PER_H,
+        np.asarray(c.scale_factor_error_ppm) * 1e-6,
+        m,
+    )
 
 
 def configure_gyro(ctx, c: GyroConfig, gyro: Gyro, context) -> None:
     gyro.set_model(context, *gyro_model_si(c))
 
 
-@register_sensor(GyroConfig, output=gyro_output, validate=validate_gyro, logged_ports=gyro_logged_ports,
-                 parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", "initial_bias_deg_per_h",
-                             "initial_bias_sigma_deg_per_h", "scale_factor_error_ppm", "misalignment_urad"),
-                 configure=configure_gyro)
+@register_sensor(
+    GyroConfig,
+    output=gyro_output,
+    validate=validate_gyro,
+    logged_ports=gyro_logged_ports,
+    parameters=(
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        "initial_bias_deg_per_h",
+        "initial_bias_sigma_deg_per_h",
+        "scale_factor_error_ppm",
+        "misalignment_urad",
+    ),
+    configure=configure_gyro,
+)
 def build_gyro(ctx, c: GyroConfig):
     gyro = ctx.builder.AddSystem(Gyro(c.name, c.period_s, *gyro_model_si(c)))
     ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B"), gyro.GetInputPort("w_IB_B"))

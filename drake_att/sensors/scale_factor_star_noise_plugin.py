@@ -54,8 +54,11 @@ def validate_scale_factor_star_noise(path: str, c: ScaleFactorStarNoiseConfig, c
         cfg.fail(f"{path}.star_tracker", c.star_tracker, "must name a vector-mode star tracker listed before it")
     ratio = st.period_s / gyro.period_s
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        cfg.fail(f"{path}.star_tracker", c.star_tracker,
-                 f"its period ({st.period_s} s) must be a whole multiple of the gyro's ({gyro.period_s} s)")
+        cfg.fail(
+            f"{path}.star_tracker",
+            c.star_tracker,
+            f"its period ({st.period_s} s) must be a whole multiple of the gyro's ({gyro.period_s} s)",
+        )
     for f in ("zeta_variance", "correlation", "scale_per_zeta"):
         cfg.check_finite(f"{path}.{f}", getattr(c, f))
     try:
@@ -69,16 +72,21 @@ def configure_scale_factor_star_noise(ctx, c: ScaleFactorStarNoiseConfig, source
     source.set_model(context, noise_model(c), ctx.sensor_configs[c.star_tracker].sigma_vector_urad * 1e-6)
 
 
-@register_sensor(ScaleFactorStarNoiseConfig, output=lambda c, sensors: SensorOutput(
-                     "scale_factor_noise", "zeta", sensors[c.gyro].period_s),
-                 validate=validate_scale_factor_star_noise,
-                 logged_ports=lambda c: [],
-                 parameters=("zeta_variance", "correlation", "scale_per_zeta"),
-                 configure=configure_scale_factor_star_noise)
+@register_sensor(
+    ScaleFactorStarNoiseConfig,
+    output=lambda c, sensors: SensorOutput("scale_factor_noise", "zeta", sensors[c.gyro].period_s),
+    validate=validate_scale_factor_star_noise,
+    logged_ports=lambda c: [],
+    parameters=("zeta_variance", "correlation", "scale_per_zeta"),
+    configure=configure_scale_factor_star_noise,
+)
 def build_scale_factor_star_noise(ctx, c: ScaleFactorStarNoiseConfig):
     gyro, st = ctx.sensor_configs[c.gyro], ctx.sensor_configs[c.star_tracker]
-    source = ctx.builder.AddSystem(ScaleFactorStarNoiseSource(
-        c.name, gyro.period_s, noise_model(c), st.sigma_vector_urad * 1e-6, int(np.shape(st.references_I)[0])))
+    source = ctx.builder.AddSystem(
+        ScaleFactorStarNoiseSource(
+            c.name, gyro.period_s, noise_model(c), st.sigma_vector_urad * 1e-6, int(np.shape(st.references_I)[0])
+        )
+    )
     ctx.builder.Connect(source.GetOutputPort("scale_error"), ctx.sensors[c.gyro].GetInputPort("scale_error"))
     ctx.builder.Connect(source.GetOutputPort("vector_noise"), ctx.sensors[c.star_tracker].GetInputPort("vector_noise"))
     return source

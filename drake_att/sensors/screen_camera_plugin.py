@@ -53,15 +53,25 @@ def camera_geometry(c: ScreenCameraConfig) -> ScreenCameraGeometry:
     """The :class:`ScreenCameraGeometry` of a (validated) config, SI units."""
     h = c.h_mm * 1e-3
     pitch = c.pixel_pitch_um * 1e-6
-    return ScreenCameraGeometry(random_star_pattern(int(c.star_count), c.screen_size_mm * 1e-3, h, int(c.pattern_seed)),
-                                h, np.array([0.0, 0.0, -(c.h_mm - c.camera_to_screen_mm) * 1e-3]),
-                                c.focal_length_mm * 1e-3, (c.pixels[0] * pitch, c.pixels[1] * pitch), pitch)
+    return ScreenCameraGeometry(
+        random_star_pattern(int(c.star_count), c.screen_size_mm * 1e-3, h, int(c.pattern_seed)),
+        h,
+        np.array([0.0, 0.0, -(c.h_mm - c.camera_to_screen_mm) * 1e-3]),
+        c.focal_length_mm * 1e-3,
+        (c.pixels[0] * pitch, c.pixels[1] * pitch),
+        pitch,
+    )
 
 
 def camera_noise(c: ScreenCameraConfig) -> CameraNoise:
     pitch = c.pixel_pitch_um * 1e-6
-    return CameraNoise.make(c.name, c.centroid_noise_px * pitch, c.quantization_px * pitch, c.dropout_probability,
-                            [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))])
+    return CameraNoise.make(
+        c.name,
+        c.centroid_noise_px * pitch,
+        c.quantization_px * pitch,
+        c.dropout_probability,
+        [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))],
+    )
 
 
 def validate_screen_camera(path: str, c: ScreenCameraConfig, checks) -> None:
@@ -71,8 +81,11 @@ def validate_screen_camera(path: str, c: ScreenCameraConfig, checks) -> None:
     for f in ("screen_size_mm", "h_mm", "camera_to_screen_mm", "focal_length_mm", "pixel_pitch_um"):
         cfg.check_positive(f"{path}.{f}", getattr(c, f))
     if not c.camera_to_screen_mm < c.h_mm:
-        cfg.fail(f"{path}.camera_to_screen_mm", c.camera_to_screen_mm,
-                 f"must be < h_mm = {c.h_mm} (the camera sits between the rotation centre and the screen)")
+        cfg.fail(
+            f"{path}.camera_to_screen_mm",
+            c.camera_to_screen_mm,
+            f"must be < h_mm = {c.h_mm} (the camera sits between the rotation centre and the screen)",
+        )
     if not (isinstance(c.pixels, list) and len(c.pixels) == 2):
         cfg.fail(f"{path}.pixels", c.pixels, "need [columns, rows]")
     for i, v in enumerate(c.pixels):
@@ -93,11 +106,14 @@ def configure_screen_camera(ctx, c: ScreenCameraConfig, camera, context) -> None
     camera.set_noise(context, camera_noise(c))
 
 
-@register_sensor(ScreenCameraConfig, output=lambda c, sensors: SensorOutput("camera", "camera_centroids", c.period_s),
-                 validate=validate_screen_camera,
-                 logged_ports=lambda c: [("stars_in_view", c.period_s)],
-                 parameters=("centroid_noise_px", "quantization_px", "dropout_probability", "outage_windows_s"),
-                 configure=configure_screen_camera)
+@register_sensor(
+    ScreenCameraConfig,
+    output=lambda c, sensors: SensorOutput("camera", "camera_centroids", c.period_s),
+    validate=validate_screen_camera,
+    logged_ports=lambda c: [("stars_in_view", c.period_s)],
+    parameters=("centroid_noise_px", "quantization_px", "dropout_probability", "outage_windows_s"),
+    configure=configure_screen_camera,
+)
 def build_screen_camera(ctx, c: ScreenCameraConfig):
     camera = ctx.builder.AddSystem(ScreenCamera(c.name, c.period_s, camera_geometry(c), camera_noise(c)))
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), camera.GetInputPort("q_IB"))

@@ -37,8 +37,11 @@ def validate_star_tracker_average(path: str, c: StarTrackerAverageConfig, checks
     trackers = {n: s for n, s in checks.sensors.items() if isinstance(s, StarTrackerConfig)}
     for st in c.star_trackers:
         if st not in trackers or trackers[st].mode != "quaternion":
-            cfg.fail(f"{path}.star_trackers", st,
-                     f"must name a quaternion-mode star tracker listed before it; have {sorted(trackers)}")
+            cfg.fail(
+                f"{path}.star_trackers",
+                st,
+                f"must name a quaternion-mode star tracker listed before it; have {sorted(trackers)}",
+            )
     periods = {trackers[st].period_s for st in c.star_trackers}
     if len(periods) != 1:
         cfg.fail(f"{path}.star_trackers", c.star_trackers, f"trackers must share one period; got {sorted(periods)}")
@@ -55,19 +58,32 @@ def star_tracker_average_quaternion_model(ctx, c: StarTrackerAverageConfig) -> Q
     trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
     mountings, sigmas = [star_tracker_mounting(t) for t in trackers], [star_tracker_sigmas_S(t) for t in trackers]
     w = np.asarray(c.weights, dtype=float) / np.sum(c.weights)
-    return QuaternionSensorModel(c.name, np.array([1.0, 0.0, 0.0, 0.0]),
-                                 average_measurement_covariance_B(mountings, sigmas, c.weights),
-                                 covariance_by_flag=subset_covariances(mountings, sigmas, w))
+    return QuaternionSensorModel(
+        c.name,
+        np.array([1.0, 0.0, 0.0, 0.0]),
+        average_measurement_covariance_B(mountings, sigmas, c.weights),
+        covariance_by_flag=subset_covariances(mountings, sigmas, w),
+    )
 
 
-@register_sensor(StarTrackerAverageConfig, output=star_tracker_average_output,
-                 validate=validate_star_tracker_average, quaternion_model=star_tracker_average_quaternion_model,
-                 logged_ports=lambda c: [])
+@register_sensor(
+    StarTrackerAverageConfig,
+    output=star_tracker_average_output,
+    validate=validate_star_tracker_average,
+    quaternion_model=star_tracker_average_quaternion_model,
+    logged_ports=lambda c: [],
+)
 def build_star_tracker_average(ctx, c: StarTrackerAverageConfig):
     trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
-    avg = ctx.builder.AddSystem(StarTrackerAverage(
-        c.name, c.star_trackers, [star_tracker_mounting(t) for t in trackers],
-        [star_tracker_sigmas_S(t) for t in trackers], c.weights))
+    avg = ctx.builder.AddSystem(
+        StarTrackerAverage(
+            c.name,
+            c.star_trackers,
+            [star_tracker_mounting(t) for t in trackers],
+            [star_tracker_sigmas_S(t) for t in trackers],
+            c.weights,
+        )
+    )
     for n in c.star_trackers:
         ctx.connect_sensor(n, avg, f"q_meas_{n}")
     return avg

@@ -70,8 +70,9 @@ def star_tracker_mounting(st: StarTrackerConfig) -> np.ndarray:
 
 def star_tracker_sigmas_S(st: StarTrackerConfig) -> np.ndarray:
     """Sensor-frame rotation-vector noise sigmas (rad): cross-boresight x, y; boresight z."""
-    return np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec,
-                     st.sigma_boresight_arcsec]) * ARCSEC
+    return (
+        np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec, st.sigma_boresight_arcsec]) * ARCSEC
+    )
 
 
 def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
@@ -98,8 +99,11 @@ def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
         if c.sigma_vector_urad <= 0:
             cfg.fail(f"{path}.sigma_vector_urad", c.sigma_vector_urad, "vector mode needs > 0")
     elif c.sigma_cross_boresight_arcsec <= 0 or c.sigma_boresight_arcsec <= 0:
-        cfg.fail(f"{path}.sigma_*_arcsec", [c.sigma_cross_boresight_arcsec, c.sigma_boresight_arcsec],
-                 "quaternion mode needs both sigmas > 0 (a filter cannot use a perfect sensor)")
+        cfg.fail(
+            f"{path}.sigma_*_arcsec",
+            [c.sigma_cross_boresight_arcsec, c.sigma_boresight_arcsec],
+            "quaternion mode needs both sigmas > 0 (a filter cannot use a perfect sensor)",
+        )
     if np.size(c.outage_windows_s) and np.ndim(c.outage_windows_s) != 2:
         cfg.fail(f"{path}.outage_windows_s", c.outage_windows_s, "must be a list of [start, end]")
     for j, w in enumerate(np.reshape(c.outage_windows_s, (-1, 2))):
@@ -123,23 +127,49 @@ def star_tracker_logged_ports(c: StarTrackerConfig):
 
 def star_tracker_noise_si(c: StarTrackerConfig) -> tuple:
     """The config's noise and availability in SI, in :meth:`StarTracker.set_noise`'s order."""
-    return (c.sigma_cross_boresight_arcsec * ARCSEC, c.sigma_boresight_arcsec * ARCSEC, c.sigma_vector_urad * 1e-6,
-            c.dropout_probability, [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))])
+    return (
+        c.sigma_cross_boresight_arcsec * ARCSEC,
+        c.sigma_boresight_arcsec * ARCSEC,
+        c.sigma_vector_urad * 1e-6,
+        c.dropout_probability,
+        [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))],
+    )
 
 
 def configure_star_tracker(ctx, c: StarTrackerConfig, st: StarTracker, context) -> None:
     st.set_noise(context, *star_tracker_noise_si(c))
 
 
-@register_sensor(StarTrackerConfig, output=star_tracker_output, validate=validate_star_tracker,
-                 quaternion_model=star_tracker_quaternion_model, logged_ports=star_tracker_logged_ports,
-                 parameters=("sigma_cross_boresight_arcsec", "sigma_boresight_arcsec", "sigma_vector_urad",
-                             "dropout_probability", "outage_windows_s"),
-                 configure=configure_star_tracker)
+@register_sensor(
+    StarTrackerConfig,
+    output=star_tracker_output,
+    validate=validate_star_tracker,
+    quaternion_model=star_tracker_quaternion_model,
+    logged_ports=star_tracker_logged_ports,
+    parameters=(
+        "sigma_cross_boresight_arcsec",
+        "sigma_boresight_arcsec",
+        "sigma_vector_urad",
+        "dropout_probability",
+        "outage_windows_s",
+    ),
+    configure=configure_star_tracker,
+)
 def build_star_tracker(ctx, c: StarTrackerConfig):
     sc, sb, sv, dropout, outages = star_tracker_noise_si(c)
-    st = ctx.builder.AddSystem(StarTracker(
-        c.name, c.period_s, star_tracker_mounting(c), c.mode, sc, sb,
-        c.references_I if c.mode == "vectors" else None, sv, dropout, outages))
+    st = ctx.builder.AddSystem(
+        StarTracker(
+            c.name,
+            c.period_s,
+            star_tracker_mounting(c),
+            c.mode,
+            sc,
+            sb,
+            c.references_I if c.mode == "vectors" else None,
+            sv,
+            dropout,
+            outages,
+        )
+    )
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))
     return st

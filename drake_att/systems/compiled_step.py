@@ -35,9 +35,18 @@ from drake_att.filters.compiled import jit as _jit
 from drake_att.systems import estimator_step as rules
 from drake_att.systems.estimator_step import TIME_TOLERANCE_S, Bookkeeping
 
-for _rule in (rules.rate_usable, rules.gyro_sample_usable, rules.sample_disposition, rules.covariance_slot,
-              rules.is_gate_rejection, gating.inflation_factor, gating.capped_factor, gating.inflate_attitude_block,
-              contract.quaternion_usable, contract.flag_is_true):
+for _rule in (
+    rules.rate_usable,
+    rules.gyro_sample_usable,
+    rules.sample_disposition,
+    rules.covariance_slot,
+    rules.is_gate_rejection,
+    gating.inflation_factor,
+    gating.capped_factor,
+    gating.inflate_attitude_block,
+    contract.quaternion_usable,
+    contract.flag_is_true,
+):
     register_jitable(_rule)  # the Python function stays as it is; compiled code may call it
 
 
@@ -90,9 +99,20 @@ class StepModel(NamedTuple):
                 if c is not None:
                     cov[i, mask] = _as_covariance(c)
                     allowed[i, mask] = True
-        return cls(q_BS, R_SB, cov, allowed, n_subsets, float(core.gate.threshold(3)), float(core.arw),
-                   float(core.rrw), TIME_TOLERANCE_S, float(gating.REACQUIRE_AFTER_REJECTIONS), Bookkeeping.LAST_SAMPLE,
-                   bookkeeping.rejections)
+        return cls(
+            q_BS,
+            R_SB,
+            cov,
+            allowed,
+            n_subsets,
+            float(core.gate.threshold(3)),
+            float(core.arw),
+            float(core.rrw),
+            TIME_TOLERANCE_S,
+            float(gating.REACQUIRE_AFTER_REJECTIONS),
+            Bookkeeping.LAST_SAMPLE,
+            bookkeeping.rejections,
+        )
 
 
 def _as_covariance(noise_S) -> np.ndarray:
@@ -121,8 +141,9 @@ def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
     skipped = 0.0
     t_last = book[_T_LAST]
     if math.isfinite(t_last):
-        usable = gyro_connected and rules.gyro_sample_usable(t, model.tolerance, gyro[0], gyro[1], gyro[2], gyro[3],
-                                                       gyro[4])
+        usable = gyro_connected and rules.gyro_sample_usable(
+            t, model.tolerance, gyro[0], gyro[1], gyro[2], gyro[3], gyro[4]
+        )
         if usable:
             for k in range(3):
                 book[_W_LAST + k] = gyro[2 + k]
@@ -167,8 +188,9 @@ def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S,
         return -1, math.nan, True
     q_meas = meas_i[2:6].copy()
     R = model.covariance[i, slot].copy()
-    outcome, nis = _mekf.update_quaternion(q, b, P, q_meas, model.q_BS[i], model.R_SB[i], R, model.threshold, q_out,
-                                           b_out, P_out, z, S, I_KH)
+    outcome, nis = _mekf.update_quaternion(
+        q, b, P, q_meas, model.q_BS[i], model.R_SB[i], R, model.threshold, q_out, b_out, P_out, z, S, I_KH
+    )
     count = model.rejections + i
     if outcome == _mekf.ACCEPTED:
         book[count] = 0.0
@@ -178,8 +200,9 @@ def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S,
             book[count] = 0.0
             # The core's reacquire (gating.inflated), then the same measurement without the gate.
             P_try = gating.inflate_attitude_block(P, gating.inflation_factor(nis, model.threshold), 3, math.pi)
-            outcome, nis = _mekf.update_quaternion(q, b, P_try, q_meas, model.q_BS[i], model.R_SB[i], R, math.inf,
-                                                   q_out, b_out, P_out, z, S, I_KH)
+            outcome, nis = _mekf.update_quaternion(
+                q, b, P_try, q_meas, model.q_BS[i], model.R_SB[i], R, math.inf, q_out, b_out, P_out, z, S, I_KH
+            )
             if outcome != _mekf.ACCEPTED:
                 P[:, :] = P_try  # the reacquired state is kept even when the retry fails
     if outcome == _mekf.ACCEPTED:
@@ -201,11 +224,45 @@ def mekf_step(t, gyro_connected, gyro, connected, meas, model: StepModel, est, b
 
 
 @_jit
-def _mekf_step(t, gyro_connected, gyro, connected, meas, q_BS, R_SB, covariance, allowed, n_subsets, threshold, arw,
-               rrw, tolerance, reacquire_after, last_sample, rejections, est, book, core, lin, innov):
+def _mekf_step(
+    t,
+    gyro_connected,
+    gyro,
+    connected,
+    meas,
+    q_BS,
+    R_SB,
+    covariance,
+    allowed,
+    n_subsets,
+    threshold,
+    arw,
+    rrw,
+    tolerance,
+    reacquire_after,
+    last_sample,
+    rejections,
+    est,
+    book,
+    core,
+    lin,
+    innov,
+):
     """:func:`mekf_step` with the :class:`StepModel` as its fields."""
-    model = StepModel(q_BS, R_SB, covariance, allowed, n_subsets, threshold, arw, rrw, tolerance, reacquire_after,
-                      last_sample, rejections)
+    model = StepModel(
+        q_BS,
+        R_SB,
+        covariance,
+        allowed,
+        n_subsets,
+        threshold,
+        arw,
+        rrw,
+        tolerance,
+        reacquire_after,
+        last_sample,
+        rejections,
+    )
     q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
     for k in range(4):
         q[k] = core[k]
@@ -223,8 +280,7 @@ def _mekf_step(t, gyro_connected, gyro, connected, meas, q_BS, R_SB, covariance,
     for i in range(meas.shape[0]):
         if not connected[i]:
             continue
-        outcome, info_nis, counted = _update_input(i, t, meas[i], model, book, q, b, P, q_out, b_out, P_out, z, S,
-                                                   I_KH)
+        outcome, info_nis, counted = _update_input(i, t, meas[i], model, book, q, b, P, q_out, b_out, P_out, z, S, I_KH)
         if outcome < 0:
             n_skipped += 1.0 if counted else 0.0
             continue
@@ -260,8 +316,19 @@ def warm_up() -> None:
 
     sensor = QuaternionSensorModel("warm_up", np.array([1.0, 0, 0, 0]), np.eye(3))
     model = StepModel.of(MultiplicativeEKF(0.0, 0.0), [sensor], Bookkeeping(1))
-    mekf_step(0.0, True, np.zeros(5), np.ones(1, dtype=np.bool_), np.zeros((1, 6)), model, np.zeros(47),
-              Bookkeeping(1).initial(None), np.r_[1.0, np.zeros(42)], np.zeros(109), np.zeros(3))
+    mekf_step(
+        0.0,
+        True,
+        np.zeros(5),
+        np.ones(1, dtype=np.bool_),
+        np.zeros((1, 6)),
+        model,
+        np.zeros(47),
+        Bookkeeping(1).initial(None),
+        np.r_[1.0, np.zeros(42)],
+        np.zeros(109),
+        np.zeros(3),
+    )
 
 
 __all__ = ["StepModel", "eligible", "mekf_step", "warm_up"]

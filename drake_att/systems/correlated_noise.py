@@ -50,8 +50,9 @@ class ScaleFactorStarNoiseSource(LeafSystem):
         num_stars: ``m`` >= 1, the tracker's reference directions (``3 m rho^2 < 1``).
     """
 
-    def __init__(self, name: str, period_s: float, model: MultiplicativeNoiseModel, star_sigma_rad: float,
-                 num_stars: int):
+    def __init__(
+        self, name: str, period_s: float, model: MultiplicativeNoiseModel, star_sigma_rad: float, num_stars: int
+    ):
         LeafSystem.__init__(self)
         self.set_name(name)
         self.period_s = check_positive(f"{name}.period_s", period_s)

@@ -25,14 +25,14 @@ class Bookkeeping:
     nothing)."""
 
     n_inputs: int
-    T_LAST: ClassVar[int] = 0                              # time of the last step (-inf before any)
-    W_LAST: ClassVar[slice] = slice(1, 4)                  # last valid gyro rate (the hold)
-    STEP: ClassVar[int] = 4                                # step index (random cores' generator)
-    SEED: ClassVar[slice] = slice(5, 5 + SEED_WORDS)       # the diagram seed's words
-    N_RESAMPLES: ClassVar[int] = 5 + SEED_WORDS            # particle resamplings so far
-    ESS: ClassVar[int] = 6 + SEED_WORDS                    # N_eff after the last update
-    N_DEGENERATE: ClassVar[int] = 7 + SEED_WORDS           # degenerate particle updates so far
-    LAST_SAMPLE: ClassVar[int] = 8 + SEED_WORDS            # per input: time of its last used sample
+    T_LAST: ClassVar[int] = 0  # time of the last step (-inf before any)
+    W_LAST: ClassVar[slice] = slice(1, 4)  # last valid gyro rate (the hold)
+    STEP: ClassVar[int] = 4  # step index (random cores' generator)
+    SEED: ClassVar[slice] = slice(5, 5 + SEED_WORDS)  # the diagram seed's words
+    N_RESAMPLES: ClassVar[int] = 5 + SEED_WORDS  # particle resamplings so far
+    ESS: ClassVar[int] = 6 + SEED_WORDS  # N_eff after the last update
+    N_DEGENERATE: ClassVar[int] = 7 + SEED_WORDS  # degenerate particle updates so far
+    LAST_SAMPLE: ClassVar[int] = 8 + SEED_WORDS  # per input: time of its last used sample
 
     @property
     def rejections(self) -> int:
@@ -47,8 +47,9 @@ class Bookkeeping:
         book = np.zeros(self.size)
         book[self.T_LAST] = -np.inf
         book[self.ESS] = float(num_particles) if num_particles is not None else np.nan
-        book[self.LAST_SAMPLE:self.rejections] = -np.inf
+        book[self.LAST_SAMPLE : self.rejections] = -np.inf
         return book
+
 
 #: :func:`sample_disposition`: a sample with no usable time stamp (skipped and counted), one
 #: that is not this instant's or was used already (passed over), one to use now.
@@ -60,8 +61,9 @@ def rate_usable(valid: float, wx: float, wy: float, wz: float) -> bool:
     return valid > 0.5 and math.isfinite(valid) and math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)
 
 
-def gyro_sample_usable(t: float, tolerance: float, t_gyro: float, valid: float, wx: float, wy: float,
-                       wz: float) -> bool:
+def gyro_sample_usable(
+    t: float, tolerance: float, t_gyro: float, valid: float, wx: float, wy: float, wz: float
+) -> bool:
     """The gyro sample is this step's (time tag within ``tolerance`` of ``t``) and usable."""
     return abs(t_gyro - t) < tolerance and rate_usable(valid, wx, wy, wz)
 
@@ -95,5 +97,15 @@ def is_gate_rejection(accepted: bool, nis: float) -> bool:
     return not accepted and nis == nis
 
 
-__all__ = ["TIME_TOLERANCE_S", "Bookkeeping", "NO_TIME", "NOT_DUE", "DUE", "rate_usable", "gyro_sample_usable", "sample_disposition", "covariance_slot",
-           "is_gate_rejection"]
+__all__ = [
+    "TIME_TOLERANCE_S",
+    "Bookkeeping",
+    "NO_TIME",
+    "NOT_DUE",
+    "DUE",
+    "rate_usable",
+    "gyro_sample_usable",
+    "sample_disposition",
+    "covariance_slot",
+    "is_gate_rejection",
+]

@@ -118,8 +118,19 @@ _USED, _SKIPPED, _LAST_NIS = (STATUS.start + i for i in (STATUS_USED, STATUS_SKI
 _NO_GYRO = np.full(GYRO_MEASUREMENT_SIZE, np.nan)
 _NO_INNOVATIONS = np.zeros(0)
 
-__all__ = ["EstimatorSystem", "EstimatorSetup", "FilterModel", "QuaternionSensorModel", "MekfEstimator", "Bookkeeping",
-           "pack_estimate", "ESTIMATE_SIZE", "TIME_TOLERANCE_S", "PARTICLE_DIAGNOSTICS_SIZE", "LINEARIZATION_SIZE"]
+__all__ = [
+    "EstimatorSystem",
+    "EstimatorSetup",
+    "FilterModel",
+    "QuaternionSensorModel",
+    "MekfEstimator",
+    "Bookkeeping",
+    "pack_estimate",
+    "ESTIMATE_SIZE",
+    "TIME_TOLERANCE_S",
+    "PARTICLE_DIAGNOSTICS_SIZE",
+    "LINEARIZATION_SIZE",
+]
 
 
 @dataclass(frozen=True)
@@ -202,8 +213,16 @@ class EstimatorSystem(LeafSystem):
         camera_sensors: names of camera (focal-plane centroid) inputs.
     """
 
-    def __init__(self, name: str, period_s: float, core, initial_state, quaternion_sensors=(),
-                 vector_sensors=(), camera_sensors=()):
+    def __init__(
+        self,
+        name: str,
+        period_s: float,
+        core,
+        initial_state,
+        quaternion_sensors=(),
+        vector_sensors=(),
+        camera_sensors=(),
+    ):
         LeafSystem.__init__(self)
         self.set_name(name)
         if not isinstance(core, contract.FilterCore):
@@ -219,28 +238,35 @@ class EstimatorSystem(LeafSystem):
         self.num_particles = self.capabilities.num_particles
 
         # -- inputs (order matters for the diagram's random streams: keep it stable) ------
-        self._gyro_port = (self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE)
-                           if core.uses_gyro else None)
+        self._gyro_port = (
+            self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE) if core.uses_gyro else None
+        )
         self._quat_sensors = list(quaternion_sensors)
-        self._quat_ports = [self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE)
-                            for s in self._quat_sensors]
+        self._quat_ports = [
+            self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE) for s in self._quat_sensors
+        ]
         self._vector_ports = [
             self.DeclareAbstractInputPort(f"vectors_{n}", AbstractValue.Make(contract.empty_vector_observations()))
-            for n in vector_sensors]
+            for n in vector_sensors
+        ]
         self._vector_ports += [
             self.DeclareAbstractInputPort(f"centroids_{n}", AbstractValue.Make(contract.empty_camera_centroids()))
-            for n in camera_sensors]
+            for n in camera_sensors
+        ]
         self._seed_port = declare_seed_port(self) if core.is_random else None
         self._vector_names = tuple(vector_sensors)
         self._camera_names = tuple(camera_sensors)
         self.diagnostic_names = self.capabilities.diagnostic_names
         self._compiled_models: dict = {}
         self._model_index = self.DeclareAbstractParameter(
-            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors))))
+            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors)))
+        )
 
         # -- state -------------------------------------------------------------------------
         q0, second0, P0 = core.estimate(initial_state)
-        self._estimate_group = self._declare_group(pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
+        self._estimate_group = self._declare_group(
+            pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan)
+        )
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
         self.bookkeeping = Bookkeeping(n_inputs)
         self._rejections = self.bookkeeping.rejections
@@ -248,7 +274,8 @@ class EstimatorSystem(LeafSystem):
         self._core_group = self._declare_group(core.to_vector(initial_state))
         if self._linearizing:
             self._linearization_group = self._declare_group(
-                np.concatenate([_EYE6.ravel(), _ZERO6.ravel(), _EYE6.ravel(), [0.0]]))
+                np.concatenate([_EYE6.ravel(), _ZERO6.ravel(), _EYE6.ravel(), [0.0]])
+            )
         self.input_names = tuple(s.name for s in self._quat_sensors) + self._vector_names + self._camera_names
         self._innovation_group = None
         if n_inputs:
@@ -266,11 +293,19 @@ class EstimatorSystem(LeafSystem):
         if self._innovation_group is not None:
             self.DeclareStateOutputPort("innovations", self._innovation_group)
         if self.num_particles is not None:
-            self.DeclareVectorOutputPort("particle_diagnostics", PARTICLE_DIAGNOSTICS_SIZE, self._calc_diagnostics,
-                                         {self.discrete_state_ticket(self._book_group)})
+            self.DeclareVectorOutputPort(
+                "particle_diagnostics",
+                PARTICLE_DIAGNOSTICS_SIZE,
+                self._calc_diagnostics,
+                {self.discrete_state_ticket(self._book_group)},
+            )
         if self.diagnostic_names:
-            self.DeclareVectorOutputPort("diagnostics", len(self.diagnostic_names), self._calc_core_diagnostics,
-                                         {self.discrete_state_ticket(self._core_group)})
+            self.DeclareVectorOutputPort(
+                "diagnostics",
+                len(self.diagnostic_names),
+                self._calc_core_diagnostics,
+                {self.discrete_state_ticket(self._core_group)},
+            )
 
         # -- events ------------------------------------------------------------------------
         if core.is_random:
@@ -284,8 +319,15 @@ class EstimatorSystem(LeafSystem):
     @classmethod
     def from_setup(cls, name: str, setup: EstimatorSetup) -> EstimatorSystem:
         """The system for a plug-in's :class:`EstimatorSetup` (ports unconnected)."""
-        return cls(name, setup.period_s, setup.core, setup.initial_state, setup.quaternion_sensors,
-                   setup.vector_sensors, setup.camera_sensors)
+        return cls(
+            name,
+            setup.period_s,
+            setup.core,
+            setup.initial_state,
+            setup.quaternion_sensors,
+            setup.vector_sensors,
+            setup.camera_sensors,
+        )
 
     # -- per-context parameters ---------------------------------------------------------------
     def filter_model(self, context) -> FilterModel:
@@ -312,31 +354,36 @@ class EstimatorSystem(LeafSystem):
             core, state = model.core, model.initial_state
             q0, second0, P0 = core.estimate(state)
             context.get_mutable_discrete_state(self._estimate_group).SetFromVector(
-                pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
+                pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan)
+            )
             context.get_mutable_discrete_state(self._core_group).SetFromVector(
-                np.asarray(core.to_vector(state), dtype=float))
+                np.asarray(core.to_vector(state), dtype=float)
+            )
 
     def _check_compatible(self, setup: EstimatorSetup) -> None:
         name, old, new = self.get_name(), self.core, setup.core
         if not isinstance(new, contract.FilterCore):
             raise TypeError(f"{name}: core {type(new).__name__} does not implement drake_att.contract.FilterCore")
         caps = CoreCapabilities.of(new)
-        checks = [("period_s", self.period_s, float(setup.period_s)),
-                  ("state size", old.state_size, new.state_size),
-                  ("uses_gyro", old.uses_gyro, new.uses_gyro),
-                  ("is_random", old.is_random, new.is_random),
-                  ("second quantity", old.second_quantity, new.second_quantity),
-                  ("linearizing", self._linearizing, caps.linearized_prediction),
-                  ("num_particles", self.num_particles, caps.num_particles),
-                  ("quaternion sensors", [s.name for s in self._quat_sensors],
-                   [s.name for s in setup.quaternion_sensors]),
-                  ("vector sensors", list(self._vector_names), list(setup.vector_sensors)),
-                  ("cameras", list(self._camera_names), list(setup.camera_sensors)),
-                  ("diagnostics", list(self.diagnostic_names), list(caps.diagnostic_names))]
+        checks = [
+            ("period_s", self.period_s, float(setup.period_s)),
+            ("state size", old.state_size, new.state_size),
+            ("uses_gyro", old.uses_gyro, new.uses_gyro),
+            ("is_random", old.is_random, new.is_random),
+            ("second quantity", old.second_quantity, new.second_quantity),
+            ("linearizing", self._linearizing, caps.linearized_prediction),
+            ("num_particles", self.num_particles, caps.num_particles),
+            ("quaternion sensors", [s.name for s in self._quat_sensors], [s.name for s in setup.quaternion_sensors]),
+            ("vector sensors", list(self._vector_names), list(setup.vector_sensors)),
+            ("cameras", list(self._camera_names), list(setup.camera_sensors)),
+            ("diagnostics", list(self.diagnostic_names), list(caps.diagnostic_names)),
+        ]
         for what, was, now in checks:
             if was != now:
-                raise ValueError(f"{name}: the new filter setup changes the {what} ({was!r} -> {now!r}); "
-                                 "that changes the diagram's structure: build a new diagram")
+                raise ValueError(
+                    f"{name}: the new filter setup changes the {what} ({was!r} -> {now!r}); "
+                    "that changes the diagram's structure: build a new diagram"
+                )
 
     # -- outputs and accessors -------------------------------------------------------------
     def _out(self, context, output: BasicVector, part: slice):
@@ -344,8 +391,12 @@ class EstimatorSystem(LeafSystem):
 
     def _calc_diagnostics(self, context, output: BasicVector):
         book = context.get_discrete_state(self._book_group).value()
-        values = [book[Bookkeeping.ESS], book[Bookkeeping.N_RESAMPLES], book[Bookkeeping.N_DEGENERATE],
-                  float(cast(int, self.num_particles))]
+        values = [
+            book[Bookkeeping.ESS],
+            book[Bookkeeping.N_RESAMPLES],
+            book[Bookkeeping.N_DEGENERATE],
+            float(cast(int, self.num_particles)),
+        ]
         output.SetFromVector(np.array(values))  # type: ignore[arg-type]  # pydrake stub
 
     def _calc_core_diagnostics(self, context, output: BasicVector):
@@ -370,8 +421,11 @@ class EstimatorSystem(LeafSystem):
         book[Bookkeeping.STEP] = 0.0
         model = self.filter_model(context)
         core = model.core
-        state = (core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
-                 if model.capabilities.random_initial_state else model.initial_state)
+        state = (
+            core.draw_initial_state(counter_random(words, self.get_name()).generator(0))
+            if model.capabilities.random_initial_state
+            else model.initial_state
+        )
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
         discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
         return EventStatus.Succeeded()
@@ -390,8 +444,16 @@ class EstimatorSystem(LeafSystem):
                 m = port.Eval(context)
                 flag = float(m[1])
                 cov = sensor.covariance_for_flag(flag) if sensor.covariance_by_flag else sensor.covariance_S
-                yield i, QuaternionSample(float(m[0]), flag > 0.5 and math.isfinite(flag) and cov is not None,
-                                          m[2:6].copy(), sensor.q_BS, sensor.covariance_S if cov is None else cov)
+                yield (
+                    i,
+                    QuaternionSample(
+                        float(m[0]),
+                        flag > 0.5 and math.isfinite(flag) and cov is not None,
+                        m[2:6].copy(),
+                        sensor.q_BS,
+                        sensor.covariance_S if cov is None else cov,
+                    ),
+                )
         offset = len(self._quat_ports)
         for j, port in enumerate(self._vector_ports):
             if port.HasValue(context):
@@ -431,9 +493,19 @@ class EstimatorSystem(LeafSystem):
                 connected[i] = True
         group = discrete_state.get_mutable_value  # a writable view of a group (one pybind call)
         innovations = group(self._innovation_group) if self._innovation_group is not None else _NO_INNOVATIONS
-        compiled_step.mekf_step(context.get_time(), gyro_connected, gyro, connected, meas, m, group(self._estimate_group),
-                                group(self._book_group), group(self._core_group), group(self._linearization_group),
-                                innovations)
+        compiled_step.mekf_step(
+            context.get_time(),
+            gyro_connected,
+            gyro,
+            connected,
+            meas,
+            m,
+            group(self._estimate_group),
+            group(self._book_group),
+            group(self._core_group),
+            group(self._linearization_group),
+            innovations,
+        )
         return EventStatus.Succeeded()
 
     def _on_step(self, context, discrete_state):
@@ -473,7 +545,7 @@ class EstimatorSystem(LeafSystem):
             nis = info.nis
             if innovations is None:
                 innovations = context.get_discrete_state(self._innovation_group).value().copy()
-            innovations[3 * i:3 * i + 3] = (t, nis, 0 if info.innovation is None else len(info.innovation))
+            innovations[3 * i : 3 * i + 3] = (t, nis, 0 if info.innovation is None else len(info.innovation))
             if info.accepted:
                 n_used += 1
                 if self._linearizing and info.error_transition is not None:
@@ -487,7 +559,8 @@ class EstimatorSystem(LeafSystem):
 
         q_hat, second, P = core.estimate(state)
         discrete_state.get_mutable_vector(self._estimate_group).SetFromVector(
-            pack_estimate(rot.quat_canonical(q_hat), second, P, t, n_used, n_skipped, nis))
+            pack_estimate(rot.quat_canonical(q_hat), second, P, t, n_used, n_skipped, nis)
+        )
         if innovations is not None:
             discrete_state.get_mutable_vector(self._innovation_group).SetFromVector(innovations)
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
@@ -495,7 +568,8 @@ class EstimatorSystem(LeafSystem):
         if self._linearizing:
             steps = context.get_discrete_state(self._linearization_group).value()[-1] + 1
             discrete_state.get_mutable_vector(self._linearization_group).SetFromVector(
-                np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]]))
+                np.concatenate([Phi.ravel(), Q.ravel(), A.ravel(), [steps]])
+            )
         return EventStatus.Succeeded()
 
     def _time_update(self, context, core, state, book, t, rng):
@@ -542,8 +616,9 @@ class EstimatorSystem(LeafSystem):
         return new_state, info
 
 
-def MekfEstimator(name: str, period_s: float, filter_core, initial_state, quaternion_sensors=(),
-                  vector_sensors=()) -> EstimatorSystem:
+def MekfEstimator(
+    name: str, period_s: float, filter_core, initial_state, quaternion_sensors=(), vector_sensors=()
+) -> EstimatorSystem:
     """An :class:`EstimatorSystem` running a :class:`~drake_att.filters.mekf.MultiplicativeEKF`.
 
     Ports as :class:`EstimatorSystem`, with ``bias_B_hat`` and ``step_linearization``.

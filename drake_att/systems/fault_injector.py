@@ -97,14 +97,38 @@ from drake_att.systems.randomness import (
 )
 from drake_att.validation import check_finite, check_nonnegative, check_positive, fail
 
-FAULT_NONE, FAULT_OUTLIER, FAULT_NAN, FAULT_INF, FAULT_STUCK, FAULT_DROPOUT, FAULT_SATURATED, FAULT_BIAS_JUMP, \
-    FAULT_TIME_TAG = range(9)
-FAULT_NAMES = {FAULT_OUTLIER: "outlier", FAULT_NAN: "nan", FAULT_INF: "inf", FAULT_STUCK: "stuck",
-               FAULT_DROPOUT: "dropout", FAULT_SATURATED: "saturated", FAULT_BIAS_JUMP: "bias_jump",
-               FAULT_TIME_TAG: "time_tag"}
+(
+    FAULT_NONE,
+    FAULT_OUTLIER,
+    FAULT_NAN,
+    FAULT_INF,
+    FAULT_STUCK,
+    FAULT_DROPOUT,
+    FAULT_SATURATED,
+    FAULT_BIAS_JUMP,
+    FAULT_TIME_TAG,
+) = range(9)
+FAULT_NAMES = {
+    FAULT_OUTLIER: "outlier",
+    FAULT_NAN: "nan",
+    FAULT_INF: "inf",
+    FAULT_STUCK: "stuck",
+    FAULT_DROPOUT: "dropout",
+    FAULT_SATURATED: "saturated",
+    FAULT_BIAS_JUMP: "bias_jump",
+    FAULT_TIME_TAG: "time_tag",
+}
 # The primary code of a sample with several faults: the first of these present.
-FAULT_PRIORITY = (FAULT_DROPOUT, FAULT_NAN, FAULT_INF, FAULT_TIME_TAG, FAULT_OUTLIER, FAULT_STUCK, FAULT_SATURATED,
-                  FAULT_BIAS_JUMP)
+FAULT_PRIORITY = (
+    FAULT_DROPOUT,
+    FAULT_NAN,
+    FAULT_INF,
+    FAULT_TIME_TAG,
+    FAULT_OUTLIER,
+    FAULT_STUCK,
+    FAULT_SATURATED,
+    FAULT_BIAS_JUMP,
+)
 FAULT_TRUTH_SIZE = 9
 # fault_truth columns
 TRUTH_T_SAMPLE, TRUTH_CODE, TRUTH_MAGNITUDE, TRUTH_MASK = 0, 1, 2, 3
@@ -137,8 +161,11 @@ def _windows(field: str, values) -> tuple:
     out = []
     for j, w in enumerate(values):
         w = tuple(w)
-        if len(w) != 2 or not all(isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(v) for v in w) \
-                or not w[1] > w[0]:
+        if (
+            len(w) != 2
+            or not all(isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(v) for v in w)
+            or not w[1] > w[0]
+        ):
             fail(f"{field}[{j}]", w, "must be [start, end] (s), finite, with end > start")
         out.append((float(w[0]), float(w[1])))
     return tuple(out)
@@ -205,12 +232,21 @@ class FaultModel:
         _probability(p + "dropout_probability", m.dropout_probability)
         # The checked times and windows by field name: keyword arguments of replace() below (Any: a
         # type checker cannot tell which field each key fills).
-        times: dict[str, Any] = {f: _times(p + f, getattr(m, f)) for f in
-                                 ("outlier_times_s", "nan_times_s", "inf_times_s", "dropout_times_s",
-                                  "bias_jump_times_s", "time_tag_times_s")}
-        windows: dict[str, Any] = {f: _windows(p + f, getattr(m, f)) for f in
-                                   ("outage_windows_s", "stuck_windows_s", "saturation_windows_s",
-                                    "time_tag_windows_s")}
+        times: dict[str, Any] = {
+            f: _times(p + f, getattr(m, f))
+            for f in (
+                "outlier_times_s",
+                "nan_times_s",
+                "inf_times_s",
+                "dropout_times_s",
+                "bias_jump_times_s",
+                "time_tag_times_s",
+            )
+        }
+        windows: dict[str, Any] = {
+            f: _windows(p + f, getattr(m, f))
+            for f in ("outage_windows_s", "stuck_windows_s", "saturation_windows_s", "time_tag_windows_s")
+        }
         size = check_nonnegative(p + "outlier_size", m.outlier_size)
         if kind != "gyro" and size >= math.pi:
             fail(p + "outlier_size", size, "an attitude outlier is a rotation angle in [0, pi) (rad)")
@@ -222,20 +258,34 @@ class FaultModel:
         if windows["saturation_windows_s"] and sat == math.inf:
             fail(p + "saturation_windows_s", windows["saturation_windows_s"], "need a saturation range")
         jumps = tuple(tuple(float(v) for v in j) for j in m.bias_jumps_rad_per_s)
-        if len(jumps) != len(times["bias_jump_times_s"]) or any(len(j) != 3 or not all(map(math.isfinite, j))
-                                                                for j in jumps):
-            fail(p + "bias_jumps_rad_per_s", m.bias_jumps_rad_per_s,
-                 f"need one finite 3-vector (rad/s) per bias jump time ({len(times['bias_jump_times_s'])})")
+        if len(jumps) != len(times["bias_jump_times_s"]) or any(
+            len(j) != 3 or not all(map(math.isfinite, j)) for j in jumps
+        ):
+            fail(
+                p + "bias_jumps_rad_per_s",
+                m.bias_jumps_rad_per_s,
+                f"need one finite 3-vector (rad/s) per bias jump time ({len(times['bias_jump_times_s'])})",
+            )
         offset = check_finite(p + "time_tag_offset_s", m.time_tag_offset_s)
         if (times["time_tag_times_s"] or windows["time_tag_windows_s"]) and offset == 0.0:
             fail(p + "time_tag_offset_s", offset, "time-tag errors need a non-zero offset (s)")
         if kind != "gyro" and sat != math.inf:
             fail(p + "saturation_rad_per_s", sat, f"only a gyro saturates; this sensor's output is {kind!r}")
         if kind != "gyro" and jumps:
-            fail(p + "bias_jump_times_s", times["bias_jump_times_s"],
-                 f"only a gyro has bias jumps; this sensor's output is {kind!r}")
-        return replace(m, outlier_size=size, saturation_rad_per_s=sat, bias_jumps_rad_per_s=jumps,
-                       time_tag_offset_s=offset, **times, **windows)
+            fail(
+                p + "bias_jump_times_s",
+                times["bias_jump_times_s"],
+                f"only a gyro has bias jumps; this sensor's output is {kind!r}",
+            )
+        return replace(
+            m,
+            outlier_size=size,
+            saturation_rad_per_s=sat,
+            bias_jumps_rad_per_s=jumps,
+            time_tag_offset_s=offset,
+            **times,
+            **windows,
+        )
 
 
 @dataclass(frozen=True)
@@ -316,7 +366,8 @@ class FaultInjector(LeafSystem):
             raise TypeError(f"{self.get_name()}: set_model needs a FaultModel; got {type(model).__name__}")
         fields = {f: getattr(model, f) for f in FaultModel.__dataclass_fields__}
         context.get_mutable_abstract_parameter(self._model_index).set_value(
-            FaultModel.make(self.get_name(), self.kind, **fields))
+            FaultModel.make(self.get_name(), self.kind, **fields)
+        )
 
     # -- decisions (events only) ----------------------------------------------------------------
     def _decide(self, m: FaultModel, words, k: int, t: float, x_new: np.ndarray) -> None:
@@ -406,8 +457,9 @@ class FaultInjector(LeafSystem):
         return EventStatus.Succeeded()
 
     # -- outputs (no draws: the decisions are in the state) ------------------------------------
-    def _apply_numbers(self, numbers: np.ndarray, x, mask: int, saturation: float = math.inf,
-                       focal_length: float = 0.0):
+    def _apply_numbers(
+        self, numbers: np.ndarray, x, mask: int, saturation: float = math.inf, focal_length: float = 0.0
+    ):
         """Saturation (``saturation``: the gyro's range, rad/s), outlier, NaN and inf on the
         sample's numbers (a copy; ``focal_length``: the camera's, m); returns the numbers and
         the largest clipped excess (0 if none)."""
@@ -427,7 +479,8 @@ class FaultInjector(LeafSystem):
                 numbers = numbers @ rot.rotvec_to_rotmat(delta)  # b' = exp(delta)^T b (sample attitude off by delta)
             else:
                 numbers = numbers + focal_length * math.tan(float(np.linalg.norm(delta))) * (
-                    delta[:2] / max(float(np.linalg.norm(delta)), 1e-300))
+                    delta[:2] / max(float(np.linalg.norm(delta)), 1e-300)
+                )
         if numbers.size and mask & (bit(FAULT_NAN) | bit(FAULT_INF)):
             numbers = np.array(numbers, dtype=float)
             flat = numbers.reshape(-1)
@@ -461,14 +514,16 @@ class FaultInjector(LeafSystem):
             if stuck:
                 m = replace(hold.sample, time_s=m.time_s)
             if isinstance(m, CameraCentroids):
-                numbers, excess = self._apply_numbers(np.asarray(m.centroids_m, dtype=float), x, mask,
-                                                      focal_length=float(m.focal_length_m))
+                numbers, excess = self._apply_numbers(
+                    np.asarray(m.centroids_m, dtype=float), x, mask, focal_length=float(m.focal_length_m)
+                )
                 out = replace(m, centroids_m=numbers)
             else:
                 numbers, excess = self._apply_numbers(np.asarray(m.directions_S, dtype=float), x, mask)
                 out = replace(m, directions_S=numbers)
-            out = replace(out, time_s=float(out.time_s) + x[_TAG_OFFSET],
-                          valid=False if mask & bit(FAULT_DROPOUT) else out.valid)
+            out = replace(
+                out, time_s=float(out.time_s) + x[_TAG_OFFSET], valid=False if mask & bit(FAULT_DROPOUT) else out.valid
+            )
         if excess <= 0.0:
             mask &= ~bit(FAULT_SATURATED)
         return out, mask, excess, x, hold
@@ -485,20 +540,27 @@ class FaultInjector(LeafSystem):
     def _calc_truth(self, context, output: BasicVector):
         out, mask, excess, x, hold = self._apply(context)
         code = next((c for c in FAULT_PRIORITY if mask & bit(c)), FAULT_NONE)
-        magnitude = {FAULT_OUTLIER: float(np.linalg.norm(x[_OUTLIER])),
-                     FAULT_NAN: float(int(x[_NAN_AT] * self._numbers_size(out))),
-                     FAULT_INF: float(int(x[_INF_AT] * self._numbers_size(out))),
-                     FAULT_STUCK: float(x[_T] - hold.t_hold) if hold.valid else 0.0,
-                     FAULT_DROPOUT: float(x[_IN_OUTAGE]),
-                     FAULT_SATURATED: excess,
-                     FAULT_BIAS_JUMP: float(x[_JUMP_ONSET]),
-                     FAULT_TIME_TAG: float(x[_TAG_OFFSET])}.get(code, 0.0)
+        magnitude = {
+            FAULT_OUTLIER: float(np.linalg.norm(x[_OUTLIER])),
+            FAULT_NAN: float(int(x[_NAN_AT] * self._numbers_size(out))),
+            FAULT_INF: float(int(x[_INF_AT] * self._numbers_size(out))),
+            FAULT_STUCK: float(x[_T] - hold.t_hold) if hold.valid else 0.0,
+            FAULT_DROPOUT: float(x[_IN_OUTAGE]),
+            FAULT_SATURATED: excess,
+            FAULT_BIAS_JUMP: float(x[_JUMP_ONSET]),
+            FAULT_TIME_TAG: float(x[_TAG_OFFSET]),
+        }.get(code, 0.0)
         if self.kind in ("gyro", "quaternion"):
             t_out, valid_out = out[0], out[1]
         else:
             t_out, valid_out = float(out.time_s), float(bool(out.valid))
         truth = np.empty(FAULT_TRUTH_SIZE)
-        truth[TRUTH_T_SAMPLE], truth[TRUTH_CODE], truth[TRUTH_MAGNITUDE], truth[TRUTH_MASK] = x[_T], code, magnitude, mask
+        truth[TRUTH_T_SAMPLE], truth[TRUTH_CODE], truth[TRUTH_MAGNITUDE], truth[TRUTH_MASK] = (
+            x[_T],
+            code,
+            magnitude,
+            mask,
+        )
         truth[TRUTH_BIAS_JUMP] = x[_JUMP]
         truth[TRUTH_T_OUT], truth[TRUTH_VALID_OUT] = t_out, valid_out
         output.SetFromVector(truth)  # type: ignore[arg-type]  # pydrake stub
@@ -511,7 +573,28 @@ class FaultInjector(LeafSystem):
         return int(np.size(out.numbers))
 
 
-__all__ = ["FaultInjector", "FaultModel", "FAULT_NAMES", "FAULT_PRIORITY", "FAULT_TRUTH_SIZE", "KINDS", "bit",
-           "FAULT_NONE", "FAULT_OUTLIER", "FAULT_NAN", "FAULT_INF", "FAULT_STUCK", "FAULT_DROPOUT", "FAULT_SATURATED",
-           "FAULT_BIAS_JUMP", "FAULT_TIME_TAG", "TRUTH_T_SAMPLE", "TRUTH_CODE", "TRUTH_MAGNITUDE", "TRUTH_MASK",
-           "TRUTH_BIAS_JUMP", "TRUTH_T_OUT", "TRUTH_VALID_OUT"]
+__all__ = [
+    "FaultInjector",
+    "FaultModel",
+    "FAULT_NAMES",
+    "FAULT_PRIORITY",
+    "FAULT_TRUTH_SIZE",
+    "KINDS",
+    "bit",
+    "FAULT_NONE",
+    "FAULT_OUTLIER",
+    "FAULT_NAN",
+    "FAULT_INF",
+    "FAULT_STUCK",
+    "FAULT_DROPOUT",
+    "FAULT_SATURATED",
+    "FAULT_BIAS_JUMP",
+    "FAULT_TIME_TAG",
+    "TRUTH_T_SAMPLE",
+    "TRUTH_CODE",
+    "TRUTH_MAGNITUDE",
+    "TRUTH_MASK",
+    "TRUTH_BIAS_JUMP",
+    "TRUTH_T_OUT",
+    "TRUTH_VALID_OUT",
+]

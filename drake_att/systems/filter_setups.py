@@ -73,18 +73,41 @@ def _covariance0(covariance0) -> np.ndarray:
     return P0
 
 
-def mrp_ekf_setup(period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s: float,
-                  rrw_rad_per_s15: float, update_iterations: int = 1, gyro: str | None = None,
-                  innovation_gate=None) -> EstimatorSetup:
+def mrp_ekf_setup(
+    period_s: float,
+    star_tracker: str,
+    q_IB_hat0,
+    bias_hat0,
+    covariance0,
+    arw_rad_per_rt_s: float,
+    rrw_rad_per_s15: float,
+    update_iterations: int = 1,
+    gyro: str | None = None,
+    innovation_gate=None,
+) -> EstimatorSetup:
     """The setup of :func:`MrpEkfEstimator` (same arguments; ``gyro``: the gyro's name;
     ``innovation_gate``: a chi2 threshold or an InnovationGate, None: none)."""
     core = MrpEkfCore(arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations, innovation_gate)
-    return EstimatorSetup(core, core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)), period_s,
-                          gyro=gyro, vector_sensors=(star_tracker,))
+    return EstimatorSetup(
+        core,
+        core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)),
+        period_s,
+        gyro=gyro,
+        vector_sensors=(star_tracker,),
+    )
 
 
-def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bias_hat0, covariance0,
-                    arw_rad_per_rt_s: float, rrw_rad_per_s15: float, update_iterations: int = 1) -> EstimatorSystem:
+def MrpEkfEstimator(
+    name: str,
+    period_s: float,
+    star_tracker: str,
+    q_IB_hat0,
+    bias_hat0,
+    covariance0,
+    arw_rad_per_rt_s: float,
+    rrw_rad_per_s15: float,
+    update_iterations: int = 1,
+) -> EstimatorSystem:
     """Paper S0's additive EKF on ``x = [rho; b]`` (:class:`~drake_att.filters.mrp_ekf.MrpEkfCore`).
 
     Args:
@@ -103,13 +126,25 @@ def MrpEkfEstimator(name: str, period_s: float, star_tracker: str, q_IB_hat0, bi
     Ports: gyro_measurement, vectors_<star_tracker>; the estimator contract with
     ``bias_B_hat`` (``status[3]`` = NIS of the last update, 6 dof for two vectors).
     """
-    return EstimatorSystem.from_setup(name, mrp_ekf_setup(period_s, star_tracker, q_IB_hat0, bias_hat0, covariance0,
-                                                          arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations))
+    return EstimatorSystem.from_setup(
+        name,
+        mrp_ekf_setup(
+            period_s,
+            star_tracker,
+            q_IB_hat0,
+            bias_hat0,
+            covariance0,
+            arw_rad_per_rt_s,
+            rrw_rad_per_s15,
+            update_iterations,
+        ),
+    )
 
 
 def _particle_setup(period_s, star_tracker, gyro, core) -> EstimatorSetup:
-    return EstimatorSetup(core, core.draw_initial_state(np.random.default_rng(0)), period_s, gyro=gyro,
-                          vector_sensors=(star_tracker,))
+    return EstimatorSetup(
+        core, core.draw_initial_state(np.random.default_rng(0)), period_s, gyro=gyro, vector_sensors=(star_tracker,)
+    )
 
 
 _PF_PORTS_DOC = """
@@ -121,22 +156,62 @@ _PF_PORTS_DOC = """
 """
 
 
-def bootstrap_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-                       arw_rad_per_rt_s: float, bias_roughening_sigma: float = 0.0, resample_threshold: float = 2.0 / 3.0,
-                       gyro: str | None = None) -> EstimatorSetup:
+def bootstrap_pf_setup(
+    period_s: float,
+    star_tracker: str,
+    num_particles: int,
+    q_IB_hat0,
+    bias_hat0,
+    covariance0,
+    arw_rad_per_rt_s: float,
+    bias_roughening_sigma: float = 0.0,
+    resample_threshold: float = 2.0 / 3.0,
+    gyro: str | None = None,
+) -> EstimatorSetup:
     """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name)."""
     roughening = RandomWalkRoughening(check_positive("bias_roughening_sigma", bias_roughening_sigma, allow_zero=True))
-    return _particle_setup(period_s, star_tracker, gyro, BootstrapPfCore(
-        num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_rad_per_rt_s, bias_roughening=roughening,
-        resampling_gate=EffectiveSampleSizeGate(resample_threshold)))
+    return _particle_setup(
+        period_s,
+        star_tracker,
+        gyro,
+        BootstrapPfCore(
+            num_particles,
+            q_IB_hat0,
+            bias_hat0,
+            _covariance0(covariance0),
+            arw_rad_per_rt_s,
+            bias_roughening=roughening,
+            resampling_gate=EffectiveSampleSizeGate(resample_threshold),
+        ),
+    )
 
 
-def BootstrapPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
-                         covariance0, arw_rad_per_rt_s: float, bias_roughening_sigma: float = 0.0,
-                         resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
-    return EstimatorSystem.from_setup(name, bootstrap_pf_setup(
-        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s, bias_roughening_sigma,
-        resample_threshold))
+def BootstrapPfEstimator(
+    name: str,
+    period_s: float,
+    star_tracker: str,
+    num_particles: int,
+    q_IB_hat0,
+    bias_hat0,
+    covariance0,
+    arw_rad_per_rt_s: float,
+    bias_roughening_sigma: float = 0.0,
+    resample_threshold: float = 2.0 / 3.0,
+) -> EstimatorSystem:
+    return EstimatorSystem.from_setup(
+        name,
+        bootstrap_pf_setup(
+            period_s,
+            star_tracker,
+            num_particles,
+            q_IB_hat0,
+            bias_hat0,
+            covariance0,
+            arw_rad_per_rt_s,
+            bias_roughening_sigma,
+            resample_threshold,
+        ),
+    )
 
 
 BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:class:`~drake_att.filters.particle.BootstrapPfCore`).
@@ -155,21 +230,65 @@ BootstrapPfEstimator.__doc__ = """Paper S0's bootstrap (SIR) PF in gyro mode (:c
 """ + _PF_PORTS_DOC.format(gyro="gyro_measurement, ", second="bias_B_hat", second_short="bias")
 
 
-def ekpf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0, covariance0,
-               arw_rad_per_rt_s: float, rrw_rad_per_s15: float, proposal_iterations: int = 1,
-               resample_threshold: float = 2.0 / 3.0, gyro: str | None = None) -> EstimatorSetup:
+def ekpf_setup(
+    period_s: float,
+    star_tracker: str,
+    num_particles: int,
+    q_IB_hat0,
+    bias_hat0,
+    covariance0,
+    arw_rad_per_rt_s: float,
+    rrw_rad_per_s15: float,
+    proposal_iterations: int = 1,
+    resample_threshold: float = 2.0 / 3.0,
+    gyro: str | None = None,
+) -> EstimatorSetup:
     """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name)."""
-    return _particle_setup(period_s, star_tracker, gyro, EkpfCore(
-        num_particles, q_IB_hat0, bias_hat0, _covariance0(covariance0), arw_rad_per_rt_s, rrw_rad_per_s15,
-        proposal_iterations=proposal_iterations, resampling_gate=EffectiveSampleSizeGate(resample_threshold)))
+    return _particle_setup(
+        period_s,
+        star_tracker,
+        gyro,
+        EkpfCore(
+            num_particles,
+            q_IB_hat0,
+            bias_hat0,
+            _covariance0(covariance0),
+            arw_rad_per_rt_s,
+            rrw_rad_per_s15,
+            proposal_iterations=proposal_iterations,
+            resampling_gate=EffectiveSampleSizeGate(resample_threshold),
+        ),
+    )
 
 
-def EkpfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, bias_hat0,
-                  covariance0, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, proposal_iterations: int = 1,
-                  resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
-    return EstimatorSystem.from_setup(name, ekpf_setup(
-        period_s, star_tracker, num_particles, q_IB_hat0, bias_hat0, covariance0, arw_rad_per_rt_s, rrw_rad_per_s15,
-        proposal_iterations, resample_threshold))
+def EkpfEstimator(
+    name: str,
+    period_s: float,
+    star_tracker: str,
+    num_particles: int,
+    q_IB_hat0,
+    bias_hat0,
+    covariance0,
+    arw_rad_per_rt_s: float,
+    rrw_rad_per_s15: float,
+    proposal_iterations: int = 1,
+    resample_threshold: float = 2.0 / 3.0,
+) -> EstimatorSystem:
+    return EstimatorSystem.from_setup(
+        name,
+        ekpf_setup(
+            period_s,
+            star_tracker,
+            num_particles,
+            q_IB_hat0,
+            bias_hat0,
+            covariance0,
+            arw_rad_per_rt_s,
+            rrw_rad_per_s15,
+            proposal_iterations,
+            resample_threshold,
+        ),
+    )
 
 
 EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~drake_att.filters.particle.EkpfCore`).
@@ -189,25 +308,75 @@ EkpfEstimator.__doc__ = """Paper S0's extended-Kalman particle filter (:class:`~
 """ + _PF_PORTS_DOC.format(gyro="gyro_measurement, ", second="bias_B_hat", second_short="bias")
 
 
-def gyroless_pf_setup(period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0, covariance0,
-                      inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
-                      num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSetup:
+def gyroless_pf_setup(
+    period_s: float,
+    star_tracker: str,
+    num_particles: int,
+    q_IB_hat0,
+    w_hat0,
+    covariance0,
+    inertia,
+    torque,
+    rate_process_sigma: float,
+    attitude_process_sigma: float = 0.0,
+    num_substeps: int = 1,
+    resample_threshold: float = 2.0 / 3.0,
+) -> EstimatorSetup:
     """The setup of :func:`GyrolessPfEstimator` (same arguments)."""
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
         I = np.diag(I)
-    return _particle_setup(period_s, star_tracker, None, GyrolessPfCore(
-        num_particles, q_IB_hat0, w_hat0, _covariance0(covariance0), I, torque, rate_process_sigma,
-        attitude_process_sigma=attitude_process_sigma, num_substeps=num_substeps,
-        resampling_gate=EffectiveSampleSizeGate(resample_threshold)))
+    return _particle_setup(
+        period_s,
+        star_tracker,
+        None,
+        GyrolessPfCore(
+            num_particles,
+            q_IB_hat0,
+            w_hat0,
+            _covariance0(covariance0),
+            I,
+            torque,
+            rate_process_sigma,
+            attitude_process_sigma=attitude_process_sigma,
+            num_substeps=num_substeps,
+            resampling_gate=EffectiveSampleSizeGate(resample_threshold),
+        ),
+    )
 
 
-def GyrolessPfEstimator(name: str, period_s: float, star_tracker: str, num_particles: int, q_IB_hat0, w_hat0,
-                        covariance0, inertia, torque, rate_process_sigma: float, attitude_process_sigma: float = 0.0,
-                        num_substeps: int = 1, resample_threshold: float = 2.0 / 3.0) -> EstimatorSystem:
-    return EstimatorSystem.from_setup(name, gyroless_pf_setup(
-        period_s, star_tracker, num_particles, q_IB_hat0, w_hat0, covariance0, inertia, torque, rate_process_sigma,
-        attitude_process_sigma, num_substeps, resample_threshold))
+def GyrolessPfEstimator(
+    name: str,
+    period_s: float,
+    star_tracker: str,
+    num_particles: int,
+    q_IB_hat0,
+    w_hat0,
+    covariance0,
+    inertia,
+    torque,
+    rate_process_sigma: float,
+    attitude_process_sigma: float = 0.0,
+    num_substeps: int = 1,
+    resample_threshold: float = 2.0 / 3.0,
+) -> EstimatorSystem:
+    return EstimatorSystem.from_setup(
+        name,
+        gyroless_pf_setup(
+            period_s,
+            star_tracker,
+            num_particles,
+            q_IB_hat0,
+            w_hat0,
+            covariance0,
+            inertia,
+            torque,
+            rate_process_sigma,
+            attitude_process_sigma,
+            num_substeps,
+            resample_threshold,
+        ),
+    )
 
 
 GyrolessPfEstimator.__doc__ = """Paper S0's gyroless bootstrap PF on ``[rho; w]`` (:class:`~drake_att.filters.particle.GyrolessPfCore`).

@@ -61,8 +61,12 @@ def _quat_multiply(p, q) -> list:
     :func:`drake_att.rotations.quat_multiply`, in the same order)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    return [pw * qw - px * qx - py * qy - pz * qz, pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx, pw * qz + px * qy - py * qx + pz * qw]
+    return [
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    ]
 
 
 def _unit(q):
@@ -140,8 +144,9 @@ def subset_covariances(q_BS_list, sigmas_S_list, weights) -> tuple:
         idx = [i for i in range(n) if mask >> i & 1]
         if w[idx].sum() <= 0.0:
             continue
-        out[mask] = average_measurement_covariance_B([q_BS_list[i] for i in idx], [sigmas_S_list[i] for i in idx],
-                                                     w[idx])
+        out[mask] = average_measurement_covariance_B(
+            [q_BS_list[i] for i in idx], [sigmas_S_list[i] for i in idx], w[idx]
+        )
     return tuple(out)
 
 
@@ -192,8 +197,9 @@ class StarTrackerAverage(LeafSystem):
             times = [m[0] for m in meas]
             t_latest = math.nan if any(map(math.isnan, times)) else max(times)
         # This instant's samples only.
-        idx = [i for i, (m, f) in enumerate(zip(meas, fine, strict=True))
-               if f and abs(m[0] - t_latest) < TIME_TOLERANCE_S]
+        idx = [
+            i for i, (m, f) in enumerate(zip(meas, fine, strict=True)) if f and abs(m[0] - t_latest) < TIME_TOLERANCE_S
+        ]
         q_avg, flag = [1.0, 0.0, 0.0, 0.0], 0.0
         if idx:
             q_B = [_quat_multiply(meas[i][2:], self._q_SB[i]) for i in idx]
@@ -230,16 +236,24 @@ class EstimateFusion(LeafSystem):
         to the same step as the fused estimate.
     """
 
-    def __init__(self, name, source_names, weights, second_output_name="bias_B_hat",
-                 covariance_model="conservative", period_s=None):
+    def __init__(
+        self,
+        name,
+        source_names,
+        weights,
+        second_output_name="bias_B_hat",
+        covariance_model="conservative",
+        period_s=None,
+    ):
         LeafSystem.__init__(self)
         self.set_name(name)
         n = len(source_names)
         if n < 2:
             raise ValueError(f"{name}.sources: got {list(source_names)}; need at least 2 estimators")
         if covariance_model not in ("tracked", "conservative", "independent"):
-            raise ValueError(f"{name}.covariance_model: got {covariance_model!r}; "
-                             "allowed: 'tracked', 'conservative', 'independent'")
+            raise ValueError(
+                f"{name}.covariance_model: got {covariance_model!r}; allowed: 'tracked', 'conservative', 'independent'"
+            )
         if covariance_model == "tracked" and (n != 2 or period_s is None):
             raise ValueError(f"{name}.covariance_model: 'tracked' needs exactly 2 MEKF sources and their period")
         self.weights = _normalized_weights(weights, n, f"{name}.weights")
@@ -247,16 +261,21 @@ class EstimateFusion(LeafSystem):
         self.second_output_name = second_output_name
         self.period_s = None if period_s is None else float(period_s)  # the sources' step
         self.source_names = list(source_names)
-        self._in = {s: {k: self.DeclareVectorInputPort(f"{s}_{k}", size)
-                        for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))}
-                    for s in source_names}
+        self._in = {
+            s: {
+                k: self.DeclareVectorInputPort(f"{s}_{k}", size)
+                for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))
+            }
+            for s in source_names
+        }
         self._w = self.weights.tolist()
         self._cov_coefficients = self._w if covariance_model == "conservative" else [w * w for w in self._w]
         if covariance_model == "tracked":  # the coefficients of P_1, P_2 and P_12 + P_12'
             w1, w2 = self._w
             self._tracked_coefficients = (w1 * w1, w2 * w2, w1 * w2)
         self._q_ports, self._second_ports, self._cov_ports, self._status_ports = (
-            [self._in[s][k] for s in source_names] for k in ("q_IB_hat", "second", "covariance", "status"))
+            [self._in[s][k] for s in source_names] for k in ("q_IB_hat", "second", "covariance", "status")
+        )
         if covariance_model == "tracked":
             self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109) for s in source_names}
             self._lin_ports = [self._lin[s] for s in source_names]
@@ -317,8 +336,16 @@ class EstimateFusion(LeafSystem):
         """``[q_IB_hat (4), second (3), covariance (36), status (4)]`` (the contract's packed
         estimate), the four outputs' values computed once."""
         w, configured = self._weights_in_use(context)
-        output.SetFromVector(np.concatenate([self._q(context, w), self._second(context, w),
-                                             self._cov(context, w, configured), self._status(context)]))
+        output.SetFromVector(
+            np.concatenate(
+                [
+                    self._q(context, w),
+                    self._second(context, w),
+                    self._cov(context, w, configured),
+                    self._status(context),
+                ]
+            )
+        )
 
     def _cross_covariance(self, context):
         """``P_12`` at the step of the current inputs: the stored one, advanced once if the

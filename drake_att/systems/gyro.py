@@ -55,9 +55,17 @@ class GyroModel:
     sensor_matrix: np.ndarray
 
     @classmethod
-    def make(cls, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
-             initial_bias_rad_per_s=(0.0, 0.0, 0.0), initial_bias_sigma_rad_per_s: float = 0.0,
-             scale_factor_error=(0.0, 0.0, 0.0), misalignment=None) -> GyroModel:
+    def make(
+        cls,
+        name: str,
+        period_s: float,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        initial_bias_rad_per_s=(0.0, 0.0, 0.0),
+        initial_bias_sigma_rad_per_s: float = 0.0,
+        scale_factor_error=(0.0, 0.0, 0.0),
+        misalignment=None,
+    ) -> GyroModel:
         """Check and convert the arguments of :class:`Gyro` (ValueError naming the field)."""
         try:
             noise = FarrenkopfGyroNoise(arw_rad_per_rt_s, rrw_rad_per_s15, period_s)
@@ -96,13 +104,17 @@ class _GyroOutputs(LeafSystem):
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         # One Python output for both signals (the Gyro diagram splits it in C++): a logged
         # bias costs no Python call of its own.
-        self.DeclareVectorOutputPort("measurement_and_bias", GYRO_MEASUREMENT_SIZE + 3, self._calc_measurement,
-                                     {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket(),
-                                      self.all_input_ports_ticket()})
+        self.DeclareVectorOutputPort(
+            "measurement_and_bias",
+            GYRO_MEASUREMENT_SIZE + 3,
+            self._calc_measurement,
+            {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket(), self.all_input_ports_ticket()},
+        )
         # The context's draws (a _GyroDraws of its seed words and model): one cache look-up per
         # output evaluation.
-        self._draws_cache = NoiseCache(self, "draws", self.model,
-                                       lambda words, model: _GyroDraws(model, counter_random(words, self.stream)))
+        self._draws_cache = NoiseCache(
+            self, "draws", self.model, lambda words, model: _GyroDraws(model, counter_random(words, self.stream))
+        )
 
     def model(self, context) -> GyroModel:
         return context.get_abstract_parameter(self._model_index).get_value()
@@ -234,15 +246,31 @@ class Gyro(Diagram):
     Python output of both signals and a C++ ``Demultiplexer`` splitting it (no per-sample event; see the module docstring).
     """
 
-    def __init__(self, name: str, period_s: float, arw_rad_per_rt_s: float, rrw_rad_per_s15: float,
-                 initial_bias_rad_per_s=(0.0, 0.0, 0.0), initial_bias_sigma_rad_per_s: float = 0.0,
-                 scale_factor_error=(0.0, 0.0, 0.0), misalignment=None):
+    def __init__(
+        self,
+        name: str,
+        period_s: float,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        initial_bias_rad_per_s=(0.0, 0.0, 0.0),
+        initial_bias_sigma_rad_per_s: float = 0.0,
+        scale_factor_error=(0.0, 0.0, 0.0),
+        misalignment=None,
+    ):
         Diagram.__init__(self)
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
-        self.default_model = GyroModel.make(name, period_s, arw_rad_per_rt_s, rrw_rad_per_s15, initial_bias_rad_per_s,
-                                            initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
+        self.default_model = GyroModel.make(
+            name,
+            period_s,
+            arw_rad_per_rt_s,
+            rrw_rad_per_s15,
+            initial_bias_rad_per_s,
+            initial_bias_sigma_rad_per_s,
+            scale_factor_error,
+            misalignment,
+        )
         builder = DiagramBuilder()
         outputs = _GyroOutputs(name, self.period_s, self.default_model)
         builder.AddSystem(outputs)
@@ -269,12 +297,27 @@ class Gyro(Diagram):
         """The :class:`GyroModel` in ``context`` (this system's context)."""
         return self._outputs.model(self._outputs_context(context))
 
-    def set_model(self, context, arw_rad_per_rt_s: float, rrw_rad_per_s15: float, initial_bias_rad_per_s=(0.0, 0.0, 0.0),
-                  initial_bias_sigma_rad_per_s: float = 0.0, scale_factor_error=(0.0, 0.0, 0.0),
-                  misalignment=None) -> None:
+    def set_model(
+        self,
+        context,
+        arw_rad_per_rt_s: float,
+        rrw_rad_per_s15: float,
+        initial_bias_rad_per_s=(0.0, 0.0, 0.0),
+        initial_bias_sigma_rad_per_s: float = 0.0,
+        scale_factor_error=(0.0, 0.0, 0.0),
+        misalignment=None,
+    ) -> None:
         """Give ``context`` (this system's) other noise levels and errors (arguments as the
         constructor's)."""
-        model = GyroModel.make(self.get_name(), self.period_s, arw_rad_per_rt_s, rrw_rad_per_s15,
-                               initial_bias_rad_per_s, initial_bias_sigma_rad_per_s, scale_factor_error, misalignment)
+        model = GyroModel.make(
+            self.get_name(),
+            self.period_s,
+            arw_rad_per_rt_s,
+            rrw_rad_per_s15,
+            initial_bias_rad_per_s,
+            initial_bias_sigma_rad_per_s,
+            scale_factor_error,
+            misalignment,
+        )
         sub = self.GetMutableSubsystemContext(self._outputs, context)
         sub.get_mutable_abstract_parameter(0).set_value(model)

@@ -53,7 +53,8 @@ def validate_inertia(inertia, field: str = "inertia") -> np.ndarray:
     if eig[0] + eig[1] < eig[2] * (1 - 1e-12):
         raise ValueError(
             f"{field}: principal moments {eig.tolist()} violate the triangle inequality "
-            "I1 + I2 >= I3; not a physical rigid body")
+            "I1 + I2 >= I3; not a physical rigid body"
+        )
     return I
 
 
@@ -118,7 +119,8 @@ class RigidBodyAttitudePlant(Diagram):
         dynamics = _quat_kinematics(q, w) + list(w_dot) + list(w)
         output = list(q) + list(w) + list(th)
         self._symbolic = SymbolicVectorSystem(
-            state=q + w + th, input=tau, parameter=parameters, dynamics=dynamics, output=output)
+            state=q + w + th, input=tau, parameter=parameters, dynamics=dynamics, output=output
+        )
         builder = DiagramBuilder()
         sym = builder.AddNamedSystem("rigid_body_dynamics", self._symbolic)
         demux = builder.AddNamedSystem("demux", Demultiplexer([4, 3, 3]))
@@ -145,7 +147,8 @@ class RigidBodyAttitudePlant(Diagram):
             if not np.all(I == np.diag(np.diag(I))):
                 raise ValueError(
                     f"inertia: got {I.tolist()}; this plant was built for principal axes (a diagonal inertia) "
-                    "and takes diagonal inertias only: build the plant with a full inertia instead")
+                    "and takes diagonal inertias only: build the plant with a full inertia instead"
+                )
             d = np.diag(I)
             c = np.array([(d[1] - d[2]) / d[0], (d[2] - d[0]) / d[1], (d[0] - d[1]) / d[2]])
             vec = np.concatenate([d, 1.0 / d, c])
@@ -216,7 +219,8 @@ class PrescribedAttitudeMotion(Diagram):
         dynamics = _quat_kinematics(q, w) + list(w)
         output = list(q) + list(w) + list(th)
         self._symbolic = SymbolicVectorSystem(  # type: ignore[call-overload]  # pydrake stub
-            time=t, state=q + th, dynamics=dynamics, output=output)
+            time=t, state=q + th, dynamics=dynamics, output=output
+        )
         self._q0 = np.asarray(q_IB0, dtype=float) / np.linalg.norm(q_IB0)
         builder = DiagramBuilder()
         sym = builder.AddNamedSystem("prescribed_kinematics", self._symbolic)
@@ -241,15 +245,22 @@ class PrescribedAttitudeMotion(Diagram):
         self.SetInitialState(context)
 
     @classmethod
-    def from_rate_profile(cls, constant_rad_per_s=(0, 0, 0), amplitude_rad_per_s=(0, 0, 0),
-                          frequency_rad_per_s=(0, 0, 0), phase_rad=(0, 0, 0), q_IB0=(1, 0, 0, 0)):
+    def from_rate_profile(
+        cls,
+        constant_rad_per_s=(0, 0, 0),
+        amplitude_rad_per_s=(0, 0, 0),
+        frequency_rad_per_s=(0, 0, 0),
+        phase_rad=(0, 0, 0),
+        q_IB0=(1, 0, 0, 0),
+    ):
         """``w_i(t) = c_i + A_i cos(f_i t + phi_i)`` per body axis."""
         t = Variable("t")
         from pydrake.symbolic import cos
 
-        w = [float(c) + float(a) * cos(float(f) * t + float(p))
-             for c, a, f, p in zip(constant_rad_per_s, amplitude_rad_per_s, frequency_rad_per_s, phase_rad,
-                                   strict=True)]
+        w = [
+            float(c) + float(a) * cos(float(f) * t + float(p))
+            for c, a, f, p in zip(constant_rad_per_s, amplitude_rad_per_s, frequency_rad_per_s, phase_rad, strict=True)
+        ]
         return cls(w, t, q_IB0)
 
     @classmethod

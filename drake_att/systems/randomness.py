@@ -61,8 +61,10 @@ class NoiseCache:
         self._read_parameter, self._build = read_parameter, build
         self._memo: dict = {}  # (seed words bytes, id(parameter)) -> (parameter, tables)
         self._entry = system.DeclareCacheEntry(
-            name, ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc),
-            {system.xd_ticket(), system.all_parameters_ticket()})
+            name,
+            ValueProducer(allocate=lambda: AbstractValue.Make(None), calc=self._calc),
+            {system.xd_ticket(), system.all_parameters_ticket()},
+        )
 
     def _calc(self, context, value):
         words = context.get_discrete_state_vector().value()
@@ -114,9 +116,9 @@ class SampledDrawEvents:
         x = context.get_discrete_state_vector().value()
         index = int(x[SEED_WORDS]) + 1
         t_next = context.get_time() + self.period_s
-        draw, valid = self._draw(context, x[self._numbers_start:], x[:SEED_WORDS], index, t_next)
+        draw, valid = self._draw(context, x[self._numbers_start :], x[:SEED_WORDS], index, t_next)
         new = x.copy()
-        new[SEED_WORDS:SEED_WORDS + 3] = [index, t_next, float(valid)]
-        new[SEED_WORDS + 3:self._numbers_start] = draw
+        new[SEED_WORDS : SEED_WORDS + 3] = [index, t_next, float(valid)]
+        new[SEED_WORDS + 3 : self._numbers_start] = draw
         discrete_state.set_value(new)
         return EventStatus.Succeeded()

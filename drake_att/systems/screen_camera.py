@@ -49,8 +49,14 @@ class CameraNoise:
     outage_windows_s: tuple
 
     @classmethod
-    def make(cls, name: str, sigma_m: float = 0.0, quantization_m: float = 0.0, dropout_probability: float = 0.0,
-             outage_windows_s=()) -> CameraNoise:
+    def make(
+        cls,
+        name: str,
+        sigma_m: float = 0.0,
+        quantization_m: float = 0.0,
+        dropout_probability: float = 0.0,
+        outage_windows_s=(),
+    ) -> CameraNoise:
         check_nonnegative(f"{name}.centroid_noise", sigma_m)
         check_nonnegative(f"{name}.quantization", quantization_m)
         if not (0.0 <= dropout_probability < 1.0):
@@ -89,8 +95,11 @@ class ScreenCamera(SampledDrawEvents, LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_sample)
         deps = {self.xd_ticket(), self.all_input_ports_ticket()}
         self.DeclareAbstractOutputPort(
-            "camera_centroids", lambda: AbstractValue.Make(CameraCentroids(
-                0.0, False, np.zeros((0, 2)), geometry.focal_length_m, 0.0)), self._calc_centroids, deps)
+            "camera_centroids",
+            lambda: AbstractValue.Make(CameraCentroids(0.0, False, np.zeros((0, 2)), geometry.focal_length_m, 0.0)),
+            self._calc_centroids,
+            deps,
+        )
         self.DeclareVectorOutputPort("stars_in_view", 1, self._calc_count, {self.all_input_ports_ticket()})
 
     # -- parameters ---------------------------------------------------------------------
@@ -129,9 +138,12 @@ class ScreenCamera(SampledDrawEvents, LeafSystem):
     def _calc_centroids(self, context, output):
         x = context.get_discrete_state_vector().value()
         sigma, quant = float(x[self._numbers_start]), float(x[self._numbers_start + 1])
-        _, xy = self.image(self._q_port.Eval(context), x[SEED_WORDS + 3:self._numbers_start], sigma, quant)
-        output.set_value(CameraCentroids(float(x[SEED_WORDS + 1]), bool(x[SEED_WORDS + 2] > 0.5), xy,
-                                         self.geometry.focal_length_m, sigma, quant))
+        _, xy = self.image(self._q_port.Eval(context), x[SEED_WORDS + 3 : self._numbers_start], sigma, quant)
+        output.set_value(
+            CameraCentroids(
+                float(x[SEED_WORDS + 1]), bool(x[SEED_WORDS + 2] > 0.5), xy, self.geometry.focal_length_m, sigma, quant
+            )
+        )
 
     def _calc_count(self, context, output: BasicVector):
         ids, _ = self.geometry.project(rot.quat_to_rotmat(np.asarray(self._q_port.Eval(context))).T)

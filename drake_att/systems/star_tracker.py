@@ -47,12 +47,14 @@ def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: flo
     c = lambda a: np.cos(0.5 * a)  # noqa: E731
     s = lambda a: np.sin(0.5 * a)  # noqa: E731
     th, ph, ps = theta_rad, phi_rad, psi_rad
-    q7 = np.array([
-        c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
-        c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
-        s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
-        s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps),
-    ])
+    q7 = np.array(
+        [
+            c(th) * c(ph) * c(ps) - s(th) * s(ph) * s(ps),
+            c(th) * s(ph) * c(ps) - s(th) * c(ph) * s(ps),
+            s(th) * c(ph) * c(ps) + c(th) * s(ph) * s(ps),
+            s(th) * s(ph) * c(ps) + c(th) * c(ph) * s(ps),
+        ]
+    )
     return rot.quat_conjugate(q7)
 
 
@@ -72,11 +74,21 @@ class StarTrackerNoise:
     outage_windows_s: tuple
 
     @classmethod
-    def make(cls, name: str, sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
-             sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> StarTrackerNoise:
+    def make(
+        cls,
+        name: str,
+        sigma_cross_boresight_rad: float = 0.0,
+        sigma_boresight_rad: float = 0.0,
+        sigma_vector_rad: float = 0.0,
+        dropout_probability: float = 0.0,
+        outage_windows_s=(),
+    ) -> StarTrackerNoise:
         """Check the arguments of :class:`StarTracker` (ValueError naming the field)."""
-        for field, v in (("sigma_cross_boresight", sigma_cross_boresight_rad),
-                         ("sigma_boresight", sigma_boresight_rad), ("sigma_vector", sigma_vector_rad)):
+        for field, v in (
+            ("sigma_cross_boresight", sigma_cross_boresight_rad),
+            ("sigma_boresight", sigma_boresight_rad),
+            ("sigma_vector", sigma_vector_rad),
+        ):
             check_nonnegative(f"{name}.{field}", v)
         if not (0.0 <= dropout_probability < 1.0):
             raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
@@ -84,8 +96,12 @@ class StarTrackerNoise:
         for a, b in windows:
             if not b > a:
                 raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
-        return cls(np.array([sigma_cross_boresight_rad, sigma_cross_boresight_rad, sigma_boresight_rad]),
-                   float(sigma_vector_rad), float(dropout_probability), windows)
+        return cls(
+            np.array([sigma_cross_boresight_rad, sigma_cross_boresight_rad, sigma_boresight_rad]),
+            float(sigma_vector_rad),
+            float(dropout_probability),
+            windows,
+        )
 
 
 class StarTracker(LeafSystem):
@@ -119,18 +135,33 @@ class StarTracker(LeafSystem):
         however often it is evaluated, and no Python call per sample unless an output is read.
     """
 
-    def __init__(self, name: str, period_s: float, q_BS=(1.0, 0.0, 0.0, 0.0), mode: str = "quaternion",
-                 sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
-                 references_I=None, sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0,
-                 outage_windows_s=()):
+    def __init__(
+        self,
+        name: str,
+        period_s: float,
+        q_BS=(1.0, 0.0, 0.0, 0.0),
+        mode: str = "quaternion",
+        sigma_cross_boresight_rad: float = 0.0,
+        sigma_boresight_rad: float = 0.0,
+        references_I=None,
+        sigma_vector_rad: float = 0.0,
+        dropout_probability: float = 0.0,
+        outage_windows_s=(),
+    ):
         LeafSystem.__init__(self)
         self.set_name(name)
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         if mode not in ("quaternion", "vectors"):
             raise ValueError(f"{name}.mode: got {mode!r}; allowed: 'quaternion', 'vectors'")
-        self.default_noise = StarTrackerNoise.make(name, sigma_cross_boresight_rad, sigma_boresight_rad,
-                                                   sigma_vector_rad, dropout_probability, outage_windows_s)
+        self.default_noise = StarTrackerNoise.make(
+            name,
+            sigma_cross_boresight_rad,
+            sigma_boresight_rad,
+            sigma_vector_rad,
+            dropout_probability,
+            outage_windows_s,
+        )
         q_BS = np.asarray(q_BS, dtype=float)
         if q_BS.shape != (4,) or not np.all(np.isfinite(q_BS)) or np.linalg.norm(q_BS) < 1e-9:
             raise ValueError(f"{name}.q_BS: got {q_BS.tolist()}; must be 4 finite numbers, not all zero")
@@ -164,15 +195,18 @@ class StarTracker(LeafSystem):
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         # The context's samples (a _TrackerSamples of its seed words and noise parameter):
         # one cache look-up per output evaluation.
-        self._samples_cache = NoiseCache(self, "samples", self.noise, lambda words, noise: _TrackerSamples(self, words, noise))
+        self._samples_cache = NoiseCache(
+            self, "samples", self.noise, lambda words, noise: _TrackerSamples(self, words, noise)
+        )
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
-                "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc_quaternion, deps)
+                "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc_quaternion, deps
+            )
         else:
             self.DeclareAbstractOutputPort(
-                "vector_observations", lambda: AbstractValue.Make(self._empty_observations()),
-                self._calc_vectors, deps)
+                "vector_observations", lambda: AbstractValue.Make(self._empty_observations()), self._calc_vectors, deps
+            )
 
     def _empty_observations(self):
         return VectorObservations(0.0, False, np.zeros((0, 3)), np.zeros((0, 3)), 0.0, self.q_BS)
@@ -182,12 +216,25 @@ class StarTracker(LeafSystem):
         """The :class:`StarTrackerNoise` in ``context`` (this system's context)."""
         return context.get_abstract_parameter(self._noise_index).get_value()
 
-    def set_noise(self, context, sigma_cross_boresight_rad: float = 0.0, sigma_boresight_rad: float = 0.0,
-                  sigma_vector_rad: float = 0.0, dropout_probability: float = 0.0, outage_windows_s=()) -> None:
+    def set_noise(
+        self,
+        context,
+        sigma_cross_boresight_rad: float = 0.0,
+        sigma_boresight_rad: float = 0.0,
+        sigma_vector_rad: float = 0.0,
+        dropout_probability: float = 0.0,
+        outage_windows_s=(),
+    ) -> None:
         """Give ``context`` (this system's) other noise levels / availability (arguments as
         the constructor's); outputs evaluated afterwards use them."""
-        noise = StarTrackerNoise.make(self.get_name(), sigma_cross_boresight_rad, sigma_boresight_rad,
-                                      sigma_vector_rad, dropout_probability, outage_windows_s)
+        noise = StarTrackerNoise.make(
+            self.get_name(),
+            sigma_cross_boresight_rad,
+            sigma_boresight_rad,
+            sigma_vector_rad,
+            dropout_probability,
+            outage_windows_s,
+        )
         context.get_mutable_abstract_parameter(self._noise_index).set_value(noise)
 
     # -- noise ----------------------------------------------------------------------
@@ -229,8 +276,9 @@ class StarTracker(LeafSystem):
         if self._noise_port.HasValue(context):
             noise = self._noise_port.Eval(context)
         dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
-        output.set_value(VectorObservations(
-            float(t_sample), bool(valid), dirs, self.references_I, p.sigma_vector, self.q_BS))
+        output.set_value(
+            VectorObservations(float(t_sample), bool(valid), dirs, self.references_I, p.sigma_vector, self.q_BS)
+        )
 
 
 def _canonical_product(p, q) -> tuple:

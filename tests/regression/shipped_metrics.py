@@ -40,8 +40,11 @@ VOLATILE_KEYS = ("wall_time_s",)
 def gate_off(scenario) -> list[str]:
     """Overrides that switch off the default innovation gate (added after the record: the
     record guards everything else bit for bit; the gate has its own tests)."""
-    return [f"estimators.{e.name}.innovation_gate_probability=0.0" for e in scenario.estimators
-            if hasattr(e, "innovation_gate_probability")]
+    return [
+        f"estimators.{e.name}.innovation_gate_probability=0.0"
+        for e in scenario.estimators
+        if hasattr(e, "innovation_gate_probability")
+    ]
 
 
 def shipped_metrics(names=None) -> dict:
@@ -70,10 +73,15 @@ def shipped_metrics(names=None) -> dict:
 def main(path: str) -> None:
     import drake_att
 
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                            cwd=drake_att.__path__[0]).stdout.strip()
-    record = {"recorded_from_commit": commit, "seeds": list(SEEDS), "overrides": OVERRIDES,
-              "metrics": shipped_metrics()}
+    commit = subprocess.run(
+        ["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=drake_att.__path__[0]
+    ).stdout.strip()
+    record = {
+        "recorded_from_commit": commit,
+        "seeds": list(SEEDS),
+        "overrides": OVERRIDES,
+        "metrics": shipped_metrics(),
+    }
     with open(path, "w") as f:
         json.dump(record, f, indent=1, sort_keys=True)
         f.write("\n")
