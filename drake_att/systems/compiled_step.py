@@ -134,7 +134,7 @@ _USED, _SKIPPED, _LAST_NIS = STATUS.start + STATUS_USED, STATUS.start + STATUS_S
 _T_LAST, _W_LAST = Bookkeeping.T_LAST, Bookkeeping.W_LAST.start
 
 
-@_jit
+@_jit(inline="always")
 def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
     """Propagate ``(q, P)`` over ``(t_last, t]`` (in place; ``Phi``/``Q`` written), holding
     the last valid rate when the gyro sample is unusable. Returns the skipped count (0 or 1)."""
@@ -167,7 +167,7 @@ def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
     return skipped
 
 
-@_jit
+@_jit(inline="always")
 def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S, I_KH):
     """One quaternion input's update at ``t`` (in place on ``q, b, P`` when accepted; ``I_KH``
     written). Returns ``(outcome, nis, counted)``: outcome -1 for a sample passed over or
@@ -263,14 +263,7 @@ def _mekf_step(
         last_sample,
         rejections,
     )
-    q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
-    for k in range(4):
-        q[k] = core[k]
-    for k in range(3):
-        b[k] = core[4 + k]
-    for r in range(6):
-        for c in range(6):
-            P[r, c] = core[7 + 6 * r + c]
+    q, b, P = _read_core(core)
     Phi, Q, A = np.eye(6), np.zeros((6, 6)), np.eye(6)
     n_skipped = est[_SKIPPED] + _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q)
     n_used, nis = est[_USED], est[_LAST_NIS]
@@ -295,14 +288,35 @@ def _mekf_step(
             first = False
         else:
             n_skipped += 1.0
-    sign = -1.0 if q[0] < 0.0 else 1.0  # rotations.quat_canonical
+    est[STATUS.start], est[_USED], est[_SKIPPED], est[_LAST_NIS] = t, n_used, n_skipped, nis
+    _write_state(q, b, P, Phi, Q, A, est, core, lin)
+
+
+@_jit(inline="always")  # compiled into _mekf_step: no call, no reference counts
+def _read_core(core):
+    """``(q, b, P)`` of the MEKF's state vector ``[q_IB (4), bias_B (3), P (36)]`` (copies)."""
+    q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
+    for k in range(4):
+        q[k] = core[k]
+    for k in range(3):
+        b[k] = core[4 + k]
+    for r in range(6):
+        for c in range(6):
+            P[r, c] = core[7 + 6 * r + c]
+    return q, b, P
+
+
+@_jit(inline="always")
+def _write_state(q, b, P, Phi, Q, A, est, core, lin):
+    """The step's estimate (``q`` sign-canonical, as ``rotations.quat_canonical``) into the
+    estimate and core groups, and its linearization ``[Phi, Q, A, steps + 1]`` into ``lin``."""
+    sign = -1.0 if q[0] < 0.0 else 1.0
     for k in range(4):
         est[k] = core[k] = sign * q[k]
     for k in range(3):
         est[4 + k] = core[4 + k] = b[k]
     est[7:43] = P.reshape(36)  # views: no copies
     core[7:43] = P.reshape(36)
-    est[STATUS.start], est[_USED], est[_SKIPPED], est[_LAST_NIS] = t, n_used, n_skipped, nis
     lin[0:36] = Phi.reshape(36)
     lin[36:72] = Q.reshape(36)
     lin[72:108] = A.reshape(36)
