@@ -460,12 +460,27 @@ class _UsageError(UserInputError):
 
 
 def _parser() -> argparse.ArgumentParser:
+    """The ``drake-att`` command line: the shared ``--debug`` option and one ``_add_*_command`` per subcommand."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument(
         "--debug", action="store_true", help="show the full traceback of an unexpected error (for bug reports)"
     )
     parser = _Parser(prog="drake-att", description="Attitude-determination scenarios on Drake.", parents=[common])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for add_command in (
+        _add_run_command,
+        _add_check_command,
+        _add_score_command,
+        _add_list_command,
+        _add_montecarlo_command,
+        _add_compare_command,
+    ):
+        add_command(sub, common)
+    return parser
+
+
+def _add_run_command(sub, common) -> None:
+    """``drake-att run``: simulate one scenario into a result folder."""
     p_run = sub.add_parser("run", parents=[common], help="run a scenario (default: the project's default scenario)")
     p_run.add_argument("scenario", nargs="?", default=None, help="shipped scenario name or YAML path")
     p_run.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
@@ -485,6 +500,10 @@ def _parser() -> argparse.ArgumentParser:
     p_run.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p_run.add_argument("--quiet", action="store_true", help="no progress line")
     p_run.set_defaults(func=_cmd_run)
+
+
+def _add_check_command(sub, common) -> None:
+    """``drake-att check``: validate a scenario without simulating."""
     p_check = sub.add_parser(
         "check",
         parents=[common],
@@ -494,6 +513,10 @@ def _parser() -> argparse.ArgumentParser:
     p_check.add_argument("--seed", type=int, default=None, help="random seed (overrides the scenario's)")
     p_check.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
     p_check.set_defaults(func=_cmd_check)
+
+
+def _add_score_command(sub, common) -> None:
+    """``drake-att score``: recompute a result folder's metrics."""
     p_score = sub.add_parser(
         "score", parents=[common], help="recompute a result folder's metrics.json from its log.npz + config.yaml"
     )
@@ -508,8 +531,16 @@ def _parser() -> argparse.ArgumentParser:
         "folders you trust); without it such a folder is refused",
     )
     p_score.set_defaults(func=_cmd_score)
+
+
+def _add_list_command(sub, common) -> None:
+    """``drake-att list``: the shipped scenarios."""
     p_list = sub.add_parser("list", parents=[common], help="list the shipped scenarios")
     p_list.set_defaults(func=_cmd_list)
+
+
+def _add_montecarlo_command(sub, common) -> None:
+    """``drake-att montecarlo``: a Monte Carlo campaign over seeds."""
     p_mc = sub.add_parser(
         "montecarlo", parents=[common], help="Monte Carlo campaign over seeds (Dask), with report.html"
     )
@@ -526,6 +557,10 @@ def _parser() -> argparse.ArgumentParser:
         "--screenshot", default=None, metavar="PNG", help="also render report.html in headless Chromium into this PNG"
     )
     p_mc.set_defaults(func=_cmd_montecarlo)
+
+
+def _add_compare_command(sub, common) -> None:
+    """``drake-att compare``: the estimator x scenario comparison matrix."""
     p_cmp = sub.add_parser(
         "compare", parents=[common], help="every listed estimator on every listed scenario: the comparison matrix"
     )
@@ -539,7 +574,6 @@ def _parser() -> argparse.ArgumentParser:
     )
     _add_campaign_options(p_cmp, "comparison (default out/compare_<hash>)")
     p_cmp.set_defaults(func=_cmd_compare)
-    return parser
 
 
 def main(argv=None) -> int:

@@ -213,30 +213,44 @@ def bound_sources(scenario, name: str) -> dict:
     """The raw sensors estimator ``name`` reads and the config that gives its prior:
     ``{"gyro": GyroConfig, "trackers": [StarTrackerConfig, ...], "prior_config": config,
     "notes": [...]}``. Raises :class:`NoBound` (the reason) where no bound is defined."""
-    from drake_att.scenarios.selection import fused_sources
-    from drake_att.sensors.faults_plugin import SensorFaultsConfig
     from drake_att.sensors.gyro_plugin import GyroConfig
-    from drake_att.sensors.scale_factor_star_noise_plugin import ScaleFactorStarNoiseConfig
-    from drake_att.sensors.star_tracker_average_plugin import StarTrackerAverageConfig
-    from drake_att.sensors.star_tracker_plugin import StarTrackerConfig
 
     sensors, estimators = _configs(scenario)
     if name not in estimators:
         raise ValueError(f"{name}: not an estimator of {scenario.name}; estimators: {list(estimators)}")
+    configs = _leaf_estimators(estimators, name)
+    gyro_name, tracker_names = _gyro_and_tracker_names(name, configs)
+    gyro = sensors.get(gyro_name)
+    if not isinstance(gyro, GyroConfig):
+        raise NoBound(f"{gyro_name} is not a !GyroConfig gyro")
+    read = {gyro_name}
+    raw = _raw_trackers(sensors, tracker_names, read)
+    _require_unperturbed(scenario, read)
+    notes = _model_gap_notes(gyro_name, gyro, raw)
+    prior = next((c for c in configs if hasattr(c, "initial_attitude_sigma_deg")), configs[0])
+    return {"gyro": gyro, "trackers": raw, "prior_config": prior, "notes": notes}
 
-    def leaves(n, seen=()):
-        c = estimators[n]
-        if fused_sources(c):
-            if n in seen:
-                raise NoBound(f"{n}: a fusion cycle")
-            out = []
-            for s in fused_sources(c):
-                out += leaves(s, seen + (n,))
-            return out
-        return [c]
 
-    configs = leaves(name)
-    gyros, tracker_names, read = set(), [], set()
+def _leaf_estimators(estimators, name, seen=()) -> list:
+    """The non-fusing estimator configs under ``name`` (itself when it fuses nothing), depth first;
+    a fusion cycle has no bound."""
+    from drake_att.scenarios.selection import fused_sources
+
+    c = estimators[name]
+    if fused_sources(c):
+        if name in seen:
+            raise NoBound(f"{name}: a fusion cycle")
+        out = []
+        for s in fused_sources(c):
+            out += _leaf_estimators(estimators, s, seen + (name,))
+        return out
+    return [c]
+
+
+def _gyro_and_tracker_names(name, configs) -> tuple:
+    """The one gyro and the star-tracker names (in reading order, repeats kept) the leaf
+    estimators ``configs`` read; :class:`NoBound` for a camera, no gyro, no tracker or several gyros."""
+    gyros, tracker_names = set(), []
     for c in configs:
         if getattr(c, "camera", None):
             raise NoBound(f"{c.name} reads a camera ({c.camera}): the camera's measurement model is not in the bound")
@@ -252,11 +266,15 @@ def bound_sources(scenario, name: str) -> dict:
         tracker_names += names
     if len(gyros) != 1:
         raise NoBound(f"{name} reads {len(gyros)} gyros {sorted(gyros)}; the bound handles one")
-    gyro_name = gyros.pop()
-    gyro = sensors.get(gyro_name)
-    if not isinstance(gyro, GyroConfig):
-        raise NoBound(f"{gyro_name} is not a !GyroConfig gyro")
-    read.add(gyro_name)
+    return gyros.pop(), tracker_names
+
+
+def _raw_trackers(sensors, tracker_names, read: set) -> list:
+    """The distinct raw star-tracker configs behind ``tracker_names`` (an average expands to its
+    inputs), first appearance first; adds every sensor name involved to ``read``."""
+    from drake_att.sensors.star_tracker_average_plugin import StarTrackerAverageConfig
+    from drake_att.sensors.star_tracker_plugin import StarTrackerConfig
+
     raw = []
     for n in tracker_names:
         s = sensors.get(n)
@@ -271,6 +289,15 @@ def bound_sources(scenario, name: str) -> dict:
         for e in expanded:
             if e not in [t.name for t in raw]:
                 raw.append(sensors[e])
+    return raw
+
+
+def _require_unperturbed(scenario, read: set) -> None:
+    """:class:`NoBound` when a fault injector or the correlated scale-factor / star-noise model
+    acts on a sensor in ``read``: the bound assumes Gaussian, independent noise."""
+    from drake_att.sensors.faults_plugin import SensorFaultsConfig
+    from drake_att.sensors.scale_factor_star_noise_plugin import ScaleFactorStarNoiseConfig
+
     for s in scenario.sensors:
         if isinstance(s, SensorFaultsConfig) and s.sensor in read:
             raise NoBound(
@@ -282,6 +309,11 @@ def bound_sources(scenario, name: str) -> dict:
                 f"{s.name}: the gyro's per-step scale-factor error correlated with the star noise "
                 "(paper S1) is not in the bound's model"
             )
+
+
+def _model_gap_notes(gyro_name, gyro, raw) -> list:
+    """Notes on effects the bound leaves out but that do not void it (deterministic gyro
+    errors, unlogged vector-mode dropouts)."""
     notes = []
     if np.any(np.asarray(gyro.scale_factor_error_ppm) != 0) or np.any(np.asarray(gyro.misalignment_urad) != 0):
         notes.append(
@@ -294,8 +326,7 @@ def bound_sources(scenario, name: str) -> dict:
                 f"{t.name}: vector-mode samples are not logged; the bound assumes none was dropped "
                 f"(dropout_probability {t.dropout_probability}: the bound is slightly optimistic)"
             )
-    prior = next((c for c in configs if hasattr(c, "initial_attitude_sigma_deg")), configs[0])
-    return {"gyro": gyro, "trackers": raw, "prior_config": prior, "notes": notes}
+    return notes
 
 
 def prior_covariance(sources: dict) -> tuple[np.ndarray, str]:

@@ -583,9 +583,38 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
 
 
 def _campaign_html(result, campaign, figures, yaml_text) -> str:
+    """The campaign's report page: facts, failed runs, the summary sections (when any run
+    finished), the file list and the resolved configuration."""
     s = result.summary
     title = f"Monte Carlo: {result.scenario.name}, {len(result.records)} runs"
-    facts = [
+    body = [
+        f"<h1>{html.escape(title)}</h1>",
+        "<table class='facts'>"
+        + "".join(
+            f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in _campaign_facts(result, campaign)
+        )
+        + "</table>",
+    ]
+    if result.failed:
+        body.append(
+            "<h2>Failed runs</h2><ul>"
+            + "".join(f"<li>seed {s_}: {html.escape(m)}</li>" for s_, m in result.failed.items())
+            + "</ul>"
+        )
+    if s:
+        body += _summary_sections(s, figures)
+    body.append(
+        "<h2>Files</h2><p><code>summary.json</code> (every number above), <code>config.yaml</code> (the "
+        "resolved configuration), <code>runs/seed_&lt;seed&gt;.npz</code> (one record per run: "
+        "<code>drake_att.analysis.ensemble</code>), the PNGs, <code>manifest.json</code>.</p>"
+    )
+    body.append(f"<h2>Resolved configuration</h2><pre>{html.escape(yaml_text)}</pre>")
+    return _page(title, "\n".join(body))
+
+
+def _campaign_facts(result, campaign) -> list:
+    """The (label, text) rows of the page's facts table."""
+    return [
         ("scenario", result.scenario.name),
         ("description", " ".join(result.scenario.description.split())),
         (
@@ -605,77 +634,67 @@ def _campaign_html(result, campaign, figures, yaml_text) -> str:
             ),
         ),
     ]
-    body = [
-        f"<h1>{html.escape(title)}</h1>",
-        "<table class='facts'>"
-        + "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>" for k, v in facts)
-        + "</table>",
+
+
+def _summary_sections(s, figures) -> list:
+    """The HTML sections built from the summary ``s``: the table, figures, the bound, the
+    worst runs and the methods."""
+    return [
+        "<h2>Summary</h2>" + _table_html(TABLE_COLUMNS, summary_rows(s)),
+        "<p>RMSE over the scoring window pooled over runs; the 95% CI is for the total. ANEES: mean NEES "
+        "over runs and window samples, with the 95% band of a window average of a consistent filter "
+        "(‘OUT’: outside it). NIS: mean NIS per update attempt in the window / its mean dimension. "
+        "Bound: the posterior Cramér–Rao bound on each run's true trajectory with the true sensor noise; "
+        "RMSE / bound ≥ 1 for any estimator up to sampling error.</p>",
+        "<h2>Figures</h2>" + "".join(_figure_html(p, c) for p, c in figures),
+        _bound_section(s),
+        _worst_runs_section(s),
+        "<h2>Methods</h2><ul>"
+        + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in s["methods"].items())
+        + "</ul>",
     ]
-    if result.failed:
-        body.append(
-            "<h2>Failed runs</h2><ul>"
-            + "".join(f"<li>seed {s_}: {html.escape(m)}</li>" for s_, m in result.failed.items())
-            + "</ul>"
+
+
+def _bound_section(s) -> str:
+    """The Cramér–Rao bound table: per estimator whether it is defined, its RMS and the ratios."""
+    rows = []
+    for n, e in s["estimators"].items():
+        bd = e["bound"]
+        rows.append(
+            [
+                n,
+                "yes" if bd["defined"] else f"no: {bd['reason']}",
+                " / ".join(_g(v) for v in bd["attitude_rmse_bound_deg"]) if bd["attitude_rmse_bound_deg"] else "–",
+                "; ".join(_ci(c) for c in bd["ratio_ci95"]) if bd["ratio_ci95"] else "–",
+                " / ".join(_g(v) for v in bd["bias_ratio"]) if bd["bias_ratio"] else "–",
+                _g(bd["prior_sensitivity"]),
+            ]
         )
-    if s:
-        body.append("<h2>Summary</h2>" + _table_html(TABLE_COLUMNS, summary_rows(s)))
-        body.append(
-            "<p>RMSE over the scoring window pooled over runs; the 95% CI is for the total. ANEES: mean NEES "
-            "over runs and window samples, with the 95% band of a window average of a consistent filter "
-            "(‘OUT’: outside it). NIS: mean NIS per update attempt in the window / its mean dimension. "
-            "Bound: the posterior Cramér–Rao bound on each run's true trajectory with the true sensor noise; "
-            "RMSE / bound ≥ 1 for any estimator up to sampling error.</p>"
-        )
-        body.append("<h2>Figures</h2>" + "".join(_figure_html(p, c) for p, c in figures))
-        rows = []
-        for n, e in s["estimators"].items():
-            bd = e["bound"]
-            rows.append(
-                [
-                    n,
-                    "yes" if bd["defined"] else f"no: {bd['reason']}",
-                    " / ".join(_g(v) for v in bd["attitude_rmse_bound_deg"]) if bd["attitude_rmse_bound_deg"] else "–",
-                    "; ".join(_ci(c) for c in bd["ratio_ci95"]) if bd["ratio_ci95"] else "–",
-                    " / ".join(_g(v) for v in bd["bias_ratio"]) if bd["bias_ratio"] else "–",
-                    _g(bd["prior_sensitivity"]),
-                ]
-            )
-        body.append(
-            "<h2>The Cramér–Rao bound</h2>"
-            + _table_html(
-                [
-                    "estimator",
-                    "defined",
-                    "bound RMS x / y / z (deg)",
-                    "RMSE / bound 95% CI x; y; z",
-                    "bias RMSE / bound",
-                    "prior sensitivity",
-                ],
-                rows,
-            )
-        )
-        rows = [
-            [n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]), w["command"]]
-            for n, e in s["estimators"].items()
-            for w in e["worst_runs"]
-        ]
-        body.append(
-            "<h2>Worst runs</h2><p>Largest total attitude RMSE per estimator; the command repeats the run "
-            "bit for bit (the campaign's resolved config).</p>"
-            + _table_html(["estimator", "seed", "RMSE total (deg)", "repeat it"], rows)
-        )
-        body.append(
-            "<h2>Methods</h2><ul>"
-            + "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in s["methods"].items())
-            + "</ul>"
-        )
-    body.append(
-        "<h2>Files</h2><p><code>summary.json</code> (every number above), <code>config.yaml</code> (the "
-        "resolved configuration), <code>runs/seed_&lt;seed&gt;.npz</code> (one record per run: "
-        "<code>drake_att.analysis.ensemble</code>), the PNGs, <code>manifest.json</code>.</p>"
+    return "<h2>The Cramér–Rao bound</h2>" + _table_html(
+        [
+            "estimator",
+            "defined",
+            "bound RMS x / y / z (deg)",
+            "RMSE / bound 95% CI x; y; z",
+            "bias RMSE / bound",
+            "prior sensitivity",
+        ],
+        rows,
     )
-    body.append(f"<h2>Resolved configuration</h2><pre>{html.escape(yaml_text)}</pre>")
-    return _page(title, "\n".join(body))
+
+
+def _worst_runs_section(s) -> str:
+    """The worst runs per estimator, each with the command that repeats it."""
+    rows = [
+        [n, str(w["seed"]), _g(w["attitude_rmse_total_deg"]), w["command"]]
+        for n, e in s["estimators"].items()
+        for w in e["worst_runs"]
+    ]
+    return (
+        "<h2>Worst runs</h2><p>Largest total attitude RMSE per estimator; the command repeats the run "
+        "bit for bit (the campaign's resolved config).</p>"
+        + _table_html(["estimator", "seed", "RMSE total (deg)", "repeat it"], rows)
+    )
 
 
 # ----------------------------------------------------------------------------------------

@@ -190,12 +190,7 @@ def run_comparison(
     campaigns, timing, created = {}, {}, []
     try:
         if out is not None:
-            path = os.path.normpath(out)
-            while not os.path.isdir(path):  # what this call creates (taken back if nothing is saved)
-                created.append(path)
-                if os.path.dirname(path) in ("", path):
-                    break
-                path = os.path.dirname(path)
+            created = _missing_folders(out)
             os.makedirs(out, exist_ok=True)
         for scenario in plan.scenarios:
             sub = None if out is None else os.path.join(out, safe_component(scenario.name))
@@ -212,34 +207,11 @@ def run_comparison(
                 connect_timeout_s=connect_timeout_s,
                 stream=stream,
             )
-            names = [e for e in plan.estimators if plan.cells.get((scenario.name, e), "") is None]
-            selections = [()] + [_selection_with_sources(scenario, e) for e in names]
-            seeds = [min(first_seed + k, SEED_MAX) for k in range(timing_repeats)]
-            jobs = [(seed, sel) for sel in selections for seed in seeds]
-            walls = map_runs(
-                scenario, jobs, timing_record, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s
+            timing.update(
+                _time_estimators(plan, scenario, first_seed, timing_repeats, workers, scheduler, connect_timeout_s)
             )
-            fastest = [
-                min(walls[k * len(seeds) : (k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])
-                for k in range(len(selections))
-            ]
-            base = fastest[0]["wall_time_s"]
-            for e, sel, w in zip(names, selections[1:], fastest[1:], strict=True):
-                steps = w["steps"][e]
-                timing[(scenario.name, e)] = {
-                    "selection": list(sel),
-                    "steps": steps,
-                    "wall_s": w["wall_time_s"],
-                    "baseline_wall_s": base,
-                    "repeats": len(seeds),
-                    "ms_per_step": 1e3 * (w["wall_time_s"] - base) / max(steps, 1),
-                }
     except BaseException:
-        for path in created:  # empty folders only: a campaign that saved runs keeps them
-            try:
-                os.rmdir(path)
-            except OSError:
-                break
+        _remove_empty_folders(created)
         raise
     finally:
         if owned is not None:
@@ -250,3 +222,54 @@ def run_comparison(
 
         result.files = campaign_report.write_comparison(result)
     return result
+
+
+def _missing_folders(out: str) -> list:
+    """The folders creating ``out`` would add, deepest first (taken back if nothing is saved)."""
+    created = []
+    path = os.path.normpath(out)
+    while not os.path.isdir(path):
+        created.append(path)
+        if os.path.dirname(path) in ("", path):
+            break
+        path = os.path.dirname(path)
+    return created
+
+
+def _remove_empty_folders(created: list) -> None:
+    """Remove the folders in ``created`` (deepest first) while they are empty: a campaign that
+    saved runs keeps them."""
+    for path in created:
+        try:
+            os.rmdir(path)
+        except OSError:
+            break
+
+
+def _time_estimators(plan, scenario, first_seed, timing_repeats, workers, scheduler, connect_timeout_s) -> dict:
+    """Per (scenario, estimator) with a matrix cell, the timing entry: the fastest of
+    ``timing_repeats`` runs of that estimator and its sources, minus the fastest sensors-only run."""
+    names = [e for e in plan.estimators if plan.cells.get((scenario.name, e), "") is None]
+    selections = [()] + [_selection_with_sources(scenario, e) for e in names]
+    seeds = [min(first_seed + k, SEED_MAX) for k in range(timing_repeats)]
+    jobs = [(seed, sel) for sel in selections for seed in seeds]
+    walls = map_runs(
+        scenario, jobs, timing_record, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s
+    )
+    fastest = [
+        min(walls[k * len(seeds) : (k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])
+        for k in range(len(selections))
+    ]
+    base = fastest[0]["wall_time_s"]
+    timing = {}
+    for e, sel, w in zip(names, selections[1:], fastest[1:], strict=True):
+        steps = w["steps"][e]
+        timing[(scenario.name, e)] = {
+            "selection": list(sel),
+            "steps": steps,
+            "wall_s": w["wall_time_s"],
+            "baseline_wall_s": base,
+            "repeats": len(seeds),
+            "ms_per_step": 1e3 * (w["wall_time_s"] - base) / max(steps, 1),
+        }
+    return timing

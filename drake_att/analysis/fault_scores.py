@@ -227,81 +227,141 @@ def score_fault_events(
     ends = np.array([e.t_end for e in events])
     rows = []
     for name in names:
-        err = estimator_errors(run, name)
-        t = err["t"]
-        angle = np.linalg.norm(err["dtheta"], axis=1)
-        nees = attitude_nees(err)
-        status = err["status"]
-        d_used = np.diff(status[:, 1], prepend=0.0)
-        d_skipped = np.diff(status[:, 2], prepend=0.0)
-        nis = status[:, 3]
-        consumed = consumed_sensors(run.scenario, name)
-        quiet = ~_at(t, _faulty_times(run, consumed))
-        quiet[0] = False
-        base_used = float(np.median(d_used[quiet])) if np.any(quiet) else 0.0
-        base_skipped = float(np.median(d_skipped[quiet])) if np.any(quiet) else 0.0
+        series = _estimator_series(run, name)
         for k, e in enumerate(events):
             later = starts[starts > e.t_start + TIME_TOLERANCE_S]
             window_end = float(later.min()) if len(later) else t_run_end
-            row = {
-                "estimator": name,
-                "sensor": e.sensor,
-                "sensor_kind": e.sensor_kind,
-                "kind": e.kind,
-                "code": e.code,
-                "t_start": e.t_start,
-                "t_end": e.t_end,
-                "magnitude": e.magnitude,
-                "window_end": window_end,
-                "seen": False,
-                "steps": 0,
-                "detected": 0,
-                "rejected": 0,
-                "accepted": 0,
-                "ignored": 0,
-                "peak_error_deg": None,
-                "pre_fault_rms_deg": None,
-                "bound_deg": None,
-                "recovery_time_s": None,
-                "nees_after_recovery": None,
-            }
-            hit = _at(t, e.samples) if e.sensor in consumed else np.zeros(len(t), dtype=bool)
-            for i in np.flatnonzero(hit):
-                rejected = d_skipped[i] > base_skipped
-                accepted = not rejected and (e.sensor_kind == "gyro" or d_used[i] >= base_used)
-                row["rejected"] += int(rejected)
-                row["accepted"] += int(accepted)
-                row["ignored"] += int(not rejected and not accepted)
-                row["detected"] += int(rejected or (accepted and np.isfinite(nis[i]) and nis[i] > detection_nis))
-            row["steps"] = int(np.sum(hit))
-            row["seen"] = row["steps"] > 0
-            inside = (t >= e.t_start - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
-            if np.any(inside):
-                row["peak_error_deg"] = float(np.max(angle[inside]) / DEG)
-            earlier_ends = ends[(np.arange(len(events)) != k) & (ends < e.t_start - TIME_TOLERANCE_S)]
-            pre_from = max(e.t_start - pre_fault_window_s, float(earlier_ends.max()) if len(earlier_ends) else -np.inf)
-            pre = (t > pre_from + TIME_TOLERANCE_S) & (t < e.t_start - TIME_TOLERANCE_S)
-            if np.sum(pre) >= 5 and np.any(inside):
-                rms = float(np.sqrt(np.mean(angle[pre] ** 2)))
-                bound = max(recovery_factor * rms, bound_floor_deg * DEG)
-                row["pre_fault_rms_deg"], row["bound_deg"] = rms / DEG, bound / DEG
-                after = np.flatnonzero((t >= e.t_end - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S))
-                ok = angle[after] <= bound
-                for j, i in enumerate(after):
-                    if not ok[j]:
-                        continue
-                    hold_end = min(t[i] + hold_s, window_end)
-                    if hold_end - t[i] < min_hold_s - TIME_TOLERANCE_S:
-                        break  # too close to the window's end to confirm
-                    span = after[j:][t[after[j:]] < hold_end - TIME_TOLERANCE_S]
-                    if np.all(angle[span] <= bound):
-                        row["recovery_time_s"] = float(max(t[i] - e.t_end, 0.0))
-                        tail = nees[i : after[-1] + 1]
-                        tail = tail[np.isfinite(tail)]
-                        row["nees_after_recovery"] = float(np.mean(tail)) if len(tail) else None
-                        break
+            row = _empty_row(name, e, window_end)
+            _count_fault_steps(row, e, series, detection_nis)
+            pre_from = _pre_fault_start(k, e, ends, pre_fault_window_s)
+            _score_error(
+                row, e, series, window_end, pre_from, recovery_factor, bound_floor_deg * DEG, hold_s, min_hold_s
+            )
             rows.append(row)
     return rows
+
+
+def _estimator_series(run, name: str) -> dict:
+    """What scoring needs of estimator ``name`` in ``run``: sample times ``t``, attitude error
+    angle, NEES, per-step used / skipped update increments and NIS, the sensors it reads, and the
+    median used / skipped increments over fault-free steps (the baseline a faulted step is judged by)."""
+    err = estimator_errors(run, name)
+    t = err["t"]
+    status = err["status"]
+    d_used = np.diff(status[:, 1], prepend=0.0)
+    d_skipped = np.diff(status[:, 2], prepend=0.0)
+    consumed = consumed_sensors(run.scenario, name)
+    quiet = ~_at(t, _faulty_times(run, consumed))
+    quiet[0] = False
+    return {
+        "t": t,
+        "angle": np.linalg.norm(err["dtheta"], axis=1),
+        "nees": attitude_nees(err),
+        "d_used": d_used,
+        "d_skipped": d_skipped,
+        "nis": status[:, 3],
+        "consumed": consumed,
+        "base_used": float(np.median(d_used[quiet])) if np.any(quiet) else 0.0,
+        "base_skipped": float(np.median(d_skipped[quiet])) if np.any(quiet) else 0.0,
+    }
+
+
+def _empty_row(name: str, e, window_end: float) -> dict:
+    """The row of (event ``e``, estimator ``name``) before scoring: the event's facts, zero
+    counts and no error figures."""
+    return {
+        "estimator": name,
+        "sensor": e.sensor,
+        "sensor_kind": e.sensor_kind,
+        "kind": e.kind,
+        "code": e.code,
+        "t_start": e.t_start,
+        "t_end": e.t_end,
+        "magnitude": e.magnitude,
+        "window_end": window_end,
+        "seen": False,
+        "steps": 0,
+        "detected": 0,
+        "rejected": 0,
+        "accepted": 0,
+        "ignored": 0,
+        "peak_error_deg": None,
+        "pre_fault_rms_deg": None,
+        "bound_deg": None,
+        "recovery_time_s": None,
+        "nees_after_recovery": None,
+    }
+
+
+def _count_fault_steps(row: dict, e, series: dict, detection_nis: float) -> None:
+    """Fill ``row``'s step counts: the estimator steps that met a faulted sample of ``e`` and
+    whether each was rejected, accepted or ignored, and detected (rejected or a large NIS)."""
+    t, d_used, d_skipped, nis = series["t"], series["d_used"], series["d_skipped"], series["nis"]
+    hit = _at(t, e.samples) if e.sensor in series["consumed"] else np.zeros(len(t), dtype=bool)
+    for i in np.flatnonzero(hit):
+        rejected = d_skipped[i] > series["base_skipped"]
+        accepted = not rejected and (e.sensor_kind == "gyro" or d_used[i] >= series["base_used"])
+        row["rejected"] += int(rejected)
+        row["accepted"] += int(accepted)
+        row["ignored"] += int(not rejected and not accepted)
+        row["detected"] += int(rejected or (accepted and np.isfinite(nis[i]) and nis[i] > detection_nis))
+    row["steps"] = int(np.sum(hit))
+    row["seen"] = row["steps"] > 0
+
+
+def _pre_fault_start(k: int, e, ends: np.ndarray, pre_fault_window_s: float) -> float:
+    """Start of event ``k``'s pre-fault window: ``pre_fault_window_s`` before it, but not before
+    the end of an earlier event."""
+    earlier_ends = ends[(np.arange(len(ends)) != k) & (ends < e.t_start - TIME_TOLERANCE_S)]
+    return max(e.t_start - pre_fault_window_s, float(earlier_ends.max()) if len(earlier_ends) else -np.inf)
+
+
+def _score_error(
+    row: dict,
+    e,
+    series: dict,
+    window_end: float,
+    pre_from: float,
+    recovery_factor: float,
+    bound_floor: float,
+    hold_s: float,
+    min_hold_s: float,
+) -> None:
+    """Fill ``row``'s error figures: the peak error in the event's window and, given enough
+    pre-fault samples, the pre-fault RMS, the recovery bound (``bound_floor`` in rad at least),
+    the recovery time and the mean NEES from recovery to the window's end."""
+    t, angle = series["t"], series["angle"]
+    inside = (t >= e.t_start - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
+    if np.any(inside):
+        row["peak_error_deg"] = float(np.max(angle[inside]) / DEG)
+    pre = (t > pre_from + TIME_TOLERANCE_S) & (t < e.t_start - TIME_TOLERANCE_S)
+    if np.sum(pre) >= 5 and np.any(inside):
+        rms = float(np.sqrt(np.mean(angle[pre] ** 2)))
+        bound = max(recovery_factor * rms, bound_floor)
+        row["pre_fault_rms_deg"], row["bound_deg"] = rms / DEG, bound / DEG
+        after = np.flatnonzero((t >= e.t_end - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S))
+        i = _first_recovery(t, angle, after, bound, window_end, hold_s, min_hold_s)
+        if i is not None:
+            row["recovery_time_s"] = float(max(t[i] - e.t_end, 0.0))
+            tail = series["nees"][i : after[-1] + 1]
+            tail = tail[np.isfinite(tail)]
+            row["nees_after_recovery"] = float(np.mean(tail)) if len(tail) else None
+
+
+def _first_recovery(t, angle, after, bound: float, window_end: float, hold_s: float, min_hold_s: float):
+    """The first index in ``after`` from which the error stays within ``bound`` for ``hold_s``
+    (cut at ``window_end``, at least ``min_hold_s`` long), or None."""
+    ok = angle[after] <= bound
+    for j, i in enumerate(after):
+        if not ok[j]:
+            continue
+        hold_end = min(t[i] + hold_s, window_end)
+        if hold_end - t[i] < min_hold_s - TIME_TOLERANCE_S:
+            return None  # too close to the window's end to confirm
+        span = after[j:][t[after[j:]] < hold_end - TIME_TOLERANCE_S]
+        if np.all(angle[span] <= bound):
+            return i
+    return None
 
 
 def summarize_fault_scores(rows_per_run: list) -> list[dict]:

@@ -744,14 +744,34 @@ class ValidationContext:
 
 def validate(s: Scenario) -> None:
     """Check every value of a scenario; raise :class:`ConfigError` on the first bad one."""
+    _validate_identity(s)
+    check_positive("duration_s", s.duration_s)
+    validation.check_seed("seed", s.seed, ConfigError)
+    _validate_simulation(s.simulation)
+    if s.orbit is not None:
+        check_positive("orbit.altitude_km", s.orbit.altitude_km)
+        for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg"):
+            check_finite(f"orbit.{f}", getattr(s.orbit, f))
+    _validate_plant(s)
+    _validate_components(s)
+    _validate_scoring(s)
+    from drake_att.scenarios.ranges import check_ranges
+
+    check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
+
+
+def _validate_identity(s: Scenario) -> None:
+    """The scenario's name (a short one-line text) and description (a text)."""
     if not isinstance(s.name, str) or not s.name.strip() or len(s.name) > 200 or any(ord(c) < 32 for c in s.name):
         fail("name", s.name, "must be a non-empty text of at most 200 characters without control characters")
     if not isinstance(s.description, str):
         fail("description", s.description, "must be a text string")
-    check_positive("duration_s", s.duration_s)
-    validation.check_seed("seed", s.seed, ConfigError)
-    check_positive("simulation.max_step_size_s", s.simulation.max_step_size_s)
-    check_positive("simulation.accuracy", s.simulation.accuracy)
+
+
+def _validate_simulation(sim) -> None:
+    """The simulator's step size, accuracy and a Drake integration scheme name."""
+    check_positive("simulation.max_step_size_s", sim.max_step_size_s)
+    check_positive("simulation.accuracy", sim.accuracy)
     schemes = {
         "runge_kutta2",
         "runge_kutta3",
@@ -764,26 +784,15 @@ def validate(s: Scenario) -> None:
         "implicit_euler",
         "velocity_implicit_euler",
     }
-    if s.simulation.integration_scheme not in schemes:
-        fail("simulation.integration_scheme", s.simulation.integration_scheme, f"allowed: {sorted(schemes)}")
-    if s.orbit is not None:
-        check_positive("orbit.altitude_km", s.orbit.altitude_km)
-        for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg"):
-            check_finite(f"orbit.{f}", getattr(s.orbit, f))
+    if sim.integration_scheme not in schemes:
+        fail("simulation.integration_scheme", sim.integration_scheme, f"allowed: {sorted(schemes)}")
+
+
+def _validate_plant(s: Scenario) -> None:
+    """The truth model's fields, per plant kind."""
     p = s.plant
     if isinstance(p, RigidBodyConfig):
-        if not isinstance(p.inertia_kg_m2, list) or len(p.inertia_kg_m2) not in (3, 9):
-            fail("plant.inertia_kg_m2", p.inertia_kg_m2, "must be 3 principal moments or 9 matrix entries")
-        from drake_att.systems.plant import validate_inertia
-
-        I = np.array(p.inertia_kg_m2, dtype=float)
-        try:
-            validate_inertia(I if I.size == 3 else I.reshape(3, 3), "plant.inertia_kg_m2")
-        except ValueError as e:
-            raise ConfigError(str(e)) from e
-        check_vector("plant.initial_attitude_rpy_deg", p.initial_attitude_rpy_deg, 3)
-        check_vector("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
-        check_vector("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
+        _validate_rigid_body(p)
     elif isinstance(p, PrescribedRateConfig):
         for f in (
             "initial_attitude_rpy_deg",
@@ -794,22 +803,48 @@ def validate(s: Scenario) -> None:
         ):
             check_vector(f"plant.{f}", getattr(p, f), 3)
     elif isinstance(p, PrescribedRpyConfig):
-        if s.orbit is not None:
-            fail(
-                "orbit",
-                "set",
-                "a PrescribedRpyConfig truth is roll/pitch/yaw relative to the inertial frame, while "
-                "with an orbit every estimate starts relative to the orbit frame; remove orbit (or use another "
-                "plant)",
-            )
-        if len(p.times_s) < 2 or np.ndim(p.rpy_deg) != 2 or len(p.rpy_deg) != len(p.times_s):
-            fail("plant.times_s", p.times_s, "need >= 2 breakpoints and one rpy_deg row per time")
-        for i in range(1, len(p.times_s)):
-            if not p.times_s[i] > p.times_s[i - 1]:
-                fail("plant.times_s", p.times_s, "must be strictly increasing")
-        for i, row in enumerate(p.rpy_deg):
-            check_vector(f"plant.rpy_deg[{i}]", row, 3)
+        _validate_prescribed_rpy(p, s.orbit)
 
+
+def _validate_rigid_body(p: RigidBodyConfig) -> None:
+    """A physical inertia (3 principal moments or a 3x3 matrix) and the 3-vectors."""
+    if not isinstance(p.inertia_kg_m2, list) or len(p.inertia_kg_m2) not in (3, 9):
+        fail("plant.inertia_kg_m2", p.inertia_kg_m2, "must be 3 principal moments or 9 matrix entries")
+    from drake_att.systems.plant import validate_inertia
+
+    I = np.array(p.inertia_kg_m2, dtype=float)
+    try:
+        validate_inertia(I if I.size == 3 else I.reshape(3, 3), "plant.inertia_kg_m2")
+    except ValueError as e:
+        raise ConfigError(str(e)) from e
+    check_vector("plant.initial_attitude_rpy_deg", p.initial_attitude_rpy_deg, 3)
+    check_vector("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
+    check_vector("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
+
+
+def _validate_prescribed_rpy(p: PrescribedRpyConfig, orbit) -> None:
+    """No orbit (the table is relative to the inertial frame) and a strictly increasing time
+    table with one roll/pitch/yaw row per time."""
+    if orbit is not None:
+        fail(
+            "orbit",
+            "set",
+            "a PrescribedRpyConfig truth is roll/pitch/yaw relative to the inertial frame, while "
+            "with an orbit every estimate starts relative to the orbit frame; remove orbit (or use another "
+            "plant)",
+        )
+    if len(p.times_s) < 2 or np.ndim(p.rpy_deg) != 2 or len(p.rpy_deg) != len(p.times_s):
+        fail("plant.times_s", p.times_s, "need >= 2 breakpoints and one rpy_deg row per time")
+    for i in range(1, len(p.times_s)):
+        if not p.times_s[i] > p.times_s[i - 1]:
+            fail("plant.times_s", p.times_s, "must be strictly increasing")
+    for i, row in enumerate(p.rpy_deg):
+        check_vector(f"plant.rpy_deg[{i}]", row, 3)
+
+
+def _validate_components(s: Scenario) -> None:
+    """Sensors, then estimators, in list order: unique names and each plug-in's own checks,
+    which see only the components listed before."""
     from drake_att.scenarios.registry import plugin_for
 
     checks = ValidationContext(s)
@@ -829,10 +864,11 @@ def validate(s: Scenario) -> None:
         if plugin.validate is not None:
             plugin.validate(path, est, checks)
         checks.estimators[est.name] = est
+
+
+def _validate_scoring(s: Scenario) -> None:
+    """The scoring window starts inside the run; a positive convergence threshold."""
     check_nonnegative("scoring.score_from_s", s.scoring.score_from_s)
     if s.scoring.score_from_s >= s.duration_s:
         fail("scoring.score_from_s", s.scoring.score_from_s, f"must be < duration_s ({s.duration_s})")
     check_positive("scoring.convergence_threshold_deg", s.scoring.convergence_threshold_deg)
-    from drake_att.scenarios.ranges import check_ranges
-
-    check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
