@@ -236,8 +236,20 @@ class EstimatorSystem(LeafSystem):
         self.capabilities = CoreCapabilities.of(core)
         self._linearizing = self.capabilities.linearized_prediction
         self.num_particles = self.capabilities.num_particles
+        self._declare_inputs(core, quaternion_sensors, vector_sensors, camera_sensors)
+        self.diagnostic_names = self.capabilities.diagnostic_names
+        self._compiled_models: dict = {}
+        self._model_index = self.DeclareAbstractParameter(
+            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors)))
+        )
+        self._declare_state(core, initial_state)
+        self._declare_outputs()
+        if core.is_random:
+            self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
-        # -- inputs (order matters for the diagram's random streams: keep it stable) ------
+    def _declare_inputs(self, core, quaternion_sensors, vector_sensors, camera_sensors) -> None:
+        """The input ports; their order matters for the diagram's random streams: keep it stable."""
         self._gyro_port = (
             self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE) if core.uses_gyro else None
         )
@@ -256,13 +268,9 @@ class EstimatorSystem(LeafSystem):
         self._seed_port = declare_seed_port(self) if core.is_random else None
         self._vector_names = tuple(vector_sensors)
         self._camera_names = tuple(camera_sensors)
-        self.diagnostic_names = self.capabilities.diagnostic_names
-        self._compiled_models: dict = {}
-        self._model_index = self.DeclareAbstractParameter(
-            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors)))
-        )
 
-        # -- state -------------------------------------------------------------------------
+    def _declare_state(self, core, initial_state) -> None:
+        """The discrete-state groups (see the module docstring)."""
         q0, second0, P0 = core.estimate(initial_state)
         self._estimate_group = self._declare_group(
             pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan)
@@ -281,7 +289,8 @@ class EstimatorSystem(LeafSystem):
         if n_inputs:
             self._innovation_group = self._declare_group(np.tile([-np.inf, np.nan, 0.0], n_inputs))
 
-        # -- outputs -----------------------------------------------------------------------
+    def _declare_outputs(self) -> None:
+        """The contract's ports, the logged state ports and the capabilities' outputs."""
         ticket = {self.discrete_state_ticket(self._estimate_group)}
         for port, part in self.second_quantity.estimate_ports():
             self.DeclareVectorOutputPort(port, part.stop - part.start, functools.partial(self._out, part=part), ticket)
@@ -306,11 +315,6 @@ class EstimatorSystem(LeafSystem):
                 self._calc_core_diagnostics,
                 {self.discrete_state_ticket(self._core_group)},
             )
-
-        # -- events ------------------------------------------------------------------------
-        if core.is_random:
-            self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
     def _declare_group(self, values):
         """A discrete-state group with these initial values; its index."""
