@@ -461,3 +461,33 @@ def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, loca
     assert out.stdout.split() == [str(caching)] and out.stderr == "", (out.stdout, out.stderr[-2000:])
     cached = [f for _, _, fs in os.walk(tmp_path) for f in fs if f.endswith((".nbi", ".nbc"))]
     assert bool(cached) == caching, cached
+
+
+_FULL_DISK_CHILD = """
+import os, resource, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead
+sys.path.insert(0, sys.argv[1])
+import fresh_kernels  # a module no process has compiled: its first call writes numba's cache
+hard = resource.getrlimit(resource.RLIMIT_FSIZE)[1]
+resource.setrlimit(resource.RLIMIT_FSIZE, (1, hard))  # every file write fails: a full disk
+try:
+    value = fresh_kernels.plus_one(1.0)
+finally:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (hard, hard))
+print(value)
+"""
+
+
+@pytest.mark.slow
+def test_a_kernel_whose_cache_cannot_be_written_still_runs(tmp_path):
+    """A kernel first compiled while its cache file cannot be written (a full disk, a quota, a
+    file-size limit) runs compiled in that process: the run goes on (it failed with OSError)."""
+    (tmp_path / "fresh_kernels.py").write_text(
+        "from drake_att.filters.compiled import jit\n\n\n@jit\ndef plus_one(x):\n    return x + 1.0\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", _FULL_DISK_CHILD, str(tmp_path)], check=False, capture_output=True, text=True
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.split() == ["2.0"]
+    assert not [f for f in os.listdir(tmp_path / "__pycache__") if f.endswith(".nbc")]  # nothing half-written kept

@@ -6,7 +6,9 @@ compiles it and writes the machine code to numba's cache (``__pycache__`` next t
 or, where that is not writable, the user-wide cache ``~/.cache/numba`` / ``$NUMBA_CACHE_DIR``);
 later processes load it. Where numba finds no writable cache location at all (it raises
 ``RuntimeError`` at decoration), the kernels are compiled in every process instead, with no
-warning and no error: :data:`CACHING` says which. No ``fastmath``: IEEE semantics, as numpy.
+warning and no error: :data:`CACHING` says which. A cache file that cannot be written when a
+kernel is first compiled (a full disk, a quota, a file-size limit) is skipped: the kernel runs
+compiled in that process and the run goes on. No ``fastmath``: IEEE semantics, as numpy.
 
 The helpers take and return floats (tuples for quaternions, ``w`` first) and repeat
 :mod:`drake_att.rotations`' scalar formulas exactly, so kernels built on them agree with the
@@ -32,10 +34,28 @@ def jit(func=None, **options):
     if func is None:
         return lambda f: jit(f, **options)
     try:
-        return numba.njit(cache=True, **options)(func)
+        return _saving_tolerantly(numba.njit(cache=True, **options)(func))
     except RuntimeError:
         CACHING = False
         return numba.njit(**options)(func)
+
+
+def _saving_tolerantly(dispatcher):
+    """``dispatcher`` whose cache writes give up on ``OSError`` instead of failing the call
+    that compiled the kernel (numba's cache object is internal: left as it is if absent)."""
+    cache = getattr(dispatcher, "_cache", None)
+    save = getattr(cache, "save_overload", None)
+    if save is None:
+        return dispatcher
+
+    def save_overload(sig, data):
+        try:
+            save(sig, data)
+        except OSError:
+            pass  # kept in memory for this process; a later process compiles and tries again
+
+    cache.save_overload = save_overload
+    return dispatcher
 
 
 @jit
