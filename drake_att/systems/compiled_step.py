@@ -212,19 +212,8 @@ def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S,
     return outcome, nis, outcome != _mekf.ACCEPTED
 
 
-def mekf_step(t, gyro_connected, gyro, connected, meas, model: StepModel, est, book, core, lin, innov) -> None:
-    """One filter step of an MEKF estimator at time ``t``, in place on its state groups.
-
-    ``est`` (47), ``book``, ``core`` (43), ``lin`` (109) and ``innov`` (3 n) are the
-    estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
-    ``meas`` (n, 6) the input ports' values (``gyro_connected``/``connected``: whether the
-    port has a value); ``model`` the :class:`StepModel`. The model's fields cross into the
-    compiled code one by one: numba unboxes a tuple argument ~1.3 us slower than its fields."""
-    _mekf_step(t, gyro_connected, gyro, connected, meas, *model, est, book, core, lin, innov)
-
-
 @_jit
-def _mekf_step(
+def mekf_step(
     t,
     gyro_connected,
     gyro,
@@ -248,7 +237,14 @@ def _mekf_step(
     lin,
     innov,
 ):
-    """:func:`mekf_step` with the :class:`StepModel` as its fields."""
+    """One filter step of an MEKF estimator at time ``t``, in place on its state groups.
+
+    ``est`` (47), ``book``, ``core`` (43), ``lin`` (109) and ``innov`` (3 n) are the
+    estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
+    ``meas`` (n, 6) the input ports' values (``gyro_connected``/``connected``: whether the
+    port has a value); ``q_BS`` to ``rejections`` the fields of the :class:`StepModel`, in its
+    order (``mekf_step(t, ..., meas, *model, est, ...)``): numba unboxes a tuple argument
+    ~1.3 us slower than its fields."""
     model = StepModel(
         q_BS,
         R_SB,
@@ -292,7 +288,7 @@ def _mekf_step(
     _write_state(q, b, P, Phi, Q, A, est, core, lin)
 
 
-@_jit(inline="always")  # compiled into _mekf_step: no call, no reference counts
+@_jit(inline="always")  # compiled into mekf_step: no call, no reference counts
 def _read_core(core):
     """``(q, b, P)`` of the MEKF's state vector ``[q_IB (4), bias_B (3), P (36)]`` (copies)."""
     q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
@@ -336,7 +332,7 @@ def warm_up() -> None:
         np.zeros(5),
         np.ones(1, dtype=np.bool_),
         np.zeros((1, 6)),
-        model,
+        *model,
         np.zeros(47),
         Bookkeeping(1).initial(None),
         np.r_[1.0, np.zeros(42)],

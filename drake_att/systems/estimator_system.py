@@ -503,7 +503,7 @@ class EstimatorSystem(LeafSystem):
             gyro,
             connected,
             meas,
-            m,
+            *m,
             group(self._estimate_group),
             group(self._book_group),
             group(self._core_group),
