@@ -266,11 +266,9 @@ def _estimator_series(run, name: str) -> dict:
     }
 
 
-def _empty_row(name: str, e, window_end: float) -> dict:
-    """The row of (event ``e``, estimator ``name``) before scoring: the event's facts, zero
-    counts and no error figures."""
+def _event_facts(e) -> dict:
+    """What a report says of a fault event (one key order for every table and file)."""
     return {
-        "estimator": name,
         "sensor": e.sensor,
         "sensor_kind": e.sensor_kind,
         "kind": e.kind,
@@ -278,6 +276,15 @@ def _empty_row(name: str, e, window_end: float) -> dict:
         "t_start": e.t_start,
         "t_end": e.t_end,
         "magnitude": e.magnitude,
+    }
+
+
+def _empty_row(name: str, e, window_end: float) -> dict:
+    """The row of (event ``e``, estimator ``name``) before scoring: the event's facts, zero
+    counts and no error figures."""
+    return {
+        "estimator": name,
+        **_event_facts(e),
         "window_end": window_end,
         "seen": False,
         "steps": 0,
@@ -426,19 +433,7 @@ def fault_campaign_record(run, keep_series_for=()) -> dict:
         "wall_time_s": float(run.wall_time_s),
         "rows": score_fault_events(run),
         "finite": {n: bool(finite_outputs(run, n)) for n in run.metadata["estimators"]},
-        "events": [
-            {
-                "injector": e.injector,
-                "sensor": e.sensor,
-                "sensor_kind": e.sensor_kind,
-                "kind": e.kind,
-                "code": e.code,
-                "t_start": e.t_start,
-                "t_end": e.t_end,
-                "magnitude": e.magnitude,
-            }
-            for e in fault_events(run)
-        ],
+        "events": [{"injector": e.injector, **_event_facts(e)} for e in fault_events(run)],
     }
     if run.seed in keep_series_for:
         out["series"] = {}
