@@ -6,7 +6,10 @@ check SCENARIO`` (validate without simulating).
 
 Every refusal of user input (a file, a field, an option, a folder) is one line on stderr
 naming it and exit code 2; an unexpected internal error is one line and exit code 1, with
-the traceback only under ``--debug``; Ctrl-C is exit code 130."""
+the traceback only under ``--debug``; Ctrl-C is exit code 130.
+
+Six subcommands behind one guard (exit codes, messages, the writer lock); a parser helper each.
+"""
 
 from __future__ import annotations
 

@@ -77,6 +77,8 @@ injection on any sensor the estimator reads (outliers, stuck samples: not Gaussi
 paper-S1 multiplicative gyro noise correlated with the star noise. Gyro scale-factor and
 misalignment errors are deterministic and not in the bound (a note is added: estimators
 that do not model them sit above it).
+
+One concern at full length: reading a scenario into the linear model and the bound's recursion over it.
 """
 
 from __future__ import annotations

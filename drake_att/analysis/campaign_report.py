@@ -18,6 +18,8 @@
 (``comparison.{json,md,png,html}``). :func:`screenshot` renders a page in headless
 Chromium and fails on any console message (the report has no script: a message means a
 broken page).
+
+The summary file, the figures and the self-contained HTML page of one campaign, in the page's order.
 """
 
 from __future__ import annotations

@@ -86,6 +86,8 @@ and ``estimators``: name ->
   time): ``t``, ``attitude_rmse_deg`` (per instant: RMS over runs, [n x 3]), ``anees``
   (per instant), ``anees_band_95`` (as above), ``bound_attitude_sigma_deg`` ([n x 3] or
   None): the "physical limit" line.
+
+Every statistic a campaign reports, each a small function; they share the record layout read here.
 """
 
 from __future__ import annotations

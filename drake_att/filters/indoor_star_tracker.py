@@ -17,6 +17,8 @@ in the state; roll/pitch/yaw in deg (x-y-z, as ``q_IB``); covariances in body ax
 project's ``dtheta_B``.
 
 Derivation and paper notes: docs/derivations/indoor_star_tracker.md
+
+Paper S2's pipeline (identification, iteration, swarm start) and its fusion: one core, one place.
 """
 
 from __future__ import annotations

@@ -36,6 +36,8 @@ estimate and the EKPF's repair of Cholesky factors that are not positive definit
 Derivations and measured behaviour: docs/derivations/particle_filters.md
 
 Units: SI and radians (rad, rad/s, ARW rad/s^0.5, RRW / process noise rad/s^1.5).
+
+Three cores on one state type with the components they share; apart they would import each other.
 """
 
 from __future__ import annotations

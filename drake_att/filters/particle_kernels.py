@@ -56,6 +56,8 @@ warning, no error): :data:`CACHING` says which.
 Shapes: ``rho`` ``(N, 3)`` MRPs; ``x`` ``(N, 6)`` ``[rho; b]``; ``P`` ``(N, 6, 6)`` (MRP chart);
 ``y`` ``(3m,)``; ``ref_vectors_I`` ``(m, 3)``. Inputs are converted to C-contiguous float64
 (one compiled specialization per kernel); outputs are new arrays.
+
+Every compiled particle and MRP-EKF step in one module: they share scalar helpers numba inlines.
 """
 
 from __future__ import annotations

@@ -18,6 +18,8 @@ calls each config's registered build function with a
 :class:`~drake_att.scenarios.build_context.BuildContext`, logs what each sensor plug-in
 names and every estimator's contract ports. Extending means writing a plug-in module,
 not editing this file.
+
+One job, config to diagram to ``RunLog``: building, logging, simulating and splitting the logs.
 """
 
 from __future__ import annotations

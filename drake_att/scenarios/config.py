@@ -16,6 +16,8 @@ Attitude frames: when ``orbit`` is set, every initial attitude (truth and estima
 roll/pitch/yaw of the body **relative to the orbit (LVLH) frame at t = 0**; otherwise
 relative to the inertial frame.  Body rates are always ``w_IB_B`` (inertial rate in body
 axes).
+
+The typed scenario schema and its one validation family, which belong in one place to stay one family.
 """
 
 import dataclasses

@@ -26,6 +26,8 @@ by a unit suffix or the test names it.
 
 ``docs/config_reference.md`` is this table rendered (:func:`render_markdown`); regenerate it
 with ``python -m drake_att.scenarios.ranges > docs/config_reference.md``.
+
+Its length is the table: one physical range, with its reason, per numeric field of every config.
 """
 
 from __future__ import annotations

@@ -61,6 +61,8 @@ Discrete state:
     group 2: the core's state vector (``core.to_vector``).
     group 3 (linearizing cores): the step linearization (109).
     next group (estimators with measurement inputs): the innovations (3 per input).
+
+The one runner: every estimator's ports, state groups, outputs and loop, kept together on purpose.
 """
 
 from __future__ import annotations

@@ -69,6 +69,8 @@ Discrete state (20): ``[seed words (4), sample index k, t_k, mask, outlier vecto
     event for k = 0); the outputs read only the state and the input.
 Abstract state: the :class:`Hold` (a stuck window's held clean sample), changed by an
     unrestricted event at the sample times (see the constructor).
+
+One system: its length is the fault kinds times the four measurement types, each written once.
 """
 
 from __future__ import annotations
