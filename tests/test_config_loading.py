@@ -382,3 +382,16 @@ def test_a_scoring_window_starting_at_or_after_the_end_is_refused(score_from):
         apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=60", f"scoring.score_from_s={score_from}"])
     s = apply_overrides(load("cubesat_single_star_tracker"), ["duration_s=60", "scoring.score_from_s=59.999"])
     assert s.scoring.score_from_s == 59.999
+
+
+def test_a_shortened_run_is_told_to_move_its_scoring_window(drake_att_cli):
+    """``--set duration_s=60`` alone on a scenario scored from 500 s: the one-line refusal says
+    which other setting to change, with a value that is accepted."""
+    r = drake_att_cli("check", "cubesat_single_star_tracker", "--set", "duration_s=60")
+    assert r.returncode == 2
+    last = r.stderr.strip().splitlines()[-1]
+    assert "scoring.score_from_s: got 500" in last and "--set scoring.score_from_s=30" in last, last
+    fixed = drake_att_cli(
+        "check", "cubesat_single_star_tracker", "--set", "duration_s=60", "--set", "scoring.score_from_s=30"
+    )
+    assert fixed.returncode == 0, fixed.stderr[-2000:]

@@ -872,5 +872,10 @@ def _validate_scoring(s: Scenario) -> None:
     """The scoring window starts inside the run; a positive convergence threshold."""
     check_nonnegative("scoring.score_from_s", s.scoring.score_from_s)
     if s.scoring.score_from_s >= s.duration_s:
-        fail("scoring.score_from_s", s.scoring.score_from_s, f"must be < duration_s ({s.duration_s})")
+        fail(
+            "scoring.score_from_s",
+            s.scoring.score_from_s,
+            f"must be < duration_s ({s.duration_s}); a shorter run needs its scoring window moved too, "
+            f"e.g. --set scoring.score_from_s={s.duration_s / 2:g}",
+        )
     check_positive("scoring.convergence_threshold_deg", s.scoring.convergence_threshold_deg)
