@@ -4,6 +4,7 @@ limit."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -61,3 +62,22 @@ def test_a_hung_test_fails_fast_and_names_itself(tmp_path):
     assert proc.returncode != 0
     assert elapsed < 30.0, elapsed
     assert "test_that_hangs" in proc.stdout and "Timeout" in proc.stdout, proc.stdout[-2000:]
+
+
+def test_the_readme_names_every_estimator_make_run_prints():
+    """ "What `make run` does" names each estimator of the default scenario (the table it
+    prints has one row per estimator)."""
+    import re
+
+    from drake_att.scenarios.library import load
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    with open(os.path.join(root, "README.md"), encoding="utf-8") as f:
+        text = f.read()
+    section = text.split("## What `make run` does", 1)[1].split("\n## ", 1)[0]
+    prose = section.split("\n|", 1)[0]  # the text before the table of files
+    named = set(re.findall(r"`([a-z_0-9]+)`", prose))
+    estimators = {e.name for e in load().estimators}
+    assert estimators <= named, sorted(estimators - named)
+    words = {2: "two", 3: "three", 4: "four", 5: "five", 6: "six"}
+    assert f"{words[len(estimators)]} estimators" in " ".join(prose.split())
