@@ -449,7 +449,7 @@ class EstimatorSystem(LeafSystem):
             if port.HasValue(context):
                 m = port.Eval(context)
                 flag = float(m[1])
-                cov = sensor.covariance_for_flag(flag) if sensor.covariance_by_flag else sensor.covariance_S
+                cov = sensor.covariance_for_flag(flag)
                 yield (
                     i,
                     QuaternionSample(
