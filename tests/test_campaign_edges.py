@@ -705,3 +705,32 @@ def test_a_record_problem_names_the_key_and_the_expected_shape(base_campaign):
     assert "single__window_n" in floats and "expected a int scalar" in floats, floats
     number = problem(single__second_kind=np.array(3))
     assert "'single__second_kind'" in number and number.endswith("expected a str scalar"), number
+
+
+def test_a_record_problem_quotes_foreign_names_on_one_short_line(base_campaign):
+    """A record's own names inside the resume's message: the scenario it holds (and the
+    campaign's), its estimator list and an unexpected key, each folded onto one line and cut
+    at its stated length (80, 120, 80 characters) with "..." -- a hostile record cannot flood
+    the terminal or break the one-line message."""
+    scenario = mc.resolve_scenario(SCENARIO, SHORT)
+    base = mc.load_record(str(base_campaign / "runs" / "seed_2.npz"))
+
+    def problem(**changes):
+        return mc.default_record_problem(dict(base, **changes), scenario, 2)
+
+    def cut(text, limit):
+        line = " ".join(str(text).split())
+        return line if len(line) <= limit else line[:limit] + "..."
+
+    other = problem(scenario=np.array("elsewhere"))
+    assert other == f"it holds scenario 'elsewhere', not {scenario.name!r}", other
+    long_name = "x\n" * 100
+    flood = problem(scenario=np.array(long_name))
+    assert flood == f"it holds scenario {cut(repr(long_name), 80)}, not {scenario.name!r}", flood
+    names = [f"estimator_{i}" for i in range(40)]
+    listed = problem(estimators=np.array(names))
+    expect = f"it holds estimators {cut(names, 120)}, not {[e.name for e in scenario.estimators]}"
+    assert listed == expect and "\n" not in listed, listed
+    key = "k" * 200
+    extra = problem(**{key: np.zeros(1)})
+    assert extra == f"unexpected key {cut(repr(key), 80)}", extra
