@@ -129,3 +129,133 @@ def test_no_shipped_scenario_but_s2_static_has_a_noise_free_estimator(shipped):
     (``centralized``, ``decentralized``) is never flagged."""
     flagged = {name: metrics.noise_free_estimators(s) for name, s in shipped.items()}
     assert {n: f for n, f in flagged.items() if f} == {"s2_indoor_static": {"indoor_star_tracker": ["camera"]}}
+
+
+# ----------------------------------------------------------------------------------------
+# The campaign and comparison tables
+# ----------------------------------------------------------------------------------------
+SCENARIO = "cubesat_single_star_tracker"
+SHORT = ["duration_s=60", "scoring.score_from_s=20"]
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory, longest_name):
+    """A 3-run, 60-s campaign of the single-tracker scenario whose estimator is renamed to the
+    longest shipped name, with its report."""
+    from drake_att.analysis import montecarlo as mc
+
+    out = str(tmp_path_factory.mktemp("campaign") / "c")
+    overrides = [*SHORT, f"estimators.single.name={longest_name}"]
+    return mc.run_campaign(SCENARIO, 3, overrides=overrides, workers=1, out=out, progress=False)
+
+
+def test_campaign_table_fits_100_columns_and_keeps_its_numbers(campaign, longest_name):
+    from drake_att.analysis import campaign_report
+
+    text = campaign_report.format_campaign_table(campaign)
+    _assert_fits(text)
+    s = campaign.summary["estimators"][longest_name]
+    rows = [line for line in text.splitlines() if line.startswith(longest_name + " ")]
+    assert len(rows) == 2
+    printed = " ".join(rows)
+    for value in (
+        s["attitude_rmse_total_deg"],
+        *s["attitude_rmse_total_ci95_deg"],
+        *s["attitude_rmse_deg"],
+        s["bound"]["attitude_rmse_total_bound_deg"],
+        *s["bound"]["ratio"],
+        s["anees"],
+    ):
+        assert f"{value:.3g}" in printed, value
+    assert f"{s['convergence']['n_converged']}/3" in printed
+
+
+def _cell(scenario, estimator, **kw):
+    cell = {
+        "scenario": scenario,
+        "estimator": estimator,
+        "ran": True,
+        "why": None,
+        "runs": 1000,
+        "attitude_rmse_total_deg": 0.000123,
+        "attitude_rmse_total_ci95_deg": [0.000111, 0.000135],
+        "attitude_rmse_deg": [0.000456, 0.000789, 1.23e-05],
+        "anees": 123.0,
+        "nees_dof": 6,
+        "anees_band_95": [5.22, 6.82],
+        "anees_in_band": False,
+        "bound_total_deg": 0.000101,
+        "ratio_to_bound_total": 1.22,
+        "bound_reason": None,
+        "converged": "1000/1000",
+        "ms_per_step": 12.345,
+    }
+    cell.update(kw)
+    return cell
+
+
+def test_comparison_text_fits_100_columns_without_trailing_spaces(longest_name):
+    from drake_att.analysis import campaign_report
+
+    why = "not an estimator of this scenario (SOURCE:NAME adds one from another scenario)"
+    reason = "the estimator reads no gyro: the bound is for gyro-driven attitude determination"
+    cells = [
+        _cell("cubesat_single_star_tracker", longest_name),
+        {"scenario": "cubesat_single_star_tracker", "estimator": "joint", "ran": False, "why": why},
+        _cell("s0_particle_filters_small_error", longest_name, ratio_to_bound_total=None, bound_reason=reason),
+        _cell("s0_particle_filters_small_error", "mekf"),
+    ]
+    text = campaign_report.comparison_text(cells)
+    _assert_fits(text)
+    for needed in ("0.000123", "[0.000111, 0.000135]", "0.000456 / 0.000789 / 1.23e-05", "123 (6)", "[5.22, 6.82] OUT"):
+        assert needed in text
+    assert "1.22" in text and "12.345" in text and "1000/1000" in text
+    lines = text.splitlines()
+    # each reason once, numbered, and every cell it explains points to its number
+    assert [line for line in lines if line.startswith("(1) ")] == [f"(1) {why}"]
+    assert " ".join(ln.strip() for ln in lines[lines.index(next(ln for ln in lines if ln.startswith("(2) "))) :]) == (
+        f"(2) {reason}"
+    )
+    assert sum(line.startswith("joint ") and "n/a (1)" in line for line in lines) == 2
+    assert sum("no bound (2)" in line for line in lines) == 1
+    assert sum(line == "scenario s0_particle_filters_small_error:" for line in lines) == 2
+
+
+def test_drake_att_compare_prints_within_100_columns(tmp_path, capsys):
+    code = cli_main(
+        ["compare", SCENARIO, "--estimators", "single,nope", "--runs", "1", "--workers", "1", "--quiet"]
+        + ["--out", str(tmp_path / "cmp")]
+        + [x for s in SHORT for x in ("--set", s)]
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    table = out.split("\nWrote ")[0]
+    _assert_fits(table)
+    rows = [line.split() for line in table.splitlines() if line.startswith("nope ")]
+    assert rows == [["nope", "–", "n/a", "(1)"], ["nope", "n/a", "(1)"]]  # accuracy, consistency
+    assert "(1) not an estimator of this scenario" in table
+
+
+# ----------------------------------------------------------------------------------------
+# The campaign report's description
+# ----------------------------------------------------------------------------------------
+def test_no_shipped_description_names_a_duration_that_set_can_change(shipped):
+    import re
+
+    for name, s in shipped.items():
+        text = " ".join(s.description.split())
+        assert not re.search(rf"(?<![\d.]){s.duration_s:g} s\b", text), (name, text)
+        assert not re.search(r"\d+ orbits?\b", text), (name, text)
+
+
+def test_campaign_report_states_the_duration_that_ran_next_to_the_description(campaign):
+    import html
+    import os
+    import re
+
+    with open(os.path.join(campaign.out, "report.html")) as f:
+        page = html.unescape(f.read())
+    row = re.search(r"<tr><td>description</td><td>(.*?)</td></tr>", page).group(1)
+    description = " ".join(library.load(SCENARIO).description.split())
+    assert row.startswith(description)
+    assert "[as run: 60 s per run, scored from t ≥ 20 s;" in row
