@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 
 from drake_att.analysis import metrics
@@ -259,3 +260,163 @@ def test_campaign_report_states_the_duration_that_ran_next_to_the_description(ca
     description = " ".join(library.load(SCENARIO).description.split())
     assert row.startswith(description)
     assert "[as run: 60 s per run, scored from t ≥ 20 s;" in row
+
+
+# ----------------------------------------------------------------------------------------
+# The figures
+# ----------------------------------------------------------------------------------------
+NAME = "est"
+
+
+def _records(n_runs=3, n=600, amplitude_deg=0.01, sigma_deg=0.001, sigma0_deg=None, bound=True, seed=0):
+    """Synthetic campaign records: every error sample is +-``amplitude_deg`` (random signs), so
+    the ensemble's RMS is ``amplitude_deg`` at every instant and its +-3 RMS three times the
+    largest error; the filters' sigma is ``sigma_deg`` (``sigma0_deg`` at t = 0)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=float)
+    out = []
+    for _ in range(n_runs):
+        d = amplitude_deg * np.deg2rad(1.0) * rng.choice([-1.0, 1.0], size=(n, 3))
+        sig = np.full((n, 6), np.deg2rad(sigma_deg))
+        if sigma0_deg is not None:
+            sig[0, :3] = np.deg2rad(sigma0_deg)
+        rec = {f"{NAME}__t": t, f"{NAME}__dtheta": d, f"{NAME}__sigma": sig}
+        if bound:
+            rec[f"{NAME}__bound_sigma"] = 1.0001 * sig  # the bound equals the filter's sigma
+        out.append(rec)
+    return out
+
+
+def _lines(fig, label):
+    return [line for ax in fig.axes for line in ax.get_lines() if line.get_label() == label]
+
+
+def _legend_texts(fig):
+    from matplotlib.legend import Legend
+
+    return [t.get_text() for leg in fig.findobj(Legend) for t in leg.get_texts()]
+
+
+def test_error_figure_y_limits_hold_the_ensemble_three_rms_with_few_runs():
+    from drake_att.analysis import campaign_report
+
+    records = _records(n_runs=3)
+    fig = campaign_report.error_ensemble_figure(records, NAME, 300.0, "t")
+    three_rms = 3 * np.sqrt(np.mean([np.rad2deg(r[f"{NAME}__dtheta"]) ** 2 for r in records], axis=0)).max()
+    assert three_rms == pytest.approx(0.03)  # three times every error sample
+    axes = [ax for ax in fig.axes if ax.get_lines()]
+    assert len(axes) == 6
+    for ax in axes:
+        lo, hi = ax.get_ylim()
+        assert lo <= -three_rms and hi >= three_rms, (ax.get_title(), lo, hi)
+        for line in ax.get_lines():  # every plotted curve is inside
+            y = np.asarray(line.get_ydata(), dtype=float)
+            assert lo <= y.min() and y.max() <= hi, (ax.get_title(), line.get_label())
+
+
+def test_error_figure_names_an_envelope_that_runs_off():
+    """An initial sigma of 10 deg next to 0.01-deg errors: the whole-run plots stop at 3x the
+    data and their titles say the filter's (and bound's) +-3 sigma runs off, with its peak."""
+    from drake_att.analysis import campaign_report
+
+    fig = campaign_report.error_ensemble_figure(_records(sigma0_deg=10.0), NAME, 300.0, "t")
+    whole = [ax for ax in fig.axes if "whole run" in ax.get_title()]
+    scored = [ax for ax in fig.axes if "scored" in ax.get_title()]
+    assert len(whole) == len(scored) == 3
+    for ax in whole:
+        title = " ".join(ax.get_title().split())
+        assert "filter ±3σ runs off (peak 30 deg)" in title and "bound ±3σ runs off" in title
+        assert ax.get_ylim()[1] < 30.0
+    for ax in scored:
+        assert "runs off" not in ax.get_title()
+
+
+def test_filter_sigma_and_bound_lines_differ_in_color_and_style_and_each_has_a_legend_entry():
+    from matplotlib.colors import to_rgba
+
+    from drake_att.analysis import campaign_report
+
+    fig = campaign_report.error_ensemble_figure(_records(), NAME, 300.0, "t")
+    filt = _lines(fig, "filter ±3σ (RMS over runs)")
+    bound = _lines(fig, "Cramér–Rao bound ±3σ")
+    assert filt and bound
+    f, b = filt[0], bound[0]
+    assert to_rgba(f.get_color())[:3] != to_rgba(b.get_color())[:3]
+    assert f.get_linestyle() != b.get_linestyle()
+    assert f.get_zorder() > b.get_zorder() and b.get_linewidth() > 2 * f.get_linewidth()  # both show when equal
+    texts = _legend_texts(fig)
+    assert "filter ±3σ (RMS over runs)" in texts and "Cramér–Rao bound ±3σ" in texts
+
+
+def _inside(extent, box) -> bool:
+    return box.x0 - 1 <= extent.x0 and extent.x1 <= box.x1 + 1 and box.y0 - 1 <= extent.y0 and extent.y1 <= box.y1 + 1
+
+
+def _assert_laid_out(fig):
+    """After drawing: every visible text (titles, axis labels, legend entries) lies inside the
+    figure, so do the drawn tick labels (each axes' tight box), and no legend overlaps a plot."""
+    from matplotlib.legend import Legend
+    from matplotlib.text import Text
+
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    box = fig.bbox
+    ticks = {
+        id(label)
+        for ax in fig.axes
+        for axis in (ax.xaxis, ax.yaxis)
+        for tick in axis.get_major_ticks() + axis.get_minor_ticks()
+        for label in (tick.label1, tick.label2)
+    }
+    texts = [t for t in fig.findobj(Text) if id(t) not in ticks and t.get_visible() and t.get_text().strip()]
+    assert any(t is fig._suptitle for t in texts)
+    for t in texts:
+        assert _inside(t.get_window_extent(renderer), box), (t.get_text()[:60], t.get_window_extent(renderer))
+    for ax in fig.axes:
+        assert _inside(ax.get_tightbbox(renderer), box), ax.get_title()[:60]
+    legends = fig.findobj(Legend)
+    assert legends
+    for leg in legends:
+        e = leg.get_window_extent(renderer)
+        for ax in fig.axes:
+            assert not e.overlaps(ax.get_window_extent(renderer)), (ax.get_title()[:60], e)
+
+
+def _cells(n=8):
+    names = ["indoor_star_tracker_gyro", "lie_group_paper_literal", "bootstrap_pf_roughened", "mekf"]
+    return [
+        _cell(
+            ["cubesat_single_star_tracker", "s0_particle_filters_small_error"][k % 2],
+            names[k % len(names)],
+            attitude_rmse_total_deg=10.0 ** -(k % 5),
+            attitude_rmse_total_ci95_deg=[0.9 * 10.0 ** -(k % 5), 1.1 * 10.0 ** -(k % 5)],
+            bound_total_deg=0.5 * 10.0 ** -(k % 5),
+            anees=6.0 * 10.0 ** (k % 4),
+            ms_per_step=0.01 * 10.0 ** (k % 3),
+        )
+        for k in range(n)
+    ]
+
+
+@pytest.mark.parametrize("n", [2, 8])
+def test_comparison_figure_keeps_labels_titles_and_legend_inside_and_off_the_plots(n):
+    from drake_att.analysis import campaign_report
+
+    fig = campaign_report.comparison_figure(_cells(n), "Comparison: 2 scenarios x 4 estimators, 1000 runs")
+    _assert_laid_out(fig)
+    assert [ax.get_legend() for ax in fig.axes] == [None] * 4  # the legend is the band's, above the plots
+
+
+def test_campaign_figures_keep_texts_inside_and_legends_off_the_plots(campaign, longest_name):
+    from drake_att.analysis import campaign_report
+
+    s = campaign.summary
+    figures = {
+        "errors": campaign_report.error_ensemble_figure(campaign.records, longest_name, 20.0, "errors"),
+        "consistency": campaign_report.consistency_figure(
+            campaign.records, longest_name, s["estimators"][longest_name], "consistency"
+        ),
+        "rmse_vs_bound": campaign_report.rmse_vs_bound_figure(s, "rmse vs bound"),
+    }
+    for fig in figures.values():
+        _assert_laid_out(fig)

@@ -167,12 +167,12 @@ def _wrap_to(text_artist, width_px: float) -> None:
     """Re-wrap ``text_artist``'s text onto more lines until it is at most ``width_px`` wide."""
     import textwrap
 
-    text = " ".join(text_artist.get_text().split())
-    chars = len(text)
+    lines = text_artist.get_text().split("\n")  # explicit line breaks are kept
+    chars = max(len(line) for line in lines)
     renderer = text_artist.figure.canvas.get_renderer()
     while chars > 12 and text_artist.get_window_extent(renderer).width > width_px:
         chars = int(chars * 0.9)
-        text_artist.set_text(textwrap.fill(text, chars))
+        text_artist.set_text("\n".join(textwrap.fill(line, chars) for line in lines))
 
 
 def fit_titles(fig):
@@ -253,7 +253,7 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
             )
             lim, clipped = error_axis_limit([d[:, sel, i], ens3[sel, i]], envelopes, 1e-9)
             a.set_ylim(-lim, lim)
-            off = "; ".join(f"{what} runs off (peak {peak:.3g})" for what, peak in clipped)
+            off = "; ".join(f"{what} runs off (peak {peak:.3g} deg)" for what, peak in clipped)
             a.set_title(f"attitude error {AXES[i]} — {label}" + (f"\n{off}" if off else ""), fontsize=10)
             a.set_ylabel("deg")
             a.set_xlabel("time (s)")
