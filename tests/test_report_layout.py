@@ -36,8 +36,10 @@ def longest_name(shipped):
 
 
 def _assert_fits(text: str) -> None:
+    """Every line within ``WIDTH`` columns, in bytes too (``awk '{print length}'`` counts bytes
+    in some awks), without trailing spaces."""
     for line in text.splitlines():
-        assert len(line) <= WIDTH, (len(line), line)
+        assert len(line.encode()) <= WIDTH, (len(line.encode()), line)
         assert line == line.rstrip(), repr(line)
 
 

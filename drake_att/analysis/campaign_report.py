@@ -537,7 +537,7 @@ def format_campaign_table(result) -> str:
     lines.pop()
     lines += _wrapped(
         f"(deg; window t >= {result.summary['score_from_s']:g} s; 95% CI: of the total RMSE; bound: posterior "
-        "Cramér–Rao, total RMS over the window; ANEES band: 95% of the window average, 'in'/'OUT')"
+        "Cramer-Rao, total RMS over the window; ANEES band: 95% of the window average, 'in'/'OUT')"
     )
     return "\n".join(lines)
 
@@ -652,8 +652,9 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
                     ),
                     (
                         f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
-                        "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
-                        "when defined); top: the whole run, bottom: the scoring window."
+                        "runs, red dashes), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ "
+                        "(wide pale green, under the red dashes; when defined); top: the whole run, bottom: the "
+                        "scoring window."
                     ),
                 )
             )
@@ -948,7 +949,7 @@ def comparison_text(cells) -> str:
     )
     lines += _wrapped(
         "(RMSE in deg over each scenario's scoring window, pooled over runs; 95% CI: of the total RMSE; ANEES band: "
-        "95% of a window average, 'in'/'OUT'; RMSE / bound: total RMSE / the posterior Cramér–Rao bound; ms / step: "
+        "95% of a window average, 'in'/'OUT'; RMSE / bound: total RMSE / the posterior Cramer-Rao bound; ms / step: "
         "time per estimator step)"
     )
     for text, k in notes.items():
