@@ -122,7 +122,7 @@ def _cmd_run(args) -> int:
             _say(f"drake-att: the run failed: {e}")
             return 2
         metrics = compute_metrics(run)
-        print(format_table(metrics))
+        print(format_table(metrics, scenario))
         for message in run_warnings(metrics):
             _say(f"drake-att: warning: {message}")
         replaced = os.path.isdir(out_dir)
@@ -177,7 +177,7 @@ def _cmd_score(args) -> int:
         metrics = compute_metrics(run)
     except (ValueError, KeyError, IndexError, TypeError) as e:
         return fail(f"{npz_path}: cannot be scored: {type(e).__name__}: {e}")
-    print(format_table(metrics))
+    print(format_table(metrics, scenario))
     try:
         write_metrics_json(metrics, out)
         with open(out, "rb") as f:
