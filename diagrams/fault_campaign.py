@@ -37,6 +37,7 @@ from drake_att.analysis.fault_scores import (
     summarize_fault_scores,
 )
 from drake_att.analysis.report import strict_json
+from drake_att.analysis.reproduction import reduced_settings_note
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
 
@@ -264,6 +265,9 @@ def main(argv=None):
     }
     checked = verdicts(results, summary, gates, via_average)
     print("\nVerdicts:")
+    note = reduced_settings_note(args, ap, ("seeds", "duration"))
+    if note:
+        print(note)
     for claim, holds in checked["claims"].items():
         print(f"  [{'holds' if holds else 'DOES NOT HOLD'}] {claim}")
     for sensor, kind, name in checked["not_recovered_within_limit"]:

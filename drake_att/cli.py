@@ -17,6 +17,7 @@ import argparse
 import os
 import sys
 
+from drake_att import interrupts
 from drake_att.scenarios.config import ConfigError, apply_overrides, load_scenario
 from drake_att.validation import UserInputError
 
@@ -592,7 +593,8 @@ def main(argv=None) -> int:
         previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         args = _parser().parse_args(argv)
-        return args.func(args)
+        with interrupts.remembered():
+            return args.func(args)
     except _Terminated:
         print("\ndrake-att: terminated (SIGTERM); no result folder was written or changed", file=sys.stderr)
         return 143
