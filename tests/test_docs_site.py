@@ -239,3 +239,18 @@ def test_screenshots_of_the_start_page_the_yaml_reference_and_a_paper(site, tmp_
     if folder:
         os.makedirs(folder, exist_ok=True)
         shutil.copyfile(shot, os.path.join(folder, png))
+
+
+# ======================================================================================
+# The README
+# ======================================================================================
+def test_the_readme_is_a_page_whose_links_lead_into_the_docs():
+    """At most 150 lines; every relative link names a file of the repository (so it works on
+    GitHub as in a clone), and the site's main pages are among them."""
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 150
+    targets = {m.split("#", 1)[0] for m in re.findall(r"\]\(([^)\s]+)\)", text) if not m.startswith("http")}
+    missing = sorted(t for t in targets if not (REPO / t).exists())
+    assert missing == [], missing
+    assert {"docs/index.md", "docs/guide/cli.md", "docs/config_reference.md", "docs/papers/index.md"} <= targets
+    assert "make docs" in text and "jupyter nbconvert --to notebook --execute" in text
