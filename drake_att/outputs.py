@@ -1,6 +1,6 @@
 """Output folders: which ones the library may write or replace, and how.
 
-The rules a user can rely on (README "Files the library writes"):
+The rules a user can rely on (docs/guide/cli.md, "What the library may touch"):
 
 * **Only folders of ours are replaced.** A run's folder is replaced only when it is empty or
   carries this library's ``manifest.json`` and nothing the manifest does not list; a

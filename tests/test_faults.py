@@ -613,7 +613,7 @@ def test_every_library_estimator_survives_every_fault_kind():
 @pytest.mark.slow
 def test_fault_campaign_script_short_run(tmp_path, load_script, diagram_builds):
     """diagrams/fault_campaign.py on its first two faults (gyro outlier at 300 s, NaN at 450 s):
-    one diagram, strict results.json with the verdicts, the table and the README matrix."""
+    one diagram, strict results.json with the verdicts, the table and the matrix of docs/guide/faults.md."""
     import json
 
     script = load_script("fault_campaign")
