@@ -32,6 +32,17 @@ needs_chromium = pytest.mark.skipif(
 BUILD_ENV = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}  # mkdocs-material's banner about MkDocs 2.0
 
 
+class _MkdocsLoader(yaml.SafeLoader):
+    """mkdocs.yml as YAML: ``!ENV [NAME, default]`` reads as its default."""
+
+
+_MkdocsLoader.add_constructor("!ENV", lambda loader, node: loader.construct_sequence(node)[-1])
+
+
+def _mkdocs_settings() -> dict:
+    return yaml.load((REPO / "mkdocs.yml").read_text(), Loader=_MkdocsLoader)  # noqa: S506 - a safe loader
+
+
 def _mkdocs_build(config: Path, site: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file", str(config), "--site-dir", str(site)],
@@ -67,7 +78,7 @@ def test_every_page_of_the_navigation_is_built(site):
             else:
                 yield value
 
-    nav = yaml.safe_load((REPO / "mkdocs.yml").read_text())["nav"]
+    nav = _mkdocs_settings()["nav"]
     sources = list(pages(nav))
     assert "config_reference.md" in sources and "api/contract.md" in sources
     assert {f"papers/s{i}.md" for i in range(5)} <= set(sources)
@@ -113,7 +124,7 @@ def test_math_is_mathml_and_the_notebooks_are_pages(site):
 def test_a_broken_link_fails_the_strict_build(tmp_path):
     """The site's link validation settings make a broken link and a broken anchor a warning,
     which strict mode turns into a failed build (checked on a one-page site with the same settings)."""
-    settings = yaml.safe_load((REPO / "mkdocs.yml").read_text())
+    settings = _mkdocs_settings()
     docs = tmp_path / "docs"
     docs.mkdir()
     (docs / "index.md").write_text("# Home\n\n## Section\n\n[fine](#section)\n")
