@@ -15,6 +15,17 @@ from drake_att.analysis import campaign
 from drake_att.cli import main as cli_main
 
 SCENARIO = "cubesat_single_star_tracker"
+
+
+@pytest.fixture(autouse=True)
+def default_sigint_handler():
+    """Python's own SIGINT handler during each test (a test runner may have set another, e.g.
+    SIG_IGN in a worker process), restored after."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 SHORT = ["duration_s=60", "scoring.score_from_s=20"]
 
 
