@@ -224,6 +224,20 @@ def test_comparison_text_fits_100_columns_without_trailing_spaces(longest_name):
     assert sum(line == "scenario s0_particle_filters_small_error:" for line in lines) == 2
 
 
+def test_a_negative_cost_points_to_the_timing_noise_note():
+    """A per-step cost below zero (the difference of two noisy wall times) is printed as measured,
+    with a numbered note that says what it means; a positive one gets no note."""
+    from drake_att.analysis import campaign_report
+
+    cells = [_cell("s", "fast", ms_per_step=-0.161), _cell("s", "slow", ms_per_step=0.5)]
+    lines = campaign_report.comparison_text(cells).splitlines()
+    fast = [line for line in lines if line.startswith("fast ") and "-0.161" in line]
+    assert len(fast) == 1 and "-0.161 (1)" in fast[0], lines
+    assert not any("0.500 (" in line for line in lines), lines
+    note = " ".join(ln.strip() for ln in lines[lines.index(next(ln for ln in lines if ln.startswith("(1) "))) :])
+    assert note == f"(1) {campaign_report.BELOW_TIMING_NOISE}"
+
+
 def test_drake_att_compare_prints_within_100_columns(tmp_path, capsys):
     code = cli_main(
         ["compare", SCENARIO, "--estimators", "single,nope", "--runs", "1", "--workers", "1", "--quiet"]

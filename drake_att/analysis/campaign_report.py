@@ -924,11 +924,24 @@ def _comparison_text_rows(cells, notes: dict) -> tuple[list, list]:
                 _g(ratio)
                 if ratio is not None
                 else "no bound" + (_footnote(notes, c["bound_reason"]) if c.get("bound_reason") else ""),
-                _g(c.get("ms_per_step"), ".3f") if c.get("ms_per_step") is not None else "–",
+                _cost_text(c.get("ms_per_step"), notes),
                 c["converged"],
             ]
         )
     return accuracy, consistency
+
+
+BELOW_TIMING_NOISE = (
+    "a negative cost is below the timing noise: the fastest run with this estimator was faster than the "
+    "fastest sensors-only run it is measured against"
+)
+
+
+def _cost_text(ms_per_step, notes: dict) -> str:
+    """A cell's ms/step as printed; a negative one points to :data:`BELOW_TIMING_NOISE` in ``notes``."""
+    if ms_per_step is None:
+        return "–"
+    return _g(ms_per_step, ".3f") + (_footnote(notes, BELOW_TIMING_NOISE) if ms_per_step < 0 else "")
 
 
 def format_comparison_table(result) -> str:
