@@ -318,7 +318,8 @@ def test_error_grid_plots_each_estimator_on_each_axis(grid_figure, tmp_path):
             np.testing.assert_allclose(lb.get_ydata(), t * (3 - i) * k, rtol=1e-12)
             assert lt.get_linewidth() == lb.get_linewidth() == 0.7
         assert len(top.get_lines()) == len(bottom.get_lines()) == 2
-    assert [x.get_text() for x in axes[0, 0].get_legend().get_texts()] == ["ekf", "ukf"]
+    assert [ax.get_legend() for ax in fig.axes] == [None] * 6  # one legend for the figure, below the plots
+    assert [x.get_text() for x in fig.legends[0].get_texts()] == ["ekf", "ukf"]
 
 
 def test_error_grid_time_range_keeps_both_ends_and_fixed_limits_apply_to_their_row(grid_figure, tmp_path):

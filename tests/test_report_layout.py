@@ -436,3 +436,22 @@ def test_campaign_figures_keep_texts_inside_and_legends_off_the_plots(campaign, 
     }
     for fig in figures.values():
         _assert_laid_out(fig)
+
+
+def test_a_runs_error_figures_keep_texts_inside_and_the_legend_off_the_plots():
+    """``drake-att run``'s per-estimator figures (whole run and stable stage)."""
+    from drake_att.analysis.report import estimator_figures
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.config import apply_overrides
+    from drake_att.scenarios.library import load
+
+    scenario = apply_overrides(load(SCENARIO), SHORT)
+    run = ScenarioDiagram(scenario).simulate(1)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    figures = estimator_figures(run, "single", scenario.scoring.score_from_s)
+    assert set(figures) == {"full", "stable"}
+    for fig in figures.values():
+        FigureCanvasAgg(fig)  # what savefig uses
+        _assert_laid_out(fig)
+        assert [ax.get_legend() for ax in fig.axes] == [None] * len(fig.axes)  # the figure's legend, below

@@ -80,7 +80,7 @@ def estimator_figures(run, name, score_from_s=0.0) -> dict:
                     b.set_ylim(-lim, lim)
         for a in ax[-1]:
             a.set_xlabel("time (s)")
-        ax[0, 0].legend(loc="upper right", fontsize=8)
+        fig.legend(*ax[0, 0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=8)
         what = "whole run" if stage == "full" else f"stable stage, t >= {score_from_s:g} s"
         fig.suptitle(f"{run.scenario.name}, seed {run.seed}: estimator {name} ({what})")
         figures[stage] = fig
@@ -124,7 +124,7 @@ def plot_error_grid(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
+    fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True, layout="constrained")
     for name in names:
         s = series[name]
         m = np.ones(len(s["t"]), dtype=bool) if t_range is None else (s["t"] >= t_range[0]) & (s["t"] <= t_range[1])
@@ -144,9 +144,8 @@ def plot_error_grid(
             ax[1, i].set_ylim(*sec_ylim)
         for a in ax[:, i]:
             a.grid(True, alpha=0.3)
-    ax[0, 0].legend(fontsize=8)
+    fig.legend(*ax[0, 0].get_legend_handles_labels(), loc="outside lower center", ncols=len(names), fontsize=8)
     fig.suptitle(title)
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
