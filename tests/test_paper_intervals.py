@@ -77,11 +77,21 @@ def test_ci_refuses_too_few_or_non_finite_values(bad):
         mt.mean_ci95(bad)
 
 
+def row_numbers(line):
+    """(mean, half width, low, high) printed in a table row."""
+    m = re.search(r"\| ([-0-9.e]+) ± ([-0-9.e]+) \| \[([-0-9.e]+), ([-0-9.e]+)\] \|$", line)
+    assert m, line
+    return [float(g) for g in m.groups()]
+
+
 def test_row_with_missing_seeds_says_how_many():
     line = mt.format_row(mt.value_row("NEES", [1.0, None, 3.0]), 3)
-    mean, half, _ = mt.mean_ci95([1.0, 3.0])
-    assert line.startswith("| NEES (2 of 3 seeds) | – | 2 ± ")
-    assert f"[{mean - half:.3g}, {mean + half:.3g}]" in line
+    s = math.sqrt(2.0)  # sample standard deviation of [1, 3]
+    half = math.tan(0.475 * math.pi) * s / math.sqrt(2.0)
+    assert line.startswith("| NEES (2 of 3 seeds) | – | ")
+    mean, printed_half, lo, hi = row_numbers(line)
+    assert (mean, lo, hi) == pytest.approx((2.0, 2.0 - half, 2.0 + half), rel=5e-3)
+    assert printed_half == pytest.approx(half, rel=5e-2)  # printed to 2 significant digits
 
 
 # ----------------------------------------------------------------------------------------
@@ -264,7 +274,9 @@ def test_synthetic_row_is_the_interval_of_its_per_seed_values(synthetic):
     x = np.array(values)
     half = 4.302652729911275 * x.std(ddof=1) / math.sqrt(3)  # t(0.975, 2) from printed tables
     line = next(row for row in (out / "s4.md").read_text().splitlines() if row.startswith("| lie_group steady RMSE"))
-    assert f"| {x.mean():.3g} ± {half:.2g} | [{x.mean() - half:.3g}, {x.mean() + half:.3g}] |" in line
+    mean, printed_half, lo, hi = row_numbers(line)
+    assert mean == pytest.approx(x.mean(), rel=5e-3) and printed_half == pytest.approx(half, rel=5e-2)
+    assert (lo, hi) == pytest.approx((x.mean() - half, x.mean() + half), rel=5e-3)
     assert "synthetic s4" in (out / "s4.md").read_text() and "1.0 min" in (out / "s4.md").read_text()
 
 
