@@ -1,12 +1,14 @@
 # drake_att: two commands do all set-up on a fresh machine.
 #   make run    run the default scenario (creates .venv and installs what is missing)
 #   make test   lint and format check (ruff), type-check (mypy), then the test suite (same set-up)
+# and, with the same set-up:
+#   make docs   build the documentation site into site/ (offline; open site/index.html)
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test bench mutation clean
+.PHONY: run test docs bench mutation clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -38,6 +40,13 @@ mutation: $(STAMP)
 	$(PY) -m pip install --quiet "mutmut==3.8.1"
 	$(PY) tests/mutation_run.py $(MUTATION_ARGS)
 	$(PY) tests/mutation_report.py
+
+# The documentation site (mkdocs.yml; docs/developer/docs.md), strict: a warning fails the build.
+# The notebooks run during the build, shortened (DRAKE_ATT_NOTEBOOK_TEST=1: ~1.5 min on 2 cores),
+# so the Tutorials pages show their outputs; the strict-build test renders them without running.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 DRAKE_ATT_DOCS_EXECUTE=true DRAKE_ATT_NOTEBOOK_TEST=1 MPLBACKEND=Agg \
+	  $(PY) -m mkdocs build --strict --site-dir site
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_scenarios.py

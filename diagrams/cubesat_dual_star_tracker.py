@@ -24,6 +24,7 @@ import numpy as np
 
 from drake_att.analysis.executor import metric_mean_std, run_seeds
 from drake_att.analysis.report import plot_error_grid
+from drake_att.analysis.reproduction import reduced_settings_note
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
 
@@ -194,6 +195,9 @@ def main(argv=None):
     results = run_seeds(scenario, seeds, args.workers, keep_series_for=[1])
     table, text = print_tables(results)
     print("\nPaper claims:")
+    note = reduced_settings_note(args, ap, ("seeds", "duration", "no_p0_sweep"))
+    if note:
+        print(note)
     claims = check_ordering(table)
     series = next(r["series"] for r in results if "series" in r)
     sf = scenario.scoring.score_from_s

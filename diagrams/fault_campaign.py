@@ -16,7 +16,7 @@ the estimator saw and what it did at them (detected / rejected / accepted / igno
 peak attitude error, its recovery time and its NEES after recovery (definitions:
 :mod:`drake_att.analysis.fault_scores`); then the verdicts. Writes ``results.json`` (every seed's
 rows, the summary, the verdicts), ``config.yaml`` (the scenario used), ``table.md`` (the
-README table) and ``fig_fault_campaign.png`` (attitude error of one seed with the faults
+docs/guide/faults.md table) and ``fig_fault_campaign.png`` (attitude error of one seed with the faults
 marked).
 """
 
@@ -37,6 +37,7 @@ from drake_att.analysis.fault_scores import (
     summarize_fault_scores,
 )
 from drake_att.analysis.report import strict_json
+from drake_att.analysis.reproduction import reduced_settings_note
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
 
@@ -122,7 +123,7 @@ def summary_table(summary, estimators, magnitudes, seeds: int) -> str:
 
 
 def markdown_matrix(summary, estimators, magnitudes, seeds: int) -> str:
-    """The README table: fault x estimator -> outcome, peak error (deg), recovery (s)."""
+    """The fault table of docs/guide/faults.md: fault x estimator -> outcome, peak error (deg), recovery (s)."""
     by = {(_fault_label(g, magnitudes), g["estimator"]): g for g in summary}
     faults = list(dict.fromkeys(_fault_label(g, magnitudes) for g in summary))
     lines = ["| fault | " + " | ".join(estimators) + " |", "|---|" + "---|" * len(estimators)]
@@ -264,6 +265,9 @@ def main(argv=None):
     }
     checked = verdicts(results, summary, gates, via_average)
     print("\nVerdicts:")
+    note = reduced_settings_note(args, ap, ("seeds", "duration"))
+    if note:
+        print(note)
     for claim, holds in checked["claims"].items():
         print(f"  [{'holds' if holds else 'DOES NOT HOLD'}] {claim}")
     for sensor, kind, name in checked["not_recovered_within_limit"]:

@@ -39,6 +39,7 @@ from dataclasses import replace
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.analysis.reproduction import reduced_settings_note
 from drake_att.contract import CameraCentroids
 from drake_att.estimators.indoor_star_tracker_plugin import solver_for
 from drake_att.filters.indoor_star_tracker import rpy_deg_to_R_BI
@@ -569,6 +570,9 @@ def main(argv=None) -> int:
             )
         claims = verdicts(t1, t1_fine, screens, t2, nvc, dyn)
         print("\n=== The paper's claims, our evidence " + "=" * 40)
+        note = reduced_settings_note(args, ap, ("seeds", "screens", "dynamic_duration"))
+        if note:
+            print(note)
         for c in claims:
             print(f"  [{c['verdict']}] {c['claim']}\n      {c['evidence']}")
     else:

@@ -31,6 +31,7 @@ import sys
 import numpy as np
 
 from drake_att.analysis.metrics import compute_metrics, estimator_errors
+from drake_att.analysis.reproduction import reduced_settings_note
 from drake_att.scenarios.builder import diagram_for
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
@@ -220,6 +221,9 @@ def main(argv=None) -> int:
 
     claims = evaluate(results, args.duration)
     print("\n=== The paper's claims, our evidence " + "=" * 40)
+    note = reduced_settings_note(args, ap, ("seeds", "duration"))
+    if note:
+        print(note)
     for c in claims:
         print(f"  [{c['verdict']}] {c['claim']}\n      {c['evidence']}")
     rows = table(results, args.duration)

@@ -17,11 +17,22 @@ import argparse
 import os
 import sys
 
+from drake_att import interrupts
 from drake_att.scenarios.config import ConfigError, apply_overrides, load_scenario
 from drake_att.validation import UserInputError
 
 # No line the CLI prints about an error is longer than this (values are cut, not the rule).
 MAX_MESSAGE_CHARS = 1000
+REPORT_WIDTH = 100  # the printed tables' width too (drake_att.analysis.metrics.format_table)
+
+
+def _report(heading: str, items: str) -> None:
+    """Print on stdout, after a blank line, ``heading`` and then ``items`` indented and wrapped
+    at :data:`REPORT_WIDTH` (a name longer than a line stays whole)."""
+    import textwrap
+
+    print("\n" + heading)
+    print(textwrap.fill(items, REPORT_WIDTH, initial_indent="  ", subsequent_indent="  ", break_long_words=False))
 
 
 def _say(text: str) -> None:
@@ -121,7 +132,7 @@ def _cmd_run(args) -> int:
             _say(f"drake-att: the run failed: {e}")
             return 2
         metrics = compute_metrics(run)
-        print(format_table(metrics))
+        print(format_table(metrics, scenario))
         for message in run_warnings(metrics):
             _say(f"drake-att: warning: {message}")
         replaced = os.path.isdir(out_dir)
@@ -133,11 +144,11 @@ def _cmd_run(args) -> int:
                 "or replaced"
             )
             return 2
-    print(
-        f"\nWrote {len(files)} files to {out_dir}/"
+    _report(
+        f"Wrote {len(files)} files to {out_dir}/"
         + (" (replacing the previous results there)" if replaced else "")
-        + ": "
-        + ", ".join(os.path.basename(f) for f in files)
+        + ":",
+        ", ".join(os.path.basename(f) for f in files),
     )
     return 0
 
@@ -176,7 +187,7 @@ def _cmd_score(args) -> int:
         metrics = compute_metrics(run)
     except (ValueError, KeyError, IndexError, TypeError) as e:
         return fail(f"{npz_path}: cannot be scored: {type(e).__name__}: {e}")
-    print(format_table(metrics))
+    print(format_table(metrics, scenario))
     try:
         write_metrics_json(metrics, out)
         with open(out, "rb") as f:
@@ -345,7 +356,7 @@ def _cmd_montecarlo(args) -> int:
     failed = f", {len(result.failed)} failed" if result.failed else ""
     print(
         f"\n{result.ran} runs simulated, {result.reused} found complete in {out}/runs{failed}; "
-        f"{result.wall_time_s:.1f} s wall. "
+        f"{result.wall_time_s:.1f} s wall.\n"
         f"Wrote {out}/report.html, summary.json and {len([f for f in result.files if f.endswith('.png')])} figures"
     )
     if args.screenshot:
@@ -409,7 +420,7 @@ def _cmd_compare(args) -> int:
         return code
     print(campaign_report.format_comparison_table(result))
     print(
-        f"\nWrote {out}/comparison.html, comparison.json, comparison.md and comparison.png "
+        f"\nWrote {out}/comparison.html, comparison.json, comparison.md and comparison.png\n"
         f"(one campaign folder per scenario under {out}/)"
     )
     return 0
@@ -592,7 +603,8 @@ def main(argv=None) -> int:
         previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         args = _parser().parse_args(argv)
-        return args.func(args)
+        with interrupts.remembered():
+            return args.func(args)
     except _Terminated:
         print("\ndrake-att: terminated (SIGTERM); no result folder was written or changed", file=sys.stderr)
         return 143

@@ -1,6 +1,6 @@
 """Output folders: which ones the library may write or replace, and how.
 
-The rules a user can rely on (README "Files the library writes"):
+The rules a user can rely on (docs/guide/cli.md, "What the library may touch"):
 
 * **Only folders of ours are replaced.** A run's folder is replaced only when it is empty or
   carries this library's ``manifest.json`` and nothing the manifest does not list; a
@@ -35,6 +35,7 @@ import re
 import shutil
 import socket
 
+from drake_att.interrupts import raise_if_interrupted
 from drake_att.validation import UserInputError
 
 MANIFEST = "manifest.json"
@@ -380,6 +381,7 @@ def replace_folder(target: str, write, option: str = "--out") -> list[str]:
     _IN_USE.add(os.path.abspath(staging))
     try:
         names = list(write(staging))
+        raise_if_interrupted()  # a Ctrl-C swallowed while writing: the previous folder stays
         old = None
         if os.path.lexists(target):
             check_target(target, option=option)  # still ours (nothing changed it during the run)

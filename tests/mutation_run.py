@@ -108,6 +108,8 @@ MODULES = {
     ),
     # The edges: output folders and physical ranges.
     "outputs": ("drake_att/outputs.py", ["tests/test_outputs.py"]),
+    "interrupts": ("drake_att/interrupts.py", ["tests/test_interrupts.py"]),
+    "reproduction": ("drake_att/analysis/reproduction.py", ["tests/test_reproduction.py"]),
     "campaign_records": (
         "drake_att/analysis/campaign_records.py",
         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"],

@@ -349,3 +349,48 @@ def test_vector_tracker_information_is_sum_of_projections_off_each_true_directio
     assert model["info"]["tracker_samples"] == {
         "st": {"samples_used": 5, "samples_between_gyro_samples": 4, "samples_invalid": 2}
     }
+
+
+def test_prior_with_both_initial_sigmas_says_they_are_the_estimators_own():
+    """Both sigmas given: P0 is diag(sigma_att^2, sigma_bias^2) and the sentence names the estimator."""
+    from types import SimpleNamespace
+
+    gyro = next(s for s in load("cubesat_single_star_tracker").sensors if s.name == "gyro")
+    prior = SimpleNamespace(name="mine", initial_attitude_sigma_deg=2.0, initial_bias_sigma_deg_per_h=7.0)
+    P0, where = bd.prior_covariance({"prior_config": prior, "gyro": gyro})
+    np.testing.assert_allclose(P0, np.diag([(2.0 * DEG) ** 2] * 3 + [(7.0 * DEG_PER_H) ** 2] * 3), rtol=1e-15)
+    assert where == "mine's initial sigmas", where
+    _, only_bias = bd.prior_covariance(
+        {"prior_config": SimpleNamespace(name="half", initial_attitude_sigma_deg=2.0), "gyro": gyro}
+    )
+    assert only_bias == "half gives no initial sigma for the bias (max(|b0|, sigma_b0, 1 deg/h) used)", only_bias
+
+
+def test_a_fusion_cycle_has_no_bound_instead_of_a_recursion():
+    """Two fusions that fuse each other (a loaded scenario refuses this; the bound must not
+    rely on it): NoBound naming the cycle, not a RecursionError."""
+    from types import SimpleNamespace
+
+    leaf = SimpleNamespace(name="leaf")
+    estimators = {
+        "a": SimpleNamespace(name="a", sources=["b", "leaf"]),
+        "b": SimpleNamespace(name="b", sources=["a"]),
+        "leaf": leaf,
+    }
+    with pytest.raises(bd.NoBound, match="a fusion cycle"):
+        bd._leaf_estimators(estimators, "a")
+    estimators["b"] = SimpleNamespace(name="b", sources=["leaf"])
+    assert bd._leaf_estimators(estimators, "a") == [leaf, leaf]
+
+
+@pytest.mark.parametrize(
+    "scale_ppm, misalign_urad, noted",
+    [([0, 0, 0], [0, 0, 0, 0, 0, 0], False), ([0, 300, 0], [0] * 6, True), ([0, 0, 0], [0, 0, 0, 0, 50, 0], True)],
+)
+def test_a_deterministic_gyro_error_of_either_kind_is_noted_as_outside_the_bound(scale_ppm, misalign_urad, noted):
+    from dataclasses import replace
+
+    gyro = next(s for s in load("cubesat_single_star_tracker").sensors if s.name == "gyro")
+    gyro = replace(gyro, scale_factor_error_ppm=scale_ppm, misalignment_urad=misalign_urad)
+    notes = bd._model_gap_notes("gyro", gyro, [])
+    assert any("scale-factor / misalignment" in n for n in notes) == noted, notes

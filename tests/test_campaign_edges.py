@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -705,3 +706,77 @@ def test_a_record_problem_names_the_key_and_the_expected_shape(base_campaign):
     assert "single__window_n" in floats and "expected a int scalar" in floats, floats
     number = problem(single__second_kind=np.array(3))
     assert "'single__second_kind'" in number and number.endswith("expected a str scalar"), number
+
+
+def test_a_record_problem_quotes_foreign_names_on_one_short_line(base_campaign):
+    """A record's own names inside the resume's message: the scenario it holds (and the
+    campaign's), its estimator list and an unexpected key, each folded onto one line and cut
+    at its stated length (80, 120, 80 characters) with "..." -- a hostile record cannot flood
+    the terminal or break the one-line message."""
+    scenario = mc.resolve_scenario(SCENARIO, SHORT)
+    base = mc.load_record(str(base_campaign / "runs" / "seed_2.npz"))
+
+    def problem(**changes):
+        return mc.default_record_problem(dict(base, **changes), scenario, 2)
+
+    def cut(text, limit):
+        line = " ".join(str(text).split())
+        return line if len(line) <= limit else line[:limit] + "..."
+
+    other = problem(scenario=np.array("elsewhere"))
+    assert other == f"it holds scenario 'elsewhere', not {scenario.name!r}", other
+    long_name = "x\n" * 100
+    flood = problem(scenario=np.array(long_name))
+    assert flood == f"it holds scenario {cut(repr(long_name), 80)}, not {scenario.name!r}", flood
+    names = [f"estimator_{i}" for i in range(40)]
+    listed = problem(estimators=np.array(names))
+    expect = f"it holds estimators {cut(names, 120)}, not {[e.name for e in scenario.estimators]}"
+    assert listed == expect and "\n" not in listed, listed
+    key = "k" * 200
+    extra = problem(**{key: np.zeros(1)})
+    assert extra == f"unexpected key {cut(repr(key), 80)}", extra
+
+
+def _documented_run_campaign_snippet() -> str:
+    """The ``run_campaign`` example of the README or the docs (the first Python block that calls it with workers)."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    for path in [root / "README.md", *sorted((root / "docs").rglob("*.md"))]:
+        for block in re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.S):
+            if "run_campaign(" in block and "workers=2" in block:
+                return block
+    raise AssertionError("no run_campaign example with workers=2 in README.md or docs/")
+
+
+@pytest.mark.slow
+def test_the_documented_run_campaign_snippet_runs_as_a_script_with_two_workers(tmp_path):
+    """The documented snippet saved as a file and run: it completes its campaign with a
+    2-worker local cluster. The same code without its ``__main__`` guard (each spawned worker
+    re-imports the script) fails at once with one line that names the guard, and leaves no
+    campaign folder that would block the corrected retry."""
+    import textwrap
+
+    snippet = _documented_run_campaign_snippet().replace("runs=20", "runs=3")
+    assert 'if __name__ == "__main__":' in snippet, snippet
+    (tmp_path / "guarded.py").write_text(snippet)
+    env = dict(os.environ, MPLBACKEND="Agg")
+    done = subprocess.run(
+        [sys.executable, "guarded.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert (tmp_path / "out" / "mc" / "manifest.json").is_file()
+    rmse = json.loads(done.stdout.strip().splitlines()[-1])
+    assert len(rmse) == 3 and all(0 < x < 0.1 for x in rmse), rmse
+
+    head, _, body = snippet.partition('if __name__ == "__main__":')
+    unguarded = head + textwrap.dedent(body.split("\n", 1)[1]).replace('"out/mc"', '"out/mc2"')
+    (tmp_path / "unguarded.py").write_text(unguarded)
+    failed = subprocess.run(
+        [sys.executable, "unguarded.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env
+    )
+    last = failed.stderr.strip().splitlines()[-1]
+    assert failed.returncode != 0
+    assert last.startswith("drake_att.analysis.dask_connection.CampaignError: a local Dask cluster of 2 worker"), last
+    assert 'under `if __name__ == "__main__":`' in last, last
+    assert not (tmp_path / "out" / "mc2").exists()

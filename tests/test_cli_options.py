@@ -230,10 +230,11 @@ def test_run_lists_the_files_it_wrote_and_says_when_it_replaced_a_folder(two_run
     (_, out, _), (_, out2, _), folder = two_runs
     files = sorted(os.listdir(folder))
     for text, tail in ((out, ": "), (out2, " (replacing the previous results there): ")):
-        wrote = [line for line in text.splitlines() if line.startswith("Wrote ")]
-        assert len(wrote) == 1, text[-2000:]
-        listed = wrote[0].split(tail, 1)[1].split(", ")
-        assert wrote[0] == f"Wrote {len(listed)} files to r/{tail}" + ", ".join(listed)
+        paragraph = text.rstrip("\n").split("\n\n")[-1].splitlines()  # the names wrapped at 100 columns
+        assert all(len(line) <= 100 for line in paragraph), paragraph
+        assert all(line.startswith("  ") for line in paragraph[1:]), paragraph
+        listed = " ".join(line.strip() for line in paragraph[1:]).split(", ")
+        assert paragraph[0] == f"Wrote {len(listed)} files to r/{tail.rstrip()}", paragraph
         assert sorted(listed) == files
     assert "replacing" not in out
 
@@ -364,7 +365,9 @@ def test_compare_notes_each_skipped_cell_on_stderr(comparison):
 def test_compare_names_the_files_it_wrote(comparison):
     (code, out, err), folder = comparison
     assert code == 0, err[-2000:]
-    assert out.splitlines()[-1] == (
+    paragraph = out.rstrip("\n").split("\n\n")[-1].splitlines()
+    assert all(len(line) <= 100 for line in paragraph), paragraph
+    assert " ".join(paragraph) == (
         "Wrote cmp/comparison.html, comparison.json, comparison.md and comparison.png "
         "(one campaign folder per scenario under cmp/)"
     )

@@ -2,7 +2,7 @@
 strings, CLI options, result folders and output folders, each run through
 ``drake_att.cli.main`` in this process.
 
-What it guards (DESIGN.md "The edges", README "Command line"):
+What it guards (DESIGN.md "The edges", docs/guide/cli.md):
 
 * **One error path.** ``main(argv)`` never raises (argparse included) and never lets a
   traceback reach the user. A user error returns 2 and the last non-empty stderr line starts

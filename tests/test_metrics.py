@@ -809,25 +809,41 @@ def assert_printed(token, value, sig=SIG_DIGITS):
     assert abs(printed - value) <= 0.5 * 10.0 ** (1 - sig) * abs(value) * (1 + 1e-9), (token, value)
 
 
+def _blocks(lines):
+    """``(header index, [row lines])`` of each block of the table: a header line starting
+    with ``estimator``, a dash line as long as it, rows up to a blank line or the footer."""
+    out = []
+    for dash, line in enumerate(lines):
+        if line and set(line) == {"-"}:
+            assert lines[dash - 1].split()[0] == "estimator" and len(line) == len(lines[dash - 1])
+            end = dash + 1
+            while end < len(lines) and lines[end] and not lines[end].startswith("(scored"):
+                end += 1
+            out.append((dash - 1, lines[dash + 1 : end]))
+    assert len(out) == 2, "two blocks: attitude error, then bias / rate, convergence and consistency"
+    return out
+
+
 def _parse_table(text):
     """Header groups, rows {name: fields as printed (strings)} and the scored-from time."""
     lines = text.splitlines()
     header = re.fullmatch(rf"scenario (\S+)  seed (\d+)  duration ({FLOAT}|\d+) s  wall ({FLOAT}) s", lines[0])
     assert header, lines[0]
-    dash = next(i for i, line in enumerate(lines) if set(line) == {"-"})
-    assert lines[dash - 1].split()[0] == "estimator" and len(lines[dash]) == len(lines[dash - 1])
+    (_, attitude), (_, other) = _blocks(lines)
+    assert [ln.split()[0] for ln in attitude] == [ln.split()[0] for ln in other]  # the same rows, in order
     rows = {}
-    for line in lines[dash + 1 :]:
-        if line.startswith("(scored"):
-            break
+    for line, line2 in zip(attitude, other, strict=True):
         tok = line.split()
-        name, rm, ma, tot = tok[0], tok[1:4], tok[4:7], tok[7]
-        if tok[8] in ("b", "w"):
-            second, rest = (tok[8], tok[9:12]), tok[12:]
+        name, rm, tot, ma = tok[0], tok[1:4], tok[4], tok[5:8]
+        assert len(tok) == 8, line
+        tok = line2.split()
+        if tok[1] in ("b", "w"):
+            second, rest = (tok[1], tok[2:5]), tok[5:]
         else:
-            assert tok[8] == "-"
-            second, rest = None, tok[9:]
+            assert tok[1] == "-"
+            second, rest = None, tok[2:]
         conv, nees, used = rest
+        nees = nees.rstrip("*")
         for t in rm + ma + [tot] + (second[1] if second else []) + ([] if nees == "-" else [nees]):
             float(t)  # every number parses back
         rows[name] = {
@@ -840,6 +856,7 @@ def _parse_table(text):
             "nees": None if nees == "-" else nees,
             "used": tuple(int(x) for x in used.split("/")),
             "line": line,
+            "line2": line2,
         }
     scored_from = float(re.search(r"scored from t >= (\S+) s", text).group(1))
     return header.groups(), rows, scored_from
@@ -895,21 +912,20 @@ def _check_rows(rows, est):
 
 
 def _check_aligned(text):
-    """Every row is as wide as the header, and each column's numbers end at the same column
-    on every row (right-aligned; a row with '-' for the bias/rate column has its '-' where
-    the others' last bias/rate number ends)."""
+    """In each block every row is as wide as the header, and each column's numbers end at the
+    same column on every row (right-aligned; a row with '-' for the bias/rate column has its
+    '-' where the others' last bias/rate number ends); the last column ends under its header."""
     lines = text.splitlines()
-    dash = next(i for i, line in enumerate(lines) if set(line) == {"-"})
-    footer = next(i for i, line in enumerate(lines) if line.startswith("(scored"))
-    header, body = lines[dash - 1], lines[dash + 1 : footer]
-    assert all(len(ln) == len(header) for ln in body), [len(ln) for ln in [header, *body]]
-    ends = [[m.end() for m in re.finditer(r"\S+", ln)][1:] for ln in body]  # after the name
-    full = [e for e, ln in zip(ends, body, strict=True) if ln.split()[8] in ("b", "w")]
-    assert full, "the table has a row with bias or rate numbers"
-    assert all(e == full[0] for e in full), full
-    for e in ends:
-        assert set(e) <= set(full[0]), (e, full[0])
-    assert ends[-1][-1] == len(header)  # used/skipped ends the row, under its header
+    for hdr_index, body in _blocks(lines):
+        header = lines[hdr_index]
+        assert all(len(ln) == len(header) for ln in body), [len(ln) for ln in [header, *body]]
+        ends = [[m.end() for m in re.finditer(r"[^\s*]+", ln)][1:] for ln in body]  # after the name
+        full = [e for e, ln in zip(ends, body, strict=True) if ln.split()[1] not in ("-",)]
+        assert full, "the block has a row with every column filled"
+        assert all(e == full[0] for e in full), full
+        for e in ends:
+            assert set(e) <= set(full[0]), (e, full[0])
+        assert ends[-1][-1] == len(header)  # the last column ends the row, under its header
 
 
 def test_format_table_shows_the_numbers_it_was_given():
@@ -980,10 +996,9 @@ def test_format_table_sizes_to_long_names_and_numbers_spanning_decades():
     _, rows, _ = _parse_table(text)
     _check_rows(rows, est)
     _check_aligned(text)
-    header = text.splitlines()[1]
-    assert header.index("RMSE x/y/z") > len(long_name)  # the name column holds the long name
-    for line in text.splitlines()[3:6]:
-        assert line[len(long_name)] == " "  # ... followed by a separating space on every row
+    for line in (row[key] for row in rows.values() for key in ("line", "line2")):
+        assert line[len(long_name)] == " "  # the name column holds the long name, then a space
+    assert max(len(line) for line in text.splitlines()) <= metrics.TABLE_WIDTH
 
 
 def test_format_table_name_column_is_at_least_nine_wide():
@@ -997,7 +1012,9 @@ def test_format_table_name_column_is_at_least_nine_wide():
         }
     )
     _check_aligned(text)
-    assert text.splitlines()[1].startswith("estimator ") and text.splitlines()[3].startswith("a" + " " * 9)
+    _, rows, _ = _parse_table(text)
+    assert all(line.startswith("a" + " " * 9) for line in (rows["a"]["line"], rows["a"]["line2"]))
+    assert all(text.splitlines()[i].startswith("estimator ") for i, _ in _blocks(text.splitlines()))
 
 
 def test_format_table_footer_names_each_nees_dof():

@@ -1,6 +1,6 @@
 """Output folders (drake_att/outputs.py): which folders the library may replace, the lock, the
 staging folders, atomic files. Each rule is checked on real folders in a temporary
-directory, the expectations written from the rule (README "What the library may touch"),
+directory, the expectations written from the rule (docs/guide/cli.md "What the library may touch"),
 and every refusal leaves the files that were there byte for byte unchanged."""
 
 from __future__ import annotations

@@ -192,8 +192,20 @@ def test_structural_override_is_refused_naming_the_field(s3, overrides, field):
 
 
 def test_particle_count_is_structural(s0):
-    with pytest.raises(ConfigError, match=r"estimators.ekpf.num_particles \(may change: \["):
+    """The refusal says what to do instead: the field is structural, the estimator's per-run
+    fields are listed (the plug-in's declared parameters), and how to build a diagram for it."""
+    from drake_att.scenarios.registry import plugin_for
+
+    with pytest.raises(
+        ConfigError, match=r"estimators.ekpf.num_particles \(structural; ekpf.s per-run fields: [a-z]"
+    ) as e:
         s0.create_context(SEED, overrides=["estimators.ekpf.num_particles=30"])
+    text = str(e.value)
+    ekpf = next(c for c in s0.scenario.estimators if c.name == "ekpf")
+    per_run = text.split("ekpf's per-run fields: ", 1)[1].split(")", 1)[0].split(", ")
+    assert per_run == list(plugin_for(ekpf).parameters) and "num_particles" not in per_run, text
+    assert "diagram_for(drake_att.scenarios.config.apply_overrides(scenario, overrides))" in text, text
+    assert "\n" not in text
 
 
 def test_invalid_override_is_refused_before_any_run(s3):

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drake_att import interrupts
 from drake_att.analysis.campaign_folder import (
     CAMPAIGN_FILE,
     CONFIG_FILE,
@@ -181,6 +182,7 @@ def default_summarize(records, scenario, **kwargs) -> dict:
     return ensemble.summarize(records, scenario, **kwargs)
 
 
+@interrupts.remembering
 def run_campaign(
     scenario,
     runs: int,
@@ -246,6 +248,7 @@ def run_campaign(
         runs_so_far.read_saved(out, yaml_text, resume, stream)
     _run_pending(runs_so_far, yaml_text, workers, scheduler, connect_timeout_s, progress, stream)
     result = runs_so_far.result()
+    interrupts.raise_if_interrupted()
     if report:
         result.summary = _campaign_summary(result, record, scenario, overrides)
     result.wall_time_s = time.perf_counter() - start
@@ -411,6 +414,7 @@ def _write_report_and_manifest(result: CampaignResult, out: str, runs: _Campaign
     seeds = result.seeds
     result.files = campaign_report.write_campaign_report(result, executor=runs.executor_text)
     run_files = [_run_path(out, s) for s in seeds if s in runs.records] + [_failed_path(out, s) for s in result.failed]
+    interrupts.raise_if_interrupted()  # no manifest (the mark of a complete campaign) after a swallowed Ctrl-C
     write_campaign_manifest(
         out,
         [os.path.join(out, CONFIG_FILE), os.path.join(out, CAMPAIGN_FILE)] + result.files + run_files,

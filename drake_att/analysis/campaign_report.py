@@ -113,20 +113,98 @@ def _y_scale(ax, span_factor: float = 20.0, values=None) -> None:
         ax.yaxis.set_minor_formatter(NullFormatter())
 
 
-def _sym_limit(values, floor):
+def _peak(values) -> float:
+    """The largest finite ``|value|`` (0 when there is none)."""
     v = np.abs(np.asarray(values, dtype=float))
     v = v[np.isfinite(v)]
-    return 1.08 * max(float(v.max()) if v.size else 0.0, floor)
+    return float(v.max()) if v.size else 0.0
+
+
+def error_axis_limit(data, envelopes, floor: float, reach: float = 3.0) -> tuple[float, list]:
+    """Symmetric y-limit of an error plot and the envelopes it clips.
+
+    Every finite value of ``data`` (the errors and the ensemble's +-3 RMS) is inside; so is each
+    envelope (``(label, values)``: the filter's +-3 sigma, the bound's) unless it reaches past
+    ``reach`` times the data's peak (an initial sigma of degrees next to arcsecond errors):
+    then the limit stops there and ``clipped`` lists ``(label, its peak)``, for the figure to
+    say. Returns ``(limit, clipped)``."""
+    data_peak = max(max((_peak(d) for d in data), default=0.0), floor)
+    lim = data_peak
+    for _, values in envelopes:
+        lim = max(lim, min(_peak(values), reach * data_peak))
+    lim *= 1.08
+    return lim, [(label, _peak(values)) for label, values in envelopes if _peak(values) > lim]
+
+
+def _agg_figure(**kwargs):
+    """A matplotlib ``Figure`` with constrained layout on an Agg canvas (no pyplot, no backend
+    switch): texts can be measured (:func:`fit_titles`) and the figure saved."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(layout="constrained", **kwargs)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _with_legend_band(fig, rows: int, plots_height_in: float, at: str = "bottom"):
+    """Split ``fig`` into the plots' subfigure and a band for the legend (``rows`` lines of
+    entries) below or above them, so that no legend covers data. Returns ``(plots, band)``."""
+    band_in = 0.3 + 0.22 * rows
+    fig.set_figheight(plots_height_in + band_in + 0.5)
+    if at == "top":
+        band, plots = fig.subfigures(2, 1, height_ratios=[band_in, plots_height_in])
+    else:
+        plots, band = fig.subfigures(2, 1, height_ratios=[plots_height_in, band_in])
+    return plots, band
+
+
+def _band_legend(band, handles, labels, ncol: int, **kwargs):
+    return band.legend(handles, labels, loc="center", ncol=ncol, fontsize=8, frameon=False, **kwargs)
+
+
+def _wrap_to(text_artist, width_px: float) -> None:
+    """Re-wrap ``text_artist``'s text onto more lines until it is at most ``width_px`` wide."""
+    import textwrap
+
+    lines = text_artist.get_text().split("\n")  # explicit line breaks are kept
+    chars = max(len(line) for line in lines)
+    renderer = text_artist.figure.canvas.get_renderer()
+    while chars > 12 and text_artist.get_window_extent(renderer).width > width_px:
+        chars = int(chars * 0.9)
+        text_artist.set_text("\n".join(textwrap.fill(line, chars) for line in lines))
+
+
+def fit_titles(fig):
+    """Wrap every axes title wider than its axes, and the figure's title wider than the
+    figure, onto more lines (constrained layout then makes room for them); returns ``fig``."""
+    fig.canvas.draw()
+    for ax in fig.axes:
+        if ax.get_title():
+            _wrap_to(ax.title, ax.get_window_extent().width)
+    for f in [fig, *fig.subfigs]:
+        if getattr(f, "_suptitle", None) is not None:
+            _wrap_to(f._suptitle, 0.98 * fig.bbox.width)
+    return fig
 
 
 # ----------------------------------------------------------------------------------------
 # Figures
 # ----------------------------------------------------------------------------------------
+FILTER_STYLE = {"color": "tab:red", "ls": "--", "lw": 1.1, "zorder": 4}  # the filters' own +-3 sigma
+BOUND_STYLE = {"color": "tab:green", "ls": "-", "lw": 3.5, "alpha": 0.45, "zorder": 2}  # under it: seen when equal
+ENSEMBLE_STYLE = {"color": "k", "ls": "-", "lw": 1.0, "zorder": 3}
+
+
 def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
     """Each run's attitude error per axis (deg) with the +-3 sigma envelopes; top row the
-    whole run, bottom row ``t >= score_from_s``."""
-    from matplotlib.figure import Figure
+    whole run, bottom row ``t >= score_from_s``.
 
+    The filters' +-3 sigma (red, dashed) and the Cramér–Rao bound's (wide, pale green, drawn
+    under it) differ in color, style and width, so both show where they coincide; the legend
+    sits in a band below the plots; the y-limits hold every run's error and the ensemble's
+    +-3 RMS, and the envelopes up to 3x that (:func:`error_axis_limit`; a title says which
+    envelope runs off and its peak)."""
     t, idx = common_times(records, name)
     d = _stack(records, f"{name}__dtheta", idx) / DEG  # (N, n, 3)
     sig = _stack(records, f"{name}__sigma", idx)[:, :, :3] / DEG
@@ -143,63 +221,47 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
     rows = [("whole run", np.ones_like(t, dtype=bool))] + (
         [(f"t ≥ {score_from_s:g} s (scored)", window)] if score_from_s > 0 and np.any(window) else []
     )
-    fig = Figure(figsize=(15, 3.6 * len(rows) + 0.6))
-    fig.subplots_adjust(
-        left=0.06,
-        right=0.99,
-        bottom=0.08 if len(rows) > 1 else 0.14,
-        top=0.9 if len(rows) > 1 else 0.84,
-        wspace=0.22,
-        hspace=0.38,
-    )
-    ax = fig.subplots(len(rows), 3, squeeze=False)
+    fig = _agg_figure(figsize=(15, 3.6 * len(rows)))
+    plots, band = _with_legend_band(fig, 1, 3.6 * len(rows))
+    ax = plots.subplots(len(rows), 3, squeeze=False)
+    labels = {
+        "error": f"error, {drawn} of {N} runs",
+        "filter": "filter ±3σ (RMS over runs)",
+        "ensemble": f"ensemble ±3·RMS error (runs x {k} samples)",
+        "bound": "Cramér–Rao bound ±3σ",
+    }
     for r, (label, sel) in enumerate(rows):
         for i in range(3):
             a = ax[r, i]
-            for k in range(drawn):
+            for j in range(drawn):
                 a.plot(
                     t[sel],
-                    d[k, sel, i],
+                    d[j, sel, i],
                     lw=0.5,
                     alpha=0.45,
                     color="tab:blue",
-                    label=f"error, {drawn} of {N} runs" if k == 0 else None,
+                    label=labels["error"] if j == 0 else None,
                 )
             for sign in (1, -1):
-                a.plot(
-                    t[sel],
-                    sign * filt3[sel, i],
-                    "r--",
-                    lw=1.0,
-                    label="filter ±3σ (RMS over runs)" if sign > 0 else None,
-                )
-                a.plot(
-                    t[sel],
-                    sign * ens3[sel, i],
-                    color="k",
-                    lw=1.0,
-                    label=f"ensemble ±3·RMS error (runs x {k} samples)" if sign > 0 else None,
-                )
+                first = sign > 0
+                a.plot(t[sel], sign * filt3[sel, i], **FILTER_STYLE, label=labels["filter"] if first else None)
+                a.plot(t[sel], sign * ens3[sel, i], **ENSEMBLE_STYLE, label=labels["ensemble"] if first else None)
                 if bound3 is not None:
-                    a.plot(
-                        t[sel],
-                        sign * bound3[sel, i],
-                        color="tab:green",
-                        ls=":",
-                        lw=1.4,
-                        label="Cramér–Rao bound ±3σ" if sign > 0 else None,
-                    )
-            lim = _sym_limit(d[:, sel, i], 1e-9)
-            if r > 0 or lim < 1e-3:
-                lim = max(lim, min(_sym_limit(filt3[sel, i], 1e-9), 3 * lim))
+                    a.plot(t[sel], sign * bound3[sel, i], **BOUND_STYLE, label=labels["bound"] if first else None)
+            envelopes = [("filter ±3σ", filt3[sel, i])] + (
+                [("bound ±3σ", bound3[sel, i])] if bound3 is not None else []
+            )
+            lim, clipped = error_axis_limit([d[:, sel, i], ens3[sel, i]], envelopes, 1e-9)
             a.set_ylim(-lim, lim)
-            a.set_title(f"attitude error {AXES[i]} — {label}", fontsize=10)
+            off = "; ".join(f"{what} runs off (peak {peak:.3g} deg)" for what, peak in clipped)
+            a.set_title(f"attitude error {AXES[i]} — {label}" + (f"\n{off}" if off else ""), fontsize=10)
             a.set_ylabel("deg")
             a.set_xlabel("time (s)")
             a.grid(True, alpha=0.3)
-    ax[0, 0].legend(loc="upper right", fontsize=7)
+    handles, texts = ax[0, 0].get_legend_handles_labels()
+    _band_legend(band, handles, texts, ncol=len(handles))
     fig.suptitle(title)
-    return fig
+    return fit_titles(fig)
 
 
 def _nis_bins(records, name, i, t_end, bins=NIS_BINS):
@@ -225,17 +287,13 @@ def _nis_bins(records, name, i, t_end, bins=NIS_BINS):
 
 
 def consistency_figure(records, name: str, stats: dict, title: str):
-    """ANEES per instant with its 95% band (top) and NIS / dof per input (bottom)."""
-    from matplotlib.figure import Figure
-
+    """ANEES per instant with its 95% band (top) and NIS / dof per input (bottom); each
+    legend to the right of its plot."""
     h = stats["history"]
     inputs = [str(x) for x in np.atleast_1d(records[0][f"{name}__inputs"])]
     nis_inputs = [(i, n) for i, n in enumerate(inputs) if f"{name}__nis{i}__t" in records[0]]
     nrows = 1 + (1 if nis_inputs else 0)
-    fig = Figure(figsize=(13, 3.6 * nrows + 0.6))
-    fig.subplots_adjust(
-        left=0.07, right=0.99, bottom=0.08 if nrows > 1 else 0.14, top=0.9 if nrows > 1 else 0.84, hspace=0.38
-    )
+    fig = _agg_figure(figsize=(13, 3.6 * nrows + 0.6))
     ax = fig.subplots(nrows, 1, squeeze=False)[:, 0]
     a = ax[0]
     t = np.array(h["t"], dtype=float)
@@ -272,7 +330,7 @@ def consistency_figure(records, name: str, stats: dict, title: str):
     a.set_xlabel("time (s)")
     a.set_title("average NEES per instant (the gray line starts the scoring window)", fontsize=10)
     a.grid(True, which="major", alpha=0.3)
-    a.legend(fontsize=7, loc="upper right")
+    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     if nis_inputs:
         b = ax[1]
         t_end = float(records[0]["duration_s"])
@@ -289,21 +347,22 @@ def consistency_figure(records, name: str, stats: dict, title: str):
         b.set_title(f"normalized innovation squared per input ({NIS_BINS} time bins, all runs)", fontsize=10)
         b.grid(True, which="major", alpha=0.3)
         _y_scale(b, 20.0, spans)
-        b.legend(fontsize=7, loc="upper right")
+        b.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.suptitle(title)
-    return fig
+    return fit_titles(fig)
 
 
 def rmse_vs_bound_figure(summary: dict, title: str):
     """Window RMSE per axis and total with 95% CI next to the bound (left); RMSE per instant
-    over runs vs the bound (right)."""
-    from matplotlib.figure import Figure
-
+    over runs vs the bound (right: a wide pale line in the estimator's color); one legend in
+    a band below the plots."""
     ests = summary["estimators"]
     names = list(ests)
-    fig = Figure(figsize=(15, 5.2))
-    fig.subplots_adjust(left=0.06, right=0.99, bottom=0.1, top=0.88, wspace=0.18)
-    a, b = fig.subplots(1, 2, width_ratios=[1.1, 1])
+    from matplotlib.lines import Line2D
+
+    fig = _agg_figure(figsize=(15, 5.2))
+    plots, band = _with_legend_band(fig, -(-(len(names) + 2) // 6), 4.7)
+    a, b = plots.subplots(1, 2, width_ratios=[1.1, 1])
     groups = AXES + ["total"]
     width = 0.8 / max(len(names), 1)
     for j, n in enumerate(names):
@@ -327,7 +386,7 @@ def rmse_vs_bound_figure(summary: dict, title: str):
                 facecolor="white",
                 edgecolor="k",
                 zorder=3,
-                label="Cramér–Rao bound" if j == 0 else None,
+                label="left: the Cramér–Rao bound (diamonds)" if j == 0 else None,
             )
     _y_scale(
         a,
@@ -344,7 +403,6 @@ def rmse_vs_bound_figure(summary: dict, title: str):
     a.set_ylabel("RMSE over the scoring window (deg)")
     a.set_title("window RMSE with 95% CI; diamonds: the bound", fontsize=10)
     a.grid(True, axis="y", alpha=0.3)
-    a.legend(fontsize=7)
     for n in names:
         h = ests[n]["history"]
         t = np.array(h["t"], dtype=float)
@@ -355,8 +413,7 @@ def rmse_vs_bound_figure(summary: dict, title: str):
             bs = np.array(
                 [[np.nan if q is None else q for q in row] for row in h["bound_attitude_sigma_deg"]], dtype=float
             )
-            b.plot(t, np.sqrt(np.sum(bs**2, axis=1)), lw=1.2, ls=":", color=line.get_color())
-    b.plot([], [], "k:", lw=1.2, label="its bound (dotted, same color)")
+            b.plot(t, np.sqrt(np.sum(bs**2, axis=1)), **{**BOUND_STYLE, "color": line.get_color()})
     b.axvline(summary["score_from_s"], color="gray", lw=0.8)
     b.set_xlabel("time (s)")
     b.set_ylabel("total attitude error (deg)")
@@ -368,9 +425,13 @@ def rmse_vs_bound_figure(summary: dict, title: str):
     )
     b.grid(True, which="major", alpha=0.3)
     _y_scale(b, 5.0)
-    b.legend(fontsize=7, ncol=2, loc="best")
+    handles, labels = a.get_legend_handles_labels()
+    if any(ests[n]["history"].get("bound_attitude_sigma_deg") is not None for n in names):
+        handles.append(Line2D([], [], **{**BOUND_STYLE, "color": "gray"}))
+        labels.append("right: each estimator's bound (wide pale line, its color)")
+    _band_legend(band, handles, labels, ncol=min(len(handles), 6))
     fig.suptitle(title)
-    return fig
+    return fit_titles(fig)
 
 
 # ----------------------------------------------------------------------------------------
@@ -429,8 +490,39 @@ def summary_rows(summary: dict) -> list[list[str]]:
     return rows
 
 
+TEXT_WIDTH = 100  # the printed tables' lines fit 100 columns (names up to 24 characters)
+
+
+def _text_table(header, rows) -> list[str]:
+    """Left-aligned columns two spaces apart under a dash line, no trailing spaces; a row
+    given as a string is printed whole (a section heading) and does not widen the columns."""
+    cells = [header] + [r for r in rows if not isinstance(r, str)]
+    widths = [max(len(r[c]) for r in cells) for c in range(len(header))]
+
+    def line(row):
+        return "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip()
+
+    return [line(header), "  ".join("-" * w for w in widths)] + [r if isinstance(r, str) else line(r) for r in rows]
+
+
+def _wrapped(text: str) -> list[str]:
+    """``text`` wrapped to :data:`TEXT_WIDTH` columns, continuation lines indented by one."""
+    import textwrap
+
+    return textwrap.wrap(text, TEXT_WIDTH, subsequent_indent=" ", break_long_words=False, break_on_hyphens=False)
+
+
+CAMPAIGN_TEXT_BLOCKS = (
+    # (column of summary_rows, its header in the printed table)
+    ((0, "estimator"), (3, "RMSE tot"), (2, "95% CI"), (10, "bound tot"), (1, "RMSE x / y / z")),
+    ((0, "estimator"), (5, "ANEES (dof)"), (6, "95% band"), (8, "converged"), (11, "RMSE / bound x / y / z")),
+)
+
+
 def format_campaign_table(result) -> str:
-    """The campaign's table as text (what ``drake-att montecarlo`` prints)."""
+    """The campaign's table as text (what ``drake-att montecarlo`` prints): the accuracy
+    block (RMSE, its CI, the bound) and the consistency block (ANEES, convergence, RMSE /
+    bound per axis), then what the columns mean; every line fits :data:`TEXT_WIDTH`."""
     head = (
         f"Monte Carlo {result.scenario.name}: {len(result.records)} runs"
         + (f" ({len(result.failed)} failed)" if result.failed else "")
@@ -438,18 +530,14 @@ def format_campaign_table(result) -> str:
     )
     if not result.summary:
         return head + "\n(no completed run)"
-    keep = [0, 1, 3, 2, 5, 6, 8, 10, 11]
-    table = [[TABLE_COLUMNS[k] for k in keep]] + [[row[k] for k in keep] for row in summary_rows(result.summary)]
-    widths = [max(len(r[c]) for r in table) for c in range(len(keep))]
-    lines = [
-        head,
-        "  ".join(h.ljust(w) for h, w in zip(table[0], widths, strict=True)),
-        "  ".join("-" * w for w in widths),
-    ]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in table[1:]]
-    lines.append(
-        f"(window t >= {result.summary['score_from_s']:g} s; ANEES band: 95% of the window average, 'in'/'OUT'; "
-        "bound: posterior Cramér–Rao, total RMS over the window)"
+    rows = summary_rows(result.summary)
+    lines = [head]
+    for block in CAMPAIGN_TEXT_BLOCKS:
+        lines += _text_table([h for _, h in block], [[row[k] for k, _ in block] for row in rows]) + [""]
+    lines.pop()
+    lines += _wrapped(
+        f"(deg; window t >= {result.summary['score_from_s']:g} s; 95% CI: of the total RMSE; bound: posterior "
+        "Cramer-Rao, total RMS over the window; ANEES band: 95% of the window average, 'in'/'OUT')"
     )
     return "\n".join(lines)
 
@@ -564,8 +652,9 @@ def write_campaign_report(result, executor: str = "") -> list[str]:
                     ),
                     (
                         f"{n}: each run's attitude error per axis (thin lines), the filter's own ±3σ (RMS over "
-                        "runs, red), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ (green, "
-                        "when defined); top: the whole run, bottom: the scoring window."
+                        "runs, red dashes), the ensemble's ±3·RMS error (black) and the Cramér–Rao bound's ±3σ "
+                        "(wide pale green, under the red dashes; when defined); top: the whole run, bottom: the "
+                        "scoring window."
                     ),
                 )
             )
@@ -614,11 +703,22 @@ def _campaign_html(result, campaign, figures, yaml_text) -> str:
     return _page(title, "\n".join(body))
 
 
+def _description_as_run(scenario) -> str:
+    """The scenario's description followed by what ran: its text comes from the scenario file
+    and may name values a ``--set`` changed, so the duration and the scoring window of the
+    resolved config stand next to it."""
+    return (
+        " ".join(scenario.description.split())
+        + f" [as run: {scenario.duration_s:g} s per run, scored from t ≥ {scenario.scoring.score_from_s:g} s; "
+        "the resolved configuration at the end of this page is what ran]"
+    )
+
+
 def _campaign_facts(result, campaign) -> list:
     """The (label, text) rows of the page's facts table."""
     return [
         ("scenario", result.scenario.name),
-        ("description", " ".join(result.scenario.description.split())),
+        ("description", _description_as_run(result.scenario)),
         (
             "runs",
             f"{campaign['completed']} completed of {campaign['runs']} (seeds {campaign['first_seed']}.."
@@ -784,25 +884,105 @@ def comparison_rows(cells) -> list[list[str]]:
     return rows
 
 
+def _footnote(notes: dict, text: str) -> str:
+    """`` (k)``: ``text``'s number in ``notes`` (text -> number, numbered as first seen)."""
+    return f" ({notes.setdefault(text, len(notes) + 1)})"
+
+
+def _comparison_text_rows(cells, notes: dict) -> tuple[list, list]:
+    """The accuracy and the consistency rows of :func:`format_comparison_table`: a heading
+    per scenario, then one row per estimator; a cell that did not run, or has no bound, points
+    to its reason in ``notes``."""
+    accuracy, consistency, current = [], [], None
+    for c in cells:
+        if c["scenario"] != current:
+            current = c["scenario"]
+            accuracy.append(f"scenario {current}:")
+            consistency.append(f"scenario {current}:")
+        est = c["estimator"]
+        if "attitude_rmse_total_deg" not in c:
+            why = "n/a" + _footnote(notes, c["why"] or "no completed run")
+            accuracy.append([est, "–", why, "", ""])
+            consistency.append([est, why, "", "", "", ""])
+            continue
+        accuracy.append(
+            [
+                est,
+                str(c["runs"]),
+                _g(c["attitude_rmse_total_deg"]),
+                _ci(c["attitude_rmse_total_ci95_deg"]),
+                " / ".join(_g(v) for v in c["attitude_rmse_deg"]),
+            ]
+        )
+        ratio = c["ratio_to_bound_total"]
+        consistency.append(
+            [
+                est,
+                f"{_g(c['anees'])} ({c['nees_dof']})",
+                _ci(c["anees_band_95"])
+                + ("" if c["anees_in_band"] is None else (" in" if c["anees_in_band"] else " OUT")),
+                _g(ratio)
+                if ratio is not None
+                else "no bound" + (_footnote(notes, c["bound_reason"]) if c.get("bound_reason") else ""),
+                _cost_text(c.get("ms_per_step"), notes),
+                c["converged"],
+            ]
+        )
+    return accuracy, consistency
+
+
+BELOW_TIMING_NOISE = (
+    "a negative cost is below the timing noise: the fastest run with this estimator was faster than the "
+    "fastest sensors-only run it is measured against"
+)
+
+
+def _cost_text(ms_per_step, notes: dict) -> str:
+    """A cell's ms/step as printed; a negative one points to :data:`BELOW_TIMING_NOISE` in ``notes``."""
+    if ms_per_step is None:
+        return "–"
+    return _g(ms_per_step, ".3f") + (_footnote(notes, BELOW_TIMING_NOISE) if ms_per_step < 0 else "")
+
+
 def format_comparison_table(result) -> str:
-    rows = [COMPARISON_COLUMNS] + comparison_rows(comparison_cells(result))
-    widths = [max(len(r[c]) for r in rows) for c in range(len(COMPARISON_COLUMNS))]
-    lines = ["  ".join(c.ljust(w) for c, w in zip(rows[0], widths, strict=True)), "  ".join("-" * w for w in widths)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows[1:]]
+    """The comparison as text (what ``drake-att compare`` prints): :func:`comparison_text`."""
+    return comparison_text(comparison_cells(result))
+
+
+def comparison_text(cells) -> str:
+    """The :func:`comparison_cells` as text: an accuracy block and a consistency-and-cost
+    block, each with a heading line per scenario, then what the columns mean and the numbered
+    reasons of the cells that did not run or have no bound; every line fits
+    :data:`TEXT_WIDTH` for names up to 24 characters."""
+    notes: dict = {}
+    accuracy, consistency = _comparison_text_rows(cells, notes)
+    lines = _text_table(["estimator", "runs", "RMSE tot", "95% CI", "RMSE x / y / z"], accuracy)
+    lines += [""] + _text_table(
+        ["estimator", "ANEES (dof)", "95% band", "RMSE / bound", "ms / step", "converged"], consistency
+    )
+    lines += _wrapped(
+        "(RMSE in deg over each scenario's scoring window, pooled over runs; 95% CI: of the total RMSE; ANEES band: "
+        "95% of a window average, 'in'/'OUT'; RMSE / bound: total RMSE / the posterior Cramer-Rao bound; ms / step: "
+        "time per estimator step)"
+    )
+    for text, k in notes.items():
+        lines += _wrapped(f"({k}) {text}")
     return "\n".join(lines)
 
 
 def comparison_figure(cells, title: str):
     """RMSE with CI and the bound, ANEES / dof with its band, RMSE / bound and time per step
-    of every cell that ran; bars colored by scenario."""
-    from matplotlib.figure import Figure
+    of every cell that ran; bars colored by scenario, the legend in a band above the plots,
+    long titles wrapped (:func:`fit_titles`)."""
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     ran = [c for c in cells if "attitude_rmse_total_deg" in c]
     x = np.arange(len(ran))
-    fig = Figure(figsize=(max(11, 0.9 * len(ran) + 6), 9))
-    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.1, top=0.85, wspace=0.2, hspace=0.45)
-    ax = fig.subplots(2, 2)
+    scenarios = list(dict.fromkeys(c["scenario"] for c in ran))
+    fig = _agg_figure(figsize=(max(11, 0.9 * len(ran) + 6), 9))
+    plots, band = _with_legend_band(fig, -(-(len(scenarios) + 2) // 3), 8.4, at="top")
+    ax = plots.subplots(2, 2)
     scen_colors = {}
     colors = [f"C{scen_colors.setdefault(c['scenario'], len(scen_colors)) % 10}" for c in ran]
     a = ax[0, 0]
@@ -849,17 +1029,14 @@ def comparison_figure(cells, title: str):
     for a in ax.ravel():
         a.set_xticks(x, [c["estimator"] for c in ran], fontsize=8, rotation=20, ha="right")
         a.grid(True, axis="y", which="both", alpha=0.3)
-    fig.legend(
-        handles=[Patch(color=f"C{i % 10}", label=n) for n, i in scen_colors.items()],
-        loc="upper center",
-        ncol=min(4, len(scen_colors)),
-        fontsize=9,
-        bbox_to_anchor=(0.5, 0.955),
-        title="scenario",
-        title_fontsize=8,
-    )
-    fig.suptitle(title, y=0.995)
-    return fig
+    handles = [Patch(color=f"C{i % 10}") for i in scen_colors.values()] + [
+        Line2D([], [], ls="", marker="D", markerfacecolor="white", markeredgecolor="k"),
+        Line2D([], [], color="k", lw=0.8),
+    ]
+    labels = [f"scenario {n}" for n in scen_colors] + ["Cramér–Rao bound", "ANEES 95% band"]
+    _band_legend(band, handles, labels, ncol=min(3, len(handles)))
+    fig.suptitle(title)
+    return fit_titles(fig)
 
 
 def write_comparison(result) -> list[str]:

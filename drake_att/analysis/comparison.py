@@ -14,6 +14,7 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from drake_att import interrupts
 from drake_att.analysis.campaign import campaign_seeds, run_campaign
 from drake_att.analysis.dask_connection import (
     DEFAULT_CONNECT_TIMEOUT_S,
@@ -157,6 +158,7 @@ class ComparisonResult:
     files: list = field(default_factory=list)
 
 
+@interrupts.remembering
 def run_comparison(
     plan: ComparisonPlan,
     runs: int,
@@ -217,6 +219,7 @@ def run_comparison(
         if owned is not None:
             _shut_down(owned[0], owned[1], owned[2], [])
     result = ComparisonResult(plan, campaigns, timing, out)
+    interrupts.raise_if_interrupted()
     if out is not None:
         from drake_att.analysis import campaign_report
 

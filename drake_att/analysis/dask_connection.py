@@ -121,6 +121,8 @@ def local_cluster(workers: int):
 
     from distributed import LocalCluster
 
+    if _importing_the_main_script_for_a_worker():
+        raise CampaignError(_MAIN_GUARD_HINT)
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None  # inherited by the spawned workers
     try:
@@ -131,9 +133,31 @@ def local_cluster(workers: int):
             dashboard_address=":0",
             silence_logs=logging.CRITICAL,
         )
+    except Exception as e:  # a worker that could not start (e.g. it died importing the caller's script)
+        raise CampaignError(
+            f"a local Dask cluster of {workers} worker processes failed to start ({_one_line(e, 120)})"
+            + (f"; {_MAIN_GUARD_HINT}" if _main_is_a_script() else "")
+        ) from e
     finally:
         if main:
             signal.signal(signal.SIGINT, previous)
+
+
+_MAIN_GUARD_HINT = (
+    "each worker process imports the main script again, so a script that starts a campaign with "
+    'workers > 1 must do it under `if __name__ == "__main__":`'
+)
+
+
+def _importing_the_main_script_for_a_worker() -> bool:
+    """True in a worker process while it imports the caller's main script (Python's spawn start
+    method runs it as ``__mp_main__``): a campaign started there would start workers of its own."""
+    return getattr(sys.modules.get("__main__"), "__name__", "") == "__mp_main__"
+
+
+def _main_is_a_script() -> bool:
+    """The main module is a file (``python script.py``), not an interactive session or ``-c``."""
+    return bool(getattr(sys.modules.get("__main__"), "__file__", None))
 
 
 # Connecting to a scheduler: every wait has a deadline. distributed's own connect() bounds

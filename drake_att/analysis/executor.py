@@ -37,6 +37,7 @@ from drake_att.analysis.dask_connection import (
     check_connect_timeout,
 )
 from drake_att.analysis.run_records import metrics_and_series_record, metrics_record
+from drake_att.interrupts import raise_if_interrupted
 from drake_att.scenarios import config as cfg
 from drake_att.validation import describe
 
@@ -150,6 +151,7 @@ def map_runs(
     results = [None] * len(jobs)
 
     def deliver(pairs):
+        raise_if_interrupted()  # a Ctrl-C swallowed during the runs stops here, before they are kept
         for job, result in pairs:
             if raise_failures and isinstance(result, RunFailed):
                 from drake_att.scenarios.builder import NonFiniteRunError

@@ -191,55 +191,154 @@ def _g(value) -> str:
     return "-" if value is None else f"{value:.3g}"
 
 
-def format_table(metrics: dict) -> str:  # pragma: no mutate block (presentation: column text and widths)
-    """Human-readable table of :func:`compute_metrics` output.
+TABLE_WIDTH = 100  # the run table's lines fit 100 columns (for names up to 30 characters)
+_NUM = 9  # a number's column: _g's widest output
+NOISE_FREE_MARK = "*"
+
+
+def _measurement_sensors(config) -> list[str]:
+    """The sensors whose measurements estimator ``config`` updates on (not its gyro)."""
+    trackers = getattr(config, "star_trackers", None) or (
+        [config.star_tracker] if getattr(config, "star_tracker", None) else []
+    )
+    return list(trackers) + ([config.camera] if getattr(config, "camera", None) else [])
+
+
+def _sensor_noise_free(sensor, sensors: dict) -> bool:
+    """Whether ``sensor``'s config sets its measurement noise to zero (a camera without
+    centroid noise and quantization, a tracker with zero sigmas, an average of such
+    trackers); False for a sensor type this does not know."""
+    from drake_att.sensors.screen_camera_plugin import ScreenCameraConfig
+    from drake_att.sensors.star_tracker_average_plugin import StarTrackerAverageConfig
+    from drake_att.sensors.star_tracker_plugin import StarTrackerConfig
+
+    if isinstance(sensor, ScreenCameraConfig):
+        return sensor.centroid_noise_px == 0 and sensor.quantization_px == 0
+    if isinstance(sensor, StarTrackerConfig):
+        if sensor.mode == "vectors":
+            return sensor.sigma_vector_urad == 0
+        return sensor.sigma_cross_boresight_arcsec == 0 and sensor.sigma_boresight_arcsec == 0
+    if isinstance(sensor, StarTrackerAverageConfig):
+        return all(n in sensors and _sensor_noise_free(sensors[n], sensors) for n in sensor.star_trackers)
+    return False
+
+
+def noise_free_estimators(scenario) -> dict[str, list[str]]:
+    """Estimator name -> the sensors it updates on, for the estimators whose every measurement
+    sensor is noise-free in ``scenario``'s config (a fusion: every sensor of its sources).
+
+    Their covariance then holds no measurement noise, only the filter's numerical floor
+    (e.g. the indoor star tracker's ``sigma_floor_urad``), so the error it is compared with
+    in the NEES is not noise it describes: the NEES says nothing about consistency."""
+    from drake_att.scenarios.selection import fused_sources, with_fused_sources
+
+    sensors = {s.name: s for s in scenario.sensors}
+    configs = {e.name: e for e in scenario.estimators}
+    out = {}
+    for name in configs:
+        reads = list(
+            dict.fromkeys(
+                s
+                for source in with_fused_sources(configs, [name])
+                if source in configs and not fused_sources(configs[source])
+                for s in _measurement_sensors(configs[source])
+            )
+        )
+        if reads and all(s in sensors and _sensor_noise_free(sensors[s], sensors) for s in reads):
+            out[name] = reads
+    return out
+
+
+def _nums(values) -> str:
+    return " ".join(f"{_g(v):>{_NUM}}" for v in values)
+
+
+def _attitude_block(ests: dict, nw: int) -> list[str]:
+    """Attitude RMSE and MAE per axis and the total RMSE (deg), one row per estimator."""
+    cols = ["RMSE x", "RMSE y", "RMSE z", "RMSE tot", "MAE x", "MAE y", "MAE z"]
+    hdr = f"{'estimator':<{nw}} " + " ".join(f"{c:>{_NUM}}" for c in cols)
+    lines = ["attitude error (deg; x/y/z = roll/pitch/yaw):", hdr, "-" * len(hdr)]
+    for name, m in ests.items():
+        values = [*m["attitude_rmse_deg"], m["attitude_rmse_total_deg"], *m["attitude_mae_deg"]]
+        lines.append(f"{name:<{nw}} {_nums(values)}")
+    return lines
+
+
+def _second_cell(m: dict) -> str:
+    """``b`` and the gyro-bias RMSE per axis, ``w`` and the body-rate RMSE, or ``-``."""
+    if m.get("bias_rmse_deg_per_h") is not None:
+        return "b " + _nums(m["bias_rmse_deg_per_h"])
+    if m.get("rate_rmse_deg_per_s") is not None:
+        return "w " + _nums(m["rate_rmse_deg_per_s"])
+    return "-"
+
+
+def _other_block(ests: dict, nw: int, flagged) -> list[str]:
+    """Bias or rate RMSE per axis, convergence time, NEES (marked for ``flagged`` estimators)
+    and the measurement counts, one row per estimator."""
+    sw = 2 + 3 * _NUM + 2
+    hdr = (
+        f"{'estimator':<{nw}} {'bias|rate RMSE x/y/z':>{sw}} {'conv (s)':>{_NUM}} {'NEES':>{_NUM}}  "
+        f"{'used/skipped':>13}"
+    )
+    lines = ["gyro bias (b, deg/h) or body rate (w, deg/s), convergence, consistency:", hdr, "-" * len(hdr)]
+    for name, m in ests.items():
+        conv = "never" if m["convergence_time_s"] is None else f"{m['convergence_time_s']:.1f}"
+        mark = NOISE_FREE_MARK if name in flagged else " "
+        used = f"{m['measurements_used']}/{m['measurements_skipped']}"
+        lines.append(
+            f"{name:<{nw}} {_second_cell(m):>{sw}} {conv:>{_NUM}} {_g(m['nees_mean']):>{_NUM}}{mark} {used:>13}"
+        )
+    return lines
+
+
+def _nees_dof_text(ests: dict) -> str:
+    dofs = {}
+    for name, m in ests.items():
+        dofs.setdefault(m.get("nees_dof", 6), []).append(name)
+    if len(dofs) <= 1:
+        return f"NEES dof = {next(iter(dofs), 6)}"
+    return "NEES dof: " + ", ".join(f"{d} ({', '.join(names)})" for d, names in sorted(dofs.items()))
+
+
+def _wrapped(text: str) -> list[str]:
+    import textwrap
+
+    return textwrap.wrap(text, TABLE_WIDTH, subsequent_indent=" ", break_long_words=False, break_on_hyphens=False)
+
+
+def format_table(metrics: dict, scenario=None) -> str:  # pragma: no mutate block (presentation: column text and widths)
+    """Human-readable table of :func:`compute_metrics` output, in two blocks that each fit
+    :data:`TABLE_WIDTH` columns for names up to 30 characters: the attitude error (RMSE and MAE
+    per axis, total RMSE), then the bias or rate RMSE, convergence time, NEES and measurement
+    counts; a footer says what the columns mean.
 
     The name column is as wide as the longest estimator name (at least 9); RMSE, MAE, bias,
     rate and NEES are printed to 3 significant digits (``.3g``: ``0.0123``, ``170``,
     ``6.1e+28``) right-aligned in 9 characters, so every row lines up and every number parses
-    back with ``float``; convergence time ``.1f`` s or ``never``."""
+    back with ``float``; convergence time ``.1f`` s or ``never``. With ``scenario`` (the run's
+    config), the NEES of an estimator whose measurements are all noise-free
+    (:func:`noise_free_estimators`) is marked ``*`` and a footnote says why it is meaningless."""
     ests = metrics["estimators"]
     nw = max([9] + [len(name) for name in ests])
-    num, trio = 9, 3 * 9 + 2
-    second_hdr = "bias (deg/h) | rate (deg/s) RMSE"
-    sw = max(len(second_hdr) + 1, trio + 2)
+    flagged = {} if scenario is None else {n: s for n, s in noise_free_estimators(scenario).items() if n in ests}
     lines = [
         (
             f"scenario {metrics['scenario']}  seed {metrics['seed']}  duration {metrics['duration_s']:.0f} s"
             f"  wall {metrics['wall_time_s']:.2f} s"
         )
     ]
-    hdr = (
-        f"{'estimator':<{nw}} {'RMSE x/y/z (deg)':>{trio}} {'MAE x/y/z (deg)':>{trio}} {'RMSE tot':>{num}} "
-        f"{second_hdr:>{sw}} {'conv (s)':>{num}} {'NEES':>{num}} {'used/skipped':>13}"
-    )
-    lines += [hdr, "-" * len(hdr)]
-    for name, m in ests.items():
-        rm = " ".join(f"{_g(v):>{num}}" for v in m["attitude_rmse_deg"])
-        ma = " ".join(f"{_g(v):>{num}}" for v in m["attitude_mae_deg"])
-        if m.get("bias_rmse_deg_per_h") is not None:
-            br = "b " + " ".join(f"{_g(v):>{num}}" for v in m["bias_rmse_deg_per_h"])
-        elif m.get("rate_rmse_deg_per_s") is not None:
-            br = "w " + " ".join(f"{_g(v):>{num}}" for v in m["rate_rmse_deg_per_s"])
-        else:
-            br = "-"
-        conv = "never" if m["convergence_time_s"] is None else f"{m['convergence_time_s']:.1f}"
-        used = f"{m['measurements_used']}/{m['measurements_skipped']}"
-        lines.append(
-            f"{name:<{nw}} {rm:>{trio}} {ma:>{trio}} {_g(m['attitude_rmse_total_deg']):>{num}} {br:>{sw}} "
-            f"{conv:>{num}} {_g(m['nees_mean']):>{num}} {used:>13}"
-        )
+    lines += _attitude_block(ests, nw) + [""] + _other_block(ests, nw, flagged)
     first = next(iter(ests.values()), {"scored_from_s": 0.0})
-    dofs = {}
-    for name, m in ests.items():
-        dofs.setdefault(m.get("nees_dof", 6), []).append(name)
-    if len(dofs) <= 1:
-        dof_text = f"NEES dof = {next(iter(dofs), 6)}"
-    else:
-        dof_text = "NEES dof: " + ", ".join(f"{d} ({', '.join(names)})" for d, names in sorted(dofs.items()))
-    lines.append(
-        f"(scored from t >= {first['scored_from_s']:.0f} s; b = gyro-bias RMSE x/y/z in deg/h, "
-        f"w = body-rate RMSE in deg/s; {dof_text};\n used/skipped = measurement updates applied / "
-        "invalid or rejected measurements skipped)"
+    lines += _wrapped(
+        f"(scored from t >= {first['scored_from_s']:.0f} s; conv = the time after which every attitude axis "
+        f"stays within scoring.convergence_threshold_deg; {_nees_dof_text(ests)}; used/skipped = measurement updates "
+        "applied / invalid or rejected measurements skipped)"
     )
+    if flagged:
+        reads = "; ".join(f"{n}: {', '.join(s)}" for n, s in flagged.items())
+        lines += _wrapped(
+            f"{NOISE_FREE_MARK} noise-free measurements ({reads}): the covariance holds only the filter's "
+            "numerical floor, not the error's spread, so this NEES does not measure consistency"
+        )
     return "\n".join(lines)

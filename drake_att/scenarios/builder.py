@@ -326,6 +326,11 @@ def check_npz_arrays(npz_path: str, available_bytes: float | None = None) -> int
     return total
 
 
+def _listed(names) -> str:
+    """Field names as a message lists them (``none`` for an empty list)."""
+    return ", ".join(names) if names else "none"
+
+
 class ScenarioDiagram:
     """A scenario's diagram, built once; :meth:`simulate` runs it for any seed.
 
@@ -441,9 +446,11 @@ class ScenarioDiagram:
             structural = self._structural_changes(self._normalized_scenario(), scenario)
             if structural:
                 raise cfg.ConfigError(
-                    "these overrides change the diagram, not just its parameters: "
+                    "a run on a built diagram may change only its parameters, and these overrides change its "
+                    "structure: "
                     + "; ".join(structural)
-                    + ". Build a new ScenarioDiagram for them."
+                    + ". Build a new ScenarioDiagram for them: drake_att.scenarios.builder.diagram_for("
+                    "drake_att.scenarios.config.apply_overrides(scenario, overrides))"
                 )
         if estimators is not None:
             scenario = with_estimators(scenario, estimators)
@@ -464,23 +471,23 @@ class ScenarioDiagram:
                 continue
             if f.name == "plant":
                 out += [
-                    f"plant.{p} (the plant's structure; may change: {list(self._PLANT_CONTEXT_FIELDS)})"
+                    f"plant.{p} (structural; the plant's per-run fields: {_listed(self._PLANT_CONTEXT_FIELDS)})"
                     for p in _changed_fields(a, b)
                     if type(a) is not type(b) or p not in self._PLANT_CONTEXT_FIELDS
                 ]
             elif f.name in ("sensors", "estimators"):
                 if [x.name for x in a] != [x.name for x in b] or [type(x) for x in a] != [type(x) for x in b]:
-                    out.append(f"{f.name} (the list of {f.name} or their types)")
+                    out.append(f"{f.name} (structural: the list of {f.name}, their names or their types)")
                     continue
                 for x, y in zip(a, b, strict=True):
                     allowed = plugin_for(x).parameters
                     out += [
-                        f"{f.name}.{x.name}.{p} (may change: {list(allowed)})"
+                        f"{f.name}.{x.name}.{p} (structural; {x.name}'s per-run fields: {_listed(allowed)})"
                         for p in _changed_fields(x, y)
                         if p not in allowed
                     ]
             else:
-                out.append(f"{f.name}")
+                out.append(f"{f.name} (structural)")
         return out
 
     def _apply_parameters(self, context, scenario: cfg.Scenario) -> None:
