@@ -14,13 +14,13 @@ import re
 import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from drake_att.analysis import campaign_report
 from drake_att.analysis.campaign_report import find_chromium
 from drake_att.scenarios import registry
 
@@ -167,30 +167,7 @@ def test_a_stale_yaml_reference_fails_the_build(tmp_path, monkeypatch):
 # ======================================================================================
 def _chromium(page: Path, *extra: str) -> subprocess.CompletedProcess:
     """Headless Chromium on a built page; scripts get 5 s of virtual time to run first."""
-    with tempfile.TemporaryDirectory(prefix="drake-att-docs-chromium-") as profile:
-        return subprocess.run(
-            [
-                CHROMIUM,
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--hide-scrollbars",
-                f"--user-data-dir={profile}",
-                "--enable-logging=stderr",
-                "--v=0",
-                "--virtual-time-budget=5000",
-                *extra,
-                page.as_uri(),
-            ],
-            capture_output=True,
-            text=True,
-            timeout=120,
-            check=False,
-        )
+    return campaign_report.run_headless_chromium(CHROMIUM, str(page), ["--virtual-time-budget=5000", *extra], 120)
 
 
 def _console_errors(stderr: str) -> list[str]:

@@ -1109,21 +1109,10 @@ def find_chromium() -> str | None:
     return None
 
 
-def render_in_browser(
-    html_path: str,
-    png_path: str,
-    width: int = 1400,
-    height: int = 3000,
-    chromium: str | None = None,
-    timeout_s: float = 120.0,
-) -> list[str]:
-    """Render ``html_path`` in headless Chromium, screenshot it to ``png_path`` and return
-    the page's console messages (Chromium's ``CONSOLE`` log lines: script errors,
-    ``console.*`` calls). RuntimeError when Chromium is missing or fails."""
-    chromium = chromium or find_chromium()
-    if chromium is None:
-        raise RuntimeError("no Chromium found (Debian: apt-get install chromium)")
-    html_path, png_path = os.path.abspath(html_path), os.path.abspath(png_path)
+def run_headless_chromium(chromium: str, html_path: str, args, timeout_s: float) -> subprocess.CompletedProcess:
+    """Headless ``chromium`` on the local page ``html_path`` with extra ``args`` (a screenshot,
+    ``--dump-dom``, ...), in a throw-away profile, no network services, the page's console on
+    stderr (``:CONSOLE`` lines). Raises ``subprocess.TimeoutExpired`` after ``timeout_s``."""
     with tempfile.TemporaryDirectory(prefix="drake-att-chromium-") as profile:
         cmd = [
             chromium,
@@ -1139,14 +1128,33 @@ def render_in_browser(
             f"--user-data-dir={profile}",
             "--enable-logging=stderr",
             "--v=0",
-            f"--screenshot={png_path}",
-            f"--window-size={width},{height}",
-            "file://" + html_path,
+            *args,
+            "file://" + os.path.abspath(html_path),
         ]
-        try:
-            p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
-        except subprocess.TimeoutExpired:
-            raise RuntimeError(f"Chromium did not finish within {timeout_s:g} s") from None
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+
+
+def render_in_browser(
+    html_path: str,
+    png_path: str,
+    width: int = 1400,
+    height: int = 3000,
+    chromium: str | None = None,
+    timeout_s: float = 120.0,
+) -> list[str]:
+    """Render ``html_path`` in headless Chromium, screenshot it to ``png_path`` and return
+    the page's console messages (Chromium's ``CONSOLE`` log lines: script errors,
+    ``console.*`` calls). RuntimeError when Chromium is missing or fails."""
+    chromium = chromium or find_chromium()
+    if chromium is None:
+        raise RuntimeError("no Chromium found (Debian: apt-get install chromium)")
+    html_path, png_path = os.path.abspath(html_path), os.path.abspath(png_path)
+    try:
+        p = run_headless_chromium(
+            chromium, html_path, [f"--screenshot={png_path}", f"--window-size={width},{height}"], timeout_s
+        )
+    except subprocess.TimeoutExpired:
+        raise RuntimeError(f"Chromium did not finish within {timeout_s:g} s") from None
     if p.returncode != 0 or not os.path.isfile(png_path):
         raise RuntimeError(f"Chromium failed (exit {p.returncode}): {p.stderr.strip()[-500:]}")
     return [line for line in p.stderr.splitlines() if ":CONSOLE" in line]
