@@ -80,6 +80,12 @@ class CircularOrbit:
         R_IO = rot.quat_to_rotmat(self.q_IO(t))
         return -self.semi_major_axis_m * R_IO[..., :, 2]
 
+    def position_velocity_I(self, t) -> tuple[np.ndarray, np.ndarray]:
+        """Position ``-a z_O`` (m) and velocity ``a n x_O`` (m/s) in I."""
+        R_IO = rot.quat_to_rotmat(self.q_IO(t))
+        a = self.semi_major_axis_m
+        return -a * R_IO[..., :, 2], a * self.mean_motion_rad_per_s * R_IO[..., :, 0]
+
 
 def attitude_relative_to_orbit(q_IB, q_IO) -> np.ndarray:
     """``q_OB = q_IO^-1 ⊗ q_IB``."""

@@ -606,7 +606,9 @@ def _expected_sections() -> list:
     top = [
         ("Scenario (top level)", cfg.Scenario, ""),
         ("simulation", cfg.SimulationConfig, "simulation."),
-        ("orbit", cfg.OrbitConfig, "orbit."),
+        ("orbit: !OrbitConfig", cfg.OrbitConfig, "orbit."),
+        ("orbit: !TleOrbitConfig", cfg.TleOrbitConfig, "orbit."),
+        ("orbit: !KeplerOrbitConfig", cfg.KeplerOrbitConfig, "orbit."),
         ("plant: !RigidBodyConfig", cfg.RigidBodyConfig, "plant."),
         ("plant: !PrescribedRateConfig", cfg.PrescribedRateConfig, "plant."),
         ("plant: !PrescribedRpyConfig", cfg.PrescribedRpyConfig, "plant."),

@@ -14,16 +14,35 @@ from pydrake.systems.framework import DiagramBuilder
 
 from drake_att import rotations as rot
 from drake_att.orbit import CircularOrbit
+from drake_att.orbit_propagators import KeplerOrbit, TleOrbit, parse_epoch_utc
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import PluginError, SensorOutput, plugin_for
 from drake_att.systems.estimator_system import EstimatorSystem
 from drake_att.units import DEG
 
 
-def make_orbit(scenario: cfg.Scenario) -> CircularOrbit | None:
-    o = scenario.orbit
-    if o is None:
-        return None
+def make_orbit(scenario: cfg.Scenario):
+    """The scenario's orbit model (None: no orbit)."""
+    return None if scenario.orbit is None else orbit_model(scenario.orbit)
+
+
+def orbit_model(o):
+    """The orbit model of an orbit config: :class:`~drake_att.orbit.CircularOrbit`,
+    :class:`~drake_att.orbit_propagators.KeplerOrbit` or :class:`~drake_att.orbit_propagators.TleOrbit`
+    (each with ``q_IO(t)``; the last two also ``position_velocity_I(t)``)."""
+    if isinstance(o, cfg.TleOrbitConfig):
+        return TleOrbit(o.line1, o.line2, o.epoch_utc)
+    if isinstance(o, cfg.KeplerOrbitConfig):
+        parse_epoch_utc(o.epoch_utc)
+        return KeplerOrbit(
+            o.semi_major_axis_km * 1e3,
+            o.eccentricity,
+            o.inclination_deg * DEG,
+            o.raan_deg * DEG,
+            o.arg_perigee_deg * DEG,
+            o.mean_anomaly_deg * DEG,
+            j2=bool(o.j2),
+        )
     return CircularOrbit(o.altitude_km * 1e3, o.inclination_deg * DEG, o.raan_deg * DEG, o.arg_latitude0_deg * DEG)
 
 

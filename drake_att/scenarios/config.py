@@ -67,6 +67,36 @@ class OrbitConfig:
 
 
 @dataclass
+class TleOrbitConfig:
+    """An orbit from a two-line element set, propagated by SGP4 (the ``sgp4`` package) from
+    ``epoch_utc`` (the scenario's t = 0, within 30 days of the TLE's epoch); TEME rotated into
+    GCRS at the epoch (module ``drake_att.orbit_propagators``)."""
+
+    line1: str = ""
+    line2: str = ""
+    epoch_utc: str = ""
+
+
+@dataclass
+class KeplerOrbitConfig:
+    """Keplerian elements in GCRS at ``epoch_utc`` (the scenario's t = 0): two-body motion,
+    with ``j2`` the secular J2 drift of node, perigee and mean anomaly
+    (module ``drake_att.orbit_propagators``)."""
+
+    epoch_utc: str = "2026-01-01T00:00:00Z"
+    semi_major_axis_km: float = 6878.137
+    eccentricity: float = 0.0
+    inclination_deg: float = 97.4
+    raan_deg: float = 0.0
+    arg_perigee_deg: float = 0.0
+    mean_anomaly_deg: float = 0.0
+    j2: bool = False
+
+
+OrbitTypes = Union[OrbitConfig, TleOrbitConfig, KeplerOrbitConfig]
+
+
+@dataclass
 class RigidBodyConfig:
     """Rigid-body truth (Euler's equations + quaternion kinematics)."""
 
@@ -126,7 +156,7 @@ class Scenario:
     duration_s: float = 100.0
     seed: int = 1
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
-    orbit: Optional[OrbitConfig] = None
+    orbit: Optional[OrbitTypes] = None
     plant: PlantConfig = field(default_factory=RigidBodyConfig)
     sensors: List[typing.Any] = field(default_factory=list)  # registered sensor configs
     estimators: List[typing.Any] = field(default_factory=list)  # registered estimator configs
@@ -751,9 +781,7 @@ def validate(s: Scenario) -> None:
     validation.check_seed("seed", s.seed, ConfigError)
     _validate_simulation(s.simulation)
     if s.orbit is not None:
-        check_positive("orbit.altitude_km", s.orbit.altitude_km)
-        for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg"):
-            check_finite(f"orbit.{f}", getattr(s.orbit, f))
+        _validate_orbit(s.orbit)
     _validate_plant(s)
     _validate_components(s)
     _validate_scoring(s)
@@ -822,6 +850,36 @@ def _validate_rigid_body(p: RigidBodyConfig) -> None:
     check_vector("plant.initial_attitude_rpy_deg", p.initial_attitude_rpy_deg, 3)
     check_vector("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
     check_vector("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
+
+
+def _validate_orbit(o) -> None:
+    """The orbit section: the circular orbit's numbers, or the propagator built from the TLE or
+    the elements (which checks the TLE's form, the epoch and the elements)."""
+    if isinstance(o, OrbitConfig):
+        check_positive("orbit.altitude_km", o.altitude_km)
+        for f in ("inclination_deg", "raan_deg", "arg_latitude0_deg"):
+            check_finite(f"orbit.{f}", getattr(o, f))
+        return
+    if isinstance(o, KeplerOrbitConfig):
+        for f in ("semi_major_axis_km", "eccentricity", "inclination_deg", "raan_deg", "arg_perigee_deg"):
+            check_finite(f"orbit.{f}", getattr(o, f))
+        check_finite("orbit.mean_anomaly_deg", o.mean_anomaly_deg)
+        if not 0.0 <= o.eccentricity < 1.0:
+            raise ConfigError(f"orbit.eccentricity: got {o.eccentricity!r}; must be in [0, 1) (a closed orbit)")
+        perigee_km = o.semi_major_axis_km * (1.0 - o.eccentricity)
+        if perigee_km <= 6478.137:
+            raise ConfigError(
+                f"orbit.semi_major_axis_km: got {o.semi_major_axis_km!r} with eccentricity {o.eccentricity!r}: perigee "
+                f"radius {perigee_km:.1f} km; must be above 6478.137 km (100 km altitude)"
+            )
+    from drake_att.orbit_propagators import OrbitError
+
+    try:
+        from drake_att.scenarios.build_context import orbit_model
+
+        orbit_model(o)
+    except OrbitError as e:
+        raise ConfigError(str(e)) from None
 
 
 def _validate_prescribed_rpy(p: PrescribedRpyConfig, orbit) -> None:

@@ -148,6 +148,11 @@ BY_CLASS: dict = {
         100.0, 1e6, "km", "from the lowest orbit (~100 km) to beyond lunar distance (384,400 km)"
     ),
     ("OrbitConfig", "inclination_deg"): Range(0.0, 180.0, "deg", "an inclination (retrograde above 90)"),
+    ("KeplerOrbitConfig", "inclination_deg"): Range(0.0, 180.0, "deg", "an inclination (retrograde above 90)"),
+    ("KeplerOrbitConfig", "eccentricity"): Range(0.0, 1.0, "", "a closed orbit (checked: e < 1, perigee above 100 km)"),
+    ("KeplerOrbitConfig", "semi_major_axis_km"): Range(
+        6478.137, 1e6, "km", "from the lowest orbit (~100 km altitude) to beyond lunar distance"
+    ),
     ("PrescribedRpyConfig", "rpy_deg"): Range(-1e6, 1e6, "deg", "unwrapped breakpoints of a multi-turn profile"),
     ("PrescribedRpyConfig", "times_s"): Range(
         -MAX_DURATION_S, MAX_DURATION_S, "s", "breakpoints around the run (before 0 allowed), 30 days either way"
@@ -481,8 +486,8 @@ def _sections():
     out = [
         ("Scenario (top level)", cfg.Scenario, ""),
         ("simulation", cfg.SimulationConfig, "simulation."),
-        ("orbit", cfg.OrbitConfig, "orbit."),
     ]
+    out += [(f"orbit: !{t.__name__}", t, "orbit.") for t in typing.get_args(cfg.OrbitTypes)]
     out += [(f"plant: !{t.__name__}", t, "plant.") for t in typing.get_args(cfg.PlantConfig)]
     out.append(("scoring", cfg.ScoringConfig, "scoring."))
     builtin = registry.BUILTIN_PLUGIN_PACKAGES
