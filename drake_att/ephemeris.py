@@ -176,8 +176,8 @@ class SunMoonEphemeris:
     Built once from astropy's built-in ephemeris sampled every :data:`GRID_STEP_DAYS` (4 h) and
     interpolated by cubic Hermite polynomials (rates from fourth-order central differences of the
     samples). Interpolation error: < 2e-7 deg in direction for the Moon, far below the built-in
-    ephemeris' own accuracy. Build cost: ~0.1 s for a day, ~1.3 s for a year; evaluation: ~6 µs
-    for one float time, ~0.1 µs per element for an array.
+    ephemeris' own accuracy. Build cost: ~0.02 s for a day, ~1.3 s for a year (plus ~0.5 s to import
+    astropy the first time); evaluation: ~6 µs for one float time, ~0.1 µs per element for an array.
 
     Refused: a span outside :func:`supported_jd_range`, longer than :data:`MAX_SPAN_DAYS`, or with
     ``jd_end < jd_start``; an evaluation time outside the span or not finite.
