@@ -14,7 +14,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from drake_att import rotations as rot
 from drake_att.orbit import CircularOrbit
-from drake_att.orbit_propagators import KeplerOrbit, TleOrbit, parse_epoch_utc
+from drake_att.orbit_propagators import KeplerOrbit, TleOrbit, julian_date_utc, parse_epoch_utc
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import PluginError, SensorOutput, plugin_for
 from drake_att.systems.estimator_system import EstimatorSystem
@@ -78,6 +78,23 @@ class BuildContext:
     estimators: dict = field(default_factory=dict)
     estimator_configs: dict = field(default_factory=dict)
     measurement_sources: dict = field(default_factory=dict)
+    environment_systems: tuple = ()
+
+    def environment(self) -> tuple:
+        """``(OrbitSource, SunMoonSource)`` of the scenario's orbit and epoch, added to the
+        diagram on first use (a sensor that needs the geometry calls this while it is built)."""
+        if not self.environment_systems:
+            from drake_att.systems.environment import SunMoonSource
+            from drake_att.systems.orbit_source import OrbitSource
+
+            o = self.scenario.orbit
+            jd_epoch = julian_date_utc(parse_epoch_utc(o.epoch_utc))  # type: ignore[union-attr]  # validated
+            orbit = self.builder.AddSystem(OrbitSource(make_orbit(self.scenario)))  # type: ignore[union-attr]
+            orbit.set_name("orbit")
+            sun_moon = self.builder.AddSystem(SunMoonSource(jd_epoch, self.scenario.duration_s))  # type: ignore[union-attr]
+            sun_moon.set_name("sun_moon")
+            self.environment_systems = (orbit, sun_moon)
+        return self.environment_systems
 
     def sensor_output(self, name: str) -> SensorOutput:
         """What sensor ``name`` delivers (kind, port, period)."""

@@ -148,6 +148,10 @@ BY_CLASS: dict = {
         100.0, 1e6, "km", "from the lowest orbit (~100 km) to beyond lunar distance (384,400 km)"
     ),
     ("OrbitConfig", "inclination_deg"): Range(0.0, 180.0, "deg", "an inclination (retrograde above 90)"),
+    ("ExclusionConfig", "sun_deg"): Range(0.0, 180.0, "deg", "a cone half-angle (checked: strictly inside)"),
+    ("ExclusionConfig", "earth_limb_deg"): Range(0.0, 180.0, "deg", "a cone half-angle (checked: strictly inside)"),
+    ("ExclusionConfig", "moon_deg"): Range(0.0, 180.0, "deg", "a cone half-angle (checked: strictly inside)"),
+    ("ExclusionConfig", "atmosphere_height_m"): Range(0.0, 1e6, "m", "the bright limb's height above the Earth"),
     ("KeplerOrbitConfig", "inclination_deg"): Range(0.0, 180.0, "deg", "an inclination (retrograde above 90)"),
     ("KeplerOrbitConfig", "eccentricity"): Range(0.0, 1.0, "", "a closed orbit (checked: e < 1, perigee above 100 km)"),
     ("KeplerOrbitConfig", "semi_major_axis_km"): Range(

@@ -8,11 +8,12 @@ quaternion measurement (quaternion mode).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import List, Union
+from typing import List, Optional, Union
 
 import numpy as np
 
 from drake_att import rotations as rot
+from drake_att.exclusion import DEFAULT_ATMOSPHERE_HEIGHT_M, DEFAULT_HALF_ANGLES_DEG, ExclusionCones
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
 from drake_att.systems.estimator_system import QuaternionSensorModel
@@ -39,12 +40,27 @@ class PaperS3Eq7Mounting:
 
 
 @dataclass
+class ExclusionConfig:
+    """Exclusion half-angles of a star tracker (deg, each in (0, 180)): a sample is invalid while
+    the Sun, the Earth's bright limb (the Earth plus ``atmosphere_height_m``) or the Moon is
+    inside its cone. The defaults are ours, in the range published for CubeSat-class trackers
+    (module ``drake_att.exclusion``). Needs an orbit with an epoch (``!TleOrbitConfig`` or
+    ``!KeplerOrbitConfig``)."""
+
+    sun_deg: float = DEFAULT_HALF_ANGLES_DEG["sun_deg"]
+    earth_limb_deg: float = DEFAULT_HALF_ANGLES_DEG["earth_limb_deg"]
+    moon_deg: float = DEFAULT_HALF_ANGLES_DEG["moon_deg"]
+    atmosphere_height_m: float = DEFAULT_ATMOSPHERE_HEIGHT_M
+
+
+@dataclass
 class StarTrackerConfig:
     """Star tracker (boresight = sensor +z).
 
     ``mounting``: ``!RpyMounting {rpy_deg: [...]}`` (default: aligned with the body) or
     ``!PaperS3Eq7Mounting {psi_phi_theta_deg: [...]}``.
     ``mode``: "quaternion" (attitude output) or "vectors" (``references_I`` directions).
+    ``exclusion``: Sun / Earth-limb / Moon exclusion cones (:class:`ExclusionConfig`; null: none).
     """
 
     name: str = "st1"
@@ -57,6 +73,7 @@ class StarTrackerConfig:
     sigma_vector_urad: float = 0.0
     dropout_probability: float = 0.0
     outage_windows_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (k, 2) [start, end]
+    exclusion: Optional[ExclusionConfig] = None
 
 
 def star_tracker_mounting(st: StarTrackerConfig) -> np.ndarray:
@@ -75,8 +92,32 @@ def star_tracker_sigmas_S(st: StarTrackerConfig) -> np.ndarray:
     )
 
 
+def exclusion_cones(c: StarTrackerConfig) -> ExclusionCones | None:
+    e = c.exclusion
+    return None if e is None else ExclusionCones(e.sun_deg, e.earth_limb_deg, e.moon_deg, e.atmosphere_height_m)
+
+
+def validate_exclusion(path: str, c: StarTrackerConfig, scenario) -> None:
+    """The cones' angles, and an orbit with an epoch to place the Sun, the Earth and the Moon."""
+    if c.exclusion is None:
+        return
+    try:
+        exclusion_cones(c).check(f"{path}.exclusion")  # type: ignore[union-attr]
+    except ValueError as e:
+        raise cfg.ConfigError(str(e)) from None
+    if not isinstance(scenario.orbit, (cfg.TleOrbitConfig, cfg.KeplerOrbitConfig)):
+        kind = "no orbit" if scenario.orbit is None else "a circular orbit without an epoch"
+        cfg.fail(
+            f"{path}.exclusion",
+            "set",
+            f"needs an orbit with an epoch to place the Sun, the Earth and the Moon; the scenario has {kind} "
+            "(use orbit: !TleOrbitConfig or !KeplerOrbitConfig)",
+        )
+
+
 def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
     cfg.check_positive(f"{path}.period_s", c.period_s)
+    validate_exclusion(path, c, checks.scenario)
     if c.mode not in MODES:
         cfg.fail(f"{path}.mode", c.mode, "allowed: 'quaternion', 'vectors'")
     if isinstance(c.mounting, PaperS3Eq7Mounting):
@@ -122,7 +163,8 @@ def star_tracker_quaternion_model(ctx, c: StarTrackerConfig) -> QuaternionSensor
 
 
 def star_tracker_logged_ports(c: StarTrackerConfig):
-    return [("star_tracker_measurement", c.period_s)] if c.mode == "quaternion" else []
+    ports = [("star_tracker_measurement", c.period_s)] if c.mode == "quaternion" else []
+    return ports + ([("exclusion", c.period_s)] if c.exclusion is not None else [])
 
 
 def star_tracker_noise_si(c: StarTrackerConfig) -> tuple:
@@ -169,7 +211,13 @@ def build_star_tracker(ctx, c: StarTrackerConfig):
             sv,
             dropout,
             outages,
+            exclusion_cones(c),
         )
     )
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))
+    if c.exclusion is not None:
+        orbit, sun_moon = ctx.environment()
+        ctx.builder.Connect(orbit.GetOutputPort("r_I"), st.GetInputPort("r_I"))
+        ctx.builder.Connect(sun_moon.GetOutputPort("r_sun_I"), st.GetInputPort("r_sun_I"))
+        ctx.builder.Connect(sun_moon.GetOutputPort("r_moon_I"), st.GetInputPort("r_moon_I"))
     return st

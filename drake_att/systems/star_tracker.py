@@ -10,7 +10,10 @@ Sensor frame S is mounted on the body by ``R_BS`` (``q_BS``); the boresight is `
   and S4; not re-normalized, so the filter's measurement model is exact).
 
 Every output carries its sample time and a validity flag.  A sample is invalid during a
-configured outage window or, with the configured probability, at random (drop-outs).
+configured outage window or, with the configured probability, at random (drop-outs), and,
+with ``exclusion`` cones, when the Sun, the Earth's limb or the Moon is inside one
+(:mod:`drake_att.exclusion`; then the input ports ``r_I``, ``r_sun_I`` and ``r_moon_I`` (m, in I)
+give the geometry and the output port ``exclusion`` ``[t_sample, causes]`` says why, as bit flags).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
+from drake_att.exclusion import ExclusionCones, exclusion_causes
 from drake_att.noise import CounterRandom
 from drake_att.systems.randomness import (
     SEED_WORDS,
@@ -147,6 +151,7 @@ class StarTracker(LeafSystem):
         sigma_vector_rad: float = 0.0,
         dropout_probability: float = 0.0,
         outage_windows_s=(),
+        exclusion: ExclusionCones | None = None,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
@@ -199,6 +204,10 @@ class StarTracker(LeafSystem):
             self, "samples", self.noise, lambda words, noise: _TrackerSamples(self, words, noise)
         )
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
+        self.exclusion = None if exclusion is None else exclusion.check(f"{name}.exclusion")
+        if self.exclusion is not None:
+            self._geometry_ports = tuple(self.DeclareVectorInputPort(p, 3) for p in ("r_I", "r_sun_I", "r_moon_I"))
+            self.DeclareVectorOutputPort("exclusion", 2, self._calc_exclusion, deps)
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
                 "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc_quaternion, deps
@@ -261,9 +270,25 @@ class StarTracker(LeafSystem):
         stamps, valid, draws = samples.block(block)
         return stamps[r], valid[r], draws[r], samples.noise
 
+    # -- exclusion --------------------------------------------------------------------
+    def causes(self, context) -> int:
+        """The exclusion causes (bit flags, :mod:`drake_att.exclusion`) at this context's time:
+        the boresight ``R_IB R_BS z`` against the Sun, the Earth's limb and the Moon (0 without cones)."""
+        if self.exclusion is None:
+            return 0
+        r, r_sun, r_moon = (p.Eval(context) for p in self._geometry_ports)
+        boresight = rot.quat_to_rotmat(rot.quat_multiply(self._q_port.Eval(context), self.q_BS))[:, 2]
+        return int(exclusion_causes(boresight, r, r_sun, r_moon, self.exclusion))
+
+    def _calc_exclusion(self, context, output: BasicVector):
+        t_sample = self._sample(context)[0]
+        output.SetFromVector(np.array([t_sample, float(self.causes(context))]))  # type: ignore[arg-type]
+
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
         t_sample, valid, noise, _ = self._sample(context)
+        if valid and self.exclusion is not None:
+            valid = self.causes(context) == 0
         q_IB = self._q_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
         q_meas = _canonical_product(q_IB, noise)
         sample = np.array([t_sample, 1.0 if valid else 0.0, *q_meas])
@@ -271,6 +296,8 @@ class StarTracker(LeafSystem):
 
     def _calc_vectors(self, context, output):
         t_sample, valid, noise, p = self._sample(context)
+        if valid and self.exclusion is not None:
+            valid = self.causes(context) == 0
         q_IS = rot.quat_multiply(self._q_port.Eval(context), self.q_BS)
         R_SI = rot.quat_to_rotmat(q_IS).T
         if self._noise_port.HasValue(context):

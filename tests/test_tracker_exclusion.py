@@ -1,0 +1,115 @@
+"""A star tracker with exclusion cones in a scenario: over one orbit its logged causes and
+validity give the geometric fraction computed here; a tracker with cones needs an orbit with
+an epoch (one-line error naming the field)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drake_att import rotations as rot
+from drake_att.exclusion import EARTH, MOON, SUN
+from drake_att.orbit_propagators import KeplerOrbit
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios.builder import ScenarioDiagram
+
+R_E = 6378137.0
+A = R_E + 500e3
+EPOCH = "2026-03-20T12:00:00Z"
+
+
+def _sun_and_moon_directions():
+    """At the epoch, from astropy directly (not the library's ephemeris)."""
+    from astropy import units as u
+    from astropy.coordinates import get_body, solar_system_ephemeris
+    from astropy.time import Time
+    from astropy.utils import iers
+
+    iers.conf.auto_download = False
+    when = Time(EPOCH.rstrip("Z"), scale="utc")
+    with solar_system_ephemeris.set("builtin"):
+        out = []
+        for body in ("sun", "moon"):
+            xyz = get_body(body, when).cartesian.xyz.to_value(u.m)
+            out.append(xyz / np.linalg.norm(xyz))
+    return out
+
+
+def _scenario(orbit_yaml: str, rpy_deg, period_s=10.0, duration_s=None) -> cfg.Scenario:
+    duration = duration_s if duration_s is not None else 2 * np.pi * np.sqrt(A**3 / 3.986004418e14)
+    text = f"""
+name: exclusion_test
+duration_s: {float(duration)!r}
+seed: 1
+simulation: {{integration_scheme: runge_kutta3, use_error_control: false, max_step_size_s: 1.0}}
+{orbit_yaml}
+plant: !PrescribedRateConfig {{initial_attitude_rpy_deg: {list(map(float, rpy_deg))}}}
+sensors:
+- !StarTrackerConfig {{name: st1, period_s: {period_s}, sigma_cross_boresight_arcsec: 5.0,
+                      sigma_boresight_arcsec: 50.0,
+                      exclusion: {{sun_deg: 45.0, earth_limb_deg: 25.0, moon_deg: 12.0}}}}
+scoring: {{score_from_s: 0.0}}
+"""
+    return cfg.load_scenario(text=text)
+
+
+def test_earth_exclusion_over_an_orbit_is_the_geometric_fraction():
+    """A circular orbit whose normal points at the Sun (so the Sun stays 90 deg from any
+    in-plane boresight), an inertially fixed boresight in the orbit plane, chosen far from the
+    Moon: over one orbit the Earth's limb (100 km of atmosphere) plus 25 deg blinds the tracker
+    a fraction 2 (asin((R_E + 100 km) / a) + 25 deg) / 360 deg of the time, and only the Earth;
+    a sample is valid exactly when no cause is logged."""
+    sun, moon = _sun_and_moon_directions()
+    inc = float(np.degrees(np.arccos(sun[2])))
+    raan = float(np.degrees(np.arctan2(sun[0], -sun[1])))
+    orbit_yaml = (
+        f"orbit: !KeplerOrbitConfig {{epoch_utc: '{EPOCH}', semi_major_axis_km: {A / 1e3!r}, "
+        f"inclination_deg: {inc!r}, raan_deg: {raan!r}}}"
+    )
+    orbit = KeplerOrbit(A, 0.0, np.radians(inc), np.radians(raan))
+    normal = np.cross(*orbit.position_velocity_I(0.0))
+    normal /= np.linalg.norm(normal)
+    assert np.degrees(np.arccos(np.clip(normal @ sun, -1, 1))) < 1e-6  # the orbit faces the Sun
+    # the in-plane boresight farthest from the Moon
+    e1 = orbit.position_velocity_I(0.0)[0] / A
+    e2 = np.cross(normal, e1)
+    angles = np.radians(np.arange(0.0, 360.0, 1.0))
+    candidates = np.cos(angles)[:, None] * e1 + np.sin(angles)[:, None] * e2
+    b = candidates[np.argmin(candidates @ moon)]
+    # body z along b; roll/pitch/yaw relative to the LVLH frame at t = 0
+    z = b
+    x = np.cross(normal, z)
+    R_IB = np.stack([x, np.cross(z, x), z], axis=-1)
+    q_OB = rot.quat_multiply(rot.quat_conjugate(orbit.q_IO(0.0)), rot.rotmat_to_quat(R_IB))
+    scenario = _scenario(orbit_yaml, [float(x) for x in np.degrees(rot.quat_to_rpy(q_OB))])
+
+    run = ScenarioDiagram(scenario).simulate(1)
+    causes = run.values("st1/exclusion")[:, 1].astype(int)
+    valid = run.values("st1/star_tracker_measurement")[:, 1]
+    assert len(causes) == len(valid) > 500
+    limb = np.degrees(np.arcsin((R_E + 100e3) / A))
+    expected = 2 * (limb + 25.0) / 360.0
+    earth = np.mean((causes & EARTH) != 0)
+    assert abs(earth - expected) <= 2.0 / len(causes), (earth, expected)
+    assert not np.any(causes & (SUN | MOON))
+    np.testing.assert_array_equal(valid == 1.0, causes == 0)
+
+
+@pytest.mark.parametrize(
+    "orbit_yaml, kind",
+    [("orbit: null", "no orbit"), ("orbit: {altitude_km: 500.0}", "a circular orbit without an epoch")],
+)
+def test_exclusion_without_an_orbit_epoch_is_refused_naming_the_field(orbit_yaml, kind):
+    with pytest.raises(cfg.ConfigError) as e:
+        _scenario(orbit_yaml, [0.0, 0.0, 0.0])
+    text = str(e.value)
+    assert text.startswith("sensors[0] (st1).exclusion: ") and kind in text and "!TleOrbitConfig" in text, text
+    assert "\n" not in text
+
+
+@pytest.mark.parametrize("value", [0.0, 180.0, -1.0])
+def test_an_exclusion_angle_outside_0_180_is_refused_in_the_scenario(value):
+    orbit_yaml = f"orbit: !KeplerOrbitConfig {{epoch_utc: '{EPOCH}'}}"
+    text = cfg.dump_scenario(_scenario(orbit_yaml, [0.0, 0.0, 0.0], duration_s=10.0))
+    with pytest.raises(cfg.ConfigError, match=r"sun_deg: got .*; must be in \(0, 180\) deg"):
+        cfg.load_scenario(text=text.replace("sun_deg: 45.0", f"sun_deg: {value}"))
