@@ -348,9 +348,9 @@ def check_finite_positions(name: str, r_m: np.ndarray) -> None:
 
 def check_outside_earth(name: str, r_m: np.ndarray, r_E_m: np.ndarray) -> None:
     """One-line ValueError for a position (N, 3) whose Earth-fixed coordinates r_E_m lie inside the WGS-84 ellipsoid."""
-    inside = (r_E_m[:, 0] ** 2 + r_E_m[:, 1] ** 2) / WGS84_EQUATORIAL_RADIUS_M**2 + (
-        r_E_m[:, 2] / WGS84_POLAR_RADIUS_M
-    ) ** 2 < 1.0
+    equatorial = np.hypot(r_E_m[:, 0], r_E_m[:, 1]) / WGS84_EQUATORIAL_RADIUS_M
+    polar = r_E_m[:, 2] / WGS84_POLAR_RADIUS_M
+    inside = equatorial**2 + polar**2 < 1.0
     if np.any(inside):
         value = r_m[inside][0]
         raise ValueError(

@@ -215,3 +215,10 @@ def test_bad_position_or_date_is_a_one_line_error(field, r_I, jd, match):
     with pytest.raises(ValueError, match=match) as error:
         field.field_I_tesla(np.array(r_I, dtype=float), jd)
     assert "\n" not in str(error.value)
+
+
+def test_the_earth_is_the_wgs84_ellipsoid_for_the_inside_check(field):
+    """6360 km is above the surface at a pole (b = 6356.75 km) but below it on the equator (a = 6378.14 km)."""
+    assert np.all(np.isfinite(field.field_E_tesla(np.array([0.0, 0.0, 6.36e6]))))
+    with pytest.raises(ValueError, match=r"^r_E_m = \[6360000\.0, 0\.0, 0\.0\] m .*inside the Earth"):
+        field.field_E_tesla(np.array([6.36e6, 0.0, 0.0]))
