@@ -16,23 +16,23 @@ motion matrix. :class:`EarthRotation` evaluates Q, W and UT1-UTC once at a run's
 ERA, which is linear in UT1 (UT1-TAI is held, so leap seconds are followed). Over 24 h the frozen Q
 drifts with precession and nutation: 24 h after the epoch the matrix is within 0.151 arcsec (7.3e-7 rad;
 median 0.073 arcsec) of the full transform with the day's EOP, over 5626 epochs in 1973-2029. That moves a
-LEO position by < 5 m and turns B by < 1e-6 rad: < 0.1 nT.
+LEO position by < 6 m (the field changes by ~0.02 nT/m there) and turns B by < 1e-6 rad: < 0.2 nT.
 
-UT1-UTC and polar motion come from the IERS table bundled with astropy (``finals2000A.all``, measured
-values and the IERS predictions; read from disk, never downloaded). Outside that table both are taken
-as zero: |UT1-UTC| < 0.9 s keeps the rotation error below 6.6e-5 rad (13.5 arcsec), and polar motion
-below ~0.6 arcsec.
+UT1-UTC and polar motion come from the IERS table bundled with astropy (``finals2000A.all`` of
+astropy-iers-data: measured values and the IERS predictions, 1973-01-02 to 2027-10-29 in its 2026.11
+release; read from disk, never downloaded). Outside that table both are taken as zero: |UT1-UTC| < 0.9 s
+keeps the rotation error below 6.6e-5 rad (13.5 arcsec), and polar motion below ~0.6 arcsec.
 
-The field: IGRF coefficients from ``ppigrf`` (its bundled IGRF-14 file, 1900.0-2030.0), interpolated
-linearly in time to the epoch exactly as ``ppigrf`` does and then held fixed for the run (the secular
-variation changes the LEO field by < 0.4 nT per day; 0.35 nT measured). The synthesis (Schmidt semi-normalized Legendre
-recursion to degree 13) is written here in numpy because ``ppigrf.igrf_gc`` rereads its coefficient
-file on every call (~10 ms).
+The field: IGRF coefficients from ``ppigrf`` (2.1: its bundled IGRF-14 file, 1900.0-2030.0, the last
+five years from the predicted secular variation), interpolated linearly in time to the epoch exactly as
+``ppigrf`` does and then held fixed for the run (the secular variation changes the LEO field by < 0.4 nT
+per day; 0.35 nT measured). The synthesis (Schmidt semi-normalized Legendre functions to degree 13) is
+written here in numpy because ``ppigrf.igrf_gc`` rereads its coefficient file with pandas on every call
+(~19 ms); one point here costs ~0.25 ms, a batch ~9 us per point.
 """
 
 from __future__ import annotations
 
-import datetime
 import math
 import os
 from dataclasses import dataclass
@@ -68,11 +68,6 @@ IGRF_GENERATION = os.path.splitext(os.path.basename(IGRF_COEFFICIENT_FILE))[0]  
 # --------------------------------------------------------------------------------------------------
 
 
-def jd_utc_to_datetime(jd_utc: float) -> datetime.datetime:
-    """The naive UTC datetime of a Julian date (the form ``ppigrf`` takes; leap seconds ignored)."""
-    return datetime.datetime(2000, 1, 1, 12) + datetime.timedelta(days=float(jd_utc) - J2000_JD)
-
-
 def terrestrial_time_jd(jd_utc: float) -> tuple[float, float]:
     """TT as a two-part Julian date (erfa's form): UTC + (TAI-UTC) + 32.184 s."""
     return float(jd_utc), (float(tai_minus_utc_s(jd_utc)) + TT_MINUS_TAI_S) / SECONDS_PER_DAY
@@ -81,7 +76,7 @@ def terrestrial_time_jd(jd_utc: float) -> tuple[float, float]:
 @lru_cache(maxsize=1)
 def _leap_second_table() -> tuple[np.ndarray, np.ndarray]:
     """Dates (JD, UTC) from which TAI-UTC (s) holds, from erfa's table (steps only; the pre-1972 drift terms
-    are left out, < 2 ms per day)."""
+    are left out, < 1.3 ms per day)."""
     table = erfa.leap_seconds.get()
     first_day_jd = np.sum(erfa.cal2jd(table["year"], table["month"], np.ones_like(table["month"])), axis=0)
     return first_day_jd, np.asarray(table["tai_utc"], dtype=float)
@@ -260,16 +255,12 @@ def _schmidt_polynomial_coefficients(max_degree: int) -> tuple[np.ndarray, np.nd
 _Q_COEFFICIENTS, _DQ_COEFFICIENTS = _schmidt_polynomial_coefficients(IGRF_MAX_DEGREE)
 
 
-def schmidt_legendre(
-    colatitude_rad: np.ndarray, max_degree: int = IGRF_MAX_DEGREE
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Schmidt semi-normalized P_n^m(cos t), dP_n^m/dt and m P_n^m / sin t, each (N, n, m), for N colatitudes t.
+def schmidt_legendre(colatitude_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Schmidt semi-normalized P_n^m(cos t), dP_n^m/dt and m P_n^m / sin t to degree 13, each (N, n, m).
 
     Evaluated as sin^m(t) times a polynomial in cos(t), so the last one stays finite on the poles.
     """
-    if max_degree != IGRF_MAX_DEGREE:
-        raise ValueError(f"max_degree = {max_degree}; allowed: {IGRF_MAX_DEGREE}")
-    size = max_degree + 1
+    size = IGRF_MAX_DEGREE + 1
     cos_t, sin_t = np.cos(colatitude_rad), np.sin(colatitude_rad)
     cos_powers = np.vander(cos_t, size, increasing=True)  # (N, k)
     q = (cos_powers @ _Q_COEFFICIENTS).reshape(-1, size, size)
@@ -290,7 +281,7 @@ def igrf_spherical_nt(
     """(B_r, B_theta, B_phi) in nT from Gauss coefficients at N geocentric points (radial, south, east)."""
     degrees = np.arange(g.shape[0])
     orders = np.arange(g.shape[1])
-    p, dp, m_p_over_sin = schmidt_legendre(colatitude_rad, g.shape[0] - 1)
+    p, dp, m_p_over_sin = schmidt_legendre(colatitude_rad)
     m_phi = orders * longitude_rad[:, None]
     cos_m_phi, sin_m_phi = np.cos(m_phi)[:, None, :], np.sin(m_phi)[:, None, :]
     cosine_part = g * cos_m_phi + h * sin_m_phi  # (N, n, m)
@@ -335,8 +326,13 @@ def check_date_in_igrf_range(name: str, jd_utc: np.ndarray | float) -> None:
         value = float(jd[bad].flat[0])
         raise ValueError(
             f"{name} = {value!r} (Julian date, UTC) is outside the {IGRF_GENERATION} coefficients of ppigrf "
-            f"{ppigrf_version()}: allowed [{first}, {last}] (1900-01-01 to 2030-01-01)"
+            f"{ppigrf_version()}: allowed [{first}, {last}] ({_date_text(first)} to {_date_text(last)})"
         )
+
+
+def _date_text(jd: float) -> str:
+    year, month, day, _ = erfa.jd2cal(jd, 0.0)
+    return f"{int(year):04d}-{int(month):02d}-{int(day):02d}"
 
 
 def check_finite_positions(name: str, r_m: np.ndarray) -> None:
@@ -378,7 +374,8 @@ class GeomagneticField:
     """The IGRF field at inertial (GCRS) positions for a run that starts at ``epoch_jd_utc``.
 
     The Gauss coefficients, precession-nutation, polar motion and UT1-UTC are evaluated once at the
-    epoch; each call then costs an ERA rotation and a degree-13 synthesis (tens of microseconds).
+    epoch; each call then costs an ERA rotation and a degree-13 synthesis (~0.25 ms for one point, ~9 us
+    per point in a batch).
     """
 
     def __init__(self, epoch_jd_utc: float):
