@@ -93,6 +93,14 @@ def test_earth_exclusion_over_an_orbit_is_the_geometric_fraction():
     assert abs(earth - expected) <= 2.0 / len(causes), (earth, expected)
     assert not np.any(causes & (SUN | MOON))
     np.testing.assert_array_equal(valid == 1.0, causes == 0)
+    from drake_att.analysis.metrics import compute_metrics, format_table
+
+    metrics = compute_metrics(run)
+    assert metrics["sensors"]["st1"] == {
+        "samples": len(causes),
+        "availability": {"available": float(np.mean(causes == 0)), "sun": 0.0, "earth": earth, "moon": 0.0},
+    }
+    assert f"st1: available {100 * np.mean(causes == 0):.1f}% of {len(causes)} samples" in format_table(metrics)
 
 
 @pytest.mark.parametrize(

@@ -182,7 +182,25 @@ def compute_metrics(run) -> dict:
     }
     for name, spec in _metadata(run)["estimators"].items():
         result["estimators"][name] = score_estimator(estimator_errors(run, name), scenario.scoring, spec["second_kind"])
+    sensors = tracker_availability(run)
+    if sensors:
+        result["sensors"] = sensors
     return result
+
+
+def tracker_availability(run) -> dict:
+    """Per star tracker with exclusion cones (a logged ``<name>/exclusion`` port), over the
+    whole run: its samples and the fractions clear and blinded by each cause
+    (:func:`drake_att.exclusion.availability`; a sample blinded by two bodies counts for both)."""
+    from drake_att.exclusion import availability
+
+    out = {}
+    for key in sorted(run.signals):
+        name, _, port = key.rpartition("/")
+        if port == "exclusion":
+            causes = np.asarray(run.values(key))[:, 1].astype(np.int64)
+            out[name] = {"samples": int(causes.size), "availability": availability(causes)}
+    return out
 
 
 def _g(value) -> str:
@@ -335,6 +353,12 @@ def format_table(metrics: dict, scenario=None) -> str:  # pragma: no mutate bloc
         f"stays within scoring.convergence_threshold_deg; {_nees_dof_text(ests)}; used/skipped = measurement updates "
         "applied / invalid or rejected measurements skipped)"
     )
+    for name, s in metrics.get("sensors", {}).items():
+        a = s["availability"]
+        lines += _wrapped(
+            f"{name}: available {100 * a['available']:.1f}% of {s['samples']} samples (blinded by the Sun "
+            f"{100 * a['sun']:.1f}%, the Earth {100 * a['earth']:.1f}%, the Moon {100 * a['moon']:.1f}%)"
+        )
     if flagged:
         reads = "; ".join(f"{n}: {', '.join(s)}" for n, s in flagged.items())
         lines += _wrapped(
