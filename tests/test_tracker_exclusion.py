@@ -121,3 +121,17 @@ def test_an_exclusion_angle_outside_0_180_is_refused_in_the_scenario(value):
     text = cfg.dump_scenario(_scenario(orbit_yaml, [0.0, 0.0, 0.0], duration_s=10.0))
     with pytest.raises(cfg.ConfigError, match=r"sun_deg: got .*; must be in \(0, 180\) deg"):
         cfg.load_scenario(text=text.replace("sun_deg: 45.0", f"sun_deg: {value}"))
+
+
+def test_a_run_beyond_the_ephemeris_span_is_refused_naming_the_epoch():
+    from drake_att.ephemeris import supported_jd_range
+
+    hi = supported_jd_range()[1]
+    days_after_j2000 = hi - 2451545.0 + 10.0  # ten days past the table's expiry
+    import datetime
+
+    late = (datetime.datetime(2000, 1, 1, 12) + datetime.timedelta(days=days_after_j2000)).strftime(
+        "%Y-%m-%dT%H:%M:%SZ"
+    )
+    with pytest.raises(cfg.ConfigError, match=rf"^orbit\.epoch_utc: got '{late}' with duration_s 10: the run must lie"):
+        _scenario(f"orbit: !KeplerOrbitConfig {{epoch_utc: '{late}'}}", [0.0, 0.0, 0.0], duration_s=10.0)

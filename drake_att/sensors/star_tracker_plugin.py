@@ -113,6 +113,26 @@ def validate_exclusion(path: str, c: StarTrackerConfig, scenario) -> None:
             f"needs an orbit with an epoch to place the Sun, the Earth and the Moon; the scenario has {kind} "
             "(use orbit: !TleOrbitConfig or !KeplerOrbitConfig)",
         )
+    _check_ephemeris_span(scenario)
+
+
+def _check_ephemeris_span(scenario) -> None:
+    """The run (epoch to epoch + duration) inside the span the offline Sun/Moon ephemeris covers."""
+    from drake_att.ephemeris import supported_jd_range
+    from drake_att.orbit_propagators import OrbitError, julian_date_utc, parse_epoch_utc
+
+    try:
+        start = julian_date_utc(parse_epoch_utc(scenario.orbit.epoch_utc))
+    except OrbitError as e:
+        raise cfg.ConfigError(str(e)) from None
+    lo, hi = supported_jd_range()
+    end = start + (scenario.duration_s + 60.0) / 86400.0
+    if start < lo or end > hi:
+        raise cfg.ConfigError(
+            f"orbit.epoch_utc: got {scenario.orbit.epoch_utc!r} with duration_s {scenario.duration_s:g}: the run must lie "
+            f"within the Sun/Moon ephemeris' span, Julian dates [{lo:.1f}, {hi:.1f}] UTC (from the start of leap "
+            "seconds to the expiry of astropy's bundled leap-second table)"
+        )
 
 
 def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
