@@ -110,6 +110,9 @@ MODULES = {
     "outputs": ("drake_att/outputs.py", ["tests/test_outputs.py"]),
     "interrupts": ("drake_att/interrupts.py", ["tests/test_interrupts.py"]),
     "reproduction": ("drake_att/analysis/reproduction.py", ["tests/test_reproduction.py"]),
+    # The mission environment: orbits, exclusion geometry.
+    "orbit_propagators": ("drake_att/orbit_propagators.py", ["tests/test_orbit_propagators.py"]),
+    "exclusion": ("drake_att/exclusion.py", ["tests/test_exclusion.py", "tests/test_tracker_exclusion.py"]),
     "campaign_records": (
         "drake_att/analysis/campaign_records.py",
         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"],
