@@ -192,6 +192,9 @@ def check_tle(line1, line2, field_prefix: str = "orbit") -> None:
         if not isinstance(line, str):
             raise OrbitError(f"{name}: got {line!r}; expected the TLE's line {k} as a string")
         text = line.rstrip()
+        if not (text.isascii() and text.isprintable()):
+            bad = next(c for c in text if not (c.isascii() and c.isprintable()))
+            raise OrbitError(f"{name}: contains {bad!r}; a TLE line holds printable ASCII only")
         if len(text) != 69:
             raise OrbitError(f"{name}: got {len(text)} characters; a TLE line has 69 ({text[:40]!r}...)")
         if text[0] != str(k) or text[1] != " ":

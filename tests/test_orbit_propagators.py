@@ -185,8 +185,23 @@ def _tle_yaml(line1, line2, epoch="2026-06-01T12:00:00Z"):
         (SSO[0], SSO[1], "2026-08-01T00:00:00Z", r"^orbit\.epoch_utc: got '2026-08-01T00:00:00Z', \+60\.5 days"),
         (SSO[0], SSO[1], "June 1st", r"^orbit\.epoch_utc: got 'June 1st'; expected an ISO 8601 UTC time"),
         (SSO[0], SSO[1], "2026-06-01T12:00:00+02:00", r"^orbit\.epoch_utc: .* must be in UTC"),
+        (
+            SSO[0][:60] + "\u00e9" + SSO[0][61:],
+            SSO[1],
+            None,
+            r"^orbit\.line1: contains 'é'; a TLE line holds printable",
+        ),
     ],
-    ids=["short-line", "checksum", "line-number", "satellite", "epoch-too-far", "epoch-malformed", "not-utc"],
+    ids=[
+        "short-line",
+        "checksum",
+        "line-number",
+        "satellite",
+        "epoch-too-far",
+        "epoch-malformed",
+        "not-utc",
+        "non-ascii",
+    ],
 )
 def test_a_bad_tle_or_epoch_is_one_line_naming_the_field(line1, line2, epoch, expected):
     with pytest.raises(cfg.ConfigError, match=expected) as e:
