@@ -94,3 +94,43 @@ def test_an_exclusion_angle_outside_0_180_is_refused_naming_it(field, value):
 def test_no_samples_is_refused():
     with pytest.raises(ValueError, match="no samples"):
         availability([])
+
+
+def test_a_batch_is_evaluated_row_by_row():
+    """Random geometry, some rows with the Sun or the Moon behind the Earth, evaluated as one
+    batch (positions, boresights and bodies each batched) and one row at a time: the same causes."""
+    rng = np.random.default_rng(3)
+    n = 400
+    r = rng.normal(size=(n, 3))
+    r *= (R_E + rng.uniform(300e3, 2000e3, size=(n, 1))) / np.linalg.norm(r, axis=1, keepdims=True)
+    b = rng.normal(size=(n, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    sun = AU * rng.normal(size=(n, 3)) / np.sqrt(3)
+    moon = MOON_DIST * rng.normal(size=(n, 3)) / np.sqrt(3)
+    sun[:100] = -r[:100] / np.linalg.norm(r[:100], axis=1, keepdims=True) * AU  # behind the Earth
+    b[:100] = -r[:100] / np.linalg.norm(r[:100], axis=1, keepdims=True)  # and looked at through it
+    batch = exclusion_causes(b, r, sun, moon, CONES)
+    rows = np.array([int(exclusion_causes(b[k], r[k], sun[k], moon[k], CONES)) for k in range(n)])
+    np.testing.assert_array_equal(batch, rows)
+    assert len(set(rows.tolist())) >= 3  # clear, Earth and others occur
+
+
+@pytest.mark.parametrize("offset_deg, expected", [(-0.001, SUN), (0.001, CLEAR)])
+def test_the_sun_is_seen_from_the_spacecraft_not_the_earths_centre(offset_deg, expected):
+    """The Sun 45 deg -+ 0.001 deg from the boresight as seen from the spacecraft, whose
+    parallax against the Earth's centre (~0.004 deg here) is larger than the margin."""
+    sun = R_SC + AU * _dir(45.0 + offset_deg)
+    boresight = _dir(0.0)
+    assert int(exclusion_causes(boresight, R_SC, sun, FAR_MOON, CONES)) == expected
+
+
+def test_the_cones_accept_the_bounds_of_the_limb_height():
+    ExclusionCones(atmosphere_height_m=0.0).check()
+    ExclusionCones(atmosphere_height_m=1e6).check()
+    for h in (-1.0, 1e6 + 1.0, float("inf")):
+        with pytest.raises(ValueError, match=r"^exclusion\.atmosphere_height_m: got .*; must be in \[0, 1e6\] m$"):
+            ExclusionCones(atmosphere_height_m=h).check()
+
+
+def test_availability_reads_causes_logged_as_floats():
+    assert availability(np.array([2.0, 0.0, 3.0, 4.0])) == {"available": 0.25, "sun": 0.25, "earth": 0.5, "moon": 0.25}
