@@ -27,6 +27,11 @@ _R_PO = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 _Q_PO = rot.rotmat_to_quat(_R_PO)
 
 
+def mean_motion(semi_major_axis_m: float) -> float:
+    """Orbit rate ``n = sqrt(mu / a^3)`` (rad/s) of a semi-major axis ``a`` (m)."""
+    return float(np.sqrt(EARTH_MU_M3_PER_S2 / semi_major_axis_m**3))
+
+
 @dataclass(frozen=True)
 class CircularOrbit:
     """A circular orbit.
@@ -54,7 +59,7 @@ class CircularOrbit:
     @property
     def mean_motion_rad_per_s(self) -> float:
         """Orbit rate ``n = sqrt(mu / a^3)`` (rad/s)."""
-        return float(np.sqrt(EARTH_MU_M3_PER_S2 / self.semi_major_axis_m**3))
+        return mean_motion(self.semi_major_axis_m)
 
     @property
     def period_s(self) -> float:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from drake_att import rotations as rot
-from drake_att.orbit import EARTH_MU_M3_PER_S2, EARTH_RADIUS_M
+from drake_att.orbit import EARTH_RADIUS_M, mean_motion
 
 EARTH_J2 = 1.08262668e-3  # EGM2008 / WGS-84 (unnormalized)
 MAX_TLE_AGE_DAYS = 30.0  # SGP4's error grows ~1-3 km per day from a TLE's epoch
@@ -118,13 +118,8 @@ class KeplerOrbit:
     mean_anomaly_rad: float = 0.0
     j2: bool = False
 
-    @property
-    def mean_motion_rad_per_s(self) -> float:
-        return float(np.sqrt(EARTH_MU_M3_PER_S2 / self.semi_major_axis_m**3))
-
-    @property
-    def period_s(self) -> float:
-        return 2.0 * np.pi / self.mean_motion_rad_per_s
+    mean_motion_rad_per_s = property(lambda self: mean_motion(self.semi_major_axis_m), doc="n (rad/s)")
+    period_s = property(lambda self: 2.0 * np.pi / mean_motion(self.semi_major_axis_m), doc="2 pi / n (s)")
 
     def secular_rates(self) -> tuple[float, float, float]:
         """``(dRAAN/dt, dargp/dt, dM/dt)`` (rad/s): two-body (0, 0, n), plus J2's secular terms."""
