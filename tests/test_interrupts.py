@@ -144,3 +144,27 @@ def test_a_result_folder_is_not_put_in_place_after_a_swallowed_ctrl_c(tmp_path, 
         outputs.replace_folder(str(target), write)
     assert (target / "a.txt").read_text() == "old"
     assert sorted(os.listdir(tmp_path)) == ["run"]
+
+
+@pytest.mark.parametrize("where", ["after the runs", "while the report is written"])
+def test_a_ctrl_c_swallowed_after_the_runs_leaves_no_manifest(tmp_path, monkeypatch, where):
+    """Swallowed after the last run was kept (gathering the result) or while the report is
+    written: the campaign raises before ``manifest.json``, the mark of a complete campaign;
+    the runs stay on disk for ``--resume``."""
+    from drake_att.analysis import campaign_report
+
+    monkeypatch.setattr("sys.unraisablehook", lambda u: None)
+    if where == "after the runs":
+        result = campaign._CampaignRuns.result
+        monkeypatch.setattr(campaign._CampaignRuns, "result", lambda self: (_swallowed_sigint(), result(self))[1])
+    else:
+        write = campaign_report.write_campaign_report
+        monkeypatch.setattr(
+            campaign_report, "write_campaign_report", lambda *a, **k: (write(*a, **k), _swallowed_sigint())[0]
+        )
+    out = tmp_path / "mc"
+    with pytest.raises(KeyboardInterrupt):
+        campaign.run_campaign(SCENARIO, 2, overrides=SHORT, workers=1, out=str(out), progress=False)
+    assert sorted(os.listdir(out / "runs")) == ["seed_1.npz", "seed_2.npz"]
+    assert not (out / "manifest.json").exists()
+    assert (out / "report.html").exists() == (where == "while the report is written")

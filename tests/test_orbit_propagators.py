@@ -289,3 +289,28 @@ def test_an_array_of_times_of_any_shape_gives_the_flat_evaluation():
     assert r.shape == (2, 3, 3)
     np.testing.assert_array_equal(r.reshape(6, 3), r_flat)
     np.testing.assert_array_equal(v.reshape(6, 3), v_flat)
+
+
+@pytest.mark.parametrize(
+    "orbit_yaml, expected",
+    [
+        (_tle_yaml(SSO[0][:-1], SSO[1]), "drake-att: orbit.line1: got 68 characters; a TLE line has 69"),
+        (_tle_yaml(SSO[0], SSO[1], "2099-12-31T00:00:00Z"), "drake-att: orbit.epoch_utc: got '2099-12-31T00:00:00Z'"),
+        (
+            "orbit: !KeplerOrbitConfig\n  eccentricity: 1.5\n",
+            "drake-att: orbit.eccentricity: got 1.5; must be in [0, 1)",
+        ),
+        ("orbit: !TleOrbitConfig\n  line1: 12\n", ": orbit.line1: got 12; must be a text string"),
+    ],
+    ids=["tle-length", "tle-epoch", "eccentricity", "not-a-string"],
+)
+def test_the_cli_refuses_a_bad_orbit_with_exit_2_and_one_line(tmp_path, capsys, orbit_yaml, expected):
+    from drake_att.cli import main as cli_main
+
+    text = cfg.dump_scenario(load("cubesat_single_star_tracker"))
+    start, end = text.index("orbit:"), text.index("plant:")
+    path = tmp_path / "bad_orbit.yaml"
+    path.write_text(text[:start] + orbit_yaml + text[end:])
+    assert cli_main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expected in err[0], err
