@@ -79,19 +79,28 @@ class BuildContext:
     estimator_configs: dict = field(default_factory=dict)
     measurement_sources: dict = field(default_factory=dict)
     environment_systems: tuple = ()
+    orbit_system: object = None
+
+    def orbit_source(self):
+        """The :class:`~drake_att.systems.orbit_source.OrbitSource` of the scenario's orbit (any
+        kind), added to the diagram on first use."""
+        if self.orbit_system is None:
+            from drake_att.systems.orbit_source import OrbitSource
+
+            self.orbit_system = self._diagram_builder().AddSystem(OrbitSource(make_orbit(self.scenario)))
+            self.orbit_system.set_name("orbit")
+        return self.orbit_system
 
     def environment(self) -> tuple:
         """``(OrbitSource, SunMoonSource)`` of the scenario's orbit and epoch, added to the
         diagram on first use (a sensor that needs the geometry calls this while it is built)."""
         if not self.environment_systems:
             from drake_att.systems.environment import SunMoonSource
-            from drake_att.systems.orbit_source import OrbitSource
 
             o = self.scenario.orbit
             jd_epoch = julian_date_utc(parse_epoch_utc(o.epoch_utc))  # type: ignore[union-attr]  # validated
-            orbit = self.builder.AddSystem(OrbitSource(make_orbit(self.scenario)))  # type: ignore[union-attr]
-            orbit.set_name("orbit")
-            sun_moon = self.builder.AddSystem(SunMoonSource(jd_epoch, self.scenario.duration_s))  # type: ignore[union-attr]
+            orbit = self.orbit_source()
+            sun_moon = self._diagram_builder().AddSystem(SunMoonSource(jd_epoch, self.scenario.duration_s))
             sun_moon.set_name("sun_moon")
             self.environment_systems = (orbit, sun_moon)
         return self.environment_systems

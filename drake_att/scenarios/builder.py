@@ -33,7 +33,7 @@ import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import AddRandomInputs, ConstantVectorSource, LogVectorOutput, VectorLogSink
+from pydrake.systems.primitives import Adder, AddRandomInputs, ConstantVectorSource, LogVectorOutput, VectorLogSink
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity
@@ -42,6 +42,7 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
 from drake_att.scenarios.selection import fused_sources, with_estimators
+from drake_att.systems.attitude_control import OrbitPointingController, PdAttitudeLaw, orbit_frame_rate_I
 from drake_att.systems.estimator_system import EstimatorSetup, EstimatorSystem
 from drake_att.systems.plant import PrescribedAttitudeMotion, RigidBodyAttitudePlant
 from drake_att.systems.randomness import RANDOM_SOURCE_SAMPLING_INTERVAL_S
@@ -331,6 +332,41 @@ def _listed(names) -> str:
     return ", ".join(names) if names else "none"
 
 
+def _add_attitude_control(ctx: BuildContext, p: cfg.RigidBodyConfig, disturbance_torque_B):
+    """Add the orbit-pointing controller of ``p.attitude_control`` and an adder of its torque and
+    the disturbance; returns the adder's output (the plant's torque)."""
+    c = p.attitude_control
+    assert c is not None and ctx.builder is not None
+    I = np.asarray(p.inertia_kg_m2, dtype=float)
+    law = PdAttitudeLaw(
+        np.diag(I) if I.size == 3 else I.reshape(3, 3),
+        c.natural_frequency_rad_per_s,
+        c.damping_ratio,
+        rot.rpy_to_quat(np.asarray(c.offset_rpy_deg) * DEG),
+    )
+    control = ctx.builder.AddSystem(OrbitPointingController(law, c.period_s, c.torque_noise_N_m))
+    orbit = ctx.orbit_source()
+    for port in ("q_IB", "w_IB_B"):
+        ctx.builder.Connect(ctx.truth.GetOutputPort(port), control.GetInputPort(port))  # type: ignore[attr-defined]
+    for port in ("r_I", "v_I", "q_IO"):
+        ctx.builder.Connect(orbit.GetOutputPort(port), control.GetInputPort(port))
+    adder = ctx.builder.AddNamedSystem("torque_sum", Adder(2, 3))
+    ctx.builder.Connect(disturbance_torque_B, adder.get_input_port(0))
+    ctx.builder.Connect(control.GetOutputPort("torque_B"), adder.get_input_port(1))
+    return adder.get_output_port()
+
+
+def initial_rate_B(scenario: cfg.Scenario, q_IB0) -> np.ndarray:
+    """The rigid body's ``w_IB_B`` at t = 0 (rad/s): ``initial_rate_deg_per_s``, plus, under
+    attitude control, the reference frame's rate (the orbit frame's, in the body frame)."""
+    p = scenario.plant
+    w = np.asarray(p.initial_rate_deg_per_s, dtype=float) * DEG  # type: ignore[union-attr]  # rigid body
+    if isinstance(p, cfg.RigidBodyConfig) and p.attitude_control is not None:
+        r, v = make_orbit(scenario).position_velocity_I(0.0)  # validated: an orbit
+        w = w + rot.quat_to_rotmat(q_IB0).T @ orbit_frame_rate_I(r, v)
+    return w
+
+
 class ScenarioDiagram:
     """A scenario's diagram, built once; :meth:`simulate` runs it for any seed.
 
@@ -357,7 +393,6 @@ class ScenarioDiagram:
             builder.AddSystem(truth)
             torque_N_m = np.asarray(p.disturbance_torque_N_m, dtype=float)
             torque = builder.AddNamedSystem("disturbance_torque", ConstantVectorSource(torque_N_m))  # type: ignore[arg-type]  # pydrake stub
-            builder.Connect(torque.get_output_port(), truth.GetInputPort("torque_B"))
         elif isinstance(p, cfg.PrescribedRateConfig):
             truth = PrescribedAttitudeMotion.from_rate_profile(
                 np.asarray(p.constant_deg_per_s) * DEG,
@@ -372,6 +407,11 @@ class ScenarioDiagram:
             builder.AddSystem(truth)
         self.truth = truth
         ctx = BuildContext(builder, scenario, truth)
+        if isinstance(p, cfg.RigidBodyConfig):
+            torque_B = torque.get_output_port()
+            if p.attitude_control is not None:
+                torque_B = _add_attitude_control(ctx, p, torque_B)
+            builder.Connect(torque_B, truth.GetInputPort("torque_B"))
         for s in scenario.sensors:
             ctx.sensor_configs[s.name] = s
             ctx.sensors[s.name] = plugin_for(s).build(ctx, s)
@@ -528,7 +568,7 @@ class ScenarioDiagram:
         p = scenario.plant
         q0 = self.initial_q_IB(scenario)
         if isinstance(truth, RigidBodyAttitudePlant) and isinstance(p, cfg.RigidBodyConfig):
-            truth.SetInitialState(truth_ctx, q0, np.asarray(p.initial_rate_deg_per_s) * DEG)
+            truth.SetInitialState(truth_ctx, q0, initial_rate_B(scenario, q0))
         elif isinstance(truth, PrescribedAttitudeMotion):
             truth.SetInitialState(truth_ctx, q0)
         return context

@@ -97,13 +97,34 @@ OrbitTypes = Union[OrbitConfig, TleOrbitConfig, KeplerOrbitConfig]
 
 
 @dataclass
+class OrbitPointingControlConfig:
+    """A PD attitude controller that keeps the truth on the orbit (LVLH) frame turned by
+    ``offset_rpy_deg`` - nadir pointing by default - closing its loop on the true state
+    (module ``drake_att.systems.attitude_control``). ``torque_noise_N_m``: per-axis sigma of a
+    random torque held over each ``period_s`` (the jitter's source with the disturbance torque)."""
+
+    offset_rpy_deg: List[float] = field(default_factory=_zeros3)
+    natural_frequency_rad_per_s: float = 0.1
+    damping_ratio: float = 0.7
+    period_s: float = 1.0
+    torque_noise_N_m: float = 0.0
+
+
+@dataclass
 class RigidBodyConfig:
-    """Rigid-body truth (Euler's equations + quaternion kinematics)."""
+    """Rigid-body truth (Euler's equations + quaternion kinematics).
+
+    ``attitude_control``: null (free body) or an :class:`OrbitPointingControlConfig` (needs an
+    orbit); with it, ``initial_rate_deg_per_s`` is relative to the rotating reference (zero: the
+    body starts turning with the orbit frame), as ``initial_attitude_rpy_deg`` is relative to the
+    orbit frame.
+    """
 
     inertia_kg_m2: List[float] = field(default_factory=lambda: [1.0, 1.0, 1.0])
     initial_attitude_rpy_deg: List[float] = field(default_factory=_zeros3)
     initial_rate_deg_per_s: List[float] = field(default_factory=_zeros3)
     disturbance_torque_N_m: List[float] = field(default_factory=_zeros3)
+    attitude_control: Optional[OrbitPointingControlConfig] = None
 
 
 @dataclass
@@ -823,6 +844,8 @@ def _validate_plant(s: Scenario) -> None:
     p = s.plant
     if isinstance(p, RigidBodyConfig):
         _validate_rigid_body(p)
+        if p.attitude_control is not None:
+            _validate_attitude_control(p.attitude_control, s.orbit)
     elif isinstance(p, PrescribedRateConfig):
         for f in (
             "initial_attitude_rpy_deg",
@@ -850,6 +873,24 @@ def _validate_rigid_body(p: RigidBodyConfig) -> None:
     check_vector("plant.initial_attitude_rpy_deg", p.initial_attitude_rpy_deg, 3)
     check_vector("plant.initial_rate_deg_per_s", p.initial_rate_deg_per_s, 3)
     check_vector("plant.disturbance_torque_N_m", p.disturbance_torque_N_m, 3)
+
+
+def _validate_attitude_control(c: OrbitPointingControlConfig, orbit) -> None:
+    """The controller's gains, period and noise, and an orbit for its reference frame."""
+    path = "plant.attitude_control"
+    if orbit is None:
+        fail(path, "set", "follows the orbit frame: the scenario needs an orbit section")
+    check_vector(f"{path}.offset_rpy_deg", c.offset_rpy_deg, 3)
+    check_positive(f"{path}.natural_frequency_rad_per_s", c.natural_frequency_rad_per_s)
+    check_positive(f"{path}.damping_ratio", c.damping_ratio)
+    check_positive(f"{path}.period_s", c.period_s)
+    check_nonnegative(f"{path}.torque_noise_N_m", c.torque_noise_N_m)
+    if c.natural_frequency_rad_per_s * c.period_s > 0.5:
+        fail(
+            f"{path}.natural_frequency_rad_per_s",
+            c.natural_frequency_rad_per_s,
+            f"times period_s ({c.period_s:g} s) must be <= 0.5 for the sampled loop to follow the continuous design",
+        )
 
 
 def _validate_orbit(o) -> None:

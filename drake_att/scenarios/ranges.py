@@ -161,6 +161,15 @@ BY_CLASS: dict = {
     ("PrescribedRpyConfig", "times_s"): Range(
         -MAX_DURATION_S, MAX_DURATION_S, "s", "breakpoints around the run (before 0 allowed), 30 days either way"
     ),
+    ("OrbitPointingControlConfig", "damping_ratio"): Range(
+        0.0, 10.0, "", "a closed loop's damping ratio (0.7 typical; above 1 overdamped)"
+    ),
+    ("OrbitPointingControlConfig", "natural_frequency_rad_per_s"): Range(
+        0.0, 10.0, "rad/s", "an attitude loop's bandwidth (CubeSats ~0.01-1 rad/s)"
+    ),
+    ("OrbitPointingControlConfig", "torque_noise_N_m"): Range(
+        0.0, 1.0, "N m", "a random torque's 1-sigma (CubeSat reaction wheels deliver ~1e-3 N m)"
+    ),
     ("ScoringConfig", "convergence_threshold_deg"): Range(0.0, 180.0, "deg", "an attitude-error bound"),
     ("SimulationConfig", "accuracy"): Range(
         1e-16, 1.0, "", "a relative accuracy: below 1e-16 is under double round-off"
