@@ -79,6 +79,14 @@ def exclusion_causes(boresight_I, r_I, r_sun_I, r_moon_I, cones: ExclusionCones)
     return causes | np.where(sun_in, SUN, 0) | np.where(earth_in, EARTH, 0) | np.where(moon_in, MOON, 0)
 
 
+def star_occulted(directions_I, r_I, atmosphere_height_m: float) -> np.ndarray:
+    """Which stars (unit directions ``(m, 3)`` or ``(..., 3)``, at infinity) the Earth and its
+    atmosphere hide from ``r_I`` (m): the direction within ``asin((R_E + h) / |r|)`` of nadir."""
+    d, r = np.asarray(directions_I, dtype=float), np.asarray(r_I, dtype=float)
+    radius = np.arcsin(np.minimum((EARTH_RADIUS_M + atmosphere_height_m) / np.linalg.norm(r, axis=-1), 1.0))
+    return _angle(d, -r) < radius
+
+
 def availability(causes) -> dict:
     """Per cause, the fraction of samples it blinds, and the fraction clear of all:
     ``{"available": f, "sun": f, "earth": f, "moon": f}`` (a sample may count for several causes)."""

@@ -14,6 +14,9 @@ configured outage window or, with the configured probability, at random (drop-ou
 with ``exclusion`` cones, when the Sun, the Earth's limb or the Moon is inside one
 (:mod:`drake_att.exclusion`; then the input ports ``r_I``, ``r_sun_I`` and ``r_moon_I`` (m, in I)
 give the geometry and the output port ``exclusion`` ``[t_sample, causes]`` says why, as bit flags).
+With cones, a vector-mode sample also drops the reference stars the Earth and its atmosphere hide
+(:func:`~drake_att.exclusion.star_occulted`): its number of directions varies, and a sample with
+none left is invalid.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations
-from drake_att.exclusion import ExclusionCones, exclusion_causes
+from drake_att.exclusion import ExclusionCones, exclusion_causes, star_occulted
 from drake_att.noise import CounterRandom
 from drake_att.systems.randomness import (
     SEED_WORDS,
@@ -303,9 +306,13 @@ class StarTracker(LeafSystem):
         if self._noise_port.HasValue(context):
             noise = self._noise_port.Eval(context)
         dirs = self.references_I @ R_SI.T + np.reshape(noise, (-1, 3))
-        output.set_value(
-            VectorObservations(float(t_sample), bool(valid), dirs, self.references_I, p.sigma_vector, self.q_BS)
-        )
+        refs = self.references_I
+        if self.exclusion is not None:
+            seen = ~star_occulted(refs, self._geometry_ports[0].Eval(context), self.exclusion.atmosphere_height_m)
+            if not seen.all():
+                dirs, refs = dirs[seen], refs[seen]
+                valid = valid and bool(seen.any())
+        output.set_value(VectorObservations(float(t_sample), bool(valid), dirs, refs, p.sigma_vector, self.q_BS))
 
 
 def _canonical_product(p, q) -> tuple:
