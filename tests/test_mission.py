@@ -159,3 +159,32 @@ estimators:
     run = ScenarioDiagram(cfg.load_scenario(text=text)).simulate()
     with pytest.raises(ValueError, match="no star tracker with exclusion cones"):
         mission.mission_record(run)
+
+
+def test_the_records_series_samples_the_error_each_minute(scheduled_runs):
+    from drake_att.analysis.metrics import estimator_errors
+
+    run = scheduled_runs[1]
+    r = mission.mission_record(run)
+    e = estimator_errors(run, "one")
+    s = r["series"]["estimators"]["one"]
+    assert s["t_s"] == [float(t) for t in np.arange(0.0, 900.0, 60.0)]
+    k = np.searchsorted(e["t"], 540.0)
+    assert s["error_deg"][9] == pytest.approx(np.degrees(np.linalg.norm(e["dtheta"][k])), rel=1e-12)
+    assert r["series"]["gaps_s"] == [[300.0, 360.0], [600.0, 700.0]]
+
+
+def test_the_worst_gap_is_chosen_in_the_scored_part(scheduled_runs):
+    """Only gaps that start at or after score_from_s compete: from 320 s the [300, 360) gap is
+    out; from 650 s both are, and there is no worst gap."""
+    import copy
+
+    run = copy.copy(scheduled_runs[0])
+    run.scenario = copy.deepcopy(run.scenario)
+    run.scenario.scoring.score_from_s = 320.0
+    r = mission.mission_record(run)
+    assert r["worst_gap"]["start_s"] == 600.0  # [300, 360) starts before 320 s
+    run.scenario.scoring.score_from_s = 650.0
+    r = mission.mission_record(run)
+    assert r["worst_gap"] is None and r["gaps"] == 2
+    assert all(e["gap_rms_deg"] is None for e in r["estimators"].values())

@@ -12,7 +12,9 @@ Definitions:
 * a tracker is *out* at a sample whose logged validity flag is 0 (exclusion, drop-out, outage);
   *all out* where every star tracker with exclusion cones is out at the same sample time;
 * a *gap* is a maximal run of consecutive all-out samples, lasting from its first sample to one
-  tracker period past its last (the time without a tracker sample); the *worst* gap the longest;
+  tracker period past its last (the time without a tracker sample); the *worst* gap the longest
+  of those that start in the scored part of the run (``scoring.score_from_s``: after the
+  estimators' convergence);
 * an estimator's *error in the gap* is over its estimates timed inside ``[start, end)``.
 """
 
@@ -80,20 +82,32 @@ def _error_deg(errors: dict, mask) -> tuple[float | None, float | None]:
     return float(np.sqrt(np.mean(d * d))), float(np.max(d))
 
 
+SERIES_STEP_S = 60.0  # the error history a record keeps: one estimate per minute
+
+
 def mission_record(run) -> dict:
     """One run's mission figures (see the module). Keys: ``seed``; ``availability`` (per tracker,
     per cause, as :func:`~drake_att.analysis.metrics.tracker_availability`); ``all_out_fraction``,
     ``gaps`` (how many), ``worst_gap`` ``{start_s, end_s, duration_s}``; per estimator: attitude
     RMSE over the scored day, the 50th/95th percentile and maximum of the error's magnitude, its
-    RMS and maximum in the worst gap, and the run's mean NEES with its dof."""
+    RMS and maximum in the worst gap, and the run's mean NEES with its dof; ``series``: per
+    estimator its error's magnitude (deg) at its first estimate of every :data:`SERIES_STEP_S`,
+    and every gap ``[start, end]`` (for a figure of the day)."""
     metrics = compute_metrics(run)
     t, out = all_out(run)
     gaps = outage_runs(t, out)
-    worst = max(gaps, key=lambda g: g[1] - g[0]) if gaps else None
     score_from = run.scenario.scoring.score_from_s
-    estimators = {}
+    scored_gaps = [g for g in gaps if g[0] >= score_from]
+    worst = max(scored_gaps, key=lambda g: g[1] - g[0]) if scored_gaps else None
+    estimators, series = {}, {}
     for name, m in metrics["estimators"].items():
         e = estimator_errors(run, name)
+        grid = np.unique(np.searchsorted(e["t"], np.arange(0.0, e["t"][-1] + 1e-9, SERIES_STEP_S)))
+        grid = grid[grid < len(e["t"])]
+        series[name] = {
+            "t_s": e["t"][grid].tolist(),
+            "error_deg": (np.linalg.norm(e["dtheta"][grid], axis=1) / DEG).tolist(),
+        }
         scored = e["t"] >= score_from
         d = np.linalg.norm(e["dtheta"][scored], axis=1) / DEG
         gap_rms, gap_max = (None, None)
@@ -118,6 +132,7 @@ def mission_record(run) -> dict:
         if worst is None
         else {"start_s": worst[0], "end_s": worst[1], "duration_s": worst[1] - worst[0]},
         "estimators": estimators,
+        "series": {"estimators": series, "gaps_s": [list(g) for g in gaps]},
     }
 
 
