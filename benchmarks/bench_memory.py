@@ -79,7 +79,11 @@ def main(argv=None) -> int:
     print(header)
     print("-" * len(header))
     for policy in policies:
-        a, b = run_case(args.scenario, short, policy), run_case(args.scenario, long, policy)
+        try:
+            a, b = run_case(args.scenario, short, policy), run_case(args.scenario, long, policy)
+        except subprocess.CalledProcessError as e:
+            print(f"{policy:<22} failed: {(e.stderr.strip().splitlines() or ['?'])[-1]}")
+            continue
         rss_slope = (b["peak_kb"] - a["peak_kb"]) / (long - short)
         array_slope = (b["arrays"] - a["arrays"]) / 1024 / (long - short)
         npz_slope = (b["npz"] - a["npz"]) / 1024 / (long - short)
