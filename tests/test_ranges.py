@@ -59,6 +59,8 @@ def _numeric(t) -> bool:
         return any(_numeric(a) for a in args if a is not type(None))
     if origin is list:
         return bool(args) and _numeric(args[0])
+    if origin is dict:  # a mapping of names to numbers (logging.periods_s)
+        return len(args) == 2 and _numeric(args[1])
     return False
 
 
@@ -564,6 +566,7 @@ _TYPE_TEXT = {
     typing.List[float]: "list of float",
     typing.List[int]: "list of int",
     typing.List[str]: "list of string",
+    typing.Dict[str, float]: "mapping of string to float",
     np.ndarray: "matrix (list of rows)",
 }
 
@@ -613,6 +616,7 @@ def _expected_sections() -> list:
         ("plant: !PrescribedRateConfig", cfg.PrescribedRateConfig, "plant."),
         ("plant: !PrescribedRpyConfig", cfg.PrescribedRpyConfig, "plant."),
         ("scoring", cfg.ScoringConfig, "scoring."),
+        ("logging", cfg.LoggingConfig, "logging."),
     ]
     registry.ensure_builtin_plugins()
     for kind, label in ((registry.SENSOR, "sensors"), (registry.ESTIMATOR, "estimators")):
@@ -716,6 +720,8 @@ def test_the_reference_lists_every_field_with_its_type_default_and_range():
             assert (float(lo), float(hi), cells[3], cells[5]) == (r.lo, r.hi, r.unit, r.why), where
             if default is None:
                 assert value is None, where
+            elif isinstance(default, dict):
+                assert value == default, where
             else:
                 assert np.array_equal(np.asarray(value, float).ravel(), np.asarray(default, float).ravel()), where
             checked += 1

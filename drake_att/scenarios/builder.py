@@ -33,12 +33,20 @@ import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder, AddRandomInputs, ConstantVectorSource, LogVectorOutput, VectorLogSink
+from pydrake.systems.primitives import (
+    Adder,
+    AddRandomInputs,
+    ConstantVectorSource,
+    LogVectorOutput,
+    VectorLogSink,
+    ZeroOrderHold,
+)
 
 from drake_att import rotations as rot
 from drake_att.contract import SecondQuantity
 from drake_att.progress import Progress
 from drake_att.scenarios import config as cfg
+from drake_att.scenarios import logging_policy
 from drake_att.scenarios.build_context import BuildContext, attitude_from_rpy_deg, make_orbit  # noqa: F401
 from drake_att.scenarios.registry import plugin_for
 from drake_att.scenarios.selection import fused_sources, with_estimators
@@ -141,16 +149,10 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
         system = sd.estimators[c.name]
         quantity = SecondQuantity.from_port_name(system.second_output_name)
         second = quantity.port_name
-        gyro_config = c
-        while fused_sources(gyro_config):
-            gyro_config = configs[fused_sources(gyro_config)[0]]
-        gyro = getattr(gyro_config, "gyro", None)
         name = system.get_name()
         meta["estimators"][c.name] = {
             "second_kind": quantity.kind,
-            "true_bias": (
-                f"{sd.sensors[gyro].get_name()}/bias_B" if quantity is SecondQuantity.GYRO_BIAS and gyro else None
-            ),
+            "true_bias": _true_bias_key(sd.sensors, sd.estimators, configs, c),
             "signals": {
                 "attitude": f"{name}/q_IB_hat",
                 "second": f"{name}/{second}",
@@ -161,8 +163,22 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
         if f"{name}/innovations" in signal_keys:
             meta["estimators"][c.name]["signals"]["innovations"] = f"{name}/innovations"
             meta["estimators"][c.name]["inputs"] = list(system.input_names)
+    plan = getattr(sd, "logging_plan", None)
+    if plan is not None:
+        meta["logging"] = plan
     RunLog.check_metadata(meta)
     return meta
+
+
+def _true_bias_key(sensors: dict, estimators: dict, configs: dict, c) -> str | None:
+    """The logged key of the true gyro bias estimator config ``c`` is scored against (a
+    fusion: its first source's gyro), or None (a body-rate estimator, or no gyro)."""
+    quantity = SecondQuantity.from_port_name(estimators[c.name].second_output_name)
+    gyro_config = c
+    while fused_sources(gyro_config):
+        gyro_config = configs[fused_sources(gyro_config)[0]]
+    gyro = getattr(gyro_config, "gyro", None)
+    return f"{sensors[gyro].get_name()}/bias_B" if quantity is SecondQuantity.GYRO_BIAS and gyro else None
 
 
 @dataclass
@@ -427,33 +443,111 @@ class ScenarioDiagram:
         ]
         self.truth_log_period_s = min(periods) if periods else 1.0
         self.loggers: dict[str, VectorLogSink] = {}
+        self._packed_estimators: dict[str, SecondQuantity] = {}
+        candidates = self._loggable(scenario, ctx)
+        plan = logging_policy.plan_logging(
+            scenario.logging,
+            [signal for signal, _, _ in candidates],
+            self._required_signals(scenario),
+            self._alignments(scenario),
+            scenario.duration_s,
+        )
+        # log key -> the logged period of a decimated signal: its samples are shifted back by
+        # it after the run (they reach the logger one period after they were taken).
+        self._held: dict[str, float] = {}
+        for signal, system, port_name in candidates:
+            if signal.key not in plan:
+                continue
+            period, n = plan[signal.key]
+            port = system.GetOutputPort(port_name)
+            if n == 1:
+                self.loggers[signal.key] = LogVectorOutput(port, builder, signal.period_s)
+                continue
+            # Decimated: a hold samples the port between two of its own updates (half a
+            # period after t_k = k P) and the logger records it at t_k + P.
+            if signal.estimator:
+                # An estimator's port just after its update at t_k: the estimate of t_k.
+                source = port
+            else:
+                # The truth or a sensor's port: first held at its own instants (what the
+                # full-rate logger records: the value before that instant's updates).
+                own = builder.AddSystem(ZeroOrderHold(signal.period_s, port.size()))
+                own.set_name(f"{signal.key.replace('/', '__')}__held")
+                builder.Connect(port, own.get_input_port())
+                source = own.get_output_port()
+            hold = builder.AddSystem(ZeroOrderHold(period, port.size(), 0.5 * signal.period_s))
+            hold.set_name(f"{signal.key.replace('/', '__')}__every_{n}")
+            builder.Connect(source, hold.get_input_port())
+            self.loggers[signal.key] = LogVectorOutput(hold.get_output_port(), builder, period)
+            self._held[signal.key] = period
+        self.logging_plan = logging_policy.describe_plan([signal for signal, _, _ in candidates], plan)
+        self.diagram = builder.Build()
+        self.diagram.set_name(scenario.name)
 
-        def log(system, port_name, period):
+    def _loggable(self, scenario: cfg.Scenario, ctx: BuildContext) -> list:
+        """``[(Signal, system, port name)]``: every signal the builder can log, in its order
+        (the truth, each sensor's logged ports, each estimator's estimate, diagnostics and
+        innovations); a packed estimate (``estimate_state``) is split after the run."""
+        out = []
+
+        def add(system, port_name, period, parts=None, estimator=False):
             key = f"{system.get_name()}/{port_name}"
-            self.loggers[key] = LogVectorOutput(system.GetOutputPort(port_name), builder, period)
+            out.append(
+                (logging_policy.Signal(key, tuple(parts or (key,)), float(period), estimator), system, port_name)
+            )
 
-        log(truth, "q_IB", self.truth_log_period_s)
-        log(truth, "w_IB_B", self.truth_log_period_s)
+        add(self.truth, "q_IB", self.truth_log_period_s)
+        add(self.truth, "w_IB_B", self.truth_log_period_s)
         for s in scenario.sensors:
             logged = plugin_for(s).logged_ports
             for port, period in logged(s) if logged is not None else []:
-                log(self.sensors[s.name], port, ctx.sensor_output(s.name).period_s if period is None else period)
-        self._packed_estimators = {}
+                add(self.sensors[s.name], port, ctx.sensor_output(s.name).period_s if period is None else period)
         for e in scenario.estimators:
             system = self.estimators[e.name]
+            name, period = system.get_name(), self.estimator_period(e.name)
+            ports = SecondQuantity.from_port_name(system.second_output_name).estimate_ports()
             if system.HasOutputPort("estimate_state"):
                 # One C++ state port instead of four Python ports; split after the run.
-                log(system, "estimate_state", self.estimator_period(e.name))
+                add(system, "estimate_state", period, [f"{name}/{port}" for port, _ in ports], estimator=True)
                 self._packed_estimators[e.name] = SecondQuantity.from_port_name(system.second_output_name)
             else:
-                for port, _ in SecondQuantity.from_port_name(system.second_output_name).estimate_ports():
-                    log(system, port, self.estimator_period(e.name))
-            if system.HasOutputPort("diagnostics"):
-                log(system, "diagnostics", self.estimator_period(e.name))
-            if system.HasOutputPort("innovations"):
-                log(system, "innovations", self.estimator_period(e.name))
-        self.diagram = builder.Build()
-        self.diagram.set_name(scenario.name)
+                for port, _ in ports:
+                    add(system, port, period, estimator=True)
+            for port in ("diagnostics", "innovations"):
+                if system.HasOutputPort(port):
+                    add(system, port, period, estimator=True)
+        return out
+
+    def _required_signals(self, scenario: cfg.Scenario) -> dict:
+        """Part key -> what it is, for every signal scoring needs (never excluded)."""
+        truth = self.truth.get_name()
+        out = {f"{truth}/q_IB": "the truth attitude", f"{truth}/w_IB_B": "the truth rate"}
+        configs = {e.name: e for e in scenario.estimators}
+        for e in scenario.estimators:
+            system = self.estimators[e.name]
+            for port, _ in SecondQuantity.from_port_name(system.second_output_name).estimate_ports():
+                out[f"{system.get_name()}/{port}"] = f"the estimate of {e.name!r}"
+            bias = _true_bias_key(self.sensors, self.estimators, configs, e)
+            if bias is not None:
+                out[bias] = f"the true gyro bias {e.name!r} is scored against"
+        return out
+
+    def _alignments(self, scenario: cfg.Scenario) -> list:
+        """Each estimate and the signals it is scored against at its own times."""
+        truth = self.truth.get_name()
+        configs = {e.name: e for e in scenario.estimators}
+        out = []
+        for e in scenario.estimators:
+            system = self.estimators[e.name]
+            quantity = SecondQuantity.from_port_name(system.second_output_name)
+            refs = [(f"{truth}/q_IB", "the truth attitude")]
+            if quantity is SecondQuantity.BODY_RATE:
+                refs.append((f"{truth}/w_IB_B", "the truth rate"))
+            bias = _true_bias_key(self.sensors, self.estimators, configs, e)
+            if bias is not None:
+                refs.append((bias, "the true gyro bias"))
+            out.append(logging_policy.Alignment(e.name, f"{system.get_name()}/q_IB_hat", tuple(refs)))
+        return out
 
     def estimator_period(self, name: str) -> float:
         return self.estimators[name].period_s
@@ -622,6 +716,12 @@ class ScenarioDiagram:
                 continue
             log = logger.FindLog(context)
             t, x = log.sample_times().copy(), log.data().T.copy()
+            if key in self._held:
+                # A held sample reaches the logger one logged period after it was taken; the
+                # first log (t = 0) precedes every sample.
+                period = self._held[key]
+                keep = t > 0.5 * period
+                t, x = t[keep] - period, x[keep]
             if key.endswith("/estimate_state") and name in self._packed_estimators:
                 for port, part in self._packed_estimators[name].estimate_ports():
                     signals[f"{name}/{port}"] = (t, x[:, part].copy())

@@ -24,7 +24,7 @@ import dataclasses
 import os
 import typing
 from dataclasses import dataclass, field
-from typing import List, NoReturn, Optional, Union
+from typing import Dict, List, NoReturn, Optional, Union
 
 import numpy as np
 from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
@@ -168,6 +168,34 @@ class ScoringConfig:
 
 
 @dataclass
+class LoggingConfig:
+    """Which signals a run logs and how often (module ``drake_att.scenarios.logging_policy``).
+
+    The default logs every signal at its own period: the truth at the smallest sensor or
+    estimator period, each sensor's logged ports at its sample period, each estimator's
+    estimate, diagnostics and innovations at its filter step. A signal is named by its key
+    in ``log.npz`` (``<system>/<port>``, e.g. ``rigid_body_plant/q_IB``, ``st1/exclusion``,
+    ``mekf/q_IB_hat``, ``mekf/innovations``); ``periods_s`` and ``exclude`` take such keys
+    or ``fnmatch`` patterns (``"st1/*"``, ``"*/innovations"``).
+
+    ``period_s``: every signal at most this far apart: each is logged every n of its own
+    periods, n = floor(period_s / own period) and at least 1 (a signal slower than
+    ``period_s`` keeps its own period). ``periods_s``: a period per key or pattern (an exact
+    key wins over patterns; patterns that match one key must agree), each a positive
+    multiple of the signal's own period; it overrides ``period_s``. ``exclude``: keys or
+    patterns of signals not logged; the truth and each estimator's estimate (attitude,
+    second quantity, covariance, status) and the true gyro bias it is scored against
+    cannot be excluded. A decimated estimator is logged at multiples of its period: each
+    sample is its estimate at a multiple of that period, scored against the truth logged
+    at that time (its period must be a multiple of the truth's).
+    """
+
+    period_s: Optional[float] = None
+    periods_s: Dict[str, float] = field(default_factory=dict)
+    exclude: List[str] = field(default_factory=list)
+
+
+@dataclass
 class Scenario:
     """A complete, reproducible run: truth, sensors, estimators, scoring and seed."""
 
@@ -182,6 +210,7 @@ class Scenario:
     sensors: List[typing.Any] = field(default_factory=list)  # registered sensor configs
     estimators: List[typing.Any] = field(default_factory=list)  # registered estimator configs
     scoring: ScoringConfig = field(default_factory=ScoringConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
 
 
 # --------------------------------------------------------------------------------------
@@ -414,7 +443,19 @@ def _check_raw(value, typ, path: str) -> None:
         return _check_raw_section(value, typ, path)
     if origin in (list, List):
         return _check_raw_list(value, args, path)
+    if origin in (dict, Dict):
+        return _check_raw_mapping(value, args, path)
     _check_raw_scalar(value, typ, path)
+
+
+def _check_raw_mapping(value, args: tuple, path: str) -> None:
+    """``value`` a mapping of text keys to ``args[1]`` values (e.g. ``logging.periods_s``)."""
+    if not isinstance(value, dict) or _TAG_KEY in value:
+        fail(path, value, 'must be a mapping of names to values, e.g. {"st1/*": 10.0} (write {} for none)')
+    for key, v in value.items():
+        if not isinstance(key, str):
+            fail(path, key, "keys must be text (a signal key or pattern)")
+        _check_raw(v, args[1] if len(args) == 2 else typing.Any, f"{path}[{key[:60]!r}]")
 
 
 def _check_raw_choice(value, args: tuple, path: str) -> None:
@@ -806,6 +847,7 @@ def validate(s: Scenario) -> None:
     _validate_plant(s)
     _validate_components(s)
     _validate_scoring(s)
+    _validate_logging(s.logging)
     from drake_att.scenarios.ranges import check_ranges
 
     check_ranges(s)  # every numeric field within its physical range (docs/config_reference.md)
@@ -978,3 +1020,23 @@ def _validate_scoring(s: Scenario) -> None:
             f"e.g. --set scoring.score_from_s={s.duration_s / 2:g}",
         )
     check_positive("scoring.convergence_threshold_deg", s.scoring.convergence_threshold_deg)
+
+
+def _validate_logging(c: LoggingConfig) -> None:
+    """The logging policy's shape: a positive period, positive per-signal periods keyed by
+    non-empty keys or patterns, non-empty exclusion patterns. Which signals they match, and
+    that each period is a multiple of its signal's own, is checked when the diagram is built
+    (:func:`drake_att.scenarios.logging_policy.plan_logging`: the signals are the plug-ins')."""
+    if c.period_s is not None:
+        check_positive("logging.period_s", c.period_s)
+    if not isinstance(c.periods_s, dict):
+        fail("logging.periods_s", c.periods_s, "must be a mapping of signal keys or patterns to periods (s)")
+    for key, period in c.periods_s.items():
+        if not isinstance(key, str) or not key.strip():
+            fail("logging.periods_s", key, "keys must be non-empty signal keys or patterns, e.g. 'st1/*'")
+        check_positive(f"logging.periods_s[{key!r}]", period)
+    if not isinstance(c.exclude, list):
+        fail("logging.exclude", c.exclude, "must be a list of signal keys or patterns, e.g. ['*/innovations']")
+    for i, pattern in enumerate(c.exclude):
+        if not isinstance(pattern, str) or not pattern.strip():
+            fail(f"logging.exclude[{i}]", pattern, "must be a non-empty signal key or pattern, e.g. '*/innovations'")

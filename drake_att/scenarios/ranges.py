@@ -171,6 +171,8 @@ BY_CLASS: dict = {
         0.0, 1.0, "N m", "a random torque's 1-sigma (CubeSat reaction wheels deliver ~1e-3 N m)"
     ),
     ("ScoringConfig", "convergence_threshold_deg"): Range(0.0, 180.0, "deg", "an attitude-error bound"),
+    ("LoggingConfig", "period_s"): Range(1e-5, 1e5, "s", "a logging period from 100 kHz to about a day"),
+    ("LoggingConfig", "periods_s"): Range(1e-5, 1e5, "s", "each signal's logging period, 100 kHz to about a day"),
     ("SimulationConfig", "accuracy"): Range(
         1e-16, 1.0, "", "a relative accuracy: below 1e-16 is under double round-off"
     ),
@@ -337,6 +339,10 @@ def _check_field(path: str, value, owner: type, field_name: str) -> None:
     """Every number in ``value`` (a number, a list or nested lists, an array)."""
     if value is None or isinstance(value, (str, bytes, bool, np.bool_)):
         return
+    if isinstance(value, dict):  # a mapping of names to numbers (logging.periods_s): each value
+        for key, v in value.items():
+            _check_field(f"{path}[{key!r}]", v, owner, field_name)
+        return
     entry = None
     if isinstance(value, np.ndarray) and value.dtype != object:
         if value.size == 0 or not np.issubdtype(value.dtype, np.number):
@@ -409,6 +415,8 @@ def _type_name(t) -> str:
         return " or ".join(_type_name(a) for a in args)
     if origin in (list, typing.List):
         return f"list of {_type_name(args[0])}" if args else "list"
+    if origin in (dict, typing.Dict) and len(args) == 2:
+        return f"mapping of {_type_name(args[0])} to {_type_name(args[1])}"
     return {float: "float", int: "int", str: "string", bool: "bool"}.get(t, getattr(t, "__name__", str(t)))
 
 
@@ -418,6 +426,8 @@ def _is_numeric_type(t) -> bool:
     origin, args = typing.get_origin(t), typing.get_args(t)
     if origin is typing.Union or origin in (list, typing.List):
         return any(_is_numeric_type(a) for a in args if a is not type(None))
+    if origin in (dict, typing.Dict) and len(args) == 2:
+        return _is_numeric_type(args[1])
     return False
 
 
@@ -503,6 +513,7 @@ def _sections():
     out += [(f"orbit: !{t.__name__}", t, "orbit.") for t in typing.get_args(cfg.OrbitTypes)]
     out += [(f"plant: !{t.__name__}", t, "plant.") for t in typing.get_args(cfg.PlantConfig)]
     out.append(("scoring", cfg.ScoringConfig, "scoring."))
+    out.append(("logging", cfg.LoggingConfig, "logging."))
     builtin = registry.BUILTIN_PLUGIN_PACKAGES
     for kind, label in ((registry.SENSOR, "sensors"), (registry.ESTIMATOR, "estimators")):
         for tag, p in registry.plugins(kind).items():
