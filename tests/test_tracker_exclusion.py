@@ -141,8 +141,6 @@ def test_a_vector_tracker_drops_the_stars_the_earth_hides():
     """At positions around an orbit, the vector-mode tracker's sample keeps exactly the
     references whose line of sight misses the Earth plus 100 km of atmosphere (computed here by
     intersecting each ray with the sphere), and a sample with none left is invalid."""
-    from pydrake.systems.framework import DiagramBuilder  # noqa: F401  (the system stands alone)
-
     from drake_att.exclusion import ExclusionCones
     from drake_att.systems.star_tracker import StarTracker
 

@@ -265,6 +265,7 @@ def _gyro_and_tracker_names(name, configs) -> tuple:
         names = list(getattr(c, "star_trackers", None) or [getattr(c, "star_tracker", None)])
         if not all(names):
             raise NoBound(f"{c.name} reads no star tracker")
+        names += list(getattr(c, "vector_sensors", None) or [])
         tracker_names += names
     if len(gyros) != 1:
         raise NoBound(f"{name} reads {len(gyros)} gyros {sorted(gyros)}; the bound handles one")

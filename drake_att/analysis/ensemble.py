@@ -123,6 +123,7 @@ def _input_names(scenario, name: str) -> tuple[list[str], list]:
     sensors = {s.name: s for s in scenario.sensors}
     c = next(e for e in scenario.estimators if e.name == name)
     names = list(getattr(c, "star_trackers", None) or ([c.star_tracker] if getattr(c, "star_tracker", None) else []))
+    names += list(getattr(c, "vector_sensors", None) or [])
     cameras = [c.camera] if getattr(c, "camera", None) else []
     kinds = {}
     for n in names + cameras:

@@ -219,7 +219,8 @@ def _measurement_sensors(config) -> list[str]:
     trackers = getattr(config, "star_trackers", None) or (
         [config.star_tracker] if getattr(config, "star_tracker", None) else []
     )
-    return list(trackers) + ([config.camera] if getattr(config, "camera", None) else [])
+    further = list(getattr(config, "vector_sensors", None) or [])
+    return list(trackers) + further + ([config.camera] if getattr(config, "camera", None) else [])
 
 
 def _sensor_noise_free(sensor, sensors: dict) -> bool:

@@ -27,6 +27,7 @@ class BootstrapPfConfig:
     period_s: float = 1.0
     gyro: str = "gyro"
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     num_particles: int = 1000
     attitude_process_noise_deg_per_rt_h: Optional[float] = None
     bias_roughening_deg_per_h_per_rt_s: float = 0.0
@@ -72,4 +73,5 @@ def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
         bias_roughening_sigma=c.bias_roughening_deg_per_h_per_rt_s * DEG_PER_H,
         resample_threshold=c.resample_threshold,
         gyro=c.gyro,
+        vector_sensors=c.vector_sensors,
     )

@@ -8,6 +8,7 @@ from drake_att import validation
 from drake_att.filters.gating import DEFAULT_GATE_PROBABILITY, InnovationGate
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
+from drake_att.systems.filter_setups import vector_inputs
 from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
 
@@ -18,12 +19,38 @@ def require_sensor(checks, path: str, field: str, name: str, kind: str):
         have = sorted(n for n in checks.sensors if checks.sensor_output(n).kind == kind)
         label = {
             "gyro": "gyro",
-            "vectors": "vector-mode star tracker",
+            "vectors": "vector sensor",
             "quaternion": "quaternion star tracker",
             "camera": "camera",
         }[kind]
         cfg.fail(f"{path}.{field}", name, f"unknown {label}; {label}s listed before: {have}")
     return checks.sensors[name]
+
+
+def vector_sensor_names(c) -> tuple:
+    """The vector-observation sensors filter config ``c`` reads, in update order (its
+    ``star_tracker``, ``""``: none, then its ``vector_sensors``)."""
+    return vector_inputs(c.star_tracker, getattr(c, "vector_sensors", ()))
+
+
+def validate_vector_sensors(path: str, c, checks) -> None:
+    """A vector filter's sensors: ``star_tracker`` (``""``: none) and ``vector_sensors``, at least one
+    in all, each listed once, each a vector-observation sensor listed before whose period fits
+    the filter's (:func:`check_period_multiple`)."""
+    names = vector_sensor_names(c)
+    if not names:
+        cfg.fail(
+            f"{path}.star_tracker",
+            c.star_tracker,
+            "names no sensor and vector_sensors is empty: the filter needs at least one vector-observation sensor",
+        )
+    cfg.check_listed_once(path, "vector_sensors", names)
+    fields = (["star_tracker"] if c.star_tracker else []) + [
+        f"vector_sensors[{j}]" for j in range(len(getattr(c, "vector_sensors", ())))
+    ]
+    for f, n in zip(fields, names, strict=True):
+        require_sensor(checks, path, f, n, "vectors")
+        check_period_multiple(path, c.period_s, n, checks.sensor_output(n).period_s)
 
 
 def check_period_multiple(path: str, period_s: float, sensor_name: str, sensor_period_s: float) -> None:
@@ -151,7 +178,8 @@ def validate_vector_filter(
     initial_bias: bool = True,
     initial_sigma: bool = True,
 ):
-    """Checks shared by filters fed by one vector-mode tracker (and a gyro): paper S0's.
+    """Checks shared by filters fed by vector-observation sensors (and a gyro): paper S0's, with
+    one vector-mode tracker, or any sensors of ``vector_sensors`` (:func:`validate_vector_sensors`).
 
     Args:
         integer_fields: config fields that must be integers >= 1 (particles, iterations).
@@ -167,8 +195,7 @@ def validate_vector_filter(
     if uses_gyro:
         gyro = require_sensor(checks, path, "gyro", c.gyro, "gyro")
         check_gyro_period(path, c.period_s, gyro)
-    st = require_sensor(checks, path, "star_tracker", c.star_tracker, "vectors")
-    check_period_multiple(path, c.period_s, st.name, checks.sensor_output(st.name).period_s)
+    validate_vector_sensors(path, c, checks)
     if initial_sigma:
         check_initial_attitude(path, c)
     else:

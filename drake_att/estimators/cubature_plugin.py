@@ -41,6 +41,7 @@ class CubatureQuaternionConfig:
     period_s: float = 1.0
     gyro: str = "gyro"
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     multiplicative_noise: str = ""
     assumed_correlation: Optional[float] = None
     arw_deg_per_rt_h: Optional[float] = None
@@ -67,6 +68,12 @@ def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.zeta_gate_sigmas", c.zeta_gate_sigmas)
     common.check_flags(path, c, "zeta_state_correlation")
     common.check_innovation_gate(path, c)
+    if c.multiplicative_noise and c.vector_sensors:
+        cfg.fail(
+            f"{path}.vector_sensors",
+            c.vector_sensors,
+            "must be empty with multiplicative_noise: the correlated-noise model is the star tracker's only",
+        )
     if c.multiplicative_noise:
         source = checks.sensors.get(c.multiplicative_noise)
         if not isinstance(source, ScaleFactorStarNoiseConfig):
@@ -132,4 +139,4 @@ def build_cubature(ctx, c: CubatureQuaternionConfig) -> EstimatorSetup:
     )
     q0, b0, _ = common.initial_gyro_mode_estimate(ctx, c)
     init = core.initial_state(q0, b0, c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
-    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))
+    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=common.vector_sensor_names(c))

@@ -23,6 +23,7 @@ class EkpfConfig:
     period_s: float = 1.0
     gyro: str = "gyro"
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     num_particles: int = 1000
     arw_deg_per_rt_h: Optional[float] = None
     rrw_deg_per_h15: Optional[float] = None
@@ -72,4 +73,5 @@ def build_ekpf(ctx, c: EkpfConfig):
         proposal_iterations=c.proposal_iterations,
         resample_threshold=c.resample_threshold,
         gyro=c.gyro,
+        vector_sensors=c.vector_sensors,
     )

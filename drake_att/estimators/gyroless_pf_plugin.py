@@ -27,6 +27,7 @@ class GyrolessPfConfig:
     name: str = "gyroless_pf"
     period_s: float = 1.0
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     num_particles: int = 1000
     inertia_kg_m2: List[float] = field(default_factory=list)
     disturbance_torque_N_m: List[float] = field(default_factory=list)
@@ -120,4 +121,5 @@ def build_gyroless_pf(ctx, c: GyrolessPfConfig):
         attitude_process_sigma=c.attitude_process_noise_deg_per_rt_h * ARW_DEG_PER_RT_H,
         num_substeps=c.num_substeps,
         resample_threshold=c.resample_threshold,
+        vector_sensors=c.vector_sensors,
     )

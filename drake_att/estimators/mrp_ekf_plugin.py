@@ -18,13 +18,16 @@ from drake_att.systems.filter_setups import mrp_ekf_setup
 @dataclass
 class MrpEkfConfig:
     """Paper S0's additive EKF on ``[MRP; gyro bias]`` with shadow-set switching, fed by a
-    gyro and one vector-mode star tracker.  ``update_iterations`` > 1 gives an iterated
+    gyro and one vector-mode star tracker (``star_tracker``; ``""``: none) and any further
+    vector-observation sensors (``vector_sensors``: e.g. a sun sensor and a magnetometer),
+    updated on one after the other at each step.  ``update_iterations`` > 1 gives an iterated
     EKF (beyond the paper).  Noise defaults (None) come from the gyro's config."""
 
     name: str = "ekf"
     period_s: float = 1.0
     gyro: str = "gyro"
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     arw_deg_per_rt_h: Optional[float] = None
     rrw_deg_per_h15: Optional[float] = None
     initial_attitude_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
@@ -67,4 +70,5 @@ def build_mrp_ekf(ctx, c: MrpEkfConfig):
         c.update_iterations,
         gyro=c.gyro,
         innovation_gate=common.innovation_gate(c),
+        vector_sensors=c.vector_sensors,
     )

@@ -36,6 +36,7 @@ class QuaternionEkfConfig:
     period_s: float = 1.0
     gyro: str = "gyro"
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     initial_attitude_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
     initial_quaternion_variance: float = 1.0
     process_noise_per_step: float = 1e-5
@@ -80,4 +81,4 @@ def build_quaternion_ekf(ctx, c: QuaternionEkfConfig) -> EstimatorSetup:
     init = core.initial_state(
         attitude_from_rpy_deg(ctx.scenario, c.initial_attitude_rpy_deg), c.initial_quaternion_variance
     )
-    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))
+    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=common.vector_sensor_names(c))

@@ -80,6 +80,7 @@ class BuildContext:
     measurement_sources: dict = field(default_factory=dict)
     environment_systems: tuple = ()
     orbit_system: object = None
+    magnetic_field_system: object = None
 
     def orbit_source(self):
         """The :class:`~drake_att.systems.orbit_source.OrbitSource` of the scenario's orbit (any
@@ -104,6 +105,20 @@ class BuildContext:
             sun_moon.set_name("sun_moon")
             self.environment_systems = (orbit, sun_moon)
         return self.environment_systems
+
+    def magnetic_field(self):
+        """The :class:`~drake_att.systems.environment.MagneticFieldSource` of the scenario's epoch, fed
+        by the orbit's ``r_I``; added on first use (output ``B_I``, T, in I)."""
+        if self.magnetic_field_system is None:
+            from drake_att.systems.environment import MagneticFieldSource
+
+            orbit, _ = self.environment()
+            jd_epoch = julian_date_utc(parse_epoch_utc(self.scenario.orbit.epoch_utc))
+            source = self._diagram_builder().AddSystem(MagneticFieldSource(jd_epoch))
+            source.set_name("geomagnetic_field")
+            self._diagram_builder().Connect(orbit.GetOutputPort("r_I"), source.GetInputPort("r_I"))
+            self.magnetic_field_system = source
+        return self.magnetic_field_system
 
     def sensor_output(self, name: str) -> SensorOutput:
         """What sensor ``name`` delivers (kind, port, period)."""

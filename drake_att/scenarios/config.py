@@ -811,6 +811,41 @@ def check_listed_once(path: str, field: str, names, what: str = "sensor") -> Non
         fail(f"{path}.{field}", list(names), f"each {what} may be listed once")
 
 
+def require_orbit_epoch(path: str, value, scenario: "Scenario", purpose: str) -> None:
+    """An orbit with an epoch (``!TleOrbitConfig`` or ``!KeplerOrbitConfig``) whose run lies within the
+    span of the offline Sun/Moon ephemeris (and so of the IGRF coefficients): what a sensor needs that
+    reads the orbit, the Sun, the Moon or the magnetic field. ``path``/``value`` name the field asking,
+    ``purpose`` says why (e.g. "to place the Sun")."""
+    if not isinstance(scenario.orbit, (TleOrbitConfig, KeplerOrbitConfig)):
+        kind = "no orbit" if scenario.orbit is None else "a circular orbit without an epoch"
+        fail(
+            path,
+            value,
+            f"needs an orbit with an epoch {purpose}; the scenario has {kind} "
+            "(use orbit: !TleOrbitConfig or !KeplerOrbitConfig)",
+        )
+    _check_ephemeris_span(scenario)
+
+
+def _check_ephemeris_span(scenario: "Scenario") -> None:
+    """The run (epoch to epoch + duration) inside the span the offline Sun/Moon ephemeris covers."""
+    from drake_att.ephemeris import supported_jd_range
+    from drake_att.orbit_propagators import OrbitError, julian_date_utc, parse_epoch_utc
+
+    try:
+        start = julian_date_utc(parse_epoch_utc(scenario.orbit.epoch_utc))  # type: ignore[union-attr]
+    except OrbitError as e:
+        raise ConfigError(str(e)) from None
+    lo, hi = supported_jd_range()
+    end = start + (scenario.duration_s + 60.0) / 86400.0
+    if start < lo or end > hi:
+        raise ConfigError(
+            f"orbit.epoch_utc: got {scenario.orbit.epoch_utc!r} with duration_s {scenario.duration_s:g}: the run "  # type: ignore[union-attr]
+            f"must lie within the Sun/Moon ephemeris' span, Julian dates [{lo:.1f}, {hi:.1f}] UTC (from the start "
+            "of leap seconds to the expiry of astropy's bundled leap-second table)"
+        )
+
+
 @dataclass
 class ValidationContext:
     """What a plug-in's validate function sees: the scenario and the sensors and estimators

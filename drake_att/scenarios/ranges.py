@@ -202,6 +202,14 @@ BY_CLASS: dict = {
     ("IndoorStarTrackerConfig", "pso_stop_fraction"): _FRACTION,
     ("IndoorStarTrackerConfig", "pso_v_max_deg"): Range(0.0, 360.0, "deg", "a swarm particle's step bound"),
     ("IndoorStarTrackerConfig", "pso_search_range_deg"): Range(0.0, 360.0, "deg", "the swarm's search half-width"),
+    ("SunSensorConfig", "fov_half_angle_deg"): Range(
+        0.0, 90.0, "deg", "the field-of-view half-angle of one cosine head (checked: strictly inside)"
+    ),
+    ("SunSensorConfig", "albedo"): Range(0.0, 1.0, "", "a reflectance (the Earth's Bond albedo is ~0.3)"),
+    ("MagnetometerConfig", "sigma_nT"): Range(
+        0.0, 1e5, "nT", "a 1-sigma noise up to 100 uT (CubeSat magnetometers: ~10-500 nT; the LEO field: 20-60 uT)"
+    ),
+    ("MagnetometerConfig", "bias_nT"): Range(-1e5, 1e5, "nT", "a bias up to 100 uT, either sign"),
     ("QuaternionEkfConfig", "initial_quaternion_variance"): _QUATERNION_VARIANCE,
     ("QuaternionEkfConfig", "process_noise_per_step"): _QUATERNION_VARIANCE,
     ("QuaternionEkfConfig", "measurement_noise"): _QUATERNION_VARIANCE,

@@ -8,5 +8,7 @@ from drake_att.sensors import (  # noqa: F401, I001  (registers them, in this or
     star_tracker_average_plugin,
     scale_factor_star_noise_plugin,
     screen_camera_plugin,
+    sun_sensor_plugin,
+    magnetometer_plugin,
 )
 from drake_att.sensors import faults_plugin  # noqa: F401,E402  (registers !SensorFaultsConfig; after the sensors it corrupts)

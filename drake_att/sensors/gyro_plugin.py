@@ -56,10 +56,17 @@ def gyro_logged_ports(c: GyroConfig):
     return [("gyro_measurement", c.period_s), ("bias_B", c.period_s)]
 
 
+def misalignment_matrix(misalignment_urad) -> np.ndarray:
+    """The (3, 3) misalignment (rad, zero diagonal) of the six off-diagonal terms
+    ``[xy, xz, yx, yz, zx, zy]`` in urad (a config's ``misalignment_urad``)."""
+    m = np.zeros((3, 3))
+    m[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = np.asarray(misalignment_urad) * 1e-6
+    return m
+
+
 def gyro_model_si(c: GyroConfig) -> tuple:
     """The config's noise and errors in SI, in :meth:`Gyro.set_model`'s argument order."""
-    m = np.zeros((3, 3))
-    m[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = np.asarray(c.misalignment_urad) * 1e-6
+    m = misalignment_matrix(c.misalignment_urad)
     return (
         c.arw_deg_per_rt_h * ARW_DEG_PER_RT_H,
         c.rrw_deg_per_h15 * RRW_DEG_PER_H_15,

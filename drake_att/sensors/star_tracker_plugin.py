@@ -105,34 +105,20 @@ def validate_exclusion(path: str, c: StarTrackerConfig, scenario) -> None:
         exclusion_cones(c).check(f"{path}.exclusion")  # type: ignore[union-attr]
     except ValueError as e:
         raise cfg.ConfigError(str(e)) from None
-    if not isinstance(scenario.orbit, (cfg.TleOrbitConfig, cfg.KeplerOrbitConfig)):
-        kind = "no orbit" if scenario.orbit is None else "a circular orbit without an epoch"
-        cfg.fail(
-            f"{path}.exclusion",
-            "set",
-            f"needs an orbit with an epoch to place the Sun, the Earth and the Moon; the scenario has {kind} "
-            "(use orbit: !TleOrbitConfig or !KeplerOrbitConfig)",
-        )
-    _check_ephemeris_span(scenario)
+    cfg.require_orbit_epoch(f"{path}.exclusion", "set", scenario, "to place the Sun, the Earth and the Moon")
 
 
-def _check_ephemeris_span(scenario) -> None:
-    """The run (epoch to epoch + duration) inside the span the offline Sun/Moon ephemeris covers."""
-    from drake_att.ephemeris import supported_jd_range
-    from drake_att.orbit_propagators import OrbitError, julian_date_utc, parse_epoch_utc
-
-    try:
-        start = julian_date_utc(parse_epoch_utc(scenario.orbit.epoch_utc))
-    except OrbitError as e:
-        raise cfg.ConfigError(str(e)) from None
-    lo, hi = supported_jd_range()
-    end = start + (scenario.duration_s + 60.0) / 86400.0
-    if start < lo or end > hi:
-        raise cfg.ConfigError(
-            f"orbit.epoch_utc: got {scenario.orbit.epoch_utc!r} with duration_s {scenario.duration_s:g}: the run must lie "
-            f"within the Sun/Moon ephemeris' span, Julian dates [{lo:.1f}, {hi:.1f}] UTC (from the start of leap "
-            "seconds to the expiry of astropy's bundled leap-second table)"
-        )
+def validate_availability(path: str, c) -> None:
+    """A sensor's ``dropout_probability`` in [0, 1) and ``outage_windows_s`` a list of [start, end]
+    with end > start."""
+    cfg.check_finite(f"{path}.dropout_probability", c.dropout_probability)
+    if not 0 <= c.dropout_probability < 1:
+        cfg.fail(f"{path}.dropout_probability", c.dropout_probability, "must be in [0, 1)")
+    if np.size(c.outage_windows_s) and np.ndim(c.outage_windows_s) != 2:
+        cfg.fail(f"{path}.outage_windows_s", c.outage_windows_s, "must be a list of [start, end]")
+    for j, w in enumerate(np.reshape(c.outage_windows_s, (-1, 2))):
+        if len(w) != 2 or not w[1] > w[0]:
+            cfg.fail(f"{path}.outage_windows_s[{j}]", w, "must be [start, end] with end > start")
 
 
 def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
@@ -147,9 +133,7 @@ def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.sigma_cross_boresight_arcsec", c.sigma_cross_boresight_arcsec)
     cfg.check_nonnegative(f"{path}.sigma_boresight_arcsec", c.sigma_boresight_arcsec)
     cfg.check_nonnegative(f"{path}.sigma_vector_urad", c.sigma_vector_urad)
-    cfg.check_finite(f"{path}.dropout_probability", c.dropout_probability)
-    if not 0 <= c.dropout_probability < 1:
-        cfg.fail(f"{path}.dropout_probability", c.dropout_probability, "must be in [0, 1)")
+    validate_availability(path, c)
     if c.mode == "vectors":
         if np.ndim(c.references_I) != 2 or len(c.references_I) < 1:
             cfg.fail(f"{path}.references_I", c.references_I, "vector mode needs >= 1 direction")
@@ -165,11 +149,6 @@ def validate_star_tracker(path: str, c: StarTrackerConfig, checks) -> None:
             [c.sigma_cross_boresight_arcsec, c.sigma_boresight_arcsec],
             "quaternion mode needs both sigmas > 0 (a filter cannot use a perfect sensor)",
         )
-    if np.size(c.outage_windows_s) and np.ndim(c.outage_windows_s) != 2:
-        cfg.fail(f"{path}.outage_windows_s", c.outage_windows_s, "must be a list of [start, end]")
-    for j, w in enumerate(np.reshape(c.outage_windows_s, (-1, 2))):
-        if len(w) != 2 or not w[1] > w[0]:
-            cfg.fail(f"{path}.outage_windows_s[{j}]", w, "must be [start, end] with end > start")
 
 
 def star_tracker_output(c: StarTrackerConfig, sensor_configs) -> SensorOutput:

@@ -54,6 +54,7 @@ from drake_att.systems.estimator_system import PARTICLE_DIAGNOSTICS_SIZE, Estima
 from drake_att.validation import check_positive
 
 __all__ = [
+    "vector_inputs",
     "mrp_ekf_setup",
     "bootstrap_pf_setup",
     "ekpf_setup",
@@ -64,6 +65,13 @@ __all__ = [
     "GyrolessPfEstimator",
     "PARTICLE_DIAGNOSTICS_SIZE",
 ]
+
+
+def vector_inputs(star_tracker: str, vector_sensors=()) -> tuple:
+    """The vector-observation sensors a filter reads, in update order: ``star_tracker`` (``""``:
+    none), then ``vector_sensors`` (e.g. a sun sensor and a magnetometer), each a
+    :class:`~drake_att.contract.VectorObservations` input updated on sequentially at the same step."""
+    return ((star_tracker,) if star_tracker else ()) + tuple(vector_sensors)
 
 
 def _covariance0(covariance0) -> np.ndarray:
@@ -84,16 +92,18 @@ def mrp_ekf_setup(
     update_iterations: int = 1,
     gyro: str | None = None,
     innovation_gate=None,
+    vector_sensors=(),
 ) -> EstimatorSetup:
     """The setup of :func:`MrpEkfEstimator` (same arguments; ``gyro``: the gyro's name;
-    ``innovation_gate``: a chi2 threshold or an InnovationGate, None: none)."""
+    ``innovation_gate``: a chi2 threshold or an InnovationGate, None: none; ``vector_sensors``:
+    further vector-observation sensors after ``star_tracker`` (``""``: none), :func:`vector_inputs`)."""
     core = MrpEkfCore(arw_rad_per_rt_s, rrw_rad_per_s15, update_iterations, innovation_gate)
     return EstimatorSetup(
         core,
         core.initial_state(q_IB_hat0, bias_hat0, _covariance0(covariance0)),
         period_s,
         gyro=gyro,
-        vector_sensors=(star_tracker,),
+        vector_sensors=vector_inputs(star_tracker, vector_sensors),
     )
 
 
@@ -141,9 +151,13 @@ def MrpEkfEstimator(
     )
 
 
-def _particle_setup(period_s, star_tracker, gyro, core) -> EstimatorSetup:
+def _particle_setup(period_s, star_tracker, gyro, core, vector_sensors=()) -> EstimatorSetup:
     return EstimatorSetup(
-        core, core.draw_initial_state(np.random.default_rng(0)), period_s, gyro=gyro, vector_sensors=(star_tracker,)
+        core,
+        core.draw_initial_state(np.random.default_rng(0)),
+        period_s,
+        gyro=gyro,
+        vector_sensors=vector_inputs(star_tracker, vector_sensors),
     )
 
 
@@ -167,8 +181,10 @@ def bootstrap_pf_setup(
     bias_roughening_sigma: float = 0.0,
     resample_threshold: float = 2.0 / 3.0,
     gyro: str | None = None,
+    vector_sensors=(),
 ) -> EstimatorSetup:
-    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+    """The setup of :func:`BootstrapPfEstimator` (same arguments; ``gyro``: the gyro's name;
+    ``vector_sensors``: as :func:`mrp_ekf_setup`'s)."""
     roughening = RandomWalkRoughening(check_positive("bias_roughening_sigma", bias_roughening_sigma, allow_zero=True))
     return _particle_setup(
         period_s,
@@ -183,6 +199,7 @@ def bootstrap_pf_setup(
             bias_roughening=roughening,
             resampling_gate=EffectiveSampleSizeGate(resample_threshold),
         ),
+        vector_sensors,
     )
 
 
@@ -242,8 +259,10 @@ def ekpf_setup(
     proposal_iterations: int = 1,
     resample_threshold: float = 2.0 / 3.0,
     gyro: str | None = None,
+    vector_sensors=(),
 ) -> EstimatorSetup:
-    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name)."""
+    """The setup of :func:`EkpfEstimator` (same arguments; ``gyro``: the gyro's name;
+    ``vector_sensors``: as :func:`mrp_ekf_setup`'s)."""
     return _particle_setup(
         period_s,
         star_tracker,
@@ -258,6 +277,7 @@ def ekpf_setup(
             proposal_iterations=proposal_iterations,
             resampling_gate=EffectiveSampleSizeGate(resample_threshold),
         ),
+        vector_sensors,
     )
 
 
@@ -321,8 +341,10 @@ def gyroless_pf_setup(
     attitude_process_sigma: float = 0.0,
     num_substeps: int = 1,
     resample_threshold: float = 2.0 / 3.0,
+    vector_sensors=(),
 ) -> EstimatorSetup:
-    """The setup of :func:`GyrolessPfEstimator` (same arguments)."""
+    """The setup of :func:`GyrolessPfEstimator` (same arguments; ``vector_sensors``: as
+    :func:`mrp_ekf_setup`'s)."""
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
         I = np.diag(I)
@@ -342,6 +364,7 @@ def gyroless_pf_setup(
             num_substeps=num_substeps,
             resampling_gate=EffectiveSampleSizeGate(resample_threshold),
         ),
+        vector_sensors,
     )
 
 
