@@ -313,10 +313,14 @@ def view_geometry(
 
             jd0 = julian_date_utc(parse_epoch_utc(epoch))
             jd = jd0 + times / 86400.0
-            eph = SunMoonEphemeris(jd0, jd0 + (float(times[-1]) + 60.0) / 86400.0)
-            for body, position in (("sun", eph.sun_position_m(jd)), ("moon", eph.moon_position_m(jd))):
-                d = position - r_I
-                directions[body] = d / np.linalg.norm(d, axis=1, keepdims=True)
+            try:
+                eph = SunMoonEphemeris(jd0, jd0 + (float(times[-1]) + 60.0) / 86400.0)
+            except ValueError as e:  # an epoch the offline ephemeris does not cover (no tracker needed it)
+                notes.append(f"the Sun and the Moon: the run is outside the offline ephemeris' span ({e})")
+            else:
+                for body, position in (("sun", eph.sun_position_m(jd)), ("moon", eph.moon_position_m(jd))):
+                    d = position - r_I
+                    directions[body] = d / np.linalg.norm(d, axis=1, keepdims=True)
     return ViewGeometry(
         scenario=scenario,
         seed=run.seed,
