@@ -18,7 +18,7 @@ only directions are drawn, never distances):
   (optionally with its error rotation magnified, ``error_scale``);
 * the Earth (nadir, blue), Sun (yellow) and Moon (grey) directions from the spacecraft,
   arrows of one fixed length, with the Earth's apparent disk (its bright limb, Earth radius
-  plus the first tracker's ``atmosphere_height_m``) as a translucent cone around nadir: the
+  plus the ``atmosphere_height_m`` of the first tracker with exclusion cones, else 100 km) as a translucent cone around nadir: the
   Earth blinds a tracker when that disk overlaps the tracker's Earth-limb cone, as in
   :mod:`drake_att.exclusion`. Positions come from the scenario's orbit model, the Sun and
   the Moon from :class:`~drake_att.ephemeris.SunMoonEphemeris` at the orbit's epoch; with a
@@ -29,17 +29,17 @@ The replay samples the logged truth at most ``frames`` times (default
 :data:`DEFAULT_FRAMES`, at most :data:`MAX_FRAMES`), evenly over the run; an estimate is
 shown as its latest logged value at or before each frame (the first one before it exists).
 The animation plays the whole run in ``playback_s`` seconds (Meshcat interpolates between
-frames); its slider counts playback seconds, the legend gives the speed-up.
+frames) and waits for Meshcat's play button; its slider counts playback seconds, the legend
+gives the speed-up.
 
 Box size: ``box_m`` when given; otherwise, for a rigid-body plant, the uniform box of density
 :data:`DEFAULT_DENSITY_KG_M3` with the plant's principal moments of inertia (for the project's
-3U CubeSat, inertia ``[0.042, 0.042, 0.0067]`` kg m², that is 0.100 x 0.100 x 0.340 m,
-4.1 kg); a plant without inertia (prescribed motion) gets :data:`DEFAULT_BOX_M`.
+3U CubeSat, inertia ``[0.042, 0.042, 0.0067]`` kg m², that is 0.100 x 0.100 x 0.339 m,
+4.0 kg); a plant without inertia (prescribed motion) gets :data:`DEFAULT_BOX_M`.
 """
 
 from __future__ import annotations
 
-import base64
 import html
 import os
 from dataclasses import dataclass, field
@@ -606,17 +606,6 @@ def write_static_html(meshcat, geometry: ViewGeometry, path: str, **kwargs) -> s
     os.umask(umask)
     os.chmod(path, 0o666 & ~umask)  # a page to share: the usual mode of a new file, not the temporary file's 0600
     return path
-
-
-def embedded_commands(page: str) -> list[dict]:
-    """The Meshcat commands a static page carries (its ``data:`` blobs, msgpack-decoded):
-    how a test or a script reads back what the page will show."""
-    import re
-
-    import msgpack  # type: ignore[import-untyped]  # a dependency of dask's distributed, without stubs
-
-    blobs = re.findall(r"data:application/octet-binary;base64,([A-Za-z0-9+/=]+)", page)
-    return [msgpack.unpackb(base64.b64decode(b), strict_map_key=False) for b in blobs]
 
 
 def view_run(
