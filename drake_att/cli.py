@@ -1,14 +1,14 @@
 """Command line: ``drake-att run [SCENARIO] [--seed N] [--out DIR] [--set path=value ...]``,
 ``drake-att score OUT_DIR [--out FILE]``, ``drake-att list``, ``drake-att montecarlo
 SCENARIO --runs N ...`` (a Monte Carlo campaign on Dask) and ``drake-att compare
-SCENARIO... --runs N ...`` (the estimator x scenario comparison matrix) and ``drake-att
-check SCENARIO`` (validate without simulating).
+SCENARIO... --runs N ...`` (the estimator x scenario comparison matrix), ``drake-att
+check SCENARIO`` (validate without simulating) and ``drake-att view OUT_DIR`` (a run in 3-D).
 
 Every refusal of user input (a file, a field, an option, a folder) is one line on stderr
 naming it and exit code 2; an unexpected internal error is one line and exit code 1, with
 the traceback only under ``--debug``; Ctrl-C is exit code 130.
 
-Six subcommands behind one guard (exit codes, messages, the writer lock); a parser helper each.
+Seven subcommands behind one guard (exit codes, messages, the writer lock); a parser helper each.
 """
 
 from __future__ import annotations
@@ -488,6 +488,7 @@ def _parser() -> argparse.ArgumentParser:
         _add_list_command,
         _add_montecarlo_command,
         _add_compare_command,
+        _add_view_command,
     ):
         add_command(sub, common)
     return parser
@@ -588,6 +589,94 @@ def _add_compare_command(sub, common) -> None:
     )
     _add_campaign_options(p_cmp, "comparison (default out/compare_<hash>)")
     p_cmp.set_defaults(func=_cmd_compare)
+
+
+def _cmd_view(args) -> int:
+    """``drake-att view``: the run in Meshcat (served until Ctrl-C unless ``--no-serve``), the static page with ``--html``."""
+    from drake_att.analysis import view3d
+
+    try:
+        meshcat, geometry = view3d.view_run(
+            args.out_dir,
+            html_path=args.html,
+            frames=args.frames,
+            box_m=args.box_m,
+            playback_s=args.playback_s,
+            error_scale=args.error_scale,
+            still_time_s=args.at,
+            allow_plugins=args.allow_plugins,
+        )
+    except view3d.ViewError as e:
+        _say(f"drake-att view: {e}")
+        return 2
+    print("\nLegend:")
+    for line in view3d.legend(geometry, args.playback_s, args.error_scale):
+        print(f"  {line}")
+    if args.html:
+        print(f"\nWrote {args.html} (the scene and its animation; opens without a server or network)")
+    if args.no_serve:
+        return 0
+    import time
+
+    print(f"\nMeshcat: {meshcat.web_url()} (Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        print("\ndrake-att view: stopped", file=sys.stderr)
+    return 0
+
+
+def _add_view_command(sub, common) -> None:
+    """``drake-att view``: a saved run in 3-D (Meshcat)."""
+    from drake_att.analysis import view3d
+
+    p = sub.add_parser(
+        "view",
+        parents=[common],
+        help="replay a result folder in 3-D in Meshcat (spacecraft, trackers' cones, Sun/Earth/Moon, estimates)",
+    )
+    p.add_argument("out_dir", metavar="OUT_DIR", help="result folder written by `drake-att run`")
+    p.add_argument("--html", default=None, metavar="FILE", help="also write the view as one self-contained HTML page")
+    p.add_argument("--no-serve", action="store_true", help="do not keep serving Meshcat (with --html: just write it)")
+    p.add_argument(
+        "--frames",
+        type=int,
+        default=view3d.DEFAULT_FRAMES,
+        metavar="N",
+        help=f"frames of the replay, spread evenly over the run (default {view3d.DEFAULT_FRAMES}, "
+        f"at most {view3d.MAX_FRAMES})",
+    )
+    p.add_argument(
+        "--playback-s",
+        type=float,
+        default=view3d.DEFAULT_PLAYBACK_S,
+        metavar="S",
+        help=f"the animation plays the whole run in S seconds (default {view3d.DEFAULT_PLAYBACK_S:g})",
+    )
+    p.add_argument(
+        "--box-m",
+        type=float,
+        nargs=3,
+        default=None,
+        metavar=("X", "Y", "Z"),
+        help="the spacecraft box's edges in m (default: a uniform box of "
+        f"{view3d.DEFAULT_DENSITY_KG_M3:g} kg/m^3 with the plant's inertia)",
+    )
+    p.add_argument(
+        "--error-scale",
+        type=float,
+        default=1.0,
+        metavar="K",
+        help="magnify each estimate's attitude error K times (default 1: as estimated)",
+    )
+    p.add_argument("--at", type=float, default=None, metavar="T", help="run time (s) the still scene shows (default 0)")
+    p.add_argument(
+        "--allow-plugins",
+        action="store_true",
+        help="import the plug-in modules the folder's config.yaml names (as for score)",
+    )
+    p.set_defaults(func=_cmd_view)
 
 
 def main(argv=None) -> int:
