@@ -19,6 +19,7 @@ are ours, in the range published for CubeSat-class star trackers (Sun 30-45 deg,
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,12 +72,45 @@ def exclusion_causes(boresight_I, r_I, r_sun_I, r_moon_I, cones: ExclusionCones)
     (..., 3)) at position ``r_I`` with the Sun and the Moon at ``r_sun_I``, ``r_moon_I`` (m)."""
     b = np.asarray(boresight_I, dtype=float)
     r, r_sun, r_moon = (np.asarray(x, dtype=float) for x in (r_I, r_sun_I, r_moon_I))
+    if b.shape == r.shape == r_sun.shape == r_moon.shape == (3,):
+        return np.int64(_causes_one(b.tolist(), r.tolist(), r_sun.tolist(), r_moon.tolist(), cones))
     causes = np.zeros(np.broadcast_shapes(b.shape, r.shape, r_sun.shape, r_moon.shape)[:-1], dtype=np.int64)
     sun_in = (_angle(b, r_sun - r) < np.radians(cones.sun_deg)) & ~_hidden_by_earth(r, r_sun)
     limb_radius = np.arcsin(np.minimum((EARTH_RADIUS_M + cones.atmosphere_height_m) / np.linalg.norm(r, axis=-1), 1.0))
     earth_in = _angle(b, -r) < limb_radius + np.radians(cones.earth_limb_deg)
     moon_in = (_angle(b, r_moon - r) < np.radians(cones.moon_deg)) & ~_hidden_by_earth(r, r_moon)
     return causes | np.where(sun_in, SUN, 0) | np.where(earth_in, EARTH, 0) | np.where(moon_in, MOON, 0)
+
+
+def _angle_one(a, b) -> float:
+    """:func:`_angle` of two 3-lists."""
+    cx, cy, cz = a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+
+
+def _hidden_one(r, r_body) -> bool:
+    """:func:`_hidden_by_earth` of 3-lists."""
+    d = [r_body[i] - r[i] for i in range(3)]
+    earth_dist = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    dist = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    return _angle_one(d, [-r[0], -r[1], -r[2]]) < math.asin(min(EARTH_RADIUS_M / earth_dist, 1.0)) and dist > earth_dist
+
+
+def _causes_one(b, r, r_sun, r_moon, cones: ExclusionCones) -> int:
+    """:func:`exclusion_causes` of one sample (3-lists), in scalar arithmetic: a tracker evaluates it
+    at every sample, where numpy's per-call overhead would dominate."""
+    causes = CLEAR
+    to_sun = [r_sun[i] - r[i] for i in range(3)]
+    if _angle_one(b, to_sun) < math.radians(cones.sun_deg) and not _hidden_one(r, r_sun):
+        causes |= SUN
+    r_norm = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    limb_radius = math.asin(min((EARTH_RADIUS_M + cones.atmosphere_height_m) / r_norm, 1.0))
+    if _angle_one(b, [-r[0], -r[1], -r[2]]) < limb_radius + math.radians(cones.earth_limb_deg):
+        causes |= EARTH
+    to_moon = [r_moon[i] - r[i] for i in range(3)]
+    if _angle_one(b, to_moon) < math.radians(cones.moon_deg) and not _hidden_one(r, r_moon):
+        causes |= MOON
+    return causes
 
 
 def star_occulted(directions_I, r_I, atmosphere_height_m: float) -> np.ndarray:

@@ -63,6 +63,7 @@ from drake_att.ephemeris import shadow_fraction
 from drake_att.noise import CounterRandom
 from drake_att.orbit import EARTH_RADIUS_M
 from drake_att.systems.randomness import SEED_WORDS, NoiseCache, counter_random, declare_seed_port, read_seed_words
+from drake_att.systems.value_cache import declare_value_cache
 
 ECLIPSE = 1
 """Sun-sensor cause bit: less than ``min_sun_fraction`` of the solar disk visible."""
@@ -215,6 +216,12 @@ class _CoarseSensor(LeafSystem):
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self._samples_cache = NoiseCache(self, "samples", self.noise, lambda words, p: _Samples(self, words, p))
         self._deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
+        # This time's sample, computed once for all the output ports that show it.
+        self._measure = declare_value_cache(self, "sample", self._compute_sample, self._deps)
+
+    def _compute_sample(self, context) -> tuple:
+        """This time's sample (each sensor's own)."""
+        raise NotImplementedError
 
     def noise(self, context):
         """The noise parameter in ``context`` (this system's context)."""
@@ -333,7 +340,7 @@ class SunSensor(_CoarseSensor):
         r_hat = r_I / rn
         return -albedo * (EARTH_RADIUS_M / rn) ** 2 * max(0.0, float(r_hat @ s_I)) * r_hat
 
-    def _measure(self, context):
+    def _compute_sample(self, context):
         """``(t_k, valid, s_S_meas (3), s_I (3), sigma_rad, causes)`` of this time's sample."""
         t_k, valid, z, p = self._sample(context)
         r, r_sun = self._geometry(context)
@@ -362,7 +369,8 @@ class SunSensor(_CoarseSensor):
         output.SetFromVector(np.array([t_k, 1.0 if valid else 0.0, *s_S]))  # type: ignore[arg-type]
 
     def _calc_status(self, context, output: BasicVector):
-        output.SetFromVector(np.array([self._sample(context)[0], float(self.causes(context))]))  # type: ignore[arg-type]
+        t_k, _, _, _, _, causes = self._measure(context)
+        output.SetFromVector(np.array([t_k, float(causes)]))  # type: ignore[arg-type]
 
 
 class Magnetometer(_CoarseSensor):
@@ -437,7 +445,7 @@ class Magnetometer(_CoarseSensor):
             ),
         )
 
-    def _measure(self, context):
+    def _compute_sample(self, context):
         """``(t_k, valid, B_S_meas (3, T), B_I (3, T), sigma (T))``."""
         t_k, valid, z, p = self._sample(context)
         B_I = np.asarray(self._field_port.Eval(context), dtype=float)

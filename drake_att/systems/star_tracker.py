@@ -39,6 +39,7 @@ from drake_att.systems.randomness import (
     declare_seed_port,
     read_seed_words,
 )
+from drake_att.systems.value_cache import declare_value_cache
 from drake_att.validation import check_nonnegative
 
 
@@ -210,6 +211,9 @@ class StarTracker(LeafSystem):
         self.exclusion = None if exclusion is None else exclusion.check(f"{name}.exclusion")
         if self.exclusion is not None:
             self._geometry_ports = tuple(self.DeclareVectorInputPort(p, 3) for p in ("r_I", "r_sun_I", "r_moon_I"))
+            self._causes = declare_value_cache(
+                self, "causes", self._compute_causes, {self.time_ticket(), self.all_input_ports_ticket()}
+            )
             self.DeclareVectorOutputPort("exclusion", 2, self._calc_exclusion, deps)
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
@@ -279,9 +283,12 @@ class StarTracker(LeafSystem):
         the boresight ``R_IB R_BS z`` against the Sun, the Earth's limb and the Moon (0 without cones)."""
         if self.exclusion is None:
             return 0
+        return self._causes(context)
+
+    def _compute_causes(self, context) -> int:
         r, r_sun, r_moon = (p.Eval(context) for p in self._geometry_ports)
         boresight = rot.quat_to_rotmat(rot.quat_multiply(self._q_port.Eval(context), self.q_BS))[:, 2]
-        return int(exclusion_causes(boresight, r, r_sun, r_moon, self.exclusion))
+        return int(exclusion_causes(boresight, r, r_sun, r_moon, self.exclusion))  # type: ignore[arg-type]  # set
 
     def _calc_exclusion(self, context, output: BasicVector):
         t_sample = self._sample(context)[0]
