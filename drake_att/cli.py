@@ -94,6 +94,14 @@ def _result_bytes(scenario) -> int:
 def _cmd_check(args) -> int:
     path, scenario = _load_with_overrides(args.scenario, args.set, args.seed)
     _preflight(scenario)
+    import warnings
+
+    from drake_att.scenarios.builder import ScenarioDiagram
+    from drake_att.scenarios.preflight import DegenerateScenarioWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DegenerateScenarioWarning)  # printed above, as one line each
+        ScenarioDiagram(scenario)  # what only the built diagram knows: e.g. the logging policy's signals
     print(
         f"{path}: valid ({scenario.name}: {len(scenario.sensors)} sensors, {len(scenario.estimators)} "
         f"estimators, {scenario.duration_s:g} s, seed {scenario.seed})"

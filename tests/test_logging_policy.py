@@ -184,3 +184,18 @@ def test_loading_refuses_a_malformed_section(logging, expected):
         cfg.load_scenario(text=text)
     assert expected in str(e.value)
     assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("command", ["check", "run"])
+def test_the_cli_refuses_a_policy_that_matches_no_signal_in_one_line(command, tmp_path, capsys):
+    """``check`` builds the diagram too, so it refuses what ``run`` would (exit 2, one line)."""
+    from drake_att.cli import main
+
+    args = [command, "cubesat_single_star_tracker", "--set", "duration_s=5", "--set", "scoring.score_from_s=1"]
+    args += ["--set", 'logging.periods_s={"nosuch/*": 1.0}'] + (
+        ["--out", str(tmp_path / "o")] if command == "run" else []
+    )
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("drake-att: logging.periods_s['nosuch/*']: matches no logged signal")
+    assert not (tmp_path / "o").exists()
