@@ -31,6 +31,7 @@ from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
 from drake_att.systems.estimator_system import EstimatorSetup
+from drake_att.systems.filter_setups import vector_inputs
 from drake_att.units import ARW_DEG_PER_RT_H, DEG_PER_H
 
 TRACKER_KINDS = ("vectors", "quaternion")
@@ -44,6 +45,9 @@ class LieGroupConfig:
     Attributes:
         star_tracker: a vector-mode star tracker, or a quaternion-mode one (consistent
             formulation only; its own noise model is used, ``star_noise_variance_rad2`` is not).
+        vector_sensors: further vector-observation sensors (sun sensors, a magnetometer) updated
+            on after the tracker at the same step; they take ``Q_v`` as the tracker's vectors do
+            (``star_noise_from_tracker``: each sample's own sigma).
         formulation: "consistent" or "paper_literal".
         initial_attitude_variance_rad2: ``P0 = value * I3`` (rad^2; paper 5).
         process_noise_rad2_per_step: ``Q_w = value * I3`` per ``period_s`` (rad^2); None:
@@ -66,6 +70,7 @@ class LieGroupConfig:
     period_s: float = 1.0
     gyro: str = "gyro"
     star_tracker: str = "st"
+    vector_sensors: List[str] = field(default_factory=list)
     formulation: str = "consistent"
     initial_attitude_rpy_deg: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_variance_rad2: float = 5.0
@@ -95,6 +100,10 @@ def validate_lie_group(path: str, c: LieGroupConfig, checks) -> None:
             f"unknown star tracker (vector or quaternion mode); star trackers listed before: {have}",
         )
     common.check_period_multiple(path, c.period_s, c.star_tracker, out.period_s)
+    cfg.check_listed_once(path, "vector_sensors", [c.star_tracker, *c.vector_sensors])
+    for j, n in enumerate(c.vector_sensors):
+        common.require_sensor(checks, path, f"vector_sensors[{j}]", n, "vectors")
+        common.check_period_multiple(path, c.period_s, n, checks.sensor_output(n).period_s)
     if c.formulation not in FORMULATIONS:
         cfg.fail(f"{path}.formulation", c.formulation, f"allowed: {list(FORMULATIONS)}")
     if c.formulation != "consistent" and out.kind == "quaternion":
@@ -191,6 +200,13 @@ def build_lie_group(ctx, c: LieGroupConfig) -> EstimatorSetup:
         init = core.initial_state(q0, c.initial_attitude_variance_rad2)
     if ctx.sensor_output(c.star_tracker).kind == "quaternion":
         return EstimatorSetup(
-            core, init, c.period_s, gyro=c.gyro, quaternion_sensors=(ctx.quaternion_model(c.star_tracker),)
+            core,
+            init,
+            c.period_s,
+            gyro=c.gyro,
+            quaternion_sensors=(ctx.quaternion_model(c.star_tracker),),
+            vector_sensors=tuple(c.vector_sensors),
         )
-    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=(c.star_tracker,))
+    return EstimatorSetup(
+        core, init, c.period_s, gyro=c.gyro, vector_sensors=vector_inputs(c.star_tracker, c.vector_sensors)
+    )
