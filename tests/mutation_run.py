@@ -113,6 +113,10 @@ MODULES = {
     # The mission environment: orbits, exclusion geometry.
     "orbit_propagators": ("drake_att/orbit_propagators.py", ["tests/test_orbit_propagators.py"]),
     "exclusion": ("drake_att/exclusion.py", ["tests/test_exclusion.py", "tests/test_tracker_exclusion.py"]),
+    "attitude_control": ("drake_att/systems/attitude_control.py", ["tests/test_attitude_control.py"]),
+    "mission": ("drake_att/analysis/mission.py", ["tests/test_mission.py"]),
+    "coarse_sensors": ("drake_att/systems/coarse_sensors.py", ["tests/test_coarse_sensors.py"]),
+    "logging_policy": ("drake_att/scenarios/logging_policy.py", ["tests/test_logging_policy.py"]),
     "campaign_records": (
         "drake_att/analysis/campaign_records.py",
         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"],
