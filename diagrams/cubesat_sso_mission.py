@@ -8,9 +8,11 @@ runner (:func:`~drake_att.analysis.executor.map_runs`) reduces each run to
     python diagrams/cubesat_sso_mission.py                      # 20 seeds x 24 h (the docs' table)
     python diagrams/cubesat_sso_mission.py --seeds 3 --duration 7200 --out /tmp/mission
 
-Writes to ``--out``: ``results.json`` (each seed's record and the summary), ``mission_table.md``
-(the tables with 95% intervals), ``config.yaml`` (the scenario used) and ``fig_mission_day.png``
-(each estimator's attitude error over the day, seed 1, the all-trackers-out gaps shaded).
+Writes to ``--out``: ``results.json`` (each seed's record and the summary), ``summary.json`` (the
+summary and each estimator's per-seed RMSE: ``docs/mission_data/`` holds the 20-seed copy),
+``mission_table.md`` (the tables with 95% intervals, the docs' ``table.md``), ``config.yaml`` (the
+scenario used) and ``fig_mission_day.png`` (each estimator's attitude error over the day, seed 1,
+the all-trackers-out gaps shaded).
 """
 
 from __future__ import annotations
@@ -78,8 +80,11 @@ def main(argv=None) -> int:
         f.write(tables)
     with open(os.path.join(args.out, "results.json"), "w") as f:
         json.dump({"seeds": seeds, "duration_s": args.duration, "summary": summary, "per_seed": records}, f)
+    per_seed_rmse = {name: [r["estimators"][name]["rmse_deg"] for r in records] for name in summary["estimators"]}
+    with open(os.path.join(args.out, "summary.json"), "w") as f:
+        json.dump({"duration_s": args.duration, "summary": summary, "per_seed_rmse_deg": per_seed_rmse}, f, indent=1)
     plot_day(records[0], os.path.join(args.out, "fig_mission_day.png"), f"{SCENARIO}: attitude error, seed {seeds[0]}")
-    print(f"Wrote {args.out}/results.json, mission_table.md, config.yaml, fig_mission_day.png")
+    print(f"Wrote {args.out}/results.json, summary.json, mission_table.md, config.yaml, fig_mission_day.png")
     return 0
 
 

@@ -145,3 +145,30 @@ plant: !RigidBodyConfig {attitude_control: {}}
 """
     with pytest.raises(cfg.ConfigError, match=r"^plant.attitude_control: .*needs an orbit section"):
         cfg.load_scenario(text=text)
+
+
+def test_the_law_is_its_formula():
+    """``tau = I (-wn^2 dtheta - 2 zeta wn (w - R_BI w_IO)) + w x I w`` for a turned body at a
+    high rate (so the gyroscopic term matters), each term computed here."""
+    from drake_att.systems.attitude_control import PdAttitudeLaw
+
+    I = np.array([[0.05, 0.001, 0.0], [0.001, 0.04, 0.002], [0.0, 0.002, 0.01]])
+    law = PdAttitudeLaw(I, 0.2, 0.8, np.array([1.0, 0.0, 0.0, 0.0]))
+    q_IO = rot.rpy_to_quat(np.radians([10.0, -20.0, 30.0]))
+    dtheta_true = np.radians([2.0, -1.0, 3.0])
+    q_IB = rot.quat_multiply(q_IO, rot.rotvec_to_quat(dtheta_true))
+    r, v = np.array([7e6, 1e5, -2e5]), np.array([100.0, 7.5e3, 10.0])
+    w = np.radians([5.0, -3.0, 8.0])
+    R_IB = rot.quat_to_rotmat(q_IB)
+    w_ref = R_IB.T @ (np.cross(r, v) / (r @ r))
+    expected = I @ (-0.04 * dtheta_true - 2 * 0.8 * 0.2 * (w - w_ref)) + np.cross(w, I @ w)
+    np.testing.assert_allclose(law.torque(q_IB, w, q_IO, r, v), expected, rtol=1e-10, atol=1e-15)
+
+
+@pytest.mark.parametrize("period, noise", [(0.0, 0.0), (-1.0, 0.0), (float("nan"), 0.0), (1.0, -1e-6)])
+def test_the_controller_refuses_a_bad_period_or_noise(period, noise):
+    from drake_att.systems.attitude_control import OrbitPointingController, PdAttitudeLaw
+
+    law = PdAttitudeLaw(np.eye(3), 0.1, 0.7, np.array([1.0, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match=r"^attitude_control\.(period_s|torque_noise_N_m): got"):
+        OrbitPointingController(law, period, noise)

@@ -188,3 +188,48 @@ def test_the_worst_gap_is_chosen_in_the_scored_part(scheduled_runs):
     r = mission.mission_record(run)
     assert r["worst_gap"] is None and r["gaps"] == 2
     assert all(e["gap_rms_deg"] is None for e in r["estimators"].values())
+
+
+def test_the_docs_table_is_the_render_of_its_committed_summary():
+    """``docs/mission_data/table.md`` (included in the mission page) is exactly what
+    :func:`format_mission_tables` makes of ``summary.json`` (written by
+    ``diagrams/cubesat_sso_mission.py``), over at least 20 seeds, and its intervals are the
+    Student-t intervals of the committed per-seed values."""
+    import json
+    import os
+
+    root = os.path.join(os.path.dirname(__file__), "..", "docs", "mission_data")
+    with open(os.path.join(root, "summary.json")) as f:
+        data = json.load(f)
+    with open(os.path.join(root, "table.md")) as f:
+        assert f.read() == mission.format_mission_tables(data["summary"])
+    assert len(data["summary"]["seeds"]) >= 20
+    t_975 = {19: 2.0930241, 29: 2.0452296}  # Student t(0.975, n - 1), from tables
+    for name, values in data["per_seed_rmse_deg"].items():
+        x = np.array(values)
+        half = t_975[len(x) - 1] * np.std(x, ddof=1) / math.sqrt(len(x))
+        e = data["summary"]["estimators"][name]["rmse_deg"]
+        assert e["mean"] == pytest.approx(x.mean(), rel=1e-12)
+        assert e["hi"] == pytest.approx(x.mean() + half, rel=1e-7)
+
+
+def test_the_worst_gap_is_the_longest_scored_one():
+    gaps = [(100.0, 400.0), (500.0, 560.0), (700.0, 750.0), (900.0, 960.0)]
+    assert mission.worst_gap(gaps, 0.0) == (100.0, 400.0)  # the longest, not the last
+    assert mission.worst_gap(gaps, 450.0) == (500.0, 560.0)  # of two equal, the first
+    assert mission.worst_gap(gaps, 500.0) == (500.0, 560.0)  # starting at score_from counts
+    assert mission.worst_gap(gaps, 950.0) is None
+    assert mission.worst_gap([], 0.0) is None
+
+
+def test_outage_runs_of_one_and_no_sample():
+    assert mission.outage_runs(np.array([5.0]), np.array([True])) == [(5.0, 5.0)]
+    assert mission.outage_runs(np.array([5.0]), np.array([False])) == []
+    assert mission.outage_runs(np.zeros(0), np.zeros(0, bool)) == []
+
+
+def test_a_summary_of_one_record_has_means_and_no_intervals(scheduled_runs):
+    s = mission.summarize_mission([mission.mission_record(scheduled_runs[0])])
+    assert s["worst_gap_s"] == {"mean": 100.0, "lo": None, "hi": None, "n": 1}
+    assert s["availability"]["st2"]["available"]["mean"] == 1.0
+    assert "| st1 | 100 | 0 | 0 | 0 |" in mission.format_mission_tables(s)  # fractions as percent

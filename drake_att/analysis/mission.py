@@ -32,7 +32,8 @@ DEG = math.pi / 180.0
 
 def outage_runs(times, out) -> list[tuple[float, float]]:
     """``[(start, end), ...]`` of the maximal runs of consecutive samples with ``out`` true, each
-    from its first sample's time to one sample period past its last (uniform sampling)."""
+    from its first sample's time to one sample period past its last (uniform sampling; the period
+    of a single sample is unknown: 0)."""
     t = np.asarray(times, dtype=float)
     o = np.asarray(out, dtype=bool)
     if t.shape != o.shape or t.ndim != 1:
@@ -43,6 +44,13 @@ def outage_runs(times, out) -> list[tuple[float, float]]:
     edges = np.diff(np.r_[0, o.astype(np.int8), 0])
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
     return [(float(t[a]), float(t[b]) + dt) for a, b in zip(starts, ends, strict=True)]
+
+
+def worst_gap(gaps, score_from_s: float) -> tuple[float, float] | None:
+    """The longest of ``gaps`` (``(start, end)``) that starts at or after ``score_from_s`` (the
+    first of equals), or None."""
+    scored = [g for g in gaps if g[0] >= score_from_s]
+    return max(scored, key=lambda g: g[1] - g[0]) if scored else None
 
 
 def star_trackers_with_cones(run) -> list[str]:
@@ -97,8 +105,7 @@ def mission_record(run) -> dict:
     t, out = all_out(run)
     gaps = outage_runs(t, out)
     score_from = run.scenario.scoring.score_from_s
-    scored_gaps = [g for g in gaps if g[0] >= score_from]
-    worst = max(scored_gaps, key=lambda g: g[1] - g[0]) if scored_gaps else None
+    worst = worst_gap(gaps, score_from)
     estimators, series = {}, {}
     for name, m in metrics["estimators"].items():
         e = estimator_errors(run, name)
