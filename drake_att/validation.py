@@ -99,6 +99,19 @@ def check_nonnegative(field: str, value, error: type = ValueError) -> float:
     return check_positive(field, value, allow_zero=True, error=error)
 
 
+def check_availability(name: str, dropout_probability: float, outage_windows_s) -> tuple[float, tuple]:
+    """A sensor's checked drop-out probability (in [0, 1)) and outage windows ``((start, end), ...)``
+    (each with end > start); ValueError naming ``name.dropout_probability`` or
+    ``name.outage_windows_s``."""
+    if not (0.0 <= dropout_probability < 1.0):
+        raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
+    windows = tuple((float(a), float(b)) for a, b in outage_windows_s)
+    for a, b in windows:
+        if not b > a:
+            raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
+    return float(dropout_probability), windows
+
+
 def check_int(field: str, value, minimum: int, error: type = ValueError) -> int:
     """``value`` as int if it is an integer (not a bool, not a float) >= ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:

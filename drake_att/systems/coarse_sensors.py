@@ -64,6 +64,7 @@ from drake_att.noise import CounterRandom
 from drake_att.orbit import EARTH_RADIUS_M
 from drake_att.systems.randomness import SEED_WORDS, NoiseCache, counter_random, declare_seed_port, read_seed_words
 from drake_att.systems.value_cache import declare_value_cache
+from drake_att.validation import check_availability
 
 ECLIPSE = 1
 """Sun-sensor cause bit: less than ``min_sun_fraction`` of the solar disk visible."""
@@ -73,17 +74,6 @@ OUT_OF_FOV = 2
 DEFAULT_FOV_HALF_ANGLE_RAD = math.radians(60.0)
 DEFAULT_MIN_SUN_FRACTION = 0.5
 TESLA_PER_NANOTESLA = 1e-9
-
-
-def _availability(name: str, dropout_probability: float, outage_windows_s) -> tuple:
-    """Checked drop-out probability and outage windows ``((start, end), ...)``."""
-    if not (0.0 <= dropout_probability < 1.0):
-        raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
-    windows = tuple((float(a), float(b)) for a, b in outage_windows_s)
-    for a, b in windows:
-        if not b > a:
-            raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
-    return float(dropout_probability), windows
 
 
 def _nonnegative(name: str, value: float) -> float:
@@ -113,7 +103,7 @@ class SunSensorNoise:
         sigma = _nonnegative(f"{name}.sigma_boresight", sigma_boresight_rad)
         if not (math.isfinite(albedo) and 0.0 <= albedo <= 1.0):
             raise ValueError(f"{name}.albedo: got {albedo}; must be in [0, 1]")
-        return cls(sigma, float(albedo), *_availability(name, dropout_probability, outage_windows_s))
+        return cls(sigma, float(albedo), *check_availability(name, dropout_probability, outage_windows_s))
 
 
 @dataclass(frozen=True)
@@ -154,7 +144,7 @@ class MagnetometerNoise:
         if np.any(np.diag(M) != 0.0):
             raise ValueError(f"{name}.misalignment: got {M.tolist()}; the diagonal must be zero (scale factors apart)")
         return cls(
-            sigma, bias, np.eye(3) + np.diag(sf) + M, *_availability(name, dropout_probability, outage_windows_s)
+            sigma, bias, np.eye(3) + np.diag(sf) + M, *check_availability(name, dropout_probability, outage_windows_s)
         )
 
 

@@ -40,7 +40,7 @@ from drake_att.systems.randomness import (
     read_seed_words,
 )
 from drake_att.systems.value_cache import declare_value_cache
-from drake_att.validation import check_nonnegative
+from drake_att.validation import check_availability, check_nonnegative
 
 
 def mounting_from_paper_s3_angles(psi_rad: float, phi_rad: float, theta_rad: float) -> np.ndarray:
@@ -98,12 +98,7 @@ class StarTrackerNoise:
             ("sigma_vector", sigma_vector_rad),
         ):
             check_nonnegative(f"{name}.{field}", v)
-        if not (0.0 <= dropout_probability < 1.0):
-            raise ValueError(f"{name}.dropout_probability: got {dropout_probability}; must be in [0, 1)")
-        windows = tuple((float(a), float(b)) for a, b in outage_windows_s)
-        for a, b in windows:
-            if not b > a:
-                raise ValueError(f"{name}.outage_windows_s: window ({a}, {b}) must have end > start")
+        dropout_probability, windows = check_availability(name, dropout_probability, outage_windows_s)
         return cls(
             np.array([sigma_cross_boresight_rad, sigma_cross_boresight_rad, sigma_boresight_rad]),
             float(sigma_vector_rad),
