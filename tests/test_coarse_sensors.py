@@ -490,3 +490,64 @@ estimators:
     assert error[sunlit].max() < 1.5, error[sunlit].max()
     used = run.values("f/status")[-1][1]
     assert used > 1.2 * 800  # the sun sensor's samples and the magnetometer's
+
+
+def _albedo_direction(r, sun_dir, q_IB, albedo):
+    """A noise-free head's measured direction at ``r`` with the Sun far along ``sun_dir``."""
+    sensor = SunSensor("sun", 1.0, sigma_boresight_rad=1e-12, albedo=albedo)
+    context = sensor.CreateDefaultContext()
+    sensor.GetInputPort("q_IB").FixValue(context, q_IB)
+    sensor.GetInputPort("r_I").FixValue(context, r)
+    sensor.GetInputPort("r_sun_I").FixValue(context, r + 1.5e11 * sun_dir)
+    context.SetTime(1.0)
+    return sensor.GetOutputPort("vector_observations").Eval(context).directions_S[0]
+
+
+def test_albedo_pulls_the_direction_toward_nadir_by_the_documented_amount():
+    """Earth in the field of view: the light is ``s + a (R_E/|r|)^2 max(0, r_hat.s) (-r_hat)``,
+    normalized (computed here); with the Earth outside the field of view, or the sub-satellite
+    point dark, the albedo adds nothing."""
+    R_E = 6378137.0
+    r = np.array([0.0, 0.0, 7000e3])  # over the pole: nadir is -z in I
+    # The head (boresight +z_B) looks 70 deg from zenith: the Earth's disk (65.7 deg in radius
+    # around nadir, 110 deg from the boresight) overlaps its 60 deg field of view.
+    q_IB = rot.rotvec_to_quat(np.radians([70.0, 0.0, 0.0]))
+    R_IB = rot.quat_to_rotmat(q_IB)
+    sun = R_IB @ np.array([0.0, np.sin(np.radians(20.0)), np.cos(np.radians(20.0))])  # 20 deg off boresight
+    a = 0.3
+    light_I = sun + a * (R_E / 7000e3) ** 2 * max(0.0, sun @ (r / np.linalg.norm(r))) * -(r / np.linalg.norm(r))
+    expected = R_IB.T @ (light_I / np.linalg.norm(light_I))
+    got = _albedo_direction(r, sun, q_IB, a)
+    np.testing.assert_allclose(got, expected, atol=1e-9)
+    assert np.degrees(np.arccos(np.clip(got @ (R_IB.T @ sun), -1, 1))) > 1.0  # a visible pull
+    np.testing.assert_allclose(_albedo_direction(r, sun, q_IB, 0.0), R_IB.T @ sun, atol=1e-9)
+    # Zenith-pointing head: the Earth (disk up to 65.7 deg from nadir) is out of its 60 deg view.
+    q_up = np.array([1.0, 0.0, 0.0, 0.0])
+    sun_up = np.array([np.sin(np.radians(20.0)), 0.0, np.cos(np.radians(20.0))])
+    np.testing.assert_allclose(_albedo_direction(r, sun_up, q_up, a), sun_up, atol=1e-9)
+
+
+def test_noise_and_outages_are_context_parameters_of_both_sensors(ekf_diagram):
+    """A run's ``--set`` of each sensor's outage windows (and noise) reaches the sensor without a new
+    diagram: its samples in the window are invalid, the others not."""
+    run = ekf_diagram.simulate(
+        1, overrides=["sensors.sun.outage_windows_s=[[100.0, 200.0]]", "sensors.mag.outage_windows_s=[[300.0, 400.0]]"]
+    )
+    for key, (a, b) in (("sun/sun_sensor_measurement", (100.0, 200.0)), ("mag/magnetic_field", (300.0, 400.0))):
+        x = run.values(key)
+        inside = (x[:, 0] >= a) & (x[:, 0] < b)
+        assert inside.any() and not x[inside, 1].any(), key
+        assert x[(x[:, 0] > 10.0) & (x[:, 0] < 90.0), 1].all(), key
+
+
+@pytest.mark.parametrize(
+    "make, field",
+    [
+        (lambda: Magnetometer("mag", 1.0, bias_S_T=(0.0, 0.0)), "mag.bias"),
+        (lambda: Magnetometer("mag", 1.0, dropout_probability=1.0), "mag.dropout_probability"),
+        (lambda: SunSensor("sun", 1.0, outage_windows_s=[(5.0, 1.0)]), "sun.outage_windows_s"),
+    ],
+)
+def test_a_bad_sensor_argument_is_named(make, field):
+    with pytest.raises(ValueError, match=rf"^{field}"):
+        make()
