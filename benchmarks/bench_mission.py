@@ -11,6 +11,7 @@ the others it triggers (a tracker's exclusion reading the orbit's port). One pro
 
     .venv/bin/python benchmarks/bench_mission.py                  # 1 h simulated, after a warm-up
     .venv/bin/python benchmarks/bench_mission.py --hours 24       # the whole day (peak memory)
+    .venv/bin/python benchmarks/bench_mission.py --hours 2 --default-logging   # without the logging policy
 """
 
 from __future__ import annotations
@@ -47,6 +48,9 @@ def main(argv=None) -> int:
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--scenario", default="cubesat_sso_mission")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--default-logging", action="store_true", help="every signal at its own period (no logging: policy)"
+    )
     args = ap.parse_args(argv)
 
     from drake_att.scenarios import library
@@ -64,6 +68,10 @@ def main(argv=None) -> int:
     _wrap(SunSensor, "causes", totals, "sun sensor shadow and FOV")
 
     scenario = library.load(args.scenario)
+    if args.default_logging:
+        from drake_att.scenarios.config import LoggingConfig
+
+        scenario.logging = LoggingConfig()
     t0 = time.process_time()
     sd = ScenarioDiagram(scenario)
     build = time.process_time() - t0
@@ -72,7 +80,7 @@ def main(argv=None) -> int:
     totals.clear()
     duration = args.hours * 3600.0
     t0 = time.process_time()
-    sd.simulate(args.seed, overrides=[f"duration_s={duration:g}", *short])
+    run_log = sd.simulate(args.seed, overrides=[f"duration_s={duration:g}", *short])
     run = time.process_time() - t0
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     env = sum(totals.values())
@@ -83,6 +91,8 @@ def main(argv=None) -> int:
     for k, v in sorted(totals.items(), key=lambda kv: -kv[1]):
         print(f"    {k:<32}{v:8.2f} s CPU ({100 * v / run:.1f} %)")
     print(f"  peak resident memory              {peak_mb:8.0f} MB (the process: imports, diagram, logs)")
+    logged = sum(t.nbytes + x.nbytes for t, x in run_log.signals.values())
+    print(f"  logged arrays                     {logged / duration / 1024:8.2f} KB per simulated second")
     return 0
 
 
