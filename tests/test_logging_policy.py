@@ -199,3 +199,21 @@ def test_the_cli_refuses_a_policy_that_matches_no_signal_in_one_line(command, tm
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("drake-att: logging.periods_s['nosuch/*']: matches no logged signal")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "policy", [None, {"period_s": 10.0}, {"period_s": 10.0, "periods_s": {"st1/*": 0.1}}, {"exclude": ["st2/*"]}]
+)
+def test_the_memory_preflight_follows_the_policy(policy):
+    """The preflight's log estimate (the memory check and the result folder's size) is an upper
+    bound of what the run logs, within 30%, with or without a policy: the mission's day is
+    checked at what it keeps, not at full rate."""
+    from drake_att.scenarios import preflight
+    from drake_att.scenarios.library import load
+
+    s = cfg.apply_overrides(load("cubesat_dual_star_tracker"), ["duration_s=200", "scoring.score_from_s=50"])
+    if policy is not None:
+        s.logging = cfg.LoggingConfig(**policy)
+    run = ScenarioDiagram(s).simulate(1)
+    logged = sum(t.nbytes + x.nbytes for t, x in run.signals.values())
+    assert logged <= preflight.log_bytes(s) <= 1.3 * logged

@@ -86,6 +86,47 @@ def _examples(own: float) -> str:
     return ", ".join(f"{k * own:g}" for k in (1, 2, 10))
 
 
+def resolve_period(policy, part: str, own_period_s: float) -> tuple[float, int, str]:
+    """``(logged period, n own periods, the field that set it)`` of signal ``part`` (a key such as
+    ``"st1/star_tracker_measurement"``) whose own period is ``own_period_s``: an exact key of
+    ``periods_s``, else its matching pattern, else ``period_s`` rounded down to a multiple (at
+    least 1), else its own period.
+
+    Raises:
+        ConfigError: two patterns give it different periods, or a ``periods_s`` value is not a
+            positive multiple of its own period.
+    """
+    T = own_period_s
+    if part in policy.periods_s:
+        matches = {part: policy.periods_s[part]}
+    else:
+        matches = {k: v for k, v in policy.periods_s.items() if fnmatch.fnmatchcase(part, k)}
+    if len(set(matches.values())) > 1:
+        (a, pa), (b, pb) = list(matches.items())[:2]
+        raise ConfigError(
+            f"logging.periods_s: the patterns {a!r} ({pa:g} s) and {b!r} ({pb:g} s) both match {part!r}; "
+            "give it one period (an exact key wins over patterns)"
+        )
+    if matches:
+        field, P = next(iter(matches.items()))
+        n = _multiple(float(P), T)
+        if n is None:
+            raise ConfigError(
+                f"logging.periods_s[{field!r}]: got {P:g} for {part!r}; must be a positive multiple of its "
+                f"own period {T:g} s (e.g. {_examples(T)})"
+            )
+        return n * T, n, f"logging.periods_s[{field!r}]"
+    if policy.period_s is not None:
+        n = max(1, math.floor(float(policy.period_s) / T * (1 + RELATIVE_TOLERANCE)))
+        return n * T, n, "logging.period_s"
+    return T, 1, "its own period"
+
+
+def is_excluded(policy, part: str) -> bool:
+    """Whether a pattern of ``exclude`` matches signal ``part``."""
+    return any(fnmatch.fnmatchcase(part, pattern) for pattern in policy.exclude)
+
+
 def plan_logging(policy, signals, required: dict, alignments=(), duration_s: float | None = None) -> dict:
     """The logged period of every signal the policy keeps.
 
@@ -128,31 +169,7 @@ def plan_logging(policy, signals, required: dict, alignments=(), duration_s: flo
         excluded.update(hits)
 
     def period_of(part: str) -> tuple[float, int, str]:
-        """(period, n, the field that set it) of one part key."""
-        T = own[part]
-        if part in policy.periods_s:
-            matches = {part: policy.periods_s[part]}
-        else:
-            matches = {k: v for k, v in policy.periods_s.items() if fnmatch.fnmatchcase(part, k)}
-        if len(set(matches.values())) > 1:
-            (a, pa), (b, pb) = list(matches.items())[:2]
-            raise ConfigError(
-                f"logging.periods_s: the patterns {a!r} ({pa:g} s) and {b!r} ({pb:g} s) both match {part!r}; "
-                "give it one period (an exact key wins over patterns)"
-            )
-        if matches:
-            field, P = next(iter(matches.items()))
-            n = _multiple(float(P), T)
-            if n is None:
-                raise ConfigError(
-                    f"logging.periods_s[{field!r}]: got {P:g} for {part!r}; must be a positive multiple of its "
-                    f"own period {T:g} s (e.g. {_examples(T)})"
-                )
-            return n * T, n, f"logging.periods_s[{field!r}]"
-        if policy.period_s is not None:
-            n = max(1, math.floor(float(policy.period_s) / T * (1 + RELATIVE_TOLERANCE)))
-            return n * T, n, "logging.period_s"
-        return T, 1, "its own period"
+        return resolve_period(policy, part, own[part])
 
     plan = {}
     for s in signals:
@@ -190,7 +207,7 @@ def plan_logging(policy, signals, required: dict, alignments=(), duration_s: flo
             raise ConfigError(
                 f"logging: the estimate of {a.estimator!r} would be logged every {pe:g} s, and a run of "
                 f"{duration_s:g} s would hold at most one sample of it; its period must be at most half the "
-                "duration"
+                f"duration (a shorter run: --set logging.period_s={max(duration_s / 2, 0.0):g} or less)"
             )
     return plan
 

@@ -248,12 +248,16 @@ def _loggers(scenario) -> list:
         truth_path = period_field(path, period, item)
     else:
         truth_path, period = "duration_s", 1.0
-    out += [(truth_path, period, w, "the truth's attitude and rate") for w in TRUTH_WIDTHS]
+    from drake_att.scenarios.config import RigidBodyConfig
+
+    truth = "rigid_body_plant" if isinstance(scenario.plant, RigidBodyConfig) else "prescribed_motion"
+    out += [(truth_path, period, w, "the truth's attitude and rate", f"{truth}/q_IB") for w in TRUTH_WIDTHS]
     for (path, period, item), s in zip(items, scenario.sensors, strict=False):  # items: sensors, then estimators
         logged = plugin_for(s).logged_ports
         for port, p in logged(s) if logged is not None else []:
             q = period if p is None else float(p)
-            out.append((period_field(path, q, item), q, PORT_WIDTHS.get(port, DEFAULT_PORT_WIDTH), f"{s.name}/{port}"))
+            key = f"{s.name}/{port}"
+            out.append((period_field(path, q, item), q, PORT_WIDTHS.get(port, DEFAULT_PORT_WIDTH), key, key))
     for path, period, e in items[len(scenario.sensors) :]:
         inputs: set[str] = set()
         for f in dataclasses.fields(e):
@@ -261,7 +265,28 @@ def _loggers(scenario) -> list:
             names = [v] if isinstance(v, str) else [x for x in v if isinstance(x, str)] if isinstance(v, list) else []
             inputs.update(n for n in names if f.name != "name" and n in sensors)
         width = ESTIMATE_WIDTH + INNOVATION_WIDTH * len(inputs) + DIAGNOSTICS_WIDTH
-        out.append((period_field(path, period, e), period, width, f"{e.name}'s estimate"))
+        out.append((period_field(path, period, e), period, width, f"{e.name}'s estimate", f"{e.name}/q_IB_hat"))
+    return _with_logging_policy(scenario, out)
+
+
+def _with_logging_policy(scenario, loggers) -> list:
+    """``(path, period, width, what)`` of the loggers a run keeps under the scenario's ``logging:``
+    (each entry's signal key, its last element, resolved as the builder does; a policy the
+    builder would refuse leaves the periods as they are: the build says why)."""
+    from drake_att.scenarios.logging_policy import is_excluded, resolve_period
+    from drake_att.validation import ConfigError
+
+    policy = getattr(scenario, "logging", None)
+    out = []
+    for path, period, width, what, key in loggers:
+        if policy is not None and math.isfinite(period) and period > 0:
+            if is_excluded(policy, key):
+                continue
+            try:
+                period = resolve_period(policy, key, period)[0]
+            except ConfigError:
+                pass
+        out.append((path, period, width, what))
     return out
 
 
