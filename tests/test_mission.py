@@ -144,6 +144,7 @@ def test_summary_pools_the_seeds(scheduled_runs):
     assert lo < 6 < hi
     table = mission.format_mission_tables(s)
     assert "| st1 |" in table and "| joint |" in table and "worst lasts 100" in table
+    assert s["estimators"]["joint"]["nees_dof"] == 6 and "(6 dof: " in table  # attitude and bias
 
 
 def test_a_run_without_cones_is_refused():
