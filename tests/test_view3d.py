@@ -357,6 +357,28 @@ def test_the_cli_writes_the_page_without_serving(viewed, tmp_path, capsys):
     assert len(animation[view3d.TRUTH_PATH][1]) == 20
 
 
+def test_the_page_replaces_only_a_page_of_its_own(viewed, tmp_path, capsys):
+    """--html rewrites a page drake-att view wrote; a user's file, a folder or a link stays
+    untouched and the command exits 2 with one line."""
+    page = tmp_path / "again.html"
+    page.write_text(viewed["text"], encoding="utf-8")  # a page of ours: replaced
+    assert cli.main(["view", str(viewed["out"]), "--no-serve", "--html", str(page), "--frames", "10"]) == 0
+    capsys.readouterr()
+    animation, _ = _animation(_commands(page.read_text(encoding="utf-8")))
+    assert len(animation[view3d.TRUTH_PATH][1]) == 10
+    notes = tmp_path / "notes.html"
+    notes.write_text("<html><body>my notes</body></html>")
+    line = _refusal(capsys, ["view", str(viewed["out"]), "--no-serve", "--html", str(notes)])
+    assert "is not a page drake-att view wrote; it is left untouched" in line
+    assert notes.read_text() == "<html><body>my notes</body></html>"
+    link = tmp_path / "link.html"
+    link.symlink_to(page)
+    assert "is not a regular file" in _refusal(capsys, ["view", str(viewed["out"]), "--no-serve", "--html", str(link)])
+    assert "is not a regular file" in _refusal(
+        capsys, ["view", str(viewed["out"]), "--no-serve", "--html", str(tmp_path)]
+    )
+
+
 def test_the_cli_serves_until_ctrl_c(viewed, capsys, monkeypatch):
     """Without --no-serve the command prints Meshcat's URL and waits; Ctrl-C ends it with exit 0."""
     import time

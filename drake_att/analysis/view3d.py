@@ -597,6 +597,28 @@ def static_html(
     return page[:end] + box + page[end:]
 
 
+def check_html_target(path: str) -> str:
+    """``path`` if the page may be written there: a new file, or a page this command wrote before
+    (it ends with the legend box); ViewError otherwise (a user's file is never replaced)."""
+    if not path.strip():
+        raise ViewError(f"--html: got {path!r}; name a file for the page")
+    if not os.path.lexists(path):
+        return path
+    if os.path.islink(path) or not os.path.isfile(path):
+        raise ViewError(f"--html {path}: exists and is not a regular file; name a new file")
+    try:
+        with open(path, "rb") as f:
+            f.seek(max(0, os.path.getsize(path) - 65536))
+            tail = f.read()
+    except OSError as e:
+        raise ViewError(f"--html {path}: cannot read the existing file ({e.strerror or e})") from None
+    if f'id="{LEGEND_ID}"'.encode() not in tail:
+        raise ViewError(
+            f"--html {path}: exists and is not a page drake-att view wrote; it is left untouched (name a new file)"
+        )
+    return path
+
+
 def write_static_html(meshcat, geometry: ViewGeometry, path: str, **kwargs) -> str:
     """Write :func:`static_html` to ``path`` (atomically); returns ``path``."""
     from drake_att.outputs import write_file_atomic
@@ -623,6 +645,8 @@ def view_run(
     ``pydrake.geometry.Meshcat``, which serves the view at ``meshcat.web_url()``), write the
     static page to ``html_path`` when given; returns ``(meshcat, geometry)``."""
     frames = check_frames(frames)
+    if html_path is not None:
+        check_html_target(html_path)  # before any work
     run = load_run(folder, allow_plugins=allow_plugins)
     geometry = view_geometry(run, frames=frames, box_m=box_m)
     if meshcat is None:
@@ -631,8 +655,6 @@ def view_run(
         meshcat = Meshcat()
     draw(meshcat, geometry, playback_s=playback_s, error_scale=error_scale, still_time_s=still_time_s)
     if html_path is not None:
-        if not html_path.strip():
-            raise ViewError(f"--html: got {html_path!r}; name a file for the page")
         try:
             write_static_html(meshcat, geometry, html_path, playback_s=playback_s, error_scale=error_scale)
         except OSError as e:
