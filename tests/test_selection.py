@@ -71,3 +71,14 @@ def test_a_bad_selection_is_refused_naming_the_field_and_the_choices():
     assert fusions, "the dual-tracker scenario has a fusion"
     with pytest.raises(ConfigError, match=rf"^estimators: '{fusions[0].name}' fuses .*, which are not selected$"):
         with_estimators(s, [fusions[0].name])
+
+
+def test_measurement_sensor_names_in_update_order():
+    from types import SimpleNamespace as C
+
+    from drake_att.scenarios.selection import measurement_sensor_names
+
+    assert measurement_sensor_names(C(star_trackers=["st1", "st2"])) == ["st1", "st2"]
+    assert measurement_sensor_names(C(star_tracker="st", vector_sensors=["sun", "mag"])) == ["st", "sun", "mag"]
+    assert measurement_sensor_names(C(star_tracker="", vector_sensors=["sun"])) == ["sun"]
+    assert measurement_sensor_names(C(camera="cam")) == []

@@ -91,6 +91,7 @@ from drake_att import rotations as rot
 from drake_att.contract import TIME_TOLERANCE_S
 from drake_att.filters.mekf import transition_matrix
 from drake_att.noise import FarrenkopfGyroNoise
+from drake_att.scenarios.selection import measurement_sensor_names
 from drake_att.units import ARCSEC, ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
 PRIOR_SENSITIVITY_FACTOR = 100.0
@@ -262,10 +263,9 @@ def _gyro_and_tracker_names(name, configs) -> tuple:
                 f"{c.name} uses no gyro (its rate comes from a dynamics model); the bound is for gyro-driven estimation"
             )
         gyros.add(gyro)
-        names = list(getattr(c, "star_trackers", None) or [getattr(c, "star_tracker", None)])
-        if not all(names):
+        names = measurement_sensor_names(c)
+        if not names:
             raise NoBound(f"{c.name} reads no star tracker")
-        names += list(getattr(c, "vector_sensors", None) or [])
         tracker_names += names
     if len(gyros) != 1:
         raise NoBound(f"{name} reads {len(gyros)} gyros {sorted(gyros)}; the bound handles one")

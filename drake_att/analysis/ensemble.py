@@ -101,6 +101,7 @@ import numpy as np
 from drake_att.analysis import metrics as met
 from drake_att.analysis.bound import bound_for_estimator
 from drake_att.filters.gating import chi2_quantile
+from drake_att.scenarios.selection import measurement_sensor_names
 from drake_att.units import DEG, DEG_PER_H
 
 RECORD_SCHEMA = 1
@@ -122,8 +123,7 @@ def _input_names(scenario, name: str) -> tuple[list[str], list]:
 
     sensors = {s.name: s for s in scenario.sensors}
     c = next(e for e in scenario.estimators if e.name == name)
-    names = list(getattr(c, "star_trackers", None) or ([c.star_tracker] if getattr(c, "star_tracker", None) else []))
-    names += list(getattr(c, "vector_sensors", None) or [])
+    names = measurement_sensor_names(c)
     cameras = [c.camera] if getattr(c, "camera", None) else []
     kinds = {}
     for n in names + cameras:

@@ -216,11 +216,9 @@ NOISE_FREE_MARK = "*"
 
 def _measurement_sensors(config) -> list[str]:
     """The sensors whose measurements estimator ``config`` updates on (not its gyro)."""
-    trackers = getattr(config, "star_trackers", None) or (
-        [config.star_tracker] if getattr(config, "star_tracker", None) else []
-    )
-    further = list(getattr(config, "vector_sensors", None) or [])
-    return list(trackers) + further + ([config.camera] if getattr(config, "camera", None) else [])
+    from drake_att.scenarios.selection import measurement_sensor_names
+
+    return measurement_sensor_names(config) + ([config.camera] if getattr(config, "camera", None) else [])
 
 
 def _sensor_noise_free(sensor, sensors: dict) -> bool:

@@ -14,6 +14,15 @@ def fused_sources(config) -> list[str]:
     return list(getattr(config, "sources", []))
 
 
+def measurement_sensor_names(config) -> list[str]:
+    """The attitude sensors estimator ``config`` reads, in update order: its ``star_trackers`` (or
+    its ``star_tracker``; ``""``: none), then its ``vector_sensors`` (a camera is not included)."""
+    trackers = getattr(config, "star_trackers", None) or (
+        [config.star_tracker] if getattr(config, "star_tracker", None) else []
+    )
+    return list(trackers) + list(getattr(config, "vector_sensors", None) or [])
+
+
 def with_fused_sources(configs: dict, names) -> list[str]:
     """``names`` and every estimator they fuse, directly or through another fusion, each
     once, breadth first (``configs``: estimator name -> config)."""
