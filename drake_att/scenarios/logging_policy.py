@@ -168,15 +168,12 @@ def plan_logging(policy, signals, required: dict, alignments=(), duration_s: flo
             )
         excluded.update(hits)
 
-    def period_of(part: str) -> tuple[float, int, str]:
-        return resolve_period(policy, part, own[part])
-
     plan = {}
     for s in signals:
         kept = [p for p in s.parts if p not in excluded]
         if not kept:
             continue
-        resolved = {p: period_of(p) for p in s.parts}
+        resolved = {p: resolve_period(policy, p, own[p]) for p in s.parts}
         if len({r[1] for r in resolved.values()}) > 1:
             a, b = s.parts[0], next(p for p in s.parts if resolved[p][1] != resolved[s.parts[0]][1])
             raise ConfigError(
