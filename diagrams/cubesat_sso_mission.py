@@ -54,6 +54,33 @@ def plot_day(record: dict, path: str, title: str) -> None:
     plt.close(fig)
 
 
+OUR_FILES = ("config.yaml", "results.json", "summary.json", "mission_table.md", "fig_mission_day.png")
+
+
+def check_out_folder(out: str) -> str | None:
+    """None if ``out`` may be written: absent, empty, or a folder this script wrote (only its file
+    names, and a ``summary.json`` of its shape); else the one-line reason (a user's files are
+    never replaced)."""
+    if not os.path.lexists(out):
+        return None
+    if os.path.islink(out) or not os.path.isdir(out):
+        return f"--out {out}: exists and is not a folder"
+    names = sorted(os.listdir(out))
+    if not names:
+        return None
+    foreign = [n for n in names if n not in OUR_FILES]
+    mine = False
+    try:
+        with open(os.path.join(out, "summary.json")) as f:
+            mine = "per_seed_rmse_deg" in json.load(f)
+    except (OSError, ValueError):
+        pass
+    if foreign or not mine:
+        what = f"holds {foreign[:3]}" if foreign else "has no summary.json of this script"
+        return f"--out {out}: {what}; it is not a folder this script wrote and is left untouched (name a new folder)"
+    return None
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", type=int, default=20)
@@ -63,6 +90,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.seeds < 1 or not 600.0 < args.duration <= 86400.0:
         ap.error(f"--seeds: got {args.seeds} (>= 1); --duration: got {args.duration} (in (600, 86400] s)")
+    problem = check_out_folder(args.out)
+    if problem:
+        print(f"cubesat_sso_mission.py: {problem}", file=sys.stderr)
+        return 2
     scenario = apply_overrides(load(SCENARIO), [f"duration_s={args.duration}"])
     os.makedirs(args.out, exist_ok=True)
     with open(os.path.join(args.out, "config.yaml"), "w") as f:

@@ -234,3 +234,33 @@ def test_a_summary_of_one_record_has_means_and_no_intervals(scheduled_runs):
     assert s["worst_gap_s"] == {"mean": 100.0, "lo": None, "hi": None, "n": 1}
     assert s["availability"]["st2"]["available"]["mean"] == 1.0
     assert "| st1 | 100 | 0 | 0 | 0 |" in mission.format_mission_tables(s)  # fractions as percent
+
+
+def test_the_mission_script_writes_only_into_a_folder_of_its_own(tmp_path):
+    """An absent or empty folder, or one the script wrote, may be written; a folder holding a
+    user's file (even one named like the script's) is refused with one line and left as it was."""
+    import importlib.util
+    import json
+    import os
+
+    path = os.path.join(os.path.dirname(__file__), "..", "diagrams", "cubesat_sso_mission.py")
+    spec = importlib.util.spec_from_file_location("mission_script", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    assert script.check_out_folder(str(tmp_path / "new")) is None
+    assert script.check_out_folder(str(tmp_path)) is None  # empty
+    (tmp_path / "notes.txt").write_text("mine")
+    assert "holds ['notes.txt']" in script.check_out_folder(str(tmp_path))
+    (tmp_path / "notes.txt").unlink()
+    (tmp_path / "config.yaml").write_text("my own scenario")
+    assert "has no summary.json of this script" in script.check_out_folder(str(tmp_path))
+    (tmp_path / "summary.json").write_text(json.dumps({"per_seed_rmse_deg": {}}))
+    assert script.check_out_folder(str(tmp_path)) is None
+    (tmp_path / "file").write_text("x")
+    assert "is not a folder" in script.check_out_folder(str(tmp_path / "file"))
+    code = script.main(["--seeds", "1", "--duration", "700", "--out", str(tmp_path)])
+    assert (
+        code == 2
+        and (tmp_path / "file").read_text() == "x"
+        and (tmp_path / "config.yaml").read_text() == "my own scenario"
+    )
