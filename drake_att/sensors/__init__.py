@@ -12,3 +12,4 @@ from drake_att.sensors import (  # noqa: F401, I001  (registers them, in this or
     magnetometer_plugin,
 )
 from drake_att.sensors import faults_plugin  # noqa: F401,E402  (registers !SensorFaultsConfig; after the sensors it corrupts)
+from drake_att.sensors import sensor_monitor_plugin  # noqa: F401,E402  (registers !SensorMonitorConfig)

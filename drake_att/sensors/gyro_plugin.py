@@ -6,15 +6,16 @@ over each ``period_s``); logged: the measurement and the true bias ``bias_B``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from typing import List
+from typing import List, Optional
 
 import numpy as np
 
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
 from drake_att.systems.gyro import Gyro
-from drake_att.units import ARW_DEG_PER_RT_H, DEG_PER_H, RRW_DEG_PER_H_15
+from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
 
 @dataclass
@@ -35,6 +36,7 @@ class GyroConfig:
     initial_bias_sigma_deg_per_h: float = 0.0
     scale_factor_error_ppm: List[float] = field(default_factory=cfg.zeros3)
     misalignment_urad: List[float] = field(default_factory=lambda: [0.0] * 6)
+    range_deg_per_s: Optional[float] = None  # per-axis measurement range (None: unlimited)
 
 
 def validate_gyro(path: str, c: GyroConfig, checks) -> None:
@@ -46,6 +48,8 @@ def validate_gyro(path: str, c: GyroConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.initial_bias_sigma_deg_per_h", c.initial_bias_sigma_deg_per_h)
     cfg.check_vector(f"{path}.scale_factor_error_ppm", c.scale_factor_error_ppm, 3)
     cfg.check_vector(f"{path}.misalignment_urad", c.misalignment_urad, 6)
+    if c.range_deg_per_s is not None:
+        cfg.check_positive(f"{path}.range_deg_per_s", c.range_deg_per_s)
 
 
 def gyro_output(c: GyroConfig, sensor_configs) -> SensorOutput:
@@ -74,6 +78,7 @@ def gyro_model_si(c: GyroConfig) -> tuple:
         c.initial_bias_sigma_deg_per_h * DEG_PER_H,
         np.asarray(c.scale_factor_error_ppm) * 1e-6,
         m,
+        math.inf if c.range_deg_per_s is None else c.range_deg_per_s * DEG,
     )
 
 
@@ -93,6 +98,7 @@ def configure_gyro(ctx, c: GyroConfig, gyro: Gyro, context) -> None:
         "initial_bias_sigma_deg_per_h",
         "scale_factor_error_ppm",
         "misalignment_urad",
+        "range_deg_per_s",
     ),
     configure=configure_gyro,
 )

@@ -47,12 +47,15 @@ class GyroModel:
         noise: the Farrenkopf interval statistics (ARW, RRW, period).
         initial_bias: bias at t = 0 (3, rad/s). initial_bias_sigma: its random part (rad/s).
         sensor_matrix: ``I + S + M`` (scale factors and misalignment).
+        range_rad_per_s: per-axis measurement range (rad/s; inf: none): each axis of a sample is
+            clipped to ``[-range, range]`` (the interval's mean rate, clipped: a saturated gyro).
     """
 
     noise: FarrenkopfGyroNoise
     initial_bias: np.ndarray
     initial_bias_sigma: float
     sensor_matrix: np.ndarray
+    range_rad_per_s: float = math.inf
 
     @classmethod
     def make(
@@ -65,6 +68,7 @@ class GyroModel:
         initial_bias_sigma_rad_per_s: float = 0.0,
         scale_factor_error=(0.0, 0.0, 0.0),
         misalignment=None,
+        range_rad_per_s: float = math.inf,
     ) -> GyroModel:
         """Check and convert the arguments of :class:`Gyro` (ValueError naming the field)."""
         try:
@@ -77,7 +81,15 @@ class GyroModel:
         M = np.zeros((3, 3)) if misalignment is None else np.asarray(misalignment, dtype=float)
         if M.shape != (3, 3) or not np.all(np.isfinite(M)) or np.any(np.diag(M) != 0):
             raise ValueError(f"{name}.misalignment: got {misalignment!r}; must be 3x3 finite with zero diagonal (rad)")
-        return cls(noise, initial_bias, float(initial_bias_sigma_rad_per_s), np.eye(3) + np.diag(sf) + M)
+        if not float(range_rad_per_s) > 0:
+            raise ValueError(f"{name}.range: got {range_rad_per_s!r}; must be > 0 (rad/s), or inf for none")
+        return cls(
+            noise,
+            initial_bias,
+            float(initial_bias_sigma_rad_per_s),
+            np.eye(3) + np.diag(sf) + M,
+            float(range_rad_per_s),
+        )
 
 
 class _GyroOutputs(LeafSystem):
@@ -151,6 +163,9 @@ class _GyroOutputs(LeafSystem):
             w_meas = [w / divisor for w in w_meas]
         (ox, oy, oz), (bx, by, bz) = draws.offset_and_bias(n)
         sample = np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz])
+        r = draws.model.range_rad_per_s
+        if r < math.inf:
+            sample[2:5] = np.clip(sample[2:5], -r, r)
         output.SetFromVector(sample)  # type: ignore[arg-type]  # pydrake stub
 
 
@@ -228,6 +243,7 @@ class Gyro(Diagram):
             axis, rad/s) drawn per seed; 0 for a deterministic initial bias.
         scale_factor_error: (3,) dimensionless (e.g. 100 ppm = 1e-4).
         misalignment: (3, 3) small-angle misalignment matrix with zero diagonal (rad).
+        range_rad_per_s: per-axis range (rad/s; inf: none); the output is clipped to it.
 
     Input ports:
         w_IB_B (3): true body rate (rad/s), used for the first sample (t = 0).
@@ -256,6 +272,7 @@ class Gyro(Diagram):
         initial_bias_sigma_rad_per_s: float = 0.0,
         scale_factor_error=(0.0, 0.0, 0.0),
         misalignment=None,
+        range_rad_per_s: float = math.inf,
     ):
         Diagram.__init__(self)
         if not np.isfinite(period_s) or period_s <= 0:
@@ -270,6 +287,7 @@ class Gyro(Diagram):
             initial_bias_sigma_rad_per_s,
             scale_factor_error,
             misalignment,
+            range_rad_per_s,
         )
         builder = DiagramBuilder()
         outputs = _GyroOutputs(name, self.period_s, self.default_model)
@@ -306,6 +324,7 @@ class Gyro(Diagram):
         initial_bias_sigma_rad_per_s: float = 0.0,
         scale_factor_error=(0.0, 0.0, 0.0),
         misalignment=None,
+        range_rad_per_s: float = math.inf,
     ) -> None:
         """Give ``context`` (this system's) other noise levels and errors (arguments as the
         constructor's)."""
@@ -318,6 +337,7 @@ class Gyro(Diagram):
             initial_bias_sigma_rad_per_s,
             scale_factor_error,
             misalignment,
+            range_rad_per_s,
         )
         sub = self.GetMutableSubsystemContext(self._outputs, context)
         sub.get_mutable_abstract_parameter(0).set_value(model)
