@@ -35,6 +35,13 @@ last faulted sample); drop-outs inside an outage window are named "outage".
 * ``nees_after_recovery``: mean 3-dof attitude NEES ``dtheta' P_att^-1 dtheta`` from the
   recovery to the window's end (3 for a consistent filter).
 
+**The monitors' trace** (per event, the same in every estimator's row): a sensor monitor
+(``!SensorMonitorConfig``) watching the faulted sensor logs its verdicts
+(:mod:`drake_att.fdir`); ``monitor_instants`` counts the event's faulted samples at the
+monitor's instants and ``excluded`` those at which it excluded the sensor. An estimator reads a
+monitor's sensors only through its own inputs: a monitor is not followed as a source in
+:func:`consumed_sensors`.
+
 A gyro fault can be "rejected" without the gyro sample being refused: the faulted
 prediction can make the gate refuse that step's tracker sample — the counts say what the
 estimator did at the step, not which input it blamed.
@@ -152,12 +159,13 @@ def consumed_sensors(scenario, estimator: str) -> set:
     from drake_att.sensors.faults_plugin import references
 
     sensors = _sensor_configs(scenario)
+    monitors = set(sensor_monitors(scenario))
     estimators = {e.name: e for e in scenario.estimators}
     found, stack = set(), [estimators[estimator]]
     while stack:
         config = stack.pop()
         for name in list(sensors) + list(estimators):
-            if name in found or name == config.name or not references(config, name):
+            if name in found or name in monitors or name == config.name or not references(config, name):
                 continue
             if name in sensors:
                 found.add(name)
@@ -165,6 +173,39 @@ def consumed_sensors(scenario, estimator: str) -> set:
             else:
                 stack.append(estimators[name])
     return found
+
+
+def sensor_monitors(scenario) -> dict:
+    """The scenario's sensor monitors: name -> the sensors they watch, in log order (gyro first)."""
+    from drake_att.sensors.sensor_monitor_plugin import SensorMonitorConfig
+
+    return {
+        s.name: ([s.gyro] if s.gyro else []) + list(s.star_trackers)
+        for s in scenario.sensors
+        if isinstance(s, SensorMonitorConfig)
+    }
+
+
+def monitor_trace(run, e) -> tuple[int, int]:
+    """``(monitor_instants, excluded)`` of event ``e``: its faulted samples at the instants of
+    the monitors watching its sensor, and those at which a monitor excluded the sensor."""
+    from drake_att import fdir
+
+    instants = excluded = 0
+    for name, watched in sensor_monitors(run.scenario).items():
+        if e.sensor not in watched:
+            continue
+        t, log = run.signals[f"{name}/detector_log"]
+        t = np.asarray(t)
+        log = np.asarray(log).reshape(len(t), -1)
+        j = watched.index(e.sensor)
+        # the logger's first two rows are both t = 0: keep the last of each instant
+        keep = np.r_[np.diff(t) > TIME_TOLERANCE_S, True]
+        t, verdict = t[keep], log[keep, fdir.LOG_PER_SENSOR * j]
+        hit = _at(t, e.samples)
+        instants += int(np.sum(hit))
+        excluded += int(np.sum(verdict[hit] == fdir.EXCLUDED))
+    return instants, excluded
 
 
 def _faulty_times(run, sensors: set) -> np.ndarray:
@@ -218,13 +259,15 @@ def score_fault_events(
     Row keys: ``estimator``, ``sensor``, ``kind``, ``code``, ``t_start``, ``t_end``,
     ``magnitude`` (SI), ``seen``, ``steps``, ``detected``, ``rejected``, ``accepted``,
     ``ignored``, ``peak_error_deg``, ``pre_fault_rms_deg``, ``bound_deg``,
-    ``recovery_time_s``, ``nees_after_recovery``, ``window_end``.
+    ``recovery_time_s``, ``nees_after_recovery``, ``window_end``, ``monitor_instants``,
+    ``excluded``.
     """
     events = fault_events(run)
     names = list(run.metadata["estimators"]) if estimators is None else list(estimators)
     t_run_end = float(run.scenario.duration_s)
     starts = np.array([e.t_start for e in events])
     ends = np.array([e.t_end for e in events])
+    traces = [monitor_trace(run, e) for e in events]
     rows = []
     for name in names:
         series = _estimator_series(run, name)
@@ -232,6 +275,7 @@ def score_fault_events(
             later = starts[starts > e.t_start + TIME_TOLERANCE_S]
             window_end = float(later.min()) if len(later) else t_run_end
             row = _empty_row(name, e, window_end)
+            row["monitor_instants"], row["excluded"] = traces[k]
             _count_fault_steps(row, e, series, detection_nis)
             pre_from = _pre_fault_start(k, e, ends, pre_fault_window_s)
             _score_error(
@@ -396,6 +440,8 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
                     "rejected": 0,
                     "accepted": 0,
                     "ignored": 0,
+                    "monitor_instants": 0,
+                    "excluded": 0,
                     "recovered": 0,
                     "peak_error_deg": None,
                     "recovery_time_s": None,
@@ -406,8 +452,8 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
             order.setdefault(r["estimator"], len(order))
             g["events"] += 1
             g["seen"] += int(r["seen"])
-            for k in ("steps", "detected", "rejected", "accepted", "ignored"):
-                g[k] += r[k]
+            for k in ("steps", "detected", "rejected", "accepted", "ignored", "monitor_instants", "excluded"):
+                g[k] += r.get(k, 0)
             if r["peak_error_deg"] is not None:
                 g["peak_error_deg"] = max(g["peak_error_deg"] or 0.0, r["peak_error_deg"])
             if r["recovery_time_s"] is not None:
@@ -472,6 +518,8 @@ __all__ = [
     "fault_injectors",
     "fault_events",
     "consumed_sensors",
+    "sensor_monitors",
+    "monitor_trace",
     "attitude_nees",
     "finite_outputs",
     "score_fault_events",
