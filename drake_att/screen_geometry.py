@@ -103,7 +103,12 @@ class ScreenCameraGeometry:
         stars = self.stars_I.copy()
         stars[:, 2] = -float(h_m)
         return ScreenCameraGeometry(
-            stars, float(h_m), np.asarray(R0_B, dtype=float), self.focal_length_m, self.detector_size_m, self.pixel_pitch_m
+            stars,
+            float(h_m),
+            np.asarray(R0_B, dtype=float),
+            self.focal_length_m,
+            self.detector_size_m,
+            self.pixel_pitch_m,
         )
 
     @property

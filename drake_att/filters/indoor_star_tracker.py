@@ -361,7 +361,7 @@ class IndoorStarTrackerSolver:
             1-sigma of ``geometry``'s ``h`` and ``R0_B``: a solution's covariance adds ``J
             Sigma_cal J^T``, ``J`` the derivative of the converged solution (identifications,
             TRIAD pair and star weights held) by central differences
-            (:meth:`calibration_covariance`). Zero sigmas: no term (nothing is computed).
+            (:meth:`calibration_covariance`). None or zero sigmas: no term (nothing is computed).
     """
 
     second_quantity = SecondQuantity.BODY_RATE
@@ -384,7 +384,7 @@ class IndoorStarTrackerSolver:
         sigma_floor_rad: float = 1e-9,
         catalogue_centroids_m=None,
         tolerance_sigmas: float | None = None,
-        calibration: CalibrationUncertainty = CalibrationUncertainty(),
+        calibration: CalibrationUncertainty | None = None,
     ):
         if identification not in IDENTIFICATIONS:
             fail("identification", identification, f"allowed: {list(IDENTIFICATIONS)}")
@@ -414,10 +414,12 @@ class IndoorStarTrackerSolver:
         self.catalogue_b0 = b0
         self.catalogue_I = b0 if identification == "naive" else r_I
         self.matcher = AngleMatcher(self.catalogue_I, math.radians(check_positive("tolerance_deg", tolerance_deg)))
-        self.tolerance_sigmas = None if tolerance_sigmas is None else check_positive("tolerance_sigmas", tolerance_sigmas)
-        if not isinstance(calibration, CalibrationUncertainty):
-            fail("calibration", type(calibration).__name__, "need a CalibrationUncertainty")
-        self.calibration = calibration
+        self.tolerance_sigmas = (
+            None if tolerance_sigmas is None else check_positive("tolerance_sigmas", tolerance_sigmas)
+        )
+        if calibration is not None and not isinstance(calibration, CalibrationUncertainty):
+            fail("calibration", type(calibration).__name__, "need a CalibrationUncertainty or None")
+        self.calibration = CalibrationUncertainty() if calibration is None else calibration
 
     # -- one frame ---------------------------------------------------------------------------
     def observed_directions(self, b_B, R_BI_guess, h_m: float | None = None, R0_B=None) -> np.ndarray:
@@ -559,7 +561,8 @@ class IndoorStarTrackerSolver:
         (:func:`~drake_att.filters.screen_calibration.self_calibrate`): each frame is solved from
         its guess (e.g. the table's commanded tilt), the layout and the attitudes are estimated
         from the identified centroids, and the frames are identified again with the estimated
-        layout (``passes`` times in all, >= 1). The second pass matters: a miscalibrated model
+        layout (``passes`` times in all, >= 1; the Fisher information scaled by the first frame's
+        centroid noise: one camera). The second pass matters: a miscalibrated model
         keeps the stars whose noise happens to agree with it, which biases the estimate towards
         the model; identified with the estimate, every star is kept.
 
@@ -570,14 +573,17 @@ class IndoorStarTrackerSolver:
         if len(frames) != len(guesses) or not frames:
             fail("R_BI_guesses", f"{len(guesses)} guesses for {len(frames)} frames", "need one guess per frame, >= 1")
         check_int("passes", passes, 1)
-        solver, result, ids = self, None, []
+        solver, result = self, None
+        ids: list[np.ndarray] = []
         for _ in range(passes):
             cal_frames, ids = [], []
             for frame, guess in zip(frames, guesses, strict=True):
                 sol = solver.solve(frame, guess)
                 ids.append(sol.star_ids)
                 cal_frames.append(CalibrationFrame(frame.centroids_m, sol.star_ids, sol.R_BI))
-            sigma = math.hypot(float(frames[0].sigma_m), float(getattr(frames[0], "quantization_m", 0.0)) / math.sqrt(12))
+            sigma = math.hypot(
+                float(frames[0].sigma_m), float(getattr(frames[0], "quantization_m", 0.0)) / math.sqrt(12)
+            )
             result = self_calibrate(
                 cal_frames,
                 solver.catalogue_b0,

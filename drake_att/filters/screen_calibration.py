@@ -27,8 +27,10 @@ and estimates ``R0_B`` (3 axes) with ``h = h1 + p . R0``.
 it by ``~phi R0_z`` along y (parallel to the screen: the pattern shifts, non-uniformly over a wide
 field) and ``~phi R0_y`` along z (towards the screen: the pattern scales); a tilt about y sees
 ``R0_z`` and ``R0_x``. Level frames see nothing (``A = I``). Tilts about two axes are needed for
-all three components; ``R0_z`` (hence ``h``) is the best determined, the lateral components only
-through the pattern's scale change.
+all three components (about x only, ``R0_x`` is unobservable). ``R0_z`` (hence ``h``) is the
+least determined (its shift parallel to the screen is nearly a rotation, which the frame's
+attitude absorbs), the lateral components the best (they scale the pattern, which no rotation
+mimics).
 
 Derivation: docs/derivations/indoor_star_tracker.md ("Calibration").
 """
@@ -233,7 +235,8 @@ def self_calibrate(
     r, J = residuals_and_jacobian(A, R0)
     cost = float(r @ r)
     lam, converged, iterations = 1e-3, False, 0
-    for iterations in range(1, max_iterations + 1):
+    while iterations < max_iterations:
+        iterations += 1
         N = J.T @ J
         g = J.T @ r
         step = np.linalg.solve(N + lam * np.diag(np.diag(N)), -g)
