@@ -129,6 +129,43 @@ def test_zero_calibration_sigmas_leave_the_solution_bit_identical():
         np.testing.assert_array_equal(a.covariance, b.covariance)
 
 
+def test_the_calibration_sigmas_reach_the_estimate_through_the_diagram():
+    """``s2_indoor_static`` tilted to 5 / -4 deg with 0.1 px noise (context parameters of one
+    diagram): ``screen_height_sigma_mm: 20`` and ``camera_offset_sigma_mm: 5`` leave the logged
+    attitude bit-identical and raise its logged covariance by a positive semi-definite term that
+    is not negligible (the trace at least doubles); explicit zero sigmas log exactly the default
+    run."""
+    from drake_att.scenarios.builder import diagram_for
+
+    est = "indoor_star_tracker"
+    sd = diagram_for(load("s2_indoor_static"))
+    base = [
+        "plant.initial_attitude_rpy_deg=[5.0,-4.0,0.0]",
+        f"estimators.{est}.initial_attitude_rpy_deg=[5.0,-4.0,0.0]",
+        f"estimators.{est}.max_iterations=10",
+        "sensors.camera.centroid_noise_px=0.1",
+    ]
+    runs = {
+        key: sd.simulate(1, overrides=base + extra)
+        for key, extra in (
+            ("default", []),
+            ("zero", [f"estimators.{est}.screen_height_sigma_mm=0.0", f"estimators.{est}.camera_offset_sigma_mm=0.0"]),
+            (
+                "sigmas",
+                [f"estimators.{est}.screen_height_sigma_mm=20.0", f"estimators.{est}.camera_offset_sigma_mm=5.0"],
+            ),
+        )
+    }
+    for signal in ("q_IB_hat", "covariance"):
+        np.testing.assert_array_equal(runs["zero"].values(f"{est}/{signal}"), runs["default"].values(f"{est}/{signal}"))
+    np.testing.assert_array_equal(runs["sigmas"].values(f"{est}/q_IB_hat"), runs["default"].values(f"{est}/q_IB_hat"))
+    for row in (1, 2):  # the frames at 1 s and 2 s (row 0 is the prior)
+        P0 = runs["default"].values(f"{est}/covariance")[row].reshape(6, 6)[:3, :3]
+        P1 = runs["sigmas"].values(f"{est}/covariance")[row].reshape(6, 6)[:3, :3]
+        assert np.linalg.eigvalsh(P1 - P0).min() > -1e-12 * np.trace(P0)
+        assert np.trace(P1) > 2.0 * np.trace(P0), (np.trace(P1), np.trace(P0))
+
+
 # -- 2: self-calibration -------------------------------------------------------------------------
 H1 = 1.8  # the camera-to-screen distance at zero attitude: the known scale
 R0_TRUE = np.array([0.005, -0.004, -0.218])  # m: 5 / -4 mm lateral, 18 mm further from the screen
@@ -321,3 +358,21 @@ def test_bad_calibration_arguments_are_refused_naming_the_field():
             call()
         text = str(e.value)
         assert text.startswith(field) and "\n" not in text, text
+
+
+def test_the_calibration_script_short_mode(load_script, tmp_path, capsys):
+    """``diagrams/s2_calibration.py`` with few frames and runs, no scenario runs: it prints every
+    study and writes them to results.json (its figures are the S2 page's at the defaults)."""
+    import json
+
+    script = load_script("s2_calibration")
+    assert (
+        script.main(["--frames", "20", "--runs", "3", "--id-frames", "3", "--no-dynamic", "--out", str(tmp_path)]) == 0
+    )
+    text = capsys.readouterr().out
+    for heading in ("NEES under a miscalibrated layout", "Self-calibration", "Identification at 0.5 px"):
+        assert heading in text
+    res = json.loads((tmp_path / "results.json").read_text())
+    assert [c["frames"] for c in res["nees"]] == [20, 20, 20]
+    assert res["self_calibration"]["runs"] == 3 and res["identification"]["frames"] == 9
+    assert "dynamic" not in res
