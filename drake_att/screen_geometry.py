@@ -97,6 +97,20 @@ class ScreenCameraGeometry:
         object.__setattr__(self, "R0_B", R0)
         object.__setattr__(self, "detector_size_m", size)
 
+    def with_layout(self, h_m: float, R0_B) -> ScreenCameraGeometry:
+        """This camera and screen with another screen height and camera offset (the stars keep
+        their ``x, y`` on the moved screen): a solver's model after a calibration."""
+        stars = self.stars_I.copy()
+        stars[:, 2] = -float(h_m)
+        return ScreenCameraGeometry(
+            stars,
+            float(h_m),
+            np.asarray(R0_B, dtype=float),
+            self.focal_length_m,
+            self.detector_size_m,
+            self.pixel_pitch_m,
+        )
+
     @property
     def half_field_of_view_rad(self) -> np.ndarray:
         """Half field of view along x_B and y_B (rad)."""

@@ -15,7 +15,14 @@ widest identified pair, stop when the attitude changes by less than
 ``initial_attitude_rpy_deg +- pso_search_range_deg`` and stops when half the observed stars
 are identified. ``camera_offset_error_mm`` (beyond the paper) miscalibrates the solver's
 ``R0`` (its catalogue is then the real camera's zero-attitude photo converted with the wrong
-offset, as a lab would make it). ``initialization: given`` uses ``initial_attitude_rpy_deg`` as the first
+offset, as a lab would make it). ``tolerance_sigmas: k`` (beyond the paper; the dynamic scenario's
+4) derives each frame's tolerance from its centroid noise, ``max(tolerance_deg, k sqrt(2) sigma_c
+/ f)`` (:func:`~drake_att.filters.screen_calibration.pair_angle_tolerance`); ``null`` (default)
+keeps the fixed ``tolerance_deg`` (the paper's). ``screen_height_sigma_mm`` and
+``camera_offset_sigma_mm`` (per axis of ``R0``; beyond the paper, default 0 = no term) are the
+1-sigma of the solver's layout: each solution's covariance adds ``J Sigma_cal J^T``
+(:meth:`~drake_att.filters.indoor_star_tracker.IndoorStarTrackerSolver.calibration_covariance`).
+``initialization: given`` uses ``initial_attitude_rpy_deg`` as the first
 frame's ``A0`` (the paper's Tables 1-2); ``swarm`` runs the search first (its dynamic test).
 
 Without a gyro the second output is the body rate (differenced from consecutive solutions)
@@ -45,6 +52,7 @@ from drake_att.filters.indoor_star_tracker import (
     SwarmSettings,
 )
 from drake_att.filters.mekf import MultiplicativeEKF
+from drake_att.filters.screen_calibration import CalibrationUncertainty
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.scenarios.registry import register_estimator
@@ -64,6 +72,7 @@ class IndoorStarTrackerConfig:
     period_s: float = 0.2
     gyro: Optional[str] = None
     tolerance_deg: float = 0.01
+    tolerance_sigmas: Optional[float] = None
     identification: str = "corrected"
     attitude_method: str = "triad"
     max_iterations: int = 10
@@ -74,6 +83,8 @@ class IndoorStarTrackerConfig:
     max_lost_frames: int = 5
     sigma_floor_urad: float = 0.001
     camera_offset_error_mm: float = 0.0
+    screen_height_sigma_mm: float = 0.0
+    camera_offset_sigma_mm: float = 0.0
     pso_particles: int = 5
     pso_inertia: float = 0.8
     pso_c1: float = 1.3
@@ -118,6 +129,16 @@ def validate_indoor_star_tracker(path: str, c: IndoorStarTrackerConfig, checks) 
             if getattr(c, f) is not None:
                 cfg.fail(f"{path}.{f}", getattr(c, f), "is an MEKF setting: it needs a gyro (set 'gyro')")
     cfg.check_positive(f"{path}.tolerance_deg", c.tolerance_deg)
+    if c.tolerance_sigmas is not None:
+        cfg.check_finite(f"{path}.tolerance_sigmas", c.tolerance_sigmas)
+        if not c.tolerance_sigmas > 0.0:
+            cfg.fail(
+                f"{path}.tolerance_sigmas",
+                c.tolerance_sigmas,
+                "must be > 0 (standard deviations), or null for the fixed tolerance_deg",
+            )
+    for f in ("screen_height_sigma_mm", "camera_offset_sigma_mm"):
+        cfg.check_nonnegative(f"{path}.{f}", getattr(c, f))
     for f, allowed in (
         ("identification", IDENTIFICATIONS),
         ("attitude_method", ATTITUDE_METHODS),
@@ -187,6 +208,8 @@ def solver_for(ctx, c: IndoorStarTrackerConfig) -> IndoorStarTrackerSolver:
         c.max_lost_frames,
         c.sigma_floor_urad * 1e-6,
         catalogue_centroids_m=photo,
+        tolerance_sigmas=c.tolerance_sigmas,
+        calibration=CalibrationUncertainty(c.screen_height_sigma_mm * 1e-3, c.camera_offset_sigma_mm * 1e-3),
     )
 
 
@@ -196,6 +219,7 @@ def solver_for(ctx, c: IndoorStarTrackerConfig) -> IndoorStarTrackerSolver:
     validate=validate_indoor_star_tracker,
     parameters=(
         "tolerance_deg",
+        "tolerance_sigmas",
         "identification",
         "attitude_method",
         "max_iterations",
@@ -206,6 +230,8 @@ def solver_for(ctx, c: IndoorStarTrackerConfig) -> IndoorStarTrackerSolver:
         "max_lost_frames",
         "sigma_floor_urad",
         "camera_offset_error_mm",
+        "screen_height_sigma_mm",
+        "camera_offset_sigma_mm",
         "pso_particles",
         "pso_inertia",
         "pso_c1",

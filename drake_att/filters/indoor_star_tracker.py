@@ -11,6 +11,9 @@ repeated from the new attitude until it converges (or ``max_iterations``).
 * :class:`IndoorStarTrackerMekf`: beyond the paper, the solver fused with a table gyro in the MEKF.
 * The steps: :class:`AngleMatcher`, :func:`triad`, :func:`triad_covariance`, :func:`svd_attitude`,
   :func:`particle_swarm_search` (:class:`SwarmSettings`).
+* Calibration (:mod:`drake_att.filters.screen_calibration`): the attitude covariance's term for
+  the uncertainty of the screen height and the camera offset, the angle-match tolerance from the
+  centroid noise, self-calibration from tilted frames.
 
 Conventions: attitudes are ``A = R_BI`` (the paper's) in the solver and ``q_IB`` (wxyz Hamilton)
 in the state; roll/pitch/yaw in deg (x-y-z, as ``q_IB``); covariances in body axes (rad^2), the
@@ -23,6 +26,7 @@ Paper S2's pipeline (identification, iteration, swarm start) and its fusion: one
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 
@@ -30,6 +34,19 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids, SecondQuantity, UpdateInfo
+from drake_att.filters.screen_calibration import (
+    FIXED_POINT_MAX_ITERATIONS,
+    FIXED_POINT_TOLERANCE_RAD,
+    JACOBIAN_RELATIVE_STEP,
+    CalibrationFrame,
+    CalibrationUncertainty,
+    SelfCalibration,
+    calibration_jacobian,
+    calibration_vector,
+    catalogue_directions,
+    pair_angle_tolerance,
+    self_calibrate,
+)
 from drake_att.screen_geometry import (
     ScreenCameraGeometry,
     camera_to_star_distances,
@@ -85,10 +102,12 @@ class AngleMatcher:
         self._phi, self._j, self._l = phi[order], j[order], l[order]
         self._angles = np.arccos(np.clip(self.catalogue @ self.catalogue.T, -1.0, 1.0))
 
-    def identify(self, directions) -> np.ndarray:
-        """Catalogue index of each observed direction (n, 3), or -1 if not identified."""
+    def identify(self, directions, tolerance_rad: float | None = None) -> np.ndarray:
+        """Catalogue index of each observed direction (n, 3), or -1 if not identified
+        (``tolerance_rad``: this call's tolerance instead of the matcher's)."""
         u = np.asarray(directions, dtype=float)
-        n, m, tol = len(u), len(self.catalogue), self.tolerance_rad
+        n, m = len(u), len(self.catalogue)
+        tol = self.tolerance_rad if tolerance_rad is None else float(tolerance_rad)
         ids = np.full(n, -1)
         if n < MIN_IDENTIFIED:
             return ids
@@ -320,7 +339,11 @@ class IndoorStarTrackerSolver:
     Args:
         geometry: the screen and camera the solver assumes (its catalogue is their view at
             zero attitude).
-        tolerance_deg: angle-match tolerance (deg).
+        tolerance_deg: angle-match tolerance (deg): fixed, or the floor of the adaptive one.
+        tolerance_sigmas: None: the tolerance is ``tolerance_deg``; ``k`` > 0: per frame
+            ``max(tolerance_deg, k sqrt(2) sigma_c / f)`` from the frame's centroid noise
+            (:func:`~drake_att.filters.screen_calibration.pair_angle_tolerance`; the floor
+            covers the ``A0`` and model errors the noise does not).
         identification: "corrected" (the paper) or "naive" (no ``alpha`` correction).
         attitude_method: "triad" (the paper) or "least_squares".
         max_iterations: iterations per frame (>= 1); convergence_tolerance_rad: stop when
@@ -334,6 +357,11 @@ class IndoorStarTrackerSolver:
             (k, 2) of the real camera at zero attitude, converted with ``geometry`` (the
             solver's model of the layout). None: ``geometry``'s own noise-free view (a model
             that is exact). Differs from ``geometry``'s view when the model is miscalibrated.
+        calibration: :class:`~drake_att.filters.screen_calibration.CalibrationUncertainty`, the
+            1-sigma of ``geometry``'s ``h`` and ``R0_B``: a solution's covariance adds ``J
+            Sigma_cal J^T``, ``J`` the derivative of the converged solution (identifications,
+            TRIAD pair and star weights held) by central differences
+            (:meth:`calibration_covariance`). None or zero sigmas: no term (nothing is computed).
     """
 
     second_quantity = SecondQuantity.BODY_RATE
@@ -355,6 +383,8 @@ class IndoorStarTrackerSolver:
         max_lost_frames: int = 5,
         sigma_floor_rad: float = 1e-9,
         catalogue_centroids_m=None,
+        tolerance_sigmas: float | None = None,
+        calibration: CalibrationUncertainty | None = None,
     ):
         if identification not in IDENTIFICATIONS:
             fail("identification", identification, f"allowed: {list(IDENTIFICATIONS)}")
@@ -372,40 +402,100 @@ class IndoorStarTrackerSolver:
         self.max_lost_frames = check_int("max_lost_frames", max_lost_frames, 1)
         self.sigma_floor_rad = check_positive("sigma_floor_rad", sigma_floor_rad)
         self.catalogue_ids, r_I, b0 = geometry.catalogue(catalogue_centroids_m)
+        self.catalogue_photo_m = (
+            geometry.project(np.eye(3))[1] if catalogue_centroids_m is None else np.asarray(catalogue_centroids_m)
+        )
         if len(self.catalogue_ids) < MIN_IDENTIFIED:
             fail(
                 "geometry",
                 f"{len(self.catalogue_ids)} stars in view at zero attitude",
                 f"the catalogue needs >= {MIN_IDENTIFIED}",
             )
+        self.catalogue_b0 = b0
         self.catalogue_I = b0 if identification == "naive" else r_I
         self.matcher = AngleMatcher(self.catalogue_I, math.radians(check_positive("tolerance_deg", tolerance_deg)))
+        self.tolerance_sigmas = (
+            None if tolerance_sigmas is None else check_positive("tolerance_sigmas", tolerance_sigmas)
+        )
+        if calibration is not None and not isinstance(calibration, CalibrationUncertainty):
+            fail("calibration", type(calibration).__name__, "need a CalibrationUncertainty or None")
+        self.calibration = CalibrationUncertainty() if calibration is None else calibration
 
     # -- one frame ---------------------------------------------------------------------------
-    def observed_directions(self, b_B, R_BI_guess) -> np.ndarray:
-        """The directions identification compares: ``r_i^B`` from ``A0`` (corrected) or ``b_i`` (naive)."""
+    def observed_directions(self, b_B, R_BI_guess, h_m: float | None = None, R0_B=None) -> np.ndarray:
+        """The directions identification compares: ``r_i^B`` from ``A0`` (corrected) or ``b_i``
+        (naive); ``h_m``, ``R0_B``: another model of the layout than ``geometry``'s."""
         if self.identification == "naive":
             return b_B
-        g = self.geometry
-        return centre_referenced_directions(b_B, camera_to_star_distances(R_BI_guess, b_B, g.R0_B, g.h_m), g.R0_B)
+        h = self.geometry.h_m if h_m is None else h_m
+        R0 = self.geometry.R0_B if R0_B is None else R0_B
+        return centre_referenced_directions(b_B, camera_to_star_distances(R_BI_guess, b_B, R0, h), R0)
 
-    def count_identified(self, b_B, R_BI_guess) -> int:
+    def match_tolerance_rad(self, frame: CameraCentroids) -> float:
+        """The angle-match tolerance (rad) of ``frame``: ``tolerance_deg``, or with
+        ``tolerance_sigmas`` the larger of it and the frame's noise bound."""
+        fixed = self.matcher.tolerance_rad
+        if self.tolerance_sigmas is None:
+            return fixed
+        q = float(getattr(frame, "quantization_m", 0.0))
+        noise = pair_angle_tolerance(float(frame.sigma_m), q, float(frame.focal_length_m), self.tolerance_sigmas)
+        return max(fixed, noise)
+
+    def count_identified(self, b_B, R_BI_guess, tolerance_rad: float | None = None) -> int:
         """Stars identified in one pass from the guess ``A0`` (the swarm's fitness is minus this)."""
-        return int(np.sum(self.matcher.identify(self.observed_directions(b_B, R_BI_guess)) >= 0))
+        return int(np.sum(self.matcher.identify(self.observed_directions(b_B, R_BI_guess), tolerance_rad) >= 0))
 
-    def _attitude(self, u, ids, sigmas, centroids):
-        sel = np.flatnonzero(ids >= 0)
-        b, r, s = u[sel], self.catalogue_I[ids[sel]], sigmas[sel]
-        if self.attitude_method == "least_squares":
-            return svd_attitude(b, r, s)
-        # TRIAD from the identified pair with the largest separation, the star nearer the
-        # optical axis first (it is matched exactly).
+    def _triad_pair(self, b, centroids_sel) -> tuple[int, int]:
+        """TRIAD's pair: the identified pair with the largest separation, the star nearer the
+        optical axis first (it is matched exactly)."""
         gram = np.abs(np.clip(b @ b.T, -1.0, 1.0))
         i, k = np.unravel_index(np.argmin(gram + 2.0 * np.eye(len(b))), gram.shape)
-        radius = np.linalg.norm(np.asarray(centroids)[sel], axis=1)
+        radius = np.linalg.norm(np.asarray(centroids_sel), axis=1)
         if radius[k] < radius[i]:
             i, k = k, i
+        return int(i), int(k)
+
+    def _attitude(self, u, ids, sigmas, centroids, catalogue=None, pair=None):
+        sel = np.flatnonzero(ids >= 0)
+        cat = self.catalogue_I if catalogue is None else catalogue
+        b, r, s = u[sel], cat[ids[sel]], sigmas[sel]
+        if self.attitude_method == "least_squares":
+            return svd_attitude(b, r, s)
+        i, k = self._triad_pair(b, np.asarray(centroids)[sel]) if pair is None else pair
         return triad(b[i], b[k], r[i], r[k]), triad_covariance(b[i], b[k], s[i], s[k])
+
+    def calibration_covariance(self, frame: CameraCentroids, ids, R_BI) -> np.ndarray:
+        """``J Sigma_cal J^T`` (3, 3, body axes, rad^2) of a solution ``R_BI`` with
+        identifications ``ids``: ``J`` (3, 4) is the derivative of the converged solution with
+        respect to ``[h, R0_x, R0_y, R0_z]`` by central differences (step
+        ``JACOBIAN_RELATIVE_STEP h``), each perturbed solution iterated from ``R_BI`` with the
+        identifications, the TRIAD pair and the star weights held (the catalogue re-converted
+        with the perturbed model)."""
+        b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
+        A = np.asarray(R_BI, dtype=float)
+        sigmas = self.direction_sigmas(frame, b, A)
+        sel = np.flatnonzero(ids >= 0)
+        pair = None
+        if self.attitude_method == "triad":
+            u = self.observed_directions(b, A)
+            pair = self._triad_pair(u[sel], np.asarray(frame.centroids_m)[sel])
+
+        def solve_at(theta):
+            h, R0 = float(theta[0]), theta[1:]
+            cat = self.catalogue_I if self.identification == "naive" else catalogue_directions(self.catalogue_b0, h, R0)
+            A_k = A
+            for _ in range(FIXED_POINT_MAX_ITERATIONS):
+                u = self.observed_directions(b, A_k, h, R0)
+                A_new, _ = self._attitude(u, ids, sigmas, frame.centroids_m, cat, pair)
+                change = rotation_angle(A_new, A_k)
+                A_k = A_new
+                if change < FIXED_POINT_TOLERANCE_RAD:
+                    break
+            return A_k
+
+        g = self.geometry
+        J = calibration_jacobian(solve_at, calibration_vector(g.h_m, g.R0_B), JACOBIAN_RELATIVE_STEP * g.h_m)
+        return J @ self.calibration.covariance @ J.T
 
     def direction_sigmas(self, frame: CameraCentroids, b_B, R_BI) -> np.ndarray:
         """Per-star noise (rad) of the compared directions
@@ -429,9 +519,10 @@ class IndoorStarTrackerSolver:
         history: list[IterationRecord] = []
         ids = np.full(len(b), -1)
         P = np.full((3, 3), np.nan)
+        tolerance = self.match_tolerance_rad(frame)
         for _ in range(self.max_iterations if self.identification == "corrected" else 1):
             u = self.observed_directions(b, A)
-            ids = self.matcher.identify(u)
+            ids = self.matcher.identify(u, tolerance)
             if np.sum(ids >= 0) < MIN_IDENTIFIED:
                 return Solution(False, A, P, ids, len(history) + 1, tuple(history))
             A_new, P = self._attitude(u, ids, self.direction_sigmas(frame, b, A), frame.centroids_m)
@@ -440,14 +531,70 @@ class IndoorStarTrackerSolver:
             A = A_new
             if change < self.convergence_tolerance_rad:
                 break
+        if self.calibration.active:
+            P = P + self.calibration_covariance(frame, ids, A)
         return Solution(True, A, P, ids, len(history), tuple(history))
 
     def acquire(self, frame: CameraCentroids, centre_rpy_deg, rng: np.random.Generator) -> SwarmResult:
         """The swarm search for an ``A0`` around ``centre_rpy_deg``."""
         b = directions_from_centroids(frame.centroids_m, frame.focal_length_m)
+        tolerance = self.match_tolerance_rad(frame)
         return particle_swarm_search(
-            lambda x: -self.count_identified(b, rpy_deg_to_R_BI(x)), centre_rpy_deg, self.swarm, len(b), rng
+            lambda x: -self.count_identified(b, rpy_deg_to_R_BI(x), tolerance), centre_rpy_deg, self.swarm, len(b), rng
         )
+
+    # -- calibration ---------------------------------------------------------------------------
+    def recalibrated(self, h_m: float, R0_B) -> IndoorStarTrackerSolver:
+        """This solver with the layout ``(h_m, R0_B)`` (the same catalogue photo re-converted)."""
+        new = copy.copy(self)
+        new.geometry = self.geometry.with_layout(h_m, R0_B)
+        _, r_I, b0 = new.geometry.catalogue(self.catalogue_photo_m)
+        new.catalogue_b0 = b0
+        new.catalogue_I = b0 if self.identification == "naive" else r_I
+        new.matcher = AngleMatcher(new.catalogue_I, self.matcher.tolerance_rad)
+        return new
+
+    def self_calibrate(
+        self, frames, R_BI_guesses, camera_to_screen_m: float, passes: int = 2
+    ) -> tuple[SelfCalibration, list]:
+        """Self-calibration from frames at several tilts
+        (:func:`~drake_att.filters.screen_calibration.self_calibrate`): each frame is solved from
+        its guess (e.g. the table's commanded tilt), the layout and the attitudes are estimated
+        from the identified centroids, and the frames are identified again with the estimated
+        layout (``passes`` times in all, >= 1; the Fisher information scaled by the first frame's
+        centroid noise: one camera). The second pass matters: a miscalibrated model
+        keeps the stars whose noise happens to agree with it, which biases the estimate towards
+        the model; identified with the estimate, every star is kept.
+
+        Returns:
+            ``(the last pass's SelfCalibration, the last pass's catalogue ids per frame)``.
+        """
+        frames, guesses = list(frames), list(R_BI_guesses)
+        if len(frames) != len(guesses) or not frames:
+            fail("R_BI_guesses", f"{len(guesses)} guesses for {len(frames)} frames", "need one guess per frame, >= 1")
+        check_int("passes", passes, 1)
+        solver, result = self, None
+        ids: list[np.ndarray] = []
+        for _ in range(passes):
+            cal_frames, ids = [], []
+            for frame, guess in zip(frames, guesses, strict=True):
+                sol = solver.solve(frame, guess)
+                ids.append(sol.star_ids)
+                cal_frames.append(CalibrationFrame(frame.centroids_m, sol.star_ids, sol.R_BI))
+            sigma = math.hypot(
+                float(frames[0].sigma_m), float(getattr(frames[0], "quantization_m", 0.0)) / math.sqrt(12)
+            )
+            result = self_calibrate(
+                cal_frames,
+                solver.catalogue_b0,
+                float(frames[0].focal_length_m),
+                camera_to_screen_m,
+                solver.geometry.R0_B,
+                max(sigma, self.sigma_floor_rad * float(frames[0].focal_length_m)),
+            )
+            solver = self.recalibrated(result.screen_height_m, result.camera_offset_B_m)
+        assert result is not None
+        return result, ids
 
     # -- the filter-core protocol --------------------------------------------------------------
     def initial_state(self, q_IB, attitude_sigma_rad: float) -> IndoorSolverState:

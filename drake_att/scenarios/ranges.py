@@ -191,6 +191,9 @@ BY_CLASS: dict = {
     ("CubatureQuaternionConfig", "zeta_gate_sigmas"): Range(0.0, 1e3, "", "a gate in standard deviations"),
     ("IndoorStarTrackerConfig", "tolerance_deg"): Range(0.0, 90.0, "deg", "an identification tolerance angle"),
     ("IndoorStarTrackerConfig", "max_lost_frames"): Range(1, 1e6, "", "camera frames"),
+    ("IndoorStarTrackerConfig", "tolerance_sigmas"): Range(
+        0.0, 100.0, "", "an angle-match tolerance in standard deviations (4: a true pair missed with probability 6e-5)"
+    ),
     ("IndoorStarTrackerConfig", "camera_offset_error_mm"): Range(
         -1e5, 1e5, "mm", "a laboratory length error either way"
     ),
