@@ -104,19 +104,21 @@ def test_is_gate_rejection(accepted, nis, counts):
 @pytest.mark.parametrize("n_inputs, particles", [(0, None), (2, None), (3, 500)])
 def test_bookkeeping_layout_and_initial_values(n_inputs, particles):
     b = Bookkeeping(n_inputs)
-    last = 8 + SEED_WORDS
+    last = 9 + SEED_WORDS
     assert (b.T_LAST, b.W_LAST, b.STEP, b.SEED) == (0, slice(1, 4), 4, slice(5, 5 + SEED_WORDS))
-    assert (b.N_RESAMPLES, b.ESS, b.N_DEGENERATE, b.LAST_SAMPLE) == (
+    assert (b.N_RESAMPLES, b.ESS, b.N_DEGENERATE, b.T_GYRO_GOOD, b.LAST_SAMPLE) == (
         5 + SEED_WORDS,
         6 + SEED_WORDS,
         7 + SEED_WORDS,
+        8 + SEED_WORDS,
         last,
     )
-    assert b.rejections == last + n_inputs and b.size == last + 2 * n_inputs
+    assert b.pending == last + n_inputs and b.rejections == last + 2 * n_inputs and b.size == last + 3 * n_inputs
     book = b.initial(particles)
-    expected = np.zeros(last + 2 * n_inputs)
+    expected = np.zeros(last + 3 * n_inputs)
     expected[0] = -INF  # no step yet
     expected[6 + SEED_WORDS] = NAN if particles is None else float(particles)  # N_eff before any update: N
-    expected[last : last + n_inputs] = -INF  # no sample used yet
+    expected[8 + SEED_WORDS] = -INF  # no usable gyro sample yet
+    expected[last : last + 2 * n_inputs] = -INF  # no sample handled, none pending
     np.testing.assert_array_equal(book, expected)
     assert book.dtype == np.float64
