@@ -283,20 +283,20 @@ def mekf_step(
     last_sample,
     pending,
     rejections,
+    handling,
     est,
     book,
     core,
     lin,
     innov,
-    handling,
 ):
     """One filter step of an MEKF estimator at time ``t``, in place on its state groups.
 
-    ``est`` (47), ``book``, ``core`` (43), ``lin`` (109), ``innov`` (3 n) and ``handling``
-    (the sample-handling counters) are the estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
+    ``handling`` (the sample-handling counters), ``est`` (47), ``book``, ``core`` (43),
+    ``lin`` (109) and ``innov`` (3 n) are the estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
     ``meas`` (n, 6) the input ports' values (``gyro_connected``/``connected``: whether the
     port has a value); ``q_BS`` to ``rejections`` the fields of the :class:`StepModel`, in its
-    order (``mekf_step(t, ..., meas, *model, est, ...)``): numba unboxes a tuple argument
+    order (``mekf_step(t, ..., meas, *model, handling, est, ...)``): numba unboxes a tuple argument
     ~1.3 us slower than its fields."""
     model = StepModel(
         q_BS,
@@ -395,12 +395,12 @@ def warm_up() -> None:
         np.ones(1, dtype=np.bool_),
         np.zeros((1, 6)),
         *model,
+        np.zeros(len(rules.SAMPLE_HANDLING_NAMES)),
         np.zeros(47),
         Bookkeeping(1).initial(None),
         np.r_[1.0, np.zeros(42)],
         np.zeros(109),
         np.zeros(3),
-        np.zeros(len(rules.SAMPLE_HANDLING_NAMES)),
     )
 
 

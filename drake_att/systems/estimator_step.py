@@ -144,21 +144,22 @@ def verdict_code(value: float) -> int:
 def held_rate_variance(q: float, tau: float, dt: float) -> float:
     """The attitude variance (rad^2, per axis) a held gyro rate adds over a step of ``dt`` (s)
     starting ``tau`` (s) after the last usable gyro sample, when the held rate's error is a
-    random walk of intensity ``q`` (rad^2/s^3) started at that sample.
+    random walk of intensity ``q`` (rad^2/s^3) started at that sample:
+    ``q (tau dt^2 + dt^3 / 3)``.
 
-    The rate error at ``s`` after the sample is ``e(s)`` with ``var e(s) = q s`` and
-    ``cov(e(s), e(u)) = q min(s, u)``; the attitude drift since the sample is ``D(s) =
-    integral_0^s e``, ``var D(s) = q s^3 / 3``. Over the step ``[tau, tau + dt]`` the attitude
-    variance grows by ``var D(tau + dt) - var D(tau) = q (tau^2 dt + tau dt^2 + dt^3 / 3)``: the
-    step's own drift ``q (tau dt^2 + dt^3 / 3)`` (a rate error of variance ``q tau`` at the
-    step's start, plus its walk within the step) and twice its covariance with the drift of the
-    earlier held steps, ``q tau^2 dt`` (the same walk: the drifts of successive steps are
-    correlated). The increments sum to ``q T^3 / 3`` over an outage of length ``T``. 0 when
-    ``q`` or ``dt`` is not positive."""
+    It is the variance of the step's own drift ``integral_tau^(tau+dt) e(s) ds`` of a rate
+    error ``e`` with ``cov(e(s), e(u)) = q min(s, u)``: a rate error of variance ``q tau`` at
+    the step's start held over ``dt`` (``q tau dt^2``) plus its walk within the step (``q
+    dt^3 / 3``). Added as process noise, it is white from step to step, as a Kalman filter's
+    process noise is: the covariance of successive steps' drifts (the same walk) is left out.
+    That is right while measurements observe the attitude at every step (each step's drift is
+    then what the next measurement sees); over an outage of ``T`` with no measurement at all
+    the sum, ``~ q T^2 dt / 2``, is below the true drift variance ``q T^3 / 3`` by a factor
+    ``~ 2 T / (3 dt)``. 0 when ``q`` or ``dt`` is not positive (``tau`` below 0 counts as 0)."""
     if not (q > 0.0 and dt > 0.0):
         return 0.0
     tau = max(tau, 0.0)
-    return q * (tau * tau * dt + tau * dt * dt + dt * dt * dt / 3.0)
+    return q * (tau * dt * dt + dt * dt * dt / 3.0)
 
 
 def late_sample_variance(rate_variance: float, gap: float) -> float:

@@ -323,9 +323,7 @@ class EstimatorSystem(LeafSystem):
         self._vector_names = tuple(vector_sensors)
         self._camera_names = tuple(camera_sensors)
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
-        self._verdict_port = (
-            self.DeclareVectorInputPort("sensor_verdicts", 1 + n_inputs) if self.verdicts else None
-        )
+        self._verdict_port = self.DeclareVectorInputPort("sensor_verdicts", 1 + n_inputs) if self.verdicts else None
 
     def _declare_state(self, core, initial_state) -> None:
         """The discrete-state groups (see the module docstring)."""
@@ -589,12 +587,12 @@ class EstimatorSystem(LeafSystem):
             connected,
             meas,
             *m,
+            group(self._handling_group),
             group(self._estimate_group),
             group(self._book_group),
             group(self._core_group),
             group(self._linearization_group),
             innovations,
-            group(self._handling_group),
         )
         return EventStatus.Succeeded()
 
@@ -733,8 +731,9 @@ class EstimatorSystem(LeafSystem):
                     Q = Q + variance * _ATTITUDE_BLOCK
         else:
             book[Bookkeeping.T_GYRO_GOOD] = t  # the held rate's walk starts at the first step at the latest
-            if core.uses_gyro and not excluded and self._gyro_port.HasValue(context):
-                t_g, valid, wx, wy, wz = self._gyro_port.Eval(context).tolist()
+            gyro_port = self._gyro_port
+            if core.uses_gyro and not excluded and gyro_port is not None and gyro_port.HasValue(context):
+                t_g, valid, wx, wy, wz = np.asarray(gyro_port.Eval(context), dtype=float).tolist()
                 if rate_usable(valid, wx, wy, wz):
                     book[Bookkeeping.W_LAST] = (wx, wy, wz)
         book[Bookkeeping.T_LAST] = t
