@@ -125,26 +125,36 @@ def test_bookkeeping_layout_and_initial_values(n_inputs, particles):
 
 
 def test_tag_disposition_boundaries():
-    t, tol, lag = 3.0, 0.125, 0.5  # exactly representable: the boundaries are tested exactly
-    d = rules.tag_disposition
+    t, tol, lag, period = 3.0, 0.125, 0.5, 2.0  # exactly representable: the boundaries are tested exactly
+
+    def d(t_meas, t, tol, last, lag):
+        return rules.tag_disposition(t_meas, t, tol, last, lag, period)
+
     assert d(NAN, t, tol, -INF, lag) == rules.NO_TIME
     assert d(-INF, t, tol, -INF, lag) == rules.NO_TIME
     assert d(3.0, t, tol, 3.0, lag) == rules.NOT_DUE  # handled already (a held sample seen again)
     assert d(2.75, t, tol, 2.875, lag) == rules.NOT_DUE  # older than the last handled one
     assert d(3.0625, t, tol, -INF, lag) == rules.DUE
-    assert d(3.125, t, tol, -INF, lag) == rules.FUTURE  # t + tol: not this instant's
-    assert d(9.0, t, tol, -INF, lag) == rules.FUTURE
+    assert d(3.125, t, tol, -INF, lag) == rules.TOO_EARLY  # t + tol: not this instant's, nor the next step's
+    assert d(4.3125, t, tol, -INF, lag) == rules.TOO_EARLY  # at the next step (5) later than the lag
+    assert d(4.375, t, tol, -INF, lag) == rules.FUTURE  # t + period - lag - tol: the next step may carry it
+    assert d(4.5, t, tol, -INF, lag) == rules.FUTURE
+    assert d(4.8125, t, tol, -INF, 0.0) == rules.TOO_EARLY
+    assert d(4.875, t, tol, -INF, 0.0) == rules.FUTURE  # within the tolerance of the next step: due then
+    assert d(4.9375, t, tol, -INF, 0.0) == rules.FUTURE
+    assert d(9.0, t, tol, -INF, lag) == rules.FUTURE  # a slower sensor's next sample
     assert d(2.875, t, tol, -INF, lag) == rules.LATE  # t - tol
     assert d(2.5, t, tol, -INF, lag) == rules.LATE  # t - lag: inside the lag
     assert d(2.4375, t, tol, -INF, lag) == rules.TOO_LATE
     assert d(2.875, t, tol, -INF, 0.0) == rules.TOO_LATE  # no lag: every late sample is rejected
-    assert len({rules.NO_TIME, rules.NOT_DUE, rules.DUE, rules.FUTURE, rules.LATE, rules.TOO_LATE}) == 6
+    codes = {rules.NO_TIME, rules.NOT_DUE, rules.DUE, rules.FUTURE, rules.LATE, rules.TOO_LATE, rules.TOO_EARLY}
+    assert len(codes) == 7
 
 
 def test_sample_disposition_is_the_tag_disposition_without_a_lag_off_time_folded():
     for t_meas in (NAN, 1.0, 2.9, 3.0, 3.2, 5.0):
         for last in (-INF, 1.0, 3.0):
-            full = rules.tag_disposition(t_meas, 3.0, 0.125, last, 0.0)
+            full = rules.tag_disposition(t_meas, 3.0, 0.125, last, 0.0, 1.0)
             expected = full if full in (rules.NO_TIME, rules.NOT_DUE, rules.DUE) else rules.NOT_DUE
             assert rules.sample_disposition(t_meas, 3.0, 0.125, last) == expected
 

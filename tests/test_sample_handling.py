@@ -66,22 +66,24 @@ def test_every_new_sample_is_used_or_counted_once(compiled):
     assert system._compiled_model(system.filter_model(context)) is not None  # eligible: compiled if asked
     script = [
         (0.0, 0.0, "used"),
-        (1.0, 1.05, "pending"),  # tagged in the future, off the filter's steps
-        (2.0, 2.0, "used; 1.05 vanished: counted"),
-        (3.0, 5.0, "pending"),  # a slower sensor's next sample, tagged at a later step
-        (4.0, 5.0, "pending"),
+        (1.0, 1.05, "too early: counted"),  # no step can take it
+        (2.0, 2.95, "pending"),  # the next step may carry it forward (lag 0.1)
+        (3.0, 3.5, "2.95 vanished: counted; 3.5 too early: counted"),
+        (4.0, 5.0, "pending"),  # a slower sensor's next sample, tagged at a later step
         (5.0, 5.0, "used"),
         (6.0, 5.0, "held: not new"),
         (7.0, 6.5, "too late: counted"),
         (8.0, 6.5, "held: not new, not counted again"),
         (9.0, 8.95, "late within the lag: carried forward and used"),
         (10.0, 8.95, "held: not new"),
+        (11.0, 11.95, "pending"),
+        (12.0, 11.95, "late within the lag: carried forward and used"),
     ]
     for t, tag, _ in script:
         _step(system, context, t, {"gyro_measurement": [t, 1.0, 0, 0, 0], "q_meas_st": [tag, 1.0, 1.0, 0, 0, 0]})
     est = system.estimate_vector(context)
-    assert (est[USED], est[SKIPPED]) == (4, 2)
-    np.testing.assert_array_equal(_handling(system, context), [1, 2, 0, 0])
+    assert (est[USED], est[SKIPPED]) == (4, 4)
+    np.testing.assert_array_equal(_handling(system, context), [2, 4, 0, 0])
     assert system.GetOutputPort("sample_handling").size() == len(SAMPLE_HANDLING_NAMES) == 4
 
 
@@ -132,6 +134,46 @@ def test_a_late_sample_is_the_on_time_sample_with_the_rate_uncertainty_over_the_
     assert a[USED] == b[USED] == 1
     np.testing.assert_allclose(a[:43], b[:43], rtol=1e-9, atol=1e-15)
     np.testing.assert_array_equal(_handling(late, late_ctx), [1, 0, 0, 0])
+
+
+def test_late_vector_observations_are_rotated_to_the_step_like_a_quaternion():
+    """The same for star vectors (Python loop): the directions of ``t - 0.05`` carried forward
+    are the directions of ``t``; their sigma grows to ``sqrt(sigma^2 + var_b gap^2)``."""
+    w_B = np.array([0.02, -0.01, 0.03])
+    q0 = rot.rpy_to_quat([0.3, -0.2, 1.0])
+    q_BS = rot.rpy_to_quat([0.5, 0.2, -0.7])
+    q_IS = _turning_truth(w_B, q0, q_BS)
+    refs = np.array([[0.6, 0.0, 0.8], [0.0, 1.0, 0.0], [-0.48, 0.6, 0.64]])
+    core = MultiplicativeEKF(ARW, 0.0)
+    bias_sigma = 3 * DEG / 3600
+    init = core.initial_state(q0, np.zeros(3), 20 * ARCSEC, bias_sigma)
+    gap, sigma = 0.05, 1e-5
+    sigma_on_time = math.sqrt(sigma**2 + bias_sigma**2 * gap**2)
+
+    def vectors(t_tag, t_truth, s):
+        R_SI = rot.quat_to_rotmat(q_IS(t_truth)).T
+        return VectorObservations(t_tag, True, refs @ R_SI.T, refs, s, q_BS)
+
+    systems = []
+    for lag in (0.1, 0.0):
+        system = EstimatorSystem("est", 1.0, core, init, vector_sensors=("st",), max_time_tag_lag_s=lag)
+        context = system.CreateDefaultContext()
+        port = system.GetInputPort("vectors_st")
+        context.SetTime(0.0)
+        system.GetInputPort("gyro_measurement").FixValue(context, np.r_[0.0, 1.0, w_B])
+        port.FixValue(context, VectorObservations(0.0, False, refs, refs, sigma, q_BS))
+        context.get_mutable_discrete_state().SetFrom(system.EvalUniquePeriodicDiscreteUpdate(context))
+        context.SetTime(1.0)
+        system.GetInputPort("gyro_measurement").FixValue(context, np.r_[1.0, 1.0, w_B])
+        late = lag > 0
+        port.FixValue(context, vectors(1.0 - gap, 1.0 - gap, sigma) if late else vectors(1.0, 1.0, sigma_on_time))
+        context.get_mutable_discrete_state().SetFrom(system.EvalUniquePeriodicDiscreteUpdate(context))
+        systems.append((system, context))
+    (a_sys, a_ctx), (b_sys, b_ctx) = systems
+    a, b = a_sys.estimate_vector(a_ctx), b_sys.estimate_vector(b_ctx)
+    assert a[USED] == b[USED] == 1
+    np.testing.assert_allclose(a[:43], b[:43], rtol=1e-9, atol=1e-15)
+    np.testing.assert_array_equal(_handling(a_sys, a_ctx), [1, 0, 0, 0])
 
 
 def test_a_core_that_cannot_carry_a_sample_forward_rejects_and_counts_it():

@@ -1,12 +1,14 @@
 """The MEKF estimator's step as one compiled call (fewer Python crossings per step).
 
 :meth:`drake_att.systems.estimator_system.EstimatorSystem._on_step` is the loop every core
-runs: time update with the gyro's mean rate (held and counted when unusable), then the
-quaternion measurements of this instant in input order (once each, validity, the core's
-gate, the re-acquisition after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
-rejections with the ungated retry), the counters, the innovations, the step linearization and
-the packed estimate. :func:`mekf_step` is that loop for a
-:class:`~drake_att.filters.mekf.MultiplicativeEKF` with quaternion inputs only, in one numba
+runs: time update with the gyro's mean rate (held and counted when unusable, with the held
+rate's drift variance), then the quaternion measurements of this instant in input order (time
+tags: once each, late samples within the lag carried forward, later, future and vanished ones
+counted; validity, the core's gate, the re-acquisition after
+:data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS` rejections with the ungated
+retry), the counters, the innovations, the step linearization and the packed estimate.
+:func:`mekf_step` is that loop for a :class:`~drake_att.filters.mekf.MultiplicativeEKF` with
+quaternion inputs only and no sensor monitor (verdicts take the Python loop), in one numba
 call writing the state groups in place. It has no rules or arithmetic of its own: the loop's
 rules are the functions of :mod:`drake_att.systems.estimator_step`,
 :mod:`drake_att.filters.gating` and :mod:`drake_att.contract` compiled here
@@ -67,8 +69,8 @@ class StepModel(NamedTuple):
         threshold: the gate's NIS threshold for 3 degrees of freedom (inf: no gate).
         arw, rrw: the core's gyro model (process noise).
         tolerance, reacquire_after: the loop's time tolerance and re-acquisition count.
-        lag: the model's ``max_time_tag_lag_s`` (s). held_q: the held-rate walk's intensity
-            ``held_rate_rrw_rad_per_s15^2`` (rad^2/s^3).
+        period: the estimator's period (s). lag: the model's ``max_time_tag_lag_s`` (s).
+        held_q: the held-rate walk's intensity ``held_rate_rrw_rad_per_s15^2`` (rad^2/s^3).
         last_sample, pending, rejections: offsets of the per-input entries in the bookkeeping
             group.
     """
@@ -83,6 +85,7 @@ class StepModel(NamedTuple):
     rrw: float
     tolerance: float
     reacquire_after: float
+    period: float
     lag: float
     held_q: float
     last_sample: int
@@ -95,7 +98,7 @@ class StepModel(NamedTuple):
         core,
         quaternion_sensors,
         bookkeeping: Bookkeeping,
-        period_s: float = 1.0,
+        period_s: float,
         max_time_tag_lag_s: float = 0.0,
         held_rate_rrw_rad_per_s15: float = 0.0,
     ) -> StepModel:
@@ -128,6 +131,7 @@ class StepModel(NamedTuple):
             float(core.rrw),
             TIME_TOLERANCE_S,
             float(gating.REACQUIRE_AFTER_REJECTIONS),
+            float(period_s),
             float(max_time_tag_lag_s),
             float(held_rate_rrw_rad_per_s15) ** 2,
             Bookkeeping.LAST_SAMPLE,
@@ -204,7 +208,9 @@ def _update_input(i, t, meas_i, model, book, handling, q, b, P, q_out, b_out, P_
     (``counted``: whether it counts as skipped), else the kernel's outcome after any
     re-acquisition."""
     t_meas = meas_i[0]
-    disposition = rules.tag_disposition(t_meas, t, model.tolerance, book[model.last_sample + i], model.lag)
+    disposition = rules.tag_disposition(
+        t_meas, t, model.tolerance, book[model.last_sample + i], model.lag, model.period
+    )
     if disposition == rules.NO_TIME:
         return -1, math.nan, True
     if disposition == rules.NOT_DUE:
@@ -213,7 +219,7 @@ def _update_input(i, t, meas_i, model, book, handling, q, b, P, q_out, b_out, P_
         book[model.pending + i] = t_meas
         return -1, math.nan, False
     book[model.last_sample + i] = t_meas
-    if disposition == rules.TOO_LATE:
+    if disposition == rules.TOO_LATE or disposition == rules.TOO_EARLY:
         handling[rules.N_TAG_REJECTED] += 1.0
         return -1, math.nan, True
     flag = meas_i[1]
@@ -278,6 +284,7 @@ def mekf_step(
     rrw,
     tolerance,
     reacquire_after,
+    period,
     lag,
     held_q,
     last_sample,
@@ -309,6 +316,7 @@ def mekf_step(
         rrw,
         tolerance,
         reacquire_after,
+        period,
         lag,
         held_q,
         last_sample,
@@ -387,7 +395,7 @@ def warm_up() -> None:
     from drake_att.systems.estimator_system import QuaternionSensorModel
 
     sensor = QuaternionSensorModel("warm_up", np.array([1.0, 0, 0, 0]), np.eye(3))
-    model = StepModel.of(MultiplicativeEKF(0.0, 0.0), [sensor], Bookkeeping(1))
+    model = StepModel.of(MultiplicativeEKF(0.0, 0.0), [sensor], Bookkeeping(1), 1.0)
     mekf_step(
         0.0,
         True,

@@ -74,10 +74,11 @@ SAMPLE_HANDLING_NAMES = (
 
 #: :func:`sample_disposition` / :func:`tag_disposition`: a sample with no usable time stamp
 #: (skipped and counted), one that is not new (handled already: passed over), one of this
-#: instant (to use now); :func:`tag_disposition` only: one tagged in the future (pending: it
-#: may still become due), one tagged before this instant within the lag (carried forward to
-#: this instant), one tagged before the lag (rejected and counted).
-NO_TIME, NOT_DUE, DUE, FUTURE, LATE, TOO_LATE = 0, 1, 2, 3, 4, 5
+#: instant (to use now); :func:`tag_disposition` only: one tagged in the future at or after
+#: the next step's reach (pending: it may still become due), one tagged before this instant
+#: within the lag (carried forward to this instant), one tagged before the lag, and one tagged
+#: in the future but too early for the next step to take it (both rejected and counted).
+NO_TIME, NOT_DUE, DUE, FUTURE, LATE, TOO_LATE, TOO_EARLY = 0, 1, 2, 3, 4, 5, 6
 
 #: :func:`verdict_code`: the monitor's verdict on a sample.
 NOT_ASSESSED, CONFIRMED, EXCLUDED = 0, 1, 2
@@ -100,17 +101,19 @@ def sample_disposition(t_meas: float, t: float, tolerance: float, last_used: flo
     ``last_used`` is new and of this instant: :data:`NO_TIME`, :data:`NOT_DUE` (not new, or
     not this instant's) or :data:`DUE` (:func:`tag_disposition` without a lag, its off-time
     cases folded into :data:`NOT_DUE`)."""
-    disposition = tag_disposition(t_meas, t, tolerance, last_used, 0.0)
+    disposition = tag_disposition(t_meas, t, tolerance, last_used, 0.0, math.inf)
     return disposition if disposition <= DUE else NOT_DUE
 
 
-def tag_disposition(t_meas: float, t: float, tolerance: float, last_used: float, lag: float) -> int:
-    """What the step at ``t`` does with a measurement tagged ``t_meas`` whose input last
-    handled a sample tagged ``last_used``, with the estimator's ``lag``
-    (``max_time_tag_lag_s``): :data:`NO_TIME` (no finite tag), :data:`NOT_DUE` (``t_meas <=
-    last_used``: seen before), :data:`DUE` (``|t_meas - t| < tolerance``), :data:`FUTURE`
-    (``t_meas >= t + tolerance``), :data:`LATE` (``t - lag <= t_meas <= t - tolerance``) or
-    :data:`TOO_LATE` (``t_meas < t - lag``)."""
+def tag_disposition(t_meas: float, t: float, tolerance: float, last_used: float, lag: float, period: float) -> int:
+    """What the step at ``t`` of an estimator with period ``period`` and lag ``lag``
+    (``max_time_tag_lag_s``, below the period) does with a measurement tagged ``t_meas`` whose
+    input last handled a sample tagged ``last_used``: :data:`NO_TIME` (no finite tag),
+    :data:`NOT_DUE` (``t_meas <= last_used``: seen before), :data:`DUE` (``|t_meas - t| <
+    tolerance``), :data:`LATE` (``t - lag <= t_meas <= t - tolerance``), :data:`TOO_LATE`
+    (``t_meas < t - lag``), :data:`TOO_EARLY` (``t + tolerance <= t_meas < t + period - lag -
+    tolerance``: at the next step it would be later than the lag, so no step can take it) or
+    :data:`FUTURE` (later: pending; a slower sensor's next sample, tagged at a later step)."""
     if not math.isfinite(t_meas):
         return NO_TIME
     if t_meas <= last_used:
@@ -118,7 +121,7 @@ def tag_disposition(t_meas: float, t: float, tolerance: float, last_used: float,
     if abs(t_meas - t) < tolerance:
         return DUE
     if t_meas > t:
-        return FUTURE
+        return TOO_EARLY if t_meas < t + period - lag - tolerance else FUTURE
     return LATE if t - t_meas <= lag else TOO_LATE
 
 
@@ -212,6 +215,7 @@ __all__ = [
     "FUTURE",
     "LATE",
     "TOO_LATE",
+    "TOO_EARLY",
     "NOT_ASSESSED",
     "CONFIRMED",
     "EXCLUDED",

@@ -6,14 +6,47 @@ which owns the loop they all share, once:
 
 * one periodic discrete update per filter step (``period_s``);
 * **time update** over ``(t_last, t]`` with the gyro's mean rate of that interval; a
-  missing, invalid, stale or non-finite gyro sample is counted (``skipped``) and the last
-  valid rate is held;
+  missing, invalid, stale (time tag not this step's) or non-finite gyro sample, or one the
+  sensor monitor excluded, is counted (``skipped``) and the last valid rate is held. With
+  ``held_rate_rrw_rad_per_s15`` (``r`` > 0; cores with
+  :class:`~drake_att.contract.AttitudeProcessNoise`) the held rate's error is a random walk
+  of intensity ``q = r^2`` from the last usable gyro sample: a held step starting ``tau``
+  after it and lasting ``dt`` adds ``q (tau dt^2 + dt^3 / 3)`` to each attitude variance
+  (:func:`~drake_att.systems.estimator_step.held_rate_variance`: that step's drift, white from
+  step to step) and to the published ``Q``;
 * **measurement updates** at this instant, inputs in declaration order (quaternion sensors,
-  then vector sensors): a measurement is used only at its own sample instant
-  (``|t_meas - t| < 1e-6 s``) and at most once; one that fails
+  then vector sensors). Every *new* sample (time tag after the input's last handled one) is
+  used or counted once (:func:`~drake_att.systems.estimator_step.tag_disposition`); a sample
+  seen again (a held one, tag at or before the last handled) is passed over uncounted:
+
+  - tagged at this step (``|t_meas - t| < 1e-6 s``): used;
+  - tagged before it within ``max_time_tag_lag_s`` (``t - lag <= t_meas``): carried forward
+    to ``t`` with the step's rate ``w_B = w_meas - bias_B_hat`` — a quaternion ``q_IS ⊗
+    q_BS^-1 ⊗ exp(w_B gap) ⊗ q_BS``, vectors rotated likewise in the sensor frame — its noise
+    variance grown by ``sigma_w^2 gap^2`` (``sigma_w^2``: the estimate's largest gyro-bias
+    variance, plus ``q tau`` while the rate is held), then used like an on-time sample
+    (counted ``late_samples_processed``); cores that cannot carry a sample (no gyro, no bias
+    estimate; camera frames) reject it;
+  - tagged before the lag: rejected;
+  - tagged in the future before ``t + period - lag`` (no step can take it: at the next one
+    it would be later than the lag): rejected at once;
+  - tagged later: pending. A slower sensor shows its next sample, tagged at a later filter
+    step, until that step (then it is used); a pending sample that leaves the port before it
+    is due (a tag off the filter's steps, a time-tag fault) is rejected when the port shows
+    another;
+  - rejected for its tag: counted in ``skipped`` and ``time_tag_rejections``;
+
+  then a sample the sensor monitor excluded (verdict 2) is skipped and counted
+  (``monitor_exclusions``), whatever its flag; one that fails
   :func:`drake_att.contract.is_usable` (invalid or NaN flag, NaN time, non-finite numbers)
   is skipped and counted; the core's own rejection (innovation gate, singular innovation
   covariance: ``UpdateInfo.accepted`` false) is counted as skipped too;
+* **prediction recovery**: a sample the monitor confirmed (verdict 1: consistent with
+  another independent sensor) that the gate rejects says the prediction is wrong (a gyro
+  fault, a bias jump): a :class:`~drake_att.contract.PredictionRecovery` core's
+  ``recover_prediction`` at once, then the same measurement retried with ``ungated()``; the
+  retry's outcome is counted, the recovery in ``prediction_recoveries``. Cores without it, and
+  samples not assessed (verdict 0), follow the re-acquisition rule;
 * **re-acquisition**: after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
   consecutive rejections of one input by a :class:`~drake_att.contract.Reacquisition` core
   (the Kalman-type cores: covariance inflated so the rejected innovation sits at half the
@@ -35,6 +68,10 @@ Input ports:
     centroids_<sensor> (abstract :class:`~drake_att.contract.CameraCentroids`) per camera
         (the indoor star tracker, paper S2).
     seed_uniform (4, random uniform) (cores with ``is_random``).
+    sensor_verdicts (1 + inputs) (systems built with ``verdicts``, i.e. a setup naming a
+        ``monitor``): the sensor monitor's verdict on the gyro, then on each measurement
+        input in :attr:`input_names` order: 0 not assessed, 1 confirmed, 2 excluded
+        (:func:`~drake_att.systems.estimator_step.verdict_code`). Unconnected: none assessed.
 Output ports:
     q_IB_hat (4), bias_B_hat or w_IB_B_hat (3, named by the core's ``second_quantity``),
     covariance (36), status (4): the contract (see :mod:`drake_att.contract`).
@@ -50,10 +87,14 @@ Output ports:
         in :attr:`input_names` order, ``[time of its last update (s; -inf before any), that
         update's NIS (NaN when the core has none, e.g. particle filters), innovation
         dimension (0 when none)]`` — rejected updates included (per-sensor NIS statistics).
+    sample_handling (4, C++-evaluated): counts so far of
+        :data:`~drake_att.systems.estimator_step.SAMPLE_HANDLING_NAMES` — late samples
+        processed, samples rejected for their time tag, prediction recoveries, monitor
+        exclusions (gyro samples included).
 Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
     abstract parameter 0: the :class:`FilterModel` — the core (its tuning), the initial
-        state, the quaternion sensor models (mounting, noise) and whether the estimator
-        runs. :meth:`set_filter` replaces it (and the state it implies) in a context;
+        state, the quaternion sensor models (mounting, noise), whether the estimator
+        runs, the time-tag lag and the held-rate walk. :meth:`set_filter` replaces it (and the state it implies) in a context;
         structure (state size, ports, period) cannot change.
 Discrete state:
     group 0: the packed estimate (47).
@@ -61,6 +102,7 @@ Discrete state:
     group 2: the core's state vector (``core.to_vector``).
     group 3 (linearizing cores): the step linearization (109).
     next group (estimators with measurement inputs): the innovations (3 per input).
+    last group: the sample-handling counters (4).
 
 The one runner: every estimator's ports, state groups, outputs and loop, kept together on purpose.
 """
@@ -534,7 +576,8 @@ class EstimatorSystem(LeafSystem):
             if port.HasValue(context):
                 yield offset + j, port.Eval(context)
 
-    #: Run eligible steps (an MEKF with compiled kernels, quaternion inputs only) as one
+    #: Run eligible steps (an MEKF with compiled kernels, quaternion inputs only, no sensor
+    #: monitor) as one
     #: compiled call (:mod:`drake_att.systems.compiled_step`); False: always this Python loop
     #: (the specification; the tests compare the two).
     use_compiled_step = True
@@ -638,7 +681,7 @@ class EstimatorSystem(LeafSystem):
                 n_skipped += 1  # a future-tagged sample that left the port unused
                 handling[rules.N_TAG_REJECTED] += 1
                 book[pending + i] = -np.inf
-            disposition = rules.tag_disposition(t_meas, t, TIME_TOLERANCE_S, book[last + i], lag)
+            disposition = rules.tag_disposition(t_meas, t, TIME_TOLERANCE_S, book[last + i], lag, self.period_s)
             if disposition == rules.NOT_DUE:
                 continue
             if disposition == rules.NO_TIME:
@@ -649,7 +692,7 @@ class EstimatorSystem(LeafSystem):
                 continue
             book[last + i] = t_meas
             late = disposition == rules.LATE
-            if disposition == rules.TOO_LATE or (late and not self._can_carry(core, m)):
+            if disposition in (rules.TOO_LATE, rules.TOO_EARLY) or (late and not self._can_carry(core, m)):
                 n_skipped += 1
                 handling[rules.N_TAG_REJECTED] += 1
                 continue
