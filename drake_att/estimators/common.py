@@ -16,6 +16,9 @@ from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 # ``held_rate_rrw_rad_per_s15``): how late a time tag may be and the sample still be carried
 # forward (s), and the random walk of a held gyro rate's error (deg/s^1.5).
 STEP_FIELDS = ("max_time_tag_lag_s", "held_rate_rrw_deg_per_s15")
+# The lag alone: for gyro-driven cores that cannot take attitude process noise (the held-rate
+# walk needs :class:`~drake_att.contract.AttitudeProcessNoise`, which only the MEKF has).
+LAG_FIELDS = ("max_time_tag_lag_s",)
 
 
 def check_step_settings(path: str, c) -> None:
@@ -29,6 +32,14 @@ def check_step_settings(path: str, c) -> None:
             c.max_time_tag_lag_s,
             f"must be below the estimator's period_s ({c.period_s} s): a sample later than one step belongs to another",
         )
+
+
+def with_step_settings(setup, c):
+    """``setup`` (an :class:`~drake_att.systems.estimator_system.EstimatorSetup`) with the
+    config's :data:`STEP_FIELDS` (those it has; 0 for the others)."""
+    import dataclasses
+
+    return dataclasses.replace(setup, **step_settings(c))
 
 
 def step_settings(c) -> dict:
