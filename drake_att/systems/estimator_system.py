@@ -94,8 +94,9 @@ Output ports:
 Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
     abstract parameter 0: the :class:`FilterModel` — the core (its tuning), the initial
         state, the quaternion sensor models (mounting, noise), whether the estimator
-        runs, the time-tag lag and the held-rate walk. :meth:`set_filter` replaces it (and the state it implies) in a context;
-        structure (state size, ports, period) cannot change.
+        runs, the time-tag lag and the held-rate walk. :meth:`set_filter` replaces it (and
+        the state it implies) in a context; structure (state size, ports, period, the sensor
+        monitor) cannot change.
 Discrete state:
     group 0: the packed estimate (47).
     group 1: the runner's counters and times, laid out by :class:`Bookkeeping`.
@@ -640,8 +641,8 @@ class EstimatorSystem(LeafSystem):
         return EventStatus.Succeeded()
 
     def _verdicts(self, context):
-        """The sensor monitor's verdict codes (:func:`~drake_att.systems.estimator_step.verdict_code`)
-        ``[gyro, input 0, input 1, ...]``, or None (no monitor, or its port unconnected: every
+        """The sensor monitor's verdict codes ``[gyro, input 0, input 1, ...]``
+        (:func:`~drake_att.systems.estimator_step.verdict_code`), or None (no monitor, or its port unconnected: every
         sample not assessed)."""
         if self._verdict_port is None or not self._verdict_port.HasValue(context):
             return None
