@@ -370,6 +370,32 @@ class Reacquisition(Protocol[StateT]):
 
 
 @runtime_checkable
+class PredictionRecovery(Protocol[StateT]):
+    """A gated core the system recovers when the gate rejects a sample the sensor monitor
+    confirmed (consistent with another independent sensor): the prediction, not the sample, is
+    wrong (a gyro fault, a bias jump). The system calls ``recover_prediction`` and retries the
+    measurement once with ``ungated()``."""
+
+    def recover_prediction(self, state: StateT, measurement, info: UpdateInfo, period_s: float) -> StateT:
+        """The state with the covariance widened for the rejected innovation ``info`` of
+        ``measurement``: enough attitude uncertainty to take it, and the rate (bias)
+        uncertainty that explains it over one filter step ``period_s`` (s)."""
+
+    def ungated(self) -> FilterCore[StateT]:
+        """The same core with its innovation gate off."""
+
+
+@runtime_checkable
+class AttitudeProcessNoise(Protocol[StateT]):
+    """A core whose covariance can take extra attitude process noise: the system adds the
+    drift of a held gyro rate (``held_rate_rrw_deg_per_s15``)."""
+
+    def add_attitude_variance(self, state: StateT, variance_rad2: float) -> StateT:
+        """The state with ``variance_rad2`` (rad^2) added to each attitude variance (its
+        covariance's attitude block plus ``variance_rad2 I``)."""
+
+
+@runtime_checkable
 class RandomInitialState(Protocol[StateT_co]):
     """A random core whose initial state is drawn at initialization with generator 0."""
 
@@ -405,6 +431,8 @@ class CoreCapabilities:
         random_initial_state: :class:`RandomInitialState` (only read for ``is_random`` cores).
         num_particles: :class:`ParticleSet`'s ``N`` (None: not a particle core).
         diagnostic_names: :class:`CoreDiagnostics`' names (empty: none).
+        prediction_recovery: :class:`PredictionRecovery`.
+        attitude_process_noise: :class:`AttitudeProcessNoise`.
     """
 
     linearized_prediction: bool = False
@@ -412,6 +440,8 @@ class CoreCapabilities:
     random_initial_state: bool = False
     num_particles: int | None = None
     diagnostic_names: tuple[str, ...] = ()
+    prediction_recovery: bool = False
+    attitude_process_noise: bool = False
 
     @classmethod
     def of(cls, core) -> CoreCapabilities:
@@ -425,6 +455,7 @@ class CoreCapabilities:
         for half, whole, protocol in (
             ("reacquire", "ungated", Reacquisition),
             ("diagnostic_names", "diagnostics", CoreDiagnostics),
+            ("recover_prediction", "ungated", PredictionRecovery),
         ):
             if hasattr(core, half) and not isinstance(core, protocol):
                 raise TypeError(
@@ -436,6 +467,8 @@ class CoreCapabilities:
             random_initial_state=isinstance(core, RandomInitialState),
             num_particles=core.num_particles if isinstance(core, ParticleSet) else None,
             diagnostic_names=tuple(core.diagnostic_names) if isinstance(core, CoreDiagnostics) else (),
+            prediction_recovery=isinstance(core, PredictionRecovery),
+            attitude_process_noise=isinstance(core, AttitudeProcessNoise),
         )
 
 
@@ -469,6 +502,8 @@ __all__ = [
     "FilterCore",
     "LinearizedPrediction",
     "Reacquisition",
+    "PredictionRecovery",
+    "AttitudeProcessNoise",
     "RandomInitialState",
     "ParticleSet",
     "CoreDiagnostics",

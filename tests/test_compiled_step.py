@@ -32,12 +32,13 @@ ARW, RRW = 0.56 * DEG / 60, 123.75 * DEG / 3600 / 60
 PERIOD = 0.5
 
 
-def _pair(core, init, sensors, oracle=False):
-    """(Python loop with ``core`` or its numpy oracle, compiled step with ``core``)."""
+def _pair(core, init, sensors, oracle=False, **settings):
+    """(Python loop with ``core`` or its numpy oracle, compiled step with ``core``);
+    ``settings``: the systems' loop settings (``max_time_tag_lag_s``, ...)."""
     python_core = ReferenceMEKF(core.arw, core.rrw, core.gate) if oracle else core
     systems = []
     for compiled, c in ((False, python_core), (True, core)):
-        s = EstimatorSystem("mekf", PERIOD, c, init, sensors)
+        s = EstimatorSystem("mekf", PERIOD, c, init, sensors, **settings)
         s.use_compiled_step = compiled
         systems.append(s)
     assert systems[1]._compiled_model(systems[1].filter_model(systems[1].CreateDefaultContext())) is not None
@@ -197,3 +198,62 @@ def test_compiled_step_singular_innovation_and_unconnected_inputs():
     assert python[45] == 6 + 5  # six singular updates, five steps without a gyro sample
     innovations = contexts[1].get_discrete_state(systems[1]._innovation_group).value()
     assert innovations[0] == pytest.approx(5 * PERIOD) and np.isnan(innovations[1]) and innovations[2] == 3
+
+
+def test_compiled_step_equals_python_loop_on_time_tags_and_a_held_rate_walk():
+    """The time-tag and held-rate branches, fuzzed: tags on time, late within the lag (carried
+    forward), late beyond it, in the future on and off the filter's steps (pending, vanishing),
+    held samples seen again; gyro outages with the held-rate walk. The branches are counted."""
+    rng = np.random.default_rng(7)
+    core = MultiplicativeEKF(ARW, RRW, innovation_gate_chi2=16.0)
+    q_true = rot.rpy_to_quat([0.3, -0.2, 1.1])
+    init = core.initial_state(q_true, np.zeros(3), 2 * DEG, 20 * DEG / 3600)
+    q_BS = [rot.rpy_to_quat([0.1, 0.7, -0.4]), rot.rpy_to_quat([-1.0, 0.2, 2.0])]
+    cov = np.diag((np.array([5.0, 5.0, 50.0]) * ARCSEC) ** 2)
+    sensors = [QuaternionSensorModel("a", q_BS[0], cov), QuaternionSensorModel("b", q_BS[1], cov)]
+    lag = 0.2
+    systems = _pair(core, init, sensors, max_time_tag_lag_s=lag, held_rate_rrw_rad_per_s15=1e-4)
+    w_true = np.array([0.01, -0.02, 0.015])
+    last = {"a": [0.0, 1.0, 1.0, 0, 0, 0], "b": [0.0, 1.0, 1.0, 0, 0, 0]}
+    outage = {"until": -1}
+
+    def inputs(k, t):
+        gyro = [t, 1.0, *(w_true + rng.normal(0, 1e-5, 3))]
+        if k > outage["until"] + 3 and rng.uniform() < 0.1:
+            outage["until"] = k + int(rng.integers(2, 8))
+        if k <= outage["until"]:
+            gyro[1] = 0.0
+        out = {"gyro_measurement": gyro}
+        for i, name in enumerate(("a", "b")):
+            v = rng.uniform()
+            tag = t
+            if v < 0.15:
+                tag = t - rng.uniform(0.01, lag)  # late within the lag
+            elif v < 0.25:
+                tag = t - rng.uniform(lag + 0.01, 0.45)  # beyond it
+            elif v < 0.35:
+                tag = t + rng.uniform(0.01, 0.45)  # future, off the steps
+            elif v < 0.45:
+                tag = t + PERIOD * int(rng.integers(1, 3))  # future, on a later step
+            elif v < 0.55:
+                out[f"q_meas_{name}"] = last[name]  # the same sample again
+                continue
+            q_meas = rot.quat_multiply(
+                rot.quat_multiply(rot.quat_multiply(q_true, rot.rotvec_to_quat(w_true * tag)), q_BS[i]),
+                rot.rotvec_to_quat(rng.normal(0, 1, 3) * np.sqrt(np.diag(cov))),
+            )
+            m = [tag, 1.0, *q_meas]
+            last[name] = m
+            out[f"q_meas_{name}"] = m
+        return out
+
+    counts = {"late": 0.0, "tag": 0.0}
+
+    def count(system, context):
+        handling = context.get_discrete_state(system._handling_group).value()
+        counts["late"], counts["tag"] = handling[0], handling[1]
+
+    (python, compiled), _ = _run(systems, inputs, 300, count)
+    assert counts["late"] >= 30 and counts["tag"] >= 60, counts
+    assert python[44] > 200 and python[45] > 60
+    assert np.linalg.norm(rot.quat_error_rotvec(python[:4], compiled[:4])) < 1e-12

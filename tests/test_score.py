@@ -102,6 +102,7 @@ def test_metadata_names_the_truth_each_kind_and_each_estimators_gyro(result):
         }
         if name != "fusion":  # estimators with measurement inputs also log their innovations
             signals["innovations"] = f"{name}/innovations"
+            signals["sample_handling"] = f"{name}/sample_handling"  # every EstimatorSystem: its counters
             assert e["inputs"] == ["st"], name
         assert e["signals"] == signals, name
     assert set(meta["signals"]) == set(run.signals)

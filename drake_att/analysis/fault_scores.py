@@ -18,11 +18,12 @@ last faulted sample); drop-outs inside an outage window are named "outage".
   t = 0.3 s). ``steps``: how many of its steps do.
 * At each such step, against the estimator's usual count increments (the median over steps
   without any fault on its sensors): ``rejected`` — its skipped count rose more than usual
-  (invalid or non-finite sample, gate rejection, a gyro sample not of this instant);
+  (invalid or non-finite sample, gate rejection, a sample or gyro sample whose time tag
+  cannot be this step's);
   ``accepted`` — not rejected and, for a measurement (not a gyro), its used count rose as
-  usual; ``ignored`` — neither (the sample was not read: a time tag that does not match the
-  filter's instant is not a sample of this step, and the loop passes over it without
-  counting it); ``detected`` — rejected, or accepted with an NIS above
+  usual; ``ignored`` — neither (the sample was not read at this step: e.g. a sample seen
+  before, or one tagged in the future that a later step may still take; the estimator loop
+  uses or counts every new sample once, a mis-tagged one as rejected); ``detected`` — rejected, or accepted with an NIS above
   :data:`DETECTION_NIS` (the 99.9% point of chi-square with 3 dof: a quaternion update).
 * ``peak_error_deg``: the largest attitude error ``|dtheta|`` from the event's start to the
   end of its evaluation window (the next event's start, or the end of the run).

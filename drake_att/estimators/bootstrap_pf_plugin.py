@@ -21,7 +21,11 @@ class BootstrapPfConfig:
 
     ``attitude_process_noise_deg_per_rt_h``: the ARW used to spread the particles'
     attitude (None: the gyro's ARW).  ``bias_roughening_deg_per_h_per_rt_s``: the
-    beyond-the-paper bias-diffusion remedy (0 = the paper's frozen particle biases)."""
+    beyond-the-paper bias-diffusion remedy (0 = the paper's frozen particle biases).
+
+    ``max_time_tag_lag_s``: a sample tagged up to this much before the step is carried forward
+    to it and used (:class:`~drake_att.estimators.mekf_plugin.MekfConfig`); 0: none.
+    """
 
     name: str = "bootstrap_pf"
     period_s: float = 1.0
@@ -36,6 +40,7 @@ class BootstrapPfConfig:
     initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_sigma_deg: float = 1.0
     initial_bias_sigma_deg_per_h: float = 1.0
+    max_time_tag_lag_s: float = 0.0
 
 
 def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
@@ -43,6 +48,7 @@ def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
     if c.attitude_process_noise_deg_per_rt_h is not None:
         cfg.check_nonnegative(f"{path}.attitude_process_noise_deg_per_rt_h", c.attitude_process_noise_deg_per_rt_h)
     cfg.check_nonnegative(f"{path}.bias_roughening_deg_per_h_per_rt_s", c.bias_roughening_deg_per_h_per_rt_s)
+    common.check_step_settings(path, c)
 
 
 @register_estimator(
@@ -54,6 +60,7 @@ def validate_bootstrap_pf(path: str, c: BootstrapPfConfig, checks) -> None:
         "bias_roughening_deg_per_h_per_rt_s",
         "resample_threshold",
         *common.INITIAL_GYRO_MODE_FIELDS,
+        *common.LAG_FIELDS,
     ),
 )
 def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
@@ -62,7 +69,7 @@ def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
         g.arw_deg_per_rt_h if c.attitude_process_noise_deg_per_rt_h is None else c.attitude_process_noise_deg_per_rt_h
     )
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return bootstrap_pf_setup(
+    setup = bootstrap_pf_setup(
         c.period_s,
         c.star_tracker,
         c.num_particles,
@@ -75,3 +82,4 @@ def build_bootstrap_pf(ctx, c: BootstrapPfConfig):
         gyro=c.gyro,
         vector_sensors=c.vector_sensors,
     )
+    return common.with_step_settings(setup, c)

@@ -11,6 +11,45 @@ from drake_att.scenarios.build_context import attitude_from_rpy_deg
 from drake_att.systems.filter_setups import vector_inputs
 from drake_att.units import ARW_DEG_PER_RT_H, DEG, DEG_PER_H, RRW_DEG_PER_H_15
 
+# The estimator loop's settings a gyro-driven estimator config may carry (context parameters:
+# :class:`~drake_att.systems.estimator_system.EstimatorSetup`'s ``max_time_tag_lag_s`` and
+# ``held_rate_rrw_rad_per_s15``): how late a time tag may be and the sample still be carried
+# forward (s), and the random walk of a held gyro rate's error (deg/s^1.5).
+STEP_FIELDS = ("max_time_tag_lag_s", "held_rate_rrw_deg_per_s15")
+# The lag alone: for gyro-driven cores that cannot take attitude process noise (the held-rate
+# walk needs :class:`~drake_att.contract.AttitudeProcessNoise`, which only the MEKF has).
+LAG_FIELDS = ("max_time_tag_lag_s",)
+
+
+def check_step_settings(path: str, c) -> None:
+    """The config's :data:`STEP_FIELDS`: finite and >= 0, the lag below ``period_s`` (a sample
+    later than one step belongs to another step)."""
+    for f in STEP_FIELDS:
+        cfg.check_nonnegative(f"{path}.{f}", getattr(c, f, 0.0))
+    if c.max_time_tag_lag_s >= c.period_s:
+        cfg.fail(
+            f"{path}.max_time_tag_lag_s",
+            c.max_time_tag_lag_s,
+            f"must be below the estimator's period_s ({c.period_s} s): a sample later than one step belongs to another",
+        )
+
+
+def with_step_settings(setup, c):
+    """``setup`` (an :class:`~drake_att.systems.estimator_system.EstimatorSetup`) with the
+    config's :data:`STEP_FIELDS` (those it has; 0 for the others)."""
+    import dataclasses
+
+    return dataclasses.replace(setup, **step_settings(c))
+
+
+def step_settings(c) -> dict:
+    """:class:`~drake_att.systems.estimator_system.EstimatorSetup` keywords of the config's
+    :data:`STEP_FIELDS` (SI)."""
+    return {
+        "max_time_tag_lag_s": float(getattr(c, "max_time_tag_lag_s", 0.0)),
+        "held_rate_rrw_rad_per_s15": float(getattr(c, "held_rate_rrw_deg_per_s15", 0.0)) * DEG,
+    }
+
 
 def require_sensor(checks, path: str, field: str, name: str, kind: str):
     """The config of sensor ``name`` listed before, whose output is of ``kind``."""

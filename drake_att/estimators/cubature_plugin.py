@@ -35,7 +35,11 @@ from drake_att.units import DEG, DEG_PER_H
 
 @dataclass
 class CubatureQuaternionConfig:
-    """CQE (``multiplicative_noise: ""``) or CQE-MCNS (the name of a noise source)."""
+    """CQE (``multiplicative_noise: ""``) or CQE-MCNS (the name of a noise source).
+
+    ``max_time_tag_lag_s``: a sample tagged up to this much before the step is carried forward
+    to it and used (:class:`~drake_att.estimators.mekf_plugin.MekfConfig`); 0: none.
+    """
 
     name: str = "cqe"
     period_s: float = 1.0
@@ -57,6 +61,7 @@ class CubatureQuaternionConfig:
     zeta_state_correlation: bool = False
     innovation_gate_chi2: Optional[float] = None
     innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
+    max_time_tag_lag_s: float = 0.0
 
 
 def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
@@ -68,6 +73,7 @@ def validate_cubature(path: str, c: CubatureQuaternionConfig, checks) -> None:
     cfg.check_nonnegative(f"{path}.zeta_gate_sigmas", c.zeta_gate_sigmas)
     common.check_flags(path, c, "zeta_state_correlation")
     common.check_innovation_gate(path, c)
+    common.check_step_settings(path, c)
     if c.multiplicative_noise and c.vector_sensors:
         cfg.fail(
             f"{path}.vector_sensors",
@@ -121,6 +127,7 @@ def _assumed_model(c: CubatureQuaternionConfig, source: ScaleFactorStarNoiseConf
         "zeta_state_correlation",
         *common.GATE_FIELDS,
         *common.INITIAL_GYRO_MODE_FIELDS,
+        *common.LAG_FIELDS,
     ),
 )
 def build_cubature(ctx, c: CubatureQuaternionConfig) -> EstimatorSetup:
@@ -139,4 +146,6 @@ def build_cubature(ctx, c: CubatureQuaternionConfig) -> EstimatorSetup:
     )
     q0, b0, _ = common.initial_gyro_mode_estimate(ctx, c)
     init = core.initial_state(q0, b0, c.initial_attitude_sigma_deg * DEG, c.initial_bias_sigma_deg_per_h * DEG_PER_H)
-    return EstimatorSetup(core, init, c.period_s, gyro=c.gyro, vector_sensors=common.vector_sensor_names(c))
+    return EstimatorSetup(
+        core, init, c.period_s, gyro=c.gyro, vector_sensors=common.vector_sensor_names(c), **common.step_settings(c)
+    )

@@ -17,7 +17,11 @@ from drake_att.systems.filter_setups import ekpf_setup
 @dataclass
 class EkpfConfig:
     """Paper S0's extended-Kalman particle filter (per-particle EKF proposal).
-    ``proposal_iterations`` > 1 iterates each particle's EKF update (beyond the paper)."""
+    ``proposal_iterations`` > 1 iterates each particle's EKF update (beyond the paper).
+
+    ``max_time_tag_lag_s``: a sample tagged up to this much before the step is carried forward
+    to it and used (:class:`~drake_att.estimators.mekf_plugin.MekfConfig`); 0: none.
+    """
 
     name: str = "ekpf"
     period_s: float = 1.0
@@ -33,6 +37,7 @@ class EkpfConfig:
     initial_bias_deg_per_h: List[float] = field(default_factory=cfg.zeros3)
     initial_attitude_sigma_deg: float = 1.0
     initial_bias_sigma_deg_per_h: float = 1.0
+    max_time_tag_lag_s: float = 0.0
 
 
 def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
@@ -44,6 +49,7 @@ def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
         resampling=True,
         filter_gyro_noise=True,
     )
+    common.check_step_settings(path, c)
 
 
 @register_estimator(
@@ -56,12 +62,13 @@ def validate_ekpf(path: str, c: EkpfConfig, checks) -> None:
         "proposal_iterations",
         "resample_threshold",
         *common.INITIAL_GYRO_MODE_FIELDS,
+        *common.LAG_FIELDS,
     ),
 )
 def build_ekpf(ctx, c: EkpfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return ekpf_setup(
+    setup = ekpf_setup(
         c.period_s,
         c.star_tracker,
         c.num_particles,
@@ -75,3 +82,4 @@ def build_ekpf(ctx, c: EkpfConfig):
         gyro=c.gyro,
         vector_sensors=c.vector_sensors,
     )
+    return common.with_step_settings(setup, c)

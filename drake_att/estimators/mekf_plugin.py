@@ -31,6 +31,16 @@ class MekfConfig:
     are long relative to how fast the rate vector turns (a fast tumble). Structural: it adds
     the previous increment to the core's state (47 numbers instead of 43), so changing it
     needs a new diagram (it is not a context parameter). Default off.
+
+    ``max_time_tag_lag_s``: a sample tagged up to this much before the filter step (and after
+    the input's last handled sample) is carried forward to the step with the step's rate and
+    used, its noise grown by the rate's uncertainty over the gap; later ones, and future tags,
+    are rejected and counted (:mod:`drake_att.systems.estimator_system`). Must be below
+    ``period_s``; 0 (default): only samples of the step's own instant.
+    ``held_rate_rrw_deg_per_s15``: while the gyro sample is unusable the last valid rate is
+    held; its error is modelled as a random walk of this intensity from the last usable
+    sample, which grows the attitude covariance
+    (:func:`drake_att.systems.estimator_step.held_rate_variance`). 0 (default): none.
     """
 
     name: str = "mekf"
@@ -46,6 +56,8 @@ class MekfConfig:
     innovation_gate_chi2: Optional[float] = None
     innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
     coning_correction: bool = False
+    max_time_tag_lag_s: float = 0.0
+    held_rate_rrw_deg_per_s15: float = 0.0
 
 
 def validate_mekf(path: str, c: MekfConfig, checks) -> None:
@@ -68,13 +80,20 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
     common.check_initial_bias(path, c)
     common.check_innovation_gate(path, c)
     common.check_flags(path, c, "coning_correction")
+    common.check_step_settings(path, c)
 
 
 @register_estimator(
     MekfConfig,
     second_quantity=SecondQuantity.GYRO_BIAS,
     validate=validate_mekf,
-    parameters=("arw_deg_per_rt_h", "rrw_deg_per_h15", *common.GATE_FIELDS, *common.INITIAL_GYRO_MODE_FIELDS),
+    parameters=(
+        "arw_deg_per_rt_h",
+        "rrw_deg_per_h15",
+        *common.GATE_FIELDS,
+        *common.INITIAL_GYRO_MODE_FIELDS,
+        *common.STEP_FIELDS,
+    ),
 )
 def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
     arw, rrw = common.filter_gyro_noise_deg(c, ctx.sensor_configs[c.gyro])
@@ -95,4 +114,5 @@ def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
         gyro=c.gyro,
         quaternion_sensors=tuple(ctx.quaternion_model(n) for n in quaternion),
         vector_sensors=tuple(n for n in c.star_trackers if n not in quaternion),
+        **common.step_settings(c),
     )

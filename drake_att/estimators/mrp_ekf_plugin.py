@@ -21,7 +21,11 @@ class MrpEkfConfig:
     gyro and one vector-mode star tracker (``star_tracker``; ``""``: none) and any further
     vector-observation sensors (``vector_sensors``: e.g. a sun sensor and a magnetometer),
     updated on one after the other at each step.  ``update_iterations`` > 1 gives an iterated
-    EKF (beyond the paper).  Noise defaults (None) come from the gyro's config."""
+    EKF (beyond the paper).  Noise defaults (None) come from the gyro's config.
+
+    ``max_time_tag_lag_s``: a sample tagged up to this much before the step is carried forward
+    to it and used (:class:`~drake_att.estimators.mekf_plugin.MekfConfig`); 0: none.
+    """
 
     name: str = "ekf"
     period_s: float = 1.0
@@ -37,11 +41,13 @@ class MrpEkfConfig:
     update_iterations: int = 1
     innovation_gate_chi2: Optional[float] = None
     innovation_gate_probability: float = DEFAULT_GATE_PROBABILITY
+    max_time_tag_lag_s: float = 0.0
 
 
 def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
     common.validate_vector_filter(path, c, checks, integer_fields=("update_iterations",), filter_gyro_noise=True)
     common.check_innovation_gate(path, c)
+    common.check_step_settings(path, c)
 
 
 @register_estimator(
@@ -54,12 +60,13 @@ def validate_mrp_ekf(path: str, c: MrpEkfConfig, checks) -> None:
         "update_iterations",
         *common.GATE_FIELDS,
         *common.INITIAL_GYRO_MODE_FIELDS,
+        *common.LAG_FIELDS,
     ),
 )
 def build_mrp_ekf(ctx, c: MrpEkfConfig):
     arw, rrw = common.filter_gyro_noise(ctx, c)
     q0, b0, P0 = common.initial_gyro_mode_estimate(ctx, c)
-    return mrp_ekf_setup(
+    setup = mrp_ekf_setup(
         c.period_s,
         c.star_tracker,
         q0,
@@ -72,3 +79,4 @@ def build_mrp_ekf(ctx, c: MrpEkfConfig):
         innovation_gate=common.innovation_gate(c),
         vector_sensors=c.vector_sensors,
     )
+    return common.with_step_settings(setup, c)

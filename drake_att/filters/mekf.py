@@ -21,7 +21,7 @@ Derivation and paper notes: docs/derivations/mekf.md
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -169,6 +169,7 @@ class MultiplicativeEKF(GatedCore):
                 "update_quaternion",
                 "reacquire",
                 "ungated",
+                "add_attitude_variance",
             )
         )
 
@@ -218,6 +219,43 @@ class MultiplicativeEKF(GatedCore):
         """The state with its covariance inflated after repeated gate rejections (the rule of
         :mod:`drake_att.filters.gating`, applied by the estimator system)."""
         return inflated(state, reacquire_factor(self.gate, info))
+
+    def recover_prediction(self, state: MekfState, measurement, info: UpdateInfo, period_s: float) -> MekfState:
+        """The state after a gate rejection of a sample the sensor monitor confirmed: the
+        prediction is what is wrong (a gyro fault or a bias jump), applied by the estimator
+        system before it retries the sample with :meth:`ungated`.
+
+        The attitude block is inflated as :meth:`reacquire` does (the rejected innovation at
+        half the gate); each bias variance grows by ``(dtheta_B_i / period_s)^2``, where
+        ``dtheta_B`` is the rejected innovation as a body-frame rotation (quaternion sample:
+        ``R_BS z_S``; vectors: the least-squares rotation of ``z = H_theta dtheta_B``): the
+        rate error that would make that rotation in one filter step ``period_s`` (s).
+        """
+        new = inflated(state, reacquire_factor(self.gate, info))
+        dtheta_B = self._innovation_rotation_B(state, measurement, info)
+        P = np.array(new.P, dtype=float)
+        P[3:, 3:] += np.diag((dtheta_B / float(period_s)) ** 2)
+        return replace(new, P=P)
+
+    @staticmethod
+    def _innovation_rotation_B(state: MekfState, measurement, info: UpdateInfo) -> np.ndarray:
+        """The rejected innovation of ``measurement`` as a body-frame rotation vector (rad)."""
+        z = np.asarray(info.innovation, dtype=float)
+        if isinstance(measurement, QuaternionSample):
+            return rot.quat_to_rotmat(measurement.q_BS) @ z  # R_BS z_S
+        R_SB = rot.quat_to_rotmat(measurement.q_BS).T
+        b_B = np.asarray(measurement.references_I, dtype=float) @ rot.quat_to_rotmat(state.q_IB)
+        H = (R_SB @ rot.skew(b_B)).reshape(-1, 3)
+        return np.linalg.lstsq(H, z, rcond=None)[0]
+
+    @staticmethod
+    def add_attitude_variance(state: MekfState, variance_rad2: float) -> MekfState:
+        """The state with ``variance_rad2`` (rad^2) added to each attitude variance (the drift
+        of a held gyro rate, :class:`drake_att.contract.AttitudeProcessNoise`)."""
+        P = np.array(state.P, dtype=float)
+        for k in range(3):
+            P[k, k] += variance_rad2
+        return replace(state, P=P)
 
     @staticmethod
     def estimate(state: MekfState):

@@ -128,7 +128,9 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
     (key of the gyro bias it is scored against, or None; a fusion: its first source's gyro)
     and ``signals`` (``{"attitude", "second", "covariance", "status"}`` -> logged key, plus
     ``"innovations"`` for estimators with measurement inputs, whose names are then listed
-    in ``inputs``: per input ``[time of its last update, NIS, dimension]``, see
+    in ``inputs``: per input ``[time of its last update, NIS, dimension]``, and
+    ``"sample_handling"``: the counters named by
+    :data:`~drake_att.systems.estimator_step.SAMPLE_HANDLING_NAMES`; see
     :class:`~drake_att.systems.estimator_system.EstimatorSystem`).
     The second-quantity kind is the contract's (:attr:`~drake_att.contract.SecondQuantity.kind`).
     """
@@ -163,6 +165,8 @@ def run_metadata(scenario_diagram, seed: int, wall_time_s: float, signal_keys, s
         if f"{name}/innovations" in signal_keys:
             meta["estimators"][c.name]["signals"]["innovations"] = f"{name}/innovations"
             meta["estimators"][c.name]["inputs"] = list(system.input_names)
+        if f"{name}/sample_handling" in signal_keys:
+            meta["estimators"][c.name]["signals"]["sample_handling"] = f"{name}/sample_handling"
     plan = getattr(sd, "logging_plan", None)
     if plan is not None:
         meta["logging"] = plan
@@ -250,7 +254,7 @@ class RunLog:
             refs += [
                 (f"estimators.{name}.signals.{k}", e["signals"].get(k))
                 for k in ("attitude", "second", "covariance", "status")
-                + (("innovations",) if "innovations" in e["signals"] else ())
+                + tuple(k for k in ("innovations", "sample_handling") if k in e["signals"])
             ]
             if e.get("true_bias") is not None:
                 refs.append((f"estimators.{name}.true_bias", e["true_bias"]))
@@ -513,7 +517,7 @@ class ScenarioDiagram:
             else:
                 for port, _ in ports:
                     add(system, port, period, estimator=True)
-            for port in ("diagnostics", "innovations"):
+            for port in ("diagnostics", "innovations", "sample_handling"):
                 if system.HasOutputPort(port):
                     add(system, port, period, estimator=True)
         return out

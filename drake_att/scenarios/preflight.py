@@ -157,8 +157,9 @@ PORT_WIDTHS = {
 }
 DEFAULT_PORT_WIDTH = 16
 # An estimator logs its packed estimate (47: attitude, second vector, covariance, status),
-# its innovations (3 per measurement input) and its diagnostics (at most ~8 numbers).
-ESTIMATE_WIDTH, INNOVATION_WIDTH, DIAGNOSTICS_WIDTH = ESTIMATE_SIZE, 3, 8
+# its innovations (3 per measurement input), its diagnostics (at most ~8 numbers) and its
+# sample-handling counters (4).
+ESTIMATE_WIDTH, INNOVATION_WIDTH, DIAGNOSTICS_WIDTH = ESTIMATE_SIZE, 3, 8 + 4
 TRUTH_WIDTHS = (4, 3)  # q_IB and w_IB_B, at the smallest period of the scenario
 
 

@@ -241,6 +241,16 @@ BY_FIELD: dict = {
     "correlation": _CORRELATION,
     "assumed_correlation": _CORRELATION,
     "num_substeps": Range(1, 1e4, "", "integration substeps per filter step"),
+    "max_time_tag_lag_s": Range(
+        0.0, 1e5, "s", "how late a sample may be and still be carried forward; below the estimator's period (checked)"
+    ),
+    "held_rate_rrw_deg_per_s15": Range(
+        0.0,
+        100.0,
+        "deg/s^1.5",
+        "the random walk of a held gyro rate's error: the body's unmodelled angular acceleration during an outage, "
+        "0 (none) to a tumble's",
+    ),
 }
 
 # field-name prefix -> range (after the tables, before the unit suffixes).

@@ -1,12 +1,14 @@
 """The MEKF estimator's step as one compiled call (fewer Python crossings per step).
 
 :meth:`drake_att.systems.estimator_system.EstimatorSystem._on_step` is the loop every core
-runs: time update with the gyro's mean rate (held and counted when unusable), then the
-quaternion measurements of this instant in input order (once each, validity, the core's
-gate, the re-acquisition after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
-rejections with the ungated retry), the counters, the innovations, the step linearization and
-the packed estimate. :func:`mekf_step` is that loop for a
-:class:`~drake_att.filters.mekf.MultiplicativeEKF` with quaternion inputs only, in one numba
+runs: time update with the gyro's mean rate (held and counted when unusable, with the held
+rate's drift variance), then the quaternion measurements of this instant in input order (time
+tags: once each, late samples within the lag carried forward, later, future and vanished ones
+counted; validity, the core's gate, the re-acquisition after
+:data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS` rejections with the ungated
+retry), the counters, the innovations, the step linearization and the packed estimate.
+:func:`mekf_step` is that loop for a :class:`~drake_att.filters.mekf.MultiplicativeEKF` with
+quaternion inputs only and no sensor monitor (verdicts take the Python loop), in one numba
 call writing the state groups in place. It has no rules or arithmetic of its own: the loop's
 rules are the functions of :mod:`drake_att.systems.estimator_step`,
 :mod:`drake_att.filters.gating` and :mod:`drake_att.contract` compiled here
@@ -38,7 +40,11 @@ from drake_att.systems.estimator_step import TIME_TOLERANCE_S, Bookkeeping
 for _rule in (
     rules.rate_usable,
     rules.gyro_sample_usable,
-    rules.sample_disposition,
+    rules.tag_disposition,
+    rules.pending_vanished,
+    rules.held_rate_variance,
+    rules.late_sample_variance,
+    rules.carried_quaternion,
     rules.covariance_slot,
     rules.is_gate_rejection,
     gating.inflation_factor,
@@ -63,7 +69,10 @@ class StepModel(NamedTuple):
         threshold: the gate's NIS threshold for 3 degrees of freedom (inf: no gate).
         arw, rrw: the core's gyro model (process noise).
         tolerance, reacquire_after: the loop's time tolerance and re-acquisition count.
-        last_sample, rejections: offsets of the per-input entries in the bookkeeping group.
+        period: the estimator's period (s). lag: the model's ``max_time_tag_lag_s`` (s).
+        held_q: the held-rate walk's intensity ``held_rate_rrw_rad_per_s15^2`` (rad^2/s^3).
+        last_sample, pending, rejections: offsets of the per-input entries in the bookkeeping
+            group.
     """
 
     q_BS: np.ndarray
@@ -76,11 +85,23 @@ class StepModel(NamedTuple):
     rrw: float
     tolerance: float
     reacquire_after: float
+    period: float
+    lag: float
+    held_q: float
     last_sample: int
+    pending: int
     rejections: int
 
     @classmethod
-    def of(cls, core, quaternion_sensors, bookkeeping: Bookkeeping) -> StepModel:
+    def of(
+        cls,
+        core,
+        quaternion_sensors,
+        bookkeeping: Bookkeeping,
+        period_s: float,
+        max_time_tag_lag_s: float = 0.0,
+        held_rate_rrw_rad_per_s15: float = 0.0,
+    ) -> StepModel:
         n = len(quaternion_sensors)
         F = max([1] + [len(s.covariance_by_flag) for s in quaternion_sensors])
         q_BS = np.zeros((n, 4))
@@ -110,7 +131,11 @@ class StepModel(NamedTuple):
             float(core.rrw),
             TIME_TOLERANCE_S,
             float(gating.REACQUIRE_AFTER_REJECTIONS),
+            float(period_s),
+            float(max_time_tag_lag_s),
+            float(held_rate_rrw_rad_per_s15) ** 2,
             Bookkeeping.LAST_SAMPLE,
+            bookkeeping.pending,
             bookkeeping.rejections,
         )
 
@@ -131,13 +156,14 @@ def eligible(core, vector_inputs: int, is_random: bool) -> bool:
 
 
 _USED, _SKIPPED, _LAST_NIS = STATUS.start + STATUS_USED, STATUS.start + STATUS_SKIPPED, STATUS.start + STATUS_LAST_NIS
-_T_LAST, _W_LAST = Bookkeeping.T_LAST, Bookkeeping.W_LAST.start
+_T_LAST, _W_LAST, _T_GYRO_GOOD = Bookkeeping.T_LAST, Bookkeeping.W_LAST.start, Bookkeeping.T_GYRO_GOOD
 
 
 @_jit(inline="always")
 def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
     """Propagate ``(q, P)`` over ``(t_last, t]`` (in place; ``Phi``/``Q`` written), holding
-    the last valid rate when the gyro sample is unusable. Returns the skipped count (0 or 1)."""
+    the last valid rate when the gyro sample is unusable, with the held-rate drift's attitude
+    variance in ``Q``. Returns the skipped count (0 or 1)."""
     skipped = 0.0
     t_last = book[_T_LAST]
     if math.isfinite(t_last):
@@ -147,6 +173,7 @@ def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
         if usable:
             for k in range(3):
                 book[_W_LAST + k] = gyro[2 + k]
+            book[_T_GYRO_GOOD] = t
         else:
             skipped = 1.0
         dt = t - t_last
@@ -155,30 +182,46 @@ def _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q):
             for k in range(3):
                 w_hat[k] = book[_W_LAST + k] - b[k]
             _mekf.process_noise(model.arw, model.rrw, dt, Q)
+            if not usable and model.held_q > 0.0:
+                variance = rules.held_rate_variance(model.held_q, t_last - book[_T_GYRO_GOOD], dt)
+                for k in range(3):
+                    Q[k, k] += variance
             q_new = np.empty(4)
             P_new = np.empty((6, 6))
             _mekf.predict(q, P, w_hat, w_hat * dt, dt, Q, q_new, P_new, Phi)
             q[:] = q_new
             P[:, :] = P_new
-    elif gyro_connected and rules.rate_usable(gyro[1], gyro[2], gyro[3], gyro[4]):
-        for k in range(3):
-            book[_W_LAST + k] = gyro[2 + k]
+    else:
+        book[_T_GYRO_GOOD] = t
+        if gyro_connected and rules.rate_usable(gyro[1], gyro[2], gyro[3], gyro[4]):
+            for k in range(3):
+                book[_W_LAST + k] = gyro[2 + k]
     book[_T_LAST] = t
     return skipped
 
 
 @_jit(inline="always")
-def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S, I_KH):
+def _update_input(i, t, meas_i, model, book, handling, q, b, P, q_out, b_out, P_out, z, S, I_KH):
     """One quaternion input's update at ``t`` (in place on ``q, b, P`` when accepted; ``I_KH``
-    written). Returns ``(outcome, nis, counted)``: outcome -1 for a sample passed over or
-    skipped before the core sees it (``counted``: whether it counts as skipped), else the
-    kernel's outcome after any re-acquisition."""
-    disposition = rules.sample_disposition(meas_i[0], t, model.tolerance, book[model.last_sample + i])
+    written; a late sample carried forward, counted in ``handling``). Returns ``(outcome,
+    nis, counted)``: outcome -1 for a sample passed over or skipped before the core sees it
+    (``counted``: whether it counts as skipped), else the kernel's outcome after any
+    re-acquisition."""
+    t_meas = meas_i[0]
+    disposition = rules.tag_disposition(
+        t_meas, t, model.tolerance, book[model.last_sample + i], model.lag, model.period
+    )
     if disposition == rules.NO_TIME:
         return -1, math.nan, True
-    if disposition != rules.DUE:
+    if disposition == rules.NOT_DUE:
         return -1, math.nan, False
-    book[model.last_sample + i] = meas_i[0]
+    if disposition == rules.FUTURE:
+        book[model.pending + i] = t_meas
+        return -1, math.nan, False
+    book[model.last_sample + i] = t_meas
+    if disposition == rules.TOO_LATE or disposition == rules.TOO_EARLY:
+        handling[rules.N_TAG_REJECTED] += 1.0
+        return -1, math.nan, True
     flag = meas_i[1]
     slot = rules.covariance_slot(flag, model.n_subsets[i])
     if slot > 0 and not model.allowed[i, slot]:
@@ -188,6 +231,18 @@ def _update_input(i, t, meas_i, model, book, q, b, P, q_out, b_out, P_out, z, S,
         return -1, math.nan, True
     q_meas = meas_i[2:6].copy()
     R = model.covariance[i, slot].copy()
+    if disposition == rules.LATE:
+        # Carried forward with the step's rate (EstimatorSystem._carried_forward).
+        gap = t - t_meas
+        wx, wy, wz = book[_W_LAST] - b[0], book[_W_LAST + 1] - b[1], book[_W_LAST + 2] - b[2]
+        rate_variance = max(P[3, 3], max(P[4, 4], P[5, 5])) + max(t - book[_T_GYRO_GOOD], 0.0) * model.held_q
+        extra = rules.late_sample_variance(rate_variance, gap)
+        q_meas[0], q_meas[1], q_meas[2], q_meas[3] = rules.carried_quaternion(
+            meas_i[2:6], model.q_BS[i], wx, wy, wz, gap
+        )
+        for k in range(3):
+            R[k, k] += extra
+        handling[rules.N_LATE] += 1.0
     outcome, nis = _mekf.update_quaternion(
         q, b, P, q_meas, model.q_BS[i], model.R_SB[i], R, model.threshold, q_out, b_out, P_out, z, S, I_KH
     )
@@ -229,8 +284,13 @@ def mekf_step(
     rrw,
     tolerance,
     reacquire_after,
+    period,
+    lag,
+    held_q,
     last_sample,
+    pending,
     rejections,
+    handling,
     est,
     book,
     core,
@@ -239,11 +299,11 @@ def mekf_step(
 ):
     """One filter step of an MEKF estimator at time ``t``, in place on its state groups.
 
-    ``est`` (47), ``book``, ``core`` (43), ``lin`` (109) and ``innov`` (3 n) are the
-    estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
+    ``handling`` (the sample-handling counters), ``est`` (47), ``book``, ``core`` (43),
+    ``lin`` (109) and ``innov`` (3 n) are the estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
     ``meas`` (n, 6) the input ports' values (``gyro_connected``/``connected``: whether the
     port has a value); ``q_BS`` to ``rejections`` the fields of the :class:`StepModel`, in its
-    order (``mekf_step(t, ..., meas, *model, est, ...)``): numba unboxes a tuple argument
+    order (``mekf_step(t, ..., meas, *model, handling, est, ...)``): numba unboxes a tuple argument
     ~1.3 us slower than its fields."""
     model = StepModel(
         q_BS,
@@ -256,7 +316,11 @@ def mekf_step(
         rrw,
         tolerance,
         reacquire_after,
+        period,
+        lag,
+        held_q,
         last_sample,
+        pending,
         rejections,
     )
     q, b, P = _read_core(core)
@@ -269,7 +333,13 @@ def mekf_step(
     for i in range(meas.shape[0]):
         if not connected[i]:
             continue
-        outcome, info_nis, counted = _update_input(i, t, meas[i], model, book, q, b, P, q_out, b_out, P_out, z, S, I_KH)
+        if rules.pending_vanished(book[pending + i], book[last_sample + i], meas[i, 0]):
+            n_skipped += 1.0  # a future-tagged sample that left the port unused
+            handling[rules.N_TAG_REJECTED] += 1.0
+            book[pending + i] = -math.inf
+        outcome, info_nis, counted = _update_input(
+            i, t, meas[i], model, book, handling, q, b, P, q_out, b_out, P_out, z, S, I_KH
+        )
         if outcome < 0:
             n_skipped += 1.0 if counted else 0.0
             continue
@@ -325,7 +395,7 @@ def warm_up() -> None:
     from drake_att.systems.estimator_system import QuaternionSensorModel
 
     sensor = QuaternionSensorModel("warm_up", np.array([1.0, 0, 0, 0]), np.eye(3))
-    model = StepModel.of(MultiplicativeEKF(0.0, 0.0), [sensor], Bookkeeping(1))
+    model = StepModel.of(MultiplicativeEKF(0.0, 0.0), [sensor], Bookkeeping(1), 1.0)
     mekf_step(
         0.0,
         True,
@@ -333,6 +403,7 @@ def warm_up() -> None:
         np.ones(1, dtype=np.bool_),
         np.zeros((1, 6)),
         *model,
+        np.zeros(len(rules.SAMPLE_HANDLING_NAMES)),
         np.zeros(47),
         Bookkeeping(1).initial(None),
         np.r_[1.0, np.zeros(42)],

@@ -6,14 +6,47 @@ which owns the loop they all share, once:
 
 * one periodic discrete update per filter step (``period_s``);
 * **time update** over ``(t_last, t]`` with the gyro's mean rate of that interval; a
-  missing, invalid, stale or non-finite gyro sample is counted (``skipped``) and the last
-  valid rate is held;
+  missing, invalid, stale (time tag not this step's) or non-finite gyro sample, or one the
+  sensor monitor excluded, is counted (``skipped``) and the last valid rate is held. With
+  ``held_rate_rrw_rad_per_s15`` (``r`` > 0; cores with
+  :class:`~drake_att.contract.AttitudeProcessNoise`) the held rate's error is a random walk
+  of intensity ``q = r^2`` from the last usable gyro sample: a held step starting ``tau``
+  after it and lasting ``dt`` adds ``q (tau dt^2 + dt^3 / 3)`` to each attitude variance
+  (:func:`~drake_att.systems.estimator_step.held_rate_variance`: that step's drift, white from
+  step to step) and to the published ``Q``;
 * **measurement updates** at this instant, inputs in declaration order (quaternion sensors,
-  then vector sensors): a measurement is used only at its own sample instant
-  (``|t_meas - t| < 1e-6 s``) and at most once; one that fails
+  then vector sensors). Every *new* sample (time tag after the input's last handled one) is
+  used or counted once (:func:`~drake_att.systems.estimator_step.tag_disposition`); a sample
+  seen again (a held one, tag at or before the last handled) is passed over uncounted:
+
+  - tagged at this step (``|t_meas - t| < 1e-6 s``): used;
+  - tagged before it within ``max_time_tag_lag_s`` (``t - lag <= t_meas``): carried forward
+    to ``t`` with the step's rate ``w_B = w_meas - bias_B_hat`` — a quaternion ``q_IS ⊗
+    q_BS^-1 ⊗ exp(w_B gap) ⊗ q_BS``, vectors rotated likewise in the sensor frame — its noise
+    variance grown by ``sigma_w^2 gap^2`` (``sigma_w^2``: the estimate's largest gyro-bias
+    variance, plus ``q tau`` while the rate is held), then used like an on-time sample
+    (counted ``late_samples_processed``); cores that cannot carry a sample (no gyro, no bias
+    estimate; camera frames) reject it;
+  - tagged before the lag: rejected;
+  - tagged in the future before ``t + period - lag`` (no step can take it: at the next one
+    it would be later than the lag): rejected at once;
+  - tagged later: pending. A slower sensor shows its next sample, tagged at a later filter
+    step, until that step (then it is used); a pending sample that leaves the port before it
+    is due (a tag off the filter's steps, a time-tag fault) is rejected when the port shows
+    another;
+  - rejected for its tag: counted in ``skipped`` and ``time_tag_rejections``;
+
+  then a sample the sensor monitor excluded (verdict 2) is skipped and counted
+  (``monitor_exclusions``), whatever its flag; one that fails
   :func:`drake_att.contract.is_usable` (invalid or NaN flag, NaN time, non-finite numbers)
   is skipped and counted; the core's own rejection (innovation gate, singular innovation
   covariance: ``UpdateInfo.accepted`` false) is counted as skipped too;
+* **prediction recovery**: a sample the monitor confirmed (verdict 1: consistent with
+  another independent sensor) that the gate rejects says the prediction is wrong (a gyro
+  fault, a bias jump): a :class:`~drake_att.contract.PredictionRecovery` core's
+  ``recover_prediction`` at once, then the same measurement retried with ``ungated()``; the
+  retry's outcome is counted, the recovery in ``prediction_recoveries``. Cores without it, and
+  samples not assessed (verdict 0), follow the re-acquisition rule;
 * **re-acquisition**: after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS`
   consecutive rejections of one input by a :class:`~drake_att.contract.Reacquisition` core
   (the Kalman-type cores: covariance inflated so the rejected innovation sits at half the
@@ -35,6 +68,10 @@ Input ports:
     centroids_<sensor> (abstract :class:`~drake_att.contract.CameraCentroids`) per camera
         (the indoor star tracker, paper S2).
     seed_uniform (4, random uniform) (cores with ``is_random``).
+    sensor_verdicts (1 + inputs) (systems built with ``verdicts``, i.e. a setup naming a
+        ``monitor``): the sensor monitor's verdict on the gyro, then on each measurement
+        input in :attr:`input_names` order: 0 not assessed, 1 confirmed, 2 excluded
+        (:func:`~drake_att.systems.estimator_step.verdict_code`). Unconnected: none assessed.
 Output ports:
     q_IB_hat (4), bias_B_hat or w_IB_B_hat (3, named by the core's ``second_quantity``),
     covariance (36), status (4): the contract (see :mod:`drake_att.contract`).
@@ -50,17 +87,23 @@ Output ports:
         in :attr:`input_names` order, ``[time of its last update (s; -inf before any), that
         update's NIS (NaN when the core has none, e.g. particle filters), innovation
         dimension (0 when none)]`` — rejected updates included (per-sensor NIS statistics).
+    sample_handling (4, C++-evaluated): counts so far of
+        :data:`~drake_att.systems.estimator_step.SAMPLE_HANDLING_NAMES` — late samples
+        processed, samples rejected for their time tag, prediction recoveries, monitor
+        exclusions (gyro samples included).
 Parameters (per Context, so one diagram serves a whole sweep or Monte Carlo):
     abstract parameter 0: the :class:`FilterModel` — the core (its tuning), the initial
-        state, the quaternion sensor models (mounting, noise) and whether the estimator
-        runs. :meth:`set_filter` replaces it (and the state it implies) in a context;
-        structure (state size, ports, period) cannot change.
+        state, the quaternion sensor models (mounting, noise), whether the estimator
+        runs, the time-tag lag and the held-rate walk. :meth:`set_filter` replaces it (and
+        the state it implies) in a context; structure (state size, ports, period, the sensor
+        monitor) cannot change.
 Discrete state:
     group 0: the packed estimate (47).
     group 1: the runner's counters and times, laid out by :class:`Bookkeeping`.
     group 2: the core's state vector (``core.to_vector``).
     group 3 (linearizing cores): the step linearization (109).
     next group (estimators with measurement inputs): the innovations (3 per input).
+    last group: the sample-handling counters (4).
 
 The one runner: every estimator's ports, state groups, outputs and loop, kept together on purpose.
 """
@@ -93,27 +136,28 @@ from drake_att.contract import (
 )
 from drake_att.filters.gating import REACQUIRE_AFTER_REJECTIONS
 from drake_att.systems import compiled_step
+from drake_att.systems import estimator_step as rules
 from drake_att.systems.estimator_step import (
-    DUE,
-    NO_TIME,
+    SAMPLE_HANDLING_NAMES,
     TIME_TOLERANCE_S,
     Bookkeeping,
     covariance_slot,
     gyro_sample_usable,
     is_gate_rejection,
     rate_usable,
-    sample_disposition,
 )
 from drake_att.systems.randomness import (
     counter_random,
     declare_seed_port,
     read_seed_words,
 )
+from drake_att.validation import check_nonnegative, fail
 
 LINEARIZATION_SIZE = 3 * 36 + 1
 PARTICLE_DIAGNOSTICS_SIZE = 4
 _EYE6 = np.eye(6)
 _ZERO6 = np.zeros((6, 6))
+_ATTITUDE_BLOCK = np.diag([1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
 
 # The status entries of the packed estimate the runner counts in.
 _USED, _SKIPPED, _LAST_NIS = (STATUS.start + i for i in (STATUS_USED, STATUS_SKIPPED, STATUS_LAST_NIS))
@@ -132,6 +176,8 @@ __all__ = [
     "TIME_TOLERANCE_S",
     "PARTICLE_DIAGNOSTICS_SIZE",
     "LINEARIZATION_SIZE",
+    "SAMPLE_HANDLING_NAMES",
+    "check_step_settings",
 ]
 
 
@@ -173,6 +219,12 @@ class EstimatorSetup:
         quaternion_sensors: :class:`QuaternionSensorModel` per attitude-quaternion input.
         vector_sensors: names of the vector-observation sensors.
         camera_sensors: names of the cameras (focal-plane centroids).
+        max_time_tag_lag_s: how late a sample's time tag may be and the sample still be used,
+            carried forward to the step (s, >= 0, < ``period_s``; 0: only on-time samples).
+        held_rate_rrw_rad_per_s15: intensity of the random walk that models a held gyro
+            rate's error (rad/s^1.5, >= 0; 0: a held rate adds no attitude variance).
+        monitor: name of the sensor-monitor system whose ``sensor_verdicts`` the estimator
+            reads (None: no monitor; the system then has no ``sensor_verdicts`` port).
     """
 
     core: Any
@@ -182,22 +234,57 @@ class EstimatorSetup:
     quaternion_sensors: tuple = ()
     vector_sensors: tuple = ()
     camera_sensors: tuple = ()
+    max_time_tag_lag_s: float = 0.0
+    held_rate_rrw_rad_per_s15: float = 0.0
+    monitor: str | None = None
 
 
 @dataclass(frozen=True)
 class FilterModel:
     """The per-context part of an estimator (its abstract parameter): the core, the initial
-    state, what it assumes about its quaternion sensors and whether it runs at all
-    (``enabled`` false: every step does nothing; the estimate stays the initial one)."""
+    state, what it assumes about its quaternion sensors, whether it runs at all
+    (``enabled`` false: every step does nothing; the estimate stays the initial one) and the
+    loop's settings (:class:`EstimatorSetup`'s ``max_time_tag_lag_s`` and
+    ``held_rate_rrw_rad_per_s15``)."""
 
     core: Any
     initial_state: Any
     quaternion_sensors: tuple
     enabled: bool = True
+    max_time_tag_lag_s: float = 0.0
+    held_rate_rrw_rad_per_s15: float = 0.0
     capabilities: CoreCapabilities = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "capabilities", CoreCapabilities.of(self.core))
+
+
+def check_step_settings(
+    path: str, period_s: float, max_time_tag_lag_s, held_rate_rrw_rad_per_s15, core=None, error: type = ValueError
+) -> tuple[float, float]:
+    """``(max_time_tag_lag_s, held_rate_rrw_rad_per_s15)`` as floats, checked: finite, >= 0,
+    the lag below the period ``period_s`` (a sample later than one step is another step's),
+    and a held-rate walk only for a core that can take attitude process noise
+    (:class:`~drake_att.contract.AttitudeProcessNoise`). ``error`` (one line naming the field)
+    otherwise."""
+    lag = check_nonnegative(f"{path}.max_time_tag_lag_s", max_time_tag_lag_s, error)
+    if lag >= period_s:
+        fail(
+            f"{path}.max_time_tag_lag_s",
+            max_time_tag_lag_s,
+            f"must be below the estimator's period ({period_s} s): a sample later than one step belongs to another",
+            error,
+        )
+    rrw = check_nonnegative(f"{path}.held_rate_rrw_rad_per_s15", held_rate_rrw_rad_per_s15, error)
+    if rrw > 0.0 and core is not None and not CoreCapabilities.of(core).attitude_process_noise:
+        fail(
+            f"{path}.held_rate_rrw_rad_per_s15",
+            held_rate_rrw_rad_per_s15,
+            f"must be 0 for core {type(core).__name__}: it cannot take attitude process noise "
+            "(drake_att.contract.AttitudeProcessNoise)",
+            error,
+        )
+    return lag, rrw
 
 
 class EstimatorSystem(LeafSystem):
@@ -213,6 +300,9 @@ class EstimatorSystem(LeafSystem):
         quaternion_sensors: :class:`QuaternionSensorModel` per attitude-quaternion input.
         vector_sensors: names of vector-observation inputs.
         camera_sensors: names of camera (focal-plane centroid) inputs.
+        max_time_tag_lag_s: the default context's lag (:class:`EstimatorSetup`).
+        held_rate_rrw_rad_per_s15: the default context's held-rate walk (:class:`EstimatorSetup`).
+        verdicts: declare the ``sensor_verdicts`` input (a sensor monitor's verdicts).
     """
 
     def __init__(
@@ -224,6 +314,9 @@ class EstimatorSystem(LeafSystem):
         quaternion_sensors=(),
         vector_sensors=(),
         camera_sensors=(),
+        max_time_tag_lag_s: float = 0.0,
+        held_rate_rrw_rad_per_s15: float = 0.0,
+        verdicts: bool = False,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
@@ -232,6 +325,8 @@ class EstimatorSystem(LeafSystem):
         if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
+        lag, rrw = check_step_settings(name, self.period_s, max_time_tag_lag_s, held_rate_rrw_rad_per_s15, core)
+        self.verdicts = bool(verdicts)
         self.core = core  # the default core (a context may carry another: FilterModel)
         self.second_quantity: SecondQuantity = core.second_quantity
         self.second_output_name = core.second_quantity.port_name
@@ -242,7 +337,7 @@ class EstimatorSystem(LeafSystem):
         self.diagnostic_names = self.capabilities.diagnostic_names
         self._compiled_models: dict = {}
         self._model_index = self.DeclareAbstractParameter(
-            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors)))
+            AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors), True, lag, rrw))
         )
         self._declare_state(core, initial_state)
         self._declare_outputs()
@@ -270,6 +365,8 @@ class EstimatorSystem(LeafSystem):
         self._seed_port = declare_seed_port(self) if core.is_random else None
         self._vector_names = tuple(vector_sensors)
         self._camera_names = tuple(camera_sensors)
+        n_inputs = len(self._quat_ports) + len(self._vector_ports)
+        self._verdict_port = self.DeclareVectorInputPort("sensor_verdicts", 1 + n_inputs) if self.verdicts else None
 
     def _declare_state(self, core, initial_state) -> None:
         """The discrete-state groups (see the module docstring)."""
@@ -290,6 +387,7 @@ class EstimatorSystem(LeafSystem):
         self._innovation_group = None
         if n_inputs:
             self._innovation_group = self._declare_group(np.tile([-np.inf, np.nan, 0.0], n_inputs))
+        self._handling_group = self._declare_group(np.zeros(len(SAMPLE_HANDLING_NAMES)))
 
     def _declare_outputs(self) -> None:
         """The contract's ports, the logged state ports and the capabilities' outputs."""
@@ -303,6 +401,7 @@ class EstimatorSystem(LeafSystem):
             self.DeclareStateOutputPort("step_linearization", self._linearization_group)
         if self._innovation_group is not None:
             self.DeclareStateOutputPort("innovations", self._innovation_group)
+        self.DeclareStateOutputPort("sample_handling", self._handling_group)
         if self.num_particles is not None:
             self.DeclareVectorOutputPort(
                 "particle_diagnostics",
@@ -333,6 +432,9 @@ class EstimatorSystem(LeafSystem):
             setup.quaternion_sensors,
             setup.vector_sensors,
             setup.camera_sensors,
+            setup.max_time_tag_lag_s,
+            setup.held_rate_rrw_rad_per_s15,
+            verdicts=setup.monitor is not None,
         )
 
     # -- per-context parameters ---------------------------------------------------------------
@@ -352,7 +454,16 @@ class EstimatorSystem(LeafSystem):
         model = self.filter_model(context)
         if setup is not None:
             self._check_compatible(setup)
-            model = FilterModel(setup.core, setup.initial_state, tuple(setup.quaternion_sensors), model.enabled)
+            lag, rrw = check_step_settings(
+                self.get_name(),
+                self.period_s,
+                setup.max_time_tag_lag_s,
+                setup.held_rate_rrw_rad_per_s15,
+                setup.core,
+            )
+            model = FilterModel(
+                setup.core, setup.initial_state, tuple(setup.quaternion_sensors), model.enabled, lag, rrw
+            )
         if enabled is not None:
             model = replace(model, enabled=bool(enabled))
         context.get_mutable_abstract_parameter(self._model_index).set_value(model)
@@ -383,6 +494,7 @@ class EstimatorSystem(LeafSystem):
             ("vector sensors", list(self._vector_names), list(setup.vector_sensors)),
             ("cameras", list(self._camera_names), list(setup.camera_sensors)),
             ("diagnostics", list(self.diagnostic_names), list(caps.diagnostic_names)),
+            ("sensor monitor", self.verdicts, setup.monitor is not None),
         ]
         for what, was, now in checks:
             if was != now:
@@ -465,20 +577,33 @@ class EstimatorSystem(LeafSystem):
             if port.HasValue(context):
                 yield offset + j, port.Eval(context)
 
-    #: Run eligible steps (an MEKF with compiled kernels, quaternion inputs only) as one
+    #: Run eligible steps (an MEKF with compiled kernels, quaternion inputs only, no sensor
+    #: monitor) as one
     #: compiled call (:mod:`drake_att.systems.compiled_step`); False: always this Python loop
     #: (the specification; the tests compare the two).
     use_compiled_step = True
 
     def _compiled_model(self, model: FilterModel):
         """The :class:`~drake_att.systems.compiled_step.CompiledStepModel` of ``model``, or
-        None if its steps take the Python loop (built once per model)."""
+        None if its steps take the Python loop (built once per model; estimators with a
+        sensor monitor always take the Python loop)."""
         hit = self._compiled_models.get(id(model))
         if hit is not None and hit[0] is model:
             return hit[1]
         array_model = None
-        if self._linearizing and compiled_step.eligible(model.core, len(self._vector_ports), model.core.is_random):
-            array_model = compiled_step.StepModel.of(model.core, model.quaternion_sensors, self.bookkeeping)
+        if (
+            self._linearizing
+            and not self.verdicts
+            and compiled_step.eligible(model.core, len(self._vector_ports), model.core.is_random)
+        ):
+            array_model = compiled_step.StepModel.of(
+                model.core,
+                model.quaternion_sensors,
+                self.bookkeeping,
+                self.period_s,
+                model.max_time_tag_lag_s,
+                model.held_rate_rrw_rad_per_s15,
+            )
         if len(self._compiled_models) > 8:
             self._compiled_models.clear()
         self._compiled_models[id(model)] = (model, array_model)
@@ -506,6 +631,7 @@ class EstimatorSystem(LeafSystem):
             connected,
             meas,
             *m,
+            group(self._handling_group),
             group(self._estimate_group),
             group(self._book_group),
             group(self._core_group),
@@ -513,6 +639,14 @@ class EstimatorSystem(LeafSystem):
             innovations,
         )
         return EventStatus.Succeeded()
+
+    def _verdicts(self, context):
+        """The sensor monitor's verdict codes ``[gyro, input 0, input 1, ...]``
+        (:func:`~drake_att.systems.estimator_step.verdict_code`), or None (no monitor, or its port unconnected: every
+        sample not assessed)."""
+        if self._verdict_port is None or not self._verdict_port.HasValue(context):
+            return None
+        return [rules.verdict_code(v) for v in self._verdict_port.Eval(context).tolist()]
 
     def _on_step(self, context, discrete_state):
         model = self.filter_model(context)
@@ -526,28 +660,57 @@ class EstimatorSystem(LeafSystem):
         t = context.get_time()
         est = self.estimate_vector(context)
         book = context.get_discrete_state(self._book_group).value().copy()
+        handling = context.get_discrete_state(self._handling_group).value().copy()
         state = core.from_vector(context.get_discrete_state(self._core_group).value())
         n_used, n_skipped, nis = est[_USED], est[_SKIPPED], est[_LAST_NIS]
+        verdicts = self._verdicts(context)
         rng = None
         if core.is_random:
             book[Bookkeeping.STEP] += 1.0
             rng = counter_random(book[Bookkeeping.SEED], self.get_name()).generator(int(book[Bookkeeping.STEP]))
-        state, Phi, Q, held = self._time_update(context, core, state, book, t, rng)
+        state, Phi, Q, held = self._time_update(context, model, state, book, handling, t, rng, verdicts)
         n_skipped += held
 
         # -- measurement updates at this instant ------------------------------------------------
         A = _EYE6
         innovations = None
+        lag = model.max_time_tag_lag_s
+        pending, last = self.bookkeeping.pending, Bookkeeping.LAST_SAMPLE
         for i, m in self._measurements(context, model.quaternion_sensors):
-            disposition = sample_disposition(float(m.time_s), t, TIME_TOLERANCE_S, book[Bookkeeping.LAST_SAMPLE + i])
-            if disposition != DUE:
-                n_skipped += disposition == NO_TIME  # a sample with no usable time stamp is counted
+            t_meas = float(m.time_s)
+            if rules.pending_vanished(book[pending + i], book[last + i], t_meas):
+                n_skipped += 1  # a future-tagged sample that left the port unused
+                handling[rules.N_TAG_REJECTED] += 1
+                book[pending + i] = -np.inf
+            disposition = rules.tag_disposition(t_meas, t, TIME_TOLERANCE_S, book[last + i], lag, self.period_s)
+            if disposition == rules.NOT_DUE:
                 continue
-            book[Bookkeeping.LAST_SAMPLE + i] = float(m.time_s)
+            if disposition == rules.NO_TIME:
+                n_skipped += 1  # a sample with no usable time stamp is counted
+                continue
+            if disposition == rules.FUTURE:
+                book[pending + i] = t_meas  # may still become due
+                continue
+            book[last + i] = t_meas
+            late = disposition == rules.LATE
+            if disposition in (rules.TOO_LATE, rules.TOO_EARLY) or (late and not self._can_carry(core, m)):
+                n_skipped += 1
+                handling[rules.N_TAG_REJECTED] += 1
+                continue
+            verdict = rules.NOT_ASSESSED if verdicts is None else verdicts[1 + i]
+            if verdict == rules.EXCLUDED:
+                n_skipped += 1
+                handling[rules.N_EXCLUDED] += 1
+                continue
             if not contract.is_usable(m):
                 n_skipped += 1
                 continue
-            state, info = self._update(model, state, m, book, self._rejections + i, rng)
+            if late:
+                m = self._carried_forward(model, core, state, m, book, t, t - t_meas)
+                handling[rules.N_LATE] += 1
+            state, info = self._update(
+                model, state, m, book, self._rejections + i, rng, verdict == rules.CONFIRMED, handling, self.period_s
+            )
             nis = info.nis
             if innovations is None:
                 innovations = context.get_discrete_state(self._innovation_group).value().copy()
@@ -570,6 +733,7 @@ class EstimatorSystem(LeafSystem):
         if innovations is not None:
             discrete_state.get_mutable_vector(self._innovation_group).SetFromVector(innovations)
         discrete_state.get_mutable_vector(self._book_group).SetFromVector(book)
+        discrete_state.get_mutable_vector(self._handling_group).SetFromVector(handling)
         discrete_state.get_mutable_vector(self._core_group).SetFromVector(core.to_vector(state))
         if self._linearizing:
             steps = context.get_discrete_state(self._linearization_group).value()[-1] + 1
@@ -578,42 +742,104 @@ class EstimatorSystem(LeafSystem):
             )
         return EventStatus.Succeeded()
 
-    def _time_update(self, context, core, state, book, t, rng):
+    def _time_update(self, context, model: FilterModel, state, book, handling, t, rng, verdicts):
         """The time update over ``(t_last, t]`` (none at the first step): ``(state, Phi, Q,
-        held)``, ``held`` 1 when the gyro sample was unusable and the last valid rate held
-        (``book`` keeps the rate and the step's time)."""
+        held)``, ``held`` 1 when the gyro sample was unusable (or excluded by the monitor)
+        and the last valid rate held, then with the held-rate drift's attitude variance
+        (:func:`~drake_att.systems.estimator_step.held_rate_variance`) added (``book`` keeps
+        the rate, the step's time and the last usable gyro sample's step)."""
+        core = model.core
         t_last = float(book[Bookkeeping.T_LAST])
         Phi, Q, held = _EYE6, _ZERO6, 0
+        excluded = verdicts is not None and verdicts[0] == rules.EXCLUDED and core.uses_gyro
+        handling[rules.N_EXCLUDED] += excluded
         if math.isfinite(t_last):
             w_meas = None
             if core.uses_gyro:
-                w_meas = self._gyro_rate(context, t)
+                w_meas = None if excluded else self._gyro_rate(context, t)
                 if w_meas is None:
                     held = 1
                     w_meas = book[Bookkeeping.W_LAST].copy()
                 else:
                     book[Bookkeeping.W_LAST] = w_meas
+                    book[Bookkeeping.T_GYRO_GOOD] = t
             if self._linearizing:
                 state, Phi, Q = core.predict_linearized(state, w_meas, t - t_last)
             else:
                 state = core.predict(state, w_meas, t - t_last, rng)
-        elif core.uses_gyro and self._gyro_port.HasValue(context):
-            t_g, valid, wx, wy, wz = self._gyro_port.Eval(context).tolist()
-            if rate_usable(valid, wx, wy, wz):
-                book[Bookkeeping.W_LAST] = (wx, wy, wz)
+            q_hold = model.held_rate_rrw_rad_per_s15**2
+            if held and q_hold > 0.0:
+                variance = rules.held_rate_variance(q_hold, t_last - book[Bookkeeping.T_GYRO_GOOD], t - t_last)
+                if variance > 0.0:
+                    state = core.add_attitude_variance(state, variance)
+                    Q = Q + variance * _ATTITUDE_BLOCK
+        else:
+            book[Bookkeeping.T_GYRO_GOOD] = t  # the held rate's walk starts at the first step at the latest
+            gyro_port = self._gyro_port
+            if core.uses_gyro and not excluded and gyro_port is not None and gyro_port.HasValue(context):
+                t_g, valid, wx, wy, wz = np.asarray(gyro_port.Eval(context), dtype=float).tolist()
+                if rate_usable(valid, wx, wy, wz):
+                    book[Bookkeeping.W_LAST] = (wx, wy, wz)
         book[Bookkeeping.T_LAST] = t
         return state, Phi, Q, held
 
+    def _can_carry(self, core, measurement) -> bool:
+        """Whether a late ``measurement`` can be carried forward: a gyro-driven core that
+        estimates the gyro bias, and a quaternion or vector-observation sample."""
+        return (
+            core.uses_gyro
+            and self.second_quantity is SecondQuantity.GYRO_BIAS
+            and isinstance(measurement, (QuaternionSample, contract.VectorObservations))
+        )
+
     @staticmethod
-    def _update(model: FilterModel, state, measurement, book, rejections: int, rng):
-        """The core's update with one due, usable measurement, and the re-acquisition rule:
-        after :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS` consecutive gate
+    def _carried_forward(model: FilterModel, core, state, measurement, book, t, gap):
+        """A late, usable sample carried forward over ``gap`` (s) to this step, with the
+        step's rate ``w_B = w_meas - bias_B_hat`` (the rate this step propagated with, the
+        held one included, minus the estimate's bias): a quaternion ``q_IS ⊗ q_BS^-1 ⊗
+        exp(w_B gap) ⊗ q_BS`` (:func:`~drake_att.systems.estimator_step.carried_quaternion`),
+        vectors rotated by ``exp(-R_SB w_B gap)`` in the sensor frame. Its noise grows by
+        :func:`~drake_att.systems.estimator_step.late_sample_variance` of the rate's error
+        variance: the estimate's largest gyro-bias variance, plus ``q tau`` of the held-rate
+        walk when the gyro is held (the gyro's white noise over the gap is left out)."""
+        _, bias, P = core.estimate(state)
+        w = np.asarray(book[Bookkeeping.W_LAST], dtype=float) - np.asarray(bias, dtype=float)
+        rate_variance = float(np.max(np.diag(np.asarray(P))[3:6]))
+        rate_variance += max(t - book[Bookkeeping.T_GYRO_GOOD], 0.0) * model.held_rate_rrw_rad_per_s15**2
+        extra = rules.late_sample_variance(rate_variance, gap)
+        wx, wy, wz = w.tolist()
+        if isinstance(measurement, QuaternionSample):
+            q = np.array(rules.carried_quaternion(measurement.q_IS_meas, measurement.q_BS, wx, wy, wz, gap))
+            cov = np.asarray(measurement.covariance_S, dtype=float)
+            cov = (cov if cov.shape == (3, 3) else np.diag(cov**2)) + extra * np.eye(3)
+            return replace(measurement, time_s=t, q_IS_meas=q, covariance_S=cov)
+        R_SB = rot.quat_to_rotmat(measurement.q_BS).T
+        R_turn = rot.quat_to_rotmat(rot.rotvec_to_quat(-(R_SB @ w) * gap))  # the sensor's rotation over the gap
+        directions = np.asarray(measurement.directions_S, dtype=float) @ R_turn.T
+        sigma = math.sqrt(float(measurement.sigma_rad) ** 2 + extra)
+        return replace(measurement, time_s=t, directions_S=directions, sigma_rad=sigma)
+
+    @staticmethod
+    def _update(
+        model: FilterModel, state, measurement, book, rejections: int, rng, confirmed, handling, period_s: float
+    ):
+        """The core's update with one due, usable measurement, and the rules after a gate
+        rejection: for a sample the sensor monitor ``confirmed``, by a
+        :class:`~drake_att.contract.PredictionRecovery` core, the core's
+        ``recover_prediction`` at once (counted in ``handling``) and one retry with its
+        ``ungated()`` twin; otherwise, after
+        :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS` consecutive gate
         rejections of this input (count at ``book[rejections]``), the core's ``reacquire``
         and one retry with its ``ungated()`` twin."""
         core = model.core
         new_state, info = core.update(state, measurement, rng)
         if info.accepted:
             book[rejections] = 0.0
+        elif is_gate_rejection(info.accepted, info.nis) and confirmed and model.capabilities.prediction_recovery:
+            book[rejections] = 0.0
+            handling[rules.N_RECOVERIES] += 1
+            recovered = core.recover_prediction(state, measurement, info, period_s)
+            new_state, info = core.ungated().update(recovered, measurement, rng)
         elif is_gate_rejection(info.accepted, info.nis) and model.capabilities.reacquisition:
             book[rejections] += 1.0
             if book[rejections] >= REACQUIRE_AFTER_REJECTIONS:

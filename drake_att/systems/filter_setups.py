@@ -11,8 +11,9 @@ Each system is the one :class:`~drake_att.systems.estimator_system.EstimatorSyst
 :class:`~drake_att.filters.particle.GyrolessPfCore`) and follows the estimator
 contract of :mod:`drake_att.systems.estimator_system` (outputs ``q_IB_hat``, ``bias_B_hat`` or
 ``w_IB_B_hat``, ``covariance``, ``status``; one periodic discrete update per filter step;
-a measurement is used only at its own sample time, at most once; invalid or non-finite
-samples are skipped and counted).
+a measurement is used at its own sample time (or, within the estimator's time-tag lag,
+carried forward to the step), at most once; invalid, non-finite or mis-tagged samples are
+skipped and counted).
 
 **Everything the filter knows lives in the Context.**  The filter's numbers (EKF mean and
 covariance, or the particle set with its weights and, for the EKPF, the per-particle
