@@ -24,6 +24,16 @@ memory. Detectors, in this order:
   no member of any of them is **isolated** (``VOTE``); any other voter is left unassessed
   (two voters that disagree cannot say which one is wrong).
 
+* **gyro bias shift** (``bias_window_s`` > 0) — while the gyro votes and trackers are
+  confirmed, the gyro's rate residual ``e_k = log(q_G⁻¹ ⊗ q_consensus) / Δt`` is kept for the
+  last ``2N`` such instants (``N = bias_window_s / period_s``); the mean of the last ``N``
+  against the mean of the ``N`` before differs by ``d`` with per-axis variance
+  ``(s̄_A + s̄_B) / N + q_RRW N Δt`` (``s_k`` the residual's variance from the reference's and
+  the consensus' covariances and the ARW; the RRW term for the bias' own drift between the
+  windows). ``|d|²`` over that variance above the vote's threshold logs ``BIAS_SHIFT``: a
+  change of the gyro's bias too small for the vote, which the estimators absorb; it is logged,
+  not excluded.
+
 A detection excludes the sensor (its count of exclusions goes up when it was admitted); an
 excluded sensor is re-admitted once its samples have drawn no detection for ``readmit_after_s``
 (it keeps voting while excluded, so a clean sensor earns its way back). Verdicts:
@@ -51,14 +61,17 @@ from drake_att.filters.gating import chi2_quantile
 from drake_att.validation import fail
 
 UNASSESSED, CONFIRMED, EXCLUDED = 0, 1, 2
-CAUSE_NONE, CAUSE_FROZEN, CAUSE_PINNED, CAUSE_RANGE, CAUSE_VOTE = 0, 1, 2, 3, 4
+CAUSE_NONE, CAUSE_FROZEN, CAUSE_PINNED, CAUSE_RANGE, CAUSE_VOTE, CAUSE_BIAS_SHIFT = 0, 1, 2, 3, 4, 5
 CAUSE_NAMES = {
     CAUSE_NONE: "none",
     CAUSE_FROZEN: "frozen",
     CAUSE_PINNED: "pinned",
     CAUSE_RANGE: "range",
     CAUSE_VOTE: "vote",
+    CAUSE_BIAS_SHIFT: "bias_shift",
 }
+#: The causes that exclude a sensor (a bias shift is only logged).
+EXCLUDING = frozenset({CAUSE_FROZEN, CAUSE_PINNED, CAUSE_RANGE, CAUSE_VOTE})
 VERDICT_NAMES = {UNASSESSED: "unassessed", CONFIRMED: "confirmed", EXCLUDED: "excluded"}
 
 # Memory layout, per sensor (gyro first when there is one, then the trackers).
@@ -69,6 +82,8 @@ SENSOR_BLOCK = 15
 # The reference, after the sensors.
 _REF_Q, _REF_P, _REF_VALID, _REF_T = slice(0, 4), slice(4, 13), 13, 14
 REFERENCE_BLOCK = 15
+# The bias-shift residuals, after the reference: a count, then 4 numbers per slot (e_k (3), s_k).
+RESIDUAL_SLOT = 4
 #: Entries of the detector log per sensor: ``[verdict, cause detected at this instant, exclusions so far]``.
 LOG_PER_SENSOR = 3
 
@@ -98,6 +113,8 @@ class MonitorModel:
         gyro_arw_rad_per_rt_s: the gyro's angle random walk (rad/sqrt(s)).
         gyro_rate_tolerance_rad_per_s: the gyro rate error the vote tolerates (rad/s).
         gyro_range_rad_per_s: the gyro's per-axis range (rad/s; inf: no range check).
+        bias_window_steps: ``N`` of the bias-shift test (0: off).
+        gyro_rrw_rad_per_s15: the gyro's rate random walk (rad/s^1.5).
     """
 
     name: str
@@ -110,6 +127,8 @@ class MonitorModel:
     gyro_arw_rad_per_rt_s: float = 0.0
     gyro_rate_tolerance_rad_per_s: float = 0.0
     gyro_range_rad_per_s: float = math.inf
+    bias_window_steps: int = 0
+    gyro_rrw_rad_per_s15: float = 0.0
 
     @classmethod
     def make(
@@ -124,6 +143,8 @@ class MonitorModel:
         gyro_arw_rad_per_rt_s: float = 0.0,
         gyro_rate_tolerance_rad_per_s: float = 0.0,
         gyro_range_rad_per_s: float = math.inf,
+        bias_window_s: float = 0.0,
+        gyro_rrw_rad_per_s15: float = 0.0,
     ) -> MonitorModel:
         """Check the settings (ValueError naming the field) and derive the threshold."""
         trackers = tuple(trackers)
@@ -140,6 +161,13 @@ class MonitorModel:
         for field, v in (("gyro_arw", gyro_arw_rad_per_rt_s), ("gyro_rate_tolerance", gyro_rate_tolerance_rad_per_s)):
             if not (math.isfinite(v) and v >= 0):
                 fail(f"{name}.{field}", v, "must be finite and >= 0")
+        if not (math.isfinite(bias_window_s) and bias_window_s >= 0):
+            fail(f"{name}.bias_window_s", bias_window_s, "must be finite and >= 0 (s; 0: no bias-shift test)")
+        steps = round(bias_window_s / period_s)
+        if bias_window_s > 0 and (steps < 2 or abs(steps * period_s - bias_window_s) > 1e-9 * bias_window_s):
+            fail(f"{name}.bias_window_s", bias_window_s, f"must be a whole number (>= 2) of periods ({period_s:g} s)")
+        if not (math.isfinite(gyro_rrw_rad_per_s15) and gyro_rrw_rad_per_s15 >= 0):
+            fail(f"{name}.gyro_rrw", gyro_rrw_rad_per_s15, "must be finite and >= 0")
         if not gyro_range_rad_per_s > 0:
             fail(f"{name}.gyro_range", gyro_range_rad_per_s, "must be > 0 (rad/s), or inf for no range check")
         for t in trackers:
@@ -158,6 +186,8 @@ class MonitorModel:
             float(gyro_arw_rad_per_rt_s),
             float(gyro_rate_tolerance_rad_per_s),
             float(gyro_range_rad_per_s),
+            int(steps) if bias_window_s > 0 else 0,
+            float(gyro_rrw_rad_per_s15),
         )
 
     @property
@@ -166,7 +196,7 @@ class MonitorModel:
 
     @property
     def memory_size(self) -> int:
-        return SENSOR_BLOCK * self.n_sensors + REFERENCE_BLOCK
+        return SENSOR_BLOCK * self.n_sensors + REFERENCE_BLOCK + 1 + RESIDUAL_SLOT * 2 * self.bias_window_steps
 
     def initial_memory(self) -> np.ndarray:
         """The memory before any instant: nothing seen, every sensor admitted, no reference."""
@@ -177,7 +207,7 @@ class MonitorModel:
             b[_CHANGED] = -np.inf
             b[_CLEAN_SINCE] = np.nan
             b[_SEEN] = -np.inf
-        r = m[SENSOR_BLOCK * self.n_sensors :]
+        r = m[SENSOR_BLOCK * self.n_sensors : SENSOR_BLOCK * self.n_sensors + REFERENCE_BLOCK]
         r[_REF_Q] = (1.0, 0.0, 0.0, 0.0)
         r[_REF_T] = -np.inf
         return m
@@ -279,6 +309,22 @@ def _frozen_cause(b: np.ndarray, values: np.ndarray, t: float, window: float, pe
     return CAUSE_NONE
 
 
+def _bias_shift(model: MonitorModel, residuals: np.ndarray, e: np.ndarray, v: float, dt: float) -> bool:
+    """Push residual ``e`` (variance ``v`` per axis) into the window (in place) and test the
+    last ``N`` against the ``N`` before (see the module docstring)."""
+    n = model.bias_window_steps
+    slots = residuals[1:].reshape(2 * n, RESIDUAL_SLOT)  # a view, oldest first
+    slots[:-1] = slots[1:].copy()
+    slots[-1, :3], slots[-1, 3] = e, v
+    residuals[0] = min(residuals[0] + 1, 2 * n)
+    if residuals[0] < 2 * n:
+        return False
+    older, newer = slots[:n], slots[n:]
+    d = newer[:, :3].mean(axis=0) - older[:, :3].mean(axis=0)
+    var = (newer[:, 3].mean() + older[:, 3].mean()) / n + model.gyro_rrw_rad_per_s15**2 * n * dt
+    return bool(d @ d / var > model.threshold)
+
+
 def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tuple[Assessment, np.ndarray]:
     """Judge the samples of instant ``t``: ``(Assessment, new memory)``.
 
@@ -293,7 +339,8 @@ def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tup
     m = np.array(memory, dtype=float)
     ns, ng = model.n_sensors, int(model.has_gyro)
     blocks = [m[SENSOR_BLOCK * s : SENSOR_BLOCK * (s + 1)] for s in range(ns)]
-    ref = m[SENSOR_BLOCK * ns :]
+    ref = m[SENSOR_BLOCK * ns : SENSOR_BLOCK * ns + REFERENCE_BLOCK]
+    residuals = m[SENSOR_BLOCK * ns + REFERENCE_BLOCK :]
     causes = np.zeros(ns, dtype=int)
     if not is_instant(model, t):
         verdicts = np.array([EXCLUDED if b[_EXCLUDED] else UNASSESSED for b in blocks])
@@ -343,7 +390,7 @@ def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tup
     # -- exclusion and re-admission -------------------------------------------------------------
     for s in range(ns):
         b = blocks[s]
-        if causes[s] != CAUSE_NONE:
+        if causes[s] in EXCLUDING:
             if not b[_EXCLUDED]:
                 b[_COUNT] += 1
             b[_EXCLUDED], b[_CAUSE], b[_CLEAN_SINCE] = 1.0, float(causes[s]), np.nan
@@ -358,6 +405,16 @@ def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tup
 
     # -- the next reference -----------------------------------------------------------------------
     chosen = [s for s in sorted(q_B) if s in confirmed]
+    if chosen:
+        q_cons, P_cons = _information_mean([q_B[s] for s in chosen], [C_B[s] for s in chosen])
+        if model.bias_window_steps and gyro_votes and 0 in confirmed:
+            dt = t - ref[_REF_T]
+            e = rotation_between(attitudes[0], q_cons) / dt
+            v = (
+                np.trace(ref[_REF_P].reshape(3, 3)) + np.trace(P_cons)
+            ) / 3.0 / dt**2 + model.gyro_arw_rad_per_rt_s**2 / dt
+            if _bias_shift(model, residuals, e, v, dt):
+                causes[0] = CAUSE_BIAS_SHIFT
     if not chosen and ref[_REF_VALID] < 0.5:
         chosen = [s for s in sorted(q_B) if not blocks[s][_EXCLUDED]]
     if chosen:
@@ -380,6 +437,8 @@ __all__ = [
     "CAUSE_PINNED",
     "CAUSE_RANGE",
     "CAUSE_VOTE",
+    "CAUSE_BIAS_SHIFT",
+    "EXCLUDING",
     "CAUSE_NAMES",
     "VERDICT_NAMES",
     "LOG_PER_SENSOR",

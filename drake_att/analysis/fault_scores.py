@@ -23,8 +23,10 @@ last faulted sample); drop-outs inside an outage window are named "outage".
   ``accepted`` — not rejected and, for a measurement (not a gyro), its used count rose as
   usual; ``ignored`` — neither (the sample was not read at this step: e.g. a sample seen
   before, or one tagged in the future that a later step may still take; the estimator loop
-  uses or counts every new sample once, a mis-tagged one as rejected); ``detected`` — rejected, or accepted with an NIS above
-  :data:`DETECTION_NIS` (the 99.9% point of chi-square with 3 dof: a quaternion update).
+  uses or counts every new sample once, a mis-tagged one as rejected); ``detected`` —
+  rejected, or accepted with an NIS above :data:`DETECTION_NIS` (the 99.9% point of
+  chi-square with 3 dof: a quaternion update), or accepted after a prediction recovery (a
+  sample the monitor confirmed that the gate rejected: the ``sample_handling`` counter).
 * ``peak_error_deg``: the largest attitude error ``|dtheta|`` from the event's start to the
   end of its evaluation window (the next event's start, or the end of the run).
 * ``recovery_time_s``: time from the event's last faulted sample until the error is back
@@ -39,7 +41,9 @@ last faulted sample); drop-outs inside an outage window are named "outage".
 **The monitors' trace** (per event, the same in every estimator's row): a sensor monitor
 (``!SensorMonitorConfig``) watching the faulted sensor logs its verdicts
 (:mod:`drake_att.fdir`); ``monitor_instants`` counts the event's faulted samples at the
-monitor's instants and ``excluded`` those at which it excluded the sensor. An estimator reads a
+monitor's instants, ``excluded`` those at which it excluded the sensor, and ``flagged`` the
+monitor's instants from the event's start to the end of its window at which it logged a cause
+against the sensor (a bias shift is found some seconds after it happens, and only logged). An estimator reads a
 monitor's sensors only through its own inputs: a monitor is not followed as a source in
 :func:`consumed_sensors`.
 
@@ -59,6 +63,7 @@ from drake_att.contract import TIME_TOLERANCE_S
 from drake_att.noise import DEG
 from drake_att.scenarios.registry import plugin_for
 from drake_att.systems import fault_injector as flt
+from drake_att.systems.estimator_step import N_RECOVERIES
 
 DETECTION_NIS = 16.27  # chi-square 99.9% point, 3 dof
 RECOVERY_FACTOR = 5.0
@@ -187,12 +192,13 @@ def sensor_monitors(scenario) -> dict:
     }
 
 
-def monitor_trace(run, e) -> tuple[int, int]:
-    """``(monitor_instants, excluded)`` of event ``e``: its faulted samples at the instants of
-    the monitors watching its sensor, and those at which a monitor excluded the sensor."""
+def monitor_trace(run, e, window_end: float) -> tuple[int, int, int]:
+    """``(monitor_instants, excluded, flagged)`` of event ``e``: its faulted samples at the
+    instants of the monitors watching its sensor, those at which a monitor excluded the sensor,
+    and the instants in ``[t_start, window_end)`` at which a monitor logged a cause against it."""
     from drake_att import fdir
 
-    instants = excluded = 0
+    instants = excluded = flagged = 0
     for name, watched in sensor_monitors(run.scenario).items():
         if e.sensor not in watched:
             continue
@@ -202,11 +208,13 @@ def monitor_trace(run, e) -> tuple[int, int]:
         j = watched.index(e.sensor)
         # the logger's first two rows are both t = 0: keep the last of each instant
         keep = np.r_[np.diff(t) > TIME_TOLERANCE_S, True]
-        t, verdict = t[keep], log[keep, fdir.LOG_PER_SENSOR * j]
+        t, verdict, cause = t[keep], log[keep, fdir.LOG_PER_SENSOR * j], log[keep, fdir.LOG_PER_SENSOR * j + 1]
         hit = _at(t, e.samples)
         instants += int(np.sum(hit))
         excluded += int(np.sum(verdict[hit] == fdir.EXCLUDED))
-    return instants, excluded
+        window = (t >= e.t_start - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
+        flagged += int(np.sum(cause[window] != fdir.CAUSE_NONE))
+    return instants, excluded, flagged
 
 
 def _faulty_times(run, sensors: set) -> np.ndarray:
@@ -261,22 +269,25 @@ def score_fault_events(
     ``magnitude`` (SI), ``seen``, ``steps``, ``detected``, ``rejected``, ``accepted``,
     ``ignored``, ``peak_error_deg``, ``pre_fault_rms_deg``, ``bound_deg``,
     ``recovery_time_s``, ``nees_after_recovery``, ``window_end``, ``monitor_instants``,
-    ``excluded``.
+    ``excluded``, ``flagged``.
     """
     events = fault_events(run)
     names = list(run.metadata["estimators"]) if estimators is None else list(estimators)
     t_run_end = float(run.scenario.duration_s)
     starts = np.array([e.t_start for e in events])
     ends = np.array([e.t_end for e in events])
-    traces = [monitor_trace(run, e) for e in events]
+    window_ends = []
+    for e in events:
+        later = starts[starts > e.t_start + TIME_TOLERANCE_S]
+        window_ends.append(float(later.min()) if len(later) else t_run_end)
+    traces = [monitor_trace(run, e, w) for e, w in zip(events, window_ends, strict=True)]
     rows = []
     for name in names:
         series = _estimator_series(run, name)
         for k, e in enumerate(events):
-            later = starts[starts > e.t_start + TIME_TOLERANCE_S]
-            window_end = float(later.min()) if len(later) else t_run_end
+            window_end = window_ends[k]
             row = _empty_row(name, e, window_end)
-            row["monitor_instants"], row["excluded"] = traces[k]
+            row["monitor_instants"], row["excluded"], row["flagged"] = traces[k]
             _count_fault_steps(row, e, series, detection_nis)
             pre_from = _pre_fault_start(k, e, ends, pre_fault_window_s)
             _score_error(
@@ -296,6 +307,15 @@ def _estimator_series(run, name: str) -> dict:
     d_used = np.diff(status[:, 1], prepend=0.0)
     d_skipped = np.diff(status[:, 2], prepend=0.0)
     consumed = consumed_sensors(run.scenario, name)
+    d_recovered = np.zeros(len(t))
+    key = run.metadata["estimators"][name]["signals"].get("sample_handling")
+    if key is not None:  # prediction recoveries so far, at the status's times (last row of each time)
+        t_h, x_h = run.signals[key]
+        t_h, x_h = np.asarray(t_h), np.asarray(x_h).reshape(len(t_h), -1)
+        keep = np.r_[np.diff(t_h) > TIME_TOLERANCE_S, True]
+        t_h, recoveries = t_h[keep], x_h[keep, N_RECOVERIES]
+        idx = np.clip(np.searchsorted(t_h, t - TIME_TOLERANCE_S), 0, len(t_h) - 1)
+        d_recovered = np.diff(recoveries[idx], prepend=0.0)
     quiet = ~_at(t, _faulty_times(run, consumed))
     quiet[0] = False
     return {
@@ -304,6 +324,7 @@ def _estimator_series(run, name: str) -> dict:
         "nees": attitude_nees(err),
         "d_used": d_used,
         "d_skipped": d_skipped,
+        "d_recovered": d_recovered,
         "nis": status[:, 3],
         "consumed": consumed,
         "base_used": float(np.median(d_used[quiet])) if np.any(quiet) else 0.0,
@@ -356,7 +377,8 @@ def _count_fault_steps(row: dict, e, series: dict, detection_nis: float) -> None
         row["rejected"] += int(rejected)
         row["accepted"] += int(accepted)
         row["ignored"] += int(not rejected and not accepted)
-        row["detected"] += int(rejected or (accepted and np.isfinite(nis[i]) and nis[i] > detection_nis))
+        large_nis = accepted and np.isfinite(nis[i]) and nis[i] > detection_nis
+        row["detected"] += int(rejected or large_nis or series["d_recovered"][i] > 0)
     row["steps"] = int(np.sum(hit))
     row["seen"] = row["steps"] > 0
 
@@ -443,6 +465,7 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
                     "ignored": 0,
                     "monitor_instants": 0,
                     "excluded": 0,
+                    "flagged": 0,
                     "recovered": 0,
                     "peak_error_deg": None,
                     "recovery_time_s": None,
@@ -453,7 +476,16 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
             order.setdefault(r["estimator"], len(order))
             g["events"] += 1
             g["seen"] += int(r["seen"])
-            for k in ("steps", "detected", "rejected", "accepted", "ignored", "monitor_instants", "excluded"):
+            for k in (
+                "steps",
+                "detected",
+                "rejected",
+                "accepted",
+                "ignored",
+                "monitor_instants",
+                "excluded",
+                "flagged",
+            ):
                 g[k] += r.get(k, 0)
             if r["peak_error_deg"] is not None:
                 g["peak_error_deg"] = max(g["peak_error_deg"] or 0.0, r["peak_error_deg"])

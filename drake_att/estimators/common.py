@@ -262,3 +262,28 @@ def validate_filter_gyro_noise(path: str, c, gyro) -> None:
             f"the filter needs an ARW > 0 (deg/sqrt(h)); gyro {gyro.name!r} has "
             f"{gyro.arw_deg_per_rt_h!r} and the filter sets none",
         )
+
+
+def check_monitor(path: str, c, checks, sensors) -> None:
+    """``c.monitor`` ("" or the name of a sensor monitor listed before it that watches every one
+    of ``sensors`` and steps at the estimator's period)."""
+    if not c.monitor:
+        return
+    from drake_att.sensors.sensor_monitor_plugin import SensorMonitorConfig
+
+    m = checks.sensors.get(c.monitor)
+    if not isinstance(m, SensorMonitorConfig):
+        monitors = sorted(n for n, s in checks.sensors.items() if isinstance(s, SensorMonitorConfig))
+        cfg.fail(
+            f"{path}.monitor", c.monitor, f"must name a !SensorMonitorConfig listed before it; monitors: {monitors}"
+        )
+    watched = ([m.gyro] if m.gyro else []) + list(m.star_trackers)
+    missing = [n for n in sensors if n not in watched]
+    if missing:
+        cfg.fail(f"{path}.monitor", c.monitor, f"does not watch {missing}; it watches {watched}")
+    if abs(m.period_s - c.period_s) > 1e-9:
+        cfg.fail(
+            f"{path}.monitor",
+            c.monitor,
+            f"steps every {m.period_s:g} s; the filter every {c.period_s:g} s: they must agree",
+        )

@@ -41,6 +41,10 @@ class MekfConfig:
     held; its error is modelled as a random walk of this intensity from the last usable
     sample, which grows the attitude covariance
     (:func:`drake_att.systems.estimator_step.held_rate_variance`). 0 (default): none.
+    ``monitor``: the name of a ``!SensorMonitorConfig`` watching this filter's gyro and
+    quaternion trackers: the filter reads them through it (an excluded sensor's samples are
+    skipped and counted) with its verdicts (a confirmed sample the gate rejects recovers the
+    prediction at once). "" (default): none.
     """
 
     name: str = "mekf"
@@ -58,6 +62,7 @@ class MekfConfig:
     coning_correction: bool = False
     max_time_tag_lag_s: float = 0.0
     held_rate_rrw_deg_per_s15: float = 0.0
+    monitor: str = ""
 
 
 def validate_mekf(path: str, c: MekfConfig, checks) -> None:
@@ -81,6 +86,7 @@ def validate_mekf(path: str, c: MekfConfig, checks) -> None:
     common.check_innovation_gate(path, c)
     common.check_flags(path, c, "coning_correction")
     common.check_step_settings(path, c)
+    common.check_monitor(path, c, checks, [c.gyro, *c.star_trackers])
 
 
 @register_estimator(
@@ -114,5 +120,6 @@ def build_mekf(ctx, c: MekfConfig) -> EstimatorSetup:
         gyro=c.gyro,
         quaternion_sensors=tuple(ctx.quaternion_model(n) for n in quaternion),
         vector_sensors=tuple(n for n in c.star_trackers if n not in quaternion),
+        monitor=c.monitor or None,
         **common.step_settings(c),
     )

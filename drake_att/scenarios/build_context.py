@@ -139,16 +139,31 @@ class BuildContext:
     def add_estimator(self, name: str, setup):
         """Add the :class:`~drake_att.systems.estimator_system.EstimatorSystem` of ``setup`` (an
         :class:`~drake_att.systems.estimator_system.EstimatorSetup`) and wire its gyro, quaternion
-        and vector sensors; the random seed port is wired by the builder. Returns the system."""
+        and vector sensors (with ``setup.monitor``: the sensors that monitor watches through its
+        outputs, and its verdicts to ``sensor_verdicts``); the random seed port is wired by the
+        builder. Returns the system."""
         est = self._diagram_builder().AddSystem(EstimatorSystem.from_setup(name, setup))
+        connect = self.connect_sensor
+        if setup.monitor is not None:
+            monitor = self.sensors[setup.monitor]
+            port = monitor.declare_verdicts(name, setup.gyro, est.input_names)
+            self._diagram_builder().Connect(monitor.GetOutputPort(port), est.GetInputPort("sensor_verdicts"))
+
+            def connect(sensor, system, input_port):
+                if sensor in monitor.sensor_names:  # read through the monitor
+                    source = monitor.GetOutputPort(f"measurement_{sensor}")
+                    self._diagram_builder().Connect(source, system.GetInputPort(input_port))
+                else:
+                    self.connect_sensor(sensor, system, input_port)
+
         if setup.core.uses_gyro:
             if setup.gyro is None:
                 raise ValueError(f"{name}: the core uses a gyro but the setup names none")
-            self.connect_sensor(setup.gyro, est, "gyro_measurement")
+            connect(setup.gyro, est, "gyro_measurement")
         for m in setup.quaternion_sensors:
-            self.connect_sensor(m.name, est, f"q_meas_{m.name}")
+            connect(m.name, est, f"q_meas_{m.name}")
         for n in setup.vector_sensors:
-            self.connect_sensor(n, est, f"vectors_{n}")
+            connect(n, est, f"vectors_{n}")
         for n in setup.camera_sensors:
             self.connect_sensor(n, est, f"centroids_{n}")
         return est

@@ -19,7 +19,7 @@ from drake_att import rotations as rot
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
 from drake_att.systems.sensor_monitor import SensorMonitor
-from drake_att.units import ARW_DEG_PER_RT_H, DEG
+from drake_att.units import ARW_DEG_PER_RT_H, DEG, RRW_DEG_PER_H_15
 
 
 @dataclass
@@ -33,7 +33,8 @@ class SensorMonitorConfig:
     sensor needs. ``false_alarm_probability``: per consistency test (3-dof chi-square).
     ``gyro_rate_tolerance_deg_per_s``: the gyro rate error (unestimated bias, bias jumps) the
     vote tolerates; gross gyro faults are isolated. The gyro's range check uses its
-    ``range_deg_per_s``.
+    ``range_deg_per_s``. ``bias_window_s``: the window of the gyro bias-shift test (a whole
+    number of periods, at least two; 0: off): a shift is logged, not excluded.
     """
 
     name: str = "monitor"
@@ -44,6 +45,7 @@ class SensorMonitorConfig:
     readmit_after_s: float = 5.0
     false_alarm_probability: float = 1e-6
     gyro_rate_tolerance_deg_per_s: float = 0.05
+    bias_window_s: float = 10.0
 
 
 def validate_sensor_monitor(path: str, c: SensorMonitorConfig, checks) -> None:
@@ -79,6 +81,12 @@ def validate_sensor_monitor(path: str, c: SensorMonitorConfig, checks) -> None:
     if not 0.0 < c.false_alarm_probability < 0.5:
         cfg.fail(f"{path}.false_alarm_probability", c.false_alarm_probability, "must be in (0, 0.5) (per test)")
     cfg.check_nonnegative(f"{path}.gyro_rate_tolerance_deg_per_s", c.gyro_rate_tolerance_deg_per_s)
+    cfg.check_finite(f"{path}.bias_window_s", c.bias_window_s)
+    steps = c.bias_window_s / c.period_s
+    if c.bias_window_s and (c.bias_window_s < 0 or steps < 2 or abs(steps - round(steps)) > 1e-9 * steps):
+        cfg.fail(f"{path}.bias_window_s", c.bias_window_s, f"must be 0 (off) or >= 2 whole periods ({c.period_s:g} s)")
+    if 2 * c.bias_window_s > duration:
+        cfg.fail(f"{path}.bias_window_s", c.bias_window_s, f"its two windows are longer than the run ({duration:g} s)")
 
 
 def sensor_monitor_output(c: SensorMonitorConfig, sensor_configs) -> SensorOutput:
@@ -94,10 +102,11 @@ def monitor_model(ctx, c: SensorMonitorConfig) -> fdir.MonitorModel:
         qm = ctx.quaternion_model(st)
         R_BS = rot.quat_to_rotmat(qm.q_BS)
         trackers.append(fdir.TrackerModel(st, np.asarray(qm.q_BS), R_BS @ np.asarray(qm.covariance_S) @ R_BS.T))
-    arw, rng = 0.0, math.inf
+    arw, rrw, rng = 0.0, 0.0, math.inf
     if c.gyro:
         g = ctx.sensor_configs[c.gyro]
         arw = g.arw_deg_per_rt_h * ARW_DEG_PER_RT_H
+        rrw = g.rrw_deg_per_h15 * RRW_DEG_PER_H_15
         rng = math.inf if getattr(g, "range_deg_per_s", None) is None else g.range_deg_per_s * DEG
     return fdir.MonitorModel.make(
         c.name,
@@ -110,6 +119,8 @@ def monitor_model(ctx, c: SensorMonitorConfig) -> fdir.MonitorModel:
         arw,
         c.gyro_rate_tolerance_deg_per_s * DEG,
         rng,
+        c.bias_window_s if c.gyro else 0.0,
+        rrw,
     )
 
 
