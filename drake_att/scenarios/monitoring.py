@@ -37,12 +37,7 @@ def with_monitor(
     gyros = [n for n, k in kinds.items() if k == "gyro"]
     trackers = [n for n, k in kinds.items() if k == "quaternion" and _is_real_tracker(sensors, n)]
     if not trackers or len(trackers) + int(bool(gyros)) < 2:
-        cfg.fail(
-            "sensors",
-            sorted(kinds),
-            "a monitor needs a gyro and a quaternion tracker, or two trackers",
-            cfg.ConfigError,
-        )
+        cfg.fail("sensors", sorted(kinds), "a monitor needs a gyro and a quaternion tracker, or two trackers")
     watched = set(trackers) | set(gyros[:1])
     last = max(
         i
@@ -62,9 +57,7 @@ def with_monitor(
                 )
             )
     if not twins:
-        cfg.fail(
-            "estimators", [e.name for e in scenario.estimators], "no MEKF reads only monitored sensors", cfg.ConfigError
-        )
+        cfg.fail("estimators", [e.name for e in scenario.estimators], "no MEKF reads only monitored sensors")
     text = cfg.dump_scenario(
         dataclasses.replace(scenario, sensors=sensors, estimators=list(scenario.estimators) + twins)
     )
