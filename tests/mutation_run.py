@@ -120,6 +120,9 @@ MODULES = {
     "mission": ("drake_att/analysis/mission.py", ["tests/test_mission.py"]),
     "coarse_sensors": ("drake_att/systems/coarse_sensors.py", ["tests/test_coarse_sensors.py"]),
     "logging_policy": ("drake_att/scenarios/logging_policy.py", ["tests/test_logging_policy.py"]),
+    "fdir": ("drake_att/fdir.py", ["tests/test_fdir.py", "tests/test_fdir_scenario.py"]),
+    "sensor_monitor": ("drake_att/systems/sensor_monitor.py", ["tests/test_fdir.py", "tests/test_fdir_scenario.py"]),
+    "screen_calibration": ("drake_att/filters/screen_calibration.py", ["tests/test_s2_calibration.py"]),
     "campaign_records": (
         "drake_att/analysis/campaign_records.py",
         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"],
