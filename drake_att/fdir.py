@@ -353,8 +353,8 @@ def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tup
         judged[0] = True
         w = np.asarray(gyro, dtype=float)[2:5]
         causes[0] = _frozen_cause(blocks[0], w, t, model.frozen_window_s, per_axis=True)
-        if causes[0] == CAUSE_NONE and np.any(np.abs(w) >= model.gyro_range_rad_per_s * (1.0 - 1e-12)):
-            causes[0] = CAUSE_RANGE
+        if np.any(np.abs(w) >= model.gyro_range_rad_per_s * (1.0 - 1e-12)):
+            causes[0] = CAUSE_RANGE  # an axis held at the range is named by the range
     q_B, C_B = {}, {}
     for i, (tm, sample) in enumerate(zip(model.trackers, trackers, strict=True)):
         s = ng + i

@@ -233,7 +233,7 @@ def _with_monitor(**fields) -> str:
     from drake_att.scenarios.config import dump_scenario
 
     text = dump_scenario(load("fault_campaign"))
-    entry = {"name": "fdir", "star_trackers": "[st1, st2]", **fields}
+    entry = {"name": "fdir2", "star_trackers": "[st1, st2]", **fields}
     lines = "".join(f"\n  {k}: {v}" for k, v in entry.items())
     return text.replace(
         "- !StarTrackerAverageConfig", "- !SensorMonitorConfig" + lines + "\n- !StarTrackerAverageConfig", 1
@@ -258,3 +258,42 @@ def test_bad_monitor_config_is_one_line(fields, message):
         load_scenario(_with_monitor(**fields))
     text = str(e.value)
     assert message in text and "\n" not in text, text
+
+
+GYRO_RANGE_SCENARIO = """
+name: gyro_range
+duration_s: 20.0
+seed: 1
+plant: !RigidBodyConfig
+  inertia_kg_m2: [0.042, 0.042, 0.0067]
+  initial_rate_deg_per_s: [2.0, -0.5, 0.3]
+sensors:
+- !GyroConfig {name: gyro, period_s: 1.0, range_deg_per_s: 1.0}
+- !StarTrackerConfig {name: st1, period_s: 1.0, mode: quaternion, sigma_cross_boresight_arcsec: 5.0,
+                      sigma_boresight_arcsec: 50.0}
+- !SensorMonitorConfig {name: fdir, gyro: gyro, star_trackers: [st1], bias_window_s: 0.0}
+estimators:
+- !MekfConfig {name: mekf, gyro: gyro, star_trackers: [st1]}
+scoring: {score_from_s: 5.0}
+"""
+
+
+def test_gyro_output_is_clipped_at_its_range_and_the_monitor_flags_it():
+    from drake_att.scenarios.builder import diagram_for
+
+    run = diagram_for(load_scenario(GYRO_RANGE_SCENARIO)).simulate(seed=1)
+    t_g, g = run.signals["gyro/gyro_measurement"]
+    g = np.asarray(g).reshape(len(t_g), -1)
+    t_w, w = run.signals["rigid_body_plant/w_IB_B"]
+    w = np.asarray(w).reshape(len(t_w), -1)
+    limit = 1.0 * DEG
+    x = g[1:, 2]  # the x rate: the true one is ~2 deg/s (noise-free gyro, no bias)
+    assert np.all(np.abs(g[:, 2:5]) <= limit + 1e-15)
+    assert np.all(x == limit)  # pinned at the range, exactly
+    # the unclipped axes are the true mean rates (|y|, |z| < 1 deg/s): within the interval's change
+    idx = np.searchsorted(t_w, np.asarray(t_g)[1:] - 1e-9)
+    assert np.allclose(g[1:, 3:5], w[idx, 1:3], atol=0.02 * DEG)
+    t_log, log = run.signals["fdir/detector_log"]
+    log = np.asarray(log).reshape(len(t_log), -1)
+    causes = log[np.asarray(t_log) > 0.5, 1]
+    assert np.all(causes == fdir.CAUSE_RANGE)
