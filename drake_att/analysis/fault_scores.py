@@ -36,7 +36,9 @@ last faulted sample); drop-outs inside an outage window are named "outage".
   least :data:`MIN_HOLD_S`; a later excursion is not counted against this fault); 0 if it
   never left; None if it does not recover within its window.
 * ``nees_after_recovery``: mean 3-dof attitude NEES ``dtheta' P_att^-1 dtheta`` from the
-  recovery to the window's end (3 for a consistent filter).
+  recovery to the window's end (3 for a consistent filter); ``nees_during``: the same over the
+  estimator's steps from the event's first to its last faulted sample (whether the covariance
+  says how wrong the estimate is while the fault lasts, e.g. a gyro outage).
 
 **The monitors' trace** (per event, the same in every estimator's row): a sensor monitor
 (``!SensorMonitorConfig``) watching the faulted sensor logs its verdicts
@@ -269,7 +271,7 @@ def score_fault_events(
     ``magnitude`` (SI), ``seen``, ``steps``, ``detected``, ``rejected``, ``accepted``,
     ``ignored``, ``peak_error_deg``, ``pre_fault_rms_deg``, ``bound_deg``,
     ``recovery_time_s``, ``nees_after_recovery``, ``window_end``, ``monitor_instants``,
-    ``excluded``, ``flagged``.
+    ``excluded``, ``flagged``, ``nees_during``.
     """
     events = fault_events(run)
     names = list(run.metadata["estimators"]) if estimators is None else list(estimators)
@@ -363,6 +365,7 @@ def _empty_row(name: str, e, window_end: float) -> dict:
         "bound_deg": None,
         "recovery_time_s": None,
         "nees_after_recovery": None,
+        "nees_during": None,
     }
 
 
@@ -408,6 +411,10 @@ def _score_error(
     inside = (t >= e.t_start - TIME_TOLERANCE_S) & (t < window_end - TIME_TOLERANCE_S)
     if np.any(inside):
         row["peak_error_deg"] = float(np.max(angle[inside]) / DEG)
+    during = (t >= e.t_start - TIME_TOLERANCE_S) & (t <= e.t_end + TIME_TOLERANCE_S)
+    nees = series["nees"][during]
+    nees = nees[np.isfinite(nees)]
+    row["nees_during"] = float(np.mean(nees)) if len(nees) else None
     pre = (t > pre_from + TIME_TOLERANCE_S) & (t < e.t_start - TIME_TOLERANCE_S)
     if np.sum(pre) >= 5 and np.any(inside):
         rms = float(np.sqrt(np.mean(angle[pre] ** 2)))
@@ -470,6 +477,7 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
                     "peak_error_deg": None,
                     "recovery_time_s": None,
                     "_nees": [],
+                    "_nees_during": [],
                 },
             )
             g["t_first"] = min(g.get("t_first", np.inf), r["t_start"])
@@ -494,10 +502,14 @@ def summarize_fault_scores(rows_per_run: list) -> list[dict]:
                 g["recovery_time_s"] = max(g["recovery_time_s"] or 0.0, r["recovery_time_s"])
             if r["nees_after_recovery"] is not None:
                 g["_nees"].append(r["nees_after_recovery"])
+            if r.get("nees_during") is not None:
+                g["_nees_during"].append(r["nees_during"])
     out = []
     for g in groups.values():
         nees = g.pop("_nees")
         g["nees_after_recovery"] = float(np.mean(nees)) if nees else None
+        during = g.pop("_nees_during")
+        g["nees_during"] = float(np.mean(during)) if during else None
         out.append(g)
     return sorted(out, key=lambda g: (g["t_first"], g["sensor"], g["kind"], order[g["estimator"]]))
 
