@@ -235,11 +235,13 @@ def empty_camera_centroids() -> CameraCentroids:
 
 def quaternion_usable(w: float, x: float, y: float, z: float) -> bool:
     """A measured quaternion's numbers are finite and near unit norm (``|q| >= 0.5``; below
-    that it is not a quaternion). A plain scalar function: the compiled MEKF step compiles
-    this same rule."""
+    that it is not a quaternion), its squared norm finite (numbers near 1e300 overflow it: not
+    a quaternion either). A plain scalar function: the compiled MEKF step compiles this same
+    rule."""
     if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
         return False
-    return w**2 + x**2 + y**2 + z**2 >= 0.25
+    n2 = w * w + x * x + y * y + z * z  # products overflow to inf (a power of a float raises)
+    return 0.25 <= n2 < math.inf
 
 
 def is_usable(measurement) -> bool:

@@ -39,7 +39,8 @@ excluded sensor is re-admitted once its samples have drawn no detection for ``re
 (it keeps voting while excluded, so a clean sensor earns its way back). Verdicts:
 :data:`UNASSESSED` (0), :data:`CONFIRMED` (1), :data:`EXCLUDED` (2). A sample that is missing,
 flagged invalid, non-finite or not of this instant is not the monitor's to judge: it passes as
-it is (the estimators skip and count it) and leaves that sensor's state unchanged.
+it is (the estimators skip and count it) and leaves that sensor's state unchanged; so does a
+tracker's quaternion below half the unit norm (:func:`drake_att.contract.quaternion_usable`).
 
 The consensus that becomes the next ``q_ref`` is the information-weighted mean of the confirmed
 trackers (first order about the first; covariance ``(Σ C_i⁻¹)⁻¹``); with none confirmed, the
@@ -56,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drake_att import rotations as rot
-from drake_att.contract import TIME_TOLERANCE_S
+from drake_att.contract import TIME_TOLERANCE_S, quaternion_usable
 from drake_att.filters.gating import chi2_quantile
 from drake_att.validation import fail
 
@@ -358,8 +359,8 @@ def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tup
     q_B, C_B = {}, {}
     for i, (tm, sample) in enumerate(zip(model.trackers, trackers, strict=True)):
         s = ng + i
-        if not _usable(sample, t):
-            continue
+        if not (_usable(sample, t) and quaternion_usable(*np.asarray(sample, dtype=float)[2:6].tolist())):
+            continue  # the estimators' own rule decides what to do with it
         judged[s] = True
         q_IS = np.asarray(sample, dtype=float)[2:6]
         causes[s] = _frozen_cause(blocks[s], q_IS, t, model.frozen_window_s, per_axis=False)

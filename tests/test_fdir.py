@@ -297,3 +297,24 @@ def test_gyro_output_is_clipped_at_its_range_and_the_monitor_flags_it():
     log = np.asarray(log).reshape(len(t_log), -1)
     causes = log[np.asarray(t_log) > 0.5, 1]
     assert np.all(causes == fdir.CAUSE_RANGE)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        [5.0, 1.0, 0.0, 0.0, 0.0, 0.0],  # a zero quaternion flagged valid
+        [5.0, 1.0, np.nan, 1.0, 0.0, 0.0],
+        [5.0, np.nan, 1.0, 0.0, 0.0, 0.0],
+        [np.nan, 1.0, 1.0, 0.0, 0.0, 0.0],
+        [5.0, 1.0, 1e300, 1e300, 0.0, 0.0],
+        [5.0, 1.0, np.inf, 0.0, 0.0, 0.0],
+    ],
+)
+def test_hostile_tracker_samples_are_passed_on_unjudged(bad):
+    """No sample crashes the monitor: an unusable one is not judged (the estimators skip and
+    count it) and accuses no one."""
+    gyro, st1, st2 = nominal(n=10)
+    st1[5] = bad
+    log = run_monitor(model(), gyro, st1, st2)
+    assert np.all(log[:, :, 1] == fdir.CAUSE_NONE)
+    assert log[5, 1, 0] == fdir.UNASSESSED
