@@ -318,3 +318,51 @@ def test_hostile_tracker_samples_are_passed_on_unjudged(bad):
     log = run_monitor(model(), gyro, st1, st2)
     assert np.all(log[:, :, 1] == fdir.CAUSE_NONE)
     assert log[5, 1, 0] == fdir.UNASSESSED
+
+
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"readmit_after_s": -1.0}, "monitor.readmit_after_s"),
+        ({"frozen_window_s": 0.5}, "monitor.frozen_window_s"),
+        ({"false_alarm_probability": 0.0}, "monitor.false_alarm_probability"),
+        ({"gyro_arw_rad_per_rt_s": -1e-4}, "monitor.gyro_arw"),
+        ({"gyro_rate_tolerance_rad_per_s": -1.0}, "monitor.gyro_rate_tolerance"),
+        ({"gyro_range_rad_per_s": 0.0}, "monitor.gyro_range"),
+        ({"bias_window_s": 2.5}, "monitor.bias_window_s"),
+        ({"bias_window_s": 1.0}, "monitor.bias_window_s"),
+        ({"gyro_rrw_rad_per_s15": -1.0}, "monitor.gyro_rrw"),
+        ({"covariance": np.diag([1e-8, 1e-8, -1e-8])}, "monitor.st1.covariance"),
+    ],
+)
+def test_monitor_model_refuses_bad_arguments_naming_the_field(kwargs, field):
+    kwargs = dict(kwargs)
+    C = kwargs.pop("covariance", np.eye(3) * 1e-8)
+    args = dict(
+        trackers=[fdir.TrackerModel("st1", np.array([1.0, 0, 0, 0]), C)],
+        has_gyro=True,
+        period_s=1.0,
+        frozen_window_s=1.0,
+        readmit_after_s=0.0,
+        false_alarm_probability=1e-6,
+    )
+    args.update(kwargs)
+    with pytest.raises(ValueError) as e:
+        fdir.MonitorModel.make("monitor", **args)
+    text = str(e.value)
+    assert text.startswith(field + ": got") and "; " in text and "\n" not in text and "None" not in text
+
+
+def test_bias_window_is_counted_in_periods():
+    m = fdir.MonitorModel.make(
+        "m",
+        [fdir.TrackerModel("st1", np.array([1.0, 0, 0, 0]), np.eye(3) * 1e-8)],
+        True,
+        0.5,
+        0.5,
+        0.0,
+        1e-6,
+        bias_window_s=10.0,
+    )
+    assert m.bias_window_steps == 20
+    assert m.memory_size == fdir.SENSOR_BLOCK * 2 + fdir.REFERENCE_BLOCK + 1 + fdir.RESIDUAL_SLOT * 40
