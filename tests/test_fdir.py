@@ -366,3 +366,23 @@ def test_bias_window_is_counted_in_periods():
     )
     assert m.bias_window_steps == 20
     assert m.memory_size == fdir.SENSOR_BLOCK * 2 + fdir.REFERENCE_BLOCK + 1 + fdir.RESIDUAL_SLOT * 40
+
+
+def test_unconnected_inputs_are_passed_on_as_invalid_and_judged_by_no_one():
+    """A monitor whose gyro and second tracker are not wired: their outputs say 'invalid'
+    (flag 0, NaN numbers), and the lone tracker is neither confirmed nor accused."""
+    gyro, st1, _ = nominal(n=6)
+    builder = DiagramBuilder()
+    monitor = builder.AddSystem(SensorMonitor(model(), "gyro"))
+    src = builder.AddSystem(Script(st1))
+    builder.Connect(src.get_output_port(), monitor.GetInputPort("q_meas_st1"))
+    sim = Simulator(builder.Build())
+    ctx = monitor.GetMyContextFromRoot(sim.get_mutable_context())
+    for k in range(6):
+        sim.AdvanceTo(k * T)
+        g = monitor.GetOutputPort("measurement_gyro").Eval(ctx)
+        s2 = monitor.GetOutputPort("measurement_st2").Eval(ctx)
+        assert g[1] == 0.0 and np.all(np.isnan(g[2:])) and s2[1] == 0.0 and np.all(np.isnan(s2[2:]))
+        log = monitor.GetOutputPort("detector_log").Eval(ctx).reshape(3, 3)
+        assert np.all(log[:, 1] == fdir.CAUSE_NONE) and log[1, 0] == fdir.UNASSESSED
+        assert np.array_equal(monitor.GetOutputPort("measurement_st1").Eval(ctx), st1[k])
