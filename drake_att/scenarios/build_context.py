@@ -8,6 +8,7 @@ builder (:mod:`drake_att.scenarios.builder`), which imports them.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 from pydrake.systems.framework import DiagramBuilder
@@ -146,7 +147,7 @@ class BuildContext:
         connect = self.connect_sensor
         if setup.monitor is not None:
             monitor = self.sensors[setup.monitor]
-            port = monitor.declare_verdicts(name, setup.gyro, est.input_names)
+            port = monitor.declare_verdicts(name, setup.gyro, cast(EstimatorSystem, est).input_names)
             self._diagram_builder().Connect(monitor.GetOutputPort(port), est.GetInputPort("sensor_verdicts"))
 
             def connect(sensor, system, input_port):

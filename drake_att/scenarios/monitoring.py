@@ -33,7 +33,11 @@ def with_monitor(
 
     sensors = list(scenario.sensors)
     configs = {c.name: c for c in sensors}
-    kinds = {s.name: plugin_for(s).output(s, configs).kind for s in sensors}
+    kinds = {}
+    for s in sensors:
+        output = plugin_for(s).output
+        if output is not None:  # every sensor plug-in has one
+            kinds[s.name] = output(s, configs).kind
     gyros = [n for n, k in kinds.items() if k == "gyro"]
     trackers = [n for n, k in kinds.items() if k == "quaternion" and _is_real_tracker(sensors, n)]
     if not trackers or len(trackers) + int(bool(gyros)) < 2:

@@ -39,7 +39,7 @@ from typing import List, Optional
 import numpy as np
 
 from drake_att.scenarios import config as cfg
-from drake_att.scenarios.registry import SensorOutput, plugin_for, register_sensor
+from drake_att.scenarios.registry import PluginError, SensorOutput, plugin_for, register_sensor
 from drake_att.systems.fault_injector import KINDS, FaultInjector, FaultModel
 from drake_att.units import DEG, DEG_PER_H
 
@@ -214,7 +214,10 @@ def faults_output(c: SensorFaultsConfig, sensor_configs) -> SensorOutput:
     """The entry's own output: the fault truth, at the corrupted sensor's period (kind
     "faults": no estimator reads it as a measurement)."""
     target = sensor_configs[c.sensor]
-    return SensorOutput("faults", "fault_truth", plugin_for(target).output(target, sensor_configs).period_s)
+    output = plugin_for(target).output
+    if output is None:  # validation admits sensors only; a plug-in without an output is a bug
+        raise PluginError(f"{c.sensor}: {type(target).__name__} is not a sensor's config")
+    return SensorOutput("faults", "fault_truth", output(target, sensor_configs).period_s)
 
 
 def faults_logged_ports(c: SensorFaultsConfig):
