@@ -244,7 +244,6 @@ def _with_monitor(**fields) -> str:
     "fields, message",
     [
         ({"frozen_window_s": 5000.0}, "frozen_window_s: got 5000"),
-        ({"readmit_after_s": 4000.0}, "readmit_after_s: got 4000"),
         ({"frozen_window_s": 0.5}, "frozen_window_s: got 0.5"),
         ({"readmit_after_s": -1.0}, "readmit_after_s: got -1"),
         ({"false_alarm_probability": 0.7}, "false_alarm_probability: got 0.7"),
