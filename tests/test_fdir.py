@@ -214,7 +214,7 @@ def test_bias_jump_within_the_tolerance_is_left_to_the_estimators():
 def test_pairwise_test_false_alarm_rate_matches_its_chi_square_quantile():
     """Consistent attitudes with the stated covariances: the test rejects a fraction p."""
     rng = np.random.default_rng(7)
-    p, n = 0.01, 20000
+    p, n = 0.02, 8000
     threshold = chi2.ppf(1 - p, 3)
     C_a = np.diag([1.0, 4.0, 0.25]) * 1e-8
     C_b = np.diag([9.0, 1.0, 1.0]) * 1e-8
