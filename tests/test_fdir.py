@@ -385,3 +385,25 @@ def test_unconnected_inputs_are_passed_on_as_invalid_and_judged_by_no_one():
         log = monitor.GetOutputPort("detector_log").Eval(ctx).reshape(3, 3)
         assert np.all(log[:, 1] == fdir.CAUSE_NONE) and log[1, 0] == fdir.UNASSESSED
         assert np.array_equal(monitor.GetOutputPort("measurement_st1").Eval(ctx), st1[k])
+
+
+def test_between_instants_the_monitor_judges_nothing_and_keeps_its_counts():
+    """Outputs read between the monitor's instants (a faster consumer or logger): no cause, the
+    excluded sensor still excluded, the others unassessed, the exclusion counts unchanged."""
+    gyro, st1, st2 = nominal(n=12)
+    st1[4:9, 2:] = st1[3, 2:]  # frozen 4..8
+    builder = DiagramBuilder()
+    monitor = builder.AddSystem(SensorMonitor(model(readmit_after_s=3.0), "gyro"))
+    for name, rows in (("gyro_measurement", gyro), ("q_meas_st1", st1), ("q_meas_st2", st2)):
+        src = builder.AddSystem(Script(rows))
+        builder.Connect(src.get_output_port(), monitor.GetInputPort(name))
+    sim = Simulator(builder.Build())
+    ctx = monitor.GetMyContextFromRoot(sim.get_mutable_context())
+    sim.AdvanceTo(6.0)
+    at_instant = monitor.GetOutputPort("detector_log").Eval(ctx).reshape(3, 3).copy()
+    sim.AdvanceTo(6.5)
+    between = monitor.GetOutputPort("detector_log").Eval(ctx).reshape(3, 3)
+    assert at_instant[1, 0] == fdir.EXCLUDED and at_instant[1, 1] == fdir.CAUSE_FROZEN
+    assert np.array_equal(between[:, 0], [fdir.UNASSESSED, fdir.EXCLUDED, fdir.UNASSESSED])
+    assert np.all(between[:, 1] == fdir.CAUSE_NONE)
+    assert np.array_equal(between[:, 2], at_instant[:, 2]) and between[1, 2] == 1
