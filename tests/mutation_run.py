@@ -101,6 +101,7 @@ MODULES = {
             "-k",
             "not tutorial",
             "--timeout=120",
+            "tests/test_sample_handling.py",
         ],
     ),  # the tutorial runs the CLI in a temporary folder
     # (test_compiled_step.py is left out: under mutmut the rules cannot be compiled, see conftest.py)
