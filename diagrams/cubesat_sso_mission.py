@@ -26,6 +26,7 @@ import time
 from drake_att.analysis.executor import map_runs
 from drake_att.analysis.mission import format_mission_tables, mission_record, summarize_mission
 from drake_att.analysis.reproduction import reduced_settings_note
+from drake_att.outputs import script_folder_problem
 from drake_att.scenarios.config import apply_overrides, dump_scenario
 from drake_att.scenarios.library import load
 
@@ -61,24 +62,7 @@ def check_out_folder(out: str) -> str | None:
     """None if ``out`` may be written: absent, empty, or a folder this script wrote (only its file
     names, and a ``summary.json`` of its shape); else the one-line reason (a user's files are
     never replaced)."""
-    if not os.path.lexists(out):
-        return None
-    if os.path.islink(out) or not os.path.isdir(out):
-        return f"--out {out}: exists and is not a folder"
-    names = sorted(os.listdir(out))
-    if not names:
-        return None
-    foreign = [n for n in names if n not in OUR_FILES]
-    mine = False
-    try:
-        with open(os.path.join(out, "summary.json")) as f:
-            mine = "per_seed_rmse_deg" in json.load(f)
-    except (OSError, ValueError):
-        pass
-    if foreign or not mine:
-        what = f"holds {foreign[:3]}" if foreign else "has no summary.json of this script"
-        return f"--out {out}: {what}; it is not a folder this script wrote and is left untouched (name a new folder)"
-    return None
+    return script_folder_problem(out, OUR_FILES, "summary.json", "per_seed_rmse_deg")
 
 
 def main(argv=None) -> int:

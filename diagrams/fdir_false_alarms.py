@@ -21,7 +21,6 @@ interval contains 0 or lies within the original's half-width). Writes ``results.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -34,6 +33,7 @@ from drake_att.analysis.executor import map_runs
 from drake_att.analysis.fault_scores import sensor_monitors
 from drake_att.analysis.metrics import compute_metrics
 from drake_att.analysis.reproduction import reduced_settings_note
+from drake_att.outputs import script_folder_problem, write_json_atomically
 from drake_att.scenarios.config import apply_overrides
 from drake_att.scenarios.library import load
 from drake_att.scenarios.monitoring import with_monitor
@@ -128,6 +128,10 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--out", default=None, help="folder for results.json")
     args = ap.parse_args(argv)
+    problem = args.out and script_folder_problem(args.out, ("results.json",), "results.json", "summary")
+    if problem:
+        print(f"fdir_false_alarms.py: {problem}", file=sys.stderr)
+        return 2
     if args.seeds < 2:
         ap.error(f"--seeds: got {args.seeds}; an interval needs at least 2 seeds")
     scenario = study_scenario(args.duration)
@@ -164,13 +168,10 @@ def main(argv=None) -> int:
         f"  [{'holds' if equal else 'DOES NOT HOLD'}] every FDIR twin's RMSE equals the original's within its interval"
     )
     if args.out:
-        os.makedirs(args.out, exist_ok=True)
-        with open(os.path.join(args.out, "results.json"), "w") as f:
-            json.dump(
-                {"seeds": args.seeds, "duration_s": scenario.duration_s, "records": records, "summary": summary},
-                f,
-                indent=1,
-            )
+        write_json_atomically(
+            os.path.join(args.out, "results.json"),
+            {"seeds": args.seeds, "duration_s": scenario.duration_s, "records": records, "summary": summary},
+        )
         print(f"\nWrote results.json to {args.out}/")
     return 0
 

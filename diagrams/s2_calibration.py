@@ -29,9 +29,9 @@ Every number below comes from running the library's solver
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
+import sys
 
 import numpy as np
 
@@ -39,6 +39,7 @@ from drake_att import rotations as rot
 from drake_att.contract import CameraCentroids
 from drake_att.filters.indoor_star_tracker import IndoorStarTrackerSolver, rpy_deg_to_R_BI
 from drake_att.filters.screen_calibration import CalibrationUncertainty, pair_angle_tolerance
+from drake_att.outputs import script_folder_problem, write_json_atomically
 from drake_att.screen_geometry import ScreenCameraGeometry, directions_from_centroids, random_star_pattern
 
 PITCH = 5.5e-6  # m (one pixel)
@@ -234,6 +235,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-dynamic", action="store_true", help="skip the dynamic scenario's runs")
     ap.add_argument("--out", default=None, help="also write results.json into this folder")
     args = ap.parse_args(argv)
+    problem = args.out and script_folder_problem(args.out, ("results.json",), "results.json", "self_calibration")
+    if problem:
+        print(f"s2_calibration.py: {problem}", file=sys.stderr)
+        return 2
     if min(args.frames, args.runs, args.id_frames) < 2:
         ap.error("--frames, --runs and --id-frames must be >= 2")
     res: dict = {"nees": []}
@@ -317,9 +322,7 @@ def main(argv=None) -> int:
                 f"{x['mean_stars_identified']:.1f} of {x['mean_stars_observed']:.1f} stars identified"
             )
     if args.out:
-        os.makedirs(args.out, exist_ok=True)
-        with open(os.path.join(args.out, "results.json"), "w") as f:
-            json.dump(res, f, indent=1)
+        write_json_atomically(os.path.join(args.out, "results.json"), res)
     return 0
 
 

@@ -34,6 +34,7 @@ import os
 import re
 import shutil
 import socket
+import tempfile
 
 from drake_att.interrupts import raise_if_interrupted
 from drake_att.validation import UserInputError
@@ -416,3 +417,44 @@ def write_file_atomic(path: str, data: bytes) -> str:
             os.remove(tmp)
         raise
     return path
+
+
+def script_folder_problem(out: str, our_files, marker_file: str, marker_key: str) -> str | None:
+    """None if a diagram script may write its files into ``out``: absent, empty, or a folder it
+    wrote (only names in ``our_files``, and ``marker_file`` a JSON object holding
+    ``marker_key``); else the one-line reason. A user's files are never replaced."""
+    if not os.path.lexists(out):
+        return None
+    if os.path.islink(out) or not os.path.isdir(out):
+        return f"--out {out}: exists and is not a folder"
+    names = sorted(os.listdir(out))
+    if not names:
+        return None
+    foreign = [n for n in names if n not in our_files]
+    mine = False
+    try:
+        with open(os.path.join(out, marker_file)) as f:
+            data = json.load(f)
+        mine = isinstance(data, dict) and marker_key in data
+    except (OSError, ValueError):
+        pass
+    if foreign or not mine:
+        what = f"holds {foreign[:3]}" if foreign else f"has no {marker_file} of this script"
+        return f"--out {out}: {what}; it is not a folder this script wrote and is left untouched (name a new folder)"
+    return None
+
+
+def write_json_atomically(path: str, data) -> None:
+    """``data`` as JSON at ``path``, whole or not at all (a temporary file in the same folder,
+    then renamed over it)."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp_", suffix=".json")
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=1)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise

@@ -192,3 +192,32 @@ def test_held_rate_walk_keeps_the_covariance_honest_through_a_gyro_outage():
     assert np.mean(nees["single"]) > 10.0
     for name in ("single_fdir", "joint_fdir"):
         assert 2.0 <= np.mean(nees[name]) <= 4.0, (name, np.mean(nees[name]))
+
+
+@pytest.mark.parametrize("script", ["fdir_false_alarms", "s2_calibration"])
+def test_study_scripts_leave_a_users_folder_untouched(script, tmp_path, capsys):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "diagrams"))
+    module = __import__(script)
+    (tmp_path / "notes.txt").write_text("mine")
+    (tmp_path / "results.json").write_text('{"mine": 1}')
+    assert module.main(["--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds ['notes.txt']" in err and "left untouched" in err
+    assert (tmp_path / "results.json").read_text() == '{"mine": 1}'
+    (tmp_path / "notes.txt").unlink()  # a results.json that is not the script's: refused too
+    assert module.main(["--out", str(tmp_path)]) == 2
+    assert "has no results.json of this script" in capsys.readouterr().err
+    (tmp_path / "file").write_text("x")
+    assert module.main(["--out", str(tmp_path / "file")]) == 2
+    assert "is not a folder" in capsys.readouterr().err
+
+
+def test_write_json_atomically_replaces_whole_or_not_at_all(tmp_path):
+    from drake_att.outputs import write_json_atomically
+
+    target = tmp_path / "results.json"
+    write_json_atomically(str(target), {"a": 1})
+    with pytest.raises(TypeError):
+        write_json_atomically(str(target), {"a": object()})  # not serializable: the old file stays
+    assert target.read_text() == '{\n "a": 1\n}'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results.json"]
