@@ -142,7 +142,10 @@ MODULES = {
         "drake_att/analysis/report.py",
         ["tests/test_report.py", "tests/test_campaign_bookkeeping.py", "tests/test_ensemble.py"],
     ),
-    "analysis_faults": ("drake_att/analysis/fault_scores.py", ["tests/test_fault_joint.py", "tests/test_faults.py"]),
+    "analysis_faults": (
+        "drake_att/analysis/fault_scores.py",
+        ["tests/test_fault_joint.py", "tests/test_faults.py", "tests/test_fdir_scenario.py"],
+    ),
     "systems_faults": ("drake_att/systems/fault_injector.py", ["tests/test_faults.py", "tests/test_fault_joint.py"]),
     "fusion": ("drake_att/systems/fusion.py", ["tests/test_fusion.py", "tests/test_fusion_speed_equivalence.py"]),
     "build_context": (

@@ -221,3 +221,39 @@ def test_write_json_atomically_replaces_whole_or_not_at_all(tmp_path):
         write_json_atomically(str(target), {"a": object()})  # not serializable: the old file stays
     assert target.read_text() == '{\n "a": 1\n}'
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results.json"]
+
+
+def test_fault_scores_read_the_monitors_trace_and_the_nees_during_a_fault(small_run):
+    """score_fault_events against the logs read here: the stuck window's samples at the
+    monitor's instants, those at which it excluded st1, the instants it flagged st1 until the
+    run's end, and the NEES over the window's steps."""
+    from drake_att.analysis.fault_scores import score_fault_events
+    from drake_att.systems import fault_injector as flt
+
+    run = small_run
+    rows = {(r["estimator"], r["sensor"], r["kind"]): r for r in score_fault_events(run)}
+    row = rows[("single_fdir", "st1", "stuck")]
+    t_f, truth = _last_per_time(*run.signals["st1_faults/fault_truth"])
+    stuck_t = truth[truth[:, flt.TRUTH_CODE] == flt.FAULT_STUCK, flt.TRUTH_T_SAMPLE]
+    t_log, log = _last_per_time(*run.signals["fdir/detector_log"])
+    at_instants = np.isin(np.round(t_log, 6), np.round(stuck_t, 6))
+    assert row["monitor_instants"] == int(np.sum(at_instants)) >= 10
+    assert row["excluded"] == int(np.sum(log[at_instants, 3] == fdir.EXCLUDED)) >= 9
+    window = t_log >= stuck_t.min() - 1e-9  # the last event: its window runs to the end
+    assert row["flagged"] == int(np.sum(log[window, 4] != 0)) >= 9
+    # NEES over the window's steps, from the logged estimate and covariance
+    keys = run.metadata["estimators"]["single_fdir"]["signals"]
+    _, status = _last_per_time(*run.signals[keys["status"]])
+    _, q_hat = _last_per_time(*run.signals[keys["attitude"]])
+    _, cov = _last_per_time(*run.signals[keys["covariance"]])
+    t_q, q_true = _last_per_time(*run.signals[run.metadata["truth"]["attitude"]])
+    t = status[:, 0]
+    m = (t >= stuck_t.min() - 1e-6) & (t <= stuck_t.max() + 1e-6)
+    truth_r = Rotation.from_quat(q_true[np.searchsorted(t_q, t[m] - 1e-9)][:, [1, 2, 3, 0]])
+    d = (Rotation.from_quat(q_hat[m][:, [1, 2, 3, 0]]).inv() * truth_r).as_rotvec()
+    P = cov[m].reshape(-1, 6, 6)[:, :3, :3]
+    nees = [float(x @ np.linalg.solve(Pk, x)) for x, Pk in zip(d, P, strict=True)]
+    assert row["nees_during"] == pytest.approx(np.mean(nees), rel=1e-6)
+    # the gyro outlier: excluded at its instant, and no monitor trace for the ungated filter's own sensors
+    gyro_row = rows[("joint_fdir", "gyro", "outlier")]
+    assert gyro_row["monitor_instants"] == 1 and gyro_row["excluded"] == 1
