@@ -78,8 +78,8 @@ VERDICT_NAMES = {UNASSESSED: "unassessed", CONFIRMED: "confirmed", EXCLUDED: "ex
 # Memory layout, per sensor (gyro first when there is one, then the trackers).
 _LAST = slice(0, 6)  # the last judged sample's numbers (gyro: 3 rates; tracker: 4 quaternion numbers)
 _CHANGED = slice(6, 10)  # per number: time of the last judged instant at which it changed
-_EXCLUDED, _CAUSE, _CLEAN_SINCE, _COUNT, _SEEN = 10, 11, 12, 13, 14
-SENSOR_BLOCK = 15
+_EXCLUDED, _CLEAN_SINCE, _COUNT, _SEEN = 10, 11, 12, 13
+SENSOR_BLOCK = 14
 # The reference, after the sensors.
 _REF_Q, _REF_P, _REF_VALID, _REF_T = slice(0, 4), slice(4, 13), 13, 14
 REFERENCE_BLOCK = 15
@@ -394,7 +394,7 @@ def assess(model: MonitorModel, memory, t: float, gyro=None, trackers=()) -> tup
         if causes[s] in EXCLUDING:
             if not b[_EXCLUDED]:
                 b[_COUNT] += 1
-            b[_EXCLUDED], b[_CAUSE], b[_CLEAN_SINCE] = 1.0, float(causes[s]), np.nan
+            b[_EXCLUDED], b[_CLEAN_SINCE] = 1.0, np.nan
         elif judged[s] and b[_EXCLUDED]:
             if math.isnan(b[_CLEAN_SINCE]):
                 b[_CLEAN_SINCE] = t
