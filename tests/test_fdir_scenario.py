@@ -120,6 +120,13 @@ def test_bias_jump_is_logged_not_excluded():
     flagged = t_log[causes == fdir.CAUSE_BIAS_SHIFT]
     assert len(flagged) > 0 and flagged.min() >= 40.0 and flagged.max() <= 60.0
     assert np.all(log[t_log < 59.5][:, 0] != fdir.EXCLUDED)
+    # scored: the filter took the jump's sample as usual (no rejection, no recovery), the
+    # monitor's log holds the trace
+    from drake_att.analysis.fault_scores import score_fault_events
+
+    row = next(r for r in score_fault_events(run, ["joint_fdir"]) if (r["sensor"], r["kind"]) == ("gyro", "bias_jump"))
+    assert row["accepted"] == 1 and row["rejected"] == 0 and row["detected"] == 0
+    assert row["excluded"] == 0 and row["flagged"] == len(flagged)
 
 
 def test_with_monitor_adds_a_monitor_after_the_trackers_and_fdir_twins():
@@ -257,3 +264,14 @@ def test_fault_scores_read_the_monitors_trace_and_the_nees_during_a_fault(small_
     # the gyro outlier: excluded at its instant, and no monitor trace for the ungated filter's own sensors
     gyro_row = rows[("joint_fdir", "gyro", "outlier")]
     assert gyro_row["monitor_instants"] == 1 and gyro_row["excluded"] == 1
+    # a point fault's NEES is its own step's
+    keys = run.metadata["estimators"]["joint_fdir"]["signals"]
+    _, status = _last_per_time(*run.signals[keys["status"]])
+    _, q_hat = _last_per_time(*run.signals[keys["attitude"]])
+    _, cov = _last_per_time(*run.signals[keys["covariance"]])
+    k = int(np.flatnonzero(np.abs(status[:, 0] - 30.0) < 1e-9)[0])
+    r_true = Rotation.from_quat(q_true[np.searchsorted(t_q, 30.0 - 1e-9)][[1, 2, 3, 0]])
+    d = (Rotation.from_quat(q_hat[k][[1, 2, 3, 0]]).inv() * r_true).as_rotvec()
+    assert gyro_row["nees_during"] == pytest.approx(
+        float(d @ np.linalg.solve(cov[k].reshape(6, 6)[:3, :3], d)), rel=1e-6
+    )
