@@ -480,3 +480,49 @@ def test_a_mistagged_tracker_in_a_scenario_is_counted_and_logged(offset, handled
     status = run.values("single/status")[-1]
     assert metrics["measurements_skipped"] == int(status[2]) == handled[1]
     assert metrics["measurements_used"] == 12 - handled[1]  # the last log: after step 11 (steps 0..11)
+
+
+# -- per-sample covariances ------------------------------------------------------------------
+def _covariance_run(sample_cov, model_cov, steps=4):
+    """A still MEKF fed one tracker's samples (a fixed 20-arcsec offset about x) whose model
+    takes each sample's covariance from ``q_cov_st``; the covariance's attitude block after
+    ``steps`` steps."""
+    core = MultiplicativeEKF(1e-12, 1e-15, None)  # process noise negligible over the run
+    init = core.initial_state([1.0, 0, 0, 0], np.zeros(3), 100 * ARCSEC, 1e-9)
+    sensors = [QuaternionSensorModel("st", np.array([1.0, 0, 0, 0]), model_cov, sample_covariance=True)]
+    system, context = _system(core, init, sensors)
+    assert system._compiled_model(system.filter_model(context)) is None  # per-sample covariances: Python loop
+    q = [math.cos(10 * ARCSEC), math.sin(10 * ARCSEC), 0.0, 0.0]  # 20 arcsec about x
+    for k in range(steps):
+        inputs = {"gyro_measurement": [k, 1, 0, 0, 0], "q_meas_st": [k, 1, *q]}
+        if sample_cov is not None:
+            inputs["q_cov_st"] = np.asarray(sample_cov, dtype=float).ravel()
+        _step(system, context, float(k), inputs)
+    est = system.GetOutputPort("covariance").Eval(context).reshape(6, 6)
+    status = system.GetOutputPort("status").Eval(context)
+    return est[:3, :3], status
+
+
+def test_a_samples_own_covariance_replaces_the_models():
+    """The information form, written here: after n updates of a still body (no process noise to
+    speak of), P^-1 = P0^-1 + n R^-1 per axis, with R the *sample's* covariance."""
+    R = np.diag([4.0, 9.0, 400.0]) * ARCSEC**2
+    P, status = _covariance_run(R, np.eye(3) * (1000 * ARCSEC) ** 2)
+    expected = 1.0 / (1.0 / (100 * ARCSEC) ** 2 + 4.0 / np.diag(R))
+    np.testing.assert_allclose(np.diag(P), expected, rtol=2e-3)
+    assert status[1] == 4 and status[2] == 0  # used, skipped
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        None,  # unconnected
+        np.diag([1.0, 1.0, np.nan]) * ARCSEC**2,
+        np.diag([1.0, 1.0, -1.0]) * ARCSEC**2,
+        np.array([[1.0, 0.5, 0], [0.0, 1.0, 0], [0, 0, 1.0]]) * ARCSEC**2,  # not symmetric
+    ],
+)
+def test_a_sample_without_a_usable_covariance_is_skipped_and_counted(bad):
+    P, status = _covariance_run(bad, np.eye(3) * SIGMA**2)
+    np.testing.assert_allclose(np.sqrt(np.diag(P)), 100 * ARCSEC, rtol=1e-2)  # no update took place
+    assert status[1] == 0 and status[2] == 4  # used, skipped

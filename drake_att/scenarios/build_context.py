@@ -163,6 +163,9 @@ class BuildContext:
             connect(setup.gyro, est, "gyro_measurement")
         for m in setup.quaternion_sensors:
             connect(m.name, est, f"q_meas_{m.name}")
+            if m.sample_covariance:  # the sample's own covariance, straight from the sensor
+                source = self.sensors[m.name].GetOutputPort("covariance_S")
+                self._diagram_builder().Connect(source, est.GetInputPort(f"q_cov_{m.name}"))
         for n in setup.vector_sensors:
             connect(n, est, f"vectors_{n}")
         for n in setup.camera_sensors:

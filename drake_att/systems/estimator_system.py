@@ -72,6 +72,8 @@ Input ports:
         ``monitor``): the sensor monitor's verdict on the gyro, then on each measurement
         input in :attr:`input_names` order: 0 not assessed, 1 confirmed, 2 excluded
         (:func:`~drake_att.systems.estimator_step.verdict_code`). Unconnected: none assessed.
+    q_cov_<sensor> (9) per quaternion sensor whose model has ``sample_covariance``: that sample's
+        covariance (row-major 3x3, rad^2, sensor frame), used in place of the model's.
 Output ports:
     q_IB_hat (4), bias_B_hat or w_IB_B_hat (3, named by the core's ``second_quantity``),
     covariance (36), status (4): the contract (see :mod:`drake_att.contract`).
@@ -181,6 +183,21 @@ __all__ = [
 ]
 
 
+def _sample_covariance(port, context) -> np.ndarray | None:
+    """A sample's own covariance (3, 3) from a ``q_cov_<name>`` input, or None if it is
+    unconnected or not finite, symmetric and positive definite (the sample is then skipped)."""
+    if not port.HasValue(context):
+        return None
+    C = np.asarray(port.Eval(context), dtype=float).reshape(3, 3)
+    if not np.all(np.isfinite(C)) or not np.allclose(C, C.T, rtol=1e-9, atol=0.0):
+        return None
+    try:
+        np.linalg.cholesky(C)
+    except np.linalg.LinAlgError:
+        return None
+    return C
+
+
 @dataclass(frozen=True)
 class QuaternionSensorModel:
     """What the filter assumes about one attitude-quaternion sensor.
@@ -195,6 +212,11 @@ class QuaternionSensorModel:
     q_BS: np.ndarray
     covariance_S: np.ndarray  # (3, 3) rotation-vector noise in the sensor frame (rad^2)
     covariance_by_flag: tuple = ()
+    #: The sensor gives each sample's own covariance (its ``covariance_S`` output, 9 numbers,
+    #: row-major, rad^2), read on the estimator's ``q_cov_<name>`` input in place of
+    #: ``covariance_S``; a sample whose covariance is not finite, symmetric and positive
+    #: definite is skipped and counted.
+    sample_covariance: bool = False
 
     def covariance_for_flag(self, flag: float):
         """The covariance of a sample with validity ``flag`` (None: not a usable subset;
@@ -367,6 +389,10 @@ class EstimatorSystem(LeafSystem):
         self._camera_names = tuple(camera_sensors)
         n_inputs = len(self._quat_ports) + len(self._vector_ports)
         self._verdict_port = self.DeclareVectorInputPort("sensor_verdicts", 1 + n_inputs) if self.verdicts else None
+        self._covariance_ports = [
+            self.DeclareVectorInputPort(f"q_cov_{s.name}", 9) if s.sample_covariance else None
+            for s in self._quat_sensors
+        ]
 
     def _declare_state(self, core, initial_state) -> None:
         """The discrete-state groups (see the module docstring)."""
@@ -491,6 +517,11 @@ class EstimatorSystem(LeafSystem):
             ("linearizing", self._linearizing, caps.linearized_prediction),
             ("num_particles", self.num_particles, caps.num_particles),
             ("quaternion sensors", [s.name for s in self._quat_sensors], [s.name for s in setup.quaternion_sensors]),
+            (
+                "per-sample covariances",
+                [s.sample_covariance for s in self._quat_sensors],
+                [s.sample_covariance for s in setup.quaternion_sensors],
+            ),
             ("vector sensors", list(self._vector_names), list(setup.vector_sensors)),
             ("cameras", list(self._camera_names), list(setup.camera_sensors)),
             ("diagnostics", list(self.diagnostic_names), list(caps.diagnostic_names)),
@@ -562,6 +593,8 @@ class EstimatorSystem(LeafSystem):
                 m = port.Eval(context)
                 flag = float(m[1])
                 cov = sensor.covariance_for_flag(flag)
+                if sensor.sample_covariance:
+                    cov = _sample_covariance(self._covariance_ports[i], context)
                 yield (
                     i,
                     QuaternionSample(
@@ -594,6 +627,7 @@ class EstimatorSystem(LeafSystem):
         if (
             self._linearizing
             and not self.verdicts
+            and not any(s.sample_covariance for s in model.quaternion_sensors)
             and compiled_step.eligible(model.core, len(self._vector_ports), model.core.is_random)
         ):
             array_model = compiled_step.StepModel.of(
