@@ -5,7 +5,7 @@ One frame, as a sensor system calls it::
 
     stars at the exposure's mid time: pixel positions uv (n, 2), pixel velocities (n, 2),
     electron rates (n,)  +  PinholeCamera  +  DetectorModel  +  a numpy Generator
-        -> render_windows -> StarWindows (n, w, w ADU)  -> centroid_windows -> StarCentroids
+        -> render_windows -> StarWindows (n, w_v, w_u ADU)  -> centroid_windows -> StarCentroids
 
 (:func:`simulate_frame` is the two in one call.) Pixel convention: :mod:`drake_att.star_camera`
 (``u`` columns along ``+x_S``, ``v`` rows along ``+y_S``, pixel ``(i, j)`` covers
@@ -32,9 +32,9 @@ weighted by its response) is this module's approximation: the absolute scale is 
 ~1.5 (±0.4 mag), and a silicon detector's own colour term (red stars brighter than ``V``) is
 not modelled. Such an error moves the magnitude limit, not the noise statistics.
 
-**Rendering** (:func:`render_windows`), only in a ``w x w`` window around each star
-(``w = 2 h + 1``, ``h`` = ``window_half_size_px`` plus half the longest smear track, one ``w``
-per frame so the stars stack into one array):
+**Rendering** (:func:`render_windows`), only in a window around each star, ``2 h_u + 1``
+columns by ``2 h_v + 1`` rows, ``h`` = ``window_half_size_px`` plus half the frame's longest
+smear track along that axis (one size per frame, so the stars stack into one array):
 
 * the PSF is a Gaussian of ``psf_sigma_px`` integrated exactly over each pixel (separable erf
   differences);
@@ -284,14 +284,14 @@ def pixel_velocity(camera: PinholeCamera, directions_S, w_IS_S) -> np.ndarray:
 
 @dataclass(frozen=True)
 class StarWindows:
-    """One frame's windows (``n`` stars, ``w x w`` pixels each, ``[star, row, column]``).
+    """One frame's windows (``n`` stars, ``w_v x w_u`` pixels each, ``[star, row, column]``).
 
     Attributes:
         origin_px: (n, 2) int ``(column, row)`` of each window's first pixel.
-        adu: (n, w, w) the digitized pixels (ADU; 0 off the detector).
-        star_e: (n, w, w) the noise-free star electrons (the rendering's expectation).
-        background_e: (n, w, w) expected background + dark (+ hot) electrons (0 off the detector).
-        on_detector: (n, w, w) bool, the pixel lies on the detector.
+        adu: (n, w_v, w_u) the digitized pixels (ADU; 0 off the detector).
+        star_e: (n, w_v, w_u) the noise-free star electrons (the rendering's expectation).
+        background_e: (n, w_v, w_u) expected background + dark (+ hot) electrons (0 off the detector).
+        on_detector: (n, w_v, w_u) bool, the pixel lies on the detector.
         saturated: (n,) bool, a pixel reached the full well or the ADC's maximum code.
         uv_px: (n, 2) the stars' true mid-exposure positions (px), for reference.
     """
@@ -310,7 +310,7 @@ class StarWindows:
         return ~np.all(self.on_detector, axis=(1, 2))
 
     def electrons(self, detector: DetectorModel) -> np.ndarray:
-        """(n, w, w) the pixels back in electrons: ``(ADU - black) gain``."""
+        """(n, w_v, w_u) the pixels back in electrons: ``(ADU - black) gain``."""
         return (self.adu - detector.black_level_adu) * detector.gain_e_per_adu
 
 
@@ -340,9 +340,13 @@ class StarCentroids:
         return len(self.star_index)
 
 
-def _window_half_size(detector: DetectorModel, track_px: np.ndarray) -> int:
-    extra = 0 if len(track_px) == 0 else int(math.ceil(0.5 * float(np.max(np.abs(track_px)))))
-    return detector.window_half_size_px + extra
+def _window_half_sizes(detector: DetectorModel, track_px: np.ndarray) -> tuple[int, int]:
+    """Half sizes ``(h_u, h_v)`` of a frame's windows: ``window_half_size_px`` plus half the
+    longest track along each axis."""
+    if len(track_px) == 0:
+        return detector.window_half_size_px, detector.window_half_size_px
+    extra = np.ceil(0.5 * np.max(np.abs(track_px), axis=0)).astype(int)
+    return detector.window_half_size_px + int(extra[0]), detector.window_half_size_px + int(extra[1])
 
 
 def _axis_profiles(first_edge: np.ndarray, w: int, pos: np.ndarray, sigma: float) -> np.ndarray:
@@ -361,8 +365,8 @@ def expected_windows(
     electron_rate_e_per_s,
     hot_pixels: HotPixelMap | None = None,
 ):
-    """The noise-free windows: ``(origin_px (n, 2), star_e (n, w, w), background_e (n, w, w),
-    on_detector (n, w, w))`` (see :class:`StarWindows`)."""
+    """The noise-free windows: ``(origin_px (n, 2), star_e (n, w_v, w_u), background_e (n, w_v, w_u),
+    on_detector (n, w_v, w_u))`` (see :class:`StarWindows`)."""
     uv = np.asarray(uv_px, dtype=float).reshape(-1, 2)
     rate = np.asarray(uv_rate_px_per_s, dtype=float).reshape(-1, 2)
     flux = np.asarray(electron_rate_e_per_s, dtype=float).reshape(-1)
@@ -374,26 +378,25 @@ def expected_windows(
     T = detector.exposure_s
     sigma = detector.psf_sigma_px
     track = rate * T
-    h = _window_half_size(detector, track)
-    w = 2 * h + 1
-    centre = np.floor(uv).astype(np.int64)
-    origin = centre - h
+    h_u, h_v = _window_half_sizes(detector, track)
+    w_u, w_v = 2 * h_u + 1, 2 * h_v + 1
+    origin = np.floor(uv).astype(np.int64) - np.array([h_u, h_v])
     length = np.hypot(track[:, 0], track[:, 1]) if n else np.zeros(0)
     k_steps = max(1, int(math.ceil(float(np.max(length, initial=0.0)) / (SMEAR_STEP_SIGMA * sigma))))
     t = (np.arange(k_steps) + 0.5) / k_steps - 0.5
-    fu = _axis_profiles(origin[:, 0].astype(float), w, uv[:, 0, None] + track[:, 0, None] * t, sigma)
-    fv = _axis_profiles(origin[:, 1].astype(float), w, uv[:, 1, None] + track[:, 1, None] * t, sigma)
+    fu = _axis_profiles(origin[:, 0].astype(float), w_u, uv[:, 0, None] + track[:, 0, None] * t, sigma)
+    fv = _axis_profiles(origin[:, 1].astype(float), w_v, uv[:, 1, None] + track[:, 1, None] * t, sigma)
     if k_steps == 1:
         psf = fv[:, 0, :, None] * fu[:, 0, None, :]
-    else:
-        psf = np.einsum("nkj,nki->nji", fv, fu) * (1.0 / k_steps)
-    cols = origin[:, 0, None] + np.arange(w)  # (n, w)
-    rows = origin[:, 1, None] + np.arange(w)
+    else:  # sum over sub-steps k of fv[n, k, row] fu[n, k, column], as a batched matmul
+        psf = np.matmul(fv.transpose(0, 2, 1), fu) * (1.0 / k_steps)
+    cols = origin[:, 0, None] + np.arange(w_u)  # (n, w_u)
+    rows = origin[:, 1, None] + np.arange(w_v)  # (n, w_v)
     col_on = (cols >= 0) & (cols < camera.width_px)
     row_on = (rows >= 0) & (rows < camera.height_px)
     on = row_on[:, :, None] & col_on[:, None, :]
     star_e = (flux * T)[:, None, None] * psf * on
-    background = np.full((n, w, w), detector.dark_and_background_e_per_px) * on
+    background = np.full((n, w_v, w_u), detector.dark_and_background_e_per_px) * on
     if hot_pixels is not None and len(hot_pixels.linear_index):
         linear = rows[:, :, None] * camera.width_px + cols[:, None, :]
         background += hot_pixels.rates_at(np.where(on, linear, -1)) * T
@@ -446,7 +449,7 @@ def render_windows(
 def centroid_windows(windows: StarWindows, detector: DetectorModel) -> StarCentroids:
     """Centre-of-mass centroids, their predicted covariances and the detections of a frame's
     windows (module docstring)."""
-    n, w = windows.adu.shape[0], windows.adu.shape[-1]
+    w_v, w_u = windows.adu.shape[1:]
     edge = windows.edge
     signal = (windows.electrons(detector) - windows.background_e) * windows.on_detector
     noise_var = windows.background_e + detector.read_noise_e**2 + detector.gain_e_per_adu**2 / 12.0
@@ -459,20 +462,18 @@ def centroid_windows(windows: StarWindows, detector: DetectorModel) -> StarCentr
     idx = np.flatnonzero(detected)
     s = signal[idx]
     S = total[idx]
-    u_c = windows.origin_px[idx, 0, None] + np.arange(w) + 0.5  # (m, w) column centres
-    v_c = windows.origin_px[idx, 1, None] + np.arange(w) + 0.5
-    col_sum = s.sum(axis=1)  # (m, w) over rows
-    row_sum = s.sum(axis=2)
-    u_hat = np.sum(u_c * col_sum, axis=1) / S
-    v_hat = np.sum(v_c * row_sum, axis=1) / S
+    u_c = windows.origin_px[idx, 0, None] + np.arange(w_u) + 0.5  # (m, w_u) column centres
+    v_c = windows.origin_px[idx, 1, None] + np.arange(w_v) + 0.5  # (m, w_v) row centres
+    u_hat = np.sum(u_c * s.sum(axis=1), axis=1) / S
+    v_hat = np.sum(v_c * s.sum(axis=2), axis=1) / S
     du = u_c - u_hat[:, None]
     dv = v_c - v_hat[:, None]
     vi = var[idx]
     inv_s2 = 1.0 / (S * S)
     cov = np.empty((len(idx), 2, 2))
-    cov[:, 0, 0] = np.einsum("mji,mi,mi->m", vi, du, du) * inv_s2
-    cov[:, 1, 1] = np.einsum("mji,mj,mj->m", vi, dv, dv) * inv_s2
-    cov[:, 0, 1] = cov[:, 1, 0] = np.einsum("mji,mi,mj->m", vi, du, dv) * inv_s2
+    cov[:, 0, 0] = np.sum(vi.sum(axis=1) * du * du, axis=1) * inv_s2
+    cov[:, 1, 1] = np.sum(vi.sum(axis=2) * dv * dv, axis=1) * inv_s2
+    cov[:, 0, 1] = cov[:, 1, 0] = np.sum(np.matmul(vi, du[:, :, None])[:, :, 0] * dv, axis=1) * inv_s2
     return StarCentroids(
         uv_px=np.column_stack([u_hat, v_hat]),
         covariance_px2=cov,
@@ -516,11 +517,11 @@ def render_full_frame(
     mean = np.full((H, W), detector.dark_and_background_e_per_px)
     if hot_pixels is not None and len(hot_pixels.linear_index):
         mean.reshape(-1)[hot_pixels.linear_index] += hot_pixels.rate_e_per_s * detector.exposure_s
-    w = star_e.shape[-1] if len(star_e) else 0
+    w_v, w_u = star_e.shape[1:]
     for k in range(len(star_e)):
         c0, r0 = origin[k]
-        rows = slice(max(r0, 0), min(r0 + w, H))
-        cols = slice(max(c0, 0), min(c0 + w, W))
+        rows = slice(max(r0, 0), min(r0 + w_v, H))
+        cols = slice(max(c0, 0), min(c0 + w_u, W))
         mean[rows, cols] += star_e[k, rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0]
     adu, _ = _expose(mean, detector, rng)
     return adu
