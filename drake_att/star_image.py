@@ -72,7 +72,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import erf
+from scipy.special import erf  # type: ignore[import-untyped]
 
 from drake_att.star_camera import PinholeCamera
 from drake_att.validation import check_finite, check_int, check_seed, fail
@@ -183,7 +183,7 @@ class DetectorModel:
         naming ``<name>.<field>``), unknown fields refused, the black level inside the ADC's
         range."""
         defaults = cls()
-        values = {}
+        values: dict = {}
         for key, value in fields.items():
             if key not in cls.RANGES and key not in cls.INT_RANGES:
                 fail(f"{name}.{key}", value, f"is not a detector field (fields: {', '.join(cls.__annotations__)})")
