@@ -89,8 +89,8 @@ class IdentifiedFrame:
     tetra3rs_time_ms: float | None = None
 
 
-def _invalid(reason: str, mode: str, **tetra3rs) -> IdentifiedFrame:
-    return IdentifiedFrame(False, reason, mode, **tetra3rs)
+def _invalid(reason: str, mode: str, tetra3rs_time_ms: float | None = None) -> IdentifiedFrame:
+    return IdentifiedFrame(False, reason, mode, tetra3rs_time_ms=tetra3rs_time_ms)
 
 
 # ----------------------------------------------------------------------------------
@@ -111,7 +111,7 @@ def tetra3rs_database(catalog: StarCatalog, fov_deg: float):
     """A ``tetra3rs.SolverDatabase`` of ``catalog``'s stars for a ``fov_deg`` field (the
     detector's width), source id = catalogue index; built once per catalogue and field in a
     process (module docstring)."""
-    import tetra3rs  # type: ignore[import-untyped]
+    import tetra3rs
 
     key = _catalog_key(catalog, fov_deg)
     db = _DATABASES.get(key)
@@ -325,18 +325,30 @@ class StarIdentifier:
             reason = "too_few_stars" if result.status == "too_few" else "no_match"
             return _invalid(reason, mode, tetra3rs_time_ms=float(result.solve_time_ms))
         R_IS = np.asarray(result.rotation_matrix_icrs_to_camera, dtype=float).T
-        own = {
-            "false_probability": float(result.probability),
-            "tetra3rs_q_IS": rot.rotmat_to_quat(R_IS),
-            "tetra3rs_time_ms": float(result.solve_time_ms),
-        }
-        if not own["false_probability"] <= self.max_false_probability:
-            return _invalid("low_probability", mode, **own)
+        probability = float(result.probability)
+        own_q, own_ms = rot.rotmat_to_quat(R_IS), float(result.solve_time_ms)
+        if not probability <= self.max_false_probability:
+            return IdentifiedFrame(
+                False,
+                "low_probability",
+                mode,
+                false_probability=probability,
+                tetra3rs_q_IS=own_q,
+                tetra3rs_time_ms=own_ms,
+            )
         # tetra3rs refines its own focal length: its attitude is off by a fraction of a pixel
         sigma_prior = LOST_IN_SPACE_PRIOR_PX / f
         frame = self._match_and_solve(z, W, cvar, R_IS, sigma_prior, mode)
         return IdentifiedFrame(
-            frame.valid, frame.reason, mode, frame.attitude, frame.centroid_index, frame.catalog_index, **own
+            frame.valid,
+            frame.reason,
+            mode,
+            frame.attitude,
+            frame.centroid_index,
+            frame.catalog_index,
+            false_probability=probability,
+            tetra3rs_q_IS=own_q,
+            tetra3rs_time_ms=own_ms,
         )
 
     # -- tracking ------------------------------------------------------------------
