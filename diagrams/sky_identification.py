@@ -119,6 +119,7 @@ def run(frames: int, seed: int, with_cedar: bool = True) -> dict:
     rows = {s: [] for s in SOLVERS}  # per frame: noise index, valid, error (3), sigma (3) or nan, time
     nees = []  # (noise index, solver, nees, err (3), crb diag (3), lambda_max)
     stars = []
+    reasons: dict = {name: {str(s): {} for s in NOISE_PX} for name in ("ours_lis", "ours_track")}
     for _ in range(frames):
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
@@ -148,6 +149,8 @@ def run(frames: int, seed: int, with_cedar: bool = True) -> dict:
                     nees.append((k, name, float(e @ np.linalg.solve(P, e)), *e, *np.diag(P), np.linalg.eigvalsh(P)[-1]))
                 else:
                     rows[name].append((k, 0, np.nan, np.nan, np.nan, dt))
+                    count = reasons[name][str(sigma)]
+                    count[frame.reason] = count.get(frame.reason, 0) + 1
             t3rs_s = (lis.tetra3rs_time_ms or 0.0) / 1e3
             if lis.tetra3rs_q_IS is not None:
                 rows["tetra3rs"].append((k, 1, *error_rotvec(lis.tetra3rs_q_IS, q), t3rs_s))
@@ -161,7 +164,7 @@ def run(frames: int, seed: int, with_cedar: bool = True) -> dict:
                     rows["cedar"].append((k, 0, np.nan, np.nan, np.nan, dt))
                 else:
                     rows["cedar"].append((k, 1, *error_rotvec(qc, q), dt))
-    return {"rows": rows, "nees": nees, "stars": stars, "database_build_s": build_s}
+    return {"rows": rows, "nees": nees, "stars": stars, "database_build_s": build_s, "invalid_reasons": reasons}
 
 
 def summarize(raw: dict, frames: int) -> dict:
@@ -215,6 +218,7 @@ def summarize(raw: dict, frames: int) -> dict:
         "max": int(np.max(raw["stars"])),
     }
     out["database_build_s"] = raw["database_build_s"]
+    out["invalid_reasons"] = raw["invalid_reasons"]
     return out
 
 
@@ -280,6 +284,10 @@ def main(argv=None) -> int:
                 f"{name:<11}{sigma:>4}{r['frames']:>7}{r['mean_nees']:>7.3f}  [{lo:.3f}, {hi:.3f}]"
                 f"{ratio:>20}{arcsec:>19}"
             )
+    print("\nInvalid frames of our modes by reason:")
+    for name, per in summary["invalid_reasons"].items():
+        text = "; ".join(f"{sigma} px: {dict(c) or 'none'}" for sigma, c in per.items())
+        print(f"  {name}: {text}")
     ours_wrong = sum(r["wrong"] for n in ("ours_lis", "ours_track") for r in summary["solvers"][n].values())
     print("\nVerdicts:")
     print(f"  [{'holds' if ours_wrong == 0 else 'DOES NOT HOLD'}] no wrong attitude reported valid by our modes")

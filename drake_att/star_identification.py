@@ -26,7 +26,7 @@ cut to the tracker's magnitude limit; identified stars are returned as indices i
 * A frame that is not confirmed is returned invalid with a reason: ``too_few_stars`` (fewer
   centroids or matches than ``min_stars``), ``no_match`` (tetra3rs found no pattern),
   ``low_probability`` (its false-match probability above the threshold), ``residual`` (the
-  residual test failed). The caller of :meth:`StarIdentifier.track` falls back to
+  residual test failed, or the matches leave the attitude undetermined). The caller of :meth:`StarIdentifier.track` falls back to
   lost-in-space on any of them; :meth:`StarIdentifier.identify` does that.
 """
 
@@ -45,6 +45,7 @@ from drake_att.filters.compiled import jit
 from drake_att.sky import StarCatalog
 from drake_att.star_attitude import (
     StarAttitude,
+    _rotmat_to_quat,
     _solve_checked,
     _weights,
     camera_parameters,
@@ -287,8 +288,8 @@ class StarIdentifier:
         self.solve_timeout_ms = timeout
         self._params = camera_parameters(camera)
         self._unit_I = np.ascontiguousarray(catalog.unit_I)
-        self._cos_pattern = 0.0
         self._database = None
+        self._tetra3rs_camera = None
         from scipy.spatial import cKDTree  # type: ignore[import-untyped]
 
         self._tree = cKDTree(self._unit_I)
@@ -298,13 +299,12 @@ class StarIdentifier:
     def database(self):
         """The tetra3rs database (built on first use; see :func:`tetra3rs_database`)."""
         if self._database is None:
+            import tetra3rs
+
             self._database = tetra3rs_database(self.catalog, math.degrees(self.camera.fov_rad[0]))
+            cam = self.camera
+            self._tetra3rs_camera = tetra3rs.CameraModel(cam.focal_length_px, cam.width_px, cam.height_px)
         return self._database
-
-    def _tetra3rs_camera(self):
-        import tetra3rs
-
-        return tetra3rs.CameraModel(self.camera.focal_length_px, self.camera.width_px, self.camera.height_px)
 
     def lost_in_space(self, centroids_px, centroid_cov_px2) -> IdentifiedFrame:
         """Identify a frame with no prior (module docstring). ``centroids_px`` brightest first:
@@ -316,17 +316,17 @@ class StarIdentifier:
         ideal = self.camera.unproject(z)
         f = self.camera.focal_length_px
         xy = f * ideal[:, :2] / ideal[:, 2:3]  # ideal pinhole, origin at the principal point
-        if not hasattr(self, "_t3_camera"):
-            self._t3_camera = self._tetra3rs_camera()
-        result = self.database.solve_from_centroids(
-            xy, camera_model=self._t3_camera, solve_timeout_ms=int(math.ceil(self.solve_timeout_ms))
+        database = self.database
+        result = database.solve_from_centroids(
+            xy, camera_model=self._tetra3rs_camera, solve_timeout_ms=int(math.ceil(self.solve_timeout_ms))
         )
-        if not result:
-            reason = "too_few_stars" if result.status == "too_few" else "no_match"
+        if not result or result.parity_flip:  # a mirrored sky is not ours to confirm
+            reason = "too_few_stars" if not result and result.status == "too_few" else "no_match"
             return _invalid(reason, mode, tetra3rs_time_ms=float(result.solve_time_ms))
         R_IS = np.asarray(result.rotation_matrix_icrs_to_camera, dtype=float).T
         probability = float(result.probability)
-        own_q, own_ms = rot.rotmat_to_quat(R_IS), float(result.solve_time_ms)
+        own_q, own_ms = np.empty(4), float(result.solve_time_ms)
+        _rotmat_to_quat(np.ascontiguousarray(R_IS), own_q)
         if not probability <= self.max_false_probability:
             return IdentifiedFrame(
                 False,
@@ -413,7 +413,10 @@ class StarIdentifier:
             return _invalid("too_few_stars", mode)
         catalog_index = candidates[keep[match[centroid_index]]]
         zs, Ws, rs = z[centroid_index], W[centroid_index], self._unit_I[catalog_index]
-        attitude = _solve_checked(self._params, zs, rs, Ws, 2)
+        try:
+            attitude = _solve_checked(self._params, zs, rs, Ws, 2)
+        except ValueError:  # matches whose geometry leaves the attitude undetermined: unconfirmed
+            return _invalid("residual", mode)
         per_star = np.empty(len(zs))
         _star_chi2(self._params, zs, rs, Ws, rot.quat_to_rotmat(attitude.q_IS), per_star)
         inlier = per_star <= _chi2_bound(2, self.residual_p_value)
@@ -422,7 +425,10 @@ class StarIdentifier:
             if len(centroid_index) < self.min_stars:
                 return _invalid("too_few_stars", mode)
             zs, Ws, rs = zs[inlier], Ws[inlier], rs[inlier]
-            attitude = _solve_checked(self._params, zs, rs, Ws, 2)
+            try:
+                attitude = _solve_checked(self._params, zs, rs, Ws, 2)
+            except ValueError:
+                return _invalid("residual", mode)
         if not attitude.chi_square <= _chi2_bound(attitude.degrees_of_freedom, self.residual_p_value):
             return _invalid("residual", mode)
         return IdentifiedFrame(True, "ok", mode, attitude, centroid_index, catalog_index)

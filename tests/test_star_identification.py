@@ -134,6 +134,18 @@ def test_too_few_stars_is_invalid_with_its_reason(catalog, identifier):
         assert not frame.valid and frame.reason == "too_few_stars"
 
 
+def test_a_probability_above_the_threshold_is_low_probability(catalog):
+    """tetra3rs's match accepted by it but not by a stricter threshold: invalid, its attitude kept
+    as tetra3rs's own (and right)."""
+    strict = StarIdentifier(CAMERA, catalog, max_false_probability=1e-300)
+    rng = np.random.default_rng(16)
+    q = random_quaternion(rng)
+    z, _ = sky_frame(catalog, q, rng, 0.2)
+    frame = strict.lost_in_space(z[:10], 0.2)  # 10 stars: tetra3rs says ~1e-27 (60 stars: ~1e-308)
+    assert not frame.valid and frame.reason == "low_probability" and frame.attitude is None
+    assert frame.false_probability > 1e-300 and error_angle(frame.tetra3rs_q_IS, q) < 5 * ARCMIN
+
+
 def test_database_is_built_from_our_catalogue_and_cached(catalog, identifier):
     db = identifier.database
     assert db.num_stars == len(catalog)
