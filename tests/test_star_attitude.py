@@ -115,6 +115,19 @@ def test_covariance_matches_the_scatter_over_noisy_frames(camera):
     assert lo < chis.mean() < hi
 
 
+def test_solver_covariance_is_the_cameras_fisher_information():
+    """The compiled solve's covariance equals F^-1 from the camera's own projection_jacobian
+    (fisher_information) on a distorted camera, per-star covariances unequal."""
+    rng = np.random.default_rng(7)
+    q, uv, d_S, r_I = frame(rng, DISTORTED, 9)
+    C = np.einsum("n,ij->nij", rng.uniform(0.01, 0.2, 9), np.eye(2)) + 0.005 * np.array([[0, 1], [1, 0]])
+    a = solve_star_attitude(DISTORTED, uv, r_I, C)
+    J = DISTORTED.projection_jacobian(d_S)
+    F = np.einsum("nai,nab,nbj->ij", J, np.linalg.inv(C), J)
+    assert np.allclose(a.covariance_S, np.linalg.inv(F), rtol=1e-8)
+    assert np.allclose(fisher_information(DISTORTED, d_S, C), F, rtol=1e-12)
+
+
 def test_fisher_information_is_quest_near_the_boresight():
     """Stars within 0.3 deg of the boresight of an ideal pinhole with isotropic pixel noise:
     F -> sum (I - b b^T) / sigma^2 with sigma = sigma_px / f_px (to 1e-3)."""
