@@ -182,28 +182,28 @@ class PinholeCamera:
         centroid's pixel covariance to the direction's (rank 2: no information about rotation
         about the direction itself)."""
         d = np.atleast_2d(np.asarray(directions_S, dtype=float))
-        d = d / np.linalg.norm(d, axis=1)[:, None]
-        x, y, z = d[:, 0], d[:, 1], d[:, 2]
-        xn, yn = x / z, y / z
-        # d(xn, yn)/d(d): [[1/z, 0, -x/z^2], [0, 1/z, -y/z^2]]
-        J_n = np.zeros((len(d), 2, 3))
-        J_n[:, 0, 0] = 1.0 / z
-        J_n[:, 0, 2] = -x / z**2
-        J_n[:, 1, 1] = 1.0 / z
-        J_n[:, 1, 2] = -y / z**2
+        xn, yn = d[:, 0] / d[:, 2], d[:, 1] / d[:, 2]
+        # d(xn, yn)/d(phi) for d -> d + phi x d (any length of d):
+        #   [[-xn yn, 1 + xn^2, -yn], [-(1 + yn^2), xn yn, xn]]
+        N = np.empty((len(d), 2, 3))
+        N[:, 0, 0] = -xn * yn
+        N[:, 0, 1] = 1.0 + xn * xn
+        N[:, 0, 2] = -yn
+        N[:, 1, 0] = -(1.0 + yn * yn)
+        N[:, 1, 1] = xn * yn
+        N[:, 1, 2] = xn
+        f = self.focal_length_px
+        if self.k1 == 0.0 and self.k2 == 0.0:
+            return f * N
         r2 = xn * xn + yn * yn
         g = self._distortion_factor(r2)
-        dg = self.k1 + 2.0 * self.k2 * r2  # dg/d(r^2)
-        # d(x_d, y_d)/d(xn, yn) = g I + 2 dg [xn, yn][xn, yn]^T
-        D = g[:, None, None] * np.eye(2) + 2.0 * dg[:, None, None] * np.einsum(
-            "ni,nj->nij", np.c_[xn, yn], np.c_[xn, yn]
-        )
-        # d(d)/d(phi) = -[d]x
-        skew = np.zeros((len(d), 3, 3))
-        skew[:, 0, 1], skew[:, 0, 2] = -z, y
-        skew[:, 1, 0], skew[:, 1, 2] = z, -x
-        skew[:, 2, 0], skew[:, 2, 1] = -y, x
-        return self.focal_length_px * D @ J_n @ (-skew)
+        dg = 2.0 * (self.k1 + 2.0 * self.k2 * r2)  # 2 dg/d(r^2)
+        # d(x_d, y_d)/d(xn, yn) = g I + 2 dg/d(r^2) [xn, yn][xn, yn]^T
+        a_xx, a_xy, a_yy = g + dg * xn * xn, dg * xn * yn, g + dg * yn * yn
+        J = np.empty_like(N)
+        J[:, 0, :] = a_xx[:, None] * N[:, 0, :] + a_xy[:, None] * N[:, 1, :]
+        J[:, 1, :] = a_xy[:, None] * N[:, 0, :] + a_yy[:, None] * N[:, 1, :]
+        return f * J
 
 
 __all__ = [

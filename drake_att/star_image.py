@@ -58,7 +58,10 @@ where significant, > 2 sigma; else 0)::
 
     C_uv = sum (u_i - u_hat)(v_i - v_hat) var_i / S^2
 
-A window is a detection when ``S / sqrt(sum var_i)`` reaches ``detection_threshold_sigma``;
+A window is a detection when its brightest pixel's star signal reaches ``detection_threshold_sigma``
+times that pixel's background noise ``sqrt(bg_i + read^2 + gain^2 / 12)`` (a threshold detector:
+a smeared star's peak, and so its detection, falls as its track lengthens); ``snr`` is the window's
+``S / sqrt(sum var_i)``;
 windows that leave the detector are not centroided (``edge``), windows with a full-well or
 ADC-clipped pixel are flagged ``saturated`` (their covariance is then optimistic). Each window
 holds its own star only (a neighbour's light inside it is not rendered).
@@ -138,7 +141,8 @@ class DetectorModel:
         hot_pixel_dark_e_per_s: a hot pixel's mean extra dark current (e-/s; exponential).
         window_half_size_px: the centroid window's half size (pixels; the window is
             ``2 h + 1`` wide, grown by the smear).
-        detection_threshold_sigma: a window is a detection when its signal reaches this SNR.
+        detection_threshold_sigma: a window is a detection when its brightest pixel's star signal
+            reaches this many background sigmas (module docstring).
         zero_point_photons_per_m2_s: photons per s per m^2 from a ``V = 0`` star in the band.
     """
 
@@ -459,7 +463,10 @@ def centroid_windows(windows: StarWindows, detector: DetectorModel) -> StarCentr
     total = signal.sum(axis=(1, 2))
     sigma_total = np.sqrt(var.sum(axis=(1, 2)))
     snr = total / sigma_total
-    detected = (snr >= detector.detection_threshold_sigma) & (total > 0.0) & ~edge
+    # a threshold detector: the brightest pixel above the background by the threshold in units
+    # of the background's own noise (a smeared star's peak falls as its track lengthens)
+    peak = np.max(signal / np.sqrt(noise_var), axis=(1, 2))
+    detected = (peak >= detector.detection_threshold_sigma) & (total > 0.0) & ~edge
     idx = np.flatnonzero(detected)
     s = signal[idx]
     S = total[idx]

@@ -5,6 +5,7 @@ sensor's config dataclass (its YAML tag), build, validation and logging, registe
 from drake_att.sensors import (  # noqa: F401, I001  (registers them, in this order: not sorted)
     gyro_plugin,
     star_tracker_plugin,
+    sky_star_tracker_plugin,
     star_tracker_average_plugin,
     scale_factor_star_noise_plugin,
     screen_camera_plugin,

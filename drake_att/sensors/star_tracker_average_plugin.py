@@ -14,6 +14,7 @@ import numpy as np
 
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
+from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig
 from drake_att.sensors.star_tracker_plugin import StarTrackerConfig, star_tracker_mounting, star_tracker_sigmas_S
 from drake_att.systems.estimator_system import QuaternionSensorModel
 from drake_att.systems.fusion import StarTrackerAverage, average_measurement_covariance_B, subset_covariances
@@ -34,9 +35,9 @@ def validate_star_tracker_average(path: str, c: StarTrackerAverageConfig, checks
     if len(c.star_trackers) < 2:
         cfg.fail(f"{path}.star_trackers", c.star_trackers, "needs at least 2 star trackers")
     cfg.check_listed_once(path, "star_trackers", c.star_trackers)
-    trackers = {n: s for n, s in checks.sensors.items() if isinstance(s, StarTrackerConfig)}
+    trackers = {n: s for n, s in checks.sensors.items() if isinstance(s, (StarTrackerConfig, SkyStarTrackerConfig))}
     for st in c.star_trackers:
-        if st not in trackers or trackers[st].mode != "quaternion":
+        if st not in trackers or getattr(trackers[st], "mode", "quaternion") != "quaternion":
             cfg.fail(
                 f"{path}.star_trackers",
                 st,
@@ -52,11 +53,19 @@ def star_tracker_average_output(c: StarTrackerAverageConfig, sensor_configs) -> 
     return SensorOutput("quaternion", "star_tracker_measurement", sensor_configs[c.star_trackers[0]].period_s)
 
 
+def tracker_sigmas_S(ctx, tracker) -> np.ndarray:
+    """A tracker's rotation-vector sigmas in S (rad): a Gaussian tracker's configured ones; a sky
+    tracker's from the diagonal of its nominal covariance (nearly diagonal in S: boresight z)."""
+    if isinstance(tracker, StarTrackerConfig):
+        return star_tracker_sigmas_S(tracker)
+    return np.sqrt(np.diag(ctx.quaternion_model(tracker.name).covariance_S))
+
+
 def star_tracker_average_quaternion_model(ctx, c: StarTrackerAverageConfig) -> QuaternionSensorModel:
     """Identity mounting; the covariance derived from the trackers' configs (so it follows a
     context that changes their noise)."""
     trackers = [ctx.sensor_configs[n] for n in c.star_trackers]
-    mountings, sigmas = [star_tracker_mounting(t) for t in trackers], [star_tracker_sigmas_S(t) for t in trackers]
+    mountings, sigmas = [star_tracker_mounting(t) for t in trackers], [tracker_sigmas_S(ctx, t) for t in trackers]
     w = np.asarray(c.weights, dtype=float) / np.sum(c.weights)
     return QuaternionSensorModel(
         c.name,
@@ -80,7 +89,7 @@ def build_star_tracker_average(ctx, c: StarTrackerAverageConfig):
             c.name,
             c.star_trackers,
             [star_tracker_mounting(t) for t in trackers],
-            [star_tracker_sigmas_S(t) for t in trackers],
+            [tracker_sigmas_S(ctx, t) for t in trackers],
             c.weights,
         )
     )

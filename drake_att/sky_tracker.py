@@ -1,0 +1,352 @@
+"""A sky star tracker's frame, from the truth to a quaternion with its covariance (plain numpy).
+
+One frame (:meth:`SkyTrackerModel.frame`):
+
+1. the stars in the field: the catalogue (cut at ``render_magnitude_limit``) searched in the cone
+   of the detector's half diagonal around the boresight (:class:`~drake_att.sky.SkyIndex`), put
+   through the camera (:class:`~drake_att.star_camera.PinholeCamera`);
+2. the image in a window around each star and its centroids (:mod:`drake_att.star_image`): photon
+   counts from the magnitude, aperture and exposure, smear from the sensor rate, shot, read and
+   dark noise, hot pixels, background;
+3. identification (:mod:`drake_att.star_identification`). With a memory of the last solutions,
+   **tracking**: the attitude is extrapolated at the rate between them, and only the windows of
+   the ``max_stars`` brightest catalogue stars predicted on the detector are read out (a star
+   whose true image centre is more than ``window_half_size_px - 1`` from its predicted one falls
+   outside its window and is not seen; other stars that stray into a window are not rendered).
+   Without a memory, or when tracking fails, **lost-in-space** on every star in the field in the
+   same frame (the windows of all stars in view: a full frame's stars). A frame whose
+   identification is not confirmed is invalid, with its reason;
+4. the attitude of all identified stars and its covariance from their geometry and centroid
+   covariances (:mod:`drake_att.star_attitude`).
+
+The frame also counts, from the truth it was rendered from, the stars identified as the wrong
+catalogue star (``stars_misidentified``): a diagnostic, never used by the solution.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drake_att import rotations as rot
+from drake_att.sky import SkyIndex, StarCatalog
+from drake_att.star_camera import PinholeCamera
+from drake_att.star_identification import StarIdentifier
+from drake_att.star_image import DetectorModel, HotPixelMap, pixel_velocity, simulate_frame
+from drake_att.validation import check_positive, fail
+
+#: The ``frame_status`` layout.
+FRAME_STATUS_NAMES = (
+    "t_frame",
+    "valid",
+    "mode",
+    "stars_rendered",
+    "stars_detected",
+    "stars_identified",
+    "stars_misidentified",
+    "reason",
+    "smear_px",
+)
+#: ``mode``: how the frame was identified.
+MODE_NONE, MODE_LOST_IN_SPACE, MODE_TRACKING = 0, 1, 2
+#: ``reason`` of an invalid frame (0: a valid frame).
+REASONS = (
+    "ok",
+    "not_taken",  # a drop-out, an outage or an exclusion cone
+    "too_few_stars",
+    "no_match",
+    "low_probability",
+    "residual",
+)
+REASON_CODE = {name: i for i, name in enumerate(REASONS)}
+_INVALID_COVARIANCE = np.eye(3)
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    """One frame's output.
+
+    Attributes:
+        time_s: mid-exposure time (s). valid: a confirmed solution.
+        q_IS_meas: the sensor attitude (wxyz; the identity when invalid).
+        covariance_S: (3, 3) its rotation-vector covariance in S (rad^2; the identity when invalid).
+        mode, reason: :data:`MODE_NONE` / ... and an index into :data:`REASONS`.
+        stars_rendered: the stars in the frame's windows (lost-in-space: every star on the
+            detector; tracking: the stars in the windows read out).
+        stars_detected: those detected and not saturated (a saturated star's centroid is biased
+            beyond its covariance: not used). stars_identified, stars_misidentified: counts.
+        smear_px: the largest star track length over the exposure (pixels).
+    """
+
+    time_s: float
+    valid: bool
+    q_IS_meas: np.ndarray
+    covariance_S: np.ndarray
+    mode: int = MODE_NONE
+    reason: int = 0
+    stars_rendered: int = 0
+    stars_detected: int = 0
+    stars_identified: int = 0
+    stars_misidentified: int = 0
+    smear_px: float = 0.0
+
+    @classmethod
+    def not_taken(cls, time_s: float) -> FrameResult:
+        return cls(time_s, False, rot.quat_identity(), _INVALID_COVARIANCE, reason=REASON_CODE["not_taken"])
+
+    def status_vector(self) -> np.ndarray:
+        return np.array(
+            [
+                self.time_s,
+                1.0 if self.valid else 0.0,
+                self.mode,
+                self.stars_rendered,
+                self.stars_detected,
+                self.stars_identified,
+                self.stars_misidentified,
+                self.reason,
+                self.smear_px,
+            ],
+            dtype=float,
+        )
+
+
+@dataclass(frozen=True)
+class TrackingMemory:
+    """The tracker's last two confirmed solutions ``(t, q_IS)``; ``t`` NaN: none.
+
+    :meth:`prior` extrapolates the last one at the constant rate between the two (sensor frame),
+    which is what a tracker without a gyro can predict from.
+    """
+
+    t_last: float
+    q_last: np.ndarray
+    t_before: float
+    q_before: np.ndarray
+
+    SIZE = 10
+
+    @classmethod
+    def empty(cls) -> TrackingMemory:
+        return cls(math.nan, rot.quat_identity(), math.nan, rot.quat_identity())
+
+    def to_vector(self) -> np.ndarray:
+        return np.concatenate([[self.t_last], self.q_last, [self.t_before], self.q_before])
+
+    @classmethod
+    def from_vector(cls, v) -> TrackingMemory:
+        v = np.asarray(v, dtype=float)
+        return cls(float(v[0]), v[1:5].copy(), float(v[5]), v[6:10].copy())
+
+    def after(self, frame: FrameResult) -> TrackingMemory:
+        """The memory once ``frame`` is taken: its solution pushed in if valid, else unchanged."""
+        if not frame.valid:
+            return self
+        return TrackingMemory(frame.time_s, np.asarray(frame.q_IS_meas, dtype=float), self.t_last, self.q_last)
+
+    def prior(self, t: float, max_age_s: float) -> tuple[np.ndarray, float] | None:
+        """``(q_IS predicted at t, seconds since the last solution)``, or None when the last
+        solution is older than ``max_age_s`` (or there is none). With two solutions less than
+        ``max_age_s`` apart the prediction carries on at their rate; with one, it holds it."""
+        if not (math.isfinite(self.t_last) and 0.0 <= t - self.t_last <= max_age_s):
+            return None
+        q = self.q_last
+        gap = self.t_last - self.t_before
+        if math.isfinite(self.t_before) and 0.0 < gap <= max_age_s:
+            w_S = rot.quat_to_rotvec(rot.quat_multiply(rot.quat_conjugate(self.q_before), self.q_last)) / gap
+            q = rot.quat_multiply(q, rot.rotvec_to_quat(w_S * (t - self.t_last)))
+        return q, t - self.t_last
+
+
+@dataclass(frozen=True)
+class IdentificationSettings:
+    """How a sky tracker identifies its frames.
+
+    Attributes:
+        magnitude_limit: the identification catalogue's limit (Hp, mag); fainter stars are
+            rendered (down to ``render_magnitude_limit``) but never matched.
+        render_magnitude_limit: the faintest stars put in the image (Hp, mag; >= the limit).
+        tracking: track from the last solutions (False: every frame lost-in-space).
+        max_track_age_s: the memory is used only this long after its last solution (s).
+        prior_sigma_rad: the tracking prior's 1-sigma per axis at zero age (rad).
+        prior_acceleration_rad_per_s2: the largest angular acceleration the extrapolation must
+            cover: the prior's sigma grows by ``a age^2 / 2`` (rad/s^2).
+        min_stars, max_false_probability, residual_p_value, gate_sigmas: the identifier's
+            (:class:`~drake_att.star_identification.StarIdentifier`).
+        max_stars: the windows a tracking frame reads out: the brightest catalogue stars
+            predicted on the detector (>= ``min_stars``).
+    """
+
+    magnitude_limit: float = 6.5
+    render_magnitude_limit: float = 7.0
+    tracking: bool = True
+    max_track_age_s: float = 1.0
+    prior_sigma_rad: float = math.radians(60.0 / 3600.0)
+    prior_acceleration_rad_per_s2: float = math.radians(1.0)
+    min_stars: int = 4
+    max_false_probability: float = 1e-9
+    residual_p_value: float = 1e-6
+    gate_sigmas: float = 5.0
+    max_stars: int = 16
+
+
+class SkyTrackerModel:
+    """A sky tracker's frame pipeline (module docstring): camera, detector, the catalogue at
+    its epoch and the identification settings; :meth:`frame` is a pure function of its
+    arguments.
+
+    Args:
+        camera, detector: the optics and the detector.
+        catalog: the sky at the frame epoch (:meth:`~drake_att.sky.StarCatalog.at_epoch`).
+        settings: :class:`IdentificationSettings`.
+        hot_pixels: the sensor's hot-pixel map (None: none).
+        name: the tracker's name (for messages: ``<name>.magnitude_limit``...).
+    """
+
+    def __init__(
+        self,
+        camera: PinholeCamera,
+        detector: DetectorModel,
+        catalog: StarCatalog,
+        settings: IdentificationSettings = IdentificationSettings(),
+        hot_pixels: HotPixelMap | None = None,
+        name: str = "st1",
+    ):
+        if settings.render_magnitude_limit < settings.magnitude_limit:
+            fail(
+                f"{name}.render_magnitude_limit",
+                settings.render_magnitude_limit,
+                f"must be at or above magnitude_limit ({settings.magnitude_limit:g}): identified stars are rendered",
+            )
+        check_positive(f"{name}.max_track_age_s", settings.max_track_age_s)
+        check_positive(f"{name}.prior_sigma_rad", settings.prior_sigma_rad)
+        self.camera, self.detector, self.settings, self.hot_pixels = camera, detector, settings, hot_pixels
+        self.render_catalog = catalog.brighter_than(settings.render_magnitude_limit, f"{name}.render_magnitude_limit")
+        identification = catalog.brighter_than(settings.magnitude_limit, f"{name}.magnitude_limit")
+        self.sky = SkyIndex(self.render_catalog)
+        self.electron_rate = detector.electron_rate_from_hipparcos(
+            self.render_catalog.magnitude, self.render_catalog.b_minus_v
+        )
+        self.identifier = StarIdentifier(
+            camera,
+            identification,
+            settings.min_stars,
+            settings.max_false_probability,
+            settings.residual_p_value,
+            settings.gate_sigmas,
+        )
+        self._identified_hip = identification.hip
+        self._search_half_angle = camera.half_diagonal_fov_rad
+        if settings.max_stars < settings.min_stars:
+            fail(f"{name}.max_stars", settings.max_stars, f"must be >= min_stars ({settings.min_stars})")
+        self._identified_sky = SkyIndex(identification)
+        # identification catalogue -> render catalogue (the first is a subset of the second)
+        order = np.argsort(self.render_catalog.hip, kind="stable")
+        at = np.searchsorted(self.render_catalog.hip, identification.hip, sorter=order)
+        self._render_of_identified = order[at]
+
+    def visible_stars(self, q_IS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(indices into render_catalog, directions in S (n, 3), pixels (n, 2))`` of the
+        stars on the detector at attitude ``q_IS``."""
+        R_IS = rot.quat_to_rotmat(q_IS)
+        index = self.sky.cone(R_IS[:, 2], self._search_half_angle)
+        d_S = self.render_catalog.unit_I[index] @ R_IS
+        uv, on = self.camera.project(d_S)
+        return index[on], d_S[on], uv[on]
+
+    def prior(self, t: float, memory: TrackingMemory) -> tuple[np.ndarray, float] | None:
+        """``(q_IS, sigma (rad))`` the frame at ``t`` is tracked from, or None (lost-in-space)."""
+        s = self.settings
+        if not s.tracking:
+            return None
+        p = memory.prior(t, s.max_track_age_s)
+        if p is None:
+            return None
+        q, age = p
+        sigma = s.prior_sigma_rad + 0.5 * s.prior_acceleration_rad_per_s2 * age * age
+        return q, min(sigma, 0.2)
+
+    def tracked_windows(self, q_IS_prior, R_IS_true) -> tuple[np.ndarray, np.ndarray]:
+        """``(render-catalogue indices, true pixels)`` of the stars seen in a tracking frame's
+        windows: the ``max_stars`` brightest identification-catalogue stars predicted (from the
+        prior) with their whole window on the detector, kept where the true image centre lies
+        within ``window_half_size_px - 1`` of the prediction (module docstring)."""
+        cam, h = self.camera, self.detector.window_half_size_px
+        R_prior = rot.quat_to_rotmat(q_IS_prior)
+        cone = self._identified_sky.cone(R_prior[:, 2], self._search_half_angle)
+        uv_pred, _ = cam.project(self._identified_sky.catalog.unit_I[cone] @ R_prior)
+        inside = (
+            (uv_pred[:, 0] >= h + 1)
+            & (uv_pred[:, 0] <= cam.width_px - h - 1)
+            & (uv_pred[:, 1] >= h + 1)
+            & (uv_pred[:, 1] <= cam.height_px - h - 1)
+        )
+        cone, uv_pred = cone[inside], uv_pred[inside]
+        brightest = np.argsort(self._identified_sky.catalog.magnitude[cone], kind="stable")[: self.settings.max_stars]
+        index = self._render_of_identified[cone[brightest]]
+        uv_true, _ = cam.project(self.render_catalog.unit_I[index] @ R_IS_true)
+        seen = np.all(np.abs(uv_true - uv_pred[brightest]) <= h - 1, axis=1)
+        return index[seen], uv_true[seen]
+
+    def _centroids(self, index, uv, R_IS, w_IS_S, rng):
+        d_S = self.render_catalog.unit_I[index] @ R_IS
+        rate = pixel_velocity(self.camera, d_S, w_IS_S)
+        track_px = np.linalg.norm(rate, axis=1) * self.detector.exposure_s
+        smear = float(np.max(track_px)) if len(track_px) else 0.0
+        centroids = simulate_frame(
+            self.camera, self.detector, uv, rate, self.electron_rate[index], rng, self.hot_pixels
+        )
+        # brightest first; a saturated star's centroid is biased beyond its covariance: not used
+        usable = np.flatnonzero(~centroids.saturated)
+        order = usable[np.argsort(-centroids.signal_e[usable], kind="stable")]
+        return centroids, order, smear
+
+    def frame(self, t: float, q_IS, w_IS_S, memory: TrackingMemory, rng: np.random.Generator) -> FrameResult:
+        """The frame exposed around ``t`` (s) at the true attitude ``q_IS`` turning at ``w_IS_S``
+        (rad/s, in S), tracked from ``memory``, with this frame's noise ``rng``."""
+        R_IS = rot.quat_to_rotmat(q_IS)
+        prior = self.prior(t, memory)
+        ident = None
+        if prior is not None:
+            index, uv = self.tracked_windows(prior[0], R_IS)
+            centroids, order, smear = self._centroids(index, uv, R_IS, w_IS_S, rng)
+            ident = self.identifier.track(centroids.uv_px[order], centroids.covariance_px2[order], *prior)
+        if ident is None or not ident.valid:
+            index, _, uv = self.visible_stars(q_IS)
+            centroids, order, smear = self._centroids(index, uv, R_IS, w_IS_S, rng)
+            ident = self.identifier.lost_in_space(centroids.uv_px[order], centroids.covariance_px2[order])
+        counts = dict(stars_rendered=len(index), stars_detected=len(order), smear_px=smear)
+        mode = MODE_TRACKING if ident.mode == "tracking" else MODE_LOST_IN_SPACE
+        if not ident.valid or ident.attitude is None:
+            return FrameResult(
+                t, False, rot.quat_identity(), _INVALID_COVARIANCE, mode, REASON_CODE[ident.reason], **counts
+            )
+        source = index[centroids.star_index[order][ident.centroid_index]]
+        wrong = int(np.count_nonzero(self.render_catalog.hip[source] != self._identified_hip[ident.catalog_index]))
+        return FrameResult(
+            t,
+            True,
+            rot.quat_canonical(ident.attitude.q_IS),
+            ident.attitude.covariance_S,
+            mode,
+            0,
+            stars_identified=len(ident.catalog_index),
+            stars_misidentified=wrong,
+            **counts,
+        )
+
+
+__all__ = [
+    "IdentificationSettings",
+    "SkyTrackerModel",
+    "FRAME_STATUS_NAMES",
+    "MODE_NONE",
+    "MODE_LOST_IN_SPACE",
+    "MODE_TRACKING",
+    "REASONS",
+    "REASON_CODE",
+    "FrameResult",
+    "TrackingMemory",
+]

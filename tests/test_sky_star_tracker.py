@@ -1,0 +1,164 @@
+"""The sky star tracker in a scenario (!SkyStarTrackerConfig): frames rendered from the catalogue,
+identified (lost-in-space first, then tracking), solved with a covariance the MEKF uses.
+
+Errors are computed here from the logged truth and measurement quaternions with scipy, not with
+the library's metrics; the tracking memory's extrapolation against a constant-rate rotation
+written here."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from drake_att.scenarios.builder import diagram_for
+from drake_att.scenarios.config import load_scenario
+from drake_att.sky_tracker import MODE_LOST_IN_SPACE, MODE_TRACKING, REASON_CODE, FrameResult, TrackingMemory
+from drake_att.validation import ConfigError
+
+ARCSEC = math.pi / 180 / 3600
+
+SCENARIO = """
+name: sky_small
+duration_s: {duration}
+seed: 1
+simulation: {{integration_scheme: runge_kutta3, use_error_control: false, max_step_size_s: 0.1}}
+plant: !RigidBodyConfig
+  inertia_kg_m2: [0.042, 0.042, 0.0067]
+  initial_attitude_rpy_deg: [2.0, -2.0, 2.0]
+  initial_rate_deg_per_s: [-0.5, 0.5, 0.5]
+sensors:
+- !GyroConfig {{name: gyro, period_s: 1.0, arw_deg_per_rt_h: 0.56, rrw_deg_per_h15: 123.75,
+               initial_bias_deg_per_h: [12.0, 12.0, 12.0]}}
+- !SkyStarTrackerConfig
+  name: st1
+  period_s: 0.1
+  mounting: !PaperS3Eq7Mounting {{psi_phi_theta_deg: [-90.0, 45.0, -90.0]}}
+  {extra}
+estimators:
+- !MekfConfig {{name: single, period_s: 1.0, gyro: gyro, star_trackers: [st1]}}
+scoring: {{score_from_s: 10.0, convergence_threshold_deg: 0.05}}
+"""
+
+
+def scenario(duration=30.0, extra="detector: {exposure_s: 0.05}"):
+    return load_scenario(SCENARIO.format(duration=duration, extra=extra))
+
+
+def _last_per_time(t, x):
+    t, x = np.asarray(t), np.asarray(x).reshape(len(t), -1)
+    keep = np.r_[np.diff(t) > 1e-9, True]
+    return t[keep], x[keep]
+
+
+def _rotation(q_wxyz):
+    return Rotation.from_quat(np.asarray(q_wxyz)[:, [1, 2, 3, 0]])
+
+
+@pytest.fixture(scope="module")
+def run():
+    return diagram_for(scenario()).simulate(seed=1)
+
+
+def _frames(run):
+    t, status = _last_per_time(*run.signals["st1/frame_status"])
+    _, meas = _last_per_time(*run.signals["st1/star_tracker_measurement"])
+    _, cov = _last_per_time(*run.signals["st1/covariance_S"])
+    t_q, q_true = _last_per_time(*run.signals[run.metadata["truth"]["attitude"]])
+    idx = np.searchsorted(t_q, t - 1e-9)
+    return t, status, meas, cov.reshape(-1, 3, 3), q_true[idx]
+
+
+def test_frames_are_identified_first_lost_in_space_then_tracked_and_never_wrong(run):
+    t, status, meas, _, _ = _frames(run)
+    valid, mode, identified, wrong = status[:, 1], status[:, 2], status[:, 5], status[:, 6]
+    np.testing.assert_allclose(status[:, 0], meas[:, 0])  # one frame, one time
+    assert mode[0] == MODE_LOST_IN_SPACE and valid[0] == 1
+    assert np.mean(mode[1:] == MODE_TRACKING) > 0.95
+    assert np.mean(valid) > 0.99
+    assert np.all(wrong == 0) and np.all(identified[valid == 1] >= 4)
+
+
+def test_each_frame_is_the_truth_at_its_time_within_its_covariance(run):
+    """Measurement ``q_IS`` against the truth ``q_IB (t_k) q_BS`` (q_BS from the logged first
+    frame's geometry is not needed: the error is computed in S from the two rotations)."""
+    from drake_att.sensors.star_tracker_plugin import PaperS3Eq7Mounting, star_tracker_mounting
+
+    q_BS = star_tracker_mounting(
+        type("C", (), {"mounting": PaperS3Eq7Mounting([-90.0, 45.0, -90.0])})()  # type: ignore[arg-type]
+    )
+    t, status, meas, cov, q_true = _frames(run)
+    ok = status[:, 1] == 1
+    R_IS_true = _rotation(q_true[ok]) * Rotation.from_quat(np.r_[q_BS[1:], q_BS[0]])
+    e = (R_IS_true.inv() * _rotation(meas[ok, 2:6])).as_rotvec()  # error in S
+    nees = np.einsum("ni,nij,nj->n", e, np.linalg.inv(cov[ok]), e)
+    n = len(nees)
+    assert n > 250
+    # sanity of the size: cross-boresight arcsec-level, boresight tens of arcsec at most
+    assert np.sqrt(np.mean(e[:, :2] ** 2)) < 5 * ARCSEC and np.sqrt(np.mean(e[:, 2] ** 2)) < 60 * ARCSEC
+    # consistent: consecutive frames share stars and pixel phase, so use a wide band on the mean
+    assert 1.0 < np.mean(nees) < 6.0, np.mean(nees)
+    assert np.all(nees < 200)
+
+
+def test_the_mekf_uses_each_frames_covariance_and_converges(run):
+    meta = run.metadata["estimators"]["single"]["signals"]
+    _, status = _last_per_time(*run.signals[meta["status"]])
+    _, q_hat = _last_per_time(*run.signals[meta["attitude"]])
+    t_q, q_true = _last_per_time(*run.signals[run.metadata["truth"]["attitude"]])
+    t = status[:, 0]  # the estimate's own time
+    idx = np.searchsorted(t_q, t - 1e-9)
+    err = np.degrees((_rotation(q_true[idx]).inv() * _rotation(q_hat)).magnitude())
+    assert err[t >= 20].max() < 0.01
+    assert status[-1, 1] >= 29 and status[-1, 2] == 0  # used, skipped
+
+
+def test_same_seed_same_frames_other_seed_other_frames(run):
+    again = diagram_for(scenario()).simulate(seed=1)
+    other = diagram_for(scenario()).simulate(seed=2)
+    a = run.signals["st1/star_tracker_measurement"][1]
+    np.testing.assert_array_equal(a, again.signals["st1/star_tracker_measurement"][1])
+    assert not np.array_equal(a, other.signals["st1/star_tracker_measurement"][1])
+
+
+def test_tracking_memory_extrapolates_a_constant_rate():
+    w_S = np.radians([0.3, -0.2, 0.5])
+
+    def q_at(t):  # a constant body-fixed rate: q(t) = q0 exp(w t), written with scipy
+        r = Rotation.from_rotvec([0.1, 0.2, 0.3]) * Rotation.from_rotvec(w_S * t)
+        x, y, z, w = r.as_quat()
+        return np.array([w, x, y, z])
+
+    frame = lambda t: FrameResult(t, True, q_at(t), np.eye(3) * 1e-12)  # noqa: E731
+    memory = TrackingMemory.empty().after(frame(1.0)).after(frame(1.1))
+    q, age = memory.prior(1.2, 1.0)
+    assert age == pytest.approx(0.1)
+    assert (_rotation(q[None]).inv() * _rotation(q_at(1.2)[None])).magnitude()[0] < 1e-12
+    assert memory.prior(2.2, 1.0) is None  # older than the memory's age limit
+    invalid = FrameResult.not_taken(1.2)
+    assert memory.after(invalid) == memory
+    assert invalid.reason == REASON_CODE["not_taken"]
+
+
+@pytest.mark.parametrize(
+    "extra, field",
+    [
+        ("identification: {magnitude_limit: -3.0}", "identification.magnitude_limit"),
+        ("identification: {magnitude_limit: -1.8, render_magnitude_limit: -1.8}", "identification.magnitude_limit"),
+        ("camera: {focal_length_mm: 2.0}", "camera.focal_length_mm"),  # a 130-deg field
+        ("camera: {distortion_k1: 9.0}", "camera.distortion_k1, distortion_k2"),
+        ("camera: {focal_length_mm: 5000.0}", "camera.focal_length_mm"),
+        ("camera: {pixel_pitch_um: 0.1}", "camera.pixel_pitch_um"),
+        ("detector: {exposure_s: 0.5}", "detector.exposure_s"),
+        ("identification: {render_magnitude_limit: 6.0}", "identification.render_magnitude_limit"),
+        ("identification: {max_stars: 3, min_stars: 5}", "identification.max_stars"),
+        ("filter_covariance: diagonal", "filter_covariance"),
+    ],
+)
+def test_bad_settings_are_refused_in_one_line_naming_the_field(extra, field):
+    with pytest.raises(ConfigError) as e:
+        diagram_for(scenario(extra=extra))
+    message = str(e.value)
+    assert "st1" in message and field in message and "\n" not in message, message
