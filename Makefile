@@ -14,6 +14,9 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[test]"
+# cedar-solve, the reference solver of diagrams/sky_identification.py: its metadata pins
+# numpy<2 and Pillow<9, which its code does not need (numpy 2 works; it reads no image here)
+	$(PY) -m pip install --quiet --no-deps "cedar-solve==0.5.1"
 	@command -v dot >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && \
 	  (apt-get update -qq && apt-get install -y -qq graphviz >/dev/null) || \
 	  echo "note: Graphviz 'dot' not installed; diagram.svg will be skipped (diagram.dot is always written)"; }

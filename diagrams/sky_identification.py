@@ -235,6 +235,16 @@ def main(argv=None) -> int:
         return 2
     if args.frames < 1:
         ap.error(f"--frames: got {args.frames}; must be >= 1")
+    if not args.no_cedar:
+        import importlib.util
+
+        if importlib.util.find_spec("tetra3") is None:
+            print(
+                "sky_identification.py: cedar-solve is not installed (`make` installs it; or "
+                "pip install --no-deps cedar-solve==0.5.1); --no-cedar runs without it",
+                file=sys.stderr,
+            )
+            return 2
     config = {
         "frames": args.frames,
         "seed": args.seed,
