@@ -119,7 +119,8 @@ def figure(rows, path: str) -> None:
     avail = [x["valid"] / x["frames"] for x in rows]
     lo = [x["valid_interval"][0] for x in rows]
     hi = [x["valid_interval"][1] for x in rows]
-    a.errorbar(r, avail, yerr=[np.subtract(avail, lo), np.subtract(hi, avail)], marker="o", capsize=3)
+    yerr = np.maximum(0.0, [np.subtract(avail, lo), np.subtract(hi, avail)])  # round-off at 0 and 1
+    a.errorbar(r, avail, yerr=yerr, marker="o", capsize=3)
     a.plot(r, [x["tracked"] / x["frames"] for x in rows], "s--", label="tracked")
     a.set_xlabel("body rate (deg/s)")
     a.set_ylabel("fraction of frames")

@@ -75,8 +75,8 @@ class FrameResult:
         mode, reason: :data:`MODE_NONE` / ... and an index into :data:`REASONS`.
         stars_rendered: the stars in the frame's windows (lost-in-space: every star on the
             detector; tracking: the stars in the windows read out).
-        stars_detected: those detected and not saturated (a saturated star's centroid is biased
-            beyond its covariance: not used). stars_identified, stars_misidentified: counts.
+        stars_detected: those detected, not saturated and with a centroid sigma at most
+            ``max_centroid_sigma_px`` (the others are not used). stars_identified, stars_misidentified: counts.
         smear_px: the largest star track length over the exposure (pixels).
     """
 
@@ -160,6 +160,36 @@ class TrackingMemory:
         return q, t - self.t_last
 
 
+#: A neighbour at least this much fainter (mag, 10% of the flux) does not make a star double.
+DOUBLE_STAR_MAGNITUDE_GAP = 2.5
+
+
+def without_close_pairs(catalog: StarCatalog, neighbours: StarCatalog, separation_rad: float, gap_mag: float):
+    """``catalog`` without its stars that have a star of ``neighbours`` (other than themselves)
+    within ``separation_rad`` and less than ``gap_mag`` fainter: the double-star cut of a
+    tracker's catalogue."""
+    from scipy.spatial import cKDTree  # type: ignore[import-untyped]
+
+    if not separation_rad > 0:
+        return catalog
+    chord = 2.0 * math.sin(0.5 * separation_rad)
+    close = cKDTree(neighbours.unit_I).query_ball_point(catalog.unit_I, chord)
+    keep = np.ones(len(catalog), dtype=bool)
+    for i, js in enumerate(close):
+        for j in js:
+            if neighbours.hip[j] != catalog.hip[i] and neighbours.magnitude[j] < catalog.magnitude[i] + gap_mag:
+                keep[i] = False
+                break
+    return StarCatalog(
+        catalog.hip[keep],
+        catalog.unit_I[keep],
+        catalog.pm_rad_per_year[keep],
+        catalog.magnitude[keep],
+        catalog.b_minus_v[keep],
+        catalog.epoch_jyear,
+    )
+
+
 @dataclass(frozen=True)
 class IdentificationSettings:
     """How a sky tracker identifies its frames.
@@ -177,6 +207,10 @@ class IdentificationSettings:
             (:class:`~drake_att.star_identification.StarIdentifier`).
         max_stars: the windows a tracking frame reads out: the brightest catalogue stars
             predicted on the detector (>= ``min_stars``).
+        max_centroid_sigma_px: centroids whose largest 1-sigma exceeds this (px) are not used.
+        double_star_separation_px: a star with a rendered neighbour this close (px at the
+            boresight) that is less than :data:`DOUBLE_STAR_MAGNITUDE_GAP` fainter is left out of
+            the identification catalogue (its image is a blend no centroid separates).
     """
 
     magnitude_limit: float = 6.5
@@ -190,6 +224,8 @@ class IdentificationSettings:
     residual_p_value: float = 1e-6
     gate_sigmas: float = 5.0
     max_stars: int = 16
+    max_centroid_sigma_px: float = 0.5
+    double_star_separation_px: float = 3.0
 
 
 class SkyTrackerModel:
@@ -224,7 +260,12 @@ class SkyTrackerModel:
         check_positive(f"{name}.prior_sigma_rad", settings.prior_sigma_rad)
         self.camera, self.detector, self.settings, self.hot_pixels = camera, detector, settings, hot_pixels
         self.render_catalog = catalog.brighter_than(settings.render_magnitude_limit, f"{name}.render_magnitude_limit")
-        identification = catalog.brighter_than(settings.magnitude_limit, f"{name}.magnitude_limit")
+        identification = without_close_pairs(
+            catalog.brighter_than(settings.magnitude_limit, f"{name}.magnitude_limit"),
+            self.render_catalog,
+            settings.double_star_separation_px * camera.pixel_pitch_m / camera.focal_length_m,
+            DOUBLE_STAR_MAGNITUDE_GAP,
+        )
         self.sky = SkyIndex(self.render_catalog)
         self.electron_rate = detector.electron_rate_from_hipparcos(
             self.render_catalog.magnitude, self.render_catalog.b_minus_v
@@ -298,8 +339,13 @@ class SkyTrackerModel:
         centroids = simulate_frame(
             self.camera, self.detector, uv, rate, self.electron_rate[index], rng, self.hot_pixels
         )
-        # brightest first; a saturated star's centroid is biased beyond its covariance: not used
-        usable = np.flatnonzero(~centroids.saturated)
+        # brightest first; a saturated star's centroid is biased beyond its covariance, and a
+        # centroid too uncertain to tell a star from its neighbours (a faint, smeared streak) is
+        # a liability to identification: neither is used
+        C = centroids.covariance_px2
+        a, b, d = C[:, 0, 0], C[:, 0, 1], C[:, 1, 1]
+        largest = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)
+        usable = np.flatnonzero(~centroids.saturated & (largest <= self.settings.max_centroid_sigma_px**2))
         order = usable[np.argsort(-centroids.signal_e[usable], kind="stable")]
         return centroids, order, smear
 
@@ -339,6 +385,8 @@ class SkyTrackerModel:
 
 
 __all__ = [
+    "DOUBLE_STAR_MAGNITUDE_GAP",
+    "without_close_pairs",
     "IdentificationSettings",
     "SkyTrackerModel",
     "FRAME_STATUS_NAMES",

@@ -125,6 +125,8 @@ class SkyIdentificationConfig:
     residual_p_value: float = 1e-6
     gate_sigmas: float = 5.0
     max_stars: int = 16
+    max_centroid_sigma_px: float = 0.5
+    double_star_separation_px: float = 3.0
 
     RANGES: ClassVar[dict] = {
         "magnitude_limit": (-2.0, 12.0, "mag", "Hp; the catalogue holds stars to about 12"),
@@ -137,6 +139,8 @@ class SkyIdentificationConfig:
         "residual_p_value": (0.0, 0.5, "", "the residual tests' false-rejection probability"),
         "gate_sigmas": (1.0, 20.0, "sigma", "the tracking gate"),
         "max_stars": (3, 1000, "", "windows a tracking frame reads out (also checked: >= min_stars)"),
+        "max_centroid_sigma_px": (0.0, 100.0, "px", "the largest centroid sigma used"),
+        "double_star_separation_px": (0.0, 100.0, "px", "the double-star cut of the identification catalogue"),
     }
 
 
@@ -222,6 +226,8 @@ def _settings(c: SkyIdentificationConfig):
         residual_p_value=float(c.residual_p_value),
         gate_sigmas=float(c.gate_sigmas),
         max_stars=int(c.max_stars),
+        max_centroid_sigma_px=float(c.max_centroid_sigma_px),
+        double_star_separation_px=float(c.double_star_separation_px),
     )
 
 
