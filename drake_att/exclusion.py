@@ -113,6 +113,33 @@ def _causes_one(b, r, r_sun, r_moon, cones: ExclusionCones) -> int:
     return causes
 
 
+#: How steeply stray light falls off outside an exclusion cone: ``(cone / angle)^STRAY_LIGHT_POWER``
+#: (a baffled tracker's point-source transmittance falls roughly as the cube of the off-axis
+#: angle over this range).
+STRAY_LIGHT_POWER = 3.0
+
+
+def stray_light_factor(b, r, r_sun, r_moon, cones: ExclusionCones) -> float:
+    """Stray light reaching a tracker with boresight ``b`` (unit, 3-list, in I) at ``r`` (m) in
+    units of its level at a cone's edge: the sum over the Sun, the Earth's bright limb and the
+    Moon (each unless the Earth hides it) of ``(cone / angle)^STRAY_LIGHT_POWER``, the angle
+    measured like the cone (from the limb for the Earth). 1 at a cone's edge, falling outside it;
+    inside a cone the sample is excluded anyway."""
+    total = 0.0
+    r_norm = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    limb_radius = math.asin(min((EARTH_RADIUS_M + cones.atmosphere_height_m) / r_norm, 1.0))
+    bodies = (
+        (_angle_one(b, [r_sun[i] - r[i] for i in range(3)]), cones.sun_deg, not _hidden_one(r, r_sun)),
+        (_angle_one(b, [-r[0], -r[1], -r[2]]) - limb_radius, cones.earth_limb_deg, True),
+        (_angle_one(b, [r_moon[i] - r[i] for i in range(3)]), cones.moon_deg, not _hidden_one(r, r_moon)),
+    )
+    for angle, cone_deg, seen in bodies:
+        cone = math.radians(cone_deg)
+        if seen:
+            total += (cone / max(angle, cone)) ** STRAY_LIGHT_POWER
+    return total
+
+
 def star_occulted(directions_I, r_I, atmosphere_height_m: float) -> np.ndarray:
     """Which stars (unit directions ``(m, 3)`` or ``(..., 3)``, at infinity) the Earth and its
     atmosphere hide from ``r_I`` (m): the direction within ``asin((R_E + h) / |r|)`` of nadir."""

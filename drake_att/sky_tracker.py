@@ -25,6 +25,7 @@ catalogue star (``stars_misidentified``): a diagnostic, never used by the soluti
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -331,14 +332,12 @@ class SkyTrackerModel:
         seen = np.all(np.abs(uv_true - uv_pred[brightest]) <= h - 1, axis=1)
         return index[seen], uv_true[seen]
 
-    def _centroids(self, index, uv, R_IS, w_IS_S, rng):
+    def _centroids(self, index, uv, R_IS, w_IS_S, rng, detector: DetectorModel):
         d_S = self.render_catalog.unit_I[index] @ R_IS
         rate = pixel_velocity(self.camera, d_S, w_IS_S)
-        track_px = np.linalg.norm(rate, axis=1) * self.detector.exposure_s
+        track_px = np.linalg.norm(rate, axis=1) * detector.exposure_s
         smear = float(np.max(track_px)) if len(track_px) else 0.0
-        centroids = simulate_frame(
-            self.camera, self.detector, uv, rate, self.electron_rate[index], rng, self.hot_pixels
-        )
+        centroids = simulate_frame(self.camera, detector, uv, rate, self.electron_rate[index], rng, self.hot_pixels)
         # brightest first; a saturated star's centroid is biased beyond its covariance, and a
         # centroid too uncertain to tell a star from its neighbours (a faint, smeared streak) is
         # a liability to identification: neither is used
@@ -349,19 +348,32 @@ class SkyTrackerModel:
         order = usable[np.argsort(-centroids.signal_e[usable], kind="stable")]
         return centroids, order, smear
 
-    def frame(self, t: float, q_IS, w_IS_S, memory: TrackingMemory, rng: np.random.Generator) -> FrameResult:
+    def frame(
+        self,
+        t: float,
+        q_IS,
+        w_IS_S,
+        memory: TrackingMemory,
+        rng: np.random.Generator,
+        stray_light_e_per_px_per_s: float = 0.0,
+    ) -> FrameResult:
         """The frame exposed around ``t`` (s) at the true attitude ``q_IS`` turning at ``w_IS_S``
-        (rad/s, in S), tracked from ``memory``, with this frame's noise ``rng``."""
+        (rad/s, in S), tracked from ``memory``, with this frame's noise ``rng`` and stray light
+        added to the detector's background (e-/s per pixel)."""
         R_IS = rot.quat_to_rotmat(q_IS)
+        detector = self.detector
+        if stray_light_e_per_px_per_s > 0.0:
+            background = detector.background_e_per_px_per_s + stray_light_e_per_px_per_s
+            detector = dataclasses.replace(detector, background_e_per_px_per_s=background)
         prior = self.prior(t, memory)
         ident = None
         if prior is not None:
             index, uv = self.tracked_windows(prior[0], R_IS)
-            centroids, order, smear = self._centroids(index, uv, R_IS, w_IS_S, rng)
+            centroids, order, smear = self._centroids(index, uv, R_IS, w_IS_S, rng, detector)
             ident = self.identifier.track(centroids.uv_px[order], centroids.covariance_px2[order], *prior)
         if ident is None or not ident.valid:
             index, _, uv = self.visible_stars(q_IS)
-            centroids, order, smear = self._centroids(index, uv, R_IS, w_IS_S, rng)
+            centroids, order, smear = self._centroids(index, uv, R_IS, w_IS_S, rng, detector)
             ident = self.identifier.lost_in_space(centroids.uv_px[order], centroids.covariance_px2[order])
         counts = dict(stars_rendered=len(index), stars_detected=len(order), smear_px=smear)
         mode = MODE_TRACKING if ident.mode == "tracking" else MODE_LOST_IN_SPACE

@@ -95,7 +95,8 @@ def centroid_covariances(centroid_cov_px2, n: int, field: str = "centroid_cov_px
     if c.shape != (n, 2, 2):
         fail(field, c.shape, f"must be a sigma (px) or an array of shape ({n}, 2, 2) (px^2)")
     a, b, d = c[:, 0, 0], c[:, 0, 1], c[:, 1, 1]
-    if not (np.all(np.isfinite(c)) and np.allclose(b, c[:, 1, 0]) and np.all(a > 0) and np.all(a * d - b * b > 0)):
+    symmetric = np.all(np.abs(b - c[:, 1, 0]) <= 1e-9 * (np.abs(a) + np.abs(d)))
+    if not (np.all(np.isfinite(c)) and symmetric and np.all(a > 0) and np.all(a * d - b * b > 0)):
         fail(field, "(array)", "every 2x2 matrix must be finite, symmetric and positive definite (px^2)")
     return c
 

@@ -162,3 +162,87 @@ def test_bad_settings_are_refused_in_one_line_naming_the_field(extra, field):
         diagram_for(scenario(extra=extra))
     message = str(e.value)
     assert "st1" in message and field in message and "\n" not in message, message
+
+
+def test_a_catalogue_that_fails_to_load_is_refused_in_one_line(tmp_path, monkeypatch):
+    from drake_att import sky
+    from drake_att.sensors import sky_star_tracker_plugin as plugin
+
+    broken = tmp_path / "hip2.dat"
+    broken.write_text("not a catalogue\n")
+    monkeypatch.setattr(sky, "hipparcos_path", lambda: broken)
+    plugin._hipparcos.cache_clear()
+    try:
+        with pytest.raises(ConfigError) as e:
+            diagram_for(scenario())
+    finally:
+        plugin._hipparcos.cache_clear()
+    message = str(e.value)
+    assert "st1" in message and "catalog" in message and str(broken) in message and "\n" not in message, message
+
+
+def test_stray_light_factor_is_the_sum_of_the_bodies_power_laws():
+    """Each body's term written here with arccos: (cone / angle)^3 outside its cone, 1 at its edge;
+    a body the Earth hides adds nothing."""
+    from drake_att.exclusion import ExclusionCones, stray_light_factor
+
+    cones = ExclusionCones(40.0, 20.0, 10.0, 100e3)
+    r = np.array([7.0e6, 0.0, 0.0])
+    b = np.array([0.0, 1.0, 0.0])  # 90 deg from nadir
+    sun = r + 1.5e11 * np.array([0.0, math.cos(math.radians(60)), math.sin(math.radians(60))])  # 60 deg off
+    moon = r + 3.8e8 * np.array([0.0, math.cos(math.radians(25)), -math.sin(math.radians(25))])  # 25 deg off
+
+    def angle(a, c):
+        return math.acos(np.dot(a, c) / np.linalg.norm(a) / np.linalg.norm(c))
+
+    limb = math.asin((6378137.0 + 100e3) / 7.0e6)
+    expected = (
+        (40 / 60) ** 3 + (math.radians(20) / (angle(b, -r) - limb)) ** 3 + (10 / math.degrees(angle(b, moon - r))) ** 3
+    )
+    assert stray_light_factor(b.tolist(), r.tolist(), sun.tolist(), moon.tolist(), cones) == pytest.approx(expected)
+    # the Moon behind the Earth adds nothing; a body inside its cone counts as at its edge
+    hidden = (r + 3.8e8 * np.array([-1.0, 0.0, 0.0])).tolist()
+    assert stray_light_factor(b.tolist(), r.tolist(), sun.tolist(), hidden, cones) == pytest.approx(
+        expected - (10 / math.degrees(angle(b, moon - r))) ** 3
+    )
+    near = (r + 1.5e11 * b).tolist()
+    at_edge = stray_light_factor(b.tolist(), r.tolist(), near, hidden, cones)
+    assert at_edge == pytest.approx(1.0 + (math.radians(20) / (angle(b, -r) - limb)) ** 3)
+
+
+def test_stray_light_costs_stars_and_accuracy():
+    """The same attitudes with and without 2e4 e-/s per pixel of stray light: fewer stars, larger
+    sigmas."""
+    from drake_att import rotations as rot
+    from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig, sky_tracker_model
+
+    model = sky_tracker_model(SkyStarTrackerConfig(), 2026.0)
+    rng = np.random.default_rng(3)
+    stars, sigmas = {0.0: [], 2e4: []}, {0.0: [], 2e4: []}
+    for _ in range(30):
+        q = rot.quat_normalize(rng.standard_normal(4))
+        for stray in stars:  # lost-in-space: every star in the field is rendered
+            f = model.frame(0.0, q, np.zeros(3), TrackingMemory.empty(), np.random.default_rng(7), stray)
+            stars[stray].append(f.stars_detected)
+            if f.valid:
+                sigmas[stray].append(math.sqrt(f.covariance_S[0, 0]))
+    assert np.mean(stars[2e4]) < 0.7 * np.mean(stars[0.0])
+    assert len(sigmas[2e4]) > 20 and np.median(sigmas[2e4]) > 1.3 * np.median(sigmas[0.0])
+
+
+def test_a_tracker_with_exclusion_cones_loses_the_frames_inside_them():
+    text = SCENARIO.format(
+        duration=20.0,
+        extra="exclusion: {sun_deg: 45.0, earth_limb_deg: 25.0, moon_deg: 12.0}\n  detector: {exposure_s: 0.05}",
+    ).replace(
+        "plant: !RigidBodyConfig",
+        'orbit: !KeplerOrbitConfig {epoch_utc: "2026-06-21T00:00:00Z", semi_major_axis_km: 6928.137,\n'
+        "                           eccentricity: 0.001, inclination_deg: 97.5}\nplant: !RigidBodyConfig",
+    )
+    run = diagram_for(load_scenario(text)).simulate(seed=1)
+    _, status = _last_per_time(*run.signals["st1/frame_status"])
+    _, excl = _last_per_time(*run.signals["st1/exclusion"])
+    blinded = excl[:, 1] != 0
+    np.testing.assert_array_equal(status[blinded, 7], REASON_CODE["not_taken"])
+    assert np.all(status[blinded, 1] == 0)
+    assert np.all(status[~blinded, 1] == 1) or np.mean(status[~blinded, 1]) > 0.95

@@ -152,8 +152,10 @@ class SkyStarTrackerConfig:
     ``epoch_jyear``: the sky's epoch (proper motion; Julian year; null: the orbit's epoch, or
     2026.0 without one). ``filter_covariance``: what estimators use, ``per_frame`` (each frame's
     own covariance) or ``nominal`` (module docstring), computed from frames turning at
-    ``nominal_rate_deg_per_s`` (the rate a datasheet states its accuracy at; smear grows it). ``exclusion``: Sun / Earth-limb / Moon cones
-    (a frame inside one is not taken).
+    ``nominal_rate_deg_per_s`` (the rate a datasheet states its accuracy at; smear grows it).
+    ``exclusion``: Sun / Earth-limb / Moon cones (a frame inside one is not taken); outside them
+    stray light adds ``stray_light_e_per_px_per_s`` (ours: ~60x the dark sky's background) times
+    ``(cone / angle)^3`` per body to the background (:func:`drake_att.exclusion.stray_light_factor`).
     """
 
     name: str = "st1"
@@ -168,8 +170,10 @@ class SkyStarTrackerConfig:
     dropout_probability: float = 0.0
     outage_windows_s: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (k, 2) [start, end]
     exclusion: Optional[ExclusionConfig] = None
+    stray_light_e_per_px_per_s: float = 1000.0
 
     RANGES: ClassVar[dict] = {
+        "stray_light_e_per_px_per_s": (0.0, 1e9, "e-/s", "stray light per pixel at an exclusion cone's edge"),
         "epoch_jyear": (1900.0, 2200.0, "yr", "a Julian year"),
         "nominal_rate_deg_per_s": (0.0, 100.0, "deg/s", "the rate the nominal covariance is stated at"),
     }
@@ -343,6 +347,7 @@ def validate_sky_star_tracker(path: str, c: SkyStarTrackerConfig, checks) -> Non
     if c.epoch_jyear is not None:
         cfg.check_finite(f"{path}.epoch_jyear", c.epoch_jyear)
     cfg.check_nonnegative(f"{path}.nominal_rate_deg_per_s", c.nominal_rate_deg_per_s)
+    cfg.check_nonnegative(f"{path}.stray_light_e_per_px_per_s", c.stray_light_e_per_px_per_s)
     validate_camera(f"{path}.camera", c.camera)
     try:
         _detector(f"{path}.detector", c.detector)
@@ -359,7 +364,10 @@ def validate_sky_star_tracker(path: str, c: SkyStarTrackerConfig, checks) -> Non
         )
     if i.max_stars < i.min_stars:
         cfg.fail(f"{path}.identification.max_stars", i.max_stars, f"must be >= min_stars ({i.min_stars})")
-    brightest = float(np.min(_hipparcos().magnitude))
+    try:
+        brightest = float(np.min(_hipparcos().magnitude))
+    except ValueError as e:  # the catalogue failed to load: its one-line reason, under this path
+        raise cfg.ConfigError(f"{path}: {e}") from None
     if i.magnitude_limit < brightest:
         cfg.fail(
             f"{path}.identification.magnitude_limit",
@@ -413,6 +421,7 @@ def build_sky_star_tracker(ctx, c: SkyStarTrackerConfig):
             c.dropout_probability,
             [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))],
             exclusion_cones(c),  # type: ignore[arg-type]  # the same exclusion field
+            c.stray_light_e_per_px_per_s,
         )
     )
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))

@@ -34,11 +34,11 @@ from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
 from drake_att.contract import QUATERNION_MEASUREMENT_SIZE
-from drake_att.exclusion import ExclusionCones, exclusion_causes
+from drake_att.exclusion import ExclusionCones, exclusion_causes, stray_light_factor
 from drake_att.sky_tracker import FRAME_STATUS_NAMES, FrameResult, SkyTrackerModel, TrackingMemory
 from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
 from drake_att.systems.value_cache import declare_value_cache
-from drake_att.validation import check_availability
+from drake_att.validation import check_availability, check_nonnegative
 
 
 class SkyStarTracker(LeafSystem):
@@ -53,6 +53,8 @@ class SkyStarTracker(LeafSystem):
         dropout_probability: probability in [0, 1) that a frame is lost (not taken).
         outage_windows_s: ``[(start, end), ...]`` (s) with no frame.
         exclusion: Sun / Earth-limb / Moon cones (None: none).
+        stray_light_e_per_px_per_s: stray light at a cone's edge (e-/s per pixel), falling off
+            outside it (:func:`~drake_att.exclusion.stray_light_factor`); trackers with cones.
     """
 
     def __init__(
@@ -64,6 +66,7 @@ class SkyStarTracker(LeafSystem):
         dropout_probability: float = 0.0,
         outage_windows_s=(),
         exclusion: ExclusionCones | None = None,
+        stray_light_e_per_px_per_s: float = 0.0,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
@@ -77,6 +80,9 @@ class SkyStarTracker(LeafSystem):
         self.R_SB = rot.quat_to_rotmat(self.q_BS).T
         self.model = model
         self.exclusion = None if exclusion is None else exclusion.check(f"{name}.exclusion")
+        self.stray_light_e_per_px_per_s = check_nonnegative(
+            f"{name}.stray_light_e_per_px_per_s", stray_light_e_per_px_per_s
+        )
         self._availability_index = self.DeclareAbstractParameter(
             AbstractValue.Make(check_availability(name, dropout_probability, outage_windows_s))
         )
@@ -125,12 +131,23 @@ class SkyStarTracker(LeafSystem):
         """The index ``k = max(0, ceil(t / T - 1e-9))`` of the frame an output at ``t`` carries."""
         return max(0, math.ceil(t / self.period_s - 1e-9))
 
+    def _geometry(self, context):
+        """``(boresight_I, r_I, r_sun_I, r_moon_I)`` as 3-lists (trackers with cones)."""
+        r, r_sun, r_moon = (p.Eval(context).tolist() for p in self._geometry_ports)
+        boresight = rot.quat_to_rotmat(rot.quat_multiply(self._q_port.Eval(context), self.q_BS))[:, 2]
+        return boresight.tolist(), r, r_sun, r_moon
+
     def _causes(self, context) -> int:
         if self.exclusion is None:
             return 0
-        r, r_sun, r_moon = (p.Eval(context) for p in self._geometry_ports)
-        boresight = rot.quat_to_rotmat(rot.quat_multiply(self._q_port.Eval(context), self.q_BS))[:, 2]
-        return int(exclusion_causes(boresight, r, r_sun, r_moon, self.exclusion))
+        return int(exclusion_causes(*self._geometry(context), self.exclusion))
+
+    def _stray_light(self, context) -> float:
+        """Stray light on the detector (e-/s per pixel): ``stray_light_e_per_px_per_s`` times
+        :func:`~drake_att.exclusion.stray_light_factor` (trackers with cones; else none)."""
+        if self.exclusion is None or self.stray_light_e_per_px_per_s == 0.0:
+            return 0.0
+        return self.stray_light_e_per_px_per_s * stray_light_factor(*self._geometry(context), self.exclusion)
 
     def _compute_frame(self, context) -> FrameResult:
         k = self.frame_index(context.get_time())
@@ -146,7 +163,7 @@ class SkyStarTracker(LeafSystem):
             return FrameResult.not_taken(t_k)
         memory = TrackingMemory.from_vector(context.get_discrete_state(self._memory_group).value())
         q_IS = rot.quat_multiply(q_IB, self.q_BS)
-        return self.model.frame(t_k, q_IS, self.R_SB @ w_IB_B, memory, rng)
+        return self.model.frame(t_k, q_IS, self.R_SB @ w_IB_B, memory, rng, self._stray_light(context))
 
     # -- outputs ----------------------------------------------------------------------
     def _calc_measurement(self, context, output: BasicVector):
