@@ -140,14 +140,16 @@ class SkyStarTracker(LeafSystem):
     def _causes(self, context) -> int:
         if self.exclusion is None:
             return 0
-        return int(exclusion_causes(*self._geometry(context), self.exclusion))
+        b, r, r_sun, r_moon = self._geometry(context)
+        return int(exclusion_causes(b, r, r_sun, r_moon, self.exclusion))
 
     def _stray_light(self, context) -> float:
         """Stray light on the detector (e-/s per pixel): ``stray_light_e_per_px_per_s`` times
         :func:`~drake_att.exclusion.stray_light_factor` (trackers with cones; else none)."""
         if self.exclusion is None or self.stray_light_e_per_px_per_s == 0.0:
             return 0.0
-        return self.stray_light_e_per_px_per_s * stray_light_factor(*self._geometry(context), self.exclusion)
+        b, r, r_sun, r_moon = self._geometry(context)
+        return self.stray_light_e_per_px_per_s * stray_light_factor(b, r, r_sun, r_moon, self.exclusion)
 
     def _compute_frame(self, context) -> FrameResult:
         k = self.frame_index(context.get_time())
