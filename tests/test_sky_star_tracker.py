@@ -246,3 +246,22 @@ def test_a_tracker_with_exclusion_cones_loses_the_frames_inside_them():
     np.testing.assert_array_equal(status[blinded, 7], REASON_CODE["not_taken"])
     assert np.all(status[blinded, 1] == 0)
     assert np.all(status[~blinded, 1] == 1) or np.mean(status[~blinded, 1]) > 0.95
+
+
+def test_faults_corrupt_a_sky_tracker_like_any_quaternion_sensor():
+    """NaN samples at 10 and 20 s and an outage over [14, 17) s: the MEKF skips exactly those
+    steps (counted), the tracker itself keeps its frames."""
+    text = SCENARIO.format(duration=25.0, extra="detector: {exposure_s: 0.05}").replace(
+        "estimators:",
+        "- !SensorFaultsConfig {name: st1_faults, sensor: st1, nan_times_s: [10.0, 20.0],\n"
+        "                       outage_windows_s: [[14.0, 17.0]]}\nestimators:",
+    )
+    run = diagram_for(load_scenario(text)).simulate(seed=1)
+    meta = run.metadata["estimators"]["single"]["signals"]
+    _, status = _last_per_time(*run.signals[meta["status"]])
+    skipped = np.diff(status[:, 2], prepend=0.0)
+    t = status[:, 0]
+    hit = {10.0, 14.0, 15.0, 16.0, 20.0}
+    assert {float(x) for x in t[skipped > 0]} == hit
+    _, frames = _last_per_time(*run.signals["st1/frame_status"])
+    assert np.mean(frames[:, 1]) > 0.99
