@@ -125,7 +125,6 @@ MODULES = {
     "sensor_monitor": ("drake_att/systems/sensor_monitor.py", ["tests/test_fdir.py", "tests/test_fdir_scenario.py"]),
     "screen_calibration": ("drake_att/filters/screen_calibration.py", ["tests/test_s2_calibration.py"]),
     "star_camera": ("drake_att/star_camera.py", ["tests/test_star_camera.py", "tests/test_star_image.py"]),
-    "star_image": ("drake_att/star_image.py", ["tests/test_star_image.py"]),
     "sky_tracker": ("drake_att/sky_tracker.py", ["tests/test_sky_star_tracker.py"]),
     "campaign_records": (
         "drake_att/analysis/campaign_records.py",
