@@ -265,3 +265,68 @@ def test_faults_corrupt_a_sky_tracker_like_any_quaternion_sensor():
     assert {float(x) for x in t[skipped > 0]} == hit
     _, frames = _last_per_time(*run.signals["st1/frame_status"])
     assert np.mean(frames[:, 1]) > 0.99
+
+
+def test_the_double_star_cut_from_its_definition():
+    """Stars placed here: a pair 1 px apart of equal brightness (both cut), a star with a neighbour
+    3 mag fainter at 1 px (kept; the faint one has a bright neighbour: cut), a star alone (kept),
+    and a pair 10 px apart (kept)."""
+    from drake_att.sky import StarCatalog
+    from drake_att.sky_tracker import DOUBLE_STAR_MAGNITUDE_GAP, without_close_pairs
+
+    px = 5.5e-6 / 0.016  # one pixel (rad)
+
+    def at(x_px, y_px):
+        d = np.array([x_px * px, y_px * px, 1.0])
+        return d / np.linalg.norm(d)
+
+    unit = np.array([at(0, 0), at(1, 0), at(100, 0), at(101, 0), at(-200, 50), at(300, 300), at(310, 300)])
+    mag = np.array([5.0, 5.0, 4.0, 7.0, 5.0, 5.0, 5.0])
+    hip = np.arange(1, 8)
+    sky = StarCatalog(hip, unit, np.zeros_like(unit), mag, np.zeros(7), 2026.0)
+    kept = without_close_pairs(sky, sky, 3 * px, DOUBLE_STAR_MAGNITUDE_GAP)
+    assert kept.hip.tolist() == [3, 5, 6, 7]
+    np.testing.assert_array_equal(kept.unit_I, unit[[2, 4, 5, 6]])
+    np.testing.assert_array_equal(kept.magnitude, mag[[2, 4, 5, 6]])
+    assert kept.b_minus_v.shape == (4,) and kept.epoch_jyear == 2026.0
+    # identification stars only (the bright ones) against every rendered neighbour
+    bright = StarCatalog(hip[mag < 6], unit[mag < 6], np.zeros((6, 3)), mag[mag < 6], np.zeros(6), 2026.0)
+    assert without_close_pairs(bright, sky, 3 * px, DOUBLE_STAR_MAGNITUDE_GAP).hip.tolist() == [3, 5, 6, 7]
+    assert without_close_pairs(sky, sky, 0.0, DOUBLE_STAR_MAGNITUDE_GAP) is sky  # no cut
+
+
+def test_a_frame_without_enough_stars_is_invalid_with_its_reason():
+    from drake_att import rotations as rot
+    from drake_att.sky_tracker import IdentificationSettings, SkyTrackerModel
+    from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig, sky_tracker_model
+
+    base = sky_tracker_model(SkyStarTrackerConfig(), 2026.0)
+    catalog = base.render_catalog  # already at the epoch
+    model = SkyTrackerModel(base.camera, base.detector, catalog, IdentificationSettings(min_stars=500, max_stars=500))
+    q = rot.quat_normalize(np.array([0.3, -0.2, 0.5, 0.7]))
+    for memory in (TrackingMemory.empty(), TrackingMemory(0.0, q, math.nan, rot.quat_identity())):
+        f = model.frame(0.1, q, np.zeros(3), memory, np.random.default_rng(1))
+        assert not f.valid and f.reason == REASON_CODE["too_few_stars"] and f.mode == MODE_LOST_IN_SPACE
+        np.testing.assert_array_equal(f.q_IS_meas, [1.0, 0.0, 0.0, 0.0])
+        np.testing.assert_array_equal(f.covariance_S, np.eye(3))
+        assert f.stars_detected > 4 and f.stars_identified == 0
+        np.testing.assert_array_equal(f.status_vector()[[0, 1, 2, 7]], [0.1, 0.0, MODE_LOST_IN_SPACE, f.reason])
+
+
+@pytest.mark.parametrize(
+    "settings, field",
+    [
+        (dict(magnitude_limit=6.5, render_magnitude_limit=6.0), "st9.render_magnitude_limit"),
+        (dict(min_stars=6, max_stars=5), "st9.max_stars"),
+        (dict(prior_sigma_rad=0.0), "st9.prior_sigma_rad"),
+        (dict(max_track_age_s=-1.0), "st9.max_track_age_s"),
+    ],
+)
+def test_model_settings_are_checked_in_one_line(settings, field):
+    from drake_att.sky_tracker import IdentificationSettings, SkyTrackerModel
+    from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig, sky_tracker_model
+
+    base = sky_tracker_model(SkyStarTrackerConfig(), 2026.0)
+    with pytest.raises(ValueError) as e:
+        SkyTrackerModel(base.camera, base.detector, base.render_catalog, IdentificationSettings(**settings), name="st9")
+    assert str(e.value).startswith(field + ":") and "\n" not in str(e.value)

@@ -93,3 +93,5 @@ def test_bad_intrinsics_are_refused_in_one_line_naming_the_field(kwargs, field):
     with pytest.raises(ValueError) as e:
         PinholeCamera.make(**args, name="st1")
     assert str(e.value).startswith(f"st1.{field}:") and "\n" not in str(e.value)
+    if kwargs == dict(focal_length_m=0.002):
+        assert "diagonal field of view" in str(e.value)
