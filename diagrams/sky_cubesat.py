@@ -5,13 +5,13 @@ Runs ``cubesat_dual_star_tracker`` (the paper's 5"/50" Gaussian trackers) and
 ``cubesat_dual_sky_tracker`` (the same CubeSat with two ``!SkyStarTrackerConfig`` trackers: frames
 rendered from the Hipparcos catalogue, identified and solved) over the same seeds. Usage::
 
-    python diagrams/sky_cubesat.py                      # 20 seeds x 5000 s (about 20 min on 2 cores)
+    python diagrams/sky_cubesat.py                      # 20 seeds x 5000 s (about 1 h on 2 cores)
     python diagrams/sky_cubesat.py --seeds 3 --duration 600
 
 Prints per architecture (single, centralized, decentralized, joint) the attitude RMSE per axis
 and in total (deg, stable stage, mean ± 95% Student-t half-width over the seeds) and the ANEES
-(the NEES of the 3 attitude errors averaged over the stable stage and the seeds: 3 for a
-consistent filter) for both tracker models; and the sky trackers' frames: valid fraction, tracked
+(the NEES of the 6 errors, attitude and gyro bias, averaged over the stable stage and the seeds: 6
+for a consistent filter) for both tracker models; and the sky trackers' frames: valid fraction, tracked
 fraction, identified stars, misidentified stars (must be 0), and the frames' own sigmas across
 and about the boresight (arcsec) — the emergent counterpart of the paper's 5" / 50". Writes
 ``results.json`` to ``--out`` when given.

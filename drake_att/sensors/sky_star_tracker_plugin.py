@@ -5,9 +5,9 @@ YAML tag ``!SkyStarTrackerConfig``. Output: "quaternion" samples ``[t, valid, q_
 ``!StarTrackerConfig`` — so it replaces the Gaussian tracker in any scenario, faults, averages and
 monitors included — plus each frame's covariance (``covariance_S``) and what the frame saw and did
 (``frame_status``, logged). An estimator uses either each frame's covariance
-(``filter_covariance: per_frame``) or the tracker's nominal covariance (``nominal``: the inverse
-of the mean information of 200 frames at random attitudes turning at ``nominal_rate_deg_per_s``,
-what a datasheet states; also what a star-tracker average and a sensor monitor assume).
+(``filter_covariance: per_frame``) or the tracker's nominal covariance (``nominal``: the mean
+covariance of 200 frames at random attitudes turning at ``nominal_rate_deg_per_s``, what a
+datasheet states; also what a star-tracker average and a sensor monitor assume).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from drake_att.units import ARCSEC, DEG
 FILTER_COVARIANCES = ("per_frame", "nominal")
 #: The catalogue's epoch when the scenario has no orbit epoch and the config gives none (Julian year).
 DEFAULT_EPOCH_JYEAR = 2026.0
-#: Frames (random attitudes, still body) whose mean information gives the nominal covariance.
+#: Frames (random attitudes) whose mean covariance is the nominal covariance.
 NOMINAL_FRAMES = 200
 
 
@@ -280,9 +280,11 @@ _NOMINAL: dict = {}
 
 
 def nominal_covariance_S(c: SkyStarTrackerConfig, epoch_jyear: float) -> np.ndarray:
-    """The tracker's nominal covariance (rad^2, S): the inverse of the mean information
-    ``F = P^-1`` of :data:`NOMINAL_FRAMES` valid frames at random attitudes (seed 0), each turning
-    at ``nominal_rate_deg_per_s`` about a random axis, tracked from the true attitude."""
+    """The tracker's nominal covariance (rad^2, S): the mean of the covariances of
+    :data:`NOMINAL_FRAMES` valid frames at random attitudes (seed 0), each turning at
+    ``nominal_rate_deg_per_s`` about a random axis, tracked from the true attitude — the mean
+    squared error a datasheet states (the inverse of the mean information would be the good
+    frames' figure: optimistic for the sparse fields)."""
     key = (*_key(c, epoch_jyear), float(c.nominal_rate_deg_per_s))
     if key not in _NOMINAL:
         from drake_att import rotations as rot
@@ -290,7 +292,7 @@ def nominal_covariance_S(c: SkyStarTrackerConfig, epoch_jyear: float) -> np.ndar
 
         model = sky_tracker_model(c, epoch_jyear)
         rng = np.random.default_rng(0)
-        information, n = np.zeros((3, 3)), 0
+        total, n = np.zeros((3, 3)), 0
         for _ in range(NOMINAL_FRAMES):
             q = rot.quat_normalize(rng.standard_normal(4))
             axis = rng.standard_normal(3)
@@ -298,11 +300,11 @@ def nominal_covariance_S(c: SkyStarTrackerConfig, epoch_jyear: float) -> np.ndar
             memory = TrackingMemory(0.0, q, math.nan, rot.quat_identity())
             frame = model.frame(0.0, q, w_S, memory, rng)
             if frame.valid:
-                information += np.linalg.inv(frame.covariance_S)
+                total += frame.covariance_S
                 n += 1
         if n == 0:
             cfg.fail(f"{c.name}.identification", "no frame", "identifies no frame at random attitudes")
-        _NOMINAL[key] = np.linalg.inv(information / n)
+        _NOMINAL[key] = total / n
     return _NOMINAL[key]
 
 
