@@ -78,7 +78,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import erf  # type: ignore[import-untyped]
 
-from drake_att.filters.compiled import jit
 from drake_att.star_camera import PinholeCamera
 from drake_att.validation import check_finite, check_int, check_seed, fail
 
@@ -416,41 +415,14 @@ def digitize(electrons, detector: DetectorModel) -> np.ndarray:
     return np.clip(code, 0, detector.max_code_adu).astype(np.int32)
 
 
-@jit
-def _expose_kernel(mean_e, seed, full_well, read_noise, gain, black, max_code, adu, clipped):
-    """:func:`_expose`'s pixels in one compiled loop, its draws from numba's generator seeded
-    with ``seed`` (so a frame's noise stays a pure function of its own generator)."""
-    np.random.seed(seed)
-    for i in range(mean_e.size):
-        charge = min(float(np.random.poisson(mean_e[i])), full_well)
-        full = charge >= full_well
-        if read_noise > 0.0:
-            charge += np.random.normal(0.0, read_noise)
-        code = min(max(math.floor(charge / gain + black + 0.5), 0.0), max_code)
-        adu[i] = int(code)
-        clipped[i] = full or code >= max_code
-
-
 def _expose(mean_e: np.ndarray, detector: DetectorModel, rng: np.random.Generator):
-    """Shot noise (Poisson), full well, read noise (Gaussian), ADC (:func:`digitize`'s rule):
-    (ADU, saturated-pixel mask). The draws come from a compiled generator seeded by one draw of
-    ``rng``."""
-    flat = np.ascontiguousarray(mean_e, dtype=float).ravel()
-    adu = np.empty(flat.size, dtype=np.int32)
-    clipped = np.empty(flat.size, dtype=np.bool_)
-    seed = int(rng.integers(0, 2**32 - 1))
-    _expose_kernel(
-        flat,
-        seed,
-        float(detector.full_well_e),
-        float(detector.read_noise_e),
-        float(detector.gain_e_per_adu),
-        float(detector.black_level_adu),
-        float(detector.max_code_adu),
-        adu,
-        clipped,
-    )
-    return adu.reshape(mean_e.shape), clipped.reshape(mean_e.shape)
+    """Shot noise, full well, read noise, ADC: (ADU, saturated-pixel mask)."""
+    charge = np.minimum(rng.poisson(mean_e).astype(float), detector.full_well_e)
+    full = charge >= detector.full_well_e
+    if detector.read_noise_e > 0.0:
+        charge = charge + rng.normal(0.0, detector.read_noise_e, size=charge.shape)
+    adu = digitize(charge, detector)
+    return adu, full | (adu >= detector.max_code_adu)
 
 
 def render_windows(
