@@ -297,8 +297,8 @@ def test_the_double_star_cut_from_its_definition():
 
 def test_a_frame_without_enough_stars_is_invalid_with_its_reason():
     from drake_att import rotations as rot
-    from drake_att.sky_tracker import IdentificationSettings, SkyTrackerModel
     from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig, sky_tracker_model
+    from drake_att.sky_tracker import IdentificationSettings, SkyTrackerModel
 
     base = sky_tracker_model(SkyStarTrackerConfig(), 2026.0)
     catalog = base.render_catalog  # already at the epoch
@@ -323,8 +323,8 @@ def test_a_frame_without_enough_stars_is_invalid_with_its_reason():
     ],
 )
 def test_model_settings_are_checked_in_one_line(settings, field):
-    from drake_att.sky_tracker import IdentificationSettings, SkyTrackerModel
     from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig, sky_tracker_model
+    from drake_att.sky_tracker import IdentificationSettings, SkyTrackerModel
 
     base = sky_tracker_model(SkyStarTrackerConfig(), 2026.0)
     with pytest.raises(ValueError) as e:
