@@ -31,8 +31,12 @@ from drake_att.sensors.star_tracker_plugin import (
     validate_availability,
     validate_exclusion,
 )
+from drake_att.star_image import DetectorModel
 from drake_att.systems.estimator_system import QuaternionSensorModel
 from drake_att.units import ARCSEC, DEG
+
+#: The detector model's defaults: the config's, from their one home.
+_DETECTOR = DetectorModel()
 
 FILTER_COVARIANCES = ("per_frame", "nominal")
 #: The catalogue's epoch when the scenario has no orbit epoch and the config gives none (Julian year).
@@ -69,21 +73,21 @@ class SkyDetectorConfig:
     docstring gives the defaults' sources; SI units as named). ``hot_pixel_seed``: the seed of the
     sensor's hot-pixel map (a property of the unit, the same in every run)."""
 
-    aperture_diameter_m: float = 0.0133
-    exposure_s: float = 0.1
-    optical_efficiency: float = 0.5
-    read_noise_e: float = 13.0
-    dark_current_e_per_s: float = 50.0
-    full_well_e: float = 13500.0
-    gain_e_per_adu: float = 3.3
-    adc_bits: int = 12
-    black_level_adu: float = 64.0
-    psf_sigma_px: float = 0.8
-    background_e_per_px_per_s: float = 16.0
-    hot_pixel_fraction: float = 1e-4
-    hot_pixel_dark_e_per_s: float = 5000.0
-    window_half_size_px: int = 3
-    detection_threshold_sigma: float = 5.0
+    aperture_diameter_m: float = _DETECTOR.aperture_diameter_m
+    exposure_s: float = _DETECTOR.exposure_s
+    optical_efficiency: float = _DETECTOR.optical_efficiency
+    read_noise_e: float = _DETECTOR.read_noise_e
+    dark_current_e_per_s: float = _DETECTOR.dark_current_e_per_s
+    full_well_e: float = _DETECTOR.full_well_e
+    gain_e_per_adu: float = _DETECTOR.gain_e_per_adu
+    adc_bits: int = _DETECTOR.adc_bits
+    black_level_adu: float = _DETECTOR.black_level_adu
+    psf_sigma_px: float = _DETECTOR.psf_sigma_px
+    background_e_per_px_per_s: float = _DETECTOR.background_e_per_px_per_s
+    hot_pixel_fraction: float = _DETECTOR.hot_pixel_fraction
+    hot_pixel_dark_e_per_s: float = _DETECTOR.hot_pixel_dark_e_per_s
+    window_half_size_px: int = _DETECTOR.window_half_size_px
+    detection_threshold_sigma: float = _DETECTOR.detection_threshold_sigma
     zero_point_photons_per_m2_s: float = 0.0  # 0: the detector model's default
     hot_pixel_seed: int = 1
 
