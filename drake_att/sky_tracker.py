@@ -33,9 +33,11 @@ import numpy as np
 
 from drake_att import rotations as rot
 from drake_att.sky import SkyIndex, StarCatalog
+from drake_att.star_attitude import camera_parameters
 from drake_att.star_camera import PinholeCamera
 from drake_att.star_identification import StarIdentifier
 from drake_att.star_image import DetectorModel, HotPixelMap, pixel_velocity, simulate_frame
+from drake_att.star_image_kernels import tracked_windows_kernel
 from drake_att.validation import check_positive, fail
 
 #: The ``frame_status`` layout.
@@ -288,6 +290,7 @@ class SkyTrackerModel:
         order = np.argsort(self.render_catalog.hip, kind="stable")
         at = np.searchsorted(self.render_catalog.hip, identification.hip, sorter=order)
         self._render_of_identified = order[at]
+        self._camera_params = camera_parameters(camera)
 
     def visible_stars(self, q_IS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(indices into render_catalog, directions in S (n, 3), pixels (n, 2))`` of the
@@ -318,19 +321,25 @@ class SkyTrackerModel:
         cam, h = self.camera, self.detector.window_half_size_px
         R_prior = rot.quat_to_rotmat(q_IS_prior)
         cone = self._identified_sky.cone(R_prior[:, 2], self._search_half_angle)
-        uv_pred, _ = cam.project(self._identified_sky.catalog.unit_I[cone] @ R_prior)
-        inside = (
-            (uv_pred[:, 0] >= h + 1)
-            & (uv_pred[:, 0] <= cam.width_px - h - 1)
-            & (uv_pred[:, 1] >= h + 1)
-            & (uv_pred[:, 1] <= cam.height_px - h - 1)
+        index = np.empty(self.settings.max_stars, dtype=np.int64)
+        uv = np.empty((self.settings.max_stars, 2))
+        n = tracked_windows_kernel(
+            self._camera_params,
+            float(cam.width_px),
+            float(cam.height_px),
+            float(h),
+            self._identified_sky.catalog.unit_I,
+            self._identified_sky.catalog.magnitude,
+            cone,
+            R_prior,
+            self.settings.max_stars,
+            self._render_of_identified,
+            self.render_catalog.unit_I,
+            np.ascontiguousarray(R_IS_true),
+            index,
+            uv,
         )
-        cone, uv_pred = cone[inside], uv_pred[inside]
-        brightest = np.argsort(self._identified_sky.catalog.magnitude[cone], kind="stable")[: self.settings.max_stars]
-        index = self._render_of_identified[cone[brightest]]
-        uv_true, _ = cam.project(self.render_catalog.unit_I[index] @ R_IS_true)
-        seen = np.all(np.abs(uv_true - uv_pred[brightest]) <= h - 1, axis=1)
-        return index[seen], uv_true[seen]
+        return index[:n], uv[:n]
 
     def _centroids(self, index, uv, R_IS, w_IS_S, rng, detector: DetectorModel):
         d_S = self.render_catalog.unit_I[index] @ R_IS

@@ -39,10 +39,12 @@ smear track along that axis (one size per frame, so the stars stack into one arr
 * the PSF is a Gaussian of ``psf_sigma_px`` integrated exactly over each pixel (separable erf
   differences);
 * smear: the star moves from ``uv - rate T / 2`` to ``uv + rate T / 2`` during the exposure
-  ``T``; the image is the mean of ``K`` pixel-integrated PSFs at the midpoints of ``K`` equal
-  sub-intervals, their spacing at most ``SMEAR_STEP_SIGMA`` = 0.25 PSF sigma (the second
-  moment along the track is ``L^2 / 12 (1 - 1/K^2)`` instead of ``L^2 / 12``: <= 0.4 % short
-  for the smallest ``K`` > 1);
+  ``T`` (a track of length ``L``); the image is the mean of ``K`` pixel-integrated PSFs at
+  evenly spaced points along the track, at most ``SMEAR_STEP_SIGMA`` = 0.5 PSF sigma apart
+  (a sum of Gaussians that close is smooth to ~1e-30), centred on the mid-exposure position and
+  spread so that their variance is the track's, ``L^2 / 12`` (the midpoints of ``K`` equal
+  sub-intervals would give ``L^2 / 12 (1 - 1/K^2)``): the image's first and second moments
+  are the moving star's exactly;
 * each pixel collects ``Poisson(star + (background + dark + hot) T)`` electrons, clipped at the
   full well, plus Gaussian read noise, then the ADC: ``round(e / gain) + black level``, clipped
   to ``[0, 2^bits - 1]``;
@@ -76,8 +78,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import erf  # type: ignore[import-untyped]
 
+from drake_att import star_image_kernels as kernels
 from drake_att.star_camera import PinholeCamera
 from drake_att.validation import check_finite, check_int, check_seed, fail
 
@@ -91,11 +93,11 @@ DEFAULT_ZERO_POINT_PHOTONS_PER_M2_S = V0_PHOTON_FLUX_DENSITY_PER_M2_S_NM * DEFAU
 #: The ``B−V`` interval of the ``Hp -> V`` relation (mag); colours outside are clamped to it.
 HP_V_COLOUR_RANGE = (-0.2, 1.8)
 #: Smear sub-step spacing, in PSF sigmas.
-SMEAR_STEP_SIGMA = 0.25
+SMEAR_STEP_SIGMA = 0.5
 #: A pixel's star signal enters its predicted variance when it exceeds this many noise sigmas.
 SIGNIFICANT_PIXEL_SIGMA = 2.0
 
-_SQRT2 = math.sqrt(2.0)
+_NONE = np.zeros(0)
 
 
 def v_magnitude_from_hipparcos(hp_mag, b_minus_v) -> np.ndarray:
@@ -354,14 +356,6 @@ def _window_half_sizes(detector: DetectorModel, track_px: np.ndarray) -> tuple[i
     return detector.window_half_size_px + int(extra[0]), detector.window_half_size_px + int(extra[1])
 
 
-def _axis_profiles(first_edge: np.ndarray, w: int, pos: np.ndarray, sigma: float) -> np.ndarray:
-    """(n, K, w) fraction of a unit Gaussian at ``pos`` (n, K) falling in pixels
-    ``[first_edge + i, first_edge + i + 1)``."""
-    edges = first_edge[:, None, None] + np.arange(w + 1)[None, None, :]
-    cdf = erf((edges - pos[:, :, None]) * (1.0 / (_SQRT2 * sigma)))
-    return 0.5 * (cdf[:, :, 1:] - cdf[:, :, :-1])
-
-
 def expected_windows(
     camera: PinholeCamera,
     detector: DetectorModel,
@@ -372,9 +366,9 @@ def expected_windows(
 ):
     """The noise-free windows: ``(origin_px (n, 2), star_e (n, w_v, w_u), background_e (n, w_v, w_u),
     on_detector (n, w_v, w_u))`` (see :class:`StarWindows`)."""
-    uv = np.asarray(uv_px, dtype=float).reshape(-1, 2)
-    rate = np.asarray(uv_rate_px_per_s, dtype=float).reshape(-1, 2)
-    flux = np.asarray(electron_rate_e_per_s, dtype=float).reshape(-1)
+    uv = np.ascontiguousarray(uv_px, dtype=float).reshape(-1, 2)
+    rate = np.ascontiguousarray(uv_rate_px_per_s, dtype=float).reshape(-1, 2)
+    flux = np.ascontiguousarray(electron_rate_e_per_s, dtype=float).reshape(-1)
     n = len(uv)
     if rate.shape != (n, 2) or flux.shape != (n,):
         fail(
@@ -388,41 +382,74 @@ def expected_windows(
     origin = np.floor(uv).astype(np.int64) - np.array([h_u, h_v])
     length = np.hypot(track[:, 0], track[:, 1]) if n else np.zeros(0)
     k_steps = max(1, int(math.ceil(float(np.max(length, initial=0.0)) / (SMEAR_STEP_SIGMA * sigma))))
-    t = (np.arange(k_steps) + 0.5) / k_steps - 0.5
-    fu = _axis_profiles(origin[:, 0].astype(float), w_u, uv[:, 0, None] + track[:, 0, None] * t, sigma)
-    fv = _axis_profiles(origin[:, 1].astype(float), w_v, uv[:, 1, None] + track[:, 1, None] * t, sigma)
-    if k_steps == 1:
-        psf = fv[:, 0, :, None] * fu[:, 0, None, :]
-    else:  # sum over sub-steps k of fv[n, k, row] fu[n, k, column], as a batched matmul
-        psf = np.matmul(fv.transpose(0, 2, 1), fu) * (1.0 / k_steps)
-    cols = origin[:, 0, None] + np.arange(w_u)  # (n, w_u)
-    rows = origin[:, 1, None] + np.arange(w_v)  # (n, w_v)
-    col_on = (cols >= 0) & (cols < camera.width_px)
-    row_on = (rows >= 0) & (rows < camera.height_px)
-    on = row_on[:, :, None] & col_on[:, None, :]
-    star_e = (flux * T)[:, None, None] * psf * on
-    background = np.full((n, w_v, w_u), detector.dark_and_background_e_per_px) * on
-    if hot_pixels is not None and len(hot_pixels.linear_index):
-        linear = rows[:, :, None] * camera.width_px + cols[:, None, :]
-        background += hot_pixels.rates_at(np.where(on, linear, -1)) * T
+    hot = no_hot_pixels(camera) if hot_pixels is None else hot_pixels
+    star_e = np.empty((n, w_v, w_u))
+    background = np.empty((n, w_v, w_u))
+    on = np.empty((n, w_v, w_u), dtype=bool)
+    kernels.expected_windows_kernel(
+        uv,
+        track,
+        flux * T,
+        origin,
+        k_steps,
+        sigma,
+        camera.width_px,
+        camera.height_px,
+        detector.dark_and_background_e_per_px,
+        hot.linear_index,
+        hot.rate_e_per_s * T,
+        star_e,
+        background,
+        on,
+    )
     return origin, star_e, background, on
 
 
 def digitize(electrons, detector: DetectorModel) -> np.ndarray:
     """ADU of collected electrons (read noise included): ``round(e / gain) + black``, clipped
     to ``[0, 2^bits - 1]`` (int32)."""
-    code = np.floor(np.asarray(electrons, dtype=float) / detector.gain_e_per_adu + detector.black_level_adu + 0.5)
-    return np.clip(code, 0, detector.max_code_adu).astype(np.int32)
+    e = np.asarray(electrons, dtype=float)
+    adu = np.empty(e.shape, dtype=np.int32)
+    kernels.digitize_kernel(
+        e.reshape(-1), detector.gain_e_per_adu, detector.black_level_adu, detector.max_code_adu, adu.reshape(-1)
+    )
+    return adu
 
 
-def _expose(mean_e: np.ndarray, detector: DetectorModel, rng: np.random.Generator):
-    """Shot noise, full well, read noise, ADC: (ADU, saturated-pixel mask)."""
-    charge = np.minimum(rng.poisson(mean_e).astype(float), detector.full_well_e)
-    full = charge >= detector.full_well_e
-    if detector.read_noise_e > 0.0:
-        charge = charge + rng.normal(0.0, detector.read_noise_e, size=charge.shape)
-    adu = digitize(charge, detector)
-    return adu, full | (adu >= detector.max_code_adu)
+def poisson_counts(mean_e, rng: np.random.Generator) -> np.ndarray:
+    """Poisson counts (int64, the shape of ``mean_e``) of the means ``mean_e`` (>= 0): by
+    inversion of one uniform each below ``POISSON_INVERSION_LIMIT`` (30: the background pixels,
+    at a fraction of numpy's per-value cost), by numpy's sampler above. Both from ``rng``: one
+    uniform per value, then the large means' draws."""
+    mean = np.ascontiguousarray(mean_e, dtype=float)
+    flat = mean.reshape(-1)
+    u = rng.random(flat.size)
+    big = np.flatnonzero(flat >= kernels.POISSON_INVERSION_LIMIT)
+    big_counts = rng.poisson(flat[big])
+    counts = np.empty(mean.shape, dtype=np.int64)
+    kernels.poisson_counts_kernel(flat, u, big, big_counts, counts.reshape(-1))
+    return counts
+
+
+def _expose(mean_e: np.ndarray, on: np.ndarray, detector: DetectorModel, rng: np.random.Generator):
+    """Shot noise, full well, read noise, ADC of the pixels ``on`` the detector (0 elsewhere):
+    (ADU, clipped-pixel mask). The noise is drawn here, from ``rng``, for every pixel."""
+    counts = poisson_counts(mean_e, rng)
+    normals = rng.normal(0.0, detector.read_noise_e, size=mean_e.shape) if detector.read_noise_e > 0.0 else _NONE
+    adu = np.empty(mean_e.shape, dtype=np.int32)
+    clipped = np.empty(mean_e.shape, dtype=bool)
+    kernels.expose_kernel(
+        counts.reshape(-1),
+        normals.reshape(-1),
+        on.reshape(-1),
+        detector.full_well_e,
+        detector.gain_e_per_adu,
+        detector.black_level_adu,
+        detector.max_code_adu,
+        adu.reshape(-1),
+        clipped.reshape(-1),
+    )
+    return adu, clipped
 
 
 def render_windows(
@@ -445,48 +472,42 @@ def render_windows(
     origin, star_e, background, on = expected_windows(
         camera, detector, uv_px, uv_rate_px_per_s, electron_rate_e_per_s, hot_pixels
     )
-    adu, clipped = _expose(star_e + background, detector, rng)
-    adu = np.where(on, adu, 0)
-    saturated = np.any(clipped & on, axis=(1, 2))
+    adu, clipped = _expose(star_e + background, on, detector, rng)
+    saturated = np.any(clipped, axis=(1, 2))
     return StarWindows(origin, adu, star_e, background, on, saturated, np.asarray(uv_px, dtype=float).reshape(-1, 2))
 
 
 def centroid_windows(windows: StarWindows, detector: DetectorModel) -> StarCentroids:
     """Centre-of-mass centroids, their predicted covariances and the detections of a frame's
     windows (module docstring)."""
-    w_v, w_u = windows.adu.shape[1:]
-    edge = windows.edge
-    signal = (windows.electrons(detector) - windows.background_e) * windows.on_detector
-    noise_var = windows.background_e + detector.read_noise_e**2 + detector.gain_e_per_adu**2 / 12.0
-    significant = signal > SIGNIFICANT_PIXEL_SIGMA * np.sqrt(noise_var)
-    var = (noise_var + np.where(significant, signal, 0.0)) * windows.on_detector
-    total = signal.sum(axis=(1, 2))
-    sigma_total = np.sqrt(var.sum(axis=(1, 2)))
-    snr = total / sigma_total
-    # a threshold detector: the brightest pixel above the background by the threshold in units
-    # of the background's own noise (a smeared star's peak falls as its track lengthens)
-    peak = np.max(signal / np.sqrt(noise_var), axis=(1, 2))
-    detected = (peak >= detector.detection_threshold_sigma) & (total > 0.0) & ~edge
+    n = len(windows.adu)
+    uv = np.zeros((n, 2))
+    cov = np.zeros((n, 2, 2))
+    signal, snr = np.empty(n), np.empty(n)
+    detected, edge = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+    kernels.centroid_kernel(
+        np.ascontiguousarray(windows.adu),
+        np.ascontiguousarray(windows.background_e, dtype=float),
+        np.ascontiguousarray(windows.on_detector),
+        np.ascontiguousarray(windows.origin_px, dtype=np.int64),
+        detector.black_level_adu,
+        detector.gain_e_per_adu,
+        detector.read_noise_e,
+        detector.detection_threshold_sigma,
+        SIGNIFICANT_PIXEL_SIGMA,
+        uv,
+        cov,
+        signal,
+        snr,
+        detected,
+        edge,
+    )
     idx = np.flatnonzero(detected)
-    s = signal[idx]
-    S = total[idx]
-    u_c = windows.origin_px[idx, 0, None] + np.arange(w_u) + 0.5  # (m, w_u) column centres
-    v_c = windows.origin_px[idx, 1, None] + np.arange(w_v) + 0.5  # (m, w_v) row centres
-    u_hat = np.sum(u_c * s.sum(axis=1), axis=1) / S
-    v_hat = np.sum(v_c * s.sum(axis=2), axis=1) / S
-    du = u_c - u_hat[:, None]
-    dv = v_c - v_hat[:, None]
-    vi = var[idx]
-    inv_s2 = 1.0 / (S * S)
-    cov = np.empty((len(idx), 2, 2))
-    cov[:, 0, 0] = np.sum(vi.sum(axis=1) * du * du, axis=1) * inv_s2
-    cov[:, 1, 1] = np.sum(vi.sum(axis=2) * dv * dv, axis=1) * inv_s2
-    cov[:, 0, 1] = cov[:, 1, 0] = np.sum(np.matmul(vi, du[:, :, None])[:, :, 0] * dv, axis=1) * inv_s2
     return StarCentroids(
-        uv_px=np.column_stack([u_hat, v_hat]),
-        covariance_px2=cov,
+        uv_px=uv[idx],
+        covariance_px2=cov[idx],
         star_index=idx,
-        signal_e=S,
+        signal_e=signal[idx],
         snr=snr[idx],
         saturated=windows.saturated[idx],
         detected=detected,
@@ -531,7 +552,7 @@ def render_full_frame(
         rows = slice(max(r0, 0), min(r0 + w_v, H))
         cols = slice(max(c0, 0), min(c0 + w_u, W))
         mean[rows, cols] += star_e[k, rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0]
-    adu, _ = _expose(mean, detector, rng)
+    adu, _ = _expose(mean, np.ones(mean.shape, dtype=bool), detector, rng)
     return adu
 
 
@@ -546,6 +567,7 @@ __all__ = [
     "pixel_velocity",
     "expected_windows",
     "digitize",
+    "poisson_counts",
     "render_windows",
     "centroid_windows",
     "simulate_frame",

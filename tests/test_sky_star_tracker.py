@@ -330,3 +330,47 @@ def test_model_settings_are_checked_in_one_line(settings, field):
     with pytest.raises(ValueError) as e:
         SkyTrackerModel(base.camera, base.detector, base.render_catalog, IdentificationSettings(**settings), name="st9")
     assert str(e.value).startswith(field + ":") and "\n" not in str(e.value)
+
+
+def test_a_tracking_frame_reads_the_windows_of_the_brightest_predicted_stars():
+    """The window rule written here over the whole identification catalogue (no sky index): the
+    ``max_stars`` brightest stars (ties by catalogue order) predicted at the prior with their
+    whole window on the detector, seen where the true image centre is within ``h - 1`` px of
+    the prediction; priors from 0 to ~6 px off, some stars lost."""
+    from drake_att import rotations as rot
+    from drake_att.sensors.sky_star_tracker_plugin import SkyStarTrackerConfig, sky_tracker_model
+
+    model = sky_tracker_model(SkyStarTrackerConfig(), 2026.0)
+    cam, h = model.camera, model.detector.window_half_size_px
+    ident = model._identified_sky.catalog
+    render_of = {hip: k for k, hip in enumerate(model.render_catalog.hip.tolist())}
+    rng = np.random.default_rng(12)
+    pixel = cam.pixel_pitch_m / cam.focal_length_m
+    lost = 0
+    for trial in range(40):
+        q_true = rot.quat_normalize(rng.standard_normal(4))
+        q_prior = rot.quat_multiply(q_true, rot.rotvec_to_quat(rng.normal(0.0, (trial % 4) * pixel, size=3)))
+        R_true, R_prior = rot.quat_to_rotmat(q_true), rot.quat_to_rotmat(q_prior)
+        uv_pred, front = cam.project(ident.unit_I @ R_prior)
+        with np.errstate(invalid="ignore"):
+            inside = (
+                (ident.unit_I @ R_prior[:, 2] > 0)
+                & (uv_pred[:, 0] >= h + 1)
+                & (uv_pred[:, 0] <= cam.width_px - h - 1)
+                & (uv_pred[:, 1] >= h + 1)
+                & (uv_pred[:, 1] <= cam.height_px - h - 1)
+            )
+        candidates = np.flatnonzero(inside)
+        chosen = candidates[np.lexsort((candidates, ident.magnitude[candidates]))][: model.settings.max_stars]
+        want_index, want_uv = [], []
+        for j in chosen:
+            r = render_of[int(ident.hip[j])]
+            uv_true = cam.project(model.render_catalog.unit_I[r] @ R_true)[0][0]
+            if np.all(np.abs(uv_true - uv_pred[j]) <= h - 1):
+                want_index.append(r)
+                want_uv.append(uv_true)
+        lost += len(chosen) - len(want_index)
+        index, uv = model.tracked_windows(q_prior, R_true)
+        assert index.tolist() == want_index, trial
+        np.testing.assert_allclose(uv, np.reshape(want_uv, (-1, 2)), atol=1e-9)
+    assert lost > 0  # the rule's second half was exercised
