@@ -379,7 +379,7 @@ def test_window_backgrounds_hold_the_hot_pixels_inside_them_also_at_the_detector
     by pixel here: background + hot rate x T on the detector, 0 off it."""
     det = DetectorModel.make(hot_pixel_fraction=0.02)  # ~21,000 hot pixels: several per window
     hot = draw_hot_pixels(det, CAMERA, seed=9)
-    rates = dict(zip(hot.linear_index.tolist(), hot.rate_e_per_s.tolist()))
+    rates = dict(zip(hot.linear_index.tolist(), hot.rate_e_per_s.tolist(), strict=True))
     rng = np.random.default_rng(10)
     uv = np.vstack([rng.uniform(-2.0, 1026.0, size=(60, 2)), [[0.2, 0.3], [1023.9, 1023.8], [0.5, 1023.5]]])
     rate = rng.normal(0.0, 30.0, size=uv.shape)  # smeared: larger windows
