@@ -165,24 +165,35 @@ class DetectorModel:
     detection_threshold_sigma: float = 5.0
     zero_point_photons_per_m2_s: float = DEFAULT_ZERO_POINT_PHOTONS_PER_M2_S
 
-    #: field -> (lo, hi, unit, lo inclusive): the physically plausible values ``make`` accepts.
+    #: field -> (lo, hi, unit, lo inclusive, what it is): the physically plausible values
+    #: ``make`` accepts (the sky tracker's config reference prints the same table).
     RANGES = {
-        "aperture_diameter_m": (1e-3, 0.5, "m", True),
-        "exposure_s": (1e-5, 10.0, "s", True),
-        "optical_efficiency": (0.0, 1.0, "", False),
-        "read_noise_e": (0.0, 1000.0, "e-", True),
-        "dark_current_e_per_s": (0.0, 1e6, "e-/s", True),
-        "full_well_e": (100.0, 1e7, "e-", True),
-        "gain_e_per_adu": (1e-3, 1e4, "e-/ADU", True),
-        "black_level_adu": (0.0, 1e6, "ADU", True),
-        "psf_sigma_px": (0.3, 10.0, "px (below 0.3 px the centre of mass locks to pixels)", True),
-        "background_e_per_px_per_s": (0.0, 1e7, "e-/s", True),
-        "hot_pixel_fraction": (0.0, 0.1, "", True),
-        "hot_pixel_dark_e_per_s": (0.0, 1e7, "e-/s", True),
-        "detection_threshold_sigma": (0.0, 100.0, "sigma", False),
-        "zero_point_photons_per_m2_s": (1e9, 1e12, "photons/s/m^2", True),
+        "aperture_diameter_m": (1e-3, 0.5, "m", True, "an entrance pupil"),
+        "exposure_s": (1e-5, 10.0, "s", True, "an exposure (also checked: <= the frame period)"),
+        "optical_efficiency": (0.0, 1.0, "", False, "throughput x quantum efficiency, > 0"),
+        "read_noise_e": (0.0, 1000.0, "e-", True, "read noise per pixel"),
+        "dark_current_e_per_s": (0.0, 1e6, "e-/s", True, "dark current per pixel"),
+        "full_well_e": (100.0, 1e7, "e-", True, "a pixel's capacity"),
+        "gain_e_per_adu": (1e-3, 1e4, "e-/ADU", True, "conversion gain"),
+        "black_level_adu": (0.0, 1e6, "ADU", True, "the ADC's offset"),
+        "psf_sigma_px": (
+            0.3,
+            10.0,
+            "px",
+            True,
+            "the defocused PSF's sigma (below 0.3 px the centre of mass locks to pixels)",
+        ),
+        "background_e_per_px_per_s": (0.0, 1e7, "e-/s", True, "sky and stray-light background per pixel"),
+        "hot_pixel_fraction": (0.0, 0.1, "", True, "fraction of hot pixels"),
+        "hot_pixel_dark_e_per_s": (0.0, 1e7, "e-/s", True, "a hot pixel's mean extra dark current"),
+        "detection_threshold_sigma": (0.0, 100.0, "sigma", False, "a detection's signal-to-noise ratio, > 0"),
+        "zero_point_photons_per_m2_s": (1e9, 1e12, "photons/s/m^2", True, "a V = 0 star's flux in the band"),
     }
-    INT_RANGES = {"adc_bits": (8, 24), "window_half_size_px": (1, 32)}
+    #: integer field -> (lo, hi, unit, what it is).
+    INT_RANGES = {
+        "adc_bits": (8, 24, "bits", "ADC resolution"),
+        "window_half_size_px": (1, 32, "px", "the centroid window's half size"),
+    }
 
     @classmethod
     def make(cls, name: str = "st1", **fields) -> DetectorModel:
@@ -194,12 +205,13 @@ class DetectorModel:
         for key, value in fields.items():
             if key not in cls.RANGES and key not in cls.INT_RANGES:
                 fail(f"{name}.{key}", value, f"is not a detector field (fields: {', '.join(cls.__annotations__)})")
-        for key, (lo, hi, unit, lo_closed) in cls.RANGES.items():
+        for key, (lo, hi, unit, lo_closed, what) in cls.RANGES.items():
             v = check_finite(f"{name}.{key}", fields.get(key, getattr(defaults, key)))
             if not ((v >= lo if lo_closed else v > lo) and v <= hi):
-                fail(f"{name}.{key}", v, f"must be in {'[' if lo_closed else '('}{lo:g}, {hi:g}] {unit}".rstrip())
+                interval = f"{'[' if lo_closed else '('}{lo:g}, {hi:g}] {unit}".rstrip()
+                fail(f"{name}.{key}", v, f"must be in {interval}: {what}")
             values[key] = v
-        for key, (lo, hi) in cls.INT_RANGES.items():
+        for key, (lo, hi, _, _) in cls.INT_RANGES.items():
             v = fields.get(key, getattr(defaults, key))
             n = check_int(f"{name}.{key}", v, lo)
             if n > hi:

@@ -374,3 +374,18 @@ def test_a_tracking_frame_reads_the_windows_of_the_brightest_predicted_stars():
         assert index.tolist() == want_index, trial
         np.testing.assert_allclose(uv, np.reshape(want_uv, (-1, 2)), atol=1e-9)
     assert lost > 0  # the rule's second half was exercised
+
+
+def test_the_detector_config_exposes_every_checked_detector_field_with_its_range():
+    import dataclasses
+
+    from drake_att.sensors.sky_star_tracker_plugin import SkyDetectorConfig
+    from drake_att.star_image import DetectorModel
+
+    model_fields = set(DetectorModel.RANGES) | set(DetectorModel.INT_RANGES)
+    config_fields = {f.name for f in dataclasses.fields(SkyDetectorConfig)} - {"hot_pixel_seed"}
+    assert config_fields == model_fields == set(SkyDetectorConfig.RANGES) - {"hot_pixel_seed"}
+    for key, (lo, hi, unit, _, _) in DetectorModel.RANGES.items():
+        if key != "zero_point_photons_per_m2_s":  # 0 is the config's "default"
+            assert SkyDetectorConfig.RANGES[key][:3] == (lo, hi, unit)
+        assert getattr(SkyDetectorConfig(), key) == getattr(DetectorModel(), key) or key.startswith("zero_point")

@@ -91,23 +91,18 @@ class SkyDetectorConfig:
     zero_point_photons_per_m2_s: float = 0.0  # 0: the detector model's default
     hot_pixel_seed: int = 1
 
+    #: :class:`~drake_att.star_image.DetectorModel`'s ranges (open lower bounds are checked
+    #: by the model), a zero point of 0 for the model's default, and the map's seed.
     RANGES: ClassVar[dict] = {
-        "aperture_diameter_m": (1e-3, 0.5, "m", "an entrance pupil"),
-        "exposure_s": (1e-5, 10.0, "s", "an exposure (also checked: <= the frame period)"),
-        "optical_efficiency": (0.0, 1.0, "", "throughput x quantum efficiency"),
-        "read_noise_e": (0.0, 1000.0, "e-", "read noise per pixel"),
-        "dark_current_e_per_s": (0.0, 1e6, "e-/s", "dark current per pixel"),
-        "full_well_e": (100.0, 1e7, "e-", "a pixel's capacity"),
-        "gain_e_per_adu": (1e-3, 1e4, "e-/ADU", "conversion gain"),
-        "adc_bits": (8, 24, "bits", "ADC resolution"),
-        "black_level_adu": (0.0, 1e6, "ADU", "the ADC's offset"),
-        "psf_sigma_px": (0.3, 10.0, "px", "the defocused PSF's sigma"),
-        "background_e_per_px_per_s": (0.0, 1e7, "e-/s", "sky and stray-light background per pixel"),
-        "hot_pixel_fraction": (0.0, 0.1, "", "fraction of hot pixels"),
-        "hot_pixel_dark_e_per_s": (0.0, 1e7, "e-/s", "a hot pixel's mean extra dark current"),
-        "window_half_size_px": (1, 32, "px", "the centroid window's half size"),
-        "detection_threshold_sigma": (0.0, 100.0, "sigma", "a detection's signal-to-noise ratio"),
-        "zero_point_photons_per_m2_s": (0.0, 1e12, "photons/s/m^2", "a V = 0 star's flux (0: the default)"),
+        **{key: (lo, hi, unit, what) for key, (lo, hi, unit, _, what) in DetectorModel.RANGES.items()},
+        **DetectorModel.INT_RANGES,
+        "zero_point_photons_per_m2_s": (
+            0.0,
+            DetectorModel.RANGES["zero_point_photons_per_m2_s"][1],
+            "photons/s/m^2",
+            "a V = 0 star's flux in the band (0: the default; else >= "
+            f"{DetectorModel.RANGES['zero_point_photons_per_m2_s'][0]:g})",
+        ),
         "hot_pixel_seed": (0, 2**32 - 1, "", "the hot-pixel map's seed"),
     }
 
