@@ -201,7 +201,9 @@ def test_held_rate_walk_keeps_the_covariance_honest_through_a_gyro_outage():
         assert 2.0 <= np.mean(nees[name]) <= 4.0, (name, np.mean(nees[name]))
 
 
-@pytest.mark.parametrize("script", ["fdir_false_alarms", "s2_calibration"])
+@pytest.mark.parametrize(
+    "script", ["fdir_false_alarms", "s2_calibration", "sky_identification", "sky_rate_sweep", "sky_cubesat"]
+)
 def test_study_scripts_leave_a_users_folder_untouched(script, tmp_path, capsys):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "diagrams"))
     module = __import__(script)
