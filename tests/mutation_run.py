@@ -126,6 +126,22 @@ MODULES = {
     "screen_calibration": ("drake_att/filters/screen_calibration.py", ["tests/test_s2_calibration.py"]),
     "star_camera": ("drake_att/star_camera.py", ["tests/test_star_camera.py", "tests/test_star_image.py"]),
     "sky_tracker": ("drake_att/sky_tracker.py", ["tests/test_sky_star_tracker.py"]),
+    # (its compiled loops, star_image_kernels.py, cannot run as mutmut's trampolines)
+    "star_image": ("drake_att/star_image.py", ["tests/test_star_image.py"]),
+    "estimator_system": (
+        "drake_att/systems/estimator_system.py",
+        [
+            "tests/test_sample_handling.py",
+            "tests/test_estimator_step.py",
+            "tests/test_contract.py",
+            "tests/test_plugins.py",
+            "-m",
+            "not slow",
+            "-k",
+            "not tutorial",
+            "--timeout=120",
+        ],
+    ),
     "campaign_records": (
         "drake_att/analysis/campaign_records.py",
         ["tests/test_campaign_edges.py", "-k", "record or resume or run_file or layout or counts"],
