@@ -526,3 +526,23 @@ def test_a_sample_without_a_usable_covariance_is_skipped_and_counted(bad):
     P, status = _covariance_run(bad, np.eye(3) * SIGMA**2)
     np.testing.assert_allclose(np.sqrt(np.diag(P)), 100 * ARCSEC, rtol=1e-2)  # no update took place
     assert status[1] == 0 and status[2] == 4  # used, skipped
+
+
+def test_step_settings_are_checked_and_returned_as_given():
+    """``check_step_settings``: a held-rate walk is accepted when no core is named yet (the
+    config's check) and for a core that takes attitude process noise (the MEKF), refused for one
+    that cannot; the lag must be below the period."""
+    from drake_att.systems.estimator_system import check_step_settings
+
+    assert check_step_settings("est", 1.0, 0.25, 1e-6) == (0.25, 1e-6)
+    assert check_step_settings("est", 1.0, 0.0, 2e-6, core=MultiplicativeEKF(1e-6, 1e-8)) == (0.0, 2e-6)
+    with pytest.raises(ValueError, match=r"^est\.max_time_tag_lag_s: got 1\.0"):
+        check_step_settings("est", 1.0, 1.0, 0.0)
+
+    class NoProcessNoise:
+        def predict(self, state, dt):  # a core without AttitudeProcessNoise
+            return state
+
+    with pytest.raises(ValueError, match=r"^est\.held_rate_rrw_rad_per_s15: .*NoProcessNoise"):
+        check_step_settings("est", 1.0, 0.0, 1e-6, core=NoProcessNoise())
+    assert check_step_settings("est", 1.0, 0.0, 0.0, core=NoProcessNoise()) == (0.0, 0.0)

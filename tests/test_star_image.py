@@ -293,6 +293,15 @@ def test_the_full_frame_holds_the_stars_over_the_background():
     for u, v in uv:
         patch = image[int(v) - 4 : int(v) + 5, int(u) - 4 : int(u) + 5]
         assert patch.max() > background + 20 * DETECTOR.read_noise_e / DETECTOR.gain_e_per_adu
+    # the sensor's hot pixels glow where the map puts them, by their rate
+    hot = draw_hot_pixels(DETECTOR, CAMERA, seed=3)
+    image = render_full_frame(CAMERA, DETECTOR, uv, np.zeros((2, 2)), np.zeros(2), rng, hot)
+    cols, rows = hot.columns_rows.T
+    excess = (image[rows, cols] - background) * DETECTOR.gain_e_per_adu
+    expected = hot.rate_e_per_s * DETECTOR.exposure_s
+    noise = np.sqrt(expected + DETECTOR.dark_and_background_e_per_px + DETECTOR.read_noise_e**2 + 1.0)
+    bright = expected < DETECTOR.full_well_e * 0.9
+    assert np.all(np.abs(excess - expected)[bright] < 5.0 * noise[bright])
 
 
 # --- refusals -----------------------------------------------------------------------------
@@ -394,3 +403,20 @@ def test_window_backgrounds_hold_the_hot_pixels_inside_them_also_at_the_detector
                 assert on[s, j, i] == inside
                 want = base + rates.get(row * 1024 + col, 0.0) * T if inside else 0.0
                 assert background[s, j, i] == pytest.approx(want, rel=1e-12, abs=1e-12), (s, j, i)
+
+
+def test_a_detector_range_includes_its_closed_bounds_and_excludes_its_open_ones():
+    for key, (lo, hi, _, lo_closed, _) in DetectorModel.RANGES.items():
+        if key == "black_level_adu":
+            continue  # its top is the ADC's own limit
+        assert getattr(DetectorModel.make(**{key: hi}), key) == hi
+        if lo_closed:
+            assert getattr(DetectorModel.make(**{key: lo}), key) == lo
+        else:
+            with pytest.raises(ValueError, match=rf"^st1\.{key}: got "):
+                DetectorModel.make(**{key: lo})
+        with pytest.raises(ValueError, match=rf"^st1\.{key}: got .*must be in "):
+            DetectorModel.make(**{key: hi * 1.001 + 1e-9})
+    for key, (lo, hi, _, _) in DetectorModel.INT_RANGES.items():
+        assert getattr(DetectorModel.make(**{key: lo}), key) == lo
+        assert getattr(DetectorModel.make(**{key: hi}), key) == hi
