@@ -81,6 +81,14 @@ class FrameResult:
         stars_detected: those detected, not saturated and with a centroid sigma at most
             ``max_centroid_sigma_px`` (the others are not used). stars_identified, stars_misidentified: counts.
         smear_px: the largest star track length over the exposure (pixels).
+        directions_S, references_I: (m, 3) each identified star's measured unit direction in S
+            (its centroid unprojected) and its catalogue direction at the epoch in I ((0, 3)
+            when invalid): the frame as vector observations.
+        vector_sigma_rad: the identified directions' RMS 1-sigma per tangent axis (rad): the
+            square root of the mean over the stars of half the trace of each direction's
+            covariance (the centroid's, through the inverse projection Jacobian). One number per
+            frame, as vector-observation estimators take it: brighter stars are better than it,
+            fainter ones worse.
     """
 
     time_s: float
@@ -94,6 +102,9 @@ class FrameResult:
     stars_identified: int = 0
     stars_misidentified: int = 0
     smear_px: float = 0.0
+    directions_S: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    references_I: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    vector_sigma_rad: float = 0.0
 
     @classmethod
     def not_taken(cls, time_s: float) -> FrameResult:
@@ -390,8 +401,19 @@ class SkyTrackerModel:
             return FrameResult(
                 t, False, rot.quat_identity(), _INVALID_COVARIANCE, mode, REASON_CODE[ident.reason], **counts
             )
-        source = index[centroids.star_index[order][ident.centroid_index]]
+        used = order[ident.centroid_index]
+        source = index[centroids.star_index[used]]
         wrong = int(np.count_nonzero(self.render_catalog.hip[source] != self._identified_hip[ident.catalog_index]))
+        directions_S = self.camera.unproject(centroids.uv_px[used])
+        # half the trace of each direction's covariance pinv(J) C pinv(J)^T (J: the 2x3 projection
+        # Jacobian, full row rank, pinv(J) = J^T (J J^T)^-1): trace(C (J J^T)^-1), in closed form
+        J = self.camera.projection_jacobian(directions_S)
+        G = np.einsum("nik,njk->nij", J, J)
+        C = centroids.covariance_px2[used]
+        trace = (C[:, 0, 0] * G[:, 1, 1] - 2.0 * C[:, 0, 1] * G[:, 0, 1] + C[:, 1, 1] * G[:, 0, 0]) / (
+            G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
+        )
+        tangent_var = 0.5 * trace
         return FrameResult(
             t,
             True,
@@ -402,6 +424,9 @@ class SkyTrackerModel:
             stars_identified=len(ident.catalog_index),
             stars_misidentified=wrong,
             **counts,
+            directions_S=directions_S,
+            references_I=self._identified_sky.catalog.unit_I[ident.catalog_index],
+            vector_sigma_rad=float(np.sqrt(np.mean(tangent_var))),
         )
 
 

@@ -7,7 +7,10 @@ monitors included — plus each frame's covariance (``covariance_S``) and what t
 (``frame_status``, logged). An estimator uses either each frame's covariance
 (``filter_covariance: per_frame``) or the tracker's nominal covariance (``nominal``: the mean
 covariance of 200 frames at random attitudes turning at ``nominal_rate_deg_per_s``, what a
-datasheet states; also what a star-tracker average and a sensor monitor assume).
+datasheet states; also what a star-tracker average and a sensor monitor assume). With
+``mode: vectors`` its output is the frame's identified stars as
+:class:`~drake_att.contract.VectorObservations` (directions, catalogue references, the frame's RMS
+sigma) instead, for the vector-observation estimators.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 from drake_att.scenarios import config as cfg
 from drake_att.scenarios.registry import SensorOutput, register_sensor
 from drake_att.sensors.star_tracker_plugin import (
+    MODES,
     ExclusionConfig,
     PaperS3Eq7Mounting,
     RpyMounting,
@@ -148,6 +152,10 @@ class SkyStarTrackerConfig:
     """A star tracker whose frames are rendered from the Hipparcos catalogue, centroided,
     identified and solved (boresight = sensor +z; ``mounting`` as ``!StarTrackerConfig``'s).
 
+    ``mode``: what estimators take, ``quaternion`` (the frame's attitude and covariance) or
+    ``vectors`` (its identified stars' directions, catalogue references and RMS sigma:
+    :class:`~drake_att.contract.VectorObservations`, for the vector-observation estimators).
+
     ``epoch_jyear``: the sky's epoch (proper motion; Julian year; null: the orbit's epoch, or
     2026.0 without one). ``filter_covariance``: what estimators use, ``per_frame`` (each frame's
     own covariance) or ``nominal`` (module docstring), computed from frames turning at
@@ -159,6 +167,7 @@ class SkyStarTrackerConfig:
 
     name: str = "st1"
     period_s: float = 0.1
+    mode: str = "quaternion"
     mounting: Union[RpyMounting, PaperS3Eq7Mounting] = field(default_factory=RpyMounting)
     camera: SkyCameraConfig = field(default_factory=SkyCameraConfig)
     detector: SkyDetectorConfig = field(default_factory=SkyDetectorConfig)
@@ -343,6 +352,8 @@ def validate_sky_star_tracker(path: str, c: SkyStarTrackerConfig, checks) -> Non
     else:
         cfg.check_vector(f"{path}.mounting.rpy_deg", c.mounting.rpy_deg, 3)
     validate_availability(path, c)
+    if c.mode not in MODES:
+        cfg.fail(f"{path}.mode", c.mode, f"allowed: {list(MODES)}")
     if c.filter_covariance not in FILTER_COVARIANCES:
         cfg.fail(f"{path}.filter_covariance", c.filter_covariance, f"allowed: {list(FILTER_COVARIANCES)}")
     if c.epoch_jyear is not None:
@@ -378,6 +389,8 @@ def validate_sky_star_tracker(path: str, c: SkyStarTrackerConfig, checks) -> Non
 
 
 def sky_star_tracker_output(c: SkyStarTrackerConfig, sensor_configs) -> SensorOutput:
+    if c.mode == "vectors":
+        return SensorOutput("vectors", "vector_observations", c.period_s)
     return SensorOutput("quaternion", "star_tracker_measurement", c.period_s)
 
 

@@ -18,6 +18,9 @@ Output ports:
     covariance_S (9): the frame's attitude covariance (row-major 3x3, rad^2, sensor frame; the
         identity times 1 rad^2 for an invalid frame).
     frame_status (:data:`~drake_att.sky_tracker.FRAME_STATUS_NAMES`): what the frame saw and did.
+    vector_observations (abstract :class:`~drake_att.contract.VectorObservations`): the same frame
+        as its identified stars' measured directions in S and catalogue directions in I, with the
+        frame's RMS tangent sigma (no stars, invalid, when the frame is).
     exclusion (2) (trackers with cones): ``[t_frame, causes]`` (bit flags, :mod:`drake_att.exclusion`).
 Discrete state: group 0 the seed words (4, read at initialization); group 1 the tracking memory
     (:class:`~drake_att.sky_tracker.TrackingMemory`, written by the periodic event).
@@ -33,7 +36,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
-from drake_att.contract import QUATERNION_MEASUREMENT_SIZE
+from drake_att.contract import QUATERNION_MEASUREMENT_SIZE, VectorObservations, empty_vector_observations
 from drake_att.exclusion import ExclusionCones, exclusion_causes, stray_light_factor
 from drake_att.sky_tracker import FRAME_STATUS_NAMES, FrameResult, SkyTrackerModel, TrackingMemory
 from drake_att.systems.randomness import SEED_WORDS, counter_random, declare_seed_port, read_seed_words
@@ -103,6 +106,9 @@ class SkyStarTracker(LeafSystem):
         )
         self.DeclareVectorOutputPort("covariance_S", 9, self._calc_covariance, deps)
         self.DeclareVectorOutputPort("frame_status", len(FRAME_STATUS_NAMES), self._calc_status, deps)
+        self.DeclareAbstractOutputPort(
+            "vector_observations", lambda: AbstractValue.Make(empty_vector_observations()), self._calc_vectors, deps
+        )
 
     # -- parameters -----------------------------------------------------------------
     def availability(self, context) -> tuple:
@@ -177,6 +183,12 @@ class SkyStarTracker(LeafSystem):
 
     def _calc_status(self, context, output: BasicVector):
         output.SetFromVector(self._frame(context).status_vector())
+
+    def _calc_vectors(self, context, output):
+        f = self._frame(context)
+        output.set_value(
+            VectorObservations(f.time_s, f.valid, f.directions_S, f.references_I, f.vector_sigma_rad, self.q_BS)
+        )
 
     def _calc_exclusion(self, context, output: BasicVector):
         t_k = self.frame_index(context.get_time()) * self.period_s
