@@ -83,7 +83,8 @@ class FrameResult:
         smear_px: the largest star track length over the exposure (pixels).
         directions_S, references_I: (m, 3) each identified star's measured unit direction in S
             (its centroid unprojected) and its catalogue direction at the epoch in I ((0, 3)
-            when invalid): the frame as vector observations.
+            when invalid, or when the frame was not asked for them): the frame as vector
+            observations.
         vector_sigma_rad: the identified directions' RMS 1-sigma per tangent axis (rad): the
             square root of the mean over the stars of half the trace of each direction's
             covariance (the centroid's, through the inverse projection Jacobian). One number per
@@ -376,10 +377,13 @@ class SkyTrackerModel:
         memory: TrackingMemory,
         rng: np.random.Generator,
         stray_light_e_per_px_per_s: float = 0.0,
+        vectors: bool = False,
     ) -> FrameResult:
         """The frame exposed around ``t`` (s) at the true attitude ``q_IS`` turning at ``w_IS_S``
         (rad/s, in S), tracked from ``memory``, with this frame's noise ``rng`` and stray light
-        added to the detector's background (e-/s per pixel)."""
+        added to the detector's background (e-/s per pixel); a valid frame carries its
+        identified stars as vector observations when ``vectors`` (else none: they cost ~10% of
+        a tracking frame)."""
         R_IS = rot.quat_to_rotmat(q_IS)
         detector = self.detector
         if stray_light_e_per_px_per_s > 0.0:
@@ -404,16 +408,7 @@ class SkyTrackerModel:
         used = order[ident.centroid_index]
         source = index[centroids.star_index[used]]
         wrong = int(np.count_nonzero(self.render_catalog.hip[source] != self._identified_hip[ident.catalog_index]))
-        directions_S = self.camera.unproject(centroids.uv_px[used])
-        # half the trace of each direction's covariance pinv(J) C pinv(J)^T (J: the 2x3 projection
-        # Jacobian, full row rank, pinv(J) = J^T (J J^T)^-1): trace(C (J J^T)^-1), in closed form
-        J = self.camera.projection_jacobian(directions_S)
-        G = np.einsum("nik,njk->nij", J, J)
-        C = centroids.covariance_px2[used]
-        trace = (C[:, 0, 0] * G[:, 1, 1] - 2.0 * C[:, 0, 1] * G[:, 0, 1] + C[:, 1, 1] * G[:, 0, 0]) / (
-            G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
-        )
-        tangent_var = 0.5 * trace
+        vectors = self._vector_observations(centroids, used, ident.catalog_index) if vectors else {}
         return FrameResult(
             t,
             True,
@@ -424,9 +419,24 @@ class SkyTrackerModel:
             stars_identified=len(ident.catalog_index),
             stars_misidentified=wrong,
             **counts,
+            **vectors,
+        )
+
+    def _vector_observations(self, centroids, used, catalog_index) -> dict:
+        """The identified stars as FrameResult's vector fields (its docstring)."""
+        directions_S = self.camera.unproject(centroids.uv_px[used])
+        # half the trace of each direction's covariance pinv(J) C pinv(J)^T (J: the 2x3 projection
+        # Jacobian, full row rank, pinv(J) = J^T (J J^T)^-1): trace(C (J J^T)^-1), in closed form
+        J = self.camera.projection_jacobian(directions_S)
+        G = np.einsum("nik,njk->nij", J, J)
+        C = centroids.covariance_px2[used]
+        trace = (C[:, 0, 0] * G[:, 1, 1] - 2.0 * C[:, 0, 1] * G[:, 0, 1] + C[:, 1, 1] * G[:, 0, 0]) / (
+            G[:, 0, 0] * G[:, 1, 1] - G[:, 0, 1] ** 2
+        )
+        return dict(
             directions_S=directions_S,
-            references_I=self._identified_sky.catalog.unit_I[ident.catalog_index],
-            vector_sigma_rad=float(np.sqrt(np.mean(tangent_var))),
+            references_I=self._identified_sky.catalog.unit_I[catalog_index],
+            vector_sigma_rad=float(np.sqrt(np.mean(0.5 * trace))),
         )
 
 

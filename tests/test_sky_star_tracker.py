@@ -409,7 +409,7 @@ def test_vector_observations_are_the_identified_stars_within_their_sigma():
         q = rot.quat_normalize(rng.standard_normal(4))
         axis = rng.standard_normal(3)
         w = math.radians(0.87) * axis / np.linalg.norm(axis)
-        f = model.frame(0.1, q, w, TrackingMemory(0.0, q, math.nan, q), rng)
+        f = model.frame(0.1, q, w, TrackingMemory(0.0, q, math.nan, q), rng, vectors=True)
         if not f.valid:
             assert f.directions_S.shape == (0, 3) and f.references_I.shape == (0, 3)
             continue
@@ -426,6 +426,15 @@ def test_vector_observations_are_the_identified_stars_within_their_sigma():
         assert 0.5 * ARCSEC < f.vector_sigma_rad < 30 * ARCSEC
     assert frames > 280 and stars > 3000
     assert 0.9 < ratio_sum / stars < 1.1, ratio_sum / stars
+    # without asking, a frame carries no stars, and nothing else changes
+    q = rot.quat_normalize(rng.standard_normal(4))
+    with_vectors = model.frame(
+        0.1, q, np.zeros(3), TrackingMemory(0.0, q, math.nan, q), np.random.default_rng(2), 0.0, True
+    )
+    plain = model.frame(0.1, q, np.zeros(3), TrackingMemory(0.0, q, math.nan, q), np.random.default_rng(2))
+    assert with_vectors.valid and plain.directions_S.shape == (0, 3) and plain.vector_sigma_rad == 0.0
+    np.testing.assert_array_equal(plain.q_IS_meas, with_vectors.q_IS_meas)
+    np.testing.assert_array_equal(plain.covariance_S, with_vectors.covariance_S)
 
 
 def test_a_vectors_mode_tracker_feeds_an_mekf_its_stars():

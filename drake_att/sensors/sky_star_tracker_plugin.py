@@ -436,6 +436,7 @@ def build_sky_star_tracker(ctx, c: SkyStarTrackerConfig):
             [tuple(w) for w in np.reshape(c.outage_windows_s, (-1, 2))],
             exclusion_cones(c),  # type: ignore[arg-type]  # the same exclusion field
             c.stray_light_e_per_px_per_s,
+            vector_observations=c.mode == "vectors",
         )
     )
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))

@@ -18,7 +18,8 @@ Output ports:
     covariance_S (9): the frame's attitude covariance (row-major 3x3, rad^2, sensor frame; the
         identity times 1 rad^2 for an invalid frame).
     frame_status (:data:`~drake_att.sky_tracker.FRAME_STATUS_NAMES`): what the frame saw and did.
-    vector_observations (abstract :class:`~drake_att.contract.VectorObservations`): the same frame
+    vector_observations (abstract :class:`~drake_att.contract.VectorObservations`) (trackers built
+        with ``vector_observations``): the same frame
         as its identified stars' measured directions in S and catalogue directions in I, with the
         frame's RMS tangent sigma (no stars, invalid, when the frame is).
     exclusion (2) (trackers with cones): ``[t_frame, causes]`` (bit flags, :mod:`drake_att.exclusion`).
@@ -58,6 +59,8 @@ class SkyStarTracker(LeafSystem):
         exclusion: Sun / Earth-limb / Moon cones (None: none).
         stray_light_e_per_px_per_s: stray light at a cone's edge (e-/s per pixel), falling off
             outside it (:func:`~drake_att.exclusion.stray_light_factor`); trackers with cones.
+        vector_observations: declare the ``vector_observations`` output (the frames then carry
+            their identified stars).
     """
 
     def __init__(
@@ -70,6 +73,7 @@ class SkyStarTracker(LeafSystem):
         outage_windows_s=(),
         exclusion: ExclusionCones | None = None,
         stray_light_e_per_px_per_s: float = 0.0,
+        vector_observations: bool = False,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
@@ -106,9 +110,11 @@ class SkyStarTracker(LeafSystem):
         )
         self.DeclareVectorOutputPort("covariance_S", 9, self._calc_covariance, deps)
         self.DeclareVectorOutputPort("frame_status", len(FRAME_STATUS_NAMES), self._calc_status, deps)
-        self.DeclareAbstractOutputPort(
-            "vector_observations", lambda: AbstractValue.Make(empty_vector_observations()), self._calc_vectors, deps
-        )
+        self.vector_observations = bool(vector_observations)
+        if self.vector_observations:
+            self.DeclareAbstractOutputPort(
+                "vector_observations", lambda: AbstractValue.Make(empty_vector_observations()), self._calc_vectors, deps
+            )
 
     # -- parameters -----------------------------------------------------------------
     def availability(self, context) -> tuple:
@@ -171,7 +177,9 @@ class SkyStarTracker(LeafSystem):
             return FrameResult.not_taken(t_k)
         memory = TrackingMemory.from_vector(context.get_discrete_state(self._memory_group).value())
         q_IS = rot.quat_multiply(q_IB, self.q_BS)
-        return self.model.frame(t_k, q_IS, self.R_SB @ w_IB_B, memory, rng, self._stray_light(context))
+        return self.model.frame(
+            t_k, q_IS, self.R_SB @ w_IB_B, memory, rng, self._stray_light(context), self.vector_observations
+        )
 
     # -- outputs ----------------------------------------------------------------------
     def _calc_measurement(self, context, output: BasicVector):
