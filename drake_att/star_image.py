@@ -68,8 +68,12 @@ windows that leave the detector are not centroided (``edge``), windows with a fu
 ADC-clipped pixel are flagged ``saturated`` (their covariance is then optimistic). Each window
 holds its own star only (a neighbour's light inside it is not rendered).
 
-Speed (render + centroid, ``benchmarks/bench_star_image.py``): ~0.2–0.3 ms per frame of 5–20
-still stars, ~0.3–0.6 ms at 1 deg/s (5-px smear), mostly numpy's per-call overhead.
+The pixel loops (expected windows, exposure, centroids) are compiled
+(:mod:`drake_att.star_image_kernels`); the noise is drawn here from the frame's generator: one
+uniform per pixel for the Poisson inversion (means below 30), numpy's Poisson sampler for the
+brighter pixels, numpy's normals for the read noise. Speed (render + centroid,
+``benchmarks/bench_star_image.py``): ~0.08–0.15 ms per frame of 5–20 still stars,
+~0.12–0.4 ms at 1 deg/s (5-px smear), mostly the PSF's ``erf`` values and the Poisson draws.
 """
 
 from __future__ import annotations

@@ -46,6 +46,11 @@ def expected_windows_kernel(
     scale = _INV_SQRT2 / sigma
     fu = np.empty((k_steps, w_u))
     fv = np.empty((k_steps, w_v))
+    # per position, the columns / rows where the PSF is not exactly 0 (beyond ~6.8 sigma erf is
+    # exactly +-1): the sum over positions skips only exact zeros
+    u_lo, u_hi = np.empty(k_steps, np.int64), np.empty(k_steps, np.int64)
+    v_lo, v_hi = np.empty(k_steps, np.int64), np.empty(k_steps, np.int64)
+    psf = np.empty((w_v, w_u))
     inv_k = 1.0 / k_steps
     # the K positions' variance is the track's, L^2 / 12 (equal spacing gives (1 - 1/K^2) of it)
     spread = math.sqrt(k_steps * k_steps / (k_steps * k_steps - 1.0)) if k_steps > 1 else 1.0
@@ -58,15 +63,29 @@ def expected_windows_kernel(
             pu = uv[s, 0] + track[s, 0] * t
             pv = uv[s, 1] + track[s, 1] * t
             lower = _erf((u0 - pu) * scale)
+            u_lo[k], u_hi[k] = w_u, 0
             for i in range(w_u):
                 upper = _erf((u0 + i + 1 - pu) * scale)
                 fu[k, i] = 0.5 * (upper - lower)
                 lower = upper
+                if fu[k, i] != 0.0:
+                    u_lo[k] = min(u_lo[k], i)
+                    u_hi[k] = i + 1
             lower = _erf((v0 - pv) * scale)
+            v_lo[k], v_hi[k] = w_v, 0
             for j in range(w_v):
                 upper = _erf((v0 + j + 1 - pv) * scale)
                 fv[k, j] = 0.5 * (upper - lower)
                 lower = upper
+                if fv[k, j] != 0.0:
+                    v_lo[k] = min(v_lo[k], j)
+                    v_hi[k] = j + 1
+        psf[:, :] = 0.0
+        for k in range(k_steps):
+            for j in range(v_lo[k], v_hi[k]):
+                a = fv[k, j]
+                for i in range(u_lo[k], u_hi[k]):
+                    psf[j, i] += a * fu[k, i]
         for j in range(w_v):
             row = v0 + j
             row_on = 0 <= row < height
@@ -77,10 +96,7 @@ def expected_windows_kernel(
                     background[s, j, i] = 0.0
                     on[s, j, i] = False
                     continue
-                psf = 0.0
-                for k in range(k_steps):
-                    psf += fv[k, j] * fu[k, i]
-                star_e[s, j, i] = electrons[s] * (psf * inv_k)
+                star_e[s, j, i] = electrons[s] * (psf[j, i] * inv_k)
                 background[s, j, i] = background_e
                 on[s, j, i] = True
         if n_hot:  # the hot pixels in the window's rows, then its columns
