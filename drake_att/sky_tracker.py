@@ -408,7 +408,7 @@ class SkyTrackerModel:
         used = order[ident.centroid_index]
         source = index[centroids.star_index[used]]
         wrong = int(np.count_nonzero(self.render_catalog.hip[source] != self._identified_hip[ident.catalog_index]))
-        vectors = self._vector_observations(centroids, used, ident.catalog_index) if vectors else {}
+        stars = self._vector_observations(centroids, used, ident.catalog_index) if vectors else {}
         return FrameResult(
             t,
             True,
@@ -419,7 +419,7 @@ class SkyTrackerModel:
             stars_identified=len(ident.catalog_index),
             stars_misidentified=wrong,
             **counts,
-            **vectors,
+            **stars,
         )
 
     def _vector_observations(self, centroids, used, catalog_index) -> dict:
