@@ -216,7 +216,9 @@ def _write_results_into(scenario_diagram, run, metrics: dict, out_dir: str, figu
         f.write(dump_scenario(run.scenario))
     files.append(path)
     path = os.path.join(out_dir, "log.npz")
-    np.savez_compressed(path, **run.to_npz_dict())
+    # stored, not deflated: zlib cost ~20% of a 10 Hz run's process CPU for a 1.7x smaller file
+    # (benchmarks/bench_log_writer.py); np.load reads either
+    np.savez(path, **run.to_npz_dict())
     files.append(path)
     if figures:
         for name in run.metadata["estimators"]:
