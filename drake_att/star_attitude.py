@@ -102,17 +102,28 @@ def centroid_covariances(centroid_cov_px2, n: int, field: str = "centroid_cov_px
 
 
 @jit
+def project_pixel(camera_params, dx, dy, dz):
+    """Pixel ``(u, v)`` of the direction ``(dx, dy, dz)`` in S (``dz > 0``):
+    :meth:`~drake_att.star_camera.PinholeCamera.project`'s formulas, for the compiled kernels.
+    ``camera_params``: ``f_px, c_u, c_v, k1, k2`` (:func:`camera_parameters`)."""
+    xn = dx / dz
+    yn = dy / dz
+    r2 = xn * xn + yn * yn
+    g = 1.0 + camera_params[3] * r2 + camera_params[4] * r2 * r2
+    return camera_params[1] + camera_params[0] * g * xn, camera_params[2] + camera_params[0] * g * yn
+
+
+@jit
 def _project_jacobian_rows(camera_params, dx, dy, dz, out):
     """Pixel ``(u, v)`` of direction ``(dx, dy, dz)`` (``dz > 0``) and the rows ``J_u``, ``J_v`` of
     :meth:`~drake_att.star_camera.PinholeCamera.projection_jacobian` (pixels per radian), into
     ``out`` (8,): ``u, v, J_u (3), J_v (3)``. ``camera_params``: ``f_px, c_u, c_v, k1, k2``."""
-    f, cu, cv, k1, k2 = camera_params[0], camera_params[1], camera_params[2], camera_params[3], camera_params[4]
+    f, k1, k2 = camera_params[0], camera_params[3], camera_params[4]
     xn = dx / dz
     yn = dy / dz
     r2 = xn * xn + yn * yn
     g = 1.0 + k1 * r2 + k2 * r2 * r2
-    out[0] = cu + f * g * xn
-    out[1] = cv + f * g * yn
+    out[0], out[1] = project_pixel(camera_params, dx, dy, dz)
     # d(xn, yn)/d(phi) for d -> d + phi x d
     nx0, nx1, nx2 = -xn * yn, 1.0 + xn * xn, -yn
     ny0, ny1, ny2 = -(1.0 + yn * yn), xn * yn, xn

@@ -50,6 +50,7 @@ from drake_att.star_attitude import (
     _weights,
     camera_parameters,
     centroid_covariances,
+    project_pixel,
 )
 from drake_att.star_camera import PinholeCamera
 from drake_att.validation import check_positive, fail
@@ -212,7 +213,6 @@ def _match(z, centroid_var, pred, spread, m, gate_sigmas, match):
 @jit
 def _star_chi2(camera_params, z, r_I, W, R_IS, out):
     """Each star's ``e_i^T W_i e_i`` at ``R_IS`` into ``out``."""
-    f, cu, cv, k1, k2 = camera_params[0], camera_params[1], camera_params[2], camera_params[3], camera_params[4]
     for i in range(z.shape[0]):
         dx = r_I[i, 0] * R_IS[0, 0] + r_I[i, 1] * R_IS[1, 0] + r_I[i, 2] * R_IS[2, 0]
         dy = r_I[i, 0] * R_IS[0, 1] + r_I[i, 1] * R_IS[1, 1] + r_I[i, 2] * R_IS[2, 1]
@@ -220,11 +220,9 @@ def _star_chi2(camera_params, z, r_I, W, R_IS, out):
         if not dz > 0.0:
             out[i] = np.inf
             continue
-        xn, yn = dx / dz, dy / dz
-        r2 = xn * xn + yn * yn
-        g = 1.0 + k1 * r2 + k2 * r2 * r2
-        eu = z[i, 0] - (cu + f * g * xn)
-        ev = z[i, 1] - (cv + f * g * yn)
+        u, v = project_pixel(camera_params, dx, dy, dz)
+        eu = z[i, 0] - u
+        ev = z[i, 1] - v
         out[i] = W[i, 0] * eu * eu + 2.0 * W[i, 1] * eu * ev + W[i, 2] * ev * ev
 
 

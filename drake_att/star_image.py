@@ -273,13 +273,6 @@ class HotPixelMap:
         """(k, 2) ``(column, row)`` of each hot pixel."""
         return np.column_stack([self.linear_index % self.width_px, self.linear_index // self.width_px])
 
-    def rates_at(self, linear_index: np.ndarray) -> np.ndarray:
-        """Extra dark current (e-/s) at the given linear pixel indices (0 where not hot)."""
-        if len(self.linear_index) == 0:
-            return np.zeros(linear_index.shape)
-        pos = np.minimum(np.searchsorted(self.linear_index, linear_index), len(self.linear_index) - 1)
-        return np.where(self.linear_index[pos] == linear_index, self.rate_e_per_s[pos], 0.0)
-
 
 def no_hot_pixels(camera: PinholeCamera) -> HotPixelMap:
     return HotPixelMap(np.zeros(0, dtype=np.int64), np.zeros(0), camera.width_px, camera.height_px)

@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from drake_att.filters.compiled import jit
+from drake_att.star_attitude import project_pixel
 
 _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 
@@ -29,6 +30,23 @@ def _erf(x):
     if x <= -6.0:
         return -1.0
     return math.erf(x)
+
+
+@jit
+def _pixel_fractions(first_edge, centre, scale, out):
+    """``out[i]``: the fraction of a unit Gaussian at ``centre`` (``scale`` = 1 / (sqrt(2)
+    sigma)) in the pixel ``[first_edge + i, first_edge + i + 1)``; returns the range
+    ``(lo, hi)`` of ``i`` where it is not exactly 0 (``(len, 0)`` when none is)."""
+    lo, hi = len(out), 0
+    lower = _erf((first_edge - centre) * scale)
+    for i in range(len(out)):
+        upper = _erf((first_edge + i + 1 - centre) * scale)
+        out[i] = 0.5 * (upper - lower)
+        lower = upper
+        if out[i] != 0.0:
+            lo = min(lo, i)
+            hi = i + 1
+    return lo, hi
 
 
 @jit
@@ -62,24 +80,8 @@ def expected_windows_kernel(
             t = ((k + 0.5) / k_steps - 0.5) * spread
             pu = uv[s, 0] + track[s, 0] * t
             pv = uv[s, 1] + track[s, 1] * t
-            lower = _erf((u0 - pu) * scale)
-            u_lo[k], u_hi[k] = w_u, 0
-            for i in range(w_u):
-                upper = _erf((u0 + i + 1 - pu) * scale)
-                fu[k, i] = 0.5 * (upper - lower)
-                lower = upper
-                if fu[k, i] != 0.0:
-                    u_lo[k] = min(u_lo[k], i)
-                    u_hi[k] = i + 1
-            lower = _erf((v0 - pv) * scale)
-            v_lo[k], v_hi[k] = w_v, 0
-            for j in range(w_v):
-                upper = _erf((v0 + j + 1 - pv) * scale)
-                fv[k, j] = 0.5 * (upper - lower)
-                lower = upper
-                if fv[k, j] != 0.0:
-                    v_lo[k] = min(v_lo[k], j)
-                    v_hi[k] = j + 1
+            u_lo[k], u_hi[k] = _pixel_fractions(u0, pu, scale, fu[k])
+            v_lo[k], v_hi[k] = _pixel_fractions(v0, pv, scale, fv[k])
         psf[:, :] = 0.0
         for k in range(k_steps):
             for j in range(v_lo[k], v_hi[k]):
@@ -262,17 +264,14 @@ def centroid_kernel(
 @jit
 def _project_rotated(camera_params, R, x, y, z):
     """``(in front, u, v)``: the pixel of the inertial direction ``(x, y, z)`` seen at ``R_IS``
-    (``d_S = R^T d_I``; :meth:`~drake_att.star_camera.PinholeCamera.project`'s formulas)."""
+    (``d_S = R^T d_I``), or ``(False, 0, 0)`` behind the camera."""
     dx = x * R[0, 0] + y * R[1, 0] + z * R[2, 0]
     dy = x * R[0, 1] + y * R[1, 1] + z * R[2, 1]
     dz = x * R[0, 2] + y * R[1, 2] + z * R[2, 2]
     if not dz > 0.0:
         return False, 0.0, 0.0
-    xn = dx / dz
-    yn = dy / dz
-    r2 = xn * xn + yn * yn
-    g = 1.0 + camera_params[3] * r2 + camera_params[4] * r2 * r2
-    return True, camera_params[1] + camera_params[0] * g * xn, camera_params[2] + camera_params[0] * g * yn
+    u, v = project_pixel(camera_params, dx, dy, dz)
+    return True, u, v
 
 
 @jit

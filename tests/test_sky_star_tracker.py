@@ -454,3 +454,20 @@ def test_a_vectors_mode_tracker_feeds_an_mekf_its_stars():
     # first few: the initial attitude error is thousands of the stars' sigmas)
     assert np.all(at_steps[:, 1] == 1)
     assert status[-1, 1] + status[-1, 2] == len(at_steps) and status[-1, 1] >= len(at_steps) - 5
+
+
+def test_the_rate_sweeps_interval_is_students_t_over_the_sequences():
+    import sys
+    from pathlib import Path
+
+    from scipy import stats
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "diagrams"))
+    from sky_rate_sweep import over_sequences
+
+    x = np.array([1.0, 0.9, 0.7, 1.0, 0.6, 0.95, 0.8, 1.0])
+    lo, hi = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=x.std(ddof=1) / math.sqrt(len(x)))
+    assert over_sequences(x) == pytest.approx((lo, min(hi, 1.0)), rel=1e-4)
+    assert over_sequences([1.0, 1.0, 1.0]) == (1.0, 1.0)
+    assert over_sequences([0.0, 0.0, 0.1]) == pytest.approx((0.0, 0.1 / 3 + stats.t.ppf(0.975, 2) * 0.1 / 3), rel=1e-3)
+    assert over_sequences([0.5]) == (0.0, 1.0)  # one sequence: no spread to estimate
