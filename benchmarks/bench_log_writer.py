@@ -53,6 +53,8 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=5000.0)
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
+    if not (args.duration > 0 and args.repeats >= 1):
+        ap.error(f"--duration {args.duration:g}, --repeats {args.repeats}: need > 0 and >= 1")
     sd, _ = bench_peer.build_diagram(args.case, args.duration)
     bench_peer.warm_up_drake(args.case, sd, 2)
     t0 = time.process_time()
