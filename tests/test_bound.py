@@ -394,3 +394,69 @@ def test_a_deterministic_gyro_error_of_either_kind_is_noted_as_outside_the_bound
     gyro = replace(gyro, scale_factor_error_ppm=scale_ppm, misalignment_urad=misalign_urad)
     notes = bd._model_gap_notes("gyro", gyro, [])
     assert any("scale-factor / misalignment" in n for n in notes) == noted, notes
+
+
+# ---------------------------------------------------------------------------------------------
+# Reuse of the recursions across runs with the same inputs
+# ---------------------------------------------------------------------------------------------
+def _bound_window(run):
+    t = run.times("gyro/gyro_measurement")
+    return bd.bound_for_estimator(run, "single", t, 2.0)
+
+
+def test_a_second_run_with_the_same_inputs_reuses_the_recursions_and_gets_the_same_bound(monkeypatch):
+    """The memo is keyed by content: the same truth, grid and tracker validity give the very
+    bound a fresh computation gives (it is not recomputed); any change of them recomputes."""
+    sc, sig = _single_with_tracker_log()
+    monkeypatch.setattr(bd, "_RECURSIONS", {})
+    calls = []
+    real = bd.covariance_recursion
+    monkeypatch.setattr(bd, "covariance_recursion", lambda *a: calls.append(1) or real(*a))
+    sigma1, window1, info1 = _bound_window(_synthetic_run(sc, signals=sig))
+    assert len(calls) == 2  # the bound and the 100x-prior one
+    sigma2, window2, info2 = _bound_window(_synthetic_run(sc, signals=sig))
+    assert len(calls) == 2
+    np.testing.assert_array_equal(sigma1, sigma2)
+    np.testing.assert_array_equal(window1, window2)
+    assert info1 == info2
+    # independently: the recursion written out on the model of the run
+    model = bd.bound_model(_synthetic_run(sc, signals=sig), "single")
+    P = real(model["P0"], model["transitions"], model["noises"], model["measurements"])
+    np.testing.assert_array_equal(sigma1, np.sqrt(np.einsum("kii->ki", P)))
+
+    # one tracker sample flagged invalid: another model, recomputed, a larger variance there
+    ts, x = sig["st1/star_tracker_measurement"]
+    x = x.copy()
+    x[30, 1] = 0.0  # the sample at t = 3 s
+    sigma3, _, info3 = _bound_window(_synthetic_run(sc, signals={"st1/star_tracker_measurement": (ts, x)}))
+    assert len(calls) == 4
+    assert info3["tracker_samples"]["st1"]["samples_used"] == 5
+    assert sigma3[3, 0] > sigma1[3, 0]
+
+    # a different truth (a slower rotation): recomputed
+    run = _synthetic_run(sc, signals=sig)
+    run.signals["truth/q_IB"] = (
+        run.signals["truth/q_IB"][0],
+        np.array([rot.quat_propagate(_Q0, 0.5 * _W_TRUE, tk) for tk in run.signals["truth/q_IB"][0]]),
+    )
+    _bound_window(run)
+    assert len(calls) == 6
+
+
+def test_the_recursion_memo_keeps_two_entries_and_digests_dtype_and_shape():
+    sc, sig = _single_with_tracker_log()
+    inputs = bd._model_inputs(_synthetic_run(sc, signals=sig), "single")
+    d = bd._inputs_digest(inputs)
+    other = dict(inputs, grid=inputs["grid"].astype(np.float32).astype(np.float64) + 0.0)
+    assert bd._inputs_digest(other) == d  # the same values, the same digest
+    other = dict(inputs, q_true=inputs["q_true"].reshape(-1))  # same bytes, another shape
+    assert bd._inputs_digest(other) != d
+    saved = dict(bd._RECURSIONS)
+    try:
+        bd._RECURSIONS.clear()
+        for k in range(4):
+            bd._bound_and_loose(dict(inputs, P0=inputs["P0"] * (1 + k)))
+        assert len(bd._RECURSIONS) == bd._RECURSIONS_KEPT == 2
+    finally:
+        bd._RECURSIONS.clear()
+        bd._RECURSIONS.update(saved)

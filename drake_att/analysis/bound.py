@@ -83,6 +83,7 @@ One concern at full length: reading a scenario into the linear model and the bou
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -381,18 +382,24 @@ def run_bound(run, name: str, prior_scale: float = 1.0) -> BoundResult:
 def bound_model(run, name: str) -> dict:
     """The linear model of :func:`run_bound`: ``{"t", "P0", "transitions", "noises",
     "measurements", "info"}`` (the arguments of :func:`covariance_recursion`)."""
+    return _linear_model(_model_inputs(run, name))
+
+
+def _model_inputs(run, name: str) -> dict:
+    """What the bound of ``name`` on ``run`` is a function of, read from the log (cheap, no
+    per-step loop): the sources, the gyro's grid, the true attitudes on it, each raw tracker's
+    grid instants with a usable sample and its sample counts, the prior and the info."""
     src = bound_sources(run.scenario, name)
     gyro = src["gyro"]
     grid = _gyro_grid(run, gyro)
     q_true = _true_attitudes(run, grid)
-    transitions, noises = _propagation(gyro, grid, q_true)
-    measurements = [[] for _ in range(len(grid))]
-    counts = {}
+    used, counts = [], {}
     for st in src["trackers"]:
         if st.mode == "quaternion":
-            counts[st.name] = _quaternion_tracker_measurements(run, st, grid, measurements)
+            ks, counts[st.name] = _quaternion_tracker_samples(run, st, grid)
         else:
-            counts[st.name] = _vector_tracker_measurements(st, grid, q_true, measurements)
+            ks, counts[st.name] = _vector_tracker_samples(st, grid)
+        used.append((st, ks))
     P0, prior_from = prior_covariance(src)
     info = {
         "gyro": gyro.name,
@@ -404,14 +411,69 @@ def bound_model(run, name: str) -> dict:
         "tracker_samples": counts,
         "notes": list(src["notes"]),
     }
+    return {"gyro": gyro, "grid": grid, "q_true": q_true, "used": used, "P0": P0, "info": info}
+
+
+def _linear_model(inputs: dict) -> dict:
+    """:func:`bound_model` from :func:`_model_inputs`: the per-interval transitions and noises
+    and the per-instant measurement rows, in the trackers' order."""
+    grid, q_true = inputs["grid"], inputs["q_true"]
+    transitions, noises = _propagation(inputs["gyro"], grid, q_true)
+    measurements: list[list] = [[] for _ in range(len(grid))]
+    for st, ks in inputs["used"]:
+        if st.mode == "quaternion":
+            _quaternion_tracker_rows(st, ks, measurements)
+        else:
+            _vector_tracker_rows(st, ks, q_true, measurements)
     return {
         "t": grid,
-        "P0": P0,
+        "P0": inputs["P0"],
         "transitions": transitions,
         "noises": noises,
         "measurements": measurements,
-        "info": info,
+        "info": inputs["info"],
     }
+
+
+# Recursions already computed in this process, by the digest of their inputs: the runs of a
+# campaign whose truth and sensor validity do not depend on the seed (a fixed trajectory, noise
+# varying) share one bound. A pure function's cache: a hit returns the very arrays a fresh
+# computation gives. Small (two entries of up to 2 x K x 36 floats each).
+_RECURSIONS: dict = {}
+_RECURSIONS_KEPT = 2
+
+
+def _inputs_digest(inputs: dict) -> bytes:
+    """A digest of everything :func:`_linear_model` and the prior read (configs by ``repr``,
+    arrays by their bytes, shape and dtype)."""
+    h = hashlib.blake2b(digest_size=32)
+    for part in [repr(inputs["gyro"]), inputs["P0"], inputs["grid"], inputs["q_true"]] + [
+        x for st, ks in inputs["used"] for x in (repr(st), ks)
+    ]:
+        if isinstance(part, str):
+            h.update(part.encode())
+        else:
+            a = np.ascontiguousarray(part)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+        h.update(b"|")
+    return h.digest()
+
+
+def _bound_and_loose(inputs: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The recursion's covariances with the prior ``P0`` and with ``PRIOR_SENSITIVITY_FACTOR P0``,
+    each (K, 6, 6); reused from :data:`_RECURSIONS` when the inputs were seen."""
+    key = _inputs_digest(inputs)
+    hit = _RECURSIONS.get(key)
+    if hit is not None:
+        return hit
+    model = _linear_model(inputs)
+    args = (model["transitions"], model["noises"], model["measurements"])
+    out = (covariance_recursion(model["P0"], *args), covariance_recursion(PRIOR_SENSITIVITY_FACTOR * model["P0"], *args))
+    while len(_RECURSIONS) >= _RECURSIONS_KEPT:
+        _RECURSIONS.pop(next(iter(_RECURSIONS)))
+    _RECURSIONS[key] = out
+    return out
 
 
 def _gyro_grid(run, gyro) -> np.ndarray:
@@ -468,10 +530,9 @@ def _sample_counts(used: int, between, invalid: int) -> dict:
     return {"samples_used": used, "samples_between_gyro_samples": int(between), "samples_invalid": invalid}
 
 
-def _quaternion_tracker_measurements(run, st, grid, measurements) -> dict:
-    """Appends the ``(H, R)`` of each valid sample of quaternion tracker ``st`` at a grid instant
-    to ``measurements``; returns its sample counts. NoBound when its samples are not logged."""
-    R_SB = rot.quat_to_rotmat(_mounting(st)).T
+def _quaternion_tracker_samples(run, st, grid) -> tuple[np.ndarray, dict]:
+    """The grid indices at which quaternion tracker ``st`` has a valid sample, and its sample
+    counts. NoBound when its samples are not logged."""
     key = f"{st.name}/star_tracker_measurement"
     if key not in run.signals:
         raise NoBound(f"{st.name}'s samples ({key}) are not logged")
@@ -481,30 +542,28 @@ def _quaternion_tracker_measurements(run, st, grid, measurements) -> dict:
     # one row per sample (the log may repeat a sample)
     first = np.r_[True, np.diff(t_meas) > TIME_TOLERANCE_S]
     t_s, ok_s = t_meas[first], ok[first]
+    on_grid = _sample_index(t_s, grid)
+    ks = np.array([k for k in np.flatnonzero(on_grid >= 0) if ok_s[on_grid[k]]], dtype=np.int64)
+    n_valid = int(np.sum(ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
+    n_invalid = int(np.sum(~ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
+    return ks, _sample_counts(len(ks), n_valid - len(ks), n_invalid)
+
+
+def _quaternion_tracker_rows(st, ks, measurements) -> None:
+    """Appends quaternion tracker ``st``'s ``(H, R)`` to ``measurements[k]`` for each ``k`` in ``ks``."""
+    R_SB = rot.quat_to_rotmat(_mounting(st)).T
     H = np.hstack([R_SB, np.zeros((3, 3))])
     sig = (
         np.array([st.sigma_cross_boresight_arcsec, st.sigma_cross_boresight_arcsec, st.sigma_boresight_arcsec]) * ARCSEC
     )
     R = np.diag(sig**2)
-    on_grid = _sample_index(t_s, grid)
-    n_used = 0
-    for k in np.flatnonzero(on_grid >= 0):
-        if ok_s[on_grid[k]]:
-            measurements[k].append((H, R))
-            n_used += 1
-    n_valid = int(np.sum(ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
-    n_invalid = int(np.sum(~ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
-    return _sample_counts(n_used, n_valid - n_used, n_invalid)
+    for k in ks:
+        measurements[k].append((H, R))
 
 
-def _vector_tracker_measurements(st, grid, q_true, measurements) -> dict:
-    """Appends the ``(H, R)`` of each direction of vector tracker ``st`` at each grid instant it
-    samples outside its outage windows to ``measurements`` (its samples are not logged: they
-    follow from its period, at the true attitude); returns its sample counts."""
-    R_SB = rot.quat_to_rotmat(_mounting(st)).T
-    refs = np.asarray(st.references_I, dtype=float)
-    refs = refs / np.linalg.norm(refs, axis=1, keepdims=True)
-    sigma = st.sigma_vector_urad * 1e-6
+def _vector_tracker_samples(st, grid) -> tuple[np.ndarray, dict]:
+    """The grid indices at which vector tracker ``st`` samples outside its outage windows (its
+    samples are not logged: they follow from its period), and its sample counts."""
     windows = np.reshape(st.outage_windows_s, (-1, 2))
     n_samples = int(np.floor(grid[-1] / st.period_s + 1e-9)) + 1
     t_s = np.arange(n_samples) * st.period_s
@@ -512,18 +571,24 @@ def _vector_tracker_measurements(st, grid, q_true, measurements) -> dict:
     for a, b in windows:
         out |= (a <= t_s) & (t_s < b)
     on_grid = _sample_index(t_s, grid)
-    n_used = 0
-    for k in np.flatnonzero(on_grid >= 0):
-        if out[on_grid[k]]:
-            continue
+    ks = np.array([k for k in np.flatnonzero(on_grid >= 0) if not out[on_grid[k]]], dtype=np.int64)
+    n_invalid = int(np.sum(out))
+    return ks, _sample_counts(len(ks), n_samples - n_invalid - len(ks), n_invalid)
+
+
+def _vector_tracker_rows(st, ks, q_true, measurements) -> None:
+    """Appends the ``(H, R)`` of each of vector tracker ``st``'s directions, at the TRUE attitude,
+    to ``measurements[k]`` for each ``k`` in ``ks``."""
+    R_SB = rot.quat_to_rotmat(_mounting(st)).T
+    refs = np.asarray(st.references_I, dtype=float)
+    refs = refs / np.linalg.norm(refs, axis=1, keepdims=True)
+    sigma = st.sigma_vector_urad * 1e-6
+    for k in ks:
         R_BI = rot.quat_to_rotmat(q_true[k]).T
         for r in refs:
             b_B = R_BI @ r
             H = np.hstack([R_SB @ rot.skew(b_B), np.zeros((3, 3))])
             measurements[k].append((H, sigma**2 * np.eye(3)))
-        n_used += 1
-    n_invalid = int(np.sum(out))
-    return _sample_counts(n_used, n_samples - n_invalid - n_used, n_invalid)
 
 
 def _mounting(st):
@@ -541,17 +606,17 @@ def bound_for_estimator(run, name: str, t_est, score_from_s: float, cache: dict 
     (None when defined), ``prior_sensitivity`` (max relative change of the window variances
     with a 100x prior covariance) and :attr:`BoundResult.info`. ``cache`` (a dict, one per
     run) shares the computation between estimators that read the same sensors with the same
-    prior covariance (the "prior" sentence in ``info`` names the first of them)."""
+    prior covariance (the "prior" sentence in ``info`` names the first of them). Across runs,
+    the recursions are reused when their inputs are the same bytes (:data:`_RECURSIONS`)."""
     try:
         src = bound_sources(run.scenario, name)
         key = (src["gyro"].name, tuple(t.name for t in src["trackers"]), prior_covariance(src)[0].tobytes())
         if cache is not None and key in cache:
             result, loose = cache[key]
         else:
-            model = bound_model(run, name)
-            args = (model["transitions"], model["noises"], model["measurements"])
-            result = BoundResult(model["t"], covariance_recursion(model["P0"], *args), model["info"])
-            loose = BoundResult(model["t"], covariance_recursion(PRIOR_SENSITIVITY_FACTOR * model["P0"], *args))
+            inputs = _model_inputs(run, name)
+            P, P_loose = _bound_and_loose(inputs)
+            result, loose = BoundResult(inputs["grid"], P, inputs["info"]), BoundResult(inputs["grid"], P_loose)
             if cache is not None:
                 cache[key] = (result, loose)
     except NoBound as e:

@@ -181,6 +181,7 @@ def per_run_record(run) -> dict:
     scenario = run.scenario
     scoring = scenario.scoring
     names = list(run.metadata["estimators"])
+    errors = {name: met.estimator_errors(run, name) for name in names}
     rec = {
         "schema": np.array(RECORD_SCHEMA),
         "scenario": _str(scenario.name),
@@ -189,12 +190,12 @@ def per_run_record(run) -> dict:
         "score_from_s": np.array(float(scoring.score_from_s)),
         "convergence_threshold_deg": np.array(float(scoring.convergence_threshold_deg)),
         "estimators": np.array(names, dtype=str),
-        "metrics_json": _str(json.dumps(strict_json(met.compute_metrics(run)), allow_nan=False)),
+        "metrics_json": _str(json.dumps(strict_json(met.compute_metrics(run, errors)), allow_nan=False)),
     }
     cache = {}
     for name in names:
         p = f"{name}__"
-        e = met.estimator_errors(run, name)
+        e = errors[name]
         t = e["t"]
         m = t >= scoring.score_from_s - _TOL
         rec[p + "t"] = t.astype(np.float64)

@@ -169,9 +169,11 @@ def score_estimator(errors: dict, scoring: cfg.ScoringConfig, second_kind: str) 
     return out
 
 
-def compute_metrics(run) -> dict:
+def compute_metrics(run, errors: dict | None = None) -> dict:
     """Metrics of every estimator of a run (in its metadata's order), scored by
-    ``run.scenario.scoring``; needs only the :class:`RunLog` (no Drake systems)."""
+    ``run.scenario.scoring``; needs only the :class:`RunLog` (no Drake systems).
+    ``errors``: estimator name -> its :func:`estimator_errors` of this run, where the caller
+    has them already (the others are computed)."""
     scenario = run.scenario
     result = {
         "scenario": scenario.name,
@@ -181,7 +183,8 @@ def compute_metrics(run) -> dict:
         "estimators": {},
     }
     for name, spec in _metadata(run)["estimators"].items():
-        result["estimators"][name] = score_estimator(estimator_errors(run, name), scenario.scoring, spec["second_kind"])
+        e = errors[name] if errors and name in errors else estimator_errors(run, name)
+        result["estimators"][name] = score_estimator(e, scenario.scoring, spec["second_kind"])
     sensors = tracker_availability(run)
     if sensors:
         result["sensors"] = sensors
