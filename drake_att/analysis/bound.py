@@ -469,7 +469,10 @@ def _bound_and_loose(inputs: dict) -> tuple[np.ndarray, np.ndarray]:
         return hit
     model = _linear_model(inputs)
     args = (model["transitions"], model["noises"], model["measurements"])
-    out = (covariance_recursion(model["P0"], *args), covariance_recursion(PRIOR_SENSITIVITY_FACTOR * model["P0"], *args))
+    out = (
+        covariance_recursion(model["P0"], *args),
+        covariance_recursion(PRIOR_SENSITIVITY_FACTOR * model["P0"], *args),
+    )
     while len(_RECURSIONS) >= _RECURSIONS_KEPT:
         _RECURSIONS.pop(next(iter(_RECURSIONS)))
     _RECURSIONS[key] = out
