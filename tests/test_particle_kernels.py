@@ -17,6 +17,7 @@ A first run on a machine compiles the kernels (numba, cached on disk; benchmarks
 
 from __future__ import annotations
 
+import math
 import os
 import subprocess
 import sys
@@ -446,7 +447,7 @@ print(particle_kernels.CACHING)
 
 @pytest.mark.slow
 @pytest.mark.parametrize("locator, caching", [("UserWideCacheLocator", True), ("IPythonCacheLocator", False)])
-def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, locator, caching):
+def test_kernels_work_without_warnings_wherever_numba_can_or_cannot_cache(tmp_path, locator, caching):
     """A read-only package directory (site-packages): numba caches in the user-wide directory
     (here ``$XDG_CACHE_HOME/numba``); no writable location at all (numba raises at decoration):
     the kernels compile in every process. Both without a warning (run with warnings as errors).
@@ -458,7 +459,14 @@ def test_kernels_work_silently_wherever_numba_can_or_cannot_cache(tmp_path, loca
         [sys.executable, "-c", textwrap.dedent(_CHILD)], check=False, env=env, capture_output=True, text=True
     )
     assert out.returncode == 0, out.stderr[-3000:]
-    assert out.stdout.split() == [str(caching)] and out.stderr == "", (out.stdout, out.stderr[-2000:])
+    # stderr: only the one-line notice of the first compilation (no warning)
+    from drake_att.filters.compiled import COMPILE_MESSAGE
+
+    notice = COMPILE_MESSAGE if caching else COMPILE_MESSAGE.split(" (")[0] + " (no writable cache: every run)"
+    assert out.stdout.split() == [str(caching)] and out.stderr.splitlines() == [notice], (
+        out.stdout,
+        out.stderr[-2000:],
+    )
     cached = [f for _, _, fs in os.walk(tmp_path) for f in fs if f.endswith((".nbi", ".nbc"))]
     assert bool(cached) == caching, cached
 
@@ -491,3 +499,27 @@ def test_a_kernel_whose_cache_cannot_be_written_still_runs(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.split() == ["2.0"]
     assert not [f for f in os.listdir(tmp_path / "__pycache__") if f.endswith(".nbc")]  # nothing half-written kept
+
+
+_NOTICE_CHILD = """
+from drake_att.filters import compiled
+print(compiled.rotvec_to_quat(0.1, 0.2, 0.3)[0])
+"""
+
+
+@pytest.mark.slow
+def test_the_first_compilation_is_announced_once_and_a_cache_load_is_silent(tmp_path):
+    """A process that compiles prints the notice once (however many kernels it compiles); a
+    later process that loads the same kernels from the cache prints nothing."""
+    from drake_att.filters.compiled import COMPILE_MESSAGE
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    two_kernels = _NOTICE_CHILD + "print(compiled.quat_multiply(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0)[1])\n"
+    runs = [
+        subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True)
+        for code in (two_kernels, _NOTICE_CHILD)
+    ]
+    assert [r.returncode for r in runs] == [0, 0], runs[0].stderr[-2000:]
+    assert runs[0].stdout.split() == [str(math.cos(0.5 * math.sqrt(0.14))), "1.0"]
+    assert runs[0].stderr.splitlines() == [COMPILE_MESSAGE]
+    assert runs[1].stderr == ""

@@ -10,6 +10,10 @@ warning and no error: :data:`CACHING` says which. A cache file that cannot be wr
 kernel is first compiled (a full disk, a quota, a file-size limit) is skipped: the kernel runs
 compiled in that process and the run goes on. No ``fastmath``: IEEE semantics, as numpy.
 
+Compiling is not silent: the first compilation in a process prints one line to stderr
+(:data:`COMPILE_MESSAGE`; numba reports compilations, not cache loads), so a first run after
+install or after a kernel changed says why it is slow.
+
 The helpers take and return floats (tuples for quaternions, ``w`` first) and repeat
 :mod:`drake_att.rotations`' scalar formulas exactly, so kernels built on them agree with the
 numpy code to round-off.
@@ -18,12 +22,39 @@ numpy code to round-off.
 from __future__ import annotations
 
 import math
+import sys
 
 import numba
+from numba.core import event as _numba_event
 
 from drake_att.rotations import _SMALL_ANGLE  # series of sin(a/2)/a below it, as rotvec_to_quat
 
 CACHING = True
+COMPILE_MESSAGE = (
+    "drake_att: compiling numba kernels for their first use (seconds to a minute, once: "
+    "later runs load them from numba's on-disk cache)"
+)
+
+
+class _FirstCompileNotice(_numba_event.Listener):
+    """Prints :data:`COMPILE_MESSAGE` at the first numba compilation of the process."""
+
+    said = False
+
+    def on_start(self, ev) -> None:
+        if not _FirstCompileNotice.said:
+            _FirstCompileNotice.said = True
+            print(
+                COMPILE_MESSAGE if CACHING else COMPILE_MESSAGE.split(" (")[0] + " (no writable cache: every run)",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    def on_end(self, ev) -> None:
+        pass
+
+
+_numba_event.register("numba:compile", _FirstCompileNotice())
 
 
 def jit(func=None, **options):
