@@ -419,6 +419,12 @@ def test_a_second_run_with_the_same_inputs_reuses_the_recursions_and_gets_the_sa
     np.testing.assert_array_equal(sigma1, sigma2)
     np.testing.assert_array_equal(window1, window2)
     assert info1 == info2
+    assert info1["reason"] is None and info1["prior"] == "single's initial sigmas"
+    assert info1["tracker_samples"]["st1"] == {
+        "samples_used": 6,
+        "samples_between_gyro_samples": 45,
+        "samples_invalid": 0,
+    }
     # independently: the recursion written out on the model of the run
     model = bd.bound_model(_synthetic_run(sc, signals=sig), "single")
     P = real(model["P0"], model["transitions"], model["noises"], model["measurements"])
@@ -460,3 +466,16 @@ def test_the_recursion_memo_keeps_two_entries_and_digests_dtype_and_shape():
     finally:
         bd._RECURSIONS.clear()
         bd._RECURSIONS.update(saved)
+
+
+def test_a_run_without_the_gyros_log_gets_no_bound_and_the_reason():
+    sc, sig = _single_with_tracker_log()
+    run = _synthetic_run(sc, signals=sig)
+    del run.signals["gyro/gyro_measurement"]
+    sigma, window, info = _bound_window_at(run, np.arange(6.0))
+    assert sigma is None and window is None
+    assert info == {"reason": "the gyro's samples (gyro/gyro_measurement) are not logged"}
+
+
+def _bound_window_at(run, t):
+    return bd.bound_for_estimator(run, "single", t, 2.0)
