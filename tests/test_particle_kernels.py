@@ -523,3 +523,12 @@ def test_the_first_compilation_is_announced_once_and_a_cache_load_is_silent(tmp_
     assert runs[0].stdout.split() == [str(math.cos(0.5 * math.sqrt(0.14))), "1.0"]
     assert runs[0].stderr.splitlines() == [COMPILE_MESSAGE]
     assert runs[1].stderr == ""
+    # another package's numba function compiles silently
+    other = subprocess.run(
+        [sys.executable, "-c", "import drake_att.filters.compiled, numba\nprint(numba.njit(lambda x: x + 1)(1))"],
+        check=False,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert other.returncode == 0 and other.stdout.split() == ["2"] and other.stderr == "", other.stderr[-2000:]

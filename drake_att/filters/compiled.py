@@ -37,12 +37,15 @@ COMPILE_MESSAGE = (
 
 
 class _FirstCompileNotice(_numba_event.Listener):
-    """Prints :data:`COMPILE_MESSAGE` at the first numba compilation of the process."""
+    """Prints :data:`COMPILE_MESSAGE` at the process's first numba compilation of a drake_att
+    function (another package's numba functions are not ours to announce)."""
 
     said = False
 
     def on_start(self, ev) -> None:
-        if not _FirstCompileNotice.said:
+        dispatcher = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+        module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
+        if not _FirstCompileNotice.said and module.split(".")[0] == "drake_att":
             _FirstCompileNotice.said = True
             print(
                 COMPILE_MESSAGE if CACHING else COMPILE_MESSAGE.split(" (")[0] + " (no writable cache: every run)",
