@@ -546,7 +546,8 @@ def _quaternion_tracker_samples(run, st, grid) -> tuple[np.ndarray, dict]:
     first = np.r_[True, np.diff(t_meas) > TIME_TOLERANCE_S]
     t_s, ok_s = t_meas[first], ok[first]
     on_grid = _sample_index(t_s, grid)
-    ks = np.array([k for k in np.flatnonzero(on_grid >= 0) if ok_s[on_grid[k]]], dtype=np.int64)
+    ks = np.flatnonzero(on_grid >= 0)
+    ks = ks[ok_s[on_grid[ks]]]
     n_valid = int(np.sum(ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
     n_invalid = int(np.sum(~ok_s & (t_s <= grid[-1] + TIME_TOLERANCE_S)))
     return ks, _sample_counts(len(ks), n_valid - len(ks), n_invalid)
@@ -574,7 +575,8 @@ def _vector_tracker_samples(st, grid) -> tuple[np.ndarray, dict]:
     for a, b in windows:
         out |= (a <= t_s) & (t_s < b)
     on_grid = _sample_index(t_s, grid)
-    ks = np.array([k for k in np.flatnonzero(on_grid >= 0) if not out[on_grid[k]]], dtype=np.int64)
+    ks = np.flatnonzero(on_grid >= 0)
+    ks = ks[~out[on_grid[ks]]]
     n_invalid = int(np.sum(out))
     return ks, _sample_counts(len(ks), n_samples - n_invalid - len(ks), n_invalid)
 
