@@ -276,3 +276,21 @@ def test_constructed_record_round_trip_without_pickle():
     back = ens.record_from_npz(np.load(buf, allow_pickle=False))
     assert str(back["f__second_kind"]) == "gyro_bias" and back["f__inputs"].shape == (0,)
     assert ens.summarize([back], _Scenario())["estimators"]["f"]["attitude_rmse_ci95_deg"] == [None, None, None]
+
+
+def test_a_records_metrics_are_each_estimators_own_with_several_estimators():
+    """The record computes each estimator's errors once and hands them to the metrics: on the
+    five-estimator default scenario (60 s) every estimator's metrics equal compute_metrics' own,
+    and the estimators differ (a mix-up between them would show)."""
+    from drake_att.analysis.metrics import compute_metrics
+    from drake_att.analysis.report import strict_json
+    from drake_att.scenarios.builder import diagram_for
+    from drake_att.scenarios.library import load
+
+    sd = diagram_for(load("cubesat_dual_star_tracker"))
+    run = sd.simulate(2, overrides=["duration_s=60", "scoring.score_from_s=20"])
+    rec = json.loads(str(ens.per_run_record(run)["metrics_json"]))
+    own = json.loads(json.dumps(strict_json(compute_metrics(run))))
+    assert len(own["estimators"]) == 5 and rec == own
+    rmse = {name: m["attitude_rmse_deg"] for name, m in own["estimators"].items()}
+    assert len({json.dumps(v) for v in rmse.values()}) == 5, rmse
