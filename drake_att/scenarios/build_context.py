@@ -69,6 +69,9 @@ class BuildContext:
         measurement_sources: sensor name -> ``(system, output port)`` that consumers read
             instead of the sensor's own output (set by a fault-injection entry,
             :mod:`drake_att.sensors.faults_plugin`); :meth:`sensor_output` still describes the sensor.
+        realizations: the runs one diagram carries (a batch on one truth; 1: a single run);
+            the plug-ins that support more pass it to their systems
+            (:data:`drake_att.scenarios.builder.BATCH_SENSORS`).
     """
 
     builder: DiagramBuilder | None
@@ -82,6 +85,7 @@ class BuildContext:
     environment_systems: tuple = ()
     orbit_system: object = None
     magnetic_field_system: object = None
+    realizations: int = 1
 
     def orbit_source(self):
         """The :class:`~drake_att.systems.orbit_source.OrbitSource` of the scenario's orbit (any
@@ -143,7 +147,7 @@ class BuildContext:
         and vector sensors (with ``setup.monitor``: the sensors that monitor watches through its
         outputs, and its verdicts to ``sensor_verdicts``); the random seed port is wired by the
         builder. Returns the system."""
-        est = self._diagram_builder().AddSystem(EstimatorSystem.from_setup(name, setup))
+        est = self._diagram_builder().AddSystem(EstimatorSystem.from_setup(name, setup, self.realizations))
         connect = self.connect_sensor
         if setup.monitor is not None:
             monitor = self.sensors[setup.monitor]

@@ -387,18 +387,59 @@ def initial_rate_B(scenario: cfg.Scenario, q_IB0) -> np.ndarray:
     return w
 
 
+#: Sensor configs whose systems carry several realizations (a batch), and the estimator configs.
+BATCH_SENSORS = ("GyroConfig", "StarTrackerConfig")
+BATCH_ESTIMATORS = ("MekfConfig",)
+
+
+def batch_problem(scenario: cfg.Scenario) -> str | None:
+    """Why ``scenario``'s runs cannot share one diagram as a batch (None: they can).
+
+    A batch carries N runs on one truth: the truth must not depend on the seed or on an
+    estimate (no attitude control), and every sensor and estimator must carry N realizations:
+    gyros, quaternion star trackers without exclusion, MEKFs on the compiled step (checked
+    when the batch diagram is built)."""
+    if isinstance(scenario.plant, cfg.RigidBodyConfig) and scenario.plant.attitude_control is not None:
+        return "its attitude control closes the loop on an estimate (each run has its own truth)"
+    for s in scenario.sensors:
+        if type(s).__name__ not in BATCH_SENSORS:
+            return f"sensor {s.name!r} is a {type(s).__name__} (a batch has {_listed(BATCH_SENSORS)} only)"
+        if type(s).__name__ == "StarTrackerConfig" and (s.mode != "quaternion" or s.exclusion is not None):
+            return f"star tracker {s.name!r} is not in quaternion mode without exclusion"
+    for e in scenario.estimators:
+        if type(e).__name__ not in BATCH_ESTIMATORS:
+            return f"estimator {e.name!r} is a {type(e).__name__} (a batch has {_listed(BATCH_ESTIMATORS)} only)"
+        if getattr(e, "monitor", ""):
+            return f"estimator {e.name!r} reads its sensors through a monitor"
+    return None
+
+
 class ScenarioDiagram:
     """A scenario's diagram, built once; :meth:`simulate` runs it for any seed.
+
+    With ``realizations`` N > 1 the diagram is a *batch*: one truth and, for each sensor and
+    estimator, one system carrying N realizations (:func:`batch_problem` says when a scenario
+    allows it); :meth:`simulate_batch` runs N seeds at once and returns the N runs a single
+    diagram would give, bit for bit (each realization reads its seed's noise streams and runs
+    the same per-sample code).
 
     Attributes:
         diagram: the Drake ``Diagram``.
         truth: the plant or prescribed-motion system.
         sensors, estimators: name -> system.
         loggers: ``"<system>/<port>"`` -> ``VectorLogSink``.
+        realizations: the runs one simulation carries (1: a single run).
     """
 
-    def __init__(self, scenario: cfg.Scenario):
+    def __init__(self, scenario: cfg.Scenario, realizations: int = 1):
         cfg.validate(scenario)
+        if not (isinstance(realizations, int) and realizations >= 1):
+            raise ValueError(f"realizations: got {realizations!r}; must be an integer >= 1")
+        if realizations > 1:
+            problem = batch_problem(scenario)
+            if problem:
+                raise ValueError(f"realizations: got {realizations}; {scenario.name!r} cannot run as a batch: {problem}")
+        self.realizations = realizations
         from drake_att.scenarios.preflight import DegenerateScenarioWarning, preflight_warnings
 
         for message in preflight_warnings(scenario):
@@ -426,7 +467,7 @@ class ScenarioDiagram:
             truth = PrescribedAttitudeMotion.from_rpy_breakpoints(p.times_s, np.asarray(p.rpy_deg) * DEG)
             builder.AddSystem(truth)
         self.truth = truth
-        ctx = BuildContext(builder, scenario, truth)
+        ctx = BuildContext(builder, scenario, truth, realizations=realizations)
         if isinstance(p, cfg.RigidBodyConfig):
             torque_B = torque.get_output_port()
             if p.attitude_control is not None:
@@ -440,6 +481,16 @@ class ScenarioDiagram:
             built = plugin_for(e).build(ctx, e)
             ctx.estimators[e.name] = ctx.add_estimator(e.name, built) if isinstance(built, EstimatorSetup) else built
         self.sensors, self.estimators = ctx.sensors, ctx.estimators
+        # A batch's seeds: each sensor's seed words come from a source set per batch (the values
+        # a single run's random source gives that sensor for each seed: _seed_uniforms).
+        self._seed_sources = {}
+        if realizations > 1:
+            for name, system in self.sensors.items():
+                if system.HasInputPort("seed_uniform"):
+                    port = system.GetInputPort("seed_uniform")
+                    source = builder.AddNamedSystem(f"{name}__batch_seeds", ConstantVectorSource(np.zeros(port.size())))
+                    builder.Connect(source.get_output_port(), port)
+                    self._seed_sources[name] = source
         AddRandomInputs(RANDOM_SOURCE_SAMPLING_INTERVAL_S, builder)
 
         periods = [self.estimator_period(e.name) for e in scenario.estimators] + [
@@ -449,6 +500,8 @@ class ScenarioDiagram:
         self.loggers: dict[str, VectorLogSink] = {}
         self._packed_estimators: dict[str, SecondQuantity] = {}
         candidates = self._loggable(scenario, ctx)
+        # Logged once for all realizations (the truth's signals); the others carry one block each.
+        self._shared_keys = {signal.key for signal, system, _ in candidates if system is self.truth}
         plan = logging_policy.plan_logging(
             scenario.logging,
             [signal for signal, _, _ in candidates],
@@ -649,7 +702,9 @@ class ScenarioDiagram:
         """A context randomized by ``seed`` with the initial conditions and parameters of
         :meth:`scenario_for` ``(overrides, estimators)`` (estimators not selected are
         switched off)."""
-        scenario = self.scenario_for(overrides, estimators)
+        return self._prepared_context(self.scenario_for(overrides, estimators), seed, overrides, estimators)
+
+    def _prepared_context(self, scenario: cfg.Scenario, seed: int, overrides, estimators):
         context = self.diagram.CreateDefaultContext()
         # SetRandomContext resets every state and parameter to its default: set initial
         # conditions and parameters after it.
@@ -671,6 +726,17 @@ class ScenarioDiagram:
             truth.SetInitialState(truth_ctx, q0)
         return context
 
+    def _seed_uniforms(self, seed: int) -> dict:
+        """Sensor name -> the uniforms its ``seed_uniform`` port reads in a run of ``seed``
+        (what ``SetRandomContext`` gives it; a batch sets these per realization)."""
+        context = self.diagram.CreateDefaultContext()
+        self.diagram.SetRandomContext(context, RandomGenerator(check_seed("seed", seed)))
+        return {
+            name: np.array(system.GetInputPort("seed_uniform").Eval(system.GetMyContextFromRoot(context)))
+            for name, system in self.sensors.items()
+            if system.HasInputPort("seed_uniform")
+        }
+
     def simulate(self, seed: int | None = None, progress: bool = False, overrides=None, estimators=None) -> RunLog:
         """Run the scenario for ``seed`` (default: the scenario's) and return its logs.
 
@@ -680,9 +746,52 @@ class ScenarioDiagram:
             estimators: names of the estimators to run and log (default: all); the others
                 are switched off for this run.
         """
+        if self.realizations > 1:
+            raise ValueError(f"{self.scenario.name}: a batch diagram runs seeds with simulate_batch()")
         scenario = self.scenario_for(overrides, estimators)
         seed = scenario.seed if seed is None else check_seed("seed", seed)
         context = self.create_context(seed, overrides, estimators)
+        label = f"{scenario.name} seed {seed}"
+        wall, logged = self._advance(context, scenario, progress, label)
+        return self._run_log(scenario, seed, wall, self._signals(logged, scenario))
+
+    def simulate_batch(self, seeds, overrides=None, estimators=None) -> list:
+        """Run ``seeds`` (exactly :attr:`realizations` of them) in one simulation of this batch
+        diagram: per seed, in order, the :class:`RunLog` :meth:`simulate` gives for it (the
+        same arrays; ``wall_time_s`` is the batch's share), or the
+        :class:`NonFiniteRunError` it raises."""
+        seeds = [check_seed("seed", s) for s in seeds]
+        if len(seeds) != self.realizations:
+            raise ValueError(f"seeds: got {len(seeds)}; this batch diagram runs {self.realizations} at once")
+        scenario = self.scenario_for(overrides, estimators)
+        context = self._prepared_context(scenario, seeds[0], overrides, estimators)
+        single = diagram_for(self.scenario)
+        uniforms = [single._seed_uniforms(seed) for seed in seeds]
+        for name, source in self._seed_sources.items():
+            value = np.concatenate([u[name] for u in uniforms])
+            source.get_mutable_source_value(source.GetMyMutableContextFromRoot(context)).set_value(value)
+        label = f"{scenario.name} seeds {seeds[0]}..{seeds[-1]}"
+        wall, logged = self._advance(context, scenario, False, label)
+        out = []
+        N = self.realizations
+        for i, seed in enumerate(seeds):
+            mine = {}
+            for key, (t, x) in logged.items():
+                if key in self._shared_keys:
+                    mine[key] = (t.copy(), x.copy())
+                else:
+                    width = x.shape[1] // N
+                    mine[key] = (t.copy(), x[:, i * width : (i + 1) * width].copy())
+            try:
+                out.append(self._run_log(scenario, seed, wall / N, self._signals(mine, scenario)))
+            except NonFiniteRunError as e:
+                out.append(e)
+        return out
+
+    def _advance(self, context, scenario: cfg.Scenario, progress: bool, label: str) -> tuple:
+        """Simulate ``context`` to the scenario's duration; ``(wall time (s), key -> (t, x))``
+        of every logger (a decimated signal's samples shifted back to when they were taken;
+        estimators switched off in ``scenario`` left out)."""
         simulator = Simulator(self.diagram, context)
         sc = scenario.simulation
         ApplySimulatorConfig(
@@ -700,7 +809,7 @@ class ScenarioDiagram:
         simulator.Initialize()
         duration = scenario.duration_s
         chunks = 20 if progress else 1
-        bar = Progress(duration, f"{scenario.name} seed {seed}", start=start) if progress else None
+        bar = Progress(duration, label, start=start) if progress else None
         try:
             for k in range(1, chunks + 1):
                 simulator.AdvanceTo(duration * k / chunks)
@@ -710,13 +819,12 @@ class ScenarioDiagram:
             if bar:
                 bar.close()
         wall = time.perf_counter() - start
-        signals = {}
+        logged = {}
         dropped = {self.estimators[e.name].get_name() for e in self.scenario.estimators} - {
             self.estimators[e.name].get_name() for e in scenario.estimators
         }
         for key, logger in self.loggers.items():
-            name = key.split("/", 1)[0]
-            if name in dropped:
+            if key.split("/", 1)[0] in dropped:
                 continue
             log = logger.FindLog(context)
             t, x = log.sample_times().copy(), log.data().T.copy()
@@ -726,11 +834,24 @@ class ScenarioDiagram:
                 period = self._held[key]
                 keep = t > 0.5 * period
                 t, x = t[keep] - period, x[keep]
+            logged[key] = (t, x)
+        return wall, logged
+
+    def _signals(self, logged: dict, scenario: cfg.Scenario) -> dict:
+        """The run's signals from its loggers' ``(t, x)``: a packed estimate split into the
+        contract's signals."""
+        signals = {}
+        for key, (t, x) in logged.items():
+            name = key.split("/", 1)[0]
             if key.endswith("/estimate_state") and name in self._packed_estimators:
                 for port, part in self._packed_estimators[name].estimate_ports():
                     signals[f"{name}/{port}"] = (t, x[:, part].copy())
             else:
                 signals[key] = (t, x)
+        return signals
+
+    def _run_log(self, scenario: cfg.Scenario, seed: int, wall: float, signals: dict) -> RunLog:
+        """The checked :class:`RunLog` (NonFiniteRunError if its truth or an estimate is not finite)."""
         truth = self.truth.get_name()
         _check_truth_finite(signals, (f"{truth}/q_IB", f"{truth}/w_IB_B"), scenario.name, seed)
         _check_estimates_finite(

@@ -211,6 +211,7 @@ def build_star_tracker(ctx, c: StarTrackerConfig):
             dropout,
             outages,
             exclusion_cones(c),
+            realizations=ctx.realizations,
         )
     )
     ctx.builder.Connect(ctx.truth.GetOutputPort("q_IB"), st.GetInputPort("q_IB"))

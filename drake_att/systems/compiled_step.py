@@ -358,6 +358,71 @@ def mekf_step(
     _write_state(q, b, P, Phi, Q, A, est, core, lin)
 
 
+@_jit
+def mekf_steps(
+    t,
+    gyro_connected,
+    gyro,
+    connected,
+    meas,
+    q_BS,
+    R_SB,
+    covariance,
+    allowed,
+    n_subsets,
+    threshold,
+    arw,
+    rrw,
+    tolerance,
+    reacquire_after,
+    period,
+    lag,
+    held_q,
+    last_sample,
+    pending,
+    rejections,
+    handling,
+    est,
+    book,
+    core,
+    lin,
+    innov,
+):
+    """:func:`mekf_step` for each of N realizations of one model at time ``t``: ``gyro``
+    (N, 5), ``meas`` (N, n, 6) and the state groups (N, size each) carry one realization per
+    row; ``connected`` is shared. Row ``r`` is exactly ``mekf_step`` on row ``r``."""
+    for r in range(gyro.shape[0]):
+        mekf_step(
+            t,
+            gyro_connected,
+            gyro[r],
+            connected,
+            meas[r],
+            q_BS,
+            R_SB,
+            covariance,
+            allowed,
+            n_subsets,
+            threshold,
+            arw,
+            rrw,
+            tolerance,
+            reacquire_after,
+            period,
+            lag,
+            held_q,
+            last_sample,
+            pending,
+            rejections,
+            handling[r],
+            est[r],
+            book[r],
+            core[r],
+            lin[r],
+            innov[r],
+        )
+
+
 @_jit(inline="always")  # compiled into mekf_step: no call, no reference counts
 def _read_core(core):
     """``(q, b, P)`` of the MEKF's state vector ``[q_IB (4), bias_B (3), P (36)]`` (copies)."""
@@ -412,4 +477,4 @@ def warm_up() -> None:
     )
 
 
-__all__ = ["StepModel", "eligible", "mekf_step", "warm_up"]
+__all__ = ["StepModel", "eligible", "mekf_step", "mekf_steps", "warm_up"]

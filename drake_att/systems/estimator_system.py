@@ -339,9 +339,13 @@ class EstimatorSystem(LeafSystem):
         max_time_tag_lag_s: float = 0.0,
         held_rate_rrw_rad_per_s15: float = 0.0,
         verdicts: bool = False,
+        realizations: int = 1,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
+        if not (isinstance(realizations, int) and realizations >= 1):
+            raise ValueError(f"{name}.realizations: got {realizations!r}; must be an integer >= 1")
+        self.realizations = realizations
         if not isinstance(core, contract.FilterCore):
             raise TypeError(f"{name}: core {type(core).__name__} does not implement drake_att.contract.FilterCore")
         if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
@@ -358,6 +362,10 @@ class EstimatorSystem(LeafSystem):
         self._declare_inputs(core, quaternion_sensors, vector_sensors, camera_sensors)
         self.diagnostic_names = self.capabilities.diagnostic_names
         self._compiled_models: dict = {}
+        if realizations > 1:
+            problem = self._batch_problem(core, quaternion_sensors)
+            if problem:
+                raise ValueError(f"{name}.realizations: got {realizations}; more than one needs {problem}")
         self._model_index = self.DeclareAbstractParameter(
             AbstractValue.Make(FilterModel(core, initial_state, tuple(self._quat_sensors), True, lag, rrw))
         )
@@ -367,14 +375,27 @@ class EstimatorSystem(LeafSystem):
             self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._on_step)
 
+    def _batch_problem(self, core, quaternion_sensors) -> str | None:
+        """Why this estimator cannot carry several realizations (None: it can): only the
+        compiled MEKF step runs them, each on its own slice of the state groups."""
+        if not (self._linearizing and compiled_step.eligible(core, len(self._vector_ports), core.is_random)):
+            return "an MEKF with compiled kernels, quaternion inputs only and no random core"
+        if self.verdicts or any(s.sample_covariance for s in quaternion_sensors):
+            return "no sensor monitor and no per-sample covariance"
+        if self.diagnostic_names or self.num_particles is not None:
+            return "a core without diagnostics outputs"
+        return None
+
     def _declare_inputs(self, core, quaternion_sensors, vector_sensors, camera_sensors) -> None:
         """The input ports; their order matters for the diagram's random streams: keep it stable."""
+        N = self.realizations
         self._gyro_port = (
-            self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE) if core.uses_gyro else None
+            self.DeclareVectorInputPort("gyro_measurement", GYRO_MEASUREMENT_SIZE * N) if core.uses_gyro else None
         )
         self._quat_sensors = list(quaternion_sensors)
         self._quat_ports = [
-            self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE) for s in self._quat_sensors
+            self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE * N)
+            for s in self._quat_sensors
         ]
         self._vector_ports = [
             self.DeclareAbstractInputPort(f"vectors_{n}", AbstractValue.Make(contract.empty_vector_observations()))
@@ -419,7 +440,9 @@ class EstimatorSystem(LeafSystem):
         """The contract's ports, the logged state ports and the capabilities' outputs."""
         ticket = {self.discrete_state_ticket(self._estimate_group)}
         for port, part in self.second_quantity.estimate_ports():
-            self.DeclareVectorOutputPort(port, part.stop - part.start, functools.partial(self._out, part=part), ticket)
+            self.DeclareVectorOutputPort(
+                port, (part.stop - part.start) * self.realizations, functools.partial(self._out, part=part), ticket
+            )
         # The whole estimate group as one C++-evaluated port: loggers record this one (no
         # Python callback per logged sample); the builder splits it into the contract signals.
         self.DeclareStateOutputPort("estimate_state", self._estimate_group)
@@ -444,11 +467,16 @@ class EstimatorSystem(LeafSystem):
             )
 
     def _declare_group(self, values):
-        """A discrete-state group with these initial values; its index."""
-        return self.DeclareDiscreteState(np.asarray(values, dtype=float))
+        """A discrete-state group with these initial values (once per realization); its index."""
+        return self.DeclareDiscreteState(self._per_realization(values))
+
+    def _per_realization(self, values) -> np.ndarray:
+        """``values`` (one realization's group) repeated for every realization."""
+        values = np.asarray(values, dtype=float)
+        return values if self.realizations == 1 else np.tile(values, self.realizations)
 
     @classmethod
-    def from_setup(cls, name: str, setup: EstimatorSetup) -> EstimatorSystem:
+    def from_setup(cls, name: str, setup: EstimatorSetup, realizations: int = 1) -> EstimatorSystem:
         """The system for a plug-in's :class:`EstimatorSetup` (ports unconnected)."""
         return cls(
             name,
@@ -461,6 +489,7 @@ class EstimatorSystem(LeafSystem):
             setup.max_time_tag_lag_s,
             setup.held_rate_rrw_rad_per_s15,
             verdicts=setup.monitor is not None,
+            realizations=realizations,
         )
 
     # -- per-context parameters ---------------------------------------------------------------
@@ -497,10 +526,10 @@ class EstimatorSystem(LeafSystem):
             core, state = model.core, model.initial_state
             q0, second0, P0 = core.estimate(state)
             context.get_mutable_discrete_state(self._estimate_group).SetFromVector(
-                pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan)
+                self._per_realization(pack_estimate(rot.quat_canonical(q0), second0, P0, 0.0, 0, 0, np.nan))
             )
             context.get_mutable_discrete_state(self._core_group).SetFromVector(
-                np.asarray(core.to_vector(state), dtype=float)
+                self._per_realization(core.to_vector(state))
             )
 
     def _check_compatible(self, setup: EstimatorSetup) -> None:
@@ -536,7 +565,11 @@ class EstimatorSystem(LeafSystem):
 
     # -- outputs and accessors -------------------------------------------------------------
     def _out(self, context, output: BasicVector, part: slice):
-        output.SetFromVector(context.get_discrete_state(self._estimate_group).value()[part])
+        est = context.get_discrete_state(self._estimate_group).value()
+        if self.realizations > 1:
+            est = est.reshape(self.realizations, -1)[:, part].ravel()
+            part = slice(None)
+        output.SetFromVector(est[part])
 
     def _calc_diagnostics(self, context, output: BasicVector):
         book = context.get_discrete_state(self._book_group).value()
@@ -646,6 +679,8 @@ class EstimatorSystem(LeafSystem):
     def _on_step_compiled(self, context, discrete_state, m) -> EventStatus:
         """:meth:`_on_step` by :func:`~drake_att.systems.compiled_step.mekf_step`: the port
         reads here, the rest in one compiled call writing the state groups in place."""
+        if self.realizations > 1:
+            return self._on_steps_compiled(context, discrete_state, m)
         gyro_port = cast(InputPort, self._gyro_port)  # an MEKF reads the gyro
         gyro_connected = gyro_port.HasValue(context)
         gyro = gyro_port.Eval(context) if gyro_connected else _NO_GYRO
@@ -674,6 +709,41 @@ class EstimatorSystem(LeafSystem):
         )
         return EventStatus.Succeeded()
 
+    def _on_steps_compiled(self, context, discrete_state, m) -> EventStatus:
+        """:meth:`_on_step_compiled` for every realization: the same step on each one's slice
+        of the inputs and the state groups (:func:`~drake_att.systems.compiled_step.mekf_steps`)."""
+        N = self.realizations
+        gyro_port = cast(InputPort, self._gyro_port)
+        gyro_connected = gyro_port.HasValue(context)
+        gyro = gyro_port.Eval(context) if gyro_connected else np.tile(_NO_GYRO, N)
+        n = len(self._quat_ports)
+        meas = np.zeros((N, n, QUATERNION_MEASUREMENT_SIZE))
+        connected = np.zeros(n, dtype=np.bool_)
+        for i, port in enumerate(self._quat_ports):
+            if port.HasValue(context):
+                meas[:, i] = np.reshape(port.Eval(context), (N, QUATERNION_MEASUREMENT_SIZE))  # type: ignore[arg-type]
+                connected[i] = True
+
+        def group(index):  # a writable (N, size) view of a group
+            return discrete_state.get_mutable_value(index).reshape(N, -1)
+
+        innovations = group(self._innovation_group) if self._innovation_group is not None else np.zeros((N, 0))
+        compiled_step.mekf_steps(
+            context.get_time(),
+            gyro_connected,
+            np.reshape(gyro, (N, GYRO_MEASUREMENT_SIZE)),  # type: ignore[arg-type]
+            connected,
+            meas,
+            *m,
+            group(self._handling_group),
+            group(self._estimate_group),
+            group(self._book_group),
+            group(self._core_group),
+            group(self._linearization_group),
+            innovations,
+        )
+        return EventStatus.Succeeded()
+
     def _verdicts(self, context):
         """The sensor monitor's verdict codes ``[gyro, input 0, input 1, ...]``
         (:func:`~drake_att.systems.estimator_step.verdict_code`), or None (no monitor, or its port unconnected: every
@@ -690,6 +760,11 @@ class EstimatorSystem(LeafSystem):
             array_model = self._compiled_model(model)
             if array_model is not None:
                 return self._on_step_compiled(context, discrete_state, array_model)
+        if self.realizations > 1:
+            raise RuntimeError(
+                f"{self.get_name()}: this context's filter model does not run the compiled MEKF step, "
+                "which several realizations need"
+            )
         core = model.core
         t = context.get_time()
         est = self.estimate_vector(context)

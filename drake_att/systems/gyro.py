@@ -99,33 +99,39 @@ class _GyroOutputs(LeafSystem):
     previous sample instant, from the ``ZeroOrderHold``); discrete state: the seed words (4,
     read at initialization)."""
 
-    def __init__(self, name: str, period_s: float, default_model: GyroModel):
+    def __init__(self, name: str, period_s: float, default_model: GyroModel, realizations: int = 1):
         LeafSystem.__init__(self)
         self.set_name(f"{name}_outputs")
         self.stream = name  # the random stream keeps the gyro's name
         self.period_s = period_s
+        self.realizations = N = realizations
         self._model_index = self.DeclareAbstractParameter(AbstractValue.Make(default_model))
         self._w_port = self.DeclareVectorInputPort("w_IB_B", 3)
         self._integral_port = self.DeclareVectorInputPort("w_IB_B_integral", 3)
         self._held_port = self.DeclareVectorInputPort("w_IB_B_integral_held", 3)
-        self._seed_port = declare_seed_port(self)
+        self._seed_port = declare_seed_port(self, N)
         # Optional: a per-step scale-factor error s_k from a correlated-noise source
         # (paper S1, drake_att.systems.correlated_noise); unconnected = 0.
-        self._scale_error_port = self.DeclareVectorInputPort("scale_error", 1)
-        self.DeclareDiscreteState(np.zeros(SEED_WORDS))  # type: ignore[arg-type]  # pydrake stub
+        self._scale_error_port = self.DeclareVectorInputPort("scale_error", N)
+        self.DeclareDiscreteState(np.zeros(SEED_WORDS * N))  # type: ignore[arg-type]  # pydrake stub
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         # One Python output for both signals (the Gyro diagram splits it in C++): a logged
         # bias costs no Python call of its own.
         self.DeclareVectorOutputPort(
             "measurement_and_bias",
-            GYRO_MEASUREMENT_SIZE + 3,
+            (GYRO_MEASUREMENT_SIZE + 3) * N,
             self._calc_measurement,
             {self.time_ticket(), self.xd_ticket(), self.all_parameters_ticket(), self.all_input_ports_ticket()},
         )
-        # The context's draws (a _GyroDraws of its seed words and model): one cache look-up per
-        # output evaluation.
+        # The context's draws (one _GyroDraws per realization, of its seed words and the
+        # model): one cache look-up per output evaluation.
         self._draws_cache = NoiseCache(
-            self, "draws", self.model, lambda words, model: _GyroDraws(model, counter_random(words, self.stream))
+            self,
+            "draws",
+            self.model,
+            lambda words, model: tuple(
+                _GyroDraws(model, counter_random(w, self.stream)) for w in np.reshape(words, (N, SEED_WORDS))
+            ),
         )
 
     def model(self, context) -> GyroModel:
@@ -141,8 +147,8 @@ class _GyroOutputs(LeafSystem):
         n = max(0, math.ceil(t / self.period_s - 1e-9))
         return n, ((n - 1) * self.period_s + self.period_s if n else 0.0)
 
-    def _draws(self, context) -> _GyroDraws:
-        """The draws of this context's seed words and model (cached)."""
+    def _draws(self, context) -> tuple:
+        """The draws of this context's seed words and model, one per realization (cached)."""
         return self._draws_cache.get(context)
 
     def _calc_measurement(self, context, output: BasicVector):
@@ -156,17 +162,38 @@ class _GyroOutputs(LeafSystem):
             w_true = [(a - b) / elapsed for a, b in zip(integral, held, strict=True)]
         else:
             w_true = self._w_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
-        # (I + S + M) w; skipped for the identity (the same numbers, up to the sign of a zero).
-        w_meas = w_true if draws.unit_sensor_matrix else (draws.model.sensor_matrix @ w_true).tolist()
-        if self._scale_error_port.HasValue(context):
-            divisor = 1.0 + self._scale_error_port.Eval(context)[0]  # type: ignore[index]  # pydrake stub
-            w_meas = [w / divisor for w in w_meas]
-        (ox, oy, oz), (bx, by, bz) = draws.offset_and_bias(n)
-        sample = np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz])
-        r = draws.model.range_rad_per_s
-        if r < math.inf:
-            sample[2:5] = np.clip(sample[2:5], -r, r)
+        scale_errors = (
+            self._scale_error_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
+            if self._scale_error_port.HasValue(context)
+            else None
+        )
+        if self.realizations == 1:
+            sample = _sample(draws[0], n, t_n, w_true, None if scale_errors is None else scale_errors[0])
+        else:  # realization-major: every measurement (5 each), then every bias (3 each)
+            samples = [
+                _sample(d, n, t_n, w_true, None if scale_errors is None else scale_errors[i])
+                for i, d in enumerate(draws)
+            ]
+            sample = np.concatenate(
+                [s[:GYRO_MEASUREMENT_SIZE] for s in samples] + [s[GYRO_MEASUREMENT_SIZE:] for s in samples]
+            )
         output.SetFromVector(sample)  # type: ignore[arg-type]  # pydrake stub
+
+
+def _sample(draws: _GyroDraws, n: int, t_n: float, w_true: list, scale_error: float | None) -> np.ndarray:
+    """Sample ``n`` (stamp ``t_n``) of one realization: ``[t_n, 1, w_meas (3), B_n (3)]`` from
+    the true mean rate ``w_true`` (3 floats) and the scale-factor error ``s_k`` (None: 0)."""
+    # (I + S + M) w; skipped for the identity (the same numbers, up to the sign of a zero).
+    w_meas = w_true if draws.unit_sensor_matrix else (draws.model.sensor_matrix @ w_true).tolist()
+    if scale_error is not None:
+        divisor = 1.0 + scale_error
+        w_meas = [w / divisor for w in w_meas]
+    (ox, oy, oz), (bx, by, bz) = draws.offset_and_bias(n)
+    sample = np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz])
+    r = draws.model.range_rad_per_s
+    if r < math.inf:
+        sample[2:5] = np.clip(sample[2:5], -r, r)
+    return sample
 
 
 class _GyroDraws:
@@ -244,6 +271,10 @@ class Gyro(Diagram):
         scale_factor_error: (3,) dimensionless (e.g. 100 ppm = 1e-4).
         misalignment: (3, 3) small-angle misalignment matrix with zero diagonal (rad).
         range_rad_per_s: per-axis range (rad/s; inf: none); the output is clipped to it.
+        realizations: N independent gyros on the same truth (a batch of Monte Carlo runs in one
+            diagram): ``seed_uniform``, ``scale_error``, ``gyro_measurement`` and ``bias_B``
+            carry N blocks, realization-major; realization ``i`` is drawn from the ``i``-th seed
+            words exactly as a gyro alone would be (the same numbers). The truth ports are shared.
 
     Input ports:
         w_IB_B (3): true body rate (rad/s), used for the first sample (t = 0).
@@ -273,8 +304,12 @@ class Gyro(Diagram):
         scale_factor_error=(0.0, 0.0, 0.0),
         misalignment=None,
         range_rad_per_s: float = math.inf,
+        realizations: int = 1,
     ):
         Diagram.__init__(self)
+        if not (isinstance(realizations, int) and realizations >= 1):
+            raise ValueError(f"{name}.realizations: got {realizations!r}; must be an integer >= 1")
+        self.realizations = realizations
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         self.period_s = float(period_s)
@@ -290,7 +325,7 @@ class Gyro(Diagram):
             range_rad_per_s,
         )
         builder = DiagramBuilder()
-        outputs = _GyroOutputs(name, self.period_s, self.default_model)
+        outputs = _GyroOutputs(name, self.period_s, self.default_model, realizations)
         builder.AddSystem(outputs)
         hold = builder.AddNamedSystem(f"{name}_integral_hold", ZeroOrderHold(self.period_s, 3))
         builder.ExportInput(outputs.GetInputPort("w_IB_B"), "w_IB_B")
@@ -299,7 +334,7 @@ class Gyro(Diagram):
         builder.Connect(hold.get_output_port(), outputs.GetInputPort("w_IB_B_integral_held"))
         builder.ExportInput(outputs.GetInputPort("seed_uniform"), "seed_uniform")
         builder.ExportInput(outputs.GetInputPort("scale_error"), "scale_error")
-        split = builder.AddNamedSystem(f"{name}_split", Demultiplexer([GYRO_MEASUREMENT_SIZE, 3]))
+        split = builder.AddNamedSystem(f"{name}_split", Demultiplexer([GYRO_MEASUREMENT_SIZE * realizations, 3 * realizations]))
         builder.Connect(outputs.GetOutputPort("measurement_and_bias"), split.get_input_port())
         builder.ExportOutput(split.get_output_port(0), "gyro_measurement")
         builder.ExportOutput(split.get_output_port(1), "bias_B")

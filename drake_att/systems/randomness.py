@@ -27,16 +27,17 @@ SEED_WORDS = 4
 RANDOM_SOURCE_SAMPLING_INTERVAL_S = 1e12  # the seed is drawn once per run
 
 
-def declare_seed_port(system):
-    """Declare the ``seed_uniform`` random input port on ``system`` and return it."""
-    return system.DeclareVectorInputPort("seed_uniform", SEED_WORDS, RandomDistribution.kUniform)
+def declare_seed_port(system, realizations: int = 1):
+    """Declare the ``seed_uniform`` random input port on ``system`` and return it
+    (:data:`SEED_WORDS` per realization, realization-major)."""
+    return system.DeclareVectorInputPort("seed_uniform", SEED_WORDS * realizations, RandomDistribution.kUniform)
 
 
 def read_seed_words(system, context, port) -> np.ndarray:
     """Seed words (as floats, exact integers < 2^32) from ``port`` (or zeros if unwired)."""
     if port.HasValue(context):
         return np.array(seed_words_from_uniform(port.Eval(context)), dtype=float)
-    return np.zeros(SEED_WORDS)
+    return np.zeros(port.size())
 
 
 _CACHE: dict = {}

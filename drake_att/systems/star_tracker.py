@@ -120,6 +120,10 @@ class StarTracker(LeafSystem):
         sigma_vector_rad: vector-mode per-component noise (rad) >= 0.
         dropout_probability: probability in [0, 1) that a sample is invalid.
         outage_windows_s: list of (start, end) times (s) with no valid sample.
+        realizations: N independent trackers on the same truth (a batch of Monte Carlo runs in
+            one diagram; quaternion mode without exclusion): ``seed_uniform`` and
+            ``star_tracker_measurement`` carry N blocks, realization-major; realization ``i`` is
+            drawn from the ``i``-th seed words exactly as a tracker alone would be.
 
     Input ports:
         q_IB (4): true attitude.
@@ -151,9 +155,17 @@ class StarTracker(LeafSystem):
         dropout_probability: float = 0.0,
         outage_windows_s=(),
         exclusion: ExclusionCones | None = None,
+        realizations: int = 1,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
+        if not (isinstance(realizations, int) and realizations >= 1):
+            raise ValueError(f"{name}.realizations: got {realizations!r}; must be an integer >= 1")
+        if realizations > 1 and (mode != "quaternion" or exclusion is not None):
+            raise ValueError(
+                f"{name}.realizations: got {realizations}; more than one needs mode 'quaternion' without exclusion"
+            )
+        self.realizations = N = realizations
         if not np.isfinite(period_s) or period_s <= 0:
             raise ValueError(f"{name}.period_s: got {period_s}; must be finite and > 0 (s)")
         if mode not in ("quaternion", "vectors"):
@@ -187,7 +199,7 @@ class StarTracker(LeafSystem):
         self._n_noise = n_noise
         self._noise_index = self.DeclareAbstractParameter(AbstractValue.Make(self.default_noise))
         self._q_port = self.DeclareVectorInputPort("q_IB", 4)
-        self._seed_port = declare_seed_port(self)
+        self._seed_port = declare_seed_port(self, N)
         # Vector mode, optional: the additive noise of this sample (3m) from a correlated-noise
         # source (paper S1, drake_att.systems.correlated_noise), used instead of the tracker's own.
         self._noise_port = self.DeclareVectorInputPort("vector_noise", n_noise) if mode == "vectors" else None
@@ -195,12 +207,17 @@ class StarTracker(LeafSystem):
         # when an output at a time in ((k-1) T, k T] is evaluated (one Python call per
         # evaluation instead of a per-sample event plus the evaluation). The state holds only
         # the seed words, read once at initialization (the seed port's value changes after t = 0).
-        self.DeclareDiscreteState(np.zeros(SEED_WORDS))  # type: ignore[arg-type]  # pydrake stub
+        self.DeclareDiscreteState(np.zeros(SEED_WORDS * N))  # type: ignore[arg-type]  # pydrake stub
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
-        # The context's samples (a _TrackerSamples of its seed words and noise parameter):
-        # one cache look-up per output evaluation.
+        # The context's samples (a _TrackerSamples per realization, of its seed words and the
+        # noise parameter): one cache look-up per output evaluation.
         self._samples_cache = NoiseCache(
-            self, "samples", self.noise, lambda words, noise: _TrackerSamples(self, words, noise)
+            self,
+            "samples",
+            self.noise,
+            lambda words, noise: tuple(
+                _TrackerSamples(self, w, noise) for w in np.reshape(words, (N, SEED_WORDS))
+            ),
         )
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
         self.exclusion = None if exclusion is None else exclusion.check(f"{name}.exclusion")
@@ -212,7 +229,7 @@ class StarTracker(LeafSystem):
             self.DeclareVectorOutputPort("exclusion", 2, self._calc_exclusion, deps)
         if mode == "quaternion":
             self.DeclareVectorOutputPort(
-                "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc_quaternion, deps
+                "star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE * N, self._calc_quaternion, deps
             )
         else:
             self.DeclareAbstractOutputPort(
@@ -254,8 +271,9 @@ class StarTracker(LeafSystem):
         return EventStatus.Succeeded()
 
     def _samples(self, context) -> _TrackerSamples:
-        """The samples of this context's seed words and noise parameter (cached)."""
-        return self._samples_cache.get(context)
+        """The samples of this context's seed words and noise parameter (cached; the first
+        realization's)."""
+        return self._samples_cache.get(context)[0]
 
     def _sample_index(self, t: float) -> int:
         """The index ``k = max(0, ceil(t / T - 1e-9))`` of the sample an output at ``t``
@@ -291,6 +309,9 @@ class StarTracker(LeafSystem):
 
     # -- outputs ----------------------------------------------------------------------
     def _calc_quaternion(self, context, output: BasicVector):
+        if self.realizations > 1:
+            self._calc_quaternions(context, output)
+            return
         t_sample, valid, noise, _ = self._sample(context)
         if valid and self.exclusion is not None:
             valid = self.causes(context) == 0
@@ -298,6 +319,16 @@ class StarTracker(LeafSystem):
         q_meas = _canonical_product(q_IB, noise)
         sample = np.array([t_sample, 1.0 if valid else 0.0, *q_meas])
         output.SetFromVector(sample)  # type: ignore[arg-type]  # pydrake stub
+
+    def _calc_quaternions(self, context, output: BasicVector):
+        """:meth:`_calc_quaternion` of every realization (no exclusion), realization-major."""
+        block, r = divmod(self._sample_index(context.get_time()), CounterRandom.BLOCK)
+        q_IB = self._q_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
+        values = []
+        for samples in self._samples_cache.get(context):
+            stamps, valid, draws = samples.block(block)
+            values += [stamps[r], 1.0 if valid[r] else 0.0, *_canonical_product(q_IB, draws[r])]
+        output.SetFromVector(np.array(values))  # type: ignore[arg-type]  # pydrake stub
 
     def _calc_vectors(self, context, output):
         t_sample, valid, noise, p = self._sample(context)
