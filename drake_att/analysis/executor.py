@@ -14,6 +14,13 @@ reuses it for every seed it gets, returning a *record* of each run
 * ``scheduler="serial"`` or ``workers=1``: in this process, one seed after the other (the
   reference the Dask runs are tested against bit for bit).
 
+Where a scenario allows it (:func:`~drake_att.scenarios.builder.batch_problem`: a truth shared
+by every seed, and sensors and estimators that carry several realizations), a worker runs up to
+``batch_size`` seeds in one simulation of a batch diagram
+(:meth:`~drake_att.scenarios.builder.ScenarioDiagram.simulate_batch`): the same runs, bit for
+bit, for a fraction of the CPU (the truth, the per-step framework work and the Python calls are
+shared by the batch).
+
 :func:`run_seeds` is the paper scripts' view of the same runner (per-seed metrics and error
 series).
 """
@@ -54,7 +61,10 @@ class RunFailed:
 
 
 _WORKER_DIAGRAMS: dict = {}
-_WORKER_STATS = {"diagrams_built": 0, "runs": 0}
+_WORKER_BATCH_DIAGRAMS: dict = {}
+_WORKER_STATS = {"diagrams_built": 0, "batch_diagrams_built": 0, "runs": 0}
+#: Seeds one simulation carries when the scenario allows batches (map_runs' ``batch_size``).
+DEFAULT_BATCH_SIZE = 10
 # One simulation at a time per process: a Dask worker started with several threads
 # (``dask worker --nthreads 4``) would otherwise run pydrake systems concurrently.
 _WORKER_LOCK = threading.Lock()
@@ -81,27 +91,66 @@ def _worker_diagram(yaml_text: str):
     return sd
 
 
-def _run_jobs(yaml_text: str, jobs, record: Callable) -> list:
+def _worker_batch_diagram(yaml_text: str, size: int):
+    """This process's batch diagram of ``size`` realizations of the scenario ``yaml_text``
+    (built on first use), or None where its estimators cannot carry several (the runs then
+    take the single diagram: the same results)."""
+    key = (yaml_text, size)
+    if key not in _WORKER_BATCH_DIAGRAMS:
+        from drake_att.scenarios.builder import ScenarioDiagram
+        from drake_att.scenarios.preflight import DegenerateScenarioWarning
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DegenerateScenarioWarning)
+            try:
+                diagram = ScenarioDiagram(cfg.load_scenario(text=yaml_text), realizations=size)
+            except ValueError:  # an estimator off the compiled step (EstimatorSystem says why)
+                diagram = None
+        _WORKER_BATCH_DIAGRAMS[key] = diagram
+        _WORKER_STATS["batch_diagrams_built"] += diagram is not None
+    return _WORKER_BATCH_DIAGRAMS[key]
+
+
+def _run_jobs(yaml_text: str, jobs, record: Callable, batch: bool = False) -> list:
     """Run ``jobs`` (``(seed, estimators or None)`` pairs) on this process's diagram of
-    ``yaml_text``; returns ``[(job, record(run) or RunFailed), ...]``. The Dask task and the
+    ``yaml_text`` (with ``batch``: jobs with the same estimators in one batch simulation);
+    returns ``[(job, record(run) or RunFailed), ...]`` in job order. The Dask task and the
     serial loop both call this, so both compute the very same thing."""
     with _WORKER_LOCK:
-        return _run_jobs_locked(yaml_text, jobs, record)
+        return _run_jobs_locked(yaml_text, jobs, record, batch)
 
 
-def _run_jobs_locked(yaml_text: str, jobs, record: Callable) -> list:
+def _run_jobs_locked(yaml_text: str, jobs, record: Callable, batch: bool = False) -> list:
     from drake_att.scenarios.builder import NonFiniteRunError
 
     sd = _worker_diagram(yaml_text)
+    results: dict = {}
+    if batch:
+        groups: dict = {}
+        for job in jobs:
+            groups.setdefault(job[1], []).append(job)
+        for estimators, group in groups.items():
+            batch_diagram = _worker_batch_diagram(yaml_text, len(group)) if len(group) > 1 else None
+            if batch_diagram is None:
+                continue
+            runs = batch_diagram.simulate_batch(
+                [int(seed) for seed, _ in group], estimators=None if estimators is None else list(estimators)
+            )
+            for job, run in zip(group, runs, strict=True):
+                _WORKER_STATS["runs"] += 1
+                failed = isinstance(run, NonFiniteRunError)
+                results[job] = RunFailed(int(job[0]), str(run)) if failed else record(run)
     out = []
-    for seed, estimators in jobs:
-        _WORKER_STATS["runs"] += 1
-        try:
-            run = sd.simulate(int(seed), estimators=None if estimators is None else list(estimators))
-        except NonFiniteRunError as e:
-            out.append(((seed, estimators), RunFailed(int(seed), str(e))))
-            continue
-        out.append(((seed, estimators), record(run)))
+    for job in jobs:
+        if job not in results:
+            seed, estimators = job
+            _WORKER_STATS["runs"] += 1
+            try:
+                run = sd.simulate(int(seed), estimators=None if estimators is None else list(estimators))
+                results[job] = record(run)
+            except NonFiniteRunError as e:
+                results[job] = RunFailed(int(seed), str(e))
+        out.append((job, results[job]))
     return out
 
 
@@ -116,6 +165,7 @@ def map_runs(
     on_result: Callable | None = None,
     raise_failures: bool = False,
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> list:
     """Run ``scenario`` for every job and return the records in job order.
 
@@ -132,6 +182,9 @@ def map_runs(
         chunk_size: jobs per task (1: every run is streamed back as it finishes).
         on_result: called as ``on_result(index, job, result)`` in this process as each run
             arrives (in completion order).
+        batch_size: seeds one simulation carries where the scenario allows batches (see the
+            module docstring; 1: every run alone). Tasks then hold up to this many jobs each
+            (at most an even share per worker), whatever ``chunk_size``.
 
     A run whose truth or estimates go non-finite gives a :class:`RunFailed` (with
     ``raise_failures``: raises its ``NonFiniteRunError``); any other exception stops the map
@@ -167,18 +220,28 @@ def map_runs(
         return results
     if workers is not None and workers < 1:
         raise CampaignError(f"--workers: got {workers}; must be a positive integer")
-    if _is_serial(workers, scheduler):
-        for k in range(0, len(unique), max(1, chunk_size)):
-            deliver(_run_jobs(yaml_text, unique[k : k + chunk_size], record))
+    if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
+        raise CampaignError(f"batch_size: got {describe(batch_size)}; must be an integer >= 1")
+    from drake_att.scenarios.builder import batch_problem
+
+    batch = batch_size > 1 and len(unique) > 1 and batch_problem(scenario) is None
+    serial = _is_serial(workers, scheduler)
+    if batch:
+        share = -(-len(unique) // (1 if serial else (workers or os.cpu_count() or 1)))
+        chunk_size = max(2, min(int(batch_size), share))
+    chunk_size = max(1, chunk_size)
+    chunks = [unique[k : k + chunk_size] for k in range(0, len(unique), chunk_size)]
+    if serial:
+        for chunk in chunks:
+            deliver(_run_jobs(yaml_text, chunk, record, batch))
         return results
-    chunks = [unique[k : k + chunk_size] for k in range(0, len(unique), max(1, chunk_size))]
     n_workers = min(workers or os.cpu_count() or 1, len(chunks))
     from distributed import as_completed
 
     client, cluster, owned = _connect(n_workers, scheduler, connect_timeout_s)
     futures = []
     try:
-        futures = [client.submit(_run_jobs, yaml_text, chunk, record, pure=False) for chunk in chunks]
+        futures = [client.submit(_run_jobs, yaml_text, chunk, record, batch, pure=False) for chunk in chunks]
         for future in as_completed(futures):
             deliver(future.result())
             future.release()

@@ -395,12 +395,12 @@ BATCH_ESTIMATORS = ("MekfConfig",)
 def batch_problem(scenario: cfg.Scenario) -> str | None:
     """Why ``scenario``'s runs cannot share one diagram as a batch (None: they can).
 
-    A batch carries N runs on one truth: the truth must not depend on the seed or on an
-    estimate (no attitude control), and every sensor and estimator must carry N realizations:
+    A batch carries N runs on one truth: the truth must not depend on the seed (no attitude
+    controller, whose torque noise is drawn per seed), and every sensor and estimator must carry N realizations:
     gyros, quaternion star trackers without exclusion, MEKFs on the compiled step (checked
     when the batch diagram is built)."""
     if isinstance(scenario.plant, cfg.RigidBodyConfig) and scenario.plant.attitude_control is not None:
-        return "its attitude control closes the loop on an estimate (each run has its own truth)"
+        return "its attitude controller drives the truth with torque noise drawn per seed (each run has its own truth)"
     for s in scenario.sensors:
         if type(s).__name__ not in BATCH_SENSORS:
             return f"sensor {s.name!r} is a {type(s).__name__} (a batch has {_listed(BATCH_SENSORS)} only)"

@@ -1,0 +1,175 @@
+"""Batch runs: one diagram carrying N realizations gives, per seed, exactly the run a single
+diagram gives (every logged array, bit for bit, and the metadata), through every path a
+campaign takes; scenarios a batch cannot carry are named with the reason, and bad arguments
+get a clear error."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from drake_att.analysis import executor
+from drake_att.analysis.run_records import metrics_record
+from drake_att.scenarios import builder
+from drake_att.scenarios import config as cfg
+from drake_att.scenarios import library
+from drake_att.scenarios.builder import NonFiniteRunError, ScenarioDiagram, batch_problem, diagram_for
+
+SCENARIO = "cubesat_single_star_tracker"
+
+
+def _scenario(*overrides) -> cfg.Scenario:
+    return cfg.apply_overrides(library.load(SCENARIO), ["duration_s=120", "scoring.score_from_s=30", *overrides])
+
+
+def assert_runs_identical(single, batched) -> None:
+    """Every signal of two RunLogs the same bytes, dtype and shape; the metadata equal but
+    for the wall time."""
+    assert batched.seed == single.seed
+    assert list(batched.signals) == list(single.signals)
+    for key, (t, x) in single.signals.items():
+        tb, xb = batched.signals[key]
+        for a, b in ((t, tb), (x, xb)):
+            assert a.dtype == b.dtype and a.shape == b.shape, key
+            assert a.tobytes() == b.tobytes(), key
+    m1, m2 = dict(single.metadata), dict(batched.metadata)
+    m1.pop("wall_time_s"), m2.pop("wall_time_s")
+    assert m1 == m2
+
+
+def _without_wall_time(records: list) -> list:
+    """Metrics records with their one non-deterministic number (the wall time) taken out."""
+    out = []
+    for r in records:
+        r = dict(r)
+        metrics = json.loads(str(r.pop("metrics_json")))
+        metrics.pop("wall_time_s")
+        out.append((metrics, sorted(r)))
+    return out
+
+
+# Every noise source and error of the gyro and the tracker switched on, and a 10 Hz filter on a
+# 5 Hz tracker (its samples between filter steps and its held ones).
+RICH = [
+    "sensors.gyro.period_s=0.1",
+    "sensors.gyro.initial_bias_sigma_deg_per_h=5.0",
+    "sensors.gyro.scale_factor_error_ppm=[300.0, -200.0, 100.0]",
+    "sensors.gyro.misalignment_urad=[100.0, -50.0, 20.0, 0.0, 30.0, -10.0]",
+    "sensors.gyro.range_deg_per_s=0.6",
+    "sensors.st1.period_s=0.2",
+    "sensors.st1.dropout_probability=0.2",
+    "sensors.st1.outage_windows_s=[[40.0, 55.0]]",
+    "estimators.single.period_s=0.1",
+    "estimators.single.innovation_gate_probability=0.99",
+]
+
+
+@pytest.mark.parametrize("overrides", [[], RICH], ids=["shipped", "every_noise"])
+def test_batch_equals_single_runs_bit_for_bit(overrides):
+    scenario = _scenario(*overrides)
+    seeds = [3, 1, 12345]
+    batch = ScenarioDiagram(scenario, realizations=len(seeds)).simulate_batch(seeds)
+    single = diagram_for(scenario)
+    for seed, run in zip(seeds, batch, strict=True):
+        assert_runs_identical(single.simulate(seed), run)
+    # the realizations differ from each other (each reads its own seed's noise)
+    q = [run.signals["st1/star_tracker_measurement"][1] for run in batch]
+    assert not np.array_equal(q[0], q[1]) and not np.array_equal(q[1], q[2])
+
+
+def test_batch_with_parameter_overrides_and_estimator_selection():
+    """Per-run context parameters (noise levels) and a switched-off estimator, as a campaign's
+    ``--set`` and ``--estimators`` give them, on a batch of two MEKFs."""
+    base = _scenario()
+    other = dataclasses.replace(base.estimators[0], name="other", initial_attitude_sigma_deg=2.0)
+    scenario = cfg.load_scenario(text=cfg.dump_scenario(dataclasses.replace(base, estimators=[*base.estimators, other])))
+    overrides = ["sensors.st1.sigma_boresight_arcsec=80.0", "sensors.gyro.arw_deg_per_rt_h=0.9"]
+    seeds = [5, 6]
+    batch_diagram = ScenarioDiagram(scenario, realizations=2)
+    single = diagram_for(scenario)
+    for estimators in (None, ["other"]):
+        runs = batch_diagram.simulate_batch(seeds, overrides=overrides, estimators=estimators)
+        for seed, run in zip(seeds, runs, strict=True):
+            assert_runs_identical(single.simulate(seed, overrides=overrides, estimators=estimators), run)
+    assert not any(k.startswith("single/") for k in runs[0].signals)
+
+
+def test_batch_problem_names_what_a_batch_cannot_carry():
+    expected = {
+        "cubesat_single_star_tracker": None,
+        "cubesat_dual_star_tracker": "StarTrackerAverageConfig",
+        "cubesat_sso_mission": "attitude controller",
+        "fault_campaign": "SensorFaultsConfig",
+        "s1_cqe": "quaternion mode",
+        "s2_indoor_static": "ScreenCameraConfig",
+    }
+    for name, fragment in expected.items():
+        problem = batch_problem(library.load(name))
+        assert (problem is None) if fragment is None else (fragment in problem), (name, problem)
+    with pytest.raises(ValueError, match="cannot run as a batch: .*quaternion mode"):
+        ScenarioDiagram(library.load("s1_cqe"), realizations=2)
+
+
+def test_an_estimator_off_the_compiled_step_refuses_realizations_and_the_runs_fall_back():
+    """Coning correction takes the MEKF off the compiled step: its system refuses N > 1 naming
+    the field, and the executor runs the seeds one by one instead (the same records)."""
+    scenario = _scenario("estimators.single.coning_correction=true")
+    assert batch_problem(scenario) is None  # only building the estimator finds out
+    with pytest.raises(ValueError, match=r"single\.realizations: got 2; more than one needs an MEKF with compiled"):
+        ScenarioDiagram(scenario, realizations=2)
+    batched = executor.map_runs(scenario, [1, 2], metrics_record, workers=1, batch_size=2)
+    alone = executor.map_runs(scenario, [1, 2], metrics_record, workers=1, batch_size=1)
+    assert _without_wall_time(batched) == _without_wall_time(alone)
+
+
+def test_map_runs_batches_give_the_records_of_runs_alone():
+    scenario = _scenario()
+    before = dict(executor._WORKER_STATS)
+    seeds = [1, 2, 3, 4, 5]
+    batched = executor.map_runs(scenario, seeds, metrics_record, workers=1, batch_size=2)
+    after = dict(executor._WORKER_STATS)
+    alone = executor.map_runs(scenario, seeds, metrics_record, workers=1, batch_size=1)
+    assert _without_wall_time(batched) == _without_wall_time(alone)
+    assert after["runs"] - before["runs"] == 5
+    # chunks of 2, 2 and 1: the last seed ran alone, the others in batch diagrams of two
+    assert executor._WORKER_BATCH_DIAGRAMS.get((cfg.dump_scenario(scenario), 2)) is not None
+    assert (cfg.dump_scenario(scenario), 1) not in executor._WORKER_BATCH_DIAGRAMS
+
+
+def test_a_non_finite_realization_fails_alone(monkeypatch):
+    """A realization whose estimate is not finite is that seed's RunFailed; its batch-mates'
+    records are kept (as runs alone would give)."""
+    scenario = _scenario()
+    original = builder._check_estimates_finite
+
+    def fail_seed_2(signals, run_scenario, name, seed, second_names):
+        if seed == 2:
+            raise NonFiniteRunError(f"{name} seed {seed}: estimate not finite (test)")
+        original(signals, run_scenario, name, seed, second_names)
+
+    monkeypatch.setattr(builder, "_check_estimates_finite", fail_seed_2)
+    runs = ScenarioDiagram(scenario, realizations=3).simulate_batch([1, 2, 3])
+    assert isinstance(runs[1], NonFiniteRunError) and "seed 2" in str(runs[1])
+    results = executor.map_runs(scenario, [1, 2, 3], metrics_record, workers=1, batch_size=3)
+    assert isinstance(results[1], executor.RunFailed) and results[1].seed == 2
+    assert not isinstance(results[0], executor.RunFailed) and not isinstance(results[2], executor.RunFailed)
+
+
+def test_bad_batch_arguments_are_named():
+    scenario = _scenario()
+    for bad in (0, -1, 2.5, "3"):
+        with pytest.raises(ValueError, match=f"realizations: got {bad!r}"):
+            ScenarioDiagram(scenario, realizations=bad)
+    batch = ScenarioDiagram(scenario, realizations=2)
+    with pytest.raises(ValueError, match="seeds: got 3; this batch diagram runs 2 at once"):
+        batch.simulate_batch([1, 2, 3])
+    with pytest.raises(ValueError, match="runs seeds with simulate_batch"):
+        batch.simulate(1)
+    with pytest.raises(ValueError, match="seed"):
+        batch.simulate_batch([1, -4])
+    for bad in (0, 1.5, None):
+        with pytest.raises(executor.CampaignError, match="batch_size: got"):
+            executor.map_runs(scenario, [1, 2], metrics_record, workers=1, batch_size=bad)
