@@ -147,14 +147,14 @@ class _GyroOutputs(LeafSystem):
         n = max(0, math.ceil(t / self.period_s - 1e-9))
         return n, ((n - 1) * self.period_s + self.period_s if n else 0.0)
 
-    def _draws(self, context) -> tuple:
-        """The draws of this context's seed words and model, one per realization (cached)."""
-        return self._draws_cache.get(context)
+    def _draws(self, context) -> _GyroDraws:
+        """The draws of this context's seed words and model (cached; the first realization's)."""
+        return self._draws_cache.get(context)[0]
 
     def _calc_measurement(self, context, output: BasicVector):
         t = context.get_time()
         n, t_n = self._sample_index(t)
-        draws = self._draws(context)
+        draws = self._draws_cache.get(context)  # one per realization
         elapsed = t - (t_n - self.period_s)
         if n >= 1 and elapsed > 1e-12 and self._integral_port.HasValue(context):
             integral = self._integral_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
