@@ -319,6 +319,7 @@ def _run_holding_lock(command: str, run, target, args, scheduler, out: str, kept
                 resume=args.resume,
                 progress=not args.quiet,
                 connect_timeout_s=args.connect_timeout,
+                batch_size=args.batch_size,
             ), None
     except UserInputError as e:
         return None, _campaign_failed(command, e)
@@ -381,6 +382,12 @@ def _scheduler_option(args):
 
     if args.workers is not None and not 1 <= args.workers <= 1024:
         raise CampaignError(f"--workers: got {args.workers}; must be an integer in [1, 1024]")
+    if args.batch_size is None:
+        from drake_att.analysis.executor import DEFAULT_BATCH_SIZE
+
+        args.batch_size = DEFAULT_BATCH_SIZE
+    elif not 1 <= args.batch_size <= 1000:
+        raise CampaignError(f"--batch-size: got {args.batch_size}; must be an integer in [1, 1000]")
     args.connect_timeout = check_connect_timeout(args.connect_timeout)
     if args.scheduler is None:
         return None
@@ -458,6 +465,14 @@ def _add_campaign_options(p, what: str) -> None:
         metavar="SECONDS",
         help="deadline in seconds (> 0, at most 3600) for reaching --scheduler: the connection, Dask's "
         "handshake, the first worker and its version check, plus a few seconds (default 10)",
+    )
+    p.add_argument(
+        "--batch-size",
+        type=int,
+        default=None,
+        metavar="B",
+        help="the most seeds one simulation carries where the scenario allows it (one truth shared by "
+        "every seed; the same records, for less CPU); 1 = every run alone (default 10)",
     )
     p.add_argument("--set", action="append", metavar="PATH=VALUE", help="override a config value (as for run)")
     p.add_argument("--out", default=None, metavar="DIR", help=f"{what} folder")

@@ -173,3 +173,51 @@ def test_bad_batch_arguments_are_named():
     for bad in (0, 1.5, None):
         with pytest.raises(executor.CampaignError, match="batch_size: got"):
             executor.map_runs(scenario, [1, 2], metrics_record, workers=1, batch_size=bad)
+
+
+def test_batches_fit_in_the_available_memory(monkeypatch):
+    """A batch holds its realizations' logs and their per-run copies: with memory for less than
+    two runs' worth of both, seeds run alone; with memory for three, batches of three."""
+    from drake_att.scenarios import preflight
+
+    scenario = _scenario("duration_s=60", "scoring.score_from_s=20")
+    per_run = preflight.memory_estimate(scenario).total_bytes
+    key = cfg.dump_scenario(scenario)
+    seeds = [1, 2, 3, 4, 5, 6]
+    monkeypatch.setattr(preflight, "available_memory_bytes", lambda: 2 * per_run * 1.9)
+    assert executor._batch_fit(scenario, 1) == 1
+    executor.map_runs(scenario, seeds, metrics_record, workers=1, batch_size=6)
+    assert not any(k[0] == key for k in executor._WORKER_BATCH_DIAGRAMS)
+    monkeypatch.setattr(preflight, "available_memory_bytes", lambda: 2 * per_run * 3.5)
+    assert executor._batch_fit(scenario, 1) == 3 and executor._batch_fit(scenario, 2) == 1
+    executor.map_runs(scenario, seeds, metrics_record, workers=1, batch_size=6)
+    assert [k[1] for k in executor._WORKER_BATCH_DIAGRAMS if k[0] == key] == [3]
+    monkeypatch.setattr(preflight, "available_memory_bytes", lambda: None)
+    assert executor._batch_fit(scenario, 1) == 1
+
+
+def test_the_cli_batch_size_option(tmp_path):
+    """``--batch-size`` out of range exits 2 naming it and writes nothing; ``--batch-size 1``
+    and the default give the same records."""
+    from drake_att.analysis import montecarlo as mc
+    from drake_att.cli import main as cli_main
+
+    short = ["--set", "duration_s=40", "--set", "scoring.score_from_s=10"]
+    for bad in ("0", "1001", "-3"):
+        out = tmp_path / f"bad{bad}"
+        assert cli_main(["montecarlo", SCENARIO, "--runs", "2", "--workers", "1", "--batch-size", bad, "--out", str(out), "--quiet", *short]) == 2
+        assert not out.exists()
+    records = {}
+    for size in ("1", None):
+        out = tmp_path / f"size{size}"
+        args = ["montecarlo", SCENARIO, "--runs", "3", "--workers", "1", "--out", str(out), "--quiet", *short]
+        assert cli_main(args + (["--batch-size", size] if size else [])) == 0
+        records[size] = [mc.load_record(str(out / "runs" / f"seed_{s}.npz")) for s in (1, 2, 3)]
+    for a, b in zip(records["1"], records[None], strict=True):
+        assert _without_wall_time([a]) == _without_wall_time([b])
+        for key in a:
+            if key != "metrics_json":
+                x, y = np.asarray(a[key]), np.asarray(b[key])
+                assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), key
+    with pytest.raises(executor.CampaignError, match="batch_size: got True"):
+        mc.run_campaign(SCENARIO, 2, workers=1, batch_size=True, progress=False)

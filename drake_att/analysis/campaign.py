@@ -48,7 +48,15 @@ from drake_att.analysis.dask_connection import (
     _shut_down,
     check_connect_timeout,
 )
-from drake_att.analysis.executor import RunFailed, _check_workers, _is_serial, executor_name, map_runs
+from drake_att.analysis.executor import (
+    DEFAULT_BATCH_SIZE,
+    RunFailed,
+    check_batch_size,
+    _check_workers,
+    _is_serial,
+    executor_name,
+    map_runs,
+)
 from drake_att.analysis.run_records import default_record
 from drake_att.progress import Progress, format_duration
 from drake_att.scenarios import config as cfg
@@ -199,6 +207,7 @@ def run_campaign(
     progress: bool = True,
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
     stream=None,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> CampaignResult:
     """A Monte Carlo campaign: ``runs`` seeds from ``first_seed`` (``drake-att montecarlo``).
 
@@ -232,12 +241,15 @@ def run_campaign(
         progress: a progress line (runs done, wall time, ETA) on ``stream`` (stderr).
         connect_timeout_s: the deadline of the connection to ``scheduler``
             (:func:`~drake_att.analysis.dask_connection.connect_scheduler`).
+        batch_size: the most seeds one simulation carries where the scenario allows batches
+            (:func:`~drake_att.analysis.executor.map_runs`; the same records; 1: each run alone).
 
     Ctrl-C (KeyboardInterrupt) stops the campaign; every run finished so far is on disk.
     """
     record = default_record if record is None else record
     seeds = campaign_seeds(runs, first_seed)
     connect_timeout_s = check_connect_timeout(connect_timeout_s)
+    batch_size = check_batch_size(batch_size)
     _check_workers(workers)
     resolved = resolve_scenario(scenario, overrides, estimators)
     yaml_text = cfg.dump_scenario(resolved)
@@ -246,7 +258,7 @@ def run_campaign(
     runs_so_far = _CampaignRuns(resolved, seeds, record, executor_name(workers, scheduler), out)
     if out is not None:
         runs_so_far.read_saved(out, yaml_text, resume, stream)
-    _run_pending(runs_so_far, yaml_text, workers, scheduler, connect_timeout_s, progress, stream)
+    _run_pending(runs_so_far, yaml_text, workers, scheduler, connect_timeout_s, progress, stream, batch_size)
     result = runs_so_far.result()
     interrupts.raise_if_interrupted()
     if report:
@@ -347,7 +359,14 @@ class _CampaignRuns:
 
 
 def _run_pending(
-    runs: _CampaignRuns, yaml_text: str, workers, scheduler, connect_timeout_s: float, progress: bool, stream
+    runs: _CampaignRuns,
+    yaml_text: str,
+    workers,
+    scheduler,
+    connect_timeout_s: float,
+    progress: bool,
+    stream,
+    batch_size: int = DEFAULT_BATCH_SIZE,
 ) -> None:
     """Runs the pending seeds into ``runs`` (:func:`map_runs`), with the campaign folder created
     first; a failure takes back what the folder got from this call. The progress line (with
@@ -376,6 +395,7 @@ def _run_pending(
             scheduler=executor[0] if executor else scheduler,
             on_result=runs.on_result,
             connect_timeout_s=connect_timeout_s,
+            batch_size=batch_size,
         )
     except BaseException:
         if runs.out is not None:

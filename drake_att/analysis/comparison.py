@@ -23,7 +23,7 @@ from drake_att.analysis.dask_connection import (
     _shut_down,
     check_connect_timeout,
 )
-from drake_att.analysis.executor import _check_workers, _is_serial, map_runs
+from drake_att.analysis.executor import DEFAULT_BATCH_SIZE, _check_workers, _is_serial, check_batch_size, map_runs
 from drake_att.analysis.run_records import timing_record
 from drake_att.outputs import safe_component
 from drake_att.scenarios import config as cfg
@@ -170,6 +170,7 @@ def run_comparison(
     resume: bool = False,
     progress: bool = True,
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+    batch_size: int = DEFAULT_BATCH_SIZE,
     record: Callable | None = None,
     timing_repeats: int = 3,
     stream=None,
@@ -177,13 +178,15 @@ def run_comparison(
     """Run :func:`comparison_plan`'s scenarios (``drake-att compare``): one campaign each
     (``<out>/<scenario>/``, resumable), then per scenario one timing run per estimator
     (that estimator and its sources alone, minus the sensors-only run; the fastest of
-    ``timing_repeats`` runs, seeds ``first_seed, first_seed + 1, ...``) and the matrix
+    ``timing_repeats`` runs, seeds ``first_seed, first_seed + 1, ...``, each run alone, never in a
+    batch) and the matrix
     (``comparison.{json,md,png,html}``). One Dask cluster serves all: a local one, or the
     scheduler's, connected to before anything is written
     (:func:`~drake_att.analysis.dask_connection.connect_scheduler`); a
     comparison that fails before any campaign saved a run leaves no folder behind."""
     campaign_seeds(runs, first_seed)
     connect_timeout_s = check_connect_timeout(connect_timeout_s)
+    check_batch_size(batch_size)
     _check_workers(workers)
     owned = None
     if not _is_serial(workers, scheduler) and (scheduler is None or isinstance(scheduler, str)):
@@ -207,6 +210,7 @@ def run_comparison(
                 record=record,
                 progress=progress,
                 connect_timeout_s=connect_timeout_s,
+                batch_size=batch_size,
                 stream=stream,
             )
             timing.update(
@@ -256,8 +260,15 @@ def _time_estimators(plan, scenario, first_seed, timing_repeats, workers, schedu
     selections = [()] + [_selection_with_sources(scenario, e) for e in names]
     seeds = [min(first_seed + k, SEED_MAX) for k in range(timing_repeats)]
     jobs = [(seed, sel) for sel in selections for seed in seeds]
+    # Each timed run alone: a batch's wall time is shared by its runs, not one estimator's cost.
     walls = map_runs(
-        scenario, jobs, timing_record, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s
+        scenario,
+        jobs,
+        timing_record,
+        workers=workers,
+        scheduler=scheduler,
+        connect_timeout_s=connect_timeout_s,
+        batch_size=1,
     )
     fastest = [
         min(walls[k * len(seeds) : (k + 1) * len(seeds)], key=lambda w: w["wall_time_s"])

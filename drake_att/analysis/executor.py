@@ -220,15 +220,17 @@ def map_runs(
         return results
     if workers is not None and workers < 1:
         raise CampaignError(f"--workers: got {workers}; must be a positive integer")
-    if not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
-        raise CampaignError(f"batch_size: got {describe(batch_size)}; must be an integer >= 1")
+    check_batch_size(batch_size)
     from drake_att.scenarios.builder import batch_problem
 
-    batch = batch_size > 1 and len(unique) > 1 and batch_problem(scenario) is None
     serial = _is_serial(workers, scheduler)
+    batch = batch_size > 1 and len(unique) > 1 and batch_problem(scenario) is None
     if batch:
-        share = -(-len(unique) // (1 if serial else (workers or os.cpu_count() or 1)))
-        chunk_size = max(2, min(int(batch_size), share))
+        processes = 1 if serial else (workers or os.cpu_count() or 1)
+        share = -(-len(unique) // processes)
+        size = min(int(batch_size), share, _batch_fit(scenario, processes))
+        batch = size > 1
+        chunk_size = size if batch else chunk_size
     chunk_size = max(1, chunk_size)
     chunks = [unique[k : k + chunk_size] for k in range(0, len(unique), chunk_size)]
     if serial:
@@ -248,6 +250,26 @@ def map_runs(
     finally:
         _shut_down(client, cluster, owned, futures)
     return results
+
+
+def check_batch_size(batch_size) -> int:
+    """``batch_size`` if it is an integer >= 1, else CampaignError naming it."""
+    if isinstance(batch_size, bool) or not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
+        raise CampaignError(f"batch_size: got {describe(batch_size)}; must be an integer >= 1")
+    return int(batch_size)
+
+
+def _batch_fit(scenario, processes: int) -> int:
+    """The most runs a batch may carry with ``processes`` batches at once in this machine's
+    available memory: a batch holds its realizations' logs and then their per-run copies,
+    twice a run's estimate (:func:`~drake_att.scenarios.preflight.memory_estimate`) each."""
+    from drake_att.scenarios.preflight import available_memory_bytes, memory_estimate
+
+    available = available_memory_bytes()
+    if available is None:
+        return 1
+    per_run = max(1.0, float(memory_estimate(scenario).total_bytes))
+    return int(available // (2.0 * per_run * max(1, processes)))
 
 
 def run_seeds(scenario, seeds, workers: int | None = None, keep_series_for=(), scheduler=None) -> list[dict]:
