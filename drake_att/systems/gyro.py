@@ -168,32 +168,35 @@ class _GyroOutputs(LeafSystem):
             else None
         )
         if self.realizations == 1:
-            sample = _sample(draws[0], n, t_n, w_true, None if scale_errors is None else scale_errors[0])
+            sample = np.array(_sample(draws[0], n, t_n, w_true, None if scale_errors is None else scale_errors[0]))
+            r = draws[0].model.range_rad_per_s
+            if r < math.inf:
+                sample[2:5] = np.clip(sample[2:5], -r, r)
         else:  # realization-major: every measurement (5 each), then every bias (3 each)
-            samples = [
-                _sample(d, n, t_n, w_true, None if scale_errors is None else scale_errors[i])
-                for i, d in enumerate(draws)
-            ]
-            sample = np.concatenate(
-                [s[:GYRO_MEASUREMENT_SIZE] for s in samples] + [s[GYRO_MEASUREMENT_SIZE:] for s in samples]
-            )
+            measurements, biases = [], []
+            for i, d in enumerate(draws):
+                values = _sample(d, n, t_n, w_true, None if scale_errors is None else scale_errors[i])
+                measurements += values[:GYRO_MEASUREMENT_SIZE]
+                biases += values[GYRO_MEASUREMENT_SIZE:]
+            sample = np.array(measurements + biases)
+            r = draws[0].model.range_rad_per_s
+            if r < math.inf:
+                rates = sample[: GYRO_MEASUREMENT_SIZE * self.realizations].reshape(-1, GYRO_MEASUREMENT_SIZE)[:, 2:5]
+                rates[:] = np.clip(rates, -r, r)
         output.SetFromVector(sample)  # type: ignore[arg-type]  # pydrake stub
 
 
-def _sample(draws: _GyroDraws, n: int, t_n: float, w_true: list, scale_error: float | None) -> np.ndarray:
-    """Sample ``n`` (stamp ``t_n``) of one realization: ``[t_n, 1, w_meas (3), B_n (3)]`` from
-    the true mean rate ``w_true`` (3 floats) and the scale-factor error ``s_k`` (None: 0)."""
+def _sample(draws: _GyroDraws, n: int, t_n: float, w_true: list, scale_error: float | None) -> list:
+    """Sample ``n`` (stamp ``t_n``) of one realization, before the range clip: ``[t_n, 1,
+    w_meas (3), B_n (3)]`` (floats) from the true mean rate ``w_true`` (3 floats) and the
+    scale-factor error ``s_k`` (None: 0)."""
     # (I + S + M) w; skipped for the identity (the same numbers, up to the sign of a zero).
     w_meas = w_true if draws.unit_sensor_matrix else (draws.model.sensor_matrix @ w_true).tolist()
     if scale_error is not None:
         divisor = 1.0 + scale_error
         w_meas = [w / divisor for w in w_meas]
     (ox, oy, oz), (bx, by, bz) = draws.offset_and_bias(n)
-    sample = np.array([t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz])
-    r = draws.model.range_rad_per_s
-    if r < math.inf:
-        sample[2:5] = np.clip(sample[2:5], -r, r)
-    return sample
+    return [t_n, 1.0, w_meas[0] + ox, w_meas[1] + oy, w_meas[2] + oz, bx, by, bz]
 
 
 class _GyroDraws:
