@@ -27,7 +27,9 @@ in class, within a factor 2 per axis, not in digits).
     python benchmarks/bench_peer.py --instructions --duration 500 --ekpf-duration 100   # callgrind
 
 ``--duration`` sets every selected case's duration, ``--ekpf-duration`` the ekpf case's (it
-takes precedence). ``--instructions``: each side of each case runs once in its own child under
+takes precedence). ``--batch N`` (``ten_hz`` only): drake_att runs seeds ``seed .. seed+N-1`` in
+one batch diagram (``ScenarioDiagram(realizations=N).simulate_batch``, what a campaign's worker
+does) and its figures are per run, the batch's divided by N; the RMSE is the first seed's. ``--instructions``: each side of each case runs once in its own child under
 valgrind's callgrind, counting only the timed part (the peer's loop; ``simulate`` after a short
 warm-up with another seed) - the same count for the same code whatever else the machine does
 (a shared VM moves CPU times by 2x). ~50x slower. The children import drake_att from the
@@ -145,20 +147,27 @@ def ekpf_core(ekpf_kernel: str):
         filter_setups.EkpfCore = library
 
 
-def build_diagram(case: str, duration: float, ekpf_kernel: str = "numba"):
-    """``(ScenarioDiagram, build CPU s)``."""
+def build_diagram(case: str, duration: float, ekpf_kernel: str = "numba", batch: int = 1):
+    """``(ScenarioDiagram, build CPU s)`` (a batch diagram of ``batch`` realizations if > 1)."""
     from drake_att.scenarios.builder import ScenarioDiagram
 
     scenario = drake_scenario(case, duration)
     c0 = time.process_time()
     with ekpf_core(ekpf_kernel):
-        sd = ScenarioDiagram(scenario)
+        sd = ScenarioDiagram(scenario, realizations=batch)
     return sd, time.process_time() - c0
+
+
+def simulate(sd, seed: int, overrides=None):
+    """The run of ``seed`` (a batch diagram: seeds ``seed ..``, all simulated, the first returned)."""
+    if sd.realizations == 1:
+        return sd.simulate(seed, overrides=overrides)
+    return sd.simulate_batch(list(range(seed, seed + sd.realizations)), overrides=overrides)[0]
 
 
 def warm_up_drake(case: str, sd, seed: int) -> None:
     w = WARM_UP_S[case]
-    sd.simulate(seed + WARM_UP_SEED_OFFSET, overrides=[f"duration_s={w}", f"scoring.score_from_s={w / 2}"])
+    simulate(sd, seed + WARM_UP_SEED_OFFSET, overrides=[f"duration_s={w}", f"scoring.score_from_s={w / 2}"])
 
 
 def drake_results(case: str, run) -> tuple[dict, str]:
@@ -176,15 +185,16 @@ def drake_results(case: str, run) -> tuple[dict, str]:
 _CHILD = """
 import json, os, subprocess, sys
 bench_dir, case, side, T, seed, kernel = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4]), int(sys.argv[5]), sys.argv[6]
+batch = int(sys.argv[7])
 sys.path.insert(0, bench_dir)
 import bench_peer
 toggle = lambda state: subprocess.run(["callgrind_control", "-i", state, str(os.getpid())], check=True,
                                       capture_output=True)
-print("RESULT " + json.dumps(bench_peer.child_run(case, side, T, seed, kernel, toggle)))
+print("RESULT " + json.dumps(bench_peer.child_run(case, side, T, seed, kernel, toggle, batch)))
 """
 
 
-def child_run(case: str, side: str, duration: float, seed: int, ekpf_kernel: str, toggle) -> dict:
+def child_run(case: str, side: str, duration: float, seed: int, ekpf_kernel: str, toggle, batch: int = 1) -> dict:
     """The body of an instruction-count child: warm up, ``toggle("on")``, the timed part,
     ``toggle("off")``; returns ``{"rmse_deg", "note"}`` (computed after the count)."""
     if side == "peer":
@@ -193,16 +203,18 @@ def child_run(case: str, side: str, duration: float, seed: int, ekpf_kernel: str
         r = run_peer(case, duration, seed)
         toggle("off")
         return {"rmse_deg": r["rmse_deg"], "note": r["note"]}
-    sd, _ = build_diagram(case, duration, ekpf_kernel)
+    sd, _ = build_diagram(case, duration, ekpf_kernel, batch)
     warm_up_drake(case, sd, seed)
     toggle("on")
-    run = sd.simulate(seed)
+    run = simulate(sd, seed)
     toggle("off")
     rmse, note = drake_results(case, run)
     return {"rmse_deg": rmse, "note": note}
 
 
-def count_instructions(case: str, side: str, duration: float, seed: int, ekpf_kernel: str = "numba") -> tuple:
+def count_instructions(
+    case: str, side: str, duration: float, seed: int, ekpf_kernel: str = "numba", batch: int = 1
+) -> tuple:
     """``(callgrind's instruction count of one side's timed part, its child_run result)``."""
     import subprocess
 
@@ -221,6 +233,7 @@ def count_instructions(case: str, side: str, duration: float, seed: int, ekpf_ke
             str(duration),
             str(seed),
             ekpf_kernel,
+            str(batch),
         ],
         capture_output=True,
         text=True,
@@ -270,7 +283,7 @@ def print_rmse_table(case: str, peer_rmse: dict, lib_rmse: dict, start: float) -
     return same
 
 
-def measure_cpu(case: str, duration: float, seed: int, repeats: int, ekpf_kernel: str) -> dict:
+def measure_cpu(case: str, duration: float, seed: int, repeats: int, ekpf_kernel: str, batch: int = 1) -> dict:
     """One case by CPU time; prints its block and returns the summary row."""
     start = score_from(duration)
     print(f"{title(case, ekpf_kernel)}, {duration:.0f} s, seed {seed}, best of {repeats} (CPU s)")
@@ -278,13 +291,13 @@ def measure_cpu(case: str, duration: float, seed: int, repeats: int, ekpf_kernel
     peer_runs = [run_peer(case, duration, seed) for _ in range(repeats)]
     peer = min(peer_runs, key=lambda r: r["cpu_s"])
 
-    sd, build = build_diagram(case, duration, ekpf_kernel)
+    sd, build = build_diagram(case, duration, ekpf_kernel, batch)
     warm_up_drake(case, sd, seed)
     lib_cpu, run = [], None
     for _ in range(repeats):
         c0 = time.process_time()
-        run = sd.simulate(seed)
-        lib_cpu.append(time.process_time() - c0)
+        run = simulate(sd, seed)
+        lib_cpu.append((time.process_time() - c0) / batch)  # per run
     lib_rmse, lib_note = drake_results(case, run)
     lib = min(lib_cpu)
     ratio = lib / peer["cpu_s"]
@@ -314,14 +327,16 @@ def measure_cpu(case: str, duration: float, seed: int, repeats: int, ekpf_kernel
     return {"case": case, "duration": duration, "peer": peer["cpu_s"], "lib": lib, "ratio": ratio, "same": same}
 
 
-def measure_instructions(case: str, duration: float, seed: int, ekpf_kernel: str) -> dict:
+def measure_instructions(case: str, duration: float, seed: int, ekpf_kernel: str, batch: int = 1) -> dict:
     """One case by callgrind instruction counts; prints its block and returns the summary row."""
     peer_n, peer_r = count_instructions(case, "peer", duration, seed, ekpf_kernel)
-    lib_n, lib_r = count_instructions(case, "drake_att", duration, seed, ekpf_kernel)
+    lib_n, lib_r = count_instructions(case, "drake_att", duration, seed, ekpf_kernel, batch)
+    lib_n /= batch  # per run
     steps = round(duration / STEP_S[case])
     what = f"{STEP_S[case]:g}-s step"
+    per_run = f"; drake_att per run of a batch of {batch}" if batch > 1 else ""
     print(
-        f"{title(case, ekpf_kernel)}, {duration:.0f} s ({steps} steps), seed {seed}: instructions (callgrind)\n"
+        f"{title(case, ekpf_kernel)}, {duration:.0f} s ({steps} steps), seed {seed}: instructions (callgrind{per_run})\n"
         f"{'peer':<10} {peer_n / 1e9:8.3f} G  ({peer_n / steps / 1e3:.0f} k per {what}; {peer_r['note']})\n"
         f"{'drake_att':<10} {lib_n / 1e9:8.3f} G  ({lib_n / steps / 1e3:.0f} k per {what}; {lib_r['note']})\n"
         f"ratio drake_att / peer: {lib_n / peer_n:.2f}"
@@ -362,8 +377,16 @@ def main(argv=None):
         action="store_true",
         help="count instructions under callgrind instead of timing (deterministic; ~50x slower)",
     )
+    ap.add_argument(
+        "--batch",
+        type=int,
+        default=1,
+        help="ten_hz only: drake_att runs this many seeds in one batch diagram; figures per run (default 1)",
+    )
     a = ap.parse_args(argv)
     cases = CASES if a.case == "all" else (a.case,)
+    if a.batch < 1 or (a.batch > 1 and cases != ("ten_hz",)):
+        ap.error(f"--batch: got {a.batch}; must be >= 1, and > 1 only with --case ten_hz")
     durations = dict(QUICK_DURATION_S if a.quick else DURATION_S)
     if a.quick:
         a.repeats = 1
@@ -377,9 +400,9 @@ def main(argv=None):
         if i:
             print()
         if a.instructions:
-            rows.append(measure_instructions(case, durations[case], a.seed, a.ekpf_kernel))
+            rows.append(measure_instructions(case, durations[case], a.seed, a.ekpf_kernel, a.batch))
         else:
-            rows.append(measure_cpu(case, durations[case], a.seed, a.repeats, a.ekpf_kernel))
+            rows.append(measure_cpu(case, durations[case], a.seed, a.repeats, a.ekpf_kernel, a.batch))
         sys.stdout.flush()
     if len(rows) > 1:
         unit = "G instr" if a.instructions else "CPU s"
