@@ -184,6 +184,7 @@ def test_batches_fit_in_the_available_memory(monkeypatch):
     per_run = preflight.memory_estimate(scenario).total_bytes
     key = cfg.dump_scenario(scenario)
     seeds = [1, 2, 3, 4, 5, 6]
+    monkeypatch.setattr(executor, "_WORKER_BATCH_DIAGRAMS", {})  # this test's batch diagrams only
     monkeypatch.setattr(preflight, "available_memory_bytes", lambda: 2 * per_run * 1.9)
     assert executor._batch_fit(scenario, 1) == 1
     executor.map_runs(scenario, seeds, metrics_record, workers=1, batch_size=6)

@@ -111,16 +111,18 @@ def _worker_batch_diagram(yaml_text: str, size: int):
     return _WORKER_BATCH_DIAGRAMS[key]
 
 
-def _run_jobs(yaml_text: str, jobs, record: Callable, batch: bool = False) -> list:
+def _run_jobs(yaml_text: str, jobs, record: Callable, batch: bool = False, emit: Callable | None = None) -> list:
     """Run ``jobs`` (``(seed, estimators or None)`` pairs) on this process's diagram of
     ``yaml_text`` (with ``batch``: jobs with the same estimators in one batch simulation);
-    returns ``[(job, record(run) or RunFailed), ...]`` in job order. The Dask task and the
-    serial loop both call this, so both compute the very same thing."""
+    returns ``[(job, record(run) or RunFailed), ...]`` in job order, and passes each pair to
+    ``emit`` as soon as its record is made (the serial runner keeps each finished run before
+    the next record). The Dask task and the serial loop both call this, so both compute the
+    very same thing."""
     with _WORKER_LOCK:
-        return _run_jobs_locked(yaml_text, jobs, record, batch)
+        return _run_jobs_locked(yaml_text, jobs, record, batch, emit)
 
 
-def _run_jobs_locked(yaml_text: str, jobs, record: Callable, batch: bool = False) -> list:
+def _run_jobs_locked(yaml_text: str, jobs, record: Callable, batch: bool = False, emit: Callable | None = None) -> list:
     from drake_att.scenarios.builder import NonFiniteRunError
 
     sd = _worker_diagram(yaml_text)
@@ -140,6 +142,8 @@ def _run_jobs_locked(yaml_text: str, jobs, record: Callable, batch: bool = False
                 _WORKER_STATS["runs"] += 1
                 failed = isinstance(run, NonFiniteRunError)
                 results[job] = RunFailed(int(job[0]), str(run)) if failed else record(run)
+                if emit is not None:
+                    emit(job, results[job])
     out = []
     for job in jobs:
         if job not in results:
@@ -150,6 +154,8 @@ def _run_jobs_locked(yaml_text: str, jobs, record: Callable, batch: bool = False
                 results[job] = record(run)
             except NonFiniteRunError as e:
                 results[job] = RunFailed(int(seed), str(e))
+            if emit is not None:
+                emit(job, results[job])
         out.append((job, results[job]))
     return out
 
@@ -235,7 +241,7 @@ def map_runs(
     chunks = [unique[k : k + chunk_size] for k in range(0, len(unique), chunk_size)]
     if serial:
         for chunk in chunks:
-            deliver(_run_jobs(yaml_text, chunk, record, batch))
+            _run_jobs(yaml_text, chunk, record, batch, emit=lambda job, result: deliver([(job, result)]))
         return results
     n_workers = min(workers or os.cpu_count() or 1, len(chunks))
     from distributed import as_completed
