@@ -210,13 +210,13 @@ class StarTracker(LeafSystem):
         self.DeclareDiscreteState(np.zeros(SEED_WORDS * N))  # type: ignore[arg-type]  # pydrake stub
         self.DeclareInitializationDiscreteUpdateEvent(self._initialize)
         # The context's samples (a _TrackerSamples per realization, of its seed words and the
-        # noise parameter): one cache look-up per output evaluation.
+        # noise parameter, in a _TrackerBatch): one cache look-up per output evaluation.
         self._samples_cache = NoiseCache(
             self,
             "samples",
             self.noise,
-            lambda words, noise: tuple(
-                _TrackerSamples(self, w, noise) for w in np.reshape(words, (N, SEED_WORDS))
+            lambda words, noise: _TrackerBatch(
+                tuple(_TrackerSamples(self, w, noise) for w in np.reshape(words, (N, SEED_WORDS)))
             ),
         )
         deps = {self.time_ticket(), self.xd_ticket(), self.all_input_ports_ticket(), self.all_parameters_ticket()}
@@ -273,7 +273,7 @@ class StarTracker(LeafSystem):
     def _samples(self, context) -> _TrackerSamples:
         """The samples of this context's seed words and noise parameter (cached; the first
         realization's)."""
-        return self._samples_cache.get(context)[0]
+        return self._samples_cache.get(context).realizations[0]
 
     def _sample_index(self, t: float) -> int:
         """The index ``k = max(0, ceil(t / T - 1e-9))`` of the sample an output at ``t``
@@ -325,8 +325,7 @@ class StarTracker(LeafSystem):
         block, r = divmod(self._sample_index(context.get_time()), CounterRandom.BLOCK)
         q_IB = self._q_port.Eval(context).tolist()  # type: ignore[attr-defined]  # pydrake stub
         values = []
-        for samples in self._samples_cache.get(context):
-            stamps, valid, draws = samples.block(block)
+        for stamps, valid, draws in self._samples_cache.get(context).blocks(block):
             values += [stamps[r], 1.0 if valid[r] else 0.0, *_canonical_product(q_IB, draws[r])]
         output.SetFromVector(np.array(values))  # type: ignore[arg-type]  # pydrake stub
 
@@ -359,6 +358,25 @@ def _canonical_product(p, q) -> tuple:
     y = pw * qy - px * qz + py * qw + pz * qx
     z = pw * qz + px * qy - py * qx + pz * qw
     return (-w, -x, -y, -z) if w < 0.0 else (w, x, y, z)
+
+
+class _TrackerBatch:
+    """The :class:`_TrackerSamples` of each realization, and the last block's rows of all of
+    them (one look-up per output evaluation instead of one per realization). Immutable in
+    effect (a memo), so a cloned context shares it."""
+
+    def __init__(self, realizations: tuple):
+        self.realizations = realizations
+        self._last: tuple = (-1, [])
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def blocks(self, block: int) -> list:
+        """``[samples.block(block) for each realization]``."""
+        if self._last[0] != block:
+            self._last = (block, [samples.block(block) for samples in self.realizations])
+        return self._last[1]
 
 
 class _TrackerSamples:
