@@ -92,7 +92,9 @@ def build_estimate_fusion(ctx, c: EstimateFusionConfig):
     sources = [ctx.estimators[n] for n in c.sources]
     period = min(ctx.estimator_configs[n].period_s for n in c.sources)
     second = sources[0].second_output_name
-    fusion = ctx.builder.AddSystem(EstimateFusion(c.name, c.sources, c.weights, second, c.covariance_model, period))
+    fusion = ctx.builder.AddSystem(
+        EstimateFusion(c.name, c.sources, c.weights, second, c.covariance_model, period, ctx.realizations)
+    )
     contract_ports = [
         ("q_IB_hat", "q_IB_hat", Q_IB),
         (second, "second", SECOND),
@@ -100,7 +102,9 @@ def build_estimate_fusion(ctx, c: EstimateFusionConfig):
         ("status", "status", STATUS),
     ]
     for n, src in zip(c.sources, sources, strict=True):
-        if src.HasOutputPort("estimate_state"):
+        if ctx.realizations > 1:  # a batch: each source's packed estimate, N blocks
+            ctx.builder.Connect(src.GetOutputPort("estimate_state"), fusion.GetInputPort(f"{n}_estimate_state"))
+        elif src.HasOutputPort("estimate_state"):
             # The packed estimate (a C++ state port) split by a C++ Demultiplexer: no Python
             # output call per contract port.
             split = ctx.builder.AddNamedSystem(

@@ -388,17 +388,17 @@ def initial_rate_B(scenario: cfg.Scenario, q_IB0) -> np.ndarray:
 
 
 #: Sensor configs whose systems carry several realizations (a batch), and the estimator configs.
-BATCH_SENSORS = ("GyroConfig", "StarTrackerConfig")
-BATCH_ESTIMATORS = ("MekfConfig",)
+BATCH_SENSORS = ("GyroConfig", "StarTrackerConfig", "StarTrackerAverageConfig")
+BATCH_ESTIMATORS = ("MekfConfig", "EstimateFusionConfig")
 
 
 def batch_problem(scenario: cfg.Scenario) -> str | None:
     """Why ``scenario``'s runs cannot share one diagram as a batch (None: they can).
 
     A batch carries N runs on one truth: the truth must not depend on the seed (no attitude
-    controller, whose torque noise is drawn per seed), and every sensor and estimator must carry N realizations:
-    gyros, quaternion star trackers without exclusion, MEKFs on the compiled step (checked
-    when the batch diagram is built)."""
+    controller, whose torque noise is drawn per seed), and every sensor and estimator must
+    carry N realizations: gyros, quaternion star trackers without exclusion, their averages,
+    MEKFs on the compiled step (checked when the batch diagram is built) and their fusions."""
     if isinstance(scenario.plant, cfg.RigidBodyConfig) and scenario.plant.attitude_control is not None:
         return "its attitude controller drives the truth with torque noise drawn per seed (each run has its own truth)"
     for s in scenario.sensors:

@@ -91,6 +91,7 @@ def build_star_tracker_average(ctx, c: StarTrackerAverageConfig):
             [star_tracker_mounting(t) for t in trackers],
             [tracker_sigmas_S(ctx, t) for t in trackers],
             c.weights,
+            realizations=ctx.realizations,
         )
     )
     for n in c.star_trackers:

@@ -45,7 +45,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, EventStatus, LeafSystem
 
 from drake_att import rotations as rot
-from drake_att.contract import ESTIMATE_SIZE, TIME_TOLERANCE_S
+from drake_att.contract import COVARIANCE, ESTIMATE_SIZE, Q_IB, SECOND, STATUS, TIME_TOLERANCE_S
 from drake_att.filters.quaternion_average import (
     _average_two_unit_quaternions,
     _average_unit_quaternions,
@@ -117,6 +117,12 @@ def _weighted_sum(coefficients, vectors):
     return acc
 
 
+def _check_realizations(name: str, realizations) -> int:
+    if not (isinstance(realizations, int) and realizations >= 1):
+        raise ValueError(f"{name}.realizations: got {realizations!r}; must be an integer >= 1")
+    return realizations
+
+
 def _normalized_weights(weights, n, field):
     w = np.asarray(weights, dtype=float)
     if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
@@ -159,6 +165,8 @@ class StarTrackerAverage(LeafSystem):
         q_BS_list: mounting of each tracker (4,).
         sigmas_S_list: (3,) noise sigmas of each tracker in its sensor frame (rad).
         weights: averaging weights (normalized to sum 1).
+        realizations: N realizations in one system (a batch of runs): every port carries N
+            blocks, realization-major, each averaged as a system alone would.
 
     Input ports:
         q_meas_<tracker> (6): ``[t, valid, q_IS_meas (4)]`` per tracker.
@@ -172,9 +180,10 @@ class StarTrackerAverage(LeafSystem):
             fine instead of losing the step. None valid: flag 0.
     """
 
-    def __init__(self, name, tracker_names, q_BS_list, sigmas_S_list, weights):
+    def __init__(self, name, tracker_names, q_BS_list, sigmas_S_list, weights, realizations: int = 1):
         LeafSystem.__init__(self)
         self.set_name(name)
+        self.realizations = N = _check_realizations(name, realizations)
         n = len(tracker_names)
         if n < 2:
             raise ValueError(f"{name}.star_trackers: got {list(tracker_names)}; need at least 2 trackers")
@@ -184,11 +193,23 @@ class StarTrackerAverage(LeafSystem):
         self._q_SB = [rot.quat_conjugate(q).tolist() for q in self.q_BS]  # q_BS,i^-1 (unit)
         self.covariance_B = average_measurement_covariance_B(q_BS_list, sigmas_S_list, weights)
         self.covariance_by_mask = subset_covariances(q_BS_list, sigmas_S_list, self.weights)
-        self._ports = [self.DeclareVectorInputPort(f"q_meas_{t}", QUATERNION_MEASUREMENT_SIZE) for t in tracker_names]
-        self.DeclareVectorOutputPort("star_tracker_measurement", QUATERNION_MEASUREMENT_SIZE, self._calc)
+        size = QUATERNION_MEASUREMENT_SIZE
+        self._ports = [self.DeclareVectorInputPort(f"q_meas_{t}", size * N) for t in tracker_names]
+        self.DeclareVectorOutputPort("star_tracker_measurement", size * N, self._calc)
 
     def _calc(self, context, output: BasicVector):
         meas = [p.Eval(context).tolist() for p in self._ports]
+        if self.realizations == 1:
+            output.SetFromVector(self._sample(meas))  # type: ignore[arg-type]  # pydrake stub
+            return
+        size, values = QUATERNION_MEASUREMENT_SIZE, []
+        for i in range(self.realizations):
+            values += self._sample([m[i * size : (i + 1) * size] for m in meas])
+        output.SetFromVector(values)  # type: ignore[arg-type]  # pydrake stub
+
+    def _sample(self, meas: list) -> list:
+        """The averaged sample ``[t, flag, q_IB_meas (4)]`` of one realization's tracker
+        samples (each 6 floats)."""
         # Fine: flagged valid (a NaN flag is not) and every entry finite.
         fine = [m[1] > 0.5 and all(map(math.isfinite, m)) for m in meas]
         if any(fine):
@@ -206,7 +227,7 @@ class StarTrackerAverage(LeafSystem):
             flag = 1.0 if len(idx) == len(meas) else 1.0 + float(sum(1 << i for i in idx))
             # _average renormalizes the weights of the trackers used.
             q_avg = q_B[0] if len(idx) == 1 else _average(q_B, [self._w[i] for i in idx])
-        output.SetFromVector([t_latest, flag, *q_avg])  # type: ignore[arg-type]  # pydrake stub
+        return [t_latest, flag, *q_avg]
 
 
 class EstimateFusion(LeafSystem):
@@ -220,6 +241,10 @@ class EstimateFusion(LeafSystem):
         covariance_model: "tracked", "conservative" or "independent" (see module docstring).
         period_s: the sources' filter step (s); needed by "tracked", and the period at which
             the scenario builder logs the fused estimate.
+        realizations: N realizations in one system (a batch of runs): the inputs are then each
+            source's packed ``s_estimate_state`` (47 N) and ``s_linearization`` (109 N), the only
+            output ``estimate_state`` (47 N) and the state 37 N, realization-major; each
+            realization is fused with the arithmetic of a system alone.
 
     Input ports (per source ``s``): ``s_q_IB_hat`` (4), ``s_second`` (3),
         ``s_covariance`` (36), ``s_status`` (4); with "tracked" also ``s_linearization``
@@ -244,9 +269,11 @@ class EstimateFusion(LeafSystem):
         second_output_name="bias_B_hat",
         covariance_model="conservative",
         period_s=None,
+        realizations: int = 1,
     ):
         LeafSystem.__init__(self)
         self.set_name(name)
+        self.realizations = N = _check_realizations(name, realizations)
         n = len(source_names)
         if n < 2:
             raise ValueError(f"{name}.sources: got {list(source_names)}; need at least 2 estimators")
@@ -261,40 +288,46 @@ class EstimateFusion(LeafSystem):
         self.second_output_name = second_output_name
         self.period_s = None if period_s is None else float(period_s)  # the sources' step
         self.source_names = list(source_names)
-        self._in = {
-            s: {
-                k: self.DeclareVectorInputPort(f"{s}_{k}", size)
-                for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))
+        if N == 1:
+            self._in = {
+                s: {
+                    k: self.DeclareVectorInputPort(f"{s}_{k}", size)
+                    for k, size in (("q_IB_hat", 4), ("second", 3), ("covariance", 36), ("status", 4))
+                }
+                for s in source_names
             }
-            for s in source_names
-        }
+            self._q_ports, self._second_ports, self._cov_ports, self._status_ports = (
+                [self._in[s][k] for s in source_names] for k in ("q_IB_hat", "second", "covariance", "status")
+            )
+        else:  # each source's packed estimate, N blocks
+            self._packed_ports = [self.DeclareVectorInputPort(f"{s}_estimate_state", ESTIMATE_SIZE * N) for s in source_names]
         self._w = self.weights.tolist()
         self._cov_coefficients = self._w if covariance_model == "conservative" else [w * w for w in self._w]
         if covariance_model == "tracked":  # the coefficients of P_1, P_2 and P_12 + P_12'
             w1, w2 = self._w
             self._tracked_coefficients = (w1 * w1, w2 * w2, w1 * w2)
-        self._q_ports, self._second_ports, self._cov_ports, self._status_ports = (
-            [self._in[s][k] for s in source_names] for k in ("q_IB_hat", "second", "covariance", "status")
-        )
-        if covariance_model == "tracked":
-            self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109) for s in source_names}
+            self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109 * N) for s in source_names}
             self._lin_ports = [self._lin[s] for s in source_names]
-            self._cross_group = self.DeclareDiscreteState(np.concatenate([np.eye(6).ravel(), [0.0]]))
+            self._cross_group = self.DeclareDiscreteState(np.tile(np.concatenate([np.eye(6).ravel(), [0.0]]), N))
             self._cross_index = int(self._cross_group)  # an int selects the group faster
             self.DeclareInitializationDiscreteUpdateEvent(self._initialize_cross)
             self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._advance_cross)
-        self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
-        self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
-        self.DeclareVectorOutputPort("covariance", 36, self._calc_cov)
-        self.DeclareVectorOutputPort("status", 4, self._calc_status)
+        if N == 1:
+            self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
+            self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
+            self.DeclareVectorOutputPort("covariance", 36, self._calc_cov)
+            self.DeclareVectorOutputPort("status", 4, self._calc_status)
         # All four in one evaluation, in the estimator contract's packed layout: what the
         # scenario builder logs (one Python call per logged sample instead of four).
-        self.DeclareVectorOutputPort("estimate_state", ESTIMATE_SIZE, self._calc_estimate_state)
+        self.DeclareVectorOutputPort("estimate_state", ESTIMATE_SIZE * N, self._calc_estimate_state)
 
     def _weights_in_use(self, context) -> tuple:
         """``(weights as floats, configured?)``: :meth:`active_weights` as a list, and
         whether it is the configured weights unchanged."""
-        active = [p.Eval(context)[1] > 0 for p in self._status_ports]
+        return self._weights_of([p.Eval(context)[1] > 0 for p in self._status_ports])
+
+    def _weights_of(self, active: list) -> tuple:
+        """:meth:`_weights_in_use` for the sources' ``active`` flags (used a measurement)."""
         if all(active) or not any(active):
             return self._w, True
         w = [wi if a else 0.0 for wi, a in zip(self._w, active, strict=True)]
@@ -310,12 +343,7 @@ class EstimateFusion(LeafSystem):
         return self.weights if configured else np.array(w)
 
     def _q(self, context, w):
-        quaternions = [p.Eval(context).tolist() for p in self._q_ports]
-        if not all(math.isfinite(x) for q in quaternions for x in q):
-            # A source went non-finite: so does the fused estimate, and the run fails naming it
-            # (the builder's finite check) instead of the average refusing NaN mid-simulation.
-            return [math.nan] * 4
-        return _average(quaternions, w)
+        return _fused_quaternion([p.Eval(context).tolist() for p in self._q_ports], w)
 
     def _second(self, context, w):
         return _weighted_sum(w, [p.Eval(context).tolist() for p in self._second_ports])
@@ -334,7 +362,10 @@ class EstimateFusion(LeafSystem):
 
     def _calc_estimate_state(self, context, output):
         """``[q_IB_hat (4), second (3), covariance (36), status (4)]`` (the contract's packed
-        estimate), the four outputs' values computed once."""
+        estimate), the four outputs' values computed once (N blocks with N realizations)."""
+        if self.realizations > 1:
+            output.SetFromVector(self._estimate_states(context))
+            return
         w, configured = self._weights_in_use(context)
         output.SetFromVector(
             np.concatenate(
@@ -347,35 +378,67 @@ class EstimateFusion(LeafSystem):
             )
         )
 
+    def _estimate_states(self, context) -> np.ndarray:
+        """The packed fused estimate of every realization (realization-major): per realization
+        the single system's arithmetic on that realization's blocks of the inputs."""
+        N = self.realizations
+        packed = [np.reshape(p.Eval(context), (N, ESTIMATE_SIZE)) for p in self._packed_ports]
+        cross = self._cross_covariances(context) if self.covariance_model == "tracked" else None
+        out = np.empty((N, ESTIMATE_SIZE))
+        for i in range(N):
+            rows = [x[i] for x in packed]
+            statuses = [r[STATUS].tolist() for r in rows]
+            w, configured = self._weights_of([st[1] > 0 for st in statuses])
+            out[i, Q_IB] = _fused_quaternion([r[Q_IB].tolist() for r in rows], w)
+            out[i, SECOND] = _weighted_sum(w, [r[SECOND].tolist() for r in rows])
+            P12 = None if cross is None else cross[i][0]
+            out[i, COVARIANCE] = self._fused_covariance([r[COVARIANCE] for r in rows], w, configured, P12)
+            out[i, STATUS] = _fused_status(statuses)
+        return out.ravel()
+
     def _cross_covariance(self, context):
         """``P_12`` at the step of the current inputs: the stored one, advanced once if the
         sources have taken a step since (NaN if the sources disagree on the step)."""
         x = context.get_discrete_state(self._cross_index).value()
-        applied = x[36]
         l1, l2 = (p.Eval(context) for p in self._lin_ports)
-        step = l1[108]
-        if step != l2[108]:
-            return np.full((6, 6), np.nan), applied
-        P12 = x[:36].reshape(6, 6)
-        if step > applied:
-            Phi1, Q, A1 = l1[:36].reshape(6, 6), l1[36:72].reshape(6, 6), l1[72:108].reshape(6, 6)
-            Phi2, A2 = l2[:36].reshape(6, 6), l2[72:108].reshape(6, 6)
-            P12 = A1.dot(Phi1.dot(P12).dot(Phi2.T) + Q).dot(A2.T)  # A1 (Phi1 P12 Phi2' + Q) A2'
-        return P12, step
+        return _advanced_cross_covariance(x, l1, l2)
+
+    def _cross_covariances(self, context) -> list:
+        """:meth:`_cross_covariance` of every realization: ``[(P_12, step), ...]``."""
+        N = self.realizations
+        x = np.reshape(context.get_discrete_state(self._cross_index).value(), (N, 37))
+        l1, l2 = (np.reshape(p.Eval(context), (N, 109)) for p in self._lin_ports)
+        return [_advanced_cross_covariance(x[i], l1[i], l2[i]) for i in range(N)]
 
     def _initialize_cross(self, context, discrete_state):
         """``P_12 = P_0``: the first source's covariance at initialization (its initial one)."""
-        P0 = self._in[self.source_names[0]]["covariance"].Eval(context)
-        discrete_state.get_mutable_vector(self._cross_group).SetFromVector(np.concatenate([P0, [0.0]]))
+        if self.realizations == 1:
+            P0 = self._in[self.source_names[0]]["covariance"].Eval(context)
+            value = np.concatenate([P0, [0.0]])
+        else:
+            first = np.reshape(self._packed_ports[0].Eval(context), (self.realizations, ESTIMATE_SIZE))
+            value = np.concatenate([np.concatenate([row[COVARIANCE], [0.0]]) for row in first])
+        discrete_state.get_mutable_vector(self._cross_group).SetFromVector(value)
         return EventStatus.Succeeded()
 
     def _advance_cross(self, context, discrete_state):
-        P12, steps = self._cross_covariance(context)
-        discrete_state.get_mutable_vector(self._cross_group).SetFromVector(np.concatenate([P12.ravel(), [steps]]))
+        if self.realizations == 1:
+            P12, steps = self._cross_covariance(context)
+            value = np.concatenate([P12.ravel(), [steps]])
+        else:
+            value = np.concatenate([np.concatenate([P12.ravel(), [steps]]) for P12, steps in self._cross_covariances(context)])
+        discrete_state.get_mutable_vector(self._cross_group).SetFromVector(value)
         return EventStatus.Succeeded()
 
     def _cov(self, context, weights, configured):
         P = [p.Eval(context) for p in self._cov_ports]  # (36,) each
+        P12 = self._cross_covariance(context)[0] if configured and self.covariance_model == "tracked" else None
+        return self._fused_covariance(P, weights, configured, P12)
+
+    def _fused_covariance(self, P: list, weights, configured: bool, P12):
+        """The fused covariance (36) of the sources' ``P`` (36 each) with the weights in use;
+        ``P12``: the tracked cross-covariance (6, 6), read only by the "tracked" model with the
+        configured weights."""
         if not configured:  # a dead branch dropped: the live ones' covariance
             live = [w > 0.0 for w in weights]
             if sum(live) == 1:
@@ -384,16 +447,45 @@ class EstimateFusion(LeafSystem):
             return _weighted_sum(c, P)
         if self.covariance_model == "tracked":
             c11, c22, c12 = self._tracked_coefficients  # w1^2, w2^2, w1 w2
-            P12, _ = self._cross_covariance(context)
             return c11 * P[0] + c22 * P[1] + c12 * (P12 + P12.T).ravel()
         return _weighted_sum(self._cov_coefficients, P)
 
     def _status(self, context):
-        st = [p.Eval(context).tolist() for p in self._status_ports]
-        times = [s[0] for s in st]
-        spread = math.nan if any(map(math.isnan, times)) else max(times) - min(times)
-        t = times[0] if spread < TIME_TOLERANCE_S else math.nan
-        used, skipped = st[0][1], st[0][2]
-        for s in st[1:]:
-            used, skipped = used + s[1], skipped + s[2]
-        return [t, used, skipped, math.nan]
+        return _fused_status([p.Eval(context).tolist() for p in self._status_ports])
+
+
+def _fused_quaternion(quaternions: list, w) -> list:
+    """The weighted average of the sources' quaternions (4 floats each); NaN when one is not
+    finite: the run then fails naming it (the builder's finite check) instead of the average
+    refusing NaN mid-simulation."""
+    if not all(math.isfinite(x) for q in quaternions for x in q):
+        return [math.nan] * 4
+    return _average(quaternions, w)
+
+
+def _fused_status(statuses: list) -> list:
+    """``[t, used, skipped, nan]`` of the sources' statuses (4 floats each): their common
+    estimate time (NaN when they disagree) and their summed counts."""
+    times = [s[0] for s in statuses]
+    spread = math.nan if any(map(math.isnan, times)) else max(times) - min(times)
+    t = times[0] if spread < TIME_TOLERANCE_S else math.nan
+    used, skipped = statuses[0][1], statuses[0][2]
+    for s in statuses[1:]:
+        used, skipped = used + s[1], skipped + s[2]
+    return [t, used, skipped, math.nan]
+
+
+def _advanced_cross_covariance(x, l1, l2) -> tuple:
+    """``(P_12, step)``: the stored ``x = [P_12 (36), steps applied]`` advanced once by the
+    sources' linearizations ``l1``, ``l2`` (109 each) if they have taken a step since (NaN if
+    they disagree on the step)."""
+    applied = x[36]
+    step = l1[108]
+    if step != l2[108]:
+        return np.full((6, 6), np.nan), applied
+    P12 = x[:36].reshape(6, 6)
+    if step > applied:
+        Phi1, Q, A1 = l1[:36].reshape(6, 6), l1[36:72].reshape(6, 6), l1[72:108].reshape(6, 6)
+        Phi2, A2 = l2[:36].reshape(6, 6), l2[72:108].reshape(6, 6)
+        P12 = A1.dot(Phi1.dot(P12).dot(Phi2.T) + Q).dot(A2.T)  # A1 (Phi1 P12 Phi2' + Q) A2'
+    return P12, step
