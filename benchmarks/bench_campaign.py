@@ -10,7 +10,9 @@ checkouts in one run, with their records and statistics compared bit for bit::
 Cases (``bench_peer.py``'s):
 
 * ``single``: ``cubesat_single_star_tracker`` as shipped (gyro 1 Hz, tracker 10 Hz, MEKF 1 Hz);
-* ``ten_hz``: the same with the gyro, the tracker and the MEKF at 10 Hz.
+* ``ten_hz``: the same with the gyro, the tracker and the MEKF at 10 Hz;
+* ``dual`` (``--case dual`` or ``all``): ``cubesat_dual_star_tracker`` as shipped (paper S3's
+  five estimators).
 
 Each campaign is a child ``python -m drake_att.cli montecarlo CASE --workers 1`` (serial: the
 Dask workers run the very same per-run code) in the checkout's directory with
@@ -36,8 +38,10 @@ HERE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CASES = {
     "single": [],
     "ten_hz": ["sensors.gyro.period_s=0.1", "sensors.st1.period_s=0.1", "estimators.single.period_s=0.1"],
+    "dual": [],
 }
-SCENARIO = "cubesat_single_star_tracker"
+SCENARIO = {"single": "cubesat_single_star_tracker", "ten_hz": "cubesat_single_star_tracker"}
+DEFAULT_CASES = ("single", "ten_hz")  # "dual": --case dual or all
 
 
 def campaign(tree: str, case: str, runs: int, duration: float | None, out: str) -> float:
@@ -46,7 +50,8 @@ def campaign(tree: str, case: str, runs: int, duration: float | None, out: str) 
     sets = list(CASES[case])
     if duration:
         sets += [f"duration_s={duration:g}"] + ([f"scoring.score_from_s={duration / 2:g}"] if duration < 1000 else [])
-    cmd = [sys.executable, "-m", "drake_att.cli", "montecarlo", SCENARIO, "--runs", str(runs), "--workers", "1"]
+    scenario = SCENARIO.get(case, "cubesat_dual_star_tracker")
+    cmd = [sys.executable, "-m", "drake_att.cli", "montecarlo", scenario, "--runs", str(runs), "--workers", "1"]
     cmd += ["--out", out, "--quiet"] + [a for s in sets for a in ("--set", s)]
     env = dict(os.environ, PYTHONPATH=tree, MPLBACKEND="Agg")
     proc = subprocess.Popen(cmd, cwd=tree, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
@@ -107,7 +112,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--old", help="another checkout (a git worktree) to compare with")
     ap.add_argument("--new", default=HERE, help="this checkout (default: the one this script is in)")
-    ap.add_argument("--case", choices=(*CASES, "both"), default="both")
+    ap.add_argument("--case", choices=(*CASES, "both", "all"), default="both", help="both: single and ten_hz")
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds per run (default: shipped 5000)")
     ap.add_argument("--rounds", type=int, default=1)
@@ -119,7 +124,7 @@ def main(argv=None) -> int:
         if not os.path.isdir(os.path.join(args.old, "drake_att")):
             ap.error(f"--old {args.old!r}: not a drake_att checkout (no drake_att/ in it)")
         sides = {"old": os.path.abspath(args.old), **sides}
-    cases = list(CASES) if args.case == "both" else [args.case]
+    cases = {"both": list(DEFAULT_CASES), "all": list(CASES)}.get(args.case, [args.case])
     with tempfile.TemporaryDirectory(prefix="bench_campaign_") as tmp:
         for side, tree in sides.items():
             campaign(tree, "single", 1, 20.0, os.path.join(tmp, f"warm_{side}"))
