@@ -50,6 +50,7 @@ def test_campaign_options_parse_to_their_documented_defaults_and_types(command):
     assert args.workers is None and args.scheduler is None and args.set is None and args.out is None
     assert args.connect_timeout == 10.0 and isinstance(args.connect_timeout, float)
     assert args.resume is False and args.quiet is False and args.estimators is None
+    assert args.batch_size is None  # the executor's default (10), set by the command
     given = cli._parser().parse_args(
         [
             command,
@@ -72,11 +73,14 @@ def test_campaign_options_parse_to_their_documented_defaults_and_types(command):
             "--quiet",
             "--estimators",
             "x,y",
+            "--batch-size",
+            "3",
         ]
     )
     assert (given.runs, given.first_seed, given.workers, given.connect_timeout) == (4, 7, 2, 2.5)
     assert given.set == ["a=1", "b=2"] and given.out == "o" and given.resume and given.quiet
     assert given.estimators == "x,y"
+    assert given.batch_size == 3 and isinstance(given.batch_size, int)
 
 
 @pytest.mark.parametrize("command", ["montecarlo", "compare"])
@@ -131,6 +135,10 @@ def test_campaign_help_names_each_option_with_its_placeholder_default_and_unit(c
     assert _says(entries["--workers k"], "worker processes", "default: the cpu count", "1 = serial")
     assert _says(entries["--scheduler address"], "dask cluster", "serial")
     assert _says(entries["--connect-timeout seconds"], "seconds", "at most 3600", "default 10")
+    from drake_att.analysis.executor import DEFAULT_BATCH_SIZE
+
+    batch = entries["--batch-size b"]
+    assert _says(batch, "seeds one simulation carries", "1 = every run alone", f"default {DEFAULT_BATCH_SIZE}")
     assert _says(entries["--set path=value"], "override a config value")
     assert _says(entries["--resume"], "continue the campaign")
     assert _says(entries["--quiet"], "no progress line")
