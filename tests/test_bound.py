@@ -460,9 +460,22 @@ def test_the_recursion_memo_keeps_two_entries_and_digests_dtype_and_shape():
     saved = dict(bd._RECURSIONS)
     try:
         bd._RECURSIONS.clear()
+        keys = []
         for k in range(4):
-            bd._bound_and_loose(dict(inputs, P0=inputs["P0"] * (1 + k)))
-        assert len(bd._RECURSIONS) == bd._RECURSIONS_KEPT == 2
+            prior = dict(inputs, P0=inputs["P0"] * (1 + k))
+            keys.append(bd._inputs_digest(prior))
+            bd._bound_and_loose(prior)
+        assert list(bd._RECURSIONS) == keys  # four small entries: all kept
+        entry = sum(a.nbytes for a in bd._RECURSIONS[keys[0]])
+        bd._RECURSIONS_BYTES, budget = 2.5 * entry, bd._RECURSIONS_BYTES
+        try:
+            bd._bound_and_loose(dict(inputs, P0=inputs["P0"] * 9))
+            assert list(bd._RECURSIONS)[:-1] == keys[3:]  # the oldest dropped: two entries within the budget
+            bd._RECURSIONS_BYTES = 0.5 * entry  # the newest is kept whatever the budget
+            bd._bound_and_loose(dict(inputs, P0=inputs["P0"] * 10))
+            assert len(bd._RECURSIONS) == 1
+        finally:
+            bd._RECURSIONS_BYTES = budget
     finally:
         bd._RECURSIONS.clear()
         bd._RECURSIONS.update(saved)

@@ -438,9 +438,11 @@ def _linear_model(inputs: dict) -> dict:
 # Recursions already computed in this process, by the digest of their inputs: the runs of a
 # campaign whose truth and sensor validity do not depend on the seed (a fixed trajectory, noise
 # varying) share one bound. A pure function's cache: a hit returns the very arrays a fresh
-# computation gives. Small (two entries of up to 2 x K x 36 floats each).
+# computation gives. Each entry is 2 x K x 36 floats (K gyro steps); the oldest are dropped once
+# the entries pass _RECURSIONS_BYTES (the newest is always kept): every estimator's bound of a
+# scenario with several sensor sets (S3's five estimators, four sets) stays for the next run.
 _RECURSIONS: dict = {}
-_RECURSIONS_KEPT = 2
+_RECURSIONS_BYTES = 128 * 2**20
 
 
 def _inputs_digest(inputs: dict) -> bytes:
@@ -473,9 +475,9 @@ def _bound_and_loose(inputs: dict) -> tuple[np.ndarray, np.ndarray]:
         covariance_recursion(model["P0"], *args),
         covariance_recursion(PRIOR_SENSITIVITY_FACTOR * model["P0"], *args),
     )
-    while len(_RECURSIONS) >= _RECURSIONS_KEPT:
-        _RECURSIONS.pop(next(iter(_RECURSIONS)))
     _RECURSIONS[key] = out
+    while len(_RECURSIONS) > 1 and sum(a.nbytes + b.nbytes for a, b in _RECURSIONS.values()) > _RECURSIONS_BYTES:
+        _RECURSIONS.pop(next(iter(_RECURSIONS)))  # the oldest
     return out
 
 
