@@ -253,3 +253,18 @@ def test_the_cli_batch_size_option(tmp_path):
                 assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), key
     with pytest.raises(executor.CampaignError, match="batch_size: got True"):
         mc.run_campaign(SCENARIO, 2, workers=1, batch_size=True, progress=False)
+
+
+@pytest.mark.parametrize(
+    "jobs, processes, batch_size, fit, expected",
+    [
+        (20, 1, 10, 100, 10),  # serial: batches of batch_size
+        (20, 2, 10, 100, 10),  # two workers, ten each
+        (20, 4, 10, 100, 5),  # four workers: an even share, none idle
+        (7, 2, 10, 100, 4),  # ceil(7 / 2)
+        (100, 2, 10, 3, 3),  # memory holds three
+        (3, 4, 10, 100, 1),  # more workers than runs: no batches
+    ],
+)
+def test_batch_chunk_size(jobs, processes, batch_size, fit, expected):
+    assert executor.batch_chunk_size(jobs, processes, batch_size, fit) == expected

@@ -233,8 +233,7 @@ def map_runs(
     batch = batch_size > 1 and len(unique) > 1 and batch_problem(scenario) is None
     if batch:
         processes = 1 if serial else (workers or os.cpu_count() or 1)
-        share = -(-len(unique) // processes)
-        size = min(int(batch_size), share, _batch_fit(scenario, processes))
+        size = batch_chunk_size(len(unique), processes, int(batch_size), _batch_fit(scenario, processes))
         batch = size > 1
         chunk_size = size if batch else chunk_size
     chunk_size = max(1, chunk_size)
@@ -263,6 +262,13 @@ def check_batch_size(batch_size) -> int:
     if isinstance(batch_size, bool) or not (isinstance(batch_size, (int, np.integer)) and batch_size >= 1):
         raise CampaignError(f"batch_size: got {describe(batch_size)}; must be an integer >= 1")
     return int(batch_size)
+
+
+def batch_chunk_size(jobs: int, processes: int, batch_size: int, fit: int) -> int:
+    """The seeds per task when ``jobs`` runs can be batched: at most ``batch_size``, at most
+    ``fit`` (what memory holds), and at most an even share per process (``ceil(jobs /
+    processes)``: a batch must not leave a worker idle). Below 2: no batches."""
+    return min(batch_size, -(-jobs // processes), fit)
 
 
 def _batch_fit(scenario, processes: int) -> int:
