@@ -39,7 +39,6 @@ _CAMPAIGN_TESTS = [
     "tests/test_campaign_bookkeeping.py",
     "tests/test_campaign_edges.py",
     "tests/test_montecarlo.py",
-    "tests/test_batch_runs.py",
     "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
     "not deadline and not http_server and not silent and not probe and not chromium and not ctrl_c",
     "--timeout=60",
@@ -129,23 +128,21 @@ MODULES = {
     "sky_tracker": ("drake_att/sky_tracker.py", ["tests/test_sky_star_tracker.py"]),
     # (its compiled loops, star_image_kernels.py, cannot run as mutmut's trampolines)
     "star_image": ("drake_att/star_image.py", ["tests/test_star_image.py"]),
-    # The batch diagram: the sensors and the builder against single runs, bit for bit.
-    "gyro": (
-        "drake_att/systems/gyro.py",
-        ["tests/test_sensors.py", "tests/test_sensor_output_equivalence.py", "tests/test_batch_runs.py"],
-    ),
+    # The sensors and the builder. (tests/test_batch_runs.py is left out: a batch runs the
+    # compiled MEKF step, which mutmut's trampolines cannot compile; its hand mutants are in
+    # tests/README.md.)
+    "gyro": ("drake_att/systems/gyro.py", ["tests/test_sensors.py", "tests/test_sensor_output_equivalence.py"]),
     "star_tracker": (
         "drake_att/systems/star_tracker.py",
-        ["tests/test_sensors.py", "tests/test_sensor_output_equivalence.py", "tests/test_batch_runs.py"],
+        ["tests/test_sensors.py", "tests/test_sensor_output_equivalence.py"],
     ),
     "builder": (
         "drake_att/scenarios/builder.py",
-        ["tests/test_batch_runs.py", "tests/test_scenarios.py", "tests/test_logging_policy.py", "--timeout=120"],
+        ["tests/test_scenarios.py", "tests/test_logging_policy.py", "--timeout=120"],
     ),
     "estimator_system": (
         "drake_att/systems/estimator_system.py",
         [
-            "tests/test_batch_runs.py",
             "tests/test_sample_handling.py",
             "tests/test_estimator_step.py",
             "tests/test_contract.py",
