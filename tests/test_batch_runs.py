@@ -268,3 +268,17 @@ def test_the_cli_batch_size_option(tmp_path):
 )
 def test_batch_chunk_size(jobs, processes, batch_size, fit, expected):
     assert executor.batch_chunk_size(jobs, processes, batch_size, fit) == expected
+
+
+def test_with_the_compiled_step_off_seeds_run_alone(monkeypatch):
+    """``EstimatorSystem.use_compiled_step = False`` (the Python loop, the specification) leaves
+    no batch: the estimator refuses realizations and the executor runs each seed alone."""
+    from drake_att.systems.estimator_system import EstimatorSystem
+
+    scenario = _scenario("duration_s=40", "scoring.score_from_s=10")
+    monkeypatch.setattr(EstimatorSystem, "use_compiled_step", False)
+    monkeypatch.setattr(executor, "_WORKER_BATCH_DIAGRAMS", {})
+    with pytest.raises(ValueError, match="use_compiled_step switches off"):
+        ScenarioDiagram(scenario, realizations=2)
+    records = executor.map_runs(scenario, [1, 2], metrics_record, workers=1, batch_size=2)
+    assert len(records) == 2 and list(executor._WORKER_BATCH_DIAGRAMS.values()) == [None]

@@ -380,6 +380,8 @@ class EstimatorSystem(LeafSystem):
         compiled MEKF step runs them, each on its own slice of the state groups."""
         if not (self._linearizing and compiled_step.eligible(core, len(self._vector_ports), core.is_random)):
             return "an MEKF with compiled kernels, quaternion inputs only and no random core"
+        if not self.use_compiled_step:
+            return "the compiled step, which EstimatorSystem.use_compiled_step switches off"
         if self.verdicts or any(s.sample_covariance for s in quaternion_sensors):
             return "no sensor monitor and no per-sample covariance"
         if self.diagnostic_names or self.num_particles is not None:
