@@ -13,9 +13,8 @@ import pytest
 
 from drake_att.analysis import executor
 from drake_att.analysis.run_records import metrics_record
-from drake_att.scenarios import builder
+from drake_att.scenarios import builder, library
 from drake_att.scenarios import config as cfg
-from drake_att.scenarios import library
 from drake_att.scenarios.builder import NonFiniteRunError, ScenarioDiagram, batch_problem, diagram_for
 
 SCENARIO = "cubesat_single_star_tracker"
@@ -116,7 +115,9 @@ def test_batch_with_parameter_overrides_and_estimator_selection():
     ``--set`` and ``--estimators`` give them, on a batch of two MEKFs."""
     base = _scenario()
     other = dataclasses.replace(base.estimators[0], name="other", initial_attitude_sigma_deg=2.0)
-    scenario = cfg.load_scenario(text=cfg.dump_scenario(dataclasses.replace(base, estimators=[*base.estimators, other])))
+    scenario = cfg.load_scenario(
+        text=cfg.dump_scenario(dataclasses.replace(base, estimators=[*base.estimators, other]))
+    )
     overrides = ["sensors.st1.sigma_boresight_arcsec=80.0", "sensors.gyro.arw_deg_per_rt_h=0.9"]
     seeds = [5, 6]
     batch_diagram = ScenarioDiagram(scenario, realizations=2)
@@ -237,7 +238,25 @@ def test_the_cli_batch_size_option(tmp_path):
     short = ["--set", "duration_s=40", "--set", "scoring.score_from_s=10"]
     for bad in ("0", "1001", "-3"):
         out = tmp_path / f"bad{bad}"
-        assert cli_main(["montecarlo", SCENARIO, "--runs", "2", "--workers", "1", "--batch-size", bad, "--out", str(out), "--quiet", *short]) == 2
+        assert (
+            cli_main(
+                [
+                    "montecarlo",
+                    SCENARIO,
+                    "--runs",
+                    "2",
+                    "--workers",
+                    "1",
+                    "--batch-size",
+                    bad,
+                    "--out",
+                    str(out),
+                    "--quiet",
+                    *short,
+                ]
+            )
+            == 2
+        )
         assert not out.exists()
     records = {}
     for size in ("1", None):

@@ -51,9 +51,9 @@ from drake_att.analysis.dask_connection import (
 from drake_att.analysis.executor import (
     DEFAULT_BATCH_SIZE,
     RunFailed,
-    check_batch_size,
     _check_workers,
     _is_serial,
+    check_batch_size,
     executor_name,
     map_runs,
 )

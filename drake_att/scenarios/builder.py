@@ -438,7 +438,9 @@ class ScenarioDiagram:
         if realizations > 1:
             problem = batch_problem(scenario)
             if problem:
-                raise ValueError(f"realizations: got {realizations}; {scenario.name!r} cannot run as a batch: {problem}")
+                raise ValueError(
+                    f"realizations: got {realizations}; {scenario.name!r} cannot run as a batch: {problem}"
+                )
         self.realizations = realizations
         from drake_att.scenarios.preflight import DegenerateScenarioWarning, preflight_warnings
 
@@ -483,14 +485,15 @@ class ScenarioDiagram:
         self.sensors, self.estimators = ctx.sensors, ctx.estimators
         # A batch's seeds: each sensor's seed words come from a source set per batch (the values
         # a single run's random source gives that sensor for each seed: _seed_uniforms).
-        self._seed_sources = {}
+        self._seed_sources: dict[str, ConstantVectorSource] = {}
         if realizations > 1:
             for name, system in self.sensors.items():
                 if system.HasInputPort("seed_uniform"):
                     port = system.GetInputPort("seed_uniform")
-                    source = builder.AddNamedSystem(f"{name}__batch_seeds", ConstantVectorSource(np.zeros(port.size())))
-                    builder.Connect(source.get_output_port(), port)
-                    self._seed_sources[name] = source
+                    seeds = ConstantVectorSource(np.zeros(port.size()))
+                    builder.AddNamedSystem(f"{name}__batch_seeds", seeds)
+                    builder.Connect(seeds.get_output_port(), port)
+                    self._seed_sources[name] = seeds
         AddRandomInputs(RANDOM_SOURCE_SAMPLING_INTERVAL_S, builder)
 
         periods = [self.estimator_period(e.name) for e in scenario.estimators] + [
@@ -769,10 +772,10 @@ class ScenarioDiagram:
         uniforms = [single._seed_uniforms(seed) for seed in seeds]
         for name, source in self._seed_sources.items():
             value = np.concatenate([u[name] for u in uniforms])
-            source.get_mutable_source_value(source.GetMyMutableContextFromRoot(context)).set_value(value)
+            source.get_mutable_source_value(source.GetMyMutableContextFromRoot(context)).set_value(value)  # type: ignore[arg-type]  # pydrake stub
         label = f"{scenario.name} seeds {seeds[0]}..{seeds[-1]}"
         wall, logged = self._advance(context, scenario, False, label)
-        out = []
+        out: list = []
         N = self.realizations
         for i, seed in enumerate(seeds):
             mine = {}

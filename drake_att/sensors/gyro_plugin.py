@@ -103,7 +103,10 @@ def configure_gyro(ctx, c: GyroConfig, gyro: Gyro, context) -> None:
     configure=configure_gyro,
 )
 def build_gyro(ctx, c: GyroConfig):
-    gyro = ctx.builder.AddSystem(Gyro(c.name, c.period_s, *gyro_model_si(c), realizations=ctx.realizations))
+    arw, rrw, bias, bias_sigma, scale, misalignment, range_ = gyro_model_si(c)
+    gyro = ctx.builder.AddSystem(
+        Gyro(c.name, c.period_s, arw, rrw, bias, bias_sigma, scale, misalignment, range_, ctx.realizations)
+    )
     ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B"), gyro.GetInputPort("w_IB_B"))
     ctx.builder.Connect(ctx.truth.GetOutputPort("w_IB_B_integral"), gyro.GetInputPort("w_IB_B_integral"))
     return gyro

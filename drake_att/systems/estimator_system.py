@@ -396,8 +396,7 @@ class EstimatorSystem(LeafSystem):
         )
         self._quat_sensors = list(quaternion_sensors)
         self._quat_ports = [
-            self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE * N)
-            for s in self._quat_sensors
+            self.DeclareVectorInputPort(f"q_meas_{s.name}", QUATERNION_MEASUREMENT_SIZE * N) for s in self._quat_sensors
         ]
         self._vector_ports = [
             self.DeclareAbstractInputPort(f"vectors_{n}", AbstractValue.Make(contract.empty_vector_observations()))
@@ -723,7 +722,7 @@ class EstimatorSystem(LeafSystem):
         connected = np.zeros(n, dtype=np.bool_)
         for i, port in enumerate(self._quat_ports):
             if port.HasValue(context):
-                meas[:, i] = np.reshape(port.Eval(context), (N, QUATERNION_MEASUREMENT_SIZE))  # type: ignore[arg-type]
+                meas[:, i] = np.reshape(port.Eval(context), (N, QUATERNION_MEASUREMENT_SIZE))  # type: ignore[call-overload]
                 connected[i] = True
 
         def group(index):  # a writable (N, size) view of a group
@@ -733,7 +732,7 @@ class EstimatorSystem(LeafSystem):
         compiled_step.mekf_steps(
             context.get_time(),
             gyro_connected,
-            np.reshape(gyro, (N, GYRO_MEASUREMENT_SIZE)),  # type: ignore[arg-type]
+            np.reshape(gyro, (N, GYRO_MEASUREMENT_SIZE)),  # type: ignore[call-overload]
             connected,
             meas,
             *m,

@@ -198,7 +198,7 @@ class StarTrackerAverage(LeafSystem):
         self.DeclareVectorOutputPort("star_tracker_measurement", size * N, self._calc)
 
     def _calc(self, context, output: BasicVector):
-        meas = [p.Eval(context).tolist() for p in self._ports]
+        meas = [p.Eval(context).tolist() for p in self._ports]  # type: ignore[attr-defined]  # pydrake stub
         if self.realizations == 1:
             output.SetFromVector(self._sample(meas))  # type: ignore[arg-type]  # pydrake stub
             return
@@ -300,7 +300,9 @@ class EstimateFusion(LeafSystem):
                 [self._in[s][k] for s in source_names] for k in ("q_IB_hat", "second", "covariance", "status")
             )
         else:  # each source's packed estimate, N blocks
-            self._packed_ports = [self.DeclareVectorInputPort(f"{s}_estimate_state", ESTIMATE_SIZE * N) for s in source_names]
+            self._packed_ports = [
+                self.DeclareVectorInputPort(f"{s}_estimate_state", ESTIMATE_SIZE * N) for s in source_names
+            ]
         self._w = self.weights.tolist()
         self._cov_coefficients = self._w if covariance_model == "conservative" else [w * w for w in self._w]
         if covariance_model == "tracked":  # the coefficients of P_1, P_2 and P_12 + P_12'
@@ -308,10 +310,12 @@ class EstimateFusion(LeafSystem):
             self._tracked_coefficients = (w1 * w1, w2 * w2, w1 * w2)
             self._lin = {s: self.DeclareVectorInputPort(f"{s}_linearization", 109 * N) for s in source_names}
             self._lin_ports = [self._lin[s] for s in source_names]
-            self._cross_group = self.DeclareDiscreteState(np.tile(np.concatenate([np.eye(6).ravel(), [0.0]]), N))
+            self._cross_group = self.DeclareDiscreteState(
+                np.tile(np.concatenate([np.eye(6).ravel(), [0.0]]), N)  # type: ignore[arg-type]  # pydrake stub
+            )
             self._cross_index = int(self._cross_group)  # an int selects the group faster
             self.DeclareInitializationDiscreteUpdateEvent(self._initialize_cross)
-            self.DeclarePeriodicDiscreteUpdateEvent(self.period_s, 0.0, self._advance_cross)
+            self.DeclarePeriodicDiscreteUpdateEvent(float(period_s), 0.0, self._advance_cross)
         if N == 1:
             self.DeclareVectorOutputPort("q_IB_hat", 4, self._calc_q)
             self.DeclareVectorOutputPort(second_output_name, 3, self._calc_second)
@@ -324,7 +328,7 @@ class EstimateFusion(LeafSystem):
     def _weights_in_use(self, context) -> tuple:
         """``(weights as floats, configured?)``: :meth:`active_weights` as a list, and
         whether it is the configured weights unchanged."""
-        return self._weights_of([p.Eval(context)[1] > 0 for p in self._status_ports])
+        return self._weights_of([p.Eval(context)[1] > 0 for p in self._status_ports])  # type: ignore[index]
 
     def _weights_of(self, active: list) -> tuple:
         """:meth:`_weights_in_use` for the sources' ``active`` flags (used a measurement)."""
@@ -382,7 +386,7 @@ class EstimateFusion(LeafSystem):
         """The packed fused estimate of every realization (realization-major): per realization
         the single system's arithmetic on that realization's blocks of the inputs."""
         N = self.realizations
-        packed = [np.reshape(p.Eval(context), (N, ESTIMATE_SIZE)) for p in self._packed_ports]
+        packed = [np.reshape(p.Eval(context), (N, ESTIMATE_SIZE)) for p in self._packed_ports]  # type: ignore[call-overload]
         cross = self._cross_covariances(context) if self.covariance_model == "tracked" else None
         out = np.empty((N, ESTIMATE_SIZE))
         for i in range(N):
@@ -407,7 +411,7 @@ class EstimateFusion(LeafSystem):
         """:meth:`_cross_covariance` of every realization: ``[(P_12, step), ...]``."""
         N = self.realizations
         x = np.reshape(context.get_discrete_state(self._cross_index).value(), (N, 37))
-        l1, l2 = (np.reshape(p.Eval(context), (N, 109)) for p in self._lin_ports)
+        l1, l2 = (np.reshape(p.Eval(context), (N, 109)) for p in self._lin_ports)  # type: ignore[call-overload]
         return [_advanced_cross_covariance(x[i], l1[i], l2[i]) for i in range(N)]
 
     def _initialize_cross(self, context, discrete_state):
@@ -426,7 +430,9 @@ class EstimateFusion(LeafSystem):
             P12, steps = self._cross_covariance(context)
             value = np.concatenate([P12.ravel(), [steps]])
         else:
-            value = np.concatenate([np.concatenate([P12.ravel(), [steps]]) for P12, steps in self._cross_covariances(context)])
+            value = np.concatenate(
+                [np.concatenate([P12.ravel(), [steps]]) for P12, steps in self._cross_covariances(context)]
+            )
         discrete_state.get_mutable_vector(self._cross_group).SetFromVector(value)
         return EventStatus.Succeeded()
 

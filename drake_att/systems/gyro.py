@@ -337,7 +337,9 @@ class Gyro(Diagram):
         builder.Connect(hold.get_output_port(), outputs.GetInputPort("w_IB_B_integral_held"))
         builder.ExportInput(outputs.GetInputPort("seed_uniform"), "seed_uniform")
         builder.ExportInput(outputs.GetInputPort("scale_error"), "scale_error")
-        split = builder.AddNamedSystem(f"{name}_split", Demultiplexer([GYRO_MEASUREMENT_SIZE * realizations, 3 * realizations]))
+        split = builder.AddNamedSystem(
+            f"{name}_split", Demultiplexer([GYRO_MEASUREMENT_SIZE * realizations, 3 * realizations])
+        )
         builder.Connect(outputs.GetOutputPort("measurement_and_bias"), split.get_input_port())
         builder.ExportOutput(split.get_output_port(0), "gyro_measurement")
         builder.ExportOutput(split.get_output_port(1), "bias_B")
