@@ -40,7 +40,8 @@ _CAMPAIGN_TESTS = [
     "tests/test_campaign_edges.py",
     "tests/test_montecarlo.py",
     "-k",  # the timing probes and the browser are not what a mutant of the campaign changes
-    "not deadline and not http_server and not silent and not probe and not chromium and not ctrl_c",
+    # (the documented snippet is read from README.md, which mutmut's folder does not hold)
+    "not deadline and not http_server and not silent and not probe and not chromium and not ctrl_c and not snippet",
     "--timeout=60",
 ]  # a hung mutant is killed in a minute
 
