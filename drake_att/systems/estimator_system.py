@@ -325,6 +325,10 @@ class EstimatorSystem(LeafSystem):
         max_time_tag_lag_s: the default context's lag (:class:`EstimatorSetup`).
         held_rate_rrw_rad_per_s15: the default context's held-rate walk (:class:`EstimatorSetup`).
         verdicts: declare the ``sensor_verdicts`` input (a sensor monitor's verdicts).
+        realizations: N realizations in one system (a batch of runs; only an MEKF on the
+            compiled step, without a monitor or per-sample covariances): every input, output
+            and state group carries N blocks, realization-major, and each step runs
+            :func:`~drake_att.systems.compiled_step.mekf_step` on each realization's blocks.
     """
 
     def __init__(
