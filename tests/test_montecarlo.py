@@ -144,6 +144,10 @@ def test_ctrl_c_keeps_finished_runs_and_resume_completes(tmp_path):
         "scoring.score_from_s=20",
         "--out",
         "c",
+        # one run per task, so that runs arrive one by one and the Ctrl-C falls between them (in
+        # batches, each worker's runs arrive together: 6 runs on 2 workers can all be done first)
+        "--batch-size",
+        "1",
     ]
     proc = subprocess.Popen(
         args + ["--workers", "2"],
