@@ -348,7 +348,7 @@ def test_an_estimate_going_non_finite_fails_the_run_naming_it(monkeypatch, compi
     monkeypatch.setattr(EstimatorSystem, "use_compiled_step", compiled)
     steps = {"left": 5}
     if compiled:
-        original_step = compiled_step.mekf_step
+        original_step = compiled_step.mekf_steps
 
         def poisoned_step(*args):
             original_step(*args)
@@ -358,7 +358,7 @@ def test_an_estimate_going_non_finite_fails_the_run_naming_it(monkeypatch, compi
                 core[:4] = np.nan
             steps["left"] -= 1
 
-        monkeypatch.setattr(compiled_step, "mekf_step", poisoned_step)
+        monkeypatch.setattr(compiled_step, "mekf_steps", poisoned_step)
     else:
         original = mekf.MultiplicativeEKF.predict_linearized
 

@@ -7,9 +7,10 @@ tags: once each, late samples within the lag carried forward, later, future and 
 counted; validity, the core's gate, the re-acquisition after
 :data:`~drake_att.filters.gating.REACQUIRE_AFTER_REJECTIONS` rejections with the ungated
 retry), the counters, the innovations, the step linearization and the packed estimate.
-:func:`mekf_step` is that loop for a :class:`~drake_att.filters.mekf.MultiplicativeEKF` with
+:func:`mekf_steps` is that loop for a :class:`~drake_att.filters.mekf.MultiplicativeEKF` with
 quaternion inputs only and no sensor monitor (verdicts take the Python loop), in one numba
-call writing the state groups in place. It has no rules or arithmetic of its own: the loop's
+call writing the state groups in place, for one realization or for the N of a batch diagram
+(the same per-realization code). It has no rules or arithmetic of its own: the loop's
 rules are the functions of :mod:`drake_att.systems.estimator_step`,
 :mod:`drake_att.filters.gating` and :mod:`drake_att.contract` compiled here
 (``register_jitable``), and the filter arithmetic is :mod:`drake_att.filters.mekf_kernels`,
@@ -58,7 +59,7 @@ for _rule in (
 
 class StepModel(NamedTuple):
     """Array form of one :class:`~drake_att.systems.estimator_system.FilterModel` and the
-    system's layout, for :func:`mekf_step` (built once per model).
+    system's layout, for :func:`mekf_steps` (built once per model).
 
     Attributes:
         q_BS: (n, 4) sensor mountings. R_SB: (n, 3, 3) their rotations (sensor <- body).
@@ -147,7 +148,7 @@ def _as_covariance(noise_S) -> np.ndarray:
 
 
 def eligible(core, vector_inputs: int, is_random: bool) -> bool:
-    """Whether :func:`mekf_step` runs this core: an MEKF whose step is the kernels' (its
+    """Whether :func:`mekf_steps` runs this core: an MEKF whose step is the kernels' (its
     :meth:`~drake_att.filters.mekf.MultiplicativeEKF.runs_kernel_step`), quaternion inputs
     only, not random (everything else takes the Python loop)."""
     from drake_att.filters.mekf import MultiplicativeEKF
@@ -268,97 +269,6 @@ def _update_input(i, t, meas_i, model, book, handling, q, b, P, q_out, b_out, P_
 
 
 @_jit
-def mekf_step(
-    t,
-    gyro_connected,
-    gyro,
-    connected,
-    meas,
-    q_BS,
-    R_SB,
-    covariance,
-    allowed,
-    n_subsets,
-    threshold,
-    arw,
-    rrw,
-    tolerance,
-    reacquire_after,
-    period,
-    lag,
-    held_q,
-    last_sample,
-    pending,
-    rejections,
-    handling,
-    est,
-    book,
-    core,
-    lin,
-    innov,
-):
-    """One filter step of an MEKF estimator at time ``t``, in place on its state groups.
-
-    ``handling`` (the sample-handling counters), ``est`` (47), ``book``, ``core`` (43),
-    ``lin`` (109) and ``innov`` (3 n) are the estimator's discrete-state groups (pre-set to the current values); ``gyro`` (5) and
-    ``meas`` (n, 6) the input ports' values (``gyro_connected``/``connected``: whether the
-    port has a value); ``q_BS`` to ``rejections`` the fields of the :class:`StepModel`, in its
-    order (``mekf_step(t, ..., meas, *model, handling, est, ...)``): numba unboxes a tuple argument
-    ~1.3 us slower than its fields."""
-    model = StepModel(
-        q_BS,
-        R_SB,
-        covariance,
-        allowed,
-        n_subsets,
-        threshold,
-        arw,
-        rrw,
-        tolerance,
-        reacquire_after,
-        period,
-        lag,
-        held_q,
-        last_sample,
-        pending,
-        rejections,
-    )
-    q, b, P = _read_core(core)
-    Phi, Q, A = np.eye(6), np.zeros((6, 6)), np.eye(6)
-    n_skipped = est[_SKIPPED] + _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q)
-    n_used, nis = est[_USED], est[_LAST_NIS]
-    q_out, b_out, P_out = np.empty(4), np.empty(3), np.empty((6, 6))
-    z, S, I_KH = np.empty(3), np.empty((3, 3)), np.empty((6, 6))
-    first = True
-    for i in range(meas.shape[0]):
-        if not connected[i]:
-            continue
-        if rules.pending_vanished(book[pending + i], book[last_sample + i], meas[i, 0]):
-            n_skipped += 1.0  # a future-tagged sample that left the port unused
-            handling[rules.N_TAG_REJECTED] += 1.0
-            book[pending + i] = -math.inf
-        outcome, info_nis, counted = _update_input(
-            i, t, meas[i], model, book, handling, q, b, P, q_out, b_out, P_out, z, S, I_KH
-        )
-        if outcome < 0:
-            n_skipped += 1.0 if counted else 0.0
-            continue
-        nis = info_nis
-        innov[3 * i], innov[3 * i + 1], innov[3 * i + 2] = t, nis, 3.0
-        if outcome == _mekf.ACCEPTED:
-            n_used += 1.0
-            if first:
-                A[:, :] = I_KH
-            else:
-                _mekf.matmul66(I_KH, A.copy(), A)
-            first = False
-        else:
-            n_skipped += 1.0
-    est[STATUS.start], est[_USED], est[_SKIPPED], est[_LAST_NIS] = t, n_used, n_skipped, nis
-    _write_state(q, b, P, Phi, Q, A, est, core, lin)
-
-
-@_jit
 def mekf_steps(
     t,
     gyro_connected,
@@ -388,42 +298,102 @@ def mekf_steps(
     lin,
     innov,
 ):
-    """:func:`mekf_step` for each of N realizations of one model at time ``t``: ``gyro``
-    (N, 5), ``meas`` (N, n, 6) and the state groups (N, size each) carry one realization per
-    row; ``connected`` is shared. Row ``r`` is exactly ``mekf_step`` on row ``r``."""
-    for r in range(gyro.shape[0]):
-        mekf_step(
+    """One filter step at time ``t`` of an MEKF estimator carrying N realizations (N = 1: a
+    run alone), in place on its state groups.
+
+    ``handling`` (the sample-handling counters), ``est`` (47 per realization), ``book``,
+    ``core`` (43), ``lin`` (109) and ``innov`` (3 n) are the estimator's discrete-state groups
+    as the system holds them (pre-set to the current values; N blocks each, realization-major);
+    ``gyro`` (5 N) and ``meas`` (n, 6 N) the input ports' values, one row per quaternion input
+    (``gyro_connected``/``connected``: whether the port has a value, shared by the
+    realizations); ``q_BS`` to ``rejections`` the fields of the :class:`StepModel`, in its
+    order (``mekf_steps(t, ..., meas, *model, handling, est, ...)``): numba unboxes a tuple
+    argument ~1.3 us slower than its fields. Realization ``r`` is :func:`_mekf_step` on its
+    blocks, exactly as a run alone."""
+    model = StepModel(
+        q_BS,
+        R_SB,
+        covariance,
+        allowed,
+        n_subsets,
+        threshold,
+        arw,
+        rrw,
+        tolerance,
+        reacquire_after,
+        period,
+        lag,
+        held_q,
+        last_sample,
+        pending,
+        rejections,
+    )
+    E, G, M = contract.ESTIMATE_SIZE, contract.GYRO_MEASUREMENT_SIZE, contract.QUATERNION_MEASUREMENT_SIZE
+    N = est.shape[0] // E
+    H, B, C, L, V = (
+        handling.shape[0] // N,
+        book.shape[0] // N,
+        core.shape[0] // N,
+        lin.shape[0] // N,
+        innov.shape[0] // N,
+    )
+    for r in range(N):
+        _mekf_step(
             t,
             gyro_connected,
-            gyro[r],
+            gyro[G * r : G * r + G],
             connected,
-            meas[r],
-            q_BS,
-            R_SB,
-            covariance,
-            allowed,
-            n_subsets,
-            threshold,
-            arw,
-            rrw,
-            tolerance,
-            reacquire_after,
-            period,
-            lag,
-            held_q,
-            last_sample,
-            pending,
-            rejections,
-            handling[r],
-            est[r],
-            book[r],
-            core[r],
-            lin[r],
-            innov[r],
+            meas[:, M * r : M * r + M],
+            model,
+            handling[H * r : H * r + H],
+            est[E * r : E * r + E],
+            book[B * r : B * r + B],
+            core[C * r : C * r + C],
+            lin[L * r : L * r + L],
+            innov[V * r : V * r + V],
         )
 
 
-@_jit(inline="always")  # compiled into mekf_step: no call, no reference counts
+@_jit
+def _mekf_step(t, gyro_connected, gyro, connected, meas, model, handling, est, book, core, lin, innov):
+    """One realization's step: ``gyro`` (5), ``meas`` (n, 6) and the state groups' blocks of
+    :func:`mekf_steps`, written in place."""
+    q, b, P = _read_core(core)
+    Phi, Q, A = np.eye(6), np.zeros((6, 6)), np.eye(6)
+    n_skipped = est[_SKIPPED] + _time_update(t, gyro_connected, gyro, book, model, q, b, P, Phi, Q)
+    n_used, nis = est[_USED], est[_LAST_NIS]
+    q_out, b_out, P_out = np.empty(4), np.empty(3), np.empty((6, 6))
+    z, S, I_KH = np.empty(3), np.empty((3, 3)), np.empty((6, 6))
+    first = True
+    for i in range(meas.shape[0]):
+        if not connected[i]:
+            continue
+        if rules.pending_vanished(book[model.pending + i], book[model.last_sample + i], meas[i, 0]):
+            n_skipped += 1.0  # a future-tagged sample that left the port unused
+            handling[rules.N_TAG_REJECTED] += 1.0
+            book[model.pending + i] = -math.inf
+        outcome, info_nis, counted = _update_input(
+            i, t, meas[i], model, book, handling, q, b, P, q_out, b_out, P_out, z, S, I_KH
+        )
+        if outcome < 0:
+            n_skipped += 1.0 if counted else 0.0
+            continue
+        nis = info_nis
+        innov[3 * i], innov[3 * i + 1], innov[3 * i + 2] = t, nis, 3.0
+        if outcome == _mekf.ACCEPTED:
+            n_used += 1.0
+            if first:
+                A[:, :] = I_KH
+            else:
+                _mekf.matmul66(I_KH, A.copy(), A)
+            first = False
+        else:
+            n_skipped += 1.0
+    est[STATUS.start], est[_USED], est[_SKIPPED], est[_LAST_NIS] = t, n_used, n_skipped, nis
+    _write_state(q, b, P, Phi, Q, A, est, core, lin)
+
+
+@_jit(inline="always")  # compiled into _mekf_step: no call, no reference counts
 def _read_core(core):
     """``(q, b, P)`` of the MEKF's state vector ``[q_IB (4), bias_B (3), P (36)]`` (copies)."""
     q, b, P = np.empty(4), np.empty(3), np.empty((6, 6))
@@ -455,13 +425,13 @@ def _write_state(q, b, P, Phi, Q, A, est, core, lin):
 
 
 def warm_up() -> None:
-    """Compile (or load from the cache) :func:`mekf_step` now."""
+    """Compile (or load from the cache) :func:`mekf_steps` now."""
     from drake_att.filters.mekf import MultiplicativeEKF
     from drake_att.systems.estimator_system import QuaternionSensorModel
 
     sensor = QuaternionSensorModel("warm_up", np.array([1.0, 0, 0, 0]), np.eye(3))
     model = StepModel.of(MultiplicativeEKF(0.0, 0.0), [sensor], Bookkeeping(1), 1.0)
-    mekf_step(
+    mekf_steps(
         0.0,
         True,
         np.zeros(5),
@@ -477,4 +447,4 @@ def warm_up() -> None:
     )
 
 
-__all__ = ["StepModel", "eligible", "mekf_step", "mekf_steps", "warm_up"]
+__all__ = ["StepModel", "eligible", "mekf_steps", "warm_up"]

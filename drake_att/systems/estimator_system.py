@@ -328,7 +328,8 @@ class EstimatorSystem(LeafSystem):
         realizations: N realizations in one system (a batch of runs; only an MEKF on the
             compiled step, without a monitor or per-sample covariances): every input, output
             and state group carries N blocks, realization-major, and each step runs
-            :func:`~drake_att.systems.compiled_step.mekf_step` on each realization's blocks.
+            :func:`~drake_att.systems.compiled_step.mekf_steps` on every realization's blocks
+            (the same per-realization step as a run alone).
     """
 
     def __init__(
@@ -350,6 +351,7 @@ class EstimatorSystem(LeafSystem):
         if not (isinstance(realizations, int) and realizations >= 1):
             raise ValueError(f"{name}.realizations: got {realizations!r}; must be an integer >= 1")
         self.realizations = realizations
+        self._no_gyro = np.tile(_NO_GYRO, realizations)  # the compiled step's gyro input, port unconnected
         if not isinstance(core, contract.FilterCore):
             raise TypeError(f"{name}: core {type(core).__name__} does not implement drake_att.contract.FilterCore")
         if not (isinstance(period_s, (int, float)) and math.isfinite(period_s) and period_s > 0):
@@ -682,15 +684,14 @@ class EstimatorSystem(LeafSystem):
         return array_model
 
     def _on_step_compiled(self, context, discrete_state, m) -> EventStatus:
-        """:meth:`_on_step` by :func:`~drake_att.systems.compiled_step.mekf_step`: the port
-        reads here, the rest in one compiled call writing the state groups in place."""
-        if self.realizations > 1:
-            return self._on_steps_compiled(context, discrete_state, m)
+        """:meth:`_on_step` by :func:`~drake_att.systems.compiled_step.mekf_steps`: the port
+        reads here, the rest in one compiled call writing every realization's blocks of the
+        state groups in place."""
         gyro_port = cast(InputPort, self._gyro_port)  # an MEKF reads the gyro
         gyro_connected = gyro_port.HasValue(context)
-        gyro = gyro_port.Eval(context) if gyro_connected else _NO_GYRO
+        gyro = gyro_port.Eval(context) if gyro_connected else self._no_gyro
         n = len(self._quat_ports)
-        meas = np.zeros((n, QUATERNION_MEASUREMENT_SIZE))
+        meas = np.zeros((n, QUATERNION_MEASUREMENT_SIZE * self.realizations))
         connected = np.zeros(n, dtype=np.bool_)
         for i, port in enumerate(self._quat_ports):
             if port.HasValue(context):
@@ -698,45 +699,10 @@ class EstimatorSystem(LeafSystem):
                 connected[i] = True
         group = discrete_state.get_mutable_value  # a writable view of a group (one pybind call)
         innovations = group(self._innovation_group) if self._innovation_group is not None else _NO_INNOVATIONS
-        compiled_step.mekf_step(
-            context.get_time(),
-            gyro_connected,
-            gyro,
-            connected,
-            meas,
-            *m,
-            group(self._handling_group),
-            group(self._estimate_group),
-            group(self._book_group),
-            group(self._core_group),
-            group(self._linearization_group),
-            innovations,
-        )
-        return EventStatus.Succeeded()
-
-    def _on_steps_compiled(self, context, discrete_state, m) -> EventStatus:
-        """:meth:`_on_step_compiled` for every realization: the same step on each one's slice
-        of the inputs and the state groups (:func:`~drake_att.systems.compiled_step.mekf_steps`)."""
-        N = self.realizations
-        gyro_port = cast(InputPort, self._gyro_port)
-        gyro_connected = gyro_port.HasValue(context)
-        gyro = gyro_port.Eval(context) if gyro_connected else np.tile(_NO_GYRO, N)
-        n = len(self._quat_ports)
-        meas = np.zeros((N, n, QUATERNION_MEASUREMENT_SIZE))
-        connected = np.zeros(n, dtype=np.bool_)
-        for i, port in enumerate(self._quat_ports):
-            if port.HasValue(context):
-                meas[:, i] = np.reshape(port.Eval(context), (N, QUATERNION_MEASUREMENT_SIZE))  # type: ignore[call-overload]
-                connected[i] = True
-
-        def group(index):  # a writable (N, size) view of a group
-            return discrete_state.get_mutable_value(index).reshape(N, -1)
-
-        innovations = group(self._innovation_group) if self._innovation_group is not None else np.zeros((N, 0))
         compiled_step.mekf_steps(
             context.get_time(),
             gyro_connected,
-            np.reshape(gyro, (N, GYRO_MEASUREMENT_SIZE)),  # type: ignore[call-overload]
+            gyro,
             connected,
             meas,
             *m,
