@@ -35,11 +35,13 @@ import tempfile
 import numpy as np
 
 from drake_att.analysis.ensemble import common_times
+from drake_att.analysis.plot_lines import axes_width_px, line_points
 from drake_att.units import DEG
 
 AXES = ["x (roll)", "y (pitch)", "z (yaw)"]
 MAX_RUNS_DRAWN = 50
 NIS_BINS = 60
+FIGURE_DPI = 100  # the saved PNGs' resolution
 
 
 # ----------------------------------------------------------------------------------------
@@ -56,7 +58,7 @@ def _ci(ci, fmt=".3g") -> str:
 def _save(fig, path: str) -> str:
     from drake_att.analysis.campaign_records import _atomic_write
 
-    _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=100))
+    _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=FIGURE_DPI))
     return path
 
 
@@ -177,8 +179,10 @@ def _wrap_to(text_artist, width_px: float) -> None:
 
 def fit_titles(fig):
     """Wrap every axes title wider than its axes, and the figure's title wider than the
-    figure, onto more lines (constrained layout then makes room for them); returns ``fig``."""
-    fig.canvas.draw()
+    figure, onto more lines (constrained layout then makes room for them); returns ``fig``.
+    The layout is computed without rasterizing (``draw_without_rendering``): the figure is
+    drawn once, when it is saved."""
+    fig.draw_without_rendering()
     for ax in fig.axes:
         if ax.get_title():
             _wrap_to(ax.title, ax.get_window_extent().width)
@@ -204,7 +208,8 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
     under it) differ in color, style and width, so both show where they coincide; the legend
     sits in a band below the plots; the y-limits hold every run's error and the ensemble's
     +-3 RMS, and the envelopes up to 3x that (:func:`error_axis_limit`; a title says which
-    envelope runs off and its peak)."""
+    envelope runs off and its peak). Long lines are reduced to what the PNG's pixels show at
+    :data:`FIGURE_DPI` (:func:`~drake_att.analysis.plot_lines.line_points`)."""
     t, idx = common_times(records, name)
     d = _stack(records, f"{name}__dtheta", idx) / DEG  # (N, n, 3)
     sig = _stack(records, f"{name}__sigma", idx)[:, :, :3] / DEG
@@ -230,13 +235,13 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
         "ensemble": f"ensemble ±3·RMS error (runs x {k} samples)",
         "bound": "Cramér–Rao bound ±3σ",
     }
+    width = axes_width_px(fig, 3, FIGURE_DPI)
     for r, (label, sel) in enumerate(rows):
         for i in range(3):
             a = ax[r, i]
             for j in range(drawn):
                 a.plot(
-                    t[sel],
-                    d[j, sel, i],
+                    *line_points(t[sel], d[j, sel, i], width),
                     lw=0.5,
                     alpha=0.45,
                     color="tab:blue",
@@ -244,10 +249,15 @@ def error_ensemble_figure(records, name: str, score_from_s: float, title: str):
                 )
             for sign in (1, -1):
                 first = sign > 0
-                a.plot(t[sel], sign * filt3[sel, i], **FILTER_STYLE, label=labels["filter"] if first else None)
-                a.plot(t[sel], sign * ens3[sel, i], **ENSEMBLE_STYLE, label=labels["ensemble"] if first else None)
-                if bound3 is not None:
-                    a.plot(t[sel], sign * bound3[sel, i], **BOUND_STYLE, label=labels["bound"] if first else None)
+                for v, style, key in (
+                    (filt3, FILTER_STYLE, "filter"),
+                    (ens3, ENSEMBLE_STYLE, "ensemble"),
+                    (bound3, BOUND_STYLE, "bound"),
+                ):
+                    if v is not None:
+                        a.plot(
+                            *line_points(t[sel], sign * v[sel, i], width), **style, label=labels[key] if first else None
+                        )
             envelopes = [("filter ±3σ", filt3[sel, i])] + (
                 [("bound ±3σ", bound3[sel, i])] if bound3 is not None else []
             )
@@ -300,7 +310,11 @@ def consistency_figure(records, name: str, stats: dict, title: str):
     anees = np.array([np.nan if v is None else v for v in h["anees"]], dtype=float)
     dof = stats["nees_dof"]
     band = stats["anees_band_95"]
-    a.plot(t, anees, lw=0.8, label=f"ANEES over {stats['n_runs']} runs (dof {dof})")
+    a.plot(
+        *line_points(t, anees, axes_width_px(fig, 1, FIGURE_DPI)),
+        lw=0.8,
+        label=f"ANEES over {stats['n_runs']} runs (dof {dof})",
+    )
     if band[0] is not None:
         a.fill_between(
             t,
@@ -403,17 +417,20 @@ def rmse_vs_bound_figure(summary: dict, title: str):
     a.set_ylabel("RMSE over the scoring window (deg)")
     a.set_title("window RMSE with 95% CI; diamonds: the bound", fontsize=10)
     a.grid(True, axis="y", alpha=0.3)
+    width_b = axes_width_px(fig, 2, FIGURE_DPI)
     for n in names:
         h = ests[n]["history"]
         t = np.array(h["t"], dtype=float)
         r = np.array([[np.nan if q is None else q for q in row] for row in h["attitude_rmse_deg"]], dtype=float)
         k = smoothing_window(ests[n]["n_runs"], len(t))
-        line = b.plot(t, np.sqrt(_moving_mean(np.sum(r**2, axis=1), k)), lw=0.9, label=n)[0]
+        line = b.plot(*line_points(t, np.sqrt(_moving_mean(np.sum(r**2, axis=1), k)), width_b), lw=0.9, label=n)[0]
         if h.get("bound_attitude_sigma_deg") is not None:
             bs = np.array(
                 [[np.nan if q is None else q for q in row] for row in h["bound_attitude_sigma_deg"]], dtype=float
             )
-            b.plot(t, np.sqrt(np.sum(bs**2, axis=1)), **{**BOUND_STYLE, "color": line.get_color()})
+            b.plot(
+                *line_points(t, np.sqrt(np.sum(bs**2, axis=1)), width_b), **{**BOUND_STYLE, "color": line.get_color()}
+            )
     b.axvline(summary["score_from_s"], color="gray", lw=0.8)
     b.set_xlabel("time (s)")
     b.set_ylabel("total attitude error (deg)")

@@ -10,8 +10,11 @@ import subprocess
 import numpy as np
 
 from drake_att.analysis import metrics as met
+from drake_att.analysis.plot_lines import PRINT_DPI, axes_width_px, line_points
 from drake_att.noise import DEG, DEG_PER_H
 from drake_att.scenarios.config import dump_scenario
+
+FIGURE_DPI = 110  # the saved PNGs' resolution
 
 
 def _error_ylim(err, three_sigma, floor):
@@ -54,11 +57,12 @@ def estimator_figures(run, name, score_from_s=0.0) -> dict:
         nrows = 2 if e["second_err"] is not None else 1
         fig = Figure(figsize=(14, 3.4 * nrows + 0.4), layout="constrained")
         ax = fig.subplots(nrows, 3, squeeze=False, sharex=True)
+        width = axes_width_px(fig, 3, PRINT_DPI)  # the caller saves it
         for i in range(3):
             a = ax[0, i]
-            a.plot(t[sel], e["dtheta"][sel, i] / DEG, lw=0.7, label="error")
-            a.plot(t[sel], 3 * sig[sel, i] / DEG, "r--", lw=0.7, label="±3σ")
-            a.plot(t[sel], -3 * sig[sel, i] / DEG, "r--", lw=0.7)
+            a.plot(*line_points(t[sel], e["dtheta"][sel, i] / DEG, width), lw=0.7, label="error")
+            a.plot(*line_points(t[sel], 3 * sig[sel, i] / DEG, width), "r--", lw=0.7, label="±3σ")
+            a.plot(*line_points(t[sel], -3 * sig[sel, i] / DEG, width), "r--", lw=0.7)
             a.set_title(f"attitude error {axes_names[i]}")
             a.set_ylabel("deg")
             a.grid(True, alpha=0.3)
@@ -69,9 +73,9 @@ def estimator_figures(run, name, score_from_s=0.0) -> dict:
                 b = ax[1, i]
                 scale, unit = (DEG_PER_H, "deg/h") if is_bias else (DEG, "deg/s")
                 label = "bias error" if is_bias else "rate error"
-                b.plot(t[sel], e["second_err"][sel, i] / scale, lw=0.7)
-                b.plot(t[sel], 3 * sig[sel, 3 + i] / scale, "r--", lw=0.7)
-                b.plot(t[sel], -3 * sig[sel, 3 + i] / scale, "r--", lw=0.7)
+                b.plot(*line_points(t[sel], e["second_err"][sel, i] / scale, width), lw=0.7)
+                b.plot(*line_points(t[sel], 3 * sig[sel, 3 + i] / scale, width), "r--", lw=0.7)
+                b.plot(*line_points(t[sel], -3 * sig[sel, 3 + i] / scale, width), "r--", lw=0.7)
                 b.set_title(f"{label} {axes_names[i]}")
                 b.set_ylabel(unit)
                 b.grid(True, alpha=0.3)
@@ -93,7 +97,7 @@ def plot_estimator(run, name, out_dir, score_from_s=0.0) -> list[str]:
     files = []
     for stage, fig in estimator_figures(run, name, score_from_s).items():
         path = os.path.join(out_dir, f"{name}_errors_{stage}.png")
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=FIGURE_DPI)
         files.append(path)
     return files
 
@@ -125,13 +129,14 @@ def plot_error_grid(
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(2, 3, figsize=(15, 7), sharex=True, layout="constrained")
+    width = axes_width_px(fig, 3, FIGURE_DPI)
     for name in names:
         s = series[name]
         m = np.ones(len(s["t"]), dtype=bool) if t_range is None else (s["t"] >= t_range[0]) & (s["t"] <= t_range[1])
         for i in range(3):
-            ax[0, i].plot(s["t"][m], s["dtheta"][m, i] / DEG, lw=0.7, label=name)
+            ax[0, i].plot(*line_points(s["t"][m], s["dtheta"][m, i] / DEG, width), lw=0.7, label=name)
             if s["second_err"] is not None:
-                ax[1, i].plot(s["t"][m], s["second_err"][m, i] / second_scale, lw=0.7, label=name)
+                ax[1, i].plot(*line_points(s["t"][m], s["second_err"][m, i] / second_scale, width), lw=0.7, label=name)
     for i in range(3):
         ax[0, i].set_title(f"attitude error {AXIS_NAMES[i]}")
         ax[0, i].set_ylabel("deg")
@@ -146,7 +151,7 @@ def plot_error_grid(
             a.grid(True, alpha=0.3)
     fig.legend(*ax[0, 0].get_legend_handles_labels(), loc="outside lower center", ncols=len(names), fontsize=8)
     fig.suptitle(title)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=FIGURE_DPI)
     plt.close(fig)
     return path
 
