@@ -173,6 +173,7 @@ MODULES = {
         "drake_att/analysis/report.py",
         ["tests/test_report.py", "tests/test_campaign_bookkeeping.py", "tests/test_ensemble.py"],
     ),
+    "plot_lines": ("drake_att/analysis/plot_lines.py", ["tests/test_plot_lines.py"]),
     "analysis_faults": (
         "drake_att/analysis/fault_scores.py",
         ["tests/test_fault_joint.py", "tests/test_faults.py", "tests/test_fdir_scenario.py"],
