@@ -112,3 +112,66 @@ def test_the_drawn_line_reaches_the_same_pixels_within_a_column(seed):
     for a, b in ((full, reduced), (reduced, full)):
         assert np.all(a[0] >= _over_neighbours(b[0], np.min) - 1)  # top rows
         assert np.all(a[1] <= _over_neighbours(b[1], np.max) + 1)  # bottom rows
+
+
+def _buckets(t, width):
+    """Bucket of each time: ``BUCKETS_PER_PIXEL`` equal buckets per pixel column."""
+    return _columns(t, t[0], t[-1], BUCKETS_PER_PIXEL * int(np.ceil(width)))
+
+
+def test_every_bucket_keeps_its_first_and_last_sample_and_at_most_four():
+    """The first and last sample of a bucket carry the line across the bucket's edges; ties
+    (a quantized signal) keep one minimum and one maximum each."""
+    t, y = _walk(30_000, seed=9)
+    y = np.round(y / 20.0)  # long runs of equal values
+    tr, yr = line_points(t, y, 80)
+    b, br = _buckets(t, 80), _buckets(tr, 80)
+    for k in range(BUCKETS_PER_PIXEL * 80):
+        inside = np.flatnonzero(b == k)
+        kept = tr[br == k]
+        assert t[inside[0]] in kept and t[inside[-1]] in kept, k
+        assert len(kept) <= 4, (k, len(kept))
+        assert yr[br == k].max() == y[inside].max() and yr[br == k].min() == y[inside].min()
+
+
+def test_the_samples_on_both_sides_of_a_gap_are_kept():
+    t, y = _walk(30_000, seed=10)
+    y[7_003:7_011] = np.nan
+    y[20_000:20_500] = np.inf  # matplotlib does not draw inf either
+    tr, _ = line_points(t, y, 100)
+    for i in (7_002, 7_003, 7_010, 7_011, 19_999, 20_000, 20_499, 20_500):
+        assert t[i] in tr, i
+
+
+@pytest.mark.parametrize(
+    "t",
+    [
+        np.r_[np.linspace(0.0, 1.0, 3997), 1000.0, 1001.0, 1002.0, 1003.0],  # samples bunched in one bucket
+        np.linspace(0.0, 0.5, 20_000),  # half a second
+        np.repeat(np.linspace(0.0, 100.0, 5_000), 4),  # every time four times
+    ],
+)
+def test_any_line_with_more_than_four_samples_per_bucket_is_reduced(t):
+    y = np.sin(np.arange(t.size) * 0.7)
+    tr, yr = line_points(t, y, 500)  # 1000 buckets: room for 4000 samples
+    assert len(tr) < len(t)
+    assert np.max(yr) == np.max(y) and np.min(yr) == np.min(y)
+
+
+@pytest.mark.parametrize(
+    "t, y",
+    [
+        (np.array([]), np.array([])),
+        (np.full(10_000, 3.0), np.arange(10_000.0)),  # one instant: nothing to reduce
+    ],
+)
+def test_an_empty_line_or_a_single_instant_is_drawn_as_it_is(t, y):
+    tr, yr = line_points(t, y, 10)
+    np.testing.assert_array_equal(tr, t)
+    np.testing.assert_array_equal(yr, y)
+
+
+def test_lists_of_integers_and_a_narrow_axes_are_accepted():
+    tr, yr = line_points(list(range(10_000)), [k % 7 for k in range(10_000)], 0.5)
+    assert tr.dtype == yr.dtype == np.float64
+    assert len(tr) <= 4 * BUCKETS_PER_PIXEL and (yr.min(), yr.max()) == (0.0, 6.0)
