@@ -175,3 +175,11 @@ def test_lists_of_integers_and_a_narrow_axes_are_accepted():
     tr, yr = line_points(list(range(10_000)), [k % 7 for k in range(10_000)], 0.5)
     assert tr.dtype == yr.dtype == np.float64
     assert len(tr) <= 4 * BUCKETS_PER_PIXEL and (yr.min(), yr.max()) == (0.0, 6.0)
+
+
+def test_an_axes_width_is_the_figure_width_at_the_dpi_over_the_columns():
+    from matplotlib.figure import Figure
+
+    from drake_att.analysis.plot_lines import axes_width_px
+
+    assert axes_width_px(Figure(figsize=(15, 4)), 3, 110.0) == pytest.approx(15 * 110 / 3)
