@@ -6,6 +6,7 @@ checkouts in one run, with their records and statistics compared bit for bit::
     git worktree add --detach /tmp/wt_old <old commit>
     .venv/bin/python benchmarks/bench_campaign.py --old /tmp/wt_old              # 20 runs x 2 cases
     .venv/bin/python benchmarks/bench_campaign.py --runs 4 --duration 1000       # quick, this checkout only
+    .venv/bin/python benchmarks/bench_campaign.py --old /tmp/wt_old --case ten_hz --report   # and the report's CPU
 
 Cases (``bench_peer.py``'s):
 
@@ -21,6 +22,8 @@ timed campaigns each checkout runs a 2-run 20-s one (numba's on-disk kernel cach
 Sides alternate within each round. Printed per case: CPU seconds per side, runs per
 CPU-second, new / old, and whether every record (``runs/seed_*.npz``; the metrics' wall time
 aside) and ``summary.json`` (the campaign's wall time and folder paths aside) are identical.
+With ``--report``, each side also resumes a copy of the new side's campaign with every run
+saved: its CPU is start-up, reading the records, the summary and the report.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -44,15 +48,16 @@ SCENARIO = {"single": "cubesat_single_star_tracker", "ten_hz": "cubesat_single_s
 DEFAULT_CASES = ("single", "ten_hz")  # "dual": --case dual or all
 
 
-def campaign(tree: str, case: str, runs: int, duration: float | None, out: str) -> float:
-    """Runs one serial campaign of ``case`` from checkout ``tree`` into ``out``; returns its
-    process CPU seconds (user + system). A ``duration`` below 1000 s scores from its middle."""
+def campaign(tree: str, case: str, runs: int, duration: float | None, out: str, resume: bool = False) -> float:
+    """Runs one serial campaign of ``case`` from checkout ``tree`` into ``out`` (``resume``: the
+    campaign saved there, ``--resume``); returns its process CPU seconds (user + system). A
+    ``duration`` below 1000 s scores from its middle."""
     sets = list(CASES[case])
     if duration:
         sets += [f"duration_s={duration:g}"] + ([f"scoring.score_from_s={duration / 2:g}"] if duration < 1000 else [])
     scenario = SCENARIO.get(case, "cubesat_dual_star_tracker")
     cmd = [sys.executable, "-m", "drake_att.cli", "montecarlo", scenario, "--runs", str(runs), "--workers", "1"]
-    cmd += ["--out", out, "--quiet"] + [a for s in sets for a in ("--set", s)]
+    cmd += ["--out", out, "--quiet"] + [a for s in sets for a in ("--set", s)] + (["--resume"] if resume else [])
     env = dict(os.environ, PYTHONPATH=tree, MPLBACKEND="Agg")
     proc = subprocess.Popen(cmd, cwd=tree, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -60,6 +65,16 @@ def campaign(tree: str, case: str, runs: int, duration: float | None, out: str) 
     if os.waitstatus_to_exitcode(status) != 0:
         raise SystemExit(f"campaign {case} in {tree} failed:\n{err}")
     return usage.ru_utime + usage.ru_stime
+
+
+def report_only(tree: str, case: str, runs: int, duration: float | None, saved: str, out: str) -> float:
+    """CPU seconds of ``campaign`` resumed from a copy of the runs saved in ``saved`` (every
+    run reused): start-up, reading the records, the summary and the report."""
+    os.makedirs(out)
+    for name in ("config.yaml", "campaign.json"):
+        shutil.copy(os.path.join(saved, name), out)
+    shutil.copytree(os.path.join(saved, "runs"), os.path.join(out, "runs"))
+    return campaign(tree, case, runs, duration, out, resume=True)
 
 
 def _record_values(path: str) -> dict:
@@ -116,6 +131,9 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--duration", type=float, default=None, help="simulated seconds per run (default: shipped 5000)")
     ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument(
+        "--report", action="store_true", help="also each side's campaign resumed with every run saved (summary, report)"
+    )
     args = ap.parse_args(argv)
     if args.runs < 1 or args.rounds < 1 or (args.duration is not None and not args.duration > 0):
         ap.error(f"--runs {args.runs}, --rounds {args.rounds}, --duration {args.duration}: need >= 1, >= 1, > 0")
@@ -146,6 +164,15 @@ def main(argv=None) -> int:
                 diff = differences(os.path.join(tmp, f"{case}_old_0"), os.path.join(tmp, f"{case}_new_0"))
                 verdict = "records and summary identical" if not diff else f"DIFFER: {diff[:6]}"
                 print(f"  throughput new / old: {best['old'] / best['new']:.2f}x; {verdict}")
+            if args.report:
+                saved = os.path.join(tmp, f"{case}_new_0")  # the same records for both sides
+                report = {
+                    side: report_only(
+                        tree, case, args.runs, args.duration, saved, os.path.join(tmp, f"{case}_{side}_resumed")
+                    )
+                    for side, tree in sides.items()
+                }
+                print("  resumed, every run saved: " + ", ".join(f"{side} {c:.2f} s" for side, c in report.items()))
     return 0
 
 

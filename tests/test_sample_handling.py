@@ -110,12 +110,17 @@ def _turning_truth(w_B, q0, q_BS):
     return q_IS
 
 
+SIGMAS = SIGMA * np.array([1.0, 2.0, 3.0])
+
+
 @pytest.mark.parametrize("compiled", LOOPS)
-def test_a_late_sample_is_the_on_time_sample_with_the_rate_uncertainty_over_the_gap(compiled):
+@pytest.mark.parametrize("noise", ["covariance", "per-axis sigmas"])
+def test_a_late_sample_is_the_on_time_sample_with_the_rate_uncertainty_over_the_gap(compiled, noise):
     """A body turning at a constant rate measured exactly and a zero bias estimate: the sample
     of ``t - 0.05`` carried forward is the sample of ``t``; its noise grows by the largest bias
     variance times the gap squared. The filter with the late sample equals the filter given the
-    on-time sample with that noise."""
+    on-time sample with that noise, whether the sensor's noise is a covariance or per-axis
+    sigmas (variances ``sigma**2``)."""
     w_B = np.array([0.02, -0.01, 0.03])
     q0 = rot.rpy_to_quat([0.3, -0.2, 1.0])
     q_BS = rot.rpy_to_quat([0.5, 0.2, -0.7])
@@ -125,10 +130,9 @@ def test_a_late_sample_is_the_on_time_sample_with_the_rate_uncertainty_over_the_
     init = core.initial_state(q0, np.zeros(3), 20 * ARCSEC, bias_sigma)
     gap = 0.05
     extra = bias_sigma**2 * gap**2
-    late, late_ctx = _system(
-        core, init, [QuaternionSensorModel("st", q_BS, np.eye(3) * SIGMA**2)], compiled, max_time_tag_lag_s=0.1
-    )
-    cov = np.eye(3) * (SIGMA**2 + extra)
+    noise_S = np.diag(SIGMAS**2) if noise == "covariance" else SIGMAS
+    late, late_ctx = _system(core, init, [QuaternionSensorModel("st", q_BS, noise_S)], compiled, max_time_tag_lag_s=0.1)
+    cov = np.diag(SIGMAS**2) + extra * np.eye(3)
     on_time, on_time_ctx = _system(core, init, [QuaternionSensorModel("st", q_BS, cov)], compiled)
     for system, context in ((late, late_ctx), (on_time, on_time_ctx)):  # t = 0: no usable sample
         _step(system, context, 0.0, {"gyro_measurement": [0.0, 1.0, *w_B], "q_meas_st": [0.0, 0.0, 1, 0, 0, 0]})
