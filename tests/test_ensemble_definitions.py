@@ -955,3 +955,43 @@ def test_summary_bound_block_from_the_records_bound_variances():
     np.testing.assert_allclose(
         hist["bound_attitude_sigma_deg"], np.sqrt(np.mean(bs[:, :, :3] ** 2, axis=0)) / DEG, rtol=1e-12
     )
+
+
+# -- the times every run has ------------------------------------------------------------------
+def _times_of_every_run(time_lists):
+    """The times (whole microseconds) that every run has: a set intersection."""
+    sets = [{round(t * 1e6) for t in ts} for ts in time_lists]
+    return sorted(set.intersection(*sets))
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "the same grid",
+        "gaps and extra samples",
+        "the first run shortest",
+        "jitter under half a microsecond",
+        "a repeated time in every run",
+    ],
+)
+def test_common_times_are_the_times_every_run_has(case):
+    from drake_att.analysis.ensemble import common_times
+
+    rng = np.random.default_rng(len(case))
+    grid = np.round(np.arange(0.0, 50.0, 0.1), 6)
+    runs = [grid.copy() for _ in range(5)]
+    if case == "gaps and extra samples":
+        runs = [np.sort(np.r_[np.delete(grid, rng.choice(grid.size, 40, replace=False)), 50.05 + k]) for k in range(5)]
+        runs[3] = grid.copy()  # a full run between gapped ones
+    elif case == "the first run shortest":
+        runs[0] = grid[:100]
+    elif case == "jitter under half a microsecond":
+        runs = [grid + rng.uniform(-0.4e-6, 0.4e-6, grid.size) for _ in range(5)]
+    elif case == "a repeated time in every run":
+        runs = [np.sort(np.r_[grid, grid[7]]) for _ in range(5)]
+    records = [{"e__t": ts} for ts in runs]
+    t, idx = common_times(records, "e")
+    expected = _times_of_every_run(runs)
+    np.testing.assert_allclose(t, np.array(expected) * 1e-6, rtol=0, atol=1e-12)
+    for ts, i in zip(runs, idx, strict=True):
+        np.testing.assert_allclose(ts[i], t, rtol=0, atol=0.5e-6)

@@ -381,8 +381,14 @@ def common_times(records, name):
     """Indices into each record's times of the times every record has (rounded to 1 us)."""
     keys = [np.round(np.asarray(r[f"{name}__t"], dtype=float) / _TOL).astype(np.int64) for r in records]
     common = keys[0]
+    increasing = None  # whether ``common`` is strictly increasing (computed when first needed)
     for k in keys[1:]:
+        if common.shape == k.shape and np.array_equal(common, k):
+            increasing = bool(np.all(np.diff(common) > 0)) if increasing is None else increasing
+            if increasing:  # the same times as every record so far (a campaign's usual case)
+                continue
         common = np.intersect1d(common, k)
+        increasing = True  # intersect1d's result is sorted and unique
     return common * _TOL, [np.searchsorted(k, common) for k in keys]
 
 
