@@ -5,10 +5,11 @@ at most a few points per pixel column. Rasterizing every segment is most of a re
 (Agg draws each one). :func:`line_points` keeps, for every time bucket narrower than half a
 pixel, the samples that decide what the column shows: the first, the smallest, the largest and
 the last (M4 aggregation: U. Jugel et al., "M4: a visualization-oriented time series data
-aggregation", PVLDB 7(10), 2014). Each column's drawn line then spans the same values as the
-full series', and gaps (NaN) stay gaps with the finite samples on both sides of each kept
-(written here: ``tsdownsample``'s NaN-aware M4 keeps a NaN instead of a bucket's finite
-extremes).
+aggregation", PVLDB 7(10), 2014). Where the buckets split the axes' columns evenly, each
+column's drawn line spans exactly the values of the full series'; otherwise a bucket that
+straddles a column edge may lend its extreme to the neighbouring column, half a pixel away at
+most. Gaps (NaN) stay gaps, with the finite samples on both sides of each kept (written here:
+``tsdownsample``'s NaN-aware M4 keeps a NaN instead of a bucket's finite extremes).
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ import math
 
 import numpy as np
 
-#: Time buckets per pixel column of the axes: 2 puts two whole buckets in every column (the
-#: columns' edges are bucket edges), so a column's extremes are those of its samples.
+#: Time buckets per pixel of the width given: buckets at most half a pixel wide (callers pass an
+#: upper bound of the axes' width, so the real columns hold two buckets or more).
 BUCKETS_PER_PIXEL = 2
 
 
