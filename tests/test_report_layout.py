@@ -464,3 +464,51 @@ def test_a_runs_error_figures_keep_texts_inside_and_the_legend_off_the_plots():
         FigureCanvasAgg(fig)  # what savefig uses
         _assert_laid_out(fig)
         assert [ax.get_legend() for ax in fig.axes] == [None] * len(fig.axes)  # the figure's legend, below
+
+
+def test_error_figure_lines_keep_every_pixel_columns_extremes():
+    """Long runs are drawn reduced (drake_att.analysis.plot_lines): in the saved figure's pixel
+    columns each run's drawn line reaches the run's largest and smallest error of that column,
+    to the half pixel a bucket may straddle, and holds far fewer points than the run."""
+    from drake_att.analysis import campaign_report
+
+    rng = np.random.default_rng(11)
+    n = 20_000
+    t = np.arange(n) * 0.25
+    records = []
+    for _ in range(3):
+        d = np.deg2rad(1e-3) * np.cumsum(rng.standard_normal((n, 3)), axis=0)
+        sig = np.full((n, 6), np.deg2rad(0.05))
+        records.append({f"{NAME}__t": t, f"{NAME}__dtheta": d, f"{NAME}__sigma": sig})
+    fig = campaign_report.error_ensemble_figure(records, NAME, 0.0, "t")
+    fig.set_dpi(campaign_report.FIGURE_DPI)
+    fig.draw_without_rendering()
+    runs = _lines(fig, f"error, {len(records)} of {len(records)} runs")
+    assert len(runs) == 3  # the label is on each axis' first run
+    for ax in fig.axes:
+        lines = [line for line in ax.get_lines() if line.get_color() == "tab:blue"]
+        if not lines:
+            continue
+        i = [k for k, name in enumerate(campaign_report.AXES) if name in ax.get_title()][0]
+        x0, x1 = ax.transData.transform([[t[0], 0.0], [t[-1], 0.0]])[:, 0]
+        for j, line in enumerate(lines):
+            drawn_t, drawn_y = np.asarray(line.get_xdata()), np.asarray(line.get_ydata())
+            assert len(drawn_t) < n / 4
+            full_y = np.rad2deg(records[j][f"{NAME}__dtheta"][:, i])
+            columns = int(np.ceil(x1 - x0))
+
+            def column(times, x0=x0, x1=x1, columns=columns):
+                return np.minimum(((times - t[0]) / (t[-1] - t[0]) * (x1 - x0)).astype(int), columns - 1)
+
+            full_c, drawn_c = column(t), column(drawn_t)
+            hi = np.full(columns, -np.inf)
+            lo = np.full(columns, np.inf)
+            drawn_hi, drawn_lo = hi.copy(), lo.copy()
+            np.maximum.at(hi, full_c, full_y)
+            np.minimum.at(lo, full_c, full_y)
+            np.maximum.at(drawn_hi, drawn_c, drawn_y)
+            np.minimum.at(drawn_lo, drawn_c, drawn_y)
+            near = lambda v, pick: pick(np.stack([np.r_[v[:1], v[:-1]], v, np.r_[v[1:], v[-1:]]]), axis=0)  # noqa: E731
+            eps = 1e-12 * np.max(np.abs(full_y))  # deg from rad: the figure divides, this test multiplies
+            assert np.all(near(drawn_hi, np.max) >= hi - eps) and np.all(drawn_hi <= near(hi, np.max) + eps)
+            assert np.all(near(drawn_lo, np.min) <= lo + eps) and np.all(drawn_lo >= near(lo, np.min) - eps)
