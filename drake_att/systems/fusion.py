@@ -199,9 +199,6 @@ class StarTrackerAverage(LeafSystem):
 
     def _calc(self, context, output: BasicVector):
         meas = [p.Eval(context).tolist() for p in self._ports]  # type: ignore[attr-defined]  # pydrake stub
-        if self.realizations == 1:
-            output.SetFromVector(self._sample(meas))  # type: ignore[arg-type]  # pydrake stub
-            return
         size, values = QUATERNION_MEASUREMENT_SIZE, []
         for i in range(self.realizations):
             values += self._sample([m[i * size : (i + 1) * size] for m in meas])
@@ -400,15 +397,10 @@ class EstimateFusion(LeafSystem):
             out[i, STATUS] = _fused_status(statuses)
         return out.ravel()
 
-    def _cross_covariance(self, context):
-        """``P_12`` at the step of the current inputs: the stored one, advanced once if the
-        sources have taken a step since (NaN if the sources disagree on the step)."""
-        x = context.get_discrete_state(self._cross_index).value()
-        l1, l2 = (p.Eval(context) for p in self._lin_ports)
-        return _advanced_cross_covariance(x, l1, l2)
-
     def _cross_covariances(self, context) -> list:
-        """:meth:`_cross_covariance` of every realization: ``[(P_12, step), ...]``."""
+        """``[(P_12, step), ...]`` per realization: ``P_12`` at the step of the current inputs,
+        the stored one advanced once if the sources have taken a step since (NaN if the sources
+        disagree on the step)."""
         N = self.realizations
         x = np.reshape(context.get_discrete_state(self._cross_index).value(), (N, 37))
         l1, l2 = (np.reshape(p.Eval(context), (N, 109)) for p in self._lin_ports)  # type: ignore[call-overload]
@@ -426,19 +418,16 @@ class EstimateFusion(LeafSystem):
         return EventStatus.Succeeded()
 
     def _advance_cross(self, context, discrete_state):
-        if self.realizations == 1:
-            P12, steps = self._cross_covariance(context)
-            value = np.concatenate([P12.ravel(), [steps]])
-        else:
-            value = np.concatenate(
-                [np.concatenate([P12.ravel(), [steps]]) for P12, steps in self._cross_covariances(context)]
-            )
+        value = np.concatenate(
+            [np.concatenate([P12.ravel(), [steps]]) for P12, steps in self._cross_covariances(context)]
+        )
         discrete_state.get_mutable_vector(self._cross_group).SetFromVector(value)
         return EventStatus.Succeeded()
 
     def _cov(self, context, weights, configured):
         P = [p.Eval(context) for p in self._cov_ports]  # (36,) each
-        P12 = self._cross_covariance(context)[0] if configured and self.covariance_model == "tracked" else None
+        tracked = configured and self.covariance_model == "tracked"
+        P12 = self._cross_covariances(context)[0][0] if tracked else None  # a system alone: one realization
         return self._fused_covariance(P, weights, configured, P12)
 
     def _fused_covariance(self, P: list, weights, configured: bool, P12):
