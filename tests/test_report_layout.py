@@ -512,3 +512,31 @@ def test_error_figure_lines_keep_every_pixel_columns_extremes():
             eps = 1e-12 * np.max(np.abs(full_y))  # deg from rad: the figure divides, this test multiplies
             assert np.all(near(drawn_hi, np.max) >= hi - eps) and np.all(drawn_hi <= near(hi, np.max) + eps)
             assert np.all(near(drawn_lo, np.min) <= lo + eps) and np.all(drawn_lo >= near(lo, np.min) - eps)
+
+
+def test_error_figure_envelopes_are_plus_and_minus_three_sigma():
+    """Each panel's filter and bound envelopes are drawn at +3 sigma and at -3 sigma (the
+    records' sigma is 0.001 deg everywhere, the bound's 1.0001 times it)."""
+    from drake_att.analysis import campaign_report
+
+    fig = campaign_report.error_ensemble_figure(_records(n=6000), NAME, 300.0, "t")
+    for ax in [ax for ax in fig.axes if ax.get_lines()]:
+        for style, value in ((campaign_report.FILTER_STYLE, 0.003), (campaign_report.BOUND_STYLE, 0.0030003)):
+            ys = [np.asarray(ln.get_ydata()) for ln in ax.get_lines() if ln.get_linewidth() == style["lw"]]
+            assert len(ys) == 2, ax.get_title()
+            np.testing.assert_allclose(sorted(float(np.mean(y)) for y in ys), [-value, value], rtol=1e-9)
+
+
+def test_consistency_and_rmse_history_lines_hold_every_point_of_a_short_history(campaign, longest_name):
+    """A history shorter than a few points per pixel is drawn as it is: the ANEES line and the
+    RMS-over-runs line hold every instant of the summary's history."""
+    from drake_att.analysis import campaign_report
+
+    stats = campaign.summary["estimators"][longest_name]
+    n = len(stats["history"]["t"])
+    consistency = campaign_report.consistency_figure(campaign.records, longest_name, stats, "c")
+    anees = _lines(consistency, f"ANEES over {stats['n_runs']} runs (dof {stats['nees_dof']})")
+    rmse = _lines(campaign_report.rmse_vs_bound_figure(campaign.summary, "r"), longest_name)
+    assert n > 8 * 2 and len(anees) == 1 and len(rmse) == 1
+    np.testing.assert_array_equal(anees[0].get_xdata(), np.asarray(stats["history"]["t"], dtype=float))
+    assert len(rmse[0].get_xdata()) == n
